@@ -1,0 +1,282 @@
+"""`mocapdb build`: BVH clips → universal skeleton → yaw projections → MDS → k-means → database.
+
+Stage costs (N projections, F frames, V yaws, L landmarks, K clusters, d dims, I iterations):
+reading and retargeting O(F·source joints); projection O(F·V); landmark MDS O(N·L·14);
+k-means O(I·N·K·d); writing O(N). ``tools/bench_build.py`` prints how each grows with N.
+"""
+from __future__ import annotations
+
+import fnmatch
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from . import __version__
+from .bvh import BvhError, read_bvh
+from .database import MotionDatabase, write_database
+from .embedding import kmeans, landmark_mds, representatives
+from .geometry import Camera, normalize_pose_2d, project_views
+from .joint_map import JointMapError, detect_mapping, extract_keypoints, load_joint_map_file
+from .skeleton import (ANKLE_HEIGHT_M, BONE_LENGTHS_M, KEYPOINTS, KP, N_KEYPOINTS_2D, PELVIS,
+                       RIG_JOINTS, resample, retarget)
+
+CREDIT_FILE = "CREDIT.txt"
+PROJECTION_CHUNK_FRAMES = 2000
+
+
+class BuildError(RuntimeError):
+    """A build that cannot go on; the message says why."""
+
+
+@dataclass
+class BuildConfig:
+    """Parameters of a database build (defaults are the method's)."""
+
+    fps: float = 24.0
+    yaw_step_deg: float = 12.0
+    camera: Camera = field(default_factory=Camera)
+    clusters: int = 500
+    dims: int = 5
+    seed: int = 0
+    landmarks: int = 2000
+    workers: int = 1
+    strict: bool = False
+    joint_map: Path | None = None
+    unit: str | None = None
+    up_axis: str | None = None
+    credit: str | None = None
+
+    @property
+    def yaws_deg(self) -> np.ndarray:
+        n = int(round(360.0 / self.yaw_step_deg))
+        if n < 1 or abs(n * self.yaw_step_deg - 360.0) > 1e-6:
+            raise BuildError(f"--yaw-step {self.yaw_step_deg} does not divide 360 degrees")
+        return np.arange(n) * self.yaw_step_deg
+
+
+@dataclass
+class Clip:
+    """One source clip on the universal skeleton at the database frame rate."""
+
+    name: str
+    source: str
+    source_fps: float
+    convention: str
+    credit: str
+    quaternions: np.ndarray  # [F, R, 4]
+    positions: np.ndarray    # [F, 15, 3] metres, y up, floor at y = 0
+
+
+@dataclass
+class BuildSummary:
+    clips: int = 0
+    frames: int = 0
+    projections: int = 0
+    clusters: int = 0
+    skipped: list[tuple[str, str]] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)
+    bytes_on_disk: int = 0
+
+    def report(self) -> str:
+        lines = [f"clips {self.clips}, frames {self.frames}, projections {self.projections}, "
+                 f"clusters {self.clusters}, size on disk {self.bytes_on_disk / 1e6:.1f} MB"]
+        lines += [f"  {stage:<12} {sec:8.2f} s" for stage, sec in self.seconds.items()]
+        lines.append(f"  {'total':<12} {sum(self.seconds.values()):8.2f} s")
+        lines += [f"skipped {path}: {why}" for path, why in self.skipped]
+        return "\n".join(lines)
+
+
+def find_sources(sources: list[str], exclude: list[str] = ()) -> list[tuple[Path, Path]]:
+    """BVH files named or found (recursively) under ``sources``, minus ``exclude`` glob patterns.
+
+    Returns sorted ``(file, source_root)`` pairs; a pattern matches the file name or its path.
+    """
+    found: dict[Path, Path] = {}
+    for src in sources:
+        root = Path(src)
+        if root.is_dir():
+            files = [p for p in root.rglob("*") if p.suffix.lower() == ".bvh" and p.is_file()]
+        elif root.is_file():
+            files, root = [root], root.parent
+        else:
+            raise BuildError(f"source {src!r} is neither a BVH file nor a folder")
+        for f in files:
+            if not any(fnmatch.fnmatch(f.name, pat) or fnmatch.fnmatch(str(f), pat) for pat in exclude):
+                found.setdefault(f, root)
+    return sorted(found.items())
+
+
+def credit_for(path: Path, root: Path, given: str | None) -> str:
+    """``given``, else the nearest CREDIT.txt from the file's folder up to its source root."""
+    if given is not None:
+        return given
+    folder = path.parent
+    while True:
+        candidate = folder / CREDIT_FILE
+        if candidate.is_file():
+            return candidate.read_text(encoding="utf-8").strip()
+        if folder == root or folder == folder.parent or root not in folder.parents:
+            return ""
+        folder = folder.parent
+
+
+def process_clip(path: Path, root: Path, config: BuildConfig) -> Clip:
+    """Read, map, resample and retarget one BVH file (raises BvhError or JointMapError)."""
+    bvh = read_bvh(path)
+    overrides = load_joint_map_file(config.joint_map) if config.joint_map else None
+    mapping = detect_mapping(bvh, overrides.joints if overrides else None)
+    unit = config.unit or (overrides.unit if overrides else None)
+    up_axis = config.up_axis or (overrides.up_axis if overrides else None)
+    points = extract_keypoints(bvh, mapping, unit=unit, up_axis=up_axis)
+    points = resample(points, bvh.fps, config.fps)
+    if len(points) < 2:
+        raise BvhError(f"{path}: shorter than two frames at {config.fps} fps")
+    scale = _leg_scale(points)
+    quats, positions = retarget(points * scale)
+    ankles = positions[:, [KP["r_ankle"], KP["l_ankle"]], 1]
+    positions[..., 1] -= ankles.min() - ANKLE_HEIGHT_M
+    return Clip(path.stem, str(path), bvh.fps, mapping.convention, credit_for(path, root, config.credit),
+                quats.astype(np.float32), positions.astype(np.float32))
+
+
+def _leg_scale(points: np.ndarray) -> float:
+    """Universal over source leg length (hip→knee→ankle, median over the clip), for root motion."""
+    legs = []
+    for side in ("r", "l"):
+        hip, knee, ankle = (points[:, KP[f"{side}_{j}"]] for j in ("hip", "knee", "ankle"))
+        legs.append(np.linalg.norm(knee - hip, axis=-1) + np.linalg.norm(ankle - knee, axis=-1))
+    return (BONE_LENGTHS_M["thigh"] + BONE_LENGTHS_M["shin"]) / float(np.median(np.concatenate(legs)))
+
+
+def _process_one(args: tuple[Path, Path, BuildConfig]) -> Clip | tuple[str, str]:
+    path, root, config = args
+    try:
+        return process_clip(path, root, config)
+    except (BvhError, JointMapError, ValueError) as exc:
+        return (str(path), str(exc))
+
+
+def load_clips(files: list[tuple[Path, Path]], config: BuildConfig,
+               summary: BuildSummary) -> list[Clip]:
+    """Process every file (in ``config.workers`` processes); unreadable ones go to ``summary.skipped``."""
+    jobs = [(path, root, config) for path, root in files]
+    bar = tqdm(total=len(jobs), desc="read+retarget", unit="clip", disable=None, file=sys.stderr)
+    results = []
+    if config.workers > 1 and len(jobs) > 1:
+        with ProcessPoolExecutor(max_workers=config.workers) as pool:
+            for res in pool.map(_process_one, jobs):
+                results.append(res)
+                bar.update()
+    else:
+        for job in jobs:
+            results.append(_process_one(job))
+            bar.update()
+    bar.close()
+    clips = [r for r in results if isinstance(r, Clip)]
+    summary.skipped = [r for r in results if not isinstance(r, Clip)]
+    if summary.skipped and config.strict:
+        raise BuildError("--strict: " + "; ".join(f"{p}: {why}" for p, why in summary.skipped))
+    if not clips:
+        raise BuildError("no readable BVH clip among the sources")
+    return clips
+
+
+def project_all(positions: np.ndarray, config: BuildConfig) -> np.ndarray:
+    """Normalised 2D poses ``[F·V, 14, 2]`` (frame-major) of every frame from every yaw."""
+    yaws = config.yaws_deg
+    out = np.empty((len(positions) * len(yaws), N_KEYPOINTS_2D, 2), dtype=np.float32)
+    bar = tqdm(total=len(positions), desc="project", unit="frame", disable=None, file=sys.stderr)
+    for start in range(0, len(positions), PROJECTION_CHUNK_FRAMES):
+        chunk = positions[start:start + PROJECTION_CHUNK_FRAMES].astype(np.float64)
+        pixels = project_views(chunk, chunk[:, PELVIS], yaws, 0.0, config.camera)
+        normalised, _, _ = normalize_pose_2d(pixels[..., :N_KEYPOINTS_2D, :])
+        out[start * len(yaws):(start + len(chunk)) * len(yaws)] = normalised.reshape(-1, N_KEYPOINTS_2D, 2)
+        bar.update(len(chunk))
+    bar.close()
+    return out
+
+
+def _embed_and_cluster(keypoints_2d: np.ndarray, config: BuildConfig, summary: BuildSummary):
+    t0 = time.perf_counter()
+    bar = tqdm(total=len(keypoints_2d), desc="embed (MDS)", unit="pose", disable=None, file=sys.stderr)
+    embedding = landmark_mds(keypoints_2d, dims=config.dims, n_landmarks=config.landmarks,
+                             seed=config.seed, progress=bar.update)
+    bar.close()
+    t1 = time.perf_counter()
+    k = min(config.clusters, len(keypoints_2d))
+    bar = tqdm(total=None, desc="k-means", unit="iter", disable=None, file=sys.stderr)
+    centroids, labels = kmeans(embedding, k, seed=config.seed, progress=lambda it, shift: bar.update())
+    bar.close()
+    reps = representatives(embedding, labels, centroids)
+    summary.seconds["embed"] = t1 - t0
+    summary.seconds["cluster"] = time.perf_counter() - t1
+    return embedding, centroids, labels, reps
+
+
+def assemble(clips: list[Clip], keypoints_2d: np.ndarray, embedding: np.ndarray, centroids: np.ndarray,
+             labels: np.ndarray, reps: np.ndarray, config: BuildConfig) -> MotionDatabase:
+    """The database tables of a finished build."""
+    n_frames = np.array([len(c.positions) for c in clips])
+    n_yaws = len(config.yaws_deg)
+    total = int(n_frames.sum())
+    return MotionDatabase(
+        meta=_meta(config),
+        clip_name=[c.name for c in clips], clip_source=[c.source for c in clips],
+        clip_source_fps=np.array([c.source_fps for c in clips]),
+        clip_n_frames=n_frames.astype(np.int32),
+        clip_first_frame=np.concatenate([[0], np.cumsum(n_frames)[:-1]]).astype(np.int64),
+        clip_convention=[c.convention for c in clips], clip_credit=[c.credit for c in clips],
+        frame_clip=np.repeat(np.arange(len(clips), dtype=np.int32), n_frames),
+        frame_index=np.concatenate([np.arange(n, dtype=np.int32) for n in n_frames]),
+        quaternions=np.concatenate([c.quaternions for c in clips]),
+        positions=np.concatenate([c.positions for c in clips]),
+        proj_frame=np.repeat(np.arange(total, dtype=np.int64), n_yaws),
+        proj_yaw=np.tile(np.arange(n_yaws, dtype=np.int16), total),
+        keypoints_2d=keypoints_2d, embedding=embedding.astype(np.float32),
+        cluster=labels.astype(np.int32), centroids=centroids.astype(np.float32),
+        representative=reps.astype(np.int64),
+        cluster_size=np.bincount(labels, minlength=len(centroids)).astype(np.int32),
+    )
+
+
+def _meta(config: BuildConfig) -> dict:
+    return {
+        "fps": config.fps, "yaw_step_deg": config.yaw_step_deg,
+        "yaws_deg": config.yaws_deg.tolist(), "camera": asdict(config.camera),
+        "dims": config.dims, "n_clusters": config.clusters, "seed": config.seed,
+        "landmarks": config.landmarks, "builder_version": __version__,
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "skeleton": {"keypoints": list(KEYPOINTS), "rig_joints": list(RIG_JOINTS),
+                     "bone_lengths_m": BONE_LENGTHS_M},
+    }
+
+
+def build(sources: list[str], out: str | os.PathLike, config: BuildConfig,
+          exclude: list[str] = ()) -> BuildSummary:
+    """Build a database at ``out`` from BVH files and folders; returns the summary."""
+    summary = BuildSummary()
+    t0 = time.perf_counter()
+    files = find_sources(sources, exclude)
+    if not files:
+        raise BuildError(f"no .bvh file found in {', '.join(sources)}")
+    config.yaws_deg  # validate the yaw step before the long work
+    clips = load_clips(files, config, summary)
+    t1 = time.perf_counter()
+    positions = np.concatenate([c.positions for c in clips])
+    keypoints_2d = project_all(positions, config)
+    summary.seconds.update({"read": t1 - t0, "project": time.perf_counter() - t1})
+    embedding, centroids, labels, reps = _embed_and_cluster(keypoints_2d, config, summary)
+    t2 = time.perf_counter()
+    db = assemble(clips, keypoints_2d, embedding, centroids, labels, reps, config)
+    summary.bytes_on_disk = write_database(db, out)
+    summary.seconds["write"] = time.perf_counter() - t2
+    summary.clips, summary.frames = db.n_clips, db.n_frames
+    summary.projections, summary.clusters = db.n_projections, db.n_clusters
+    return summary

@@ -1,0 +1,7 @@
+"""The errors a user can cause (bad files, bad options); the CLI prints them without a traceback."""
+from .builder import BuildError
+from .bvh import BvhError
+from .database import DatabaseError
+from .joint_map import JointMapError
+
+USER_ERRORS: tuple[type[Exception], ...] = (BuildError, BvhError, DatabaseError, JointMapError, OSError)

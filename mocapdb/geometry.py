@@ -1,0 +1,225 @@
+"""Rotations, quaternions, cameras and 2D pose normalisation, shared by builder, runtime and stereo.
+
+Conventions (see ``data_specs/skeleton.md``):
+
+* quaternions are ``(w, x, y, z)`` arrays, unit length, acting on column vectors;
+* rotation matrices act on column vectors: ``p_world = R @ p_local``;
+* the mocap world is right-handed, metres, y up;
+* image coordinates are pixels, x to the right, y down (as OpenPose writes them).
+
+Every function is vectorised over leading axes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
+
+
+def axis_rotation_matrices(axis: str, angles_rad: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``[..., 3, 3]`` about the X, Y or Z axis by ``angles_rad``."""
+    c, s = np.cos(angles_rad), np.sin(angles_rad)
+    out = np.zeros(np.shape(angles_rad) + (3, 3))
+    i = AXIS_INDEX[axis]
+    j, k = (i + 1) % 3, (i + 2) % 3
+    out[..., i, i] = 1.0
+    out[..., j, j] = c
+    out[..., k, k] = c
+    out[..., j, k] = -s
+    out[..., k, j] = s
+    return out
+
+
+def euler_to_matrix(angles_deg: np.ndarray, order: str) -> np.ndarray:
+    """Compose intrinsic rotations as BVH does: ``order="ZYX"`` gives ``Rz @ Ry @ Rx``.
+
+    ``angles_deg[..., i]`` is the angle in degrees about axis ``order[i]``.
+    """
+    angles = np.radians(np.asarray(angles_deg, dtype=np.float64))
+    out = np.broadcast_to(np.eye(3), angles.shape[:-1] + (3, 3)).copy()
+    for i, axis in enumerate(order):
+        out = out @ axis_rotation_matrices(axis, angles[..., i])
+    return out
+
+
+def matrix_to_euler(matrices: np.ndarray, order: str) -> np.ndarray:
+    """Inverse of :func:`euler_to_matrix` for a Tait-Bryan ``order`` (three distinct axes), degrees.
+
+    Near gimbal lock the first angle absorbs the rotation and the last is set to zero.
+    """
+    i, j, k = (AXIS_INDEX[a] for a in order)
+    sign = 1.0 if (j - i) % 3 == 1 else -1.0  # cyclic orders (XYZ, YZX, ZXY) have sign +1
+    m = np.asarray(matrices, dtype=np.float64)
+    sin_b = np.clip(sign * m[..., i, k], -1.0, 1.0)
+    b = np.arcsin(sin_b)
+    cos_b = np.sqrt(np.maximum(1.0 - sin_b**2, 0.0))
+    locked = cos_b < 1e-9
+    a = np.where(locked,
+                 np.arctan2(sign * m[..., k, j], m[..., j, j]),
+                 np.arctan2(-sign * m[..., j, k], m[..., k, k]))
+    c = np.where(locked, 0.0, np.arctan2(-sign * m[..., i, j], m[..., i, i]))
+    return np.degrees(np.stack([a, b, c], axis=-1))
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``[..., 3, 3]`` of unit quaternions ``[..., 4]`` (w, x, y, z)."""
+    q = np.asarray(q, dtype=np.float64)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    out = np.empty(q.shape[:-1] + (3, 3))
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - w * z)
+    out[..., 0, 2] = 2 * (x * z + w * y)
+    out[..., 1, 0] = 2 * (x * y + w * z)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - w * x)
+    out[..., 2, 0] = 2 * (x * z - w * y)
+    out[..., 2, 1] = 2 * (y * z + w * x)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
+
+
+def matrix_to_quat(m: np.ndarray) -> np.ndarray:
+    """Unit quaternions ``[..., 4]`` with ``w >= 0`` of rotation matrices ``[..., 3, 3]``."""
+    m = np.asarray(m, dtype=np.float64)
+    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
+    # Four candidate magnitudes; pick the largest component for numerical stability.
+    cand = np.stack([1 + trace,
+                     1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
+                     1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
+                     1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2]], axis=-1)
+    best = np.argmax(cand, axis=-1)
+    q = np.empty(m.shape[:-2] + (4,))
+    r = np.sqrt(np.maximum(np.take_along_axis(cand, best[..., None], -1)[..., 0], 1e-300))
+    s = 0.5 / r
+    d21, d02, d10 = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
+    s21, s02, s10 = m[..., 2, 1] + m[..., 1, 2], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 0] + m[..., 0, 1]
+    choices = [
+        np.stack([0.5 * r, d21 * s, d02 * s, d10 * s], -1),
+        np.stack([d21 * s, 0.5 * r, s10 * s, s02 * s], -1),
+        np.stack([d02 * s, s10 * s, 0.5 * r, s21 * s], -1),
+        np.stack([d10 * s, s02 * s, s21 * s, 0.5 * r], -1),
+    ]
+    for k in range(4):
+        q = np.where((best == k)[..., None], choices[k], q)
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a * b`` (apply ``b`` first, then ``a``)."""
+    aw, ax, ay, az = np.moveaxis(np.asarray(a, dtype=np.float64), -1, 0)
+    bw, bx, by, bz = np.moveaxis(np.asarray(b, dtype=np.float64), -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def quat_conj(q: np.ndarray) -> np.ndarray:
+    """Conjugate (the inverse of a unit quaternion)."""
+    return np.asarray(q, dtype=np.float64) * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_geodesic(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``‖log(a⁻¹ b)‖``: half the rotation angle between ``a`` and ``b`` in radians, in ``[0, π/2]``.
+
+    This is the per-joint term of Lee et al.'s skeleton distance (the method's Eq. 2); it is
+    the same for ``b`` and ``-b`` (the quaternion double cover).
+    """
+    dot = np.abs(np.sum(np.asarray(a) * np.asarray(b), axis=-1))
+    return np.arccos(np.clip(dot, 0.0, 1.0))
+
+
+def yaw_matrix(yaw_deg: np.ndarray) -> np.ndarray:
+    """Rotations ``[..., 3, 3]`` about the vertical (y) axis by ``yaw_deg`` degrees (right-handed)."""
+    return axis_rotation_matrices("Y", np.radians(np.asarray(yaw_deg, dtype=np.float64)))
+
+
+def frame_from_axes(primary: np.ndarray, secondary: np.ndarray) -> np.ndarray:
+    """Orthonormal frames ``[..., 3, 3]`` whose columns are ``(p, s', p × s')``.
+
+    ``p`` is ``primary`` normalised and ``s'`` is ``secondary`` made orthogonal to ``p`` (Gram–Schmidt).
+    """
+    p = primary / np.linalg.norm(primary, axis=-1, keepdims=True)
+    s = secondary - np.sum(secondary * p, axis=-1, keepdims=True) * p
+    s /= np.linalg.norm(s, axis=-1, keepdims=True)
+    return np.stack([p, s, np.cross(p, s)], axis=-1)
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole camera of the database projections (no lens distortion).
+
+    The camera stands ``distance_m`` in front of the subject's pelvis, ``height_m`` above the
+    floor, with a horizontal optical axis looking along the world's ``-z`` (so at yaw 0 it sees
+    a subject whose facing is ``+z`` from the front).
+    """
+
+    height_m: float = 1.5
+    distance_m: float = 4.0
+    focal_px: float = 1000.0
+    width_px: int = 1920
+    height_px: int = 1080
+
+    @property
+    def center_px(self) -> tuple[float, float]:
+        return (self.width_px / 2.0, self.height_px / 2.0)
+
+
+def camera_axes_world() -> np.ndarray:
+    """World→camera rotation of :class:`Camera` in OpenCV axes (x right, y down, z forward)."""
+    return np.diag([1.0, -1.0, -1.0])
+
+
+def project_pinhole(points_cam: np.ndarray, focal_px: float, center_px: tuple[float, float]) -> np.ndarray:
+    """Project points in OpenCV camera axes ``[..., 3]`` (metres) to pixels ``[..., 2]``."""
+    z = points_cam[..., 2:3]
+    return points_cam[..., :2] * (focal_px / z) + np.asarray(center_px)
+
+
+def project_views(positions_m: np.ndarray, pelvis_m: np.ndarray, yaws_deg: np.ndarray,
+                  floor_y_m: float, camera: Camera) -> np.ndarray:
+    """Turn each frame's skeleton about the vertical axis through its pelvis and project it.
+
+    ``positions_m [F, J, 3]`` in the mocap world, ``pelvis_m [F, 3]``; returns pixels
+    ``[F, V, J, 2]`` for the ``V`` yaws. The camera follows the pelvis horizontally (so the subject
+    stays centred) and stays ``camera.height_m`` above ``floor_y_m``.
+    """
+    rel = positions_m - pelvis_m[:, None, :]                       # [F, J, 3]
+    turned = np.einsum("vab,fjb->fvja", yaw_matrix(yaws_deg), rel)  # [F, V, J, 3]
+    cam = np.empty_like(turned)
+    cam[..., 0] = turned[..., 0]
+    cam[..., 1] = (floor_y_m + camera.height_m) - (turned[..., 1] + pelvis_m[:, None, None, 1])
+    cam[..., 2] = camera.distance_m - turned[..., 2]
+    return project_pinhole(cam, camera.focal_px, camera.center_px)
+
+
+NORMALISED_HEIGHT = 1.0  # bounding-box height of every normalised 2D pose (unitless)
+
+
+def normalize_pose_2d(points_px: np.ndarray, visible: np.ndarray | None = None,
+                      hip_indices: tuple[int, int] = (8, 11)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The method's scaling step, shared by builder and runtime.
+
+    Moves the mid-hip point to the origin and scales so the bounding box of the visible joints is
+    :data:`NORMALISED_HEIGHT` high. ``points_px [..., 14, 2]``; ``visible [..., 14]`` (default all).
+    Returns ``(normalised, origin_px [..., 2], scale [...])`` with ``normalised = (p - origin) * scale``.
+    Invisible joints are set to 0; a pose with no height (or no visible hip) gets scale 0.
+    """
+    pts = np.asarray(points_px, dtype=np.float64)
+    vis = np.ones(pts.shape[:-1], dtype=bool) if visible is None else np.asarray(visible, dtype=bool)
+    y = pts[..., 1]
+    top = np.min(np.where(vis, y, np.inf), axis=-1)
+    bottom = np.max(np.where(vis, y, -np.inf), axis=-1)
+    height = bottom - top
+    ok = np.isfinite(height) & (height > 1e-9)
+    r, l = hip_indices
+    both = vis[..., r] & vis[..., l]
+    origin = np.where(both[..., None], 0.5 * (pts[..., r, :] + pts[..., l, :]),
+                      np.where(vis[..., r, None], pts[..., r, :], pts[..., l, :]))
+    ok &= vis[..., r] | vis[..., l]
+    scale = np.where(ok, NORMALISED_HEIGHT / np.where(ok, height, 1.0), 0.0)
+    normalised = (pts - origin[..., None, :]) * scale[..., None, None]
+    return np.where(vis[..., None], normalised, 0.0), origin, scale

@@ -1,0 +1,212 @@
+"""The universal skeleton: 14 OpenPose body keypoints plus the pelvis, on one rig with fixed bones.
+
+Every database pose, runtime output and stereo capture lives on this skeleton (contract:
+``data_specs/skeleton.md``). Rest pose: a 175 cm adult in T-pose facing +z, y up, x to the
+subject's left, metres, pelvis (mid-hip) at the origin.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .bvh import Bvh, accumulate_transforms, motion_from_rotations
+from .geometry import frame_from_axes, matrix_to_quat, quat_to_matrix
+
+# The 14 keypoints in OpenPose COCO-18 order (its first 14), then the pelvis (mid-hip).
+KEYPOINTS: tuple[str, ...] = (
+    "head", "neck", "r_shoulder", "r_elbow", "r_wrist", "l_shoulder", "l_elbow", "l_wrist",
+    "r_hip", "r_knee", "r_ankle", "l_hip", "l_knee", "l_ankle", "pelvis")
+N_KEYPOINTS_2D = 14
+N_POINTS = len(KEYPOINTS)
+PELVIS = KEYPOINTS.index("pelvis")
+KP = {name: i for i, name in enumerate(KEYPOINTS)}
+
+# Bone lengths of the universal skeleton, metres (175 cm adult; ankle 8 cm above the floor).
+BONE_LENGTHS_M = {
+    "half_hip_width": 0.10,
+    "thigh": 0.43,
+    "shin": 0.42,
+    "torso": 0.52,          # pelvis (mid-hip) to neck (mid-shoulder)
+    "half_shoulder_width": 0.19,
+    "upper_arm": 0.29,
+    "forearm": 0.26,
+}
+NOSE_OFFSET_M = np.array([0.0, 0.19, 0.08])  # neck → nose in the rest pose
+ANKLE_HEIGHT_M = 0.08                         # ankle joint above the floor when standing
+
+_B = BONE_LENGTHS_M
+# Rig nodes in BVH order: (name, parent, rest offset from parent in metres, keypoint or None).
+# Nodes whose name is not a rotation joint are End Sites (the leaves nose, wrists, ankles).
+RIG_NODES: tuple[tuple[str, str | None, tuple[float, float, float], str | None], ...] = (
+    ("pelvis", None, (0.0, 0.0, 0.0), "pelvis"),
+    ("r_hip", "pelvis", (-_B["half_hip_width"], 0.0, 0.0), "r_hip"),
+    ("r_knee", "r_hip", (0.0, -_B["thigh"], 0.0), "r_knee"),
+    ("r_ankle", "r_knee", (0.0, -_B["shin"], 0.0), "r_ankle"),
+    ("l_hip", "pelvis", (_B["half_hip_width"], 0.0, 0.0), "l_hip"),
+    ("l_knee", "l_hip", (0.0, -_B["thigh"], 0.0), "l_knee"),
+    ("l_ankle", "l_knee", (0.0, -_B["shin"], 0.0), "l_ankle"),
+    ("spine", "pelvis", (0.0, 0.0, 0.0), None),
+    ("neck", "spine", (0.0, _B["torso"], 0.0), "neck"),
+    ("head", "neck", tuple(NOSE_OFFSET_M), "head"),
+    ("r_shoulder", "spine", (-_B["half_shoulder_width"], _B["torso"], 0.0), "r_shoulder"),
+    ("r_elbow", "r_shoulder", (-_B["upper_arm"], 0.0, 0.0), "r_elbow"),
+    ("r_wrist", "r_elbow", (-_B["forearm"], 0.0, 0.0), "r_wrist"),
+    ("l_shoulder", "spine", (_B["half_shoulder_width"], _B["torso"], 0.0), "l_shoulder"),
+    ("l_elbow", "l_shoulder", (_B["upper_arm"], 0.0, 0.0), "l_elbow"),
+    ("l_wrist", "l_elbow", (_B["forearm"], 0.0, 0.0), "l_wrist"),
+)
+END_SITES = ("r_ankle", "l_ankle", "head", "r_wrist", "l_wrist")
+NODE_NAMES = tuple(n[0] for n in RIG_NODES)
+NODE_PARENTS = np.array([-1 if n[1] is None else NODE_NAMES.index(n[1]) for n in RIG_NODES])
+NODE_OFFSETS_M = np.array([n[2] for n in RIG_NODES])
+# Rotation joints (those that are not End Sites), in BVH order: the rows of stored quaternions.
+RIG_JOINTS: tuple[str, ...] = tuple(n for n in NODE_NAMES if n not in END_SITES)
+N_RIG_JOINTS = len(RIG_JOINTS)
+_NODE_OF_POINT = np.array([NODE_NAMES.index(next(n[0] for n in RIG_NODES if n[3] == kp)) for kp in KEYPOINTS])
+_JOINT_NODE = np.array([NODE_NAMES.index(j) for j in RIG_JOINTS])
+
+# How each rotation joint's global frame is found from keypoints: the bone it drives (primary,
+# from→to keypoints) and a secondary direction fixing the twist, with their rest directions.
+# Secondary "bend": the next bone's direction (limb plane), falling back on the parent frame.
+_X, _Y, _Z = np.eye(3)
+_FRAME_RULES = {
+    "pelvis": (("r_hip", "l_hip"), _X, ("pelvis", "neck"), _Y),
+    "spine": (("pelvis", "neck"), _Y, ("r_shoulder", "l_shoulder"), _X),
+    "neck": (("neck", "head"), NOSE_OFFSET_M / np.linalg.norm(NOSE_OFFSET_M), ("r_shoulder", "l_shoulder"), _X),
+    "r_hip": (("r_hip", "r_knee"), -_Y, ("r_knee", "r_ankle"), -_Z),
+    "l_hip": (("l_hip", "l_knee"), -_Y, ("l_knee", "l_ankle"), -_Z),
+    "r_shoulder": (("r_shoulder", "r_elbow"), -_X, ("r_elbow", "r_wrist"), _Z),
+    "l_shoulder": (("l_shoulder", "l_elbow"), _X, ("l_elbow", "l_wrist"), _Z),
+}
+_LIMB_JOINTS = ("r_hip", "l_hip", "r_shoulder", "l_shoulder")
+_HINGE_JOINTS = {"r_knee": ("r_knee", "r_ankle"), "l_knee": ("l_knee", "l_ankle"),
+                 "r_elbow": ("r_elbow", "r_wrist"), "l_elbow": ("l_elbow", "l_wrist")}
+FALLBACK_WEIGHT = 0.2  # weight of the parent-derived twist against the limb plane (see retarget)
+
+
+def rest_positions_m() -> np.ndarray:
+    """Keypoint positions ``[15, 3]`` of the rest pose (metres, pelvis at the origin)."""
+    eye = np.broadcast_to(np.eye(3), (1, len(NODE_NAMES), 3, 3))
+    pos, _ = accumulate_transforms(NODE_PARENTS, eye, NODE_OFFSETS_M[None])
+    return pos[0, _NODE_OF_POINT]
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+
+
+def swing_matrices(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Smallest rotations ``[..., 3, 3]`` taking unit vectors ``a`` to unit vectors ``b``."""
+    v = np.cross(a, b)
+    c = np.sum(a * b, axis=-1)
+    # Opposite vectors: rotate by π about an axis perpendicular to a.
+    helper = np.where(np.abs(a[..., :1]) < 0.9, _X, _Y)
+    perp = _unit(np.cross(a, helper))
+    anti = c < -1 + 1e-9
+    k = np.zeros(a.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    r = np.eye(3) + k + k @ k / np.maximum(1.0 + c, 1e-12)[..., None, None]
+    flip = 2.0 * perp[..., :, None] * perp[..., None, :] - np.eye(3)
+    return np.where(anti[..., None, None], flip, r)
+
+
+def _point(points: np.ndarray, name: str) -> np.ndarray:
+    return points[:, KP[name]]
+
+
+def _direction(points: np.ndarray, pair: tuple[str, str]) -> np.ndarray:
+    return _unit(_point(points, pair[1]) - _point(points, pair[0]))
+
+
+def _global_rotations(points: np.ndarray) -> dict[str, np.ndarray]:
+    """Global rotation ``[F, 3, 3]`` of each rotation joint (relative to the rest pose)."""
+    glob: dict[str, np.ndarray] = {}
+    for joint in ("pelvis", "spine", "neck"):
+        prim_pair, prim_rest, sec_pair, sec_rest = _FRAME_RULES[joint]
+        pose = frame_from_axes(_direction(points, prim_pair), _direction(points, sec_pair))
+        glob[joint] = pose @ frame_from_axes(prim_rest, sec_rest).T
+    for joint in _LIMB_JOINTS:
+        prim_pair, prim_rest, sec_pair, sec_rest = _FRAME_RULES[joint]
+        parent = glob["pelvis" if joint.endswith("hip") else "spine"]
+        primary = _direction(points, prim_pair)
+        # Twist from the limb plane (the next bone), blended with the parent's frame swung onto
+        # the bone so that a straight limb keeps a defined, continuous twist.
+        carried = swing_matrices(parent @ prim_rest, primary) @ parent @ sec_rest
+        bend = _direction(points, sec_pair)
+        secondary = _reject(bend, primary) + FALLBACK_WEIGHT * _unit(_reject(carried, primary))
+        glob[joint] = frame_from_axes(primary, secondary) @ frame_from_axes(prim_rest, sec_rest).T
+    for joint, pair in _HINGE_JOINTS.items():
+        parent = glob[RIG_NODES[NODE_NAMES.index(joint)][1]]
+        rest_dir = _unit(NODE_OFFSETS_M[NODE_NAMES.index(pair[1])])
+        glob[joint] = swing_matrices(parent @ rest_dir, _direction(points, pair)) @ parent
+    return glob
+
+
+def _reject(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    return v - np.sum(v * axis, axis=-1, keepdims=True) * axis
+
+
+def retarget(points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Fit the universal skeleton to source keypoints.
+
+    ``points_m [F, 15, 3]``: source keypoints (KEYPOINTS order, metres, y up). Returns local
+    joint rotations ``[F, N_RIG_JOINTS, 4]`` (quaternions, RIG_JOINTS order) and the universal
+    skeleton's keypoints ``[F, 15, 3]``: the pelvis where the source's is, every bone with its
+    universal length along the source bone's direction (shoulders follow the torso rigidly).
+    """
+    glob = _global_rotations(points_m)
+    g = np.stack([glob[j] for j in RIG_JOINTS], axis=1)               # [F, R, 3, 3]
+    parents = [NODE_PARENTS[NODE_NAMES.index(j)] for j in RIG_JOINTS]
+    local = g.copy()
+    for r, p in enumerate(parents):
+        if p >= 0:
+            local[:, r] = np.swapaxes(g[:, RIG_JOINTS.index(NODE_NAMES[p])], -1, -2) @ g[:, r]
+    quats = matrix_to_quat(local)
+    return quats, pose_from_rotations(quats, _point(points_m, "pelvis"))
+
+
+def pose_from_rotations(quats: np.ndarray, pelvis_m: np.ndarray) -> np.ndarray:
+    """Universal keypoints ``[F, 15, 3]`` from local rotations ``[F, R, 4]`` and pelvis ``[F, 3]``."""
+    n = quats.shape[0]
+    rot = np.broadcast_to(np.eye(3), (n, len(NODE_NAMES), 3, 3)).copy()
+    rot[:, _JOINT_NODE] = quat_to_matrix(quats)
+    trans = np.broadcast_to(NODE_OFFSETS_M, (n, len(NODE_NAMES), 3)).copy()
+    trans[:, 0] = pelvis_m
+    pos, _ = accumulate_transforms(NODE_PARENTS, rot, trans)
+    return pos[:, _NODE_OF_POINT]
+
+
+def resample(points: np.ndarray, source_fps: float, target_fps: float) -> np.ndarray:
+    """Linear resampling of ``[F, ...]`` samples from ``source_fps`` to ``target_fps`` (Hz).
+
+    Sample k sits at time k / target_fps; samples past the last source frame are not made.
+    """
+    n_src = points.shape[0]
+    duration = (n_src - 1) / source_fps
+    t = np.arange(int(np.floor(duration * target_fps + 1e-9)) + 1) * (source_fps / target_fps)
+    i0 = np.minimum(np.floor(t).astype(np.int64), n_src - 1)
+    i1 = np.minimum(i0 + 1, n_src - 1)
+    w = (t - i0).reshape((-1,) + (1,) * (points.ndim - 1))
+    return points[i0] * (1.0 - w) + points[i1] * w
+
+
+BVH_ROTATION_CHANNELS = ["Zrotation", "Yrotation", "Xrotation"]
+BVH_UNITS = {"m": 1.0, "cm": 100.0}
+
+
+def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str = "m") -> Bvh:
+    """A BVH of the universal rig: root position and every joint's rotation per frame.
+
+    ``unit`` is the BVH's length unit (``"m"`` or ``"cm"``).
+    """
+    scale = BVH_UNITS[unit]
+    names = [n if n not in END_SITES else f"{RIG_NODES[NODE_NAMES.index(n)][1]}_End" for n in NODE_NAMES]
+    channels = [([] if n in END_SITES else BVH_ROTATION_CHANNELS.copy()) for n in NODE_NAMES]
+    channels[0] = ["Xposition", "Yposition", "Zposition"] + BVH_ROTATION_CHANNELS
+    skeleton = Bvh(names, NODE_PARENTS.copy(), NODE_OFFSETS_M * scale, channels,
+                   np.array([n in END_SITES for n in NODE_NAMES]), 1.0 / fps,
+                   np.zeros((quats.shape[0], 0)))
+    local = np.broadcast_to(np.eye(3), (quats.shape[0], len(NODE_NAMES), 3, 3)).copy()
+    local[:, _JOINT_NODE] = quat_to_matrix(quats)
+    skeleton.motion = motion_from_rotations(skeleton, local, pelvis_m * scale)
+    return skeleton

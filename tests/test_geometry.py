@@ -1,0 +1,99 @@
+"""Rotations against scipy, projection against OpenCV, normalisation against hand-computed cases."""
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from mocapdb.geometry import (Camera, camera_axes_world, euler_to_matrix, matrix_to_euler, matrix_to_quat,
+                              normalize_pose_2d, project_views, quat_geodesic, quat_mul, quat_to_matrix,
+                              yaw_matrix)
+
+RNG = np.random.default_rng(7)
+
+
+def _scipy_quat(r: Rotation) -> np.ndarray:
+    q = r.as_quat()[..., [3, 0, 1, 2]]
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+@pytest.mark.parametrize("order", ["ZYX", "XYZ", "ZXY", "YXZ", "YZX", "XZY"])
+def test_euler_matches_scipy_intrinsic_and_inverts(order):
+    angles = RNG.uniform(-170, 170, size=(200, 3))
+    angles[:, 1] = RNG.uniform(-85, 85, size=200)
+    mats = euler_to_matrix(angles, order)
+    np.testing.assert_allclose(mats, Rotation.from_euler(order, angles, degrees=True).as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(euler_to_matrix(matrix_to_euler(mats, order), order), mats, atol=1e-9)
+
+
+def test_quaternions_match_scipy():
+    r = Rotation.random(500, random_state=3)
+    q = _scipy_quat(r)
+    np.testing.assert_allclose(matrix_to_quat(r.as_matrix()), q, atol=1e-12)
+    np.testing.assert_allclose(quat_to_matrix(q), r.as_matrix(), atol=1e-12)
+    s = Rotation.random(500, random_state=4)
+    np.testing.assert_allclose(quat_to_matrix(quat_mul(q, _scipy_quat(s))), (r * s).as_matrix(), atol=1e-12)
+
+
+def test_geodesic_is_half_angle_and_sign_blind():
+    r = Rotation.random(100, random_state=5)
+    s = Rotation.random(100, random_state=6)
+    expected = (r.inv() * s).magnitude() / 2
+    a, b = _scipy_quat(r), _scipy_quat(s)
+    np.testing.assert_allclose(quat_geodesic(a, b), expected, atol=1e-7)
+    np.testing.assert_allclose(quat_geodesic(a, -b), expected, atol=1e-7)
+
+
+def test_projection_matches_opencv():
+    cam = Camera(height_m=1.5, distance_m=4.0, focal_px=1000.0)
+    pts = RNG.normal(scale=0.5, size=(3, 15, 3)) + np.array([0.2, 1.0, -0.3])
+    pelvis = pts[:, 14]
+    yaws = np.array([0.0, 12.0, 200.0])
+    ours = project_views(pts, pelvis, yaws, floor_y_m=0.1, camera=cam)
+    k = np.array([[1000.0, 0, 960], [0, 1000.0, 540], [0, 0, 1]])
+    r_cam = camera_axes_world()
+    for f in range(3):
+        for v, yaw in enumerate(yaws):
+            turned = (pts[f] - pelvis[f]) @ yaw_matrix(yaw).T + pelvis[f]
+            center = np.array([pelvis[f, 0], 0.1 + 1.5, pelvis[f, 2] + 4.0])
+            rvec, _ = cv2.Rodrigues(r_cam)
+            ref, _ = cv2.projectPoints(turned, rvec, -r_cam @ center, k, None)
+            np.testing.assert_allclose(ours[f, v], ref[:, 0, :], atol=1e-6)
+
+
+def test_front_view_mirrors_left_to_image_right():
+    # Subject facing +z (toward the camera at yaw 0): its left (+x) shows on the image's right.
+    pts = np.zeros((1, 15, 3))
+    pts[0, 5] = [0.2, 1.7, 0]   # left shoulder
+    pts[0, 2] = [-0.2, 1.7, 0]  # right shoulder
+    uv = project_views(pts, pts[:, 14], np.array([0.0]), 0.0, Camera())
+    assert uv[0, 0, 5, 0] > 960 > uv[0, 0, 2, 0]
+    assert uv[0, 0, 5, 1] < 540  # above the camera → upper half of the image
+
+
+def test_normalisation_hand_computed():
+    pts = np.zeros((14, 2))
+    pts[:, 1] = np.linspace(100, 300, 14)  # 200 px high
+    pts[:, 0] = 50
+    pts[8] = [40, 250]
+    pts[11] = [60, 250]
+    norm, origin, scale = normalize_pose_2d(pts)
+    np.testing.assert_allclose(origin, [50, 250])
+    assert scale == pytest.approx(1 / 200)
+    np.testing.assert_allclose(norm[0], [0, -0.75])
+    vis = np.ones(14, bool)
+    vis[0] = False  # the top joint hidden: the box shrinks, the joint reads as 0
+    norm2, _, scale2 = normalize_pose_2d(pts, vis)
+    assert scale2 == pytest.approx(1 / (300 - pts[1, 1]))
+    np.testing.assert_allclose(norm2[0], 0)
+
+
+def test_normalisation_is_scale_and_shift_invariant():
+    pts = RNG.normal(size=(10, 14, 2))
+    a, _, _ = normalize_pose_2d(pts)
+    b, _, _ = normalize_pose_2d(pts * 3.7 + np.array([100.0, -20.0]))
+    np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_degenerate_pose_gets_zero_scale():
+    _, _, scale = normalize_pose_2d(np.ones((14, 2)))
+    assert scale == 0

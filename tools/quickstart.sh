@@ -1,0 +1,7 @@
+#!/usr/bin/env bash
+# Set everything up on a fresh machine and run the main job on the bundled sample data.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash tools/setup.sh
+mkdir -p demo
+.venv/bin/mocapdb build data/sample_bvh --out demo/sample.db

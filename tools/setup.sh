@@ -1,0 +1,9 @@
+#!/usr/bin/env bash
+# Create .venv and install mocapdb with its test dependencies (PyPI only).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PYTHON=${PYTHON:-python3}
+[ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
+.venv/bin/python -m pip install --quiet --upgrade pip
+.venv/bin/python -m pip install --quiet -e '.[test]'
+echo "installed: $(.venv/bin/mocapdb --version)"
