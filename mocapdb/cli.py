@@ -6,9 +6,7 @@ import os
 import sys
 
 from . import __version__
-
-UNITS = ("m", "cm", "mm", "in")
-UP_AXES = ("x", "-x", "y", "-y", "z", "-z")
+from .joint_map import UNITS, UP_AXES
 
 
 def _add_build(sub: argparse._SubParsersAction) -> None:

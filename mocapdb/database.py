@@ -1,0 +1,445 @@
+"""The on-disk motion database: a directory of Parquet tables described by ``manifest.json``.
+
+The builder writes it (:func:`write_database`), the real-time runtime loads it
+(:func:`load_database`). Layout, columns and guarantees: ``data_specs/database.md``.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import numbers
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+SCHEMA_VERSION = 1
+FORMAT = "mocapdb"
+MANIFEST = "manifest.json"
+N_KEYPOINTS = 15
+N_KEYPOINTS_2D = 14
+
+
+class DatabaseError(RuntimeError):
+    """A database that cannot be written or loaded; the message names the path and the problem."""
+
+
+class _Column(NamedTuple):
+    field: str  # MotionDatabase attribute
+    name: str  # Parquet column name
+    dtype: str | None  # numpy dtype of the values; None for text
+    shape: tuple[int | None, ...] = ()  # per-row shape; None: taken from the data
+
+
+_TABLES: dict[str, tuple[_Column, ...]] = {
+    "clips": (
+        _Column("clip_name", "name", None),
+        _Column("clip_source", "source", None),
+        _Column("clip_source_fps", "source_fps", "float64"),
+        _Column("clip_n_frames", "n_frames", "int32"),
+        _Column("clip_first_frame", "first_frame", "int64"),
+        _Column("clip_convention", "convention", None),
+        _Column("clip_credit", "credit", None),
+    ),
+    "frames": (
+        _Column("frame_clip", "clip", "int32"),
+        _Column("frame_index", "index", "int32"),
+        _Column("quaternions", "quaternions", "float32", (None, 4)),
+        _Column("positions", "positions", "float32", (N_KEYPOINTS, 3)),
+    ),
+    "projections": (
+        _Column("proj_frame", "frame", "int64"),
+        _Column("proj_yaw", "yaw", "int16"),
+        _Column("keypoints_2d", "keypoints_2d", "float32", (N_KEYPOINTS_2D, 2)),
+        _Column("embedding", "embedding", "float32", (None,)),
+        _Column("cluster", "cluster", "int32"),
+    ),
+    "clusters": (
+        _Column("centroids", "centroid", "float32", (None,)),
+        _Column("representative", "representative", "int64"),
+        _Column("cluster_size", "size", "int32"),
+    ),
+}
+
+
+@dataclass(eq=False)
+class MotionDatabase:
+    """Database content; shapes and meanings of every field are in ``data_specs/database.md``.
+
+    Text columns are ``list[str]``, all others numpy arrays of exactly the documented dtype.
+    Arrays returned by :func:`load_database` may be read-only views of Arrow memory.
+    """
+
+    meta: dict
+    clip_name: list[str]
+    clip_source: list[str]
+    clip_source_fps: np.ndarray
+    clip_n_frames: np.ndarray
+    clip_first_frame: np.ndarray
+    clip_convention: list[str]
+    clip_credit: list[str]
+    frame_clip: np.ndarray
+    frame_index: np.ndarray
+    quaternions: np.ndarray
+    positions: np.ndarray
+    proj_frame: np.ndarray
+    proj_yaw: np.ndarray
+    keypoints_2d: np.ndarray
+    embedding: np.ndarray
+    cluster: np.ndarray
+    centroids: np.ndarray
+    representative: np.ndarray
+    cluster_size: np.ndarray
+
+    @property
+    def n_clips(self) -> int:
+        return len(self.clip_name)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.frame_clip)
+
+    @property
+    def n_projections(self) -> int:
+        return len(self.proj_frame)
+
+    @property
+    def n_clusters(self) -> int:
+        return len(self.centroids)
+
+    def validate(self) -> None:
+        """Raise DatabaseError if dtypes, shapes, meta or cross-table indices are inconsistent."""
+        _check_meta(self.meta)
+        for table, columns in _TABLES.items():
+            _check_columns(self, table, columns)
+        for name in ("embedding", "centroids"):
+            width = getattr(self, name).shape[1]
+            if width != self.meta["dims"]:
+                raise DatabaseError(f"{name} width {width} differs from meta dims {self.meta['dims']}")
+        _check_clips(self)
+        _check_range("proj_frame", self.proj_frame, 0, self.n_frames)
+        _check_range("proj_yaw", self.proj_yaw, 0, len(self.meta["yaws_deg"]))
+        _check_clusters(self)
+
+
+def _is_real(x: object) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _check_meta(meta: object) -> None:
+    if not isinstance(meta, dict):
+        raise DatabaseError(f"meta must be a dict, got {type(meta).__name__}")
+    try:
+        json.dumps(meta, allow_nan=False)
+    except (TypeError, ValueError) as e:
+        raise DatabaseError(f"meta is not JSON-serialisable: {e}") from None
+    fps, yaws, dims = meta.get("fps"), meta.get("yaws_deg"), meta.get("dims")
+    if not (_is_real(fps) and fps > 0):
+        raise DatabaseError(f"meta fps must be a positive number, got {fps!r}")
+    if not (isinstance(yaws, list) and yaws and all(_is_real(y) for y in yaws)):
+        raise DatabaseError(f"meta yaws_deg must be a non-empty list of numbers, got {yaws!r}")
+    if not (isinstance(dims, int) and not isinstance(dims, bool) and dims >= 1):
+        raise DatabaseError(f"meta dims must be a positive int, got {dims!r}")
+
+
+def _shape_text(col: _Column) -> str:
+    return "[" + ", ".join(["rows", *("*" if s is None else str(s) for s in col.shape)]) + "]"
+
+
+def _check_columns(db: MotionDatabase, table: str, columns: tuple[_Column, ...]) -> None:
+    lengths = {}
+    for col in columns:
+        value = getattr(db, col.field)
+        if col.dtype is None:
+            if not (isinstance(value, list) and all(isinstance(s, str) for s in value)):
+                raise DatabaseError(f"{col.field} must be a list of str")
+        elif not isinstance(value, np.ndarray) or value.dtype != col.dtype:
+            got = value.dtype if isinstance(value, np.ndarray) else type(value).__name__
+            raise DatabaseError(f"{col.field} must be a numpy {col.dtype} array, got {got}")
+        elif value.ndim != 1 + len(col.shape) or any(
+            v < 1 if s is None else v != s for s, v in zip(col.shape, value.shape[1:])
+        ):
+            raise DatabaseError(f"{col.field} has shape {value.shape}, expected {_shape_text(col)}")
+        lengths[col.field] = len(value)
+    if len(set(lengths.values())) > 1:
+        raise DatabaseError(f"{table} columns have different lengths: {lengths}")
+
+
+def _check_range(name: str, values: np.ndarray, lo: int, hi: int) -> None:
+    if values.size and (values.min() < lo or values.max() >= hi):
+        raise DatabaseError(
+            f"{name} out of range: values span [{values.min()}, {values.max()}], allowed [{lo}, {hi - 1}]"
+        )
+
+
+def _check_clips(db: MotionDatabase) -> None:
+    counts = db.clip_n_frames.astype(np.int64)
+    starts = np.cumsum(counts) - counts
+    if (counts < 0).any() or counts.sum() != db.n_frames or not np.array_equal(db.clip_first_frame, starts):
+        raise DatabaseError(
+            f"clip_first_frame/clip_n_frames do not cover the {db.n_frames} frames contiguously in clip order"
+        )
+    if not np.array_equal(db.frame_clip, np.repeat(np.arange(db.n_clips), counts)):
+        raise DatabaseError("frame_clip does not match the clips' frame ranges")
+    if not np.array_equal(db.frame_index, np.arange(db.n_frames) - np.repeat(starts, counts)):
+        raise DatabaseError("frame_index is not 0, 1, 2, ... within each clip")
+
+
+def _check_clusters(db: MotionDatabase) -> None:
+    _check_range("cluster", db.cluster, 0, db.n_clusters)
+    _check_range("representative", db.representative, -1, db.n_projections)
+    sizes = np.bincount(db.cluster, minlength=db.n_clusters)
+    if not np.array_equal(sizes, db.cluster_size):
+        raise DatabaseError("cluster_size differs from the number of projections in each cluster")
+    filled = sizes > 0
+    if not np.array_equal(db.representative >= 0, filled):
+        raise DatabaseError("representative must be -1 exactly for the empty clusters")
+    if not np.array_equal(db.cluster[db.representative[filled]], np.flatnonzero(filled)):
+        raise DatabaseError("a cluster's representative projection belongs to another cluster")
+
+
+# ----------------------------------------------------------------------------------- writing
+
+
+def write_database(db: MotionDatabase, path: str | os.PathLike) -> int:
+    """Validate ``db`` and write it atomically as directory ``path``; return its size in bytes.
+
+    Replaces an existing mocapdb database or empty directory at ``path``; refuses anything else.
+    """
+    db.validate()
+    path = Path(os.path.abspath(path))
+    _check_replaceable(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        tmp.mkdir()
+        total = _write_contents(db, tmp)
+        _replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return total
+
+
+def _is_database(path: Path) -> bool:
+    try:
+        manifest = json.loads((path / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    return isinstance(manifest, dict) and manifest.get("format") == FORMAT
+
+
+def _check_replaceable(path: Path) -> None:
+    if not os.path.lexists(path):
+        return
+    if path.is_dir() and (not any(path.iterdir()) or _is_database(path)):
+        return
+    raise DatabaseError(
+        f"{path}: exists and is not a mocapdb database (no {MANIFEST} with format {FORMAT!r}); "
+        "refusing to replace it: choose another path or remove it yourself"
+    )
+
+
+def _write_contents(db: MotionDatabase, directory: Path) -> int:
+    tables = {name: _write_table(_to_arrow(db, name), directory / f"{name}.parquet") for name in _TABLES}
+    manifest = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "meta": db.meta, "tables": tables}
+    data = json.dumps(manifest, indent=2).encode("utf-8")
+    _write_file(directory / MANIFEST, data)
+    _fsync_dir(directory)
+    return len(data) + sum(entry["bytes"] for entry in tables.values())
+
+
+def _to_arrow(db: MotionDatabase, table: str) -> pa.Table:
+    arrays, fields = [], []
+    for col in _TABLES[table]:
+        value = getattr(db, col.field)
+        if col.dtype is None:
+            array = pa.array(value, pa.string())
+        elif col.shape:
+            item = pa.field("item", pa.float32(), nullable=False)
+            array = pa.FixedSizeListArray.from_arrays(
+                pa.array(np.ascontiguousarray(value).reshape(-1)),
+                type=pa.list_(item, math.prod(value.shape[1:])),
+            )
+        else:
+            array = pa.array(value)
+        arrays.append(array)
+        fields.append(pa.field(col.name, array.type, nullable=False))
+    metadata = {"mocapdb.schema_version": str(SCHEMA_VERSION), "mocapdb.table": table}
+    return pa.Table.from_arrays(arrays, schema=pa.schema(fields, metadata=metadata))
+
+
+def _write_table(table: pa.Table, file: Path) -> dict:
+    """Write ``table`` as zstd Parquet to ``file``; return its manifest entry."""
+    sink = pa.BufferOutputStream()
+    scalar_columns = [f.name for f in table.schema if not pa.types.is_fixed_size_list(f.type)]
+    pq.write_table(table, sink, compression="zstd", use_dictionary=scalar_columns,
+                   row_group_size=max(table.num_rows, 1))  # one row group: loads without copies
+    data = sink.getvalue()
+    _write_file(file, data)
+    return {"file": file.name, "rows": table.num_rows, "bytes": data.size,
+            "sha256": hashlib.sha256(data).hexdigest()}
+
+
+def _write_file(file: Path, data: bytes | pa.Buffer) -> None:
+    with open(file, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _fsync_dir(directory: Path) -> None:
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _replace(tmp: Path, path: Path) -> None:
+    """Move the finished ``tmp`` to ``path``, deleting the database it replaces."""
+    _check_replaceable(path)
+    old = path.with_name(f".{path.name}.old-{os.getpid()}")
+    shutil.rmtree(old, ignore_errors=True)
+    if os.path.lexists(path):
+        os.rename(path, old)
+    try:
+        os.rename(tmp, path)
+    except BaseException:
+        if os.path.lexists(old):
+            os.rename(old, path)
+        raise
+    _fsync_dir(path.parent)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+# ----------------------------------------------------------------------------------- loading
+
+
+def load_database(path: str | os.PathLike, verify_checksums: bool = False) -> MotionDatabase:
+    """Load and validate the database at ``path``; raise DatabaseError on any problem.
+
+    Sizes are always checked against the manifest; sha256 checksums only if ``verify_checksums``.
+    """
+    path = Path(path)
+    manifest = _read_manifest(path)
+    columns = {}
+    for table, entry in manifest["tables"].items():
+        columns.update(_read_table(path, table, entry, verify_checksums))
+    db = MotionDatabase(meta=manifest["meta"], **columns)
+    try:
+        db.validate()
+    except DatabaseError as e:
+        raise DatabaseError(f"{path}: inconsistent database: {e}") from None
+    return db
+
+
+_ENTRY_TYPES = {"file": str, "rows": int, "bytes": int, "sha256": str}
+
+
+def _read_manifest(path: Path) -> dict:
+    if not path.is_dir():
+        raise DatabaseError(f"{path}: database directory not found")
+    file = path / MANIFEST
+    if not file.is_file():
+        raise DatabaseError(f"{path}: not a mocapdb database (no {MANIFEST})")
+    try:
+        manifest = json.loads(file.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise DatabaseError(f"{file}: unreadable manifest: {e}") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        raise DatabaseError(f"{path}: not a mocapdb database ({MANIFEST} lacks format {FORMAT!r})")
+    version = manifest.get("schema_version")
+    if version != SCHEMA_VERSION:
+        raise DatabaseError(
+            f"{path}: database has schema version {version}, this code reads version {SCHEMA_VERSION}; "
+            "rebuild the database with `mocapdb build`"
+        )
+    tables = manifest.get("tables")
+    if not (
+        isinstance(manifest.get("meta"), dict) and isinstance(tables, dict) and set(tables) == set(_TABLES)
+        and all(isinstance(e, dict) and all(isinstance(e.get(k), t) for k, t in _ENTRY_TYPES.items())
+                and Path(e["file"]).name == e["file"] for e in tables.values())
+    ):
+        raise DatabaseError(
+            f"{file}: malformed manifest: needs a meta dict and tables {sorted(_TABLES)}, "
+            f"each with {', '.join(_ENTRY_TYPES)}"
+        )
+    return manifest
+
+
+def _sha256_file(file: Path) -> str:
+    digest = hashlib.sha256()
+    with open(file, "rb") as f:
+        while chunk := f.read(1 << 24):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _read_table(path: Path, table: str, entry: dict, verify_checksum: bool) -> dict:
+    file = path / entry["file"]
+    if not file.is_file():
+        raise DatabaseError(f"{file}: table file missing; rebuild the database")
+    size = file.stat().st_size
+    if size != entry["bytes"]:
+        raise DatabaseError(
+            f"{file}: size {size} bytes, manifest says {entry['bytes']}: file truncated or modified"
+        )
+    if verify_checksum and _sha256_file(file) != entry["sha256"]:
+        raise DatabaseError(f"{file}: sha256 checksum differs from the manifest: file corrupt")
+    try:
+        with pq.ParquetFile(file) as parquet:
+            data = parquet.read()
+    except (pa.ArrowException, OSError, ValueError) as e:
+        raise DatabaseError(f"{file}: corrupt Parquet file, cannot read it ({e})") from None
+    metadata = data.schema.metadata or {}
+    tag = (metadata.get(b"mocapdb.table"), metadata.get(b"mocapdb.schema_version"))
+    if tag != (table.encode(), str(SCHEMA_VERSION).encode()):
+        raise DatabaseError(f"{file}: expected a mocapdb {table!r} table of schema version "
+                            f"{SCHEMA_VERSION}, file metadata says {tag}")
+    if data.num_rows != entry["rows"]:
+        raise DatabaseError(f"{file}: {data.num_rows} rows, manifest says {entry['rows']}")
+    return {col.field: _column_to_numpy(data, col, file) for col in _TABLES[table]}
+
+
+def _column_to_numpy(data: pa.Table, col: _Column, file: Path) -> np.ndarray | list[str]:
+    if col.name not in data.column_names:
+        raise DatabaseError(f"{file}: column {col.name!r} missing")
+    column = data.column(col.name)
+    if col.dtype is None:
+        ok, expected = column.type == pa.string(), "string"
+    elif not col.shape:
+        ok, expected = column.type == pa.from_numpy_dtype(col.dtype), col.dtype
+    else:
+        ok = pa.types.is_fixed_size_list(column.type) and column.type.value_type == pa.float32()
+        expected = "fixed_size_list<float32>"
+    if not ok:
+        raise DatabaseError(f"{file}: column {col.name!r} has type {column.type}, expected {expected}")
+    if column.null_count:
+        raise DatabaseError(f"{file}: column {col.name!r} contains nulls")
+    if col.dtype is None:
+        return column.to_pylist()
+    if not col.shape:
+        return column.to_numpy()
+    return _fixed_to_numpy(column, col, file)
+
+
+def _fixed_to_numpy(column: pa.ChunkedArray, col: _Column, file: Path) -> np.ndarray:
+    width = column.type.list_size
+    known = math.prod(s for s in col.shape if s is not None)
+    if width % known or (None not in col.shape and width != known):
+        raise DatabaseError(f"{file}: column {col.name!r} has width {width}, incompatible with "
+                            f"row shape {_shape_text(col)}")
+    flats = [chunk.flatten() for chunk in column.chunks]
+    if any(flat.null_count for flat in flats):
+        raise DatabaseError(f"{file}: column {col.name!r} contains nulls")
+    parts = [flat.to_numpy() for flat in flats]
+    values = parts[0] if len(parts) == 1 else np.concatenate([np.zeros(0, np.float32), *parts])
+    return values.reshape(len(column), *(width // known if s is None else s for s in col.shape))

@@ -1,0 +1,373 @@
+"""Which joints of a BVH rig make the universal skeleton, and where they are in metres, y up.
+
+A rig's joints are matched to 13 *roles* (head, and upper arm, forearm, hand, thigh, shin, foot
+on each side) by name and topology together, for the conventions of ``data_specs/joint_conventions.md``
+(CMU ASF/AMC, CMU cgspeed/3ds Max, MotionBuilder/Mixamo, Character Creator, MakeHuman CMU+).
+Nothing is guessed: a role with no candidate or several gives :class:`JointMapError`, and a
+``--joint-map`` TOML file can name any role's joint. The length unit and the up axis are
+detected from the body (leg length; head above the feet) unless given.
+"""
+from __future__ import annotations
+
+import itertools
+import re
+import tomllib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .bvh import Bvh, forward_kinematics
+from .skeleton import KEYPOINTS, N_POINTS
+
+ROLES: tuple[str, ...] = (
+    "head", "r_upperarm", "r_forearm", "r_hand", "l_upperarm", "l_forearm", "l_hand",
+    "r_thigh", "r_shin", "r_foot", "l_thigh", "l_shin", "l_foot")
+# Each chain runs parent → descendant in the hierarchy.
+CHAINS: tuple[tuple[str, ...], ...] = (
+    ("head",), ("r_upperarm", "r_forearm", "r_hand"), ("l_upperarm", "l_forearm", "l_hand"),
+    ("r_thigh", "r_shin", "r_foot"), ("l_thigh", "l_shin", "l_foot"))
+# Keypoints that are a joint's position; neck, pelvis and head (nose) are derived.
+KEYPOINT_ROLES = {
+    "r_shoulder": "r_upperarm", "r_elbow": "r_forearm", "r_wrist": "r_hand",
+    "l_shoulder": "l_upperarm", "l_elbow": "l_forearm", "l_wrist": "l_hand",
+    "r_hip": "r_thigh", "r_knee": "r_shin", "r_ankle": "r_foot",
+    "l_hip": "l_thigh", "l_knee": "l_shin", "l_ankle": "l_foot"}
+
+# Metres per file unit. "cmu" is the CMU ASF unit (1/0.45 inch) that cgspeed-style CMU BVH files keep.
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "cmu": 0.0254 / 0.45}
+UP_AXES = ("x", "-x", "y", "-y", "z", "-z")
+# Plausible leg length (hip → knee → ankle), metres. The window spans a factor 2, less than the
+# smallest ratio between two units (cmu/in = 2.22), so at most one unit fits.
+LEG_LENGTH_RANGE_M = (0.6, 1.2)
+UP_AXIS_MIN_COSINE = 0.8  # the body's median up direction must be this close to a world axis
+NOSE_FORWARD_M = 0.10     # nose ahead of the head joint, along the head's rest forward
+NOSE_UP_M = 0.02          # and above it, along the head's rest up
+
+# Proper rotations taking each up axis to +y (never a mirror: every determinant is +1).
+_TO_Y_UP = {
+    "y": np.eye(3),
+    "-y": np.array([[1.0, 0, 0], [0, -1, 0], [0, 0, -1]]),
+    "z": np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]),
+    "-z": np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]),
+    "x": np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]]),
+    "-x": np.array([[0.0, 1, 0], [-1, 0, 0], [0, 0, 1]]),
+}
+
+
+def _convention(sides: tuple[str, str], head: tuple[str, ...], upperarm: tuple[str, ...],
+                forearm: tuple[str, ...], hand: tuple[str, ...], thigh: tuple[str, ...],
+                shin: tuple[str, ...], foot: tuple[str, ...]) -> dict[str, tuple[str, ...]]:
+    """Role → accepted lower-case names, best first; ``{s}`` is the (left, right) side token."""
+    table = {"head": head}
+    parts = {"upperarm": upperarm, "forearm": forearm, "hand": hand, "thigh": thigh, "shin": shin, "foot": foot}
+    for side, token in zip("lr", sides):
+        for part, names in parts.items():
+            table[f"{side}_{part}"] = tuple(n.format(s=token) for n in names)
+    return table
+
+
+CONVENTIONS: dict[str, dict[str, tuple[str, ...]]] = {
+    "cmu_asf": _convention(("l", "r"), ("head",), ("{s}humerus",), ("{s}radius",),
+                           ("{s}wrist", "{s}hand"), ("{s}femur",), ("{s}tibia",), ("{s}foot",)),
+    "cmu_cgspeed": _convention(("left", "right"), ("head",), ("{s}shoulder",), ("{s}elbow",),
+                               ("{s}wrist",), ("{s}hip",), ("{s}knee",), ("{s}ankle",)),
+    "motionbuilder_mixamo": _convention(("left", "right"), ("head",), ("{s}arm",), ("{s}forearm",),
+                                        ("{s}hand",), ("{s}upleg",), ("{s}leg",), ("{s}foot",)),
+    "character_creator": _convention(("l", "r"), ("cc_base_head",), ("cc_base_{s}_upperarm",),
+                                     ("cc_base_{s}_forearm",), ("cc_base_{s}_hand",), ("cc_base_{s}_thigh",),
+                                     ("cc_base_{s}_calf",), ("cc_base_{s}_foot",)),
+    "makehuman_cmu": _convention(("l", "r"), ("head",), ("{s}shldr",), ("{s}forearm",), ("{s}hand",),
+                                 ("{s}thigh",), ("{s}shin",), ("{s}foot",)),
+}
+
+_MAP_HINT = ("Name the joints yourself with --joint-map FILE.toml, for example:\n"
+             "  [joints]\n  l_hand = \"SourceJointName\"")
+
+
+class JointMapError(ValueError):
+    """A rig whose joints cannot be mapped onto the roles, or a bad joint-map file."""
+
+
+@dataclass
+class JointMapping:
+    """The detected (or given) source joint of every role."""
+
+    convention: str
+    joints: dict[str, str]  # role -> source joint name
+
+
+@dataclass
+class JointMapFile:
+    """A ``--joint-map`` TOML file: role overrides and optional unit and up axis."""
+
+    joints: dict[str, str]
+    up_axis: str | None = None
+    unit: str | None = None
+
+
+def _normalized_name(name: str) -> str:
+    """Joint name without a namespace prefix (``mixamorig:``, ``Armature|``), lower case."""
+    return re.split(r"[:|]", name)[-1].lower()
+
+
+def _is_ancestor(bvh: Bvh, a: int, b: int) -> bool:
+    """Whether joint ``a`` is a proper ancestor of joint ``b``."""
+    p = int(bvh.parents[b])
+    while p >= 0 and p != a:
+        p = int(bvh.parents[p])
+    return p == a
+
+
+def _candidates(normal: list[str], names: tuple[str, ...]) -> list[int]:
+    """Joints with the first of ``names`` (in priority order) that any joint carries."""
+    for name in names:
+        hits = [j for j, n in enumerate(normal) if n == name]
+        if hits:
+            return hits
+    return []
+
+
+def _chain_matches(bvh: Bvh, normal: list[str], chain: tuple[str, ...],
+                   fixed: dict[str, int]) -> dict[tuple[int, ...], list[str]]:
+    """Every parent→descendant placement of ``chain`` some convention allows → those conventions."""
+    found: dict[tuple[int, ...], list[str]] = {}
+    for convention, table in CONVENTIONS.items():
+        options = [[fixed[r]] if r in fixed else _candidates(normal, table[r]) for r in chain]
+        for combo in itertools.product(*options):
+            if all(_is_ancestor(bvh, a, b) for a, b in zip(combo, combo[1:])):
+                found.setdefault(combo, []).append(convention)
+    return found
+
+
+def _explain_unplaced(bvh: Bvh, normal: list[str], chain: tuple[str, ...], fixed: dict[str, int]) -> list[str]:
+    """Why ``chain`` has no placement, per role, for the convention that came closest."""
+    def found(table: dict[str, tuple[str, ...]]) -> list[bool]:
+        return [r in fixed or bool(_candidates(normal, table[r])) for r in chain]
+
+    convention, table = max(CONVENTIONS.items(), key=lambda item: sum(found(item[1])))
+    present = found(table)
+    if not any(present):
+        return [f"{r}: no candidate joint in any known convention" for r in chain]
+    if all(present):
+        names = [bvh.names[fixed[r]] if r in fixed else "/".join(bvh.names[j] for j in _candidates(normal, table[r]))
+                 for r in chain]
+        return [f"{' → '.join(chain)}: {', '.join(names)} are not a parent→descendant chain"]
+    return [f"{r}: no joint named {' or '.join(table[r])} (any case or namespace, as in a {convention} rig)"
+            for r, ok in zip(chain, present) if not ok]
+
+
+def _fixed_joints(bvh: Bvh, overrides: dict[str, str]) -> dict[str, int]:
+    """Override role → joint index; unknown roles or joints raise :class:`JointMapError`."""
+    _check_roles(overrides, "joint map")
+    missing = [f"{r} = {n!r}" for r, n in overrides.items() if n not in bvh.names]
+    if missing:
+        raise JointMapError(f"{bvh.source}: the joint map names joints that are not in the file: "
+                            f"{', '.join(missing)}; the file's joints are: {', '.join(bvh.names)}")
+    return {r: bvh.index(n) for r, n in overrides.items()}
+
+
+def _check_roles(roles: Sequence[str] | dict[str, str], where: str) -> None:
+    unknown = [r for r in roles if r not in ROLES]
+    if unknown:
+        raise JointMapError(f"{where}: unknown role(s) {', '.join(map(repr, unknown))}; "
+                            f"valid roles: {', '.join(ROLES)}")
+
+
+def detect_mapping(bvh: Bvh, overrides: dict[str, str] | None = None) -> JointMapping:
+    """Map every role onto a source joint, by names and topology; ``overrides`` fix some roles.
+
+    Raises :class:`JointMapError` naming every role with no candidate, or with several (and
+    those candidates), and when the placement breaks the topology rules.
+    """
+    overrides = overrides or {}
+    fixed = _fixed_joints(bvh, overrides)
+    normal = [_normalized_name(n) for n in bvh.names]
+    placed: dict[str, int] = {}
+    sources: list[list[str]] = []
+    problems: list[str] = []
+    for chain in CHAINS:
+        matches = _chain_matches(bvh, normal, chain, fixed)
+        if len(matches) == 1:
+            (joints, conventions), = matches.items()
+            placed.update(zip(chain, joints))
+            if len(chain) > 1 and not all(r in fixed for r in chain):
+                sources.append(conventions)
+        elif matches:
+            for i, role in enumerate(chain):
+                options = sorted({combo[i] for combo in matches})
+                if len(options) > 1:
+                    problems.append(f"{role}: ambiguous, candidates {', '.join(bvh.names[j] for j in options)}")
+        else:
+            problems += _explain_unplaced(bvh, normal, chain, fixed)
+    if problems:
+        raise JointMapError(f"{bvh.source}: cannot map the rig onto the universal skeleton:\n  "
+                            + "\n  ".join(problems) + "\n" + _MAP_HINT)
+    _check_limbs_disjoint(bvh, placed)
+    return JointMapping(_label(sources, bool(overrides)), {r: bvh.names[placed[r]] for r in ROLES})
+
+
+def _check_limbs_disjoint(bvh: Bvh, placed: dict[str, int]) -> None:
+    """Each limb hangs in its own subtree, and the head in none of them."""
+    tops = {chain[0]: placed[chain[0]] for chain in CHAINS}
+    for (role_a, a), (role_b, b) in itertools.permutations(tops.items(), 2):
+        if role_a != "head" and (a == b or _is_ancestor(bvh, a, b)):
+            raise JointMapError(f"{bvh.source}: {role_b} ({bvh.names[b]}) lies inside the {role_a} chain "
+                                f"({bvh.names[a]}); the limbs must be separate chains, the head outside them.\n{_MAP_HINT}")
+
+
+def _label(sources: list[list[str]], overridden: bool) -> str:
+    """The convention every detected limb agrees on (or the mixture), noting a joint map."""
+    if not sources:
+        return "joint map"
+    common = [c for c in CONVENTIONS if all(c in s for s in sources)]
+    label = common[0] if common else "mixed: " + " + ".join(dict.fromkeys(s[0] for s in sources))
+    return f"{label} + joint map" if overridden else label
+
+
+def load_joint_map_file(path: str | Path) -> JointMapFile:
+    """Read a joint-map TOML file (``[joints]`` role = "Joint", optional ``unit``, ``up_axis``)."""
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            data = tomllib.load(fh)
+    except OSError as exc:
+        raise JointMapError(f"{path}: cannot read the joint map ({exc.strerror})") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise JointMapError(f"{path}: not a valid TOML joint map ({exc})") from None
+    unknown = [k for k in data if k not in ("joints", "unit", "up_axis")]
+    if unknown:
+        raise JointMapError(f"{path}: unknown key(s) {', '.join(unknown)}; valid: [joints], unit, up_axis")
+    joints = data.get("joints", {})
+    if not isinstance(joints, dict) or not all(isinstance(v, str) for v in joints.values()):
+        raise JointMapError(f"{path}: [joints] must be a table of role = \"SourceJointName\" strings")
+    _check_roles(joints, str(path))
+    unit, up_axis = data.get("unit"), data.get("up_axis")
+    if unit is not None and unit not in UNITS:
+        raise JointMapError(f"{path}: unit {unit!r} is not one of {', '.join(UNITS)}")
+    if up_axis is not None and up_axis not in UP_AXES:
+        raise JointMapError(f"{path}: up_axis {up_axis!r} is not one of {', '.join(UP_AXES)}")
+    return JointMapFile(dict(joints), up_axis, unit)
+
+
+def _indexes(bvh: Bvh, mapping: JointMapping) -> dict[str, int]:
+    missing = [n for n in mapping.joints.values() if n not in bvh.names]
+    if missing or set(mapping.joints) != set(ROLES):
+        raise JointMapError(f"{bvh.source}: mapping does not fit this file (joints {missing}, roles "
+                            f"{sorted(mapping.joints)})")
+    return {r: bvh.index(n) for r, n in mapping.joints.items()}
+
+
+def rest_positions(bvh: Bvh) -> np.ndarray:
+    """Joint positions ``[J, 3]`` (file units) with every channel zero; every rotation is then identity."""
+    pos = np.zeros_like(bvh.offsets)
+    for j, p in enumerate(bvh.parents):
+        pos[j] = bvh.offsets[j] + (pos[p] if p >= 0 else 0.0)
+    return pos
+
+
+def leg_length(bvh: Bvh, mapping: JointMapping) -> float:
+    """Rest-pose thigh→shin plus shin→foot distance, mean of both legs, in file units."""
+    rest, idx = rest_positions(bvh), _indexes(bvh, mapping)
+    legs = [np.linalg.norm(rest[idx[f"{s}_shin"]] - rest[idx[f"{s}_thigh"]])
+            + np.linalg.norm(rest[idx[f"{s}_foot"]] - rest[idx[f"{s}_shin"]]) for s in "lr"]
+    return float(np.mean(legs))
+
+
+def detect_unit(bvh: Bvh, mapping: JointMapping) -> str:
+    """The unit of :data:`UNITS` that makes the leg length plausible for a person."""
+    length = leg_length(bvh, mapping)
+    lo, hi = LEG_LENGTH_RANGE_M
+    fits = [u for u, metres in UNITS.items() if lo <= length * metres <= hi]
+    if not fits:
+        raise JointMapError(f"{bvh.source}: the legs are {length:.4g} file units long (hip to ankle), which "
+                            f"is no plausible {lo}-{hi} m in any of {', '.join(UNITS)}; give unit = ... "
+                            "in a --joint-map file")
+    return fits[0]
+
+
+def detect_up_axis(positions: np.ndarray, upper: Sequence[int], lower: Sequence[int]) -> str:
+    """Signed world axis (``"x"`` … ``"-z"``) from the ``lower`` joints (ankles) to the ``upper`` (shoulders).
+
+    ``positions [F, J, 3]``; the median over frames of the unit direction must lie within
+    ``acos(UP_AXIS_MIN_COSINE)`` of an axis, else :class:`JointMapError`.
+    """
+    up = positions[:, list(upper)].mean(axis=1) - positions[:, list(lower)].mean(axis=1)
+    up /= np.maximum(np.linalg.norm(up, axis=-1, keepdims=True), 1e-12)
+    median = np.median(up, axis=0)
+    k = int(np.argmax(np.abs(median)))
+    if abs(median[k]) < UP_AXIS_MIN_COSINE * np.linalg.norm(median):
+        raise JointMapError(f"the body's up direction {np.round(median, 2).tolist()} is near no world axis; "
+                            "give up_axis = ... in a --joint-map file")
+    return ("-" if median[k] < 0 else "") + "xyz"[k]
+
+
+def _nose_offset(bvh: Bvh, idx: dict[str, int], metres_per_unit: float) -> np.ndarray:
+    """The nose relative to the head joint, in the head joint's local frame (file units).
+
+    From the rest pose (where every global rotation is identity, so world = head-local):
+    up = mid-hips → mid-shoulders, forward = normalize((left − right shoulder) × up).
+    """
+    rest = rest_positions(bvh)
+    left_minus_right = rest[idx["l_upperarm"]] - rest[idx["r_upperarm"]]
+    up = (rest[idx["l_upperarm"]] + rest[idx["r_upperarm"]] - rest[idx["l_thigh"]] - rest[idx["r_thigh"]]) / 2
+    forward = np.cross(left_minus_right, up)
+    if np.linalg.norm(forward) <= 1e-6 * np.linalg.norm(left_minus_right) * np.linalg.norm(up):
+        raise JointMapError(f"{bvh.source}: the rest pose has no torso front (shoulders in line with the spine)")
+    forward /= np.linalg.norm(forward)
+    up /= np.linalg.norm(up)
+    return (NOSE_FORWARD_M * forward + NOSE_UP_M * up) / metres_per_unit
+
+
+def _check_choice(value: str, choices: Sequence[str] | dict[str, float], what: str) -> None:
+    if value not in choices:
+        raise JointMapError(f"{what} {value!r} is not one of {', '.join(choices)}")
+
+
+def _body_up_axis(positions: np.ndarray, idx: dict[str, int]) -> str:
+    return detect_up_axis(positions, [idx["r_upperarm"], idx["l_upperarm"]], [idx["r_foot"], idx["l_foot"]])
+
+
+def extract_keypoints(bvh: Bvh, mapping: JointMapping, unit: str | None = None,
+                      up_axis: str | None = None) -> np.ndarray:
+    """Universal keypoints ``[F, N_POINTS, 3]`` (KEYPOINTS order), metres, y up, right-handed.
+
+    ``unit`` and ``up_axis`` are detected when ``None``. The detected up axis is turned to +y by a
+    proper rotation.
+    """
+    idx = _indexes(bvh, mapping)
+    unit = unit or detect_unit(bvh, mapping)
+    _check_choice(unit, UNITS, "unit")
+    pos, rot = forward_kinematics(bvh)
+    up_axis = up_axis or _body_up_axis(pos, idx)
+    _check_choice(up_axis, UP_AXES, "up axis")
+    points = np.empty((bvh.n_frames, N_POINTS, 3))
+    for keypoint, role in KEYPOINT_ROLES.items():
+        points[:, KEYPOINTS.index(keypoint)] = pos[:, idx[role]]
+    points[:, KEYPOINTS.index("neck")] = (pos[:, idx["r_upperarm"]] + pos[:, idx["l_upperarm"]]) / 2
+    points[:, KEYPOINTS.index("pelvis")] = (pos[:, idx["r_thigh"]] + pos[:, idx["l_thigh"]]) / 2
+    nose = rot[:, idx["head"]] @ _nose_offset(bvh, idx, UNITS[unit])
+    points[:, KEYPOINTS.index("head")] = pos[:, idx["head"]] + nose
+    return (points * UNITS[unit]) @ _TO_Y_UP[up_axis].T
+
+
+def describe(bvh: Bvh, mapping: JointMapping, unit: str | None = None, up_axis: str | None = None) -> str:
+    """Human-readable summary for ``mocapdb inspect``: file, timing, convention, unit, up axis, roles."""
+    idx = _indexes(bvh, mapping)
+    unit_how = "given" if unit else "detected"
+    unit = unit or detect_unit(bvh, mapping)
+    _check_choice(unit, UNITS, "unit")
+    axis_how = "given" if up_axis else "detected"
+    up_axis = up_axis or _body_up_axis(forward_kinematics(bvh)[0], idx)
+    _check_choice(up_axis, UP_AXES, "up axis")
+    lines = [f"file:        {bvh.source}",
+             f"frames:      {bvh.n_frames} at {bvh.fps:.2f} fps ({bvh.n_frames * bvh.frame_time:.2f} s)",
+             f"joints:      {len(bvh.names)} ({int(bvh.end_site.sum())} of them end sites)",
+             f"convention:  {mapping.convention}",
+             f"unit:        {unit} ({unit_how})",
+             f"up axis:     {up_axis} ({axis_how})",
+             f"leg length:  {leg_length(bvh, mapping) * UNITS[unit]:.3f} m (hip to ankle, rest pose)",
+             "roles:"]
+    lines += [f"  {role:<11} {mapping.joints[role]}" for role in ROLES]
+    return "\n".join(lines)

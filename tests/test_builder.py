@@ -1,0 +1,111 @@
+"""`mocapdb build` end to end on real bundled clips: contents, determinism, bad inputs, CLI."""
+import shutil
+
+import numpy as np
+import pytest
+
+from mocapdb.builder import BuildConfig, BuildError, build, find_sources
+from mocapdb.cli import main
+from mocapdb.database import load_database
+from mocapdb.geometry import normalize_pose_2d, project_views
+from mocapdb.skeleton import BONE_LENGTHS_M, KP, PELVIS, pose_from_rotations
+
+from .conftest import SAMPLE_BVH
+
+CLIPS = ["002_03.bvh", "002_04.bvh"]  # run and jump: short real clips
+
+
+@pytest.fixture(scope="module")
+def sources(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("src")
+    for name in CLIPS + ["CREDIT.txt"]:
+        shutil.copy(SAMPLE_BVH / name, folder / name)
+    return folder
+
+
+def _config(**kw) -> BuildConfig:
+    return BuildConfig(clusters=20, landmarks=300, workers=1, **kw)
+
+
+@pytest.fixture(scope="module")
+def built(sources, tmp_path_factory):
+    out = tmp_path_factory.mktemp("db") / "db"
+    summary = build([str(sources)], out, _config())
+    return summary, load_database(out)
+
+
+def test_database_contents(built):
+    summary, db = built
+    assert summary.clips == 2 and db.n_clips == 2
+    # 60 fps clips resampled to 24 fps: (n - 1) / 60 s long, one frame every 1/24 s.
+    assert db.n_projections == db.n_frames * 30 == summary.projections
+    assert db.n_clusters == 20 and db.cluster_size.sum() == db.n_projections
+    assert "mocap.cs.cmu.edu" in db.clip_credit[0]
+    assert set(db.clip_convention) == {"character_creator"}
+
+
+def test_frames_have_constant_bones_and_consistent_rotations(built):
+    _, db = built
+    pos = db.positions.astype(np.float64)
+    for a, b, bone in [("r_hip", "r_knee", "thigh"), ("l_elbow", "l_wrist", "forearm"), ("pelvis", "neck", "torso")]:
+        np.testing.assert_allclose(np.linalg.norm(pos[:, KP[b]] - pos[:, KP[a]], axis=-1), BONE_LENGTHS_M[bone], atol=1e-5)
+    again = pose_from_rotations(db.quaternions.astype(np.float64), pos[:, PELVIS])
+    np.testing.assert_allclose(again, pos, atol=1e-5)
+    assert pos[:, [KP["r_ankle"], KP["l_ankle"]], 1].min() == pytest.approx(0.08, abs=1e-5)
+
+
+def test_projections_are_normalised_views_of_the_frames(built):
+    _, db = built
+    rows = np.array([0, 31, 1000 % db.n_projections])
+    frames = db.proj_frame[rows]
+    yaws = np.array(db.meta["yaws_deg"])[db.proj_yaw[rows]]
+    for r, f, yaw in zip(rows, frames, yaws):
+        pos = db.positions[f:f + 1].astype(np.float64)
+        from mocapdb.geometry import Camera
+        uv = project_views(pos, pos[:, PELVIS], np.array([yaw]), 0.0, Camera(**db.meta["camera"]))
+        expected, _, _ = normalize_pose_2d(uv[0, 0, :14])
+        np.testing.assert_allclose(db.keypoints_2d[r], expected, atol=1e-5)
+
+
+def test_representatives_belong_to_their_clusters(built):
+    _, db = built
+    assert np.all(db.cluster[db.representative] == np.arange(db.n_clusters))
+
+
+def test_build_is_deterministic(sources, tmp_path, built):
+    _, first = built
+    build([str(sources)], tmp_path / "again", _config())
+    second = load_database(tmp_path / "again")
+    np.testing.assert_array_equal(first.cluster, second.cluster)
+    np.testing.assert_array_equal(first.embedding, second.embedding)
+    np.testing.assert_array_equal(first.quaternions, second.quaternions)
+
+
+def test_unreadable_file_is_skipped_or_fails_strict(sources, tmp_path):
+    folder = tmp_path / "mixed"
+    shutil.copytree(sources, folder)
+    (folder / "broken.bvh").write_text("HIERARCHY\nROOT x\n{\n")
+    summary = build([str(folder)], tmp_path / "db", _config())
+    assert summary.clips == 2
+    assert [p for p, _ in summary.skipped] == [str(folder / "broken.bvh")]
+    with pytest.raises(BuildError, match="broken.bvh"):
+        build([str(folder)], tmp_path / "db2", _config(strict=True))
+    assert not (tmp_path / "db2").exists()
+
+
+def test_exclude_and_missing_sources(sources, tmp_path):
+    assert [f.name for f, _ in find_sources([str(sources)], ["*_04.bvh"])] == ["002_03.bvh"]
+    with pytest.raises(BuildError, match="neither a BVH file nor a folder"):
+        find_sources([str(tmp_path / "nowhere")])
+    with pytest.raises(BuildError, match="does not divide 360"):
+        build([str(sources)], tmp_path / "db", _config(yaw_step_deg=7.0))
+
+
+def test_cli_exit_codes(sources, tmp_path, capsys):
+    assert main(["build", str(sources / "002_03.bvh"), "--out", str(tmp_path / "db"),
+                 "--clusters", "5", "--landmarks", "100", "--workers", "1"]) == 0
+    assert "projections" in capsys.readouterr().out
+    assert main(["build", str(tmp_path / "none"), "--out", str(tmp_path / "x")]) == 2
+    assert "neither a BVH file nor a folder" in capsys.readouterr().err
+    assert main(["inspect", str(sources / "002_03.bvh")]) == 0
+    assert "character_creator" in capsys.readouterr().out
