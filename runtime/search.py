@@ -1,0 +1,167 @@
+"""The method's two-level search over the database's normalised 2D projections (numba).
+
+Clustered search: Eq. 1 distance from the query to every cluster representative (K), keep the
+``n_clusters`` nearest clusters, then the ``per_cluster`` nearest members of each: cost
+O(K + n_clusters · mean cluster size) pose distances. Exact search: every projection, O(P).
+
+Missing joints: the query is normalised over its visible joints only, and each database pose is
+renormalised over the same joints (origin at the mid-hip, or the visible hip; unit height of the
+visible joints' box) before the distance, which then sums over the visible joints only.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from mocapdb.database import MotionDatabase
+
+R_HIP, L_HIP = 8, 11
+
+
+@dataclass
+class SearchIndex:
+    """Database projections reordered so each cluster's members are contiguous.
+
+    Coordinates are stored joint-major (``x[k, i]``) so the distance loops run over poses with
+    SIMD; the same layout holds the cluster representatives.
+    """
+
+    x: np.ndarray               # [14, P] float32, grouped by cluster
+    y: np.ndarray               # [14, P] float32
+    rows: np.ndarray            # [P] int64: database projection row of each column
+    cluster_start: np.ndarray   # [K + 1] int64: cluster c is columns start[c]:start[c+1]
+    rep_x: np.ndarray           # [14, K'] float32: representatives of the non-empty clusters
+    rep_y: np.ndarray           # [14, K'] float32
+    rep_cluster: np.ndarray     # [K'] int64: their cluster numbers
+
+    @classmethod
+    def from_database(cls, db: MotionDatabase) -> "SearchIndex":
+        order = np.argsort(db.cluster, kind="stable")
+        counts = np.bincount(db.cluster, minlength=db.n_clusters)
+        start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        nonempty = np.flatnonzero(db.representative >= 0)
+        poses = db.keypoints_2d[order]
+        reps = db.keypoints_2d[db.representative[nonempty]]
+        return cls(np.ascontiguousarray(poses[..., 0].T), np.ascontiguousarray(poses[..., 1].T),
+                   order.astype(np.int64), start, np.ascontiguousarray(reps[..., 0].T),
+                   np.ascontiguousarray(reps[..., 1].T), nonempty.astype(np.int64))
+
+
+@njit(cache=True, fastmath=True)
+def _renormalisation(x, y, lo, hi, vis_idx):
+    """Per pose in columns lo:hi, the origin and scale over the visible joints ``vis_idx``."""
+    n = hi - lo
+    top = np.full(n, np.inf, dtype=np.float32)
+    bottom = np.full(n, -np.inf, dtype=np.float32)
+    for k in vis_idx:
+        for i in range(n):
+            top[i] = min(top[i], y[k, lo + i])
+            bottom[i] = max(bottom[i], y[k, lo + i])
+    scale = np.where(bottom - top > 1e-9, 1.0 / (bottom - top), 0.0).astype(np.float32)
+    has_r, has_l = False, False
+    for k in vis_idx:
+        has_r |= k == R_HIP
+        has_l |= k == L_HIP
+    r = R_HIP if has_r else L_HIP
+    l = L_HIP if has_l else R_HIP
+    half = np.float32(0.5)
+    ox = half * (x[r, lo:hi] + x[l, lo:hi])
+    oy = half * (y[r, lo:hi] + y[l, lo:hi])
+    return ox, oy, scale
+
+
+@njit(cache=True, fastmath=True)
+def range_distances(x, y, lo, hi, query, vis_idx, renormalise):
+    """Eq. 1 distances ``[hi - lo]`` from ``query [14, 2]`` to poses lo:hi, over joints ``vis_idx``.
+
+    With ``renormalise`` each pose is first renormalised over the visible joints.
+    """
+    n = hi - lo
+    out = np.zeros(n, dtype=np.float32)
+    if renormalise:
+        ox, oy, s = _renormalisation(x, y, lo, hi, vis_idx)
+        for k in vis_idx:
+            qx, qy = np.float32(query[k, 0]), np.float32(query[k, 1])
+            for i in range(n):
+                dx = (x[k, lo + i] - ox[i]) * s[i] - qx
+                dy = (y[k, lo + i] - oy[i]) * s[i] - qy
+                out[i] += np.sqrt(dx * dx + dy * dy)
+        return out
+    for k in vis_idx:
+        qx, qy = np.float32(query[k, 0]), np.float32(query[k, 1])
+        xk, yk = x[k, lo:hi], y[k, lo:hi]
+        for i in range(n):
+            dx = xk[i] - qx
+            dy = yk[i] - qy
+            out[i] += np.sqrt(dx * dx + dy * dy)
+    return out
+
+
+@njit(cache=True)
+def _smallest(dist, k, offset):
+    """Indices (plus ``offset``) and values of the ``k`` smallest of ``dist``, ascending."""
+    best_d = np.full(k, np.inf)
+    best_i = np.full(k, -1, dtype=np.int64)
+    for i in range(dist.shape[0]):
+        d = dist[i]
+        if d >= best_d[k - 1]:
+            continue
+        j = k - 1
+        while j > 0 and best_d[j - 1] > d:
+            best_d[j] = best_d[j - 1]
+            best_i[j] = best_i[j - 1]
+            j -= 1
+        best_d[j] = d
+        best_i[j] = i + offset
+    return best_i, best_d
+
+
+@njit(cache=True)
+def _clustered(x, y, cluster_start, rep_x, rep_y, rep_cluster, query, vis_idx, renorm, n_clusters, per_cluster):
+    n_rep = rep_x.shape[1]
+    top_c, _ = _smallest(range_distances(rep_x, rep_y, 0, n_rep, query, vis_idx, renorm),
+                         min(n_clusters, n_rep), 0)
+    out_d = np.full(top_c.shape[0] * per_cluster, np.inf)
+    out_i = np.full(out_d.shape[0], -1, dtype=np.int64)
+    for n in range(top_c.shape[0]):
+        c = rep_cluster[top_c[n]]
+        lo, hi = cluster_start[c], cluster_start[c + 1]
+        best_i, best_d = _smallest(range_distances(x, y, lo, hi, query, vis_idx, renorm), per_cluster, lo)
+        out_i[n * per_cluster:(n + 1) * per_cluster] = best_i
+        out_d[n * per_cluster:(n + 1) * per_cluster] = best_d
+    keep = out_i >= 0
+    return out_i[keep], out_d[keep]
+
+
+@njit(cache=True)
+def _exact(x, y, query, vis_idx, renorm, k):
+    best_i, best_d = _smallest(range_distances(x, y, 0, x.shape[1], query, vis_idx, renorm), k, 0)
+    keep = best_i >= 0
+    return best_i[keep], best_d[keep]
+
+
+def _visible_joints(visible: np.ndarray) -> tuple[np.ndarray, bool]:
+    vis_idx = np.flatnonzero(visible).astype(np.int64)
+    return vis_idx, len(vis_idx) < len(visible)
+
+
+def search_clustered(index: SearchIndex, query: np.ndarray, visible: np.ndarray,
+                     n_clusters: int = 5, per_cluster: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """Candidates of the two-level search: database projection rows and their Eq. 1 distances.
+
+    ``query [14, 2]`` is normalised over ``visible [14]`` (see ``normalize_pose_2d``).
+    """
+    vis_idx, renorm = _visible_joints(visible)
+    idx, dist = _clustered(index.x, index.y, index.cluster_start, index.rep_x, index.rep_y, index.rep_cluster,
+                           query, vis_idx, renorm, n_clusters, per_cluster)
+    return index.rows[idx], dist
+
+
+def search_exact(index: SearchIndex, query: np.ndarray, visible: np.ndarray,
+                 k: int = 50) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` nearest projections over the whole database (brute force), nearest first."""
+    vis_idx, renorm = _visible_joints(visible)
+    idx, dist = _exact(index.x, index.y, query, vis_idx, renorm, k)
+    return index.rows[idx], dist
