@@ -15,7 +15,7 @@ from scipy.linalg import eigh
 from scipy.spatial.distance import cdist
 
 CHUNK_BYTES = 100_000_000    # landmark MDS: bytes of the float64 distance block of one chunk
-MAXMIN_POOL_PER_LANDMARK = 50  # landmark MDS: MaxMin picks from a random pool of this many × L poses
+MAXMIN_POOL_PER_LANDMARK = 3  # landmark MDS: MaxMin picks from a random pool of this many × L poses
 KMEANS_INIT_PER_CLUSTER = 20   # k-means++ runs on a random subsample of this many × k points
 KMEANS_BLOCKS = 256            # fixed partition of the points for order-stable partial sums
 

@@ -3,5 +3,7 @@ from .builder import BuildError
 from .bvh import BvhError
 from .database import DatabaseError
 from .joint_map import JointMapError
+from .keypoints import KeypointError
 
-USER_ERRORS: tuple[type[Exception], ...] = (BuildError, BvhError, DatabaseError, JointMapError, OSError)
+USER_ERRORS: tuple[type[Exception], ...] = (BuildError, BvhError, DatabaseError, JointMapError, KeypointError,
+                                           OSError)

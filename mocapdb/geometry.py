@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
 
@@ -197,29 +198,52 @@ def project_views(positions_m: np.ndarray, pelvis_m: np.ndarray, yaws_deg: np.nd
 
 
 NORMALISED_HEIGHT = 1.0  # bounding-box height of every normalised 2D pose (unitless)
+HIP_R, HIP_L = 8, 11     # the hips among the 14 keypoints: their mid-point is the origin
 
 
-def normalize_pose_2d(points_px: np.ndarray, visible: np.ndarray | None = None,
-                      hip_indices: tuple[int, int] = (8, 11)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The method's scaling step, shared by builder and runtime.
+def normalize_pose_2d(points_px: np.ndarray, visible: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The method's scaling step, shared by builder and runtime (one numba kernel).
 
-    Moves the mid-hip point to the origin and scales so the bounding box of the visible joints is
-    :data:`NORMALISED_HEIGHT` high. ``points_px [..., 14, 2]``; ``visible [..., 14]`` (default all).
-    Returns ``(normalised, origin_px [..., 2], scale [...])`` with ``normalised = (p - origin) * scale``.
-    Invisible joints are set to 0; a pose with no height (or no visible hip) gets scale 0.
+    Moves the mid-hip point (joints 8 and 11; the visible one if only one is) to the origin and
+    scales so the bounding box of the visible joints is :data:`NORMALISED_HEIGHT` high.
+    ``points_px [..., 14, 2]``; ``visible [..., 14]`` (default all). Returns
+    ``(normalised, origin_px [..., 2], scale [...])`` with ``normalised = (p - origin) * scale``.
+    Invisible joints are set to 0; a pose with no height or no visible hip gets scale 0.
     """
     pts = np.asarray(points_px, dtype=np.float64)
-    vis = np.ones(pts.shape[:-1], dtype=bool) if visible is None else np.asarray(visible, dtype=bool)
-    y = pts[..., 1]
-    top = np.min(np.where(vis, y, np.inf), axis=-1)
-    bottom = np.max(np.where(vis, y, -np.inf), axis=-1)
-    height = bottom - top
-    ok = np.isfinite(height) & (height > 1e-9)
-    r, l = hip_indices
-    both = vis[..., r] & vis[..., l]
-    origin = np.where(both[..., None], 0.5 * (pts[..., r, :] + pts[..., l, :]),
-                      np.where(vis[..., r, None], pts[..., r, :], pts[..., l, :]))
-    ok &= vis[..., r] | vis[..., l]
-    scale = np.where(ok, NORMALISED_HEIGHT / np.where(ok, height, 1.0), 0.0)
-    normalised = (pts - origin[..., None, :]) * scale[..., None, None]
-    return np.where(vis[..., None], normalised, 0.0), origin, scale
+    lead = pts.shape[:-2]
+    vis = (np.ones(pts.shape[:-1], dtype=np.bool_) if visible is None
+           else np.broadcast_to(np.asarray(visible, dtype=np.bool_), pts.shape[:-1]))
+    flat_pts = np.ascontiguousarray(pts.reshape(-1, pts.shape[-2], 2))
+    flat_vis = np.ascontiguousarray(vis.reshape(-1, pts.shape[-2]))
+    out, origin, scale = _normalize_kernel(flat_pts, flat_vis)
+    return out.reshape(pts.shape), origin.reshape(lead + (2,)), scale.reshape(lead)
+
+
+@njit(cache=True)
+def _normalize_kernel(pts: np.ndarray, vis: np.ndarray):
+    n, n_joints = pts.shape[0], pts.shape[1]
+    out = np.zeros_like(pts)
+    origin = np.zeros((n, 2))
+    scale = np.zeros(n)
+    for i in range(n):
+        top, bottom = np.inf, -np.inf
+        for k in range(n_joints):
+            if vis[i, k]:
+                top = min(top, pts[i, k, 1])
+                bottom = max(bottom, pts[i, k, 1])
+        r, l = vis[i, HIP_R], vis[i, HIP_L]
+        a = HIP_R if r else HIP_L
+        b = HIP_L if l else HIP_R
+        origin[i, 0] = 0.5 * (pts[i, a, 0] + pts[i, b, 0])
+        origin[i, 1] = 0.5 * (pts[i, a, 1] + pts[i, b, 1])
+        height = bottom - top
+        if not (r or l) or not height > 1e-9 or not np.isfinite(height):
+            continue
+        scale[i] = NORMALISED_HEIGHT / height
+        for k in range(n_joints):
+            if vis[i, k]:
+                out[i, k, 0] = (pts[i, k, 0] - origin[i, 0]) * scale[i]
+                out[i, k, 1] = (pts[i, k, 1] - origin[i, 1]) * scale[i]
+    return out, origin, scale

@@ -7,8 +7,9 @@ subject's left, metres, pelvis (mid-hip) at the origin.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
-from .bvh import Bvh, accumulate_transforms, motion_from_rotations
+from .bvh import Bvh, motion_from_rotations
 from .geometry import frame_from_axes, matrix_to_quat, quat_to_matrix
 
 # The 14 keypoints in OpenPose COCO-18 order (its first 14), then the pelvis (mid-hip).
@@ -63,6 +64,7 @@ RIG_JOINTS: tuple[str, ...] = tuple(n for n in NODE_NAMES if n not in END_SITES)
 N_RIG_JOINTS = len(RIG_JOINTS)
 _NODE_OF_POINT = np.array([NODE_NAMES.index(next(n[0] for n in RIG_NODES if n[3] == kp)) for kp in KEYPOINTS])
 _JOINT_NODE = np.array([NODE_NAMES.index(j) for j in RIG_JOINTS])
+_NODE_JOINT = np.array([RIG_JOINTS.index(n) if n in RIG_JOINTS else -1 for n in NODE_NAMES])
 
 # How each rotation joint's global frame is found from keypoints: the bone it drives (primary,
 # from→to keypoints) and a secondary direction fixing the twist, with their rest directions.
@@ -85,9 +87,9 @@ FALLBACK_WEIGHT = 0.2  # weight of the parent-derived twist against the limb pla
 
 def rest_positions_m() -> np.ndarray:
     """Keypoint positions ``[15, 3]`` of the rest pose (metres, pelvis at the origin)."""
-    eye = np.broadcast_to(np.eye(3), (1, len(NODE_NAMES), 3, 3))
-    pos, _ = accumulate_transforms(NODE_PARENTS, eye, NODE_OFFSETS_M[None])
-    return pos[0, _NODE_OF_POINT]
+    identity = np.zeros((1, N_RIG_JOINTS, 4))
+    identity[..., 0] = 1.0
+    return pose_from_rotations(identity, np.zeros((1, 3)))[0]
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -167,13 +169,38 @@ def retarget(points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def pose_from_rotations(quats: np.ndarray, pelvis_m: np.ndarray) -> np.ndarray:
     """Universal keypoints ``[F, 15, 3]`` from local rotations ``[F, R, 4]`` and pelvis ``[F, 3]``."""
-    n = quats.shape[0]
-    rot = np.broadcast_to(np.eye(3), (n, len(NODE_NAMES), 3, 3)).copy()
-    rot[:, _JOINT_NODE] = quat_to_matrix(quats)
-    trans = np.broadcast_to(NODE_OFFSETS_M, (n, len(NODE_NAMES), 3)).copy()
-    trans[:, 0] = pelvis_m
-    pos, _ = accumulate_transforms(NODE_PARENTS, rot, trans)
-    return pos[:, _NODE_OF_POINT]
+    quats = np.ascontiguousarray(quats, dtype=np.float64).reshape(-1, N_RIG_JOINTS, 4)
+    pelvis = np.ascontiguousarray(pelvis_m, dtype=np.float64).reshape(-1, 3)
+    return _rig_fk(quats, pelvis, NODE_PARENTS, NODE_OFFSETS_M, _NODE_JOINT, _NODE_OF_POINT)
+
+
+@njit(cache=True)
+def _rig_fk(quats, pelvis, parents, offsets, node_joint, node_of_point):
+    """Forward kinematics of the rig, frame by frame (numba: fast for one frame and for many)."""
+    n_frames, n_nodes = quats.shape[0], parents.shape[0]
+    out = np.empty((n_frames, node_of_point.shape[0], 3))
+    g_rot = np.empty((n_nodes, 3, 3))
+    g_pos = np.empty((n_nodes, 3))
+    local = np.empty((3, 3))
+    for f in range(n_frames):
+        for j in range(n_nodes):
+            if node_joint[j] >= 0:
+                w, x, y, z = quats[f, node_joint[j]]
+                local[0, 0], local[0, 1], local[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+                local[1, 0], local[1, 1], local[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+                local[2, 0], local[2, 1], local[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+            else:
+                local[:] = np.eye(3)
+            p = parents[j]
+            if p < 0:
+                g_rot[j] = local
+                g_pos[j] = pelvis[f]
+            else:
+                g_rot[j] = g_rot[p] @ local
+                g_pos[j] = g_pos[p] + g_rot[p] @ offsets[j]
+        for k in range(node_of_point.shape[0]):
+            out[f, k] = g_pos[node_of_point[k]]
+    return out
 
 
 def resample(points: np.ndarray, source_fps: float, target_fps: float) -> np.ndarray:

@@ -1,0 +1,259 @@
+"""The per-frame engine: people's 2D keypoints → tracked, retrieved, smoothed 3D skeletons.
+
+One code path serves `mocapdb reconstruct` (files) and `mocapdb live` (streams). Frames
+(``data_specs/stream_output.md``):
+
+* **view frame** (right-handed, metres): x to the image's right, y up, z towards the camera.
+  The matched database skeleton turned by its yaw lives here (the database camera looks along
+  −z); BVH output and the stored quaternions use it.
+* **camera-aligned frame** (the JSON ``joints``/``root``): x right, y up, z away from the camera
+  (the view frame with z negated); the origin is the camera centre when the root translation is
+  estimated, otherwise the pelvis.
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from mocapdb.database import MotionDatabase
+from mocapdb.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
+from mocapdb.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
+from mocapdb.skeleton import N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, pose_from_rotations
+
+from .filters import ROOT_DEFAULTS, OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
+from .search import SearchIndex, search_clustered, search_exact
+from .temporal import temporal_costs, yawed_rotations
+from .tracker import Tracker, TrackerConfig
+
+R_HIP, L_HIP = 8, 11
+CAMERA_FROM_VIEW = np.array([1.0, 1.0, -1.0])  # view frame → camera-aligned frame (z negated)
+
+
+@dataclass
+class EngineConfig:
+    """Runtime parameters (defaults: the method's i=5, j=10, w=4)."""
+
+    search: str = "clustered"            # "clustered" (the method) or "exact" (brute force)
+    n_clusters: int = 5                  # i: clusters searched
+    per_cluster: int = 10                # j: projections taken from each
+    window_weights: tuple[float, ...] = (0.4, 0.3, 0.2, 0.1)  # w = 4, most recent first
+    joint_weights: tuple[float, ...] | None = None            # per rig joint; default all 1
+    weight_2d: float = 0.0               # added to Eq. 2: this × the candidate's Eq. 1 distance
+    confidence_threshold: float = CONFIDENCE_THRESHOLD
+    min_joints: int = 6                  # fewer confident joints: the person is skipped
+    focal_px: float = 1000.0             # input camera focal length, pixels
+    image_size: tuple[int, int] = (1920, 1080)  # input image width, height in pixels
+    fps: float = 30.0                    # frame rate assumed when frames carry no time
+    translation: bool = True             # estimate the root translation from the image
+    smoothing: bool = True
+    rotation_filter: OneEuroParams = field(default_factory=OneEuroParams)
+    root_filter: OneEuroParams = ROOT_DEFAULTS
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+
+    def __post_init__(self) -> None:
+        if self.search not in ("clustered", "exact"):
+            raise ValueError(f"search must be 'clustered' or 'exact', not {self.search!r}")
+
+
+@dataclass
+class Match:
+    """The database projection a pose was retrieved from."""
+
+    clip: str
+    frame: int          # frame index within the clip (database frame rate)
+    yaw_deg: float
+    distance_2d: float  # Eq. 1 distance to the normalised input
+
+
+@dataclass
+class PersonPose:
+    """One person's output for one frame."""
+
+    track: int
+    joints_m: np.ndarray     # [15, 3] camera-aligned frame, metres (KEYPOINTS order)
+    quaternions: np.ndarray  # [R, 4] local rotations; the root's is relative to the view frame
+    root_m: np.ndarray       # [3] pelvis, camera-aligned frame, metres
+    match: Match
+
+
+@dataclass
+class TrackRecording:
+    """What a track produced, for its BVH: one entry per frame from its first to its last."""
+
+    track: int
+    first_frame: int
+    quaternions: list[np.ndarray] = field(default_factory=list)  # [R, 4] view frame
+    root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] view frame
+
+
+class _TrackState:
+    """Per-track memory: last reconstructed skeletons, filters, recording."""
+
+    def __init__(self, track: int, frame: int, config: EngineConfig, window: int):
+        self.history: deque[np.ndarray] = deque(maxlen=window)
+        self.rotations = QuaternionOneEuroFilter(config.rotation_filter)
+        self.root = OneEuroFilter(config.root_filter)
+        self.recording = TrackRecording(track, frame)
+        self.last_frame = frame - 1
+
+    def record(self, frame: int, quats: np.ndarray, root_view: np.ndarray) -> None:
+        """Append this frame, holding the last pose over any frames the track missed."""
+        rec = self.recording
+        for _ in range(frame - self.last_frame - 1):
+            if rec.quaternions:
+                rec.quaternions.append(rec.quaternions[-1])
+                rec.root_view_m.append(rec.root_view_m[-1])
+        rec.quaternions.append(quats)
+        rec.root_view_m.append(root_view)
+        self.last_frame = frame
+
+
+@dataclass
+class EngineStats:
+    frames: int = 0
+    person_frames: int = 0
+    skipped_people: int = 0  # detections with too few confident joints or no hip
+    tracks_started: int = 0
+
+
+class Engine:
+    """Retrieval engine over one database; call :meth:`step` per frame, :meth:`finish` at the end."""
+
+    def __init__(self, db: MotionDatabase, config: EngineConfig | None = None):
+        self.db = db
+        self.config = config or EngineConfig()
+        cfg = self.config
+        self.index = SearchIndex.from_database(db)
+        self.db_quats = np.ascontiguousarray(db.quaternions)
+        self.clip_first = db.clip_first_frame[db.frame_clip]
+        self.yaws_deg = np.asarray(db.meta["yaws_deg"], dtype=np.float64)
+        self.yaw_mats = yaw_matrix(self.yaws_deg)
+        self.yaw_quats = matrix_to_quat(self.yaw_mats)
+        self.window_weights = np.asarray(cfg.window_weights, dtype=np.float64)
+        weights = cfg.joint_weights or (1.0,) * N_RIG_JOINTS
+        if len(weights) != N_RIG_JOINTS:
+            raise ValueError(f"joint_weights needs {N_RIG_JOINTS} values, got {len(weights)}")
+        self.joint_weights = np.asarray(weights, dtype=np.float64)
+        self.tracker = Tracker(cfg.tracker)
+        self.tracks: dict[int, _TrackState] = {}
+        self.finished: list[TrackRecording] = []
+        self.stats = EngineStats()
+
+    # -- per frame -------------------------------------------------------------------------
+    def step(self, frame: KeypointFrame) -> list[PersonPose]:
+        """Process one frame; returns the poses of the confirmed tracks seen in it."""
+        cfg = self.config
+        t_s = frame.time_s if frame.time_s is not None else frame.index / cfg.fps
+        self.stats.frames += 1
+        people = [p for p in frame.people if self._usable(p)]
+        self.stats.skipped_people += len(frame.people) - len(people)
+        points = np.array([p.points_px for p in people]).reshape(-1, N_KEYPOINTS_2D, 2)
+        conf = np.array([p.confidence for p in people]).reshape(-1, N_KEYPOINTS_2D)
+        conf = np.where(conf >= cfg.confidence_threshold, conf, 0.0)
+        update = self.tracker.update(points, conf, t_s)
+        for track in update.ended:
+            self._end(track)
+        poses = []
+        for track, det in update.assignments:
+            state = self.tracks.get(track)
+            if state is None:
+                state = self.tracks[track] = _TrackState(track, frame.index, cfg, len(self.window_weights))
+                self.stats.tracks_started += 1
+            poses.append(self._person(state, points[det], conf[det] > 0, frame.index, t_s))
+        self.stats.person_frames += len(poses)
+        return poses
+
+    def _usable(self, person: Person) -> bool:
+        vis = person.confidence >= self.config.confidence_threshold
+        return int(vis.sum()) >= self.config.min_joints and bool(vis[R_HIP] or vis[L_HIP])
+
+    def _person(self, state: _TrackState, points_px: np.ndarray, visible: np.ndarray,
+                frame_index: int, t_s: float) -> PersonPose:
+        query, _, _ = normalize_pose_2d(points_px, visible)
+        rows, dist = self._search(query, visible)
+        best = self._choose(state, rows, dist)
+        row = int(rows[best])
+        f, v = int(self.db.proj_frame[row]), int(self.db.proj_yaw[row])
+        quats = yawed_rotations(self.db_quats, f, self.yaw_quats[v])
+        state.history.appendleft(quats)
+        root_view = self._root_view(f, v, points_px, visible)
+        if self.config.smoothing:
+            quats = state.rotations(quats, t_s)
+            root_view = state.root(root_view, t_s)
+        state.record(frame_index, quats, root_view)
+        joints_view = pose_from_rotations(quats[None], root_view[None])[0]
+        clip = int(self.db.frame_clip[f])
+        match = Match(self.db.clip_name[clip], int(self.db.frame_index[f]), float(self.yaws_deg[v]),
+                      float(dist[best]))
+        return PersonPose(state.recording.track, joints_view * CAMERA_FROM_VIEW, quats,
+                          root_view * CAMERA_FROM_VIEW, match)
+
+    def _search(self, query: np.ndarray, visible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cfg = self.config
+        if cfg.search == "exact":
+            return search_exact(self.index, query, visible, cfg.n_clusters * cfg.per_cluster)
+        return search_clustered(self.index, query, visible, cfg.n_clusters, cfg.per_cluster)
+
+    def _choose(self, state: _TrackState, rows: np.ndarray, dist: np.ndarray) -> int:
+        """Index into ``rows`` of the candidate to use (Eq. 2, or Eq. 1 at a track's start)."""
+        if not state.history:
+            return int(np.argmin(dist))
+        history = np.array(state.history)
+        window = np.zeros((len(self.window_weights),) + history.shape[1:])
+        window[:len(history)] = history
+        costs = temporal_costs(self.db_quats, self.clip_first, self.yaw_quats, self.db.proj_frame[rows],
+                               self.db.proj_yaw[rows].astype(np.int64), window, len(history),
+                               self.window_weights, self.joint_weights)
+        return int(np.argmin(costs + self.config.weight_2d * dist))
+
+    def _root_view(self, frame: int, yaw: int, points_px: np.ndarray, visible: np.ndarray) -> np.ndarray:
+        """Pelvis position in the view frame: from the image by a pinhole model, or 0."""
+        if not self.config.translation:
+            return np.zeros(3)
+        cfg = self.config
+        return root_from_image(self.db.positions[frame], self.yaw_mats[yaw], points_px, visible,
+                               cfg.focal_px, cfg.image_size[0] / 2.0, cfg.image_size[1] / 2.0)
+
+    def _end(self, track: int) -> None:
+        state = self.tracks.pop(track, None)
+        if state is not None and state.recording.quaternions:
+            self.finished.append(state.recording)
+
+    def finish(self) -> list[TrackRecording]:
+        """End every track; returns all recordings (ended earlier or now), by track id."""
+        for track in self.tracker.finish():
+            self._end(track)
+        for track in list(self.tracks):
+            self._end(track)
+        return sorted(self.finished, key=lambda r: r.track)
+
+
+@njit(cache=True)
+def root_from_image(positions_m, yaw_mat, points_px, visible, focal_px, cx, cy) -> np.ndarray:
+    """The pelvis in the view frame (metres) seen at the image's pelvis with the image's size.
+
+    Depth = focal × (box diagonal of the matched skeleton's visible joints turned by its yaw, in
+    the image plane, metres) / (box diagonal of the visible keypoints, pixels); then x, y from the
+    pelvis pixel through the pinhole model (principal point cx, cy).
+    """
+    lo_m, hi_m = np.full(2, np.inf), np.full(2, -np.inf)
+    lo_px, hi_px = np.full(2, np.inf), np.full(2, -np.inf)
+    pelvis, n_hips = np.zeros(2), 0
+    for k in range(N_KEYPOINTS_2D):
+        if not visible[k]:
+            continue
+        rel = positions_m[k] - positions_m[PELVIS]
+        for a in range(2):
+            turned = yaw_mat[a, 0] * rel[0] + yaw_mat[a, 1] * rel[1] + yaw_mat[a, 2] * rel[2]
+            lo_m[a], hi_m[a] = min(lo_m[a], turned), max(hi_m[a], turned)
+            lo_px[a], hi_px[a] = min(lo_px[a], points_px[k, a]), max(hi_px[a], points_px[k, a])
+        if k == R_HIP or k == L_HIP:
+            pelvis += points_px[k]
+            n_hips += 1
+    extent_px = max(np.sqrt(np.sum((hi_px - lo_px) ** 2)), 1e-6)
+    depth = focal_px * np.sqrt(np.sum((hi_m - lo_m) ** 2)) / extent_px
+    pelvis /= max(n_hips, 1)
+    return np.array([(pelvis[0] - cx) * depth / focal_px, -(pelvis[1] - cy) * depth / focal_px, -depth])

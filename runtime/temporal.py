@@ -1,0 +1,71 @@
+"""Temporal choice among search candidates: the method's Eq. 2 (numba).
+
+For candidate c (database frame f, yaw v) and the track's last w reconstructed skeletons
+h_1 … h_w (h_1 the most recent), the cost is
+
+    Σ_i ω_i Σ_k λ_k ‖log(h_{i,k}⁻¹ q_{f−i,k})‖² / Σ_i ω_i
+
+over the rig joints k, where q_{f−i} are the rotations of the i-th frame before f in the same
+clip (clamped at the clip's first frame) with the root turned by yaw v, ω the window weights and
+λ the joint weights. ‖log(a⁻¹b)‖ is the half rotation angle, ``arccos |a·b|``.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, fastmath=True)
+def _yawed_dot(yaw, q, h) -> float:
+    """``|h · (yaw * q)|`` for quaternions (w, x, y, z), without building the product."""
+    w = yaw[0] * q[0] - yaw[1] * q[1] - yaw[2] * q[2] - yaw[3] * q[3]
+    x = yaw[0] * q[1] + yaw[1] * q[0] + yaw[2] * q[3] - yaw[3] * q[2]
+    y = yaw[0] * q[2] - yaw[1] * q[3] + yaw[2] * q[0] + yaw[3] * q[1]
+    z = yaw[0] * q[3] + yaw[1] * q[2] - yaw[2] * q[1] + yaw[3] * q[0]
+    return abs(h[0] * w + h[1] * x + h[2] * y + h[3] * z)
+
+
+@njit(cache=True, fastmath=True)
+def _angle_sq(dot: float) -> float:
+    """Squared half-angle ``arccos(|a·b|)²`` from the absolute dot product of two quaternions."""
+    angle = np.arccos(min(dot, 1.0))
+    return angle * angle
+
+
+@njit(cache=True, fastmath=True)
+def temporal_costs(db_quats: np.ndarray, clip_first: np.ndarray, yaw_quats: np.ndarray,
+                   cand_frames: np.ndarray, cand_yaws: np.ndarray, history: np.ndarray, n_hist: int,
+                   window_weights: np.ndarray, joint_weights: np.ndarray) -> np.ndarray:
+    """Eq. 2 cost ``[C]`` of each candidate against ``history [w, R, 4]`` (most recent first).
+
+    ``db_quats [F, R, 4]`` database rotations (root in the mocap world), ``clip_first [F]`` the
+    first frame of each frame's clip, ``yaw_quats [V, 4]`` the database yaws as quaternions.
+    Only the first ``n_hist`` history entries are used.
+    """
+    n_joints = db_quats.shape[1]
+    costs = np.zeros(cand_frames.shape[0])
+    for c in range(cand_frames.shape[0]):
+        f, v = cand_frames[c], cand_yaws[c]
+        total, weight = 0.0, 0.0
+        for i in range(n_hist):
+            g = max(f - 1 - i, clip_first[f])
+            term = joint_weights[0] * _angle_sq(_yawed_dot(yaw_quats[v], db_quats[g, 0], history[i, 0]))
+            for k in range(1, n_joints):
+                q, h = db_quats[g, k], history[i, k]
+                term += joint_weights[k] * _angle_sq(abs(q[0] * h[0] + q[1] * h[1] + q[2] * h[2] + q[3] * h[3]))
+            total += window_weights[i] * term
+            weight += window_weights[i]
+        costs[c] = total / weight if weight > 0 else 0.0
+    return costs
+
+
+@njit(cache=True)
+def yawed_rotations(db_quats: np.ndarray, frame: int, yaw_quat: np.ndarray) -> np.ndarray:
+    """Rotations ``[R, 4]`` (float64) of database ``frame`` with the root turned by ``yaw_quat``."""
+    out = db_quats[frame].astype(np.float64)
+    a, q = yaw_quat, out[0].copy()
+    out[0, 0] = a[0] * q[0] - a[1] * q[1] - a[2] * q[2] - a[3] * q[3]
+    out[0, 1] = a[0] * q[1] + a[1] * q[0] + a[2] * q[3] - a[3] * q[2]
+    out[0, 2] = a[0] * q[2] - a[1] * q[3] + a[2] * q[0] + a[3] * q[1]
+    out[0, 3] = a[0] * q[3] + a[1] * q[2] - a[2] * q[1] + a[3] * q[0]
+    return out

@@ -1,0 +1,236 @@
+"""Associates the people detected in successive frames into tracks with stable ids.
+
+Each frame's detections (14 OpenPose keypoints per person, see :mod:`mocapdb.skeleton`) are
+matched to the tracks by a scale-free cost, gated, and solved with the Hungarian algorithm;
+confirmed tracks are matched first, tentative ones then take what is left. A track predicts its
+keypoints by a constant velocity (of the joints it shares with each new detection, smoothed), so
+brief dropouts and people crossing paths keep their ids.
+
+Lifecycle: an unmatched detection starts a tentative track; ``min_hits`` consecutive matches
+confirm it and give it the next id (ids only increase and are never reused); a tentative track
+that misses a frame is dropped; a confirmed track unmatched for more than ``max_missing`` frames
+ends. New tracks are created left to right (then top to bottom) by box centre, so ids do not
+depend on the order of the detections in the input.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from mocapdb.skeleton import N_KEYPOINTS_2D
+
+_BOX_SHIFT = np.array([[1.0, 0.0, -1.0, 0.0], [0.0, 1.0, 0.0, -1.0]])  # (dx, dy) -> signed box
+_GATED = 1e6  # cost of a gated pair: finite, so the solver stays feasible; such pairs are dropped
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Association and lifecycle settings.
+
+    ``min_confidence``: a joint is visible when its confidence exceeds this (0 = missing).
+    ``iou_weight``: weight of ``1 - IoU`` of the visible-joint boxes, added to the mean joint
+    distance in units of the track's box size. ``max_cost``: the gate; pairs above never match.
+    ``velocity_smoothing``: weight of each new velocity measurement (exponential smoothing).
+    """
+
+    min_hits: int = 2
+    max_missing: int = 10
+    min_joints: int = 6
+    min_confidence: float = 0.0
+    iou_weight: float = 0.5
+    max_cost: float = 1.0
+    velocity_smoothing: float = 0.5
+
+
+@dataclass
+class TrackUpdate:
+    """Outcome of one frame.
+
+    ``assignments``: ``(track_id, detection index)`` of every confirmed track matched this frame
+    (including one confirmed on this frame), by track id. ``started``/``ended``: track ids.
+    """
+
+    assignments: list[tuple[int, int]] = field(default_factory=list)
+    started: list[int] = field(default_factory=list)
+    ended: list[int] = field(default_factory=list)
+
+
+@dataclass
+class _People:
+    """Keypoints of several people and the signed boxes of their visible joints."""
+
+    points: np.ndarray   # [N, 14, 2] pixels, 0 where not visible
+    visible: np.ndarray  # [N, 14] bool
+    box: np.ndarray      # [N, 4] (min x, min y, -max x, -max y): one min-reduction finds it and
+                         # an element-wise maximum of two is their intersection
+
+    @classmethod
+    def of(cls, points: np.ndarray, visible: np.ndarray) -> _People:
+        mask = visible[..., None]
+        box = np.where(mask, np.concatenate([points, -points], axis=2), np.inf).min(axis=1)
+        return cls(np.where(mask, points, 0.0), visible, box)
+
+    def moved(self, shift: np.ndarray) -> _People:
+        """The same people translated by ``shift [N, 2]`` pixels."""
+        return _People(self.points + shift[:, None], self.visible, self.box + shift @ _BOX_SHIFT)
+
+
+@dataclass
+class _Tracks(_People):
+    """All live tracks as parallel arrays, rows in creation order; keypoints of the last match."""
+
+    ids: np.ndarray        # [T] int, -1 while tentative
+    velocity: np.ndarray   # [T, 2] pixels/s
+    t_s: np.ndarray        # [T] time of the last match
+    hits: np.ndarray       # [T] consecutive matches
+    missing: np.ndarray    # [T] frames since the last match
+    detection: np.ndarray  # [T] detection matched this frame, -1 if none
+
+    @classmethod
+    def start(cls, people: _People, detection: np.ndarray, t_s: float) -> _Tracks:
+        n = len(detection)
+        return cls(people.points, people.visible, people.box, np.full(n, -1), np.zeros((n, 2)),
+                   np.full(n, float(t_s)), np.ones(n, dtype=np.int64), np.zeros(n, dtype=np.int64), detection)
+
+    @classmethod
+    def empty(cls) -> _Tracks:
+        return cls.start(_People.of(np.zeros((0, N_KEYPOINTS_2D, 2)), np.zeros((0, N_KEYPOINTS_2D), dtype=bool)),
+                         np.zeros(0, dtype=np.int64), 0.0)
+
+    def take(self, rows: np.ndarray) -> _Tracks:
+        return _Tracks(*(getattr(self, f.name)[rows] for f in fields(self)))
+
+    def extend(self, other: _Tracks) -> _Tracks:
+        return _Tracks(*(np.concatenate([getattr(self, f.name), getattr(other, f.name)]) for f in fields(self)))
+
+
+class Tracker:
+    """Tracks people across frames; see the module docstring for the rules."""
+
+    def __init__(self, config: TrackerConfig | None = None) -> None:
+        self.config = config or TrackerConfig()
+        self._tracks = _Tracks.empty()
+        self._next_id = 0
+
+    @property
+    def active_ids(self) -> list[int]:
+        """Ids of the confirmed tracks still alive (matched recently enough), ascending."""
+        ids = self._tracks.ids
+        return ids[ids >= 0].tolist()
+
+    def update(self, points: np.ndarray, confidence: np.ndarray, t_s: float) -> TrackUpdate:
+        """Associate one frame: ``points [P, 14, 2]`` pixels, ``confidence [P, 14]``, time in seconds."""
+        cfg = self.config
+        visible = np.asarray(confidence).reshape(-1, N_KEYPOINTS_2D) > cfg.min_confidence
+        kept = (visible.sum(axis=1) >= cfg.min_joints).nonzero()[0]
+        points = np.asarray(points, dtype=np.float64).reshape(-1, N_KEYPOINTS_2D, 2)
+        if len(kept) < len(visible):
+            points, visible = points[kept], visible[kept]
+        dets = _People.of(points, visible)
+        rows, cols = self._match(dets, t_s)
+        self._advance(rows, cols, dets, t_s)
+        started = self._confirm()
+        tr = self._tracks
+        assigned = ((tr.ids >= 0) & (tr.detection >= 0)).nonzero()[0]  # rows, hence ids, ascending
+        assignments = list(zip(tr.ids[assigned].tolist(), kept[tr.detection[assigned]].tolist()))
+        return TrackUpdate(assignments, started, self._prune())
+
+    def finish(self) -> list[int]:
+        """End every track (end of stream); returns the ids of the confirmed ones."""
+        ended = self.active_ids
+        self._tracks = _Tracks.empty()
+        return ended
+
+    def _match(self, dets: _People, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Matched ``(track rows, detection columns)`` by ascending row; confirmed tracks choose first."""
+        tr = self._tracks
+        predicted = tr.moved(tr.velocity * (t_s - tr.t_s)[:, None])  # constant velocity
+        cost = _cost(predicted, dets, self.config)
+        confirmed = tr.ids >= 0
+        if confirmed.all():
+            return _assign(cost)
+        first, second = confirmed.nonzero()[0], (~confirmed).nonzero()[0]
+        rows, cols = _assign(cost[first])
+        free = np.ones(len(dets.points), dtype=bool)
+        free[cols] = False
+        free = free.nonzero()[0]
+        rows2, cols2 = _assign(cost[np.ix_(second, free)])
+        rows, cols = np.concatenate([first[rows], second[rows2]]), np.concatenate([cols, free[cols2]])
+        order = np.argsort(rows)
+        return rows[order], cols[order]
+
+    def _advance(self, rows: np.ndarray, cols: np.ndarray, dets: _People, t_s: float) -> None:
+        """Move matched tracks to their detections, age the others, start tracks for the rest."""
+        tr, cfg = self._tracks, self.config
+        tr.detection.fill(-1)
+        tr.detection[rows] = cols
+        tr.missing += 1
+        if len(rows) == len(tr.ids):
+            rows = slice(None)  # every track matched (rows ascending): cheaper views
+        points, visible, box = dets.points[cols], dets.visible[cols], dets.box[cols]
+        common = tr.visible[rows] & visible
+        shift = ((points - tr.points[rows]) * common[..., None]).sum(axis=1)
+        dt = t_s - tr.t_s[rows]
+        moving = dt > 0  # a non-increasing timestamp leaves the velocity as it is
+        measured = shift / (np.maximum(common.sum(axis=1), 1) * np.where(moving, dt, 1.0))[:, None]
+        weight = np.where(tr.hits[rows] == 1, 1.0, cfg.velocity_smoothing) * moving
+        tr.velocity[rows] += weight[:, None] * (measured - tr.velocity[rows])
+        tr.points[rows], tr.visible[rows], tr.box[rows], tr.t_s[rows] = points, visible, box, t_s
+        tr.hits[rows] += 1
+        tr.missing[rows] = 0
+        if len(cols) < len(dets.points):
+            new = np.ones(len(dets.points), dtype=bool)
+            new[cols] = False
+            new = new.nonzero()[0]
+            centre = dets.box[new, :2] - dets.box[new, 2:]  # twice the box centre
+            new = new[np.lexsort((centre[:, 1], centre[:, 0]))]  # left to right: input order is irrelevant
+            self._tracks = tr.extend(_Tracks.start(_People(dets.points[new], dets.visible[new], dets.box[new]),
+                                                   new, t_s))
+
+    def _confirm(self) -> list[int]:
+        """Give ids, in creation order, to tentative tracks with enough hits; returns them."""
+        tr = self._tracks
+        rows = ((tr.ids < 0) & (tr.hits >= self.config.min_hits)).nonzero()[0]
+        tr.ids[rows] = np.arange(self._next_id, self._next_id + len(rows))
+        self._next_id += len(rows)
+        return tr.ids[rows].tolist()
+
+    def _prune(self) -> list[int]:
+        """Drop expired confirmed tracks and unmatched tentative ones; returns the expired ids."""
+        tr = self._tracks
+        expired = (tr.ids >= 0) & (tr.missing > self.config.max_missing)
+        dropped = expired | ((tr.ids < 0) & (tr.detection < 0))
+        if not dropped.any():
+            return []
+        ended = tr.ids[expired].tolist()
+        self._tracks = tr.take(~dropped)
+        return ended
+
+
+def _cost(tracks: _People, dets: _People, cfg: TrackerConfig) -> np.ndarray:
+    """Cost ``[T, D]``: mean distance of shared joints / track box size + ``iou_weight (1 - IoU)``.
+
+    The box size is its height, or its width if larger (a lying person). Pairs above the gate,
+    or sharing no visible joint, cost ``_GATED``.
+    """
+    common = tracks.visible[:, None] & dets.visible[None]
+    diff = tracks.points[:, None] - dets.points[None]
+    total = (np.hypot(diff[..., 0], diff[..., 1]) * common).sum(axis=-1)
+    corners = np.maximum(tracks.box[:, None], dets.box[None])  # signed box of the intersection
+    overlap = np.minimum(corners[..., :2] + corners[..., 2:], 0.0)  # minus its width and height
+    inter = overlap[..., 0] * overlap[..., 1]
+    t_size, d_size = -(tracks.box[:, :2] + tracks.box[:, 2:]), -(dets.box[:, :2] + dets.box[:, 2:])
+    union = (t_size[:, 0] * t_size[:, 1])[:, None] + d_size[:, 0] * d_size[:, 1] - inter
+    scale = np.maximum(np.maximum(t_size[:, 0], t_size[:, 1]), 1.0)[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):  # no shared joint: 0 / 0, gated below
+        cost = total / (common.sum(axis=-1) * scale) + cfg.iou_weight * (1.0 - inter / np.maximum(union, 1e-9))
+        return np.where(cost <= cfg.max_cost, cost, _GATED)
+
+
+def _assign(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hungarian assignment of a gated cost matrix without the gated pairs, as (rows, cols)."""
+    rows, cols = linear_sum_assignment(cost)
+    ok = cost[rows, cols] < _GATED
+    return rows[ok], cols[ok]

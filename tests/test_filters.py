@@ -1,0 +1,134 @@
+"""1€ filters against hand-computed values, closed forms and measured jitter/lag."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from mocapdb.geometry import quat_geodesic
+from runtime.filters import OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
+
+RNG = np.random.default_rng(11)
+
+
+def _run(f, xs, ts):
+    return np.array([f(x, t) for x, t in zip(xs, ts)])
+
+
+def test_first_three_outputs_by_hand():
+    # Rate r = 10 Hz; min_cutoff = d_cutoff = 5/π Hz gives 2π f = 10, so a(d_cutoff) = 1/(1 + 10/10) = 1/2;
+    # beta = 1/π gives 2π f_c = 10 + 2 |dx̂|.
+    f = OneEuroFilter(OneEuroParams(min_cutoff_hz=5 / np.pi, beta=1 / np.pi, d_cutoff_hz=5 / np.pi))
+    # Sample 0 (x = 0, t = 0) passes through: x̂ = 0, dx̂ = 0.
+    # Sample 1 (x = 1, t = 0.1): dx = (1 - 0)·10 = 10; dx̂ = ½·10 + ½·0 = 5; 2π f_c = 10 + 2·5 = 20;
+    #   a = 1/(1 + 10/20) = 2/3; x̂ = ⅔·1 + ⅓·0 = 2/3.
+    # Sample 2 (x = 3, t = 0.2): dx = (3 - 2/3)·10 = 70/3; dx̂ = ½·70/3 + ½·5 = 85/6;
+    #   2π f_c = 10 + 85/3 = 115/3; a = 1/(1 + 30/115) = 23/29; x̂ = 23/29·3 + 6/29·2/3 = 73/29.
+    out = _run(f, [0.0, 1.0, 3.0], [0.0, 0.1, 0.2])
+    np.testing.assert_allclose(out, [0.0, 2 / 3, 73 / 29], rtol=1e-12)
+
+
+def test_beta_zero_is_a_first_order_low_pass():
+    fps, cutoff = 30.0, 1.5
+    alpha = 1.0 / (1.0 + fps / (2 * np.pi * cutoff))
+    gain = np.array([[1.0, -2.0], [0.5, 3.0], [0.0, 7.0]])  # any shape: a step of a different height per component
+    n = np.arange(60)
+    xs = np.where(n[:, None, None] == 0, 0.0, gain)
+    out = _run(OneEuroFilter(OneEuroParams(min_cutoff_hz=cutoff, beta=0.0)), xs, n / fps)
+    expected = (1.0 - (1.0 - alpha) ** n)[:, None, None] * gain  # step response y_n = 1 - (1 - a)^n
+    np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-15)
+
+
+def test_constant_input_stays_constant():
+    x = RNG.normal(size=(5, 3))
+    ts = np.cumsum(RNG.uniform(0.01, 0.05, 50))
+    out = _run(OneEuroFilter(OneEuroParams(beta=2.0)), [x] * 50, ts)
+    np.testing.assert_allclose(out, np.broadcast_to(x, out.shape), rtol=0, atol=1e-12)
+
+
+def test_jitter_variance_drops_tenfold():
+    fps, sigma = 60.0, 0.01
+    noisy = 1.0 + RNG.normal(0.0, sigma, 4000)
+    out = _run(OneEuroFilter(OneEuroParams(min_cutoff_hz=1.0, beta=0.05)), noisy, np.arange(4000) / fps)
+    # beta = 0 would give a/(2 - a) = 0.05 of the input variance (a = 0.095); ask for at most a tenth.
+    assert np.var(out[200:]) < 0.1 * sigma ** 2
+    assert abs(np.mean(out[200:]) - 1.0) < 0.002
+
+
+def test_beta_bounds_the_lag_on_a_ramp():
+    fps, speed, cutoff, beta = 60.0, 1.0, 1.0, 1.0
+    ts = np.arange(600) / fps
+    lag = {b: speed * ts[-1] - _run(OneEuroFilter(OneEuroParams(min_cutoff_hz=cutoff, beta=b)), speed * ts, ts)[-1]
+           for b in (0.0, beta)}
+    # beta = 0, steady state: L = (1 - a) v dt / a with a = 1/(1 + fps/(2π f)), i.e. L = v / (2π f).
+    np.testing.assert_allclose(lag[0.0], speed / (2 * np.pi * cutoff), rtol=1e-9)
+    # beta > 0: the smoothed speed is at least v, so f_c >= f + beta v and L <= v / (2π (f + beta v)): half here.
+    assert 0 < lag[beta] <= speed / (2 * np.pi * (cutoff + beta * speed))
+
+
+@pytest.mark.parametrize("make", [lambda: OneEuroFilter(), lambda: QuaternionOneEuroFilter()])
+def test_non_increasing_timestamp_is_skipped(make):
+    samples = Rotation.random(4, random_state=1).as_quat()[:, [3, 0, 1, 2]]
+    reference, skipping = make(), make()
+    expected = [reference(samples[i], t) for i, t in enumerate([0.0, 0.1, 0.2])]
+    got = [skipping(samples[0], 0.0), skipping(samples[1], 0.1), skipping(samples[3], 0.1),
+           skipping(samples[3], 0.05), skipping(samples[2], 0.2)]
+    np.testing.assert_array_equal(got[2], got[1])
+    np.testing.assert_array_equal(got[3], got[1])
+    np.testing.assert_allclose(got[4], expected[2], rtol=0, atol=1e-15)
+
+
+def test_reset_lets_the_next_sample_through():
+    f = OneEuroFilter()
+    f(np.zeros(3), 0.0)
+    f(np.ones(3), 0.1)
+    f.reset()
+    np.testing.assert_array_equal(f(np.full(3, 5.0), 0.2), np.full(3, 5.0))
+
+
+def _quats(rotations: Rotation) -> np.ndarray:
+    """(w, x, y, z) with w >= 0, as a pose pipeline would typically deliver them."""
+    q = rotations.as_quat()[..., [3, 0, 1, 2]]
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def test_sign_alternation_never_flips_the_output():
+    q = _quats(Rotation.random(3, random_state=2))
+    f = QuaternionOneEuroFilter()
+    out = np.array([f(q * (-1) ** k, k / 30) for k in range(40)])
+    assert np.max(quat_geodesic(out, q)) < 1e-7
+    np.testing.assert_allclose(out, np.broadcast_to(q, out.shape), atol=1e-7)  # the first sign is kept
+
+
+def test_sweep_past_180_degrees_is_followed_without_a_jump():
+    fps, omega = 30.0, 2.0  # rad/s about a tilted axis, from 0 to 330°
+    axis = np.array([1.0, 2.0, 2.0]) / 3.0
+    ts = np.arange(int(np.radians(330) / omega * fps)) / fps
+    inputs = _quats(Rotation.from_rotvec(np.outer(omega * ts, axis)))[:, None]  # hemisphere flip at 180°
+    assert np.min(np.sum(inputs[1:] * inputs[:-1], axis=-1)) < -0.9
+    f = QuaternionOneEuroFilter(OneEuroParams(min_cutoff_hz=1.0, beta=0.3))
+    out = np.array([f(q, t) for q, t in zip(inputs, ts)])
+    step = 2 * quat_geodesic(out[1:], out[:-1])  # rotation between successive outputs, radians
+    assert np.max(step) <= 1.2 * omega / fps  # catching up may outpace the input a little; never a jump
+    assert np.min(np.sum(out[1:] * out[:-1], axis=-1)) > 0.99  # components continuous, no sign flip
+    # Beyond the warm-up the output trails the input by less than beta = 0 would (ω / (2π f_min)).
+    assert np.max(2 * quat_geodesic(out[30:], inputs[30:])) < omega / (2 * np.pi * 1.0)
+    assert out[-1, 0, 0] < 0  # past 180° the output keeps going with w < 0: w >= 0 is not enforced
+
+
+def test_outputs_are_unit_and_jitter_is_reduced():
+    base = Rotation.random(5, random_state=3)
+    noise = Rotation.from_rotvec(RNG.normal(0.0, np.radians(2.0), (300, 5, 3)))
+    inputs = _quats(noise * base)  # unit, random hemispheres
+    f = QuaternionOneEuroFilter()
+    out = np.array([f(q, k / 30) for k, q in enumerate(inputs)])
+    np.testing.assert_allclose(np.linalg.norm(out, axis=-1), 1.0, atol=1e-12)
+    truth = _quats(base)
+    error_in = np.sqrt(np.mean(quat_geodesic(inputs[60:], truth) ** 2))
+    error_out = np.sqrt(np.mean(quat_geodesic(out[60:], truth) ** 2))
+    assert error_out < error_in / 2.5
+
+
+def test_constant_rotation_stays_constant():
+    q = _quats(Rotation.random(7, random_state=4))
+    f = QuaternionOneEuroFilter()
+    out = np.array([f(q, t) for t in np.cumsum(RNG.uniform(0.01, 0.05, 30))])
+    np.testing.assert_allclose(out, np.broadcast_to(q, out.shape), rtol=0, atol=1e-12)

@@ -1,0 +1,371 @@
+"""Keypoint input: layout orders, the universal mapping, layout detection, OpenPose JSON, streams, arrays."""
+import json
+
+import numpy as np
+import pytest
+
+from mocapdb.keypoints import (CONFIDENCE_THRESHOLD, LAYOUTS, KeypointError, Person, detect_layout,
+                               frames_from_arrays, parse_openpose_json, parse_stream_line, read_keypoint_array,
+                               read_openpose_folder, to_universal, visible)
+from mocapdb.skeleton import KP, N_KEYPOINTS_2D
+
+from .conftest import SHARED_DATA
+
+BODY25B_DIR = SHARED_DATA / "pose2sim_balancing" / "openpose_body25b"
+needs_body25b = pytest.mark.skipif(not BODY25B_DIR.is_dir(), reason="shared pose2sim BODY_25B data not present")
+
+# A person standing, facing the camera (their right on the image's left), pixels, y down.
+FIGURE = {
+    "nose": (300, 100), "r_eye": (290, 92), "l_eye": (310, 92), "r_ear": (280, 98), "l_ear": (320, 98),
+    "head_top": (300, 60), "upper_neck": (300, 135), "neck": (301, 152),
+    "r_sho": (260, 150), "l_sho": (340, 150), "r_elb": (250, 230), "l_elb": (350, 230),
+    "r_wri": (245, 300), "l_wri": (355, 300), "mid_hip": (300, 302),
+    "r_hip": (275, 300), "l_hip": (325, 300), "r_kne": (272, 400), "l_kne": (328, 400),
+    "r_ank": (270, 500), "l_ank": (330, 500),
+    "r_bigtoe": (265, 520), "r_smalltoe": (255, 515), "r_heel": (272, 505),
+    "l_bigtoe": (335, 520), "l_smalltoe": (345, 515), "l_heel": (328, 505),
+}
+# Each concept gets its own confidence, so the mapping of confidences is checked too.
+CONF = {name: 0.5 + 0.01 * i for i, name in enumerate(FIGURE)}
+
+# The layout orders, typed from the format documentation (independently of the module's tables).
+ORDERS = {
+    "body25": ("nose", "neck", "r_sho", "r_elb", "r_wri", "l_sho", "l_elb", "l_wri", "mid_hip",
+               "r_hip", "r_kne", "r_ank", "l_hip", "l_kne", "l_ank", "r_eye", "l_eye", "r_ear", "l_ear",
+               "l_bigtoe", "l_smalltoe", "l_heel", "r_bigtoe", "r_smalltoe", "r_heel"),
+    "body25b": ("nose", "l_eye", "r_eye", "l_ear", "r_ear", "l_sho", "r_sho", "l_elb", "r_elb", "l_wri",
+                "r_wri", "l_hip", "r_hip", "l_kne", "r_kne", "l_ank", "r_ank", "upper_neck", "head_top",
+                "l_bigtoe", "l_smalltoe", "l_heel", "r_bigtoe", "r_smalltoe", "r_heel"),
+    "coco18": ("nose", "neck", "r_sho", "r_elb", "r_wri", "l_sho", "l_elb", "l_wri", "r_hip", "r_kne",
+               "r_ank", "l_hip", "l_kne", "l_ank", "r_eye", "l_eye", "r_ear", "l_ear"),
+    "coco17": ("nose", "l_eye", "r_eye", "l_ear", "r_ear", "l_sho", "r_sho", "l_elb", "r_elb", "l_wri",
+               "r_wri", "l_hip", "r_hip", "l_kne", "r_kne", "l_ank", "r_ank"),
+}
+# Universal index → concept (the neck is checked separately).
+UNIVERSAL = ("nose", None, "r_sho", "r_elb", "r_wri", "l_sho", "l_elb", "l_wri",
+             "r_hip", "r_kne", "r_ank", "l_hip", "l_kne", "l_ank")
+
+
+def raw_person(layout: str, conf: dict | None = None) -> np.ndarray:
+    """The figure as one ``[K, 3]`` row set in ``layout``."""
+    conf = CONF if conf is None else conf
+    return np.array([(*FIGURE[name], conf[name]) for name in ORDERS[layout]], dtype=float)
+
+
+def openpose_json(people: list[np.ndarray]) -> str:
+    return json.dumps({"version": 1.3, "people": [
+        {"person_id": [-1], "pose_keypoints_2d": p.ravel().tolist(), "face_keypoints_2d": []} for p in people]})
+
+
+@pytest.mark.parametrize("layout", list(ORDERS))
+def test_layout_tables(layout):
+    assert len(LAYOUTS[layout]) == len(ORDERS[layout])
+    assert len(set(LAYOUTS[layout])) == len(LAYOUTS[layout])
+
+
+@pytest.mark.parametrize("layout", list(ORDERS))
+def test_mapping_index_by_index(layout):
+    points, conf = to_universal(raw_person(layout)[None], layout)
+    assert points.shape == (1, N_KEYPOINTS_2D, 2) and conf.shape == (1, N_KEYPOINTS_2D)
+    for k, name in enumerate(UNIVERSAL):
+        if name is not None:
+            np.testing.assert_array_equal(points[0, k], FIGURE[name], err_msg=f"{layout} universal {k}")
+            assert conf[0, k] == pytest.approx(CONF[name]), f"{layout} universal {k}"
+    # Both shoulders confident: the neck is their mid-point with the smaller confidence.
+    np.testing.assert_allclose(points[0, KP["neck"]], (300, 150))
+    assert conf[0, KP["neck"]] == pytest.approx(min(CONF["r_sho"], CONF["l_sho"]))
+
+
+@pytest.mark.parametrize("layout, neck", [("body25", FIGURE["neck"]), ("coco18", FIGURE["neck"]),
+                                          ("body25b", None), ("coco17", None)])
+def test_neck_without_confident_shoulders(layout, neck):
+    conf = dict(CONF, r_sho=0.1)
+    points, c = to_universal(raw_person(layout, conf)[None], layout)
+    if neck is None:  # no neck keypoint of its own (BODY_25B's upper neck is not one)
+        assert c[0, KP["neck"]] == 0 and np.isnan(points[0, KP["neck"]]).all()
+    else:
+        np.testing.assert_array_equal(points[0, KP["neck"]], neck)
+        assert c[0, KP["neck"]] == pytest.approx(CONF["neck"])
+    assert c[0, KP["r_shoulder"]] == pytest.approx(0.1)
+
+
+def test_missing_entries_and_confidence_range():
+    raw = raw_person("coco17")
+    raw[0] = (0, 0, 0)                    # OpenPose's "not found"
+    raw[9] = (np.nan, 300, 0.9)           # non-finite
+    raw[10, 2] = 1.7                      # some detectors score above 1
+    raw[11, 2] = -0.2
+    points, conf = to_universal(raw[None], "coco17")
+    for k in (KP["head"], KP["l_wrist"], KP["l_hip"]):
+        assert conf[0, k] == 0 and np.isnan(points[0, k]).all()
+    assert conf[0, KP["r_wrist"]] == 1.0
+    assert ((conf >= 0) & (conf <= 1)).all()
+
+
+def test_to_universal_rejects_wrong_shape_and_layout():
+    with pytest.raises(KeypointError, match="needs \\[P, 17, 3\\]"):
+        to_universal(raw_person("coco18")[None], "coco17")
+    with pytest.raises(KeypointError, match="unknown keypoint layout"):
+        to_universal(raw_person("coco17")[None], "halpe26")
+
+
+def test_visible_threshold():
+    conf = np.linspace(0, 1, N_KEYPOINTS_2D)
+    person = Person(np.zeros((N_KEYPOINTS_2D, 2)), conf)
+    np.testing.assert_array_equal(visible(person), conf >= CONFIDENCE_THRESHOLD)
+    np.testing.assert_array_equal(visible(person, 0.0), conf > 0)
+
+
+@pytest.mark.parametrize("layout", list(ORDERS))
+def test_detect_hand_made(layout):
+    assert detect_layout(raw_person(layout)[None]) == layout
+
+
+def test_detect_weak_evidence_asks_for_layout():
+    raw = raw_person("body25")
+    raw[[0, 1, 8, 17, 18], 2] = 0  # no nose, neck, mid-hip, ears: no relation can be checked
+    with pytest.raises(KeypointError, match="--keypoints body25\\|body25b\\|coco18\\|coco17"):
+        detect_layout(raw[None])
+    with pytest.raises(KeypointError, match="20 keypoints"):
+        detect_layout(np.zeros((1, 20, 3)))
+
+
+def _real_body25b(cam: int = 1) -> np.ndarray:
+    """Every person of one camera's real BODY_25B files, pooled ``[P, 25, 3]``."""
+    people = [p["pose_keypoints_2d"] for f in sorted((BODY25B_DIR / f"cam0{cam}_json").glob("*.json"))
+              for p in json.loads(f.read_text())["people"]]
+    return np.array(people).reshape(len(people), 25, 3)
+
+
+def _as_body25(raw: np.ndarray) -> np.ndarray:
+    """Real BODY_25B people re-ordered into BODY_25, with a mid-shoulder neck and a mid-hip, jittered."""
+    pos = {name: raw[:, i] for i, name in enumerate(ORDERS["body25b"])}
+    pos["neck"] = 0.5 * (pos["r_sho"] + pos["l_sho"])
+    pos["mid_hip"] = 0.5 * (pos["r_hip"] + pos["l_hip"])
+    out = np.stack([pos[name] for name in ORDERS["body25"]], axis=1)
+    out[..., :2] += np.random.default_rng(0).normal(scale=3.0, size=out[..., :2].shape)
+    return out
+
+
+@needs_body25b
+@pytest.mark.parametrize("cam", [1, 2, 3, 4])
+def test_detect_real_body25b(cam):
+    raw = _real_body25b(cam)
+    assert detect_layout(raw) == "body25b"
+    assert detect_layout(_as_body25(raw)) == "body25"
+
+
+@needs_body25b
+def test_read_real_folder():
+    frames = list(read_openpose_folder(BODY25B_DIR / "cam01_json", fps=60.0))
+    assert [f.index for f in frames] == list(range(100))
+    assert frames[99].time_s == pytest.approx(99 / 60)
+    assert max(len(f.people) for f in frames) >= 2  # the false second person is kept (not our job here)
+    person = frames[0].people[0]
+    assert visible(person).all()
+    shoulders_y = person.points_px[[KP["r_shoulder"], KP["l_shoulder"]], 1]
+    hips_y = person.points_px[[KP["r_hip"], KP["l_hip"]], 1]
+    assert hips_y.min() > shoulders_y.max() + 100  # hips well below the shoulders (y down)
+    assert person.points_px[KP["head"], 1] < shoulders_y.min()
+    # The subject faces the camera here: their right shoulder is on the image's left.
+    assert person.points_px[KP["r_shoulder"], 0] < person.points_px[KP["l_shoulder"], 0]
+    shoulders = person.points_px[[KP["r_shoulder"], KP["l_shoulder"]]]
+    np.testing.assert_allclose(person.points_px[KP["neck"]], shoulders.mean(axis=0))
+
+
+def test_parse_openpose_json_layouts():
+    text = openpose_json([raw_person("body25"), raw_person("body25")])
+    frame = parse_openpose_json(text, 7)
+    assert frame.index == 7 and frame.time_s is None and len(frame.people) == 2
+    assert frame.people[0].person_id is None
+    np.testing.assert_array_equal(frame.people[1].points_px[KP["r_knee"]], FIGURE["r_kne"])
+    # A given layout always wins, even against the geometry.
+    forced = parse_openpose_json(text, 7, layout="body25b")
+    np.testing.assert_array_equal(forced.people[0].points_px[KP["r_shoulder"]], FIGURE["l_elb"])  # BODY_25 index 6
+    assert parse_openpose_json('{"version": 1.3, "people": []}', 0).people == []
+
+
+@pytest.mark.parametrize("text, reason", [
+    ("{not json", "not JSON"),
+    ("[1, 2]", "not a JSON object"),
+    ('{"version": 1.3}', "no 'people' list"),
+    ('{"people": {"a": 1}}', "no 'people' list"),
+    ('{"people": [{"pose_keypoints_2d": [1, 2, 3, 4]}]}', "not a multiple of 3"),
+    ('{"people": [{"pose_keypoints_2d": [' + ",".join(["1"] * 60) + "]}]}", "20 keypoints"),
+    ('{"people": [{"pose_keypoints_2d": ["1", 2, 3]}]}', "non-numeric"),
+    ('{"people": [{"pose_keypoints_2d": [null, 2, 3]}]}', "non-numeric"),
+    ('{"people": [{"face_keypoints_2d": []}]}', "neither"),
+    ('{"people": [{"person_id": "x", "pose_keypoints_2d": [' + ",".join(["1"] * 51) + "]}]}", "person id"),
+])
+def test_parse_openpose_json_errors(text, reason):
+    with pytest.raises(KeypointError, match=reason) as err:
+        parse_openpose_json(text, 0, source="cam1_000000000003_keypoints.json")
+    assert str(err.value).startswith("cam1_000000000003_keypoints.json: ")
+
+
+def test_parse_openpose_json_count_against_layout():
+    with pytest.raises(KeypointError, match="person 0 has 17 keypoints; layout coco18 has 18"):
+        parse_openpose_json(openpose_json([raw_person("coco17")]), 0, layout="coco18", source="f.json")
+
+
+def test_folder_order_and_fixed_layout(tmp_path):
+    ambiguous = raw_person("body25")
+    ambiguous[[0, 1, 8, 17, 18], 2] = 0
+    contents = {12: [raw_person("body25")], 2: [], 3: [ambiguous], 10: [raw_person("body25")] * 2}
+    for number, people in contents.items():  # the frame number decides, not the name's prefix
+        (tmp_path / f"{'ab'[number % 2]}_{number:012d}_keypoints.json").write_text(openpose_json(people))
+    frames = list(read_openpose_folder(tmp_path, fps=10.0))
+    assert [len(f.people) for f in frames] == [0, 1, 2, 1]  # frames 2, 3, 10, 12
+    assert [f.time_s for f in frames] == [0.0, 0.1, 0.2, 0.3]
+    # The layout found from the first frames holds for the ambiguous one.
+    np.testing.assert_array_equal(frames[1].people[0].points_px[KP["l_ankle"]], FIGURE["l_ank"])
+
+
+def test_folder_natural_order_and_errors(tmp_path):
+    for name in ("f10.json", "f2.json", "f1.json"):
+        (tmp_path / name).write_text(openpose_json([raw_person("coco18")] * int(name[1:-5])))
+    assert [len(f.people) for f in read_openpose_folder(tmp_path)] == [1, 2, 10]
+    (tmp_path / "f3.json").write_text('{"people": 1}')
+    with pytest.raises(KeypointError, match="f3.json: no 'people' list"):
+        list(read_openpose_folder(tmp_path))
+    with pytest.raises(KeypointError, match="not a folder"):
+        read_openpose_folder(tmp_path / "nothing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(KeypointError, match="no .json"):
+        read_openpose_folder(tmp_path / "empty")
+
+
+def _line(**fields) -> str:
+    return json.dumps(fields)
+
+
+def test_stream_line_schema():
+    frame = parse_stream_line(_line(frame=12, time=0.4, layout="coco17", people=[
+        {"id": 3, "keypoints": raw_person("coco17").tolist()},
+        {"layout": "coco18", "keypoints": raw_person("coco18").tolist()}]))
+    assert (frame.index, frame.time_s) == (12, 0.4)
+    assert [p.person_id for p in frame.people] == [3, None]
+    for person in frame.people:
+        np.testing.assert_array_equal(person.points_px[KP["l_elbow"]], FIGURE["l_elb"])
+    bare = parse_stream_line(_line(frame=0, people=[{"keypoints": raw_person("body25b").tolist()}]),
+                             default_layout="body25b")
+    assert bare.time_s is None and bare.people[0].confidence[KP["r_ankle"]] == pytest.approx(CONF["r_ank"])
+    assert parse_stream_line(_line(frame=5, people=[])).people == []
+
+
+def test_stream_line_openpose_style():
+    frame = parse_stream_line(openpose_json([raw_person("coco18")]))
+    assert frame.index == -1 and len(frame.people) == 1  # unnumbered: the caller numbers it
+    np.testing.assert_array_equal(frame.people[0].points_px[KP["r_hip"]], FIGURE["r_hip"])
+
+
+@pytest.mark.parametrize("line, reason", [
+    ("", "not JSON"),
+    ('{"frame": 1, "people": [', "not JSON"),
+    ("[" * 100000, "not JSON"),
+    ("3", "not a JSON object"),
+    (_line(frame=1), "no 'people' list"),
+    (_line(frame=-1, people=[]), "'frame'"),
+    (_line(frame="1", people=[]), "'frame'"),
+    (_line(frame=True, people=[]), "'frame'"),
+    (_line(frame=1.5, people=[]), "'frame'"),
+    (_line(frame=1, time="now", people=[]), "'time'"),
+    ('{"frame": 1, "time": NaN, "people": []}', "'time'"),
+    (_line(frame=1, time=10**400, people=[]), "'time'"),
+    (_line(frame=1, layout="body_25", people=[]), "unknown keypoint layout"),
+    (_line(frame=1, layout=["coco17"], people=[]), "unknown keypoint layout"),
+    (_line(frame=1, people=[3]), "not a JSON object"),
+    (_line(frame=1, people=[{"keypoints": [[1, 2, 3], [1, 2]]}]), "keypoints"),
+    (_line(frame=1, people=[{"keypoints": [[1, 2]] * 17}]), "x, y, confidence"),
+    (_line(frame=1, people=[{"keypoints": [["a", 2, 3]] * 17}]), "non-numeric"),
+    (_line(frame=1, people=[{"keypoints": [[1, 2, 3]] * 20}]), "20 keypoints"),
+    (_line(frame=1, people=[{"keypoints": [[1, 2, 3]] * 25}]), "--keypoints"),
+    (_line(frame=1, people=[{"id": [1, 2], "keypoints": [[1, 2, 3]] * 17}]), "person id"),
+    (_line(frame=1, layout="coco18", people=[{"keypoints": [[1, 2, 3]] * 17}]), "layout coco18 has 18"),
+])
+def test_stream_line_errors(line, reason):
+    with pytest.raises(KeypointError, match=reason):
+        parse_stream_line(line)
+
+
+ODD_VALUES = (None, "x", True, -1, 2.5, 10**30, 10**400, float("nan"), [], {}, [[1, 2, 3]], {"people": []})
+
+
+def _mangle(value, rng):
+    """``value`` with one randomly chosen part (or itself) replaced by an odd JSON value."""
+    if isinstance(value, (dict, list)) and len(value) and rng.random() < 0.7:
+        keys = list(value) if isinstance(value, dict) else list(range(len(value)))
+        key = keys[rng.integers(len(keys))]
+        copy = dict(value) if isinstance(value, dict) else list(value)
+        copy[key] = _mangle(value[key], rng)
+        return copy
+    return ODD_VALUES[rng.integers(len(ODD_VALUES))]
+
+
+def test_stream_line_only_keypoint_errors():
+    """Mangled lines either parse or raise KeypointError, never anything else."""
+    obj = {"frame": 3, "time": 0.1, "layout": "coco17",
+           "people": [{"id": 1, "keypoints": raw_person("coco17").round(1).tolist()}]}
+    line = json.dumps(obj)
+    rng = np.random.default_rng(1)
+    outcomes = {"parsed": 0, "rejected": 0}
+    for i in range(3000):
+        if i % 2:
+            mangled = json.dumps(_mangle(obj, rng))
+        else:  # damaged text
+            chars = list(line)
+            for pos in rng.integers(0, len(chars), size=3):
+                chars[pos] = rng.choice(list('{}[],:"0123456789.-eE aN'))
+            mangled = "".join(chars)
+        try:
+            parse_stream_line(mangled)
+            outcomes["parsed"] += 1
+        except KeypointError:
+            outcomes["rejected"] += 1
+    assert min(outcomes.values()) > 100
+
+
+def test_frames_from_arrays_single_person():
+    seq = np.stack([raw_person("coco17") + [t, 0, 0] for t in range(3)])  # [T, K, 3]
+    frames = list(frames_from_arrays(seq, fps=30.0))
+    assert [f.index for f in frames] == [0, 1, 2]
+    assert frames[2].time_s == pytest.approx(2 / 30)
+    np.testing.assert_array_equal(frames[2].people[0].points_px[KP["r_wrist"]], np.add(FIGURE["r_wri"], (2, 0)))
+
+
+def test_frames_from_arrays_people_and_padding():
+    seq = np.zeros((2, 3, 18, 3))  # [T, P, K, 3]; unused slots are zero padding
+    seq[0, 0] = seq[1, 0] = seq[1, 2] = raw_person("coco18")
+    frames = list(frames_from_arrays(seq, layout="coco18"))
+    assert [len(f.people) for f in frames] == [1, 2]
+    assert frames[0].time_s is None and frames[1].people[1].person_id is None
+    np.testing.assert_array_equal(frames[1].people[1].points_px[KP["head"]], FIGURE["nose"])
+
+
+@pytest.mark.parametrize("array, reason", [
+    (np.zeros((4, 17, 2)), "expected \\[T, K, 3\\]"),
+    (np.zeros((17, 3)), "expected \\[T, K, 3\\]"),
+    (np.zeros((4, 18, 3)), "needs \\[P, 17, 3\\]"),
+    (np.full((4, 17, 3), "x"), "non-numeric"),
+])
+def test_frames_from_arrays_errors(array, reason):
+    with pytest.raises(KeypointError, match=reason):
+        frames_from_arrays(array)
+
+
+def test_keypoint_array_files(tmp_path):
+    seq = np.stack([[raw_person("coco17")]] * 4)
+    np.save(tmp_path / "kp.npy", seq)
+    np.savez(tmp_path / "kp.npz", keypoints=seq, scores=seq[..., 2])
+    for name in ("kp.npy", "kp.npz"):
+        loaded = read_keypoint_array(tmp_path / name)
+        np.testing.assert_array_equal(loaded, seq)
+        assert len(list(frames_from_arrays(loaded))) == 4
+    np.savez(tmp_path / "other.npz", poses=seq)
+    with pytest.raises(KeypointError, match="other.npz: no 'keypoints'"):
+        read_keypoint_array(tmp_path / "other.npz")
+    (tmp_path / "bad.npy").write_bytes(b"not numpy")
+    with pytest.raises(KeypointError, match="bad.npy: not a readable numpy file"):
+        read_keypoint_array(tmp_path / "bad.npy")
+    with pytest.raises(KeypointError, match="not a .npy or .npz"):
+        read_keypoint_array(tmp_path / "kp.csv")
