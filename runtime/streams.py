@@ -432,7 +432,8 @@ def open_source(spec: str, *, stats: StreamStats | None = None, follow: bool = F
         return FolderSource(path, follow=follow, idle_timeout_s=idle_timeout_s, settle_s=settle_s, **common)
     if path.suffix.lower() in (".jsonl", ".ndjson"):
         return JsonLinesFileSource(path, follow=follow, idle_timeout_s=idle_timeout_s, **common)
-    raise StreamSpecError(f"{spec}: not a folder, a .jsonl/.ndjson file, '-', tcp://HOST:PORT or udp://HOST:PORT")
+    raise StreamSpecError(
+        f"{spec}: not a folder, a .jsonl/.ndjson file, '-', tcp://HOST:PORT or udp://HOST:PORT")
 
 
 class LiveInput:
@@ -566,7 +567,8 @@ class TcpSink(Sink):
                  backoff_s: tuple[float, float] = (0.05, 2.0)) -> None:
         super().__init__(stats)
         self._address = (host, port)
-        self._connect_timeout_s, self._send_timeout_s, self._backoff_s = connect_timeout_s, send_timeout_s, backoff_s
+        self._connect_timeout_s, self._send_timeout_s = connect_timeout_s, send_timeout_s
+        self._backoff_s = backoff_s
         self._queue: deque[str] = deque(maxlen=queue_lines)
         self._cond = threading.Condition()
         self._accepting = True   # False from a failed attempt until the next one

@@ -1,0 +1,59 @@
+"""Runtime outputs: the JSON-lines result stream and one BVH per track (``data_specs/stream_output.md``)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from mocapdb.bvh import write_bvh
+from mocapdb.skeleton import KEYPOINTS, RIG_JOINTS, universal_bvh
+
+from .engine import PersonPose, TrackRecording
+
+STREAM_FORMAT = "mocapdb-stream"
+STREAM_VERSION = 1
+
+
+def _rounded(values: np.ndarray, decimals: int) -> list:
+    return np.round(values, decimals).tolist()
+
+
+def person_record(pose: PersonPose) -> dict:
+    """One person of a frame as the stream schema writes it."""
+    return {
+        "track": pose.track,
+        "joints": _rounded(pose.joints_m, 4),
+        "quaternions": _rounded(pose.quaternions, 5),
+        "root": _rounded(pose.root_m, 4),
+        "match": {"clip": pose.match.clip, "frame": pose.match.frame, "yaw_deg": pose.match.yaw_deg,
+                  "distance_2d": round(pose.match.distance_2d, 5)},
+    }
+
+
+def frame_line(frame_index: int, time_s: float, poses: list[PersonPose]) -> str:
+    """The JSON line of one frame (no trailing newline)."""
+    return json.dumps({"frame": frame_index, "time": round(time_s, 6),
+                       "people": [person_record(p) for p in poses]}, separators=(",", ":"))
+
+
+def header_line(fps: float) -> str:
+    """The first line of a result stream: format, version, joint and rotation orders, units."""
+    return json.dumps({"format": STREAM_FORMAT, "version": STREAM_VERSION, "fps": fps,
+                       "joints": list(KEYPOINTS), "rotations": list(RIG_JOINTS), "units": "m",
+                       "frame": "camera-aligned: x right, y up, z away from the camera"},
+                      separators=(",", ":"))
+
+
+def write_track_bvhs(recordings: list[TrackRecording], out_dir: str | Path, fps: float,
+                     unit: str = "m") -> list[Path]:
+    """Write ``track_<id>.bvh`` for each recording (universal rig, view frame); returns the paths."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for rec in recordings:
+        bvh = universal_bvh(np.array(rec.quaternions), np.array(rec.root_view_m), fps, unit)
+        path = out_dir / f"track_{rec.track}.bvh"
+        write_bvh(path, bvh)
+        paths.append(path)
+    return paths
