@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 
 from . import __version__
 from .joint_map import UNITS, UP_AXES
@@ -79,6 +80,154 @@ def _run_inspect(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_engine_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--db", required=True, help="database directory written by `mocapdb build`")
+    p.add_argument("--keypoints", choices=("body25", "body25b", "coco18", "coco17"),
+                   help="keypoint layout of the input (default: detected)")
+    p.add_argument("--fps", type=float, default=30.0, help="input frame rate in Hz when frames carry no time (default 30)")
+    p.add_argument("--focal", type=float, default=1000.0, help="input camera focal length in pixels (default 1000)")
+    p.add_argument("--image-size", default="1920x1080", help="input image WIDTHxHEIGHT in pixels (default 1920x1080)")
+    p.add_argument("--search", choices=("clustered", "exact"), default="clustered",
+                   help="two-level search (the method) or brute force over every projection")
+    p.add_argument("--clusters-searched", type=int, default=5, help="i: nearest clusters searched (default 5)")
+    p.add_argument("--per-cluster", type=int, default=10, help="j: projections taken per cluster (default 10)")
+    p.add_argument("--window-weights", default="0.4,0.3,0.2,0.1",
+                   help="weights of the last w reconstructed frames, most recent first (default 0.4,0.3,0.2,0.1)")
+    p.add_argument("--weight-2d", type=float, default=0.0,
+                   help="weight of the 2D distance added to the temporal cost (default 0: the method)")
+    p.add_argument("--min-cutoff", type=float, default=1.0, help="1€ filter min cutoff for rotations, Hz (default 1)")
+    p.add_argument("--beta", type=float, default=0.3, help="1€ filter beta for rotations (default 0.3)")
+    p.add_argument("--no-smoothing", action="store_true", help="turn the 1€ filters off")
+    p.add_argument("--no-translation", action="store_true", help="keep the pelvis at the origin")
+    p.add_argument("--bvh-unit", choices=("m", "cm"), default="m", help="length unit of the BVH files (default m)")
+
+
+def _engine(args: argparse.Namespace):
+    from runtime.engine import Engine, EngineConfig
+    from runtime.filters import OneEuroParams
+
+    from .database import load_database
+    from .errors import UsageError
+
+    try:
+        width, height = (int(v) for v in args.image_size.lower().split("x"))
+        weights = tuple(float(w) for w in args.window_weights.split(","))
+    except ValueError:
+        raise UsageError("--image-size takes WIDTHxHEIGHT and --window-weights numbers separated by commas") from None
+    config = EngineConfig(search=args.search, n_clusters=args.clusters_searched, per_cluster=args.per_cluster,
+                          window_weights=weights, weight_2d=args.weight_2d, focal_px=args.focal,
+                          image_size=(width, height), fps=args.fps, translation=not args.no_translation,
+                          smoothing=not args.no_smoothing,
+                          rotation_filter=OneEuroParams(min_cutoff_hz=args.min_cutoff, beta=args.beta))
+    return Engine(load_database(args.db), config)
+
+
+def _session(args: argparse.Namespace, sink_spec: str):
+    from runtime.session import FrameParser, Session, SessionSummary
+    from runtime.streams import StreamStats, open_sink
+
+    summary = SessionSummary(stream=StreamStats())
+    engine = _engine(args)
+    return Session(engine, open_sink(sink_spec, summary.stream), FrameParser(args.keypoints), summary)
+
+
+def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("reconstruct", help="2D keypoint files → 3D skeletons (JSON lines) and BVH per person",
+                       description="Reconstruct every frame of a folder of OpenPose JSON files or a JSON-lines "
+                                   "keypoint file; writes OUT/result.jsonl and OUT/track_<id>.bvh.")
+    p.add_argument("input", help="folder of OpenPose JSON frames, or a .jsonl/.ndjson file")
+    p.add_argument("--out", required=True, help="output folder")
+    _add_engine_options(p)
+    p.set_defaults(run=_run_reconstruct)
+
+
+def _run_reconstruct(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from runtime.session import run_offline
+    from runtime.streams import open_source
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    session = _session(args, str(out / "result.jsonl"))
+    started = time.perf_counter()
+    run_offline(session, open_source(args.input, stats=session.summary.stream))
+    session.summary.wall_s = time.perf_counter() - started
+    summary = session.finish(out, args.bvh_unit)
+    print(f"wrote {out / 'result.jsonl'} and {len(summary.bvh_files)} BVH file(s) in {out}")
+    print(summary.report())
+    return 0 if summary.frames else 1
+
+
+def _add_live(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("live", help="reconstruct a live keypoint stream",
+                       description="Read keypoints as they arrive (a folder being written by a detector, "
+                                   "'-' for stdin, tcp://HOST:PORT or udp://HOST:PORT to listen on), write one "
+                                   "JSON line per frame to the sink, and a BVH per track on exit (Ctrl-C).")
+    p.add_argument("--source", required=True, help="folder, '-', tcp://HOST:PORT or udp://HOST:PORT")
+    p.add_argument("--sink", default="-", help="'-' (stdout), a file, tcp://HOST:PORT or udp://HOST:PORT")
+    p.add_argument("--bvh-dir", help="folder for the tracks' BVH files, written when the stream ends")
+    p.add_argument("--idle-timeout", type=float, help="stop after this many seconds without input")
+    p.add_argument("--buffer", type=int, default=2, help="messages buffered before the oldest is dropped (default 2)")
+    _add_engine_options(p)
+    p.set_defaults(run=_run_live)
+
+
+def _run_live(args: argparse.Namespace) -> int:
+    import threading
+    from pathlib import Path
+
+    from runtime.session import run_live
+    from runtime.streams import install_stop_handlers, open_source
+
+    session = _session(args, args.sink)
+    source = open_source(args.source, stats=session.summary.stream, follow=True, idle_timeout_s=args.idle_timeout)
+    stop = threading.Event()
+    started = time.perf_counter()
+    with install_stop_handlers(stop):
+        run_live(session, source, stop, args.buffer)
+    session.summary.wall_s = time.perf_counter() - started
+    summary = session.finish(Path(args.bvh_dir) if args.bvh_dir else None, args.bvh_unit)
+    print(summary.report(), file=sys.stderr)
+    return 0
+
+
+def _add_eval(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("eval", help="accuracy and speed on held-out BVH clips (JSON report)",
+                       description="Render held-out clips (not in the database) to 2D from yaws off the "
+                                   "database grid, several camera heights and noise models, reconstruct them "
+                                   "and print a JSON report.")
+    p.add_argument("--db", required=True, help="database built WITHOUT the held-out clips")
+    p.add_argument("--bvh", nargs="+", required=True, help="held-out BVH files or folders")
+    p.add_argument("--out", help="also write the report to this JSON file")
+    p.add_argument("--quick", action="store_true", help="two yaws and two scenarios only")
+    p.add_argument("--weight-2d", type=float, default=0.0, help="as in reconstruct")
+    p.add_argument("--search", choices=("clustered", "exact"), default="clustered")
+    p.set_defaults(run=_run_eval)
+
+
+def _run_eval(args: argparse.Namespace) -> int:
+    import json
+    from dataclasses import replace
+    from pathlib import Path
+
+    from runtime.engine import EngineConfig
+    from runtime.evaluate import EvalConfig, evaluate
+
+    from .builder import find_sources
+    from .database import load_database
+
+    config = EvalConfig(engine=EngineConfig(weight_2d=args.weight_2d, search=args.search))
+    if args.quick:
+        config = replace(config, yaws_deg=config.yaws_deg[:2], scenarios=config.scenarios[:2])
+    files = [f for f, _ in find_sources(args.bvh)]
+    report = json.dumps(evaluate(load_database(args.db), files, config), indent=2)
+    print(report)
+    if args.out:
+        Path(args.out).write_text(report + "\n")
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="mocapdb", description="Motion capture from ordinary cameras by "
                                   "retrieval in a database of real motion.")
@@ -86,6 +235,9 @@ def parser() -> argparse.ArgumentParser:
     sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_build(sub)
     _add_inspect(sub)
+    _add_reconstruct(sub)
+    _add_live(sub)
+    _add_eval(sub)
     return top
 
 

@@ -181,11 +181,11 @@ def _sq_dist(x: np.ndarray, y: np.ndarray) -> float:
     return sq
 
 
-@njit(parallel=True, cache=True, fastmath=_FASTMATH_WITH_INF)
+@njit(cache=True, fastmath=_FASTMATH_WITH_INF)
 def _member_distances(points: np.ndarray, labels: np.ndarray, centroids: np.ndarray) -> np.ndarray:
-    """Euclidean distance ``[N]`` of every point to its cluster's centroid."""
+    """Euclidean distance ``[N]`` of every point to its cluster's centroid (serial: O(N·d) is cheap)."""
     out = np.empty(points.shape[0])
-    for i in prange(points.shape[0]):
+    for i in range(points.shape[0]):
         out[i] = np.sqrt(_sq_dist(points[i], centroids[labels[i]]))
     return out
 

@@ -82,6 +82,7 @@ class KeypointFrame:
     index: int
     time_s: float | None
     people: list[Person]
+    layout: str | None = None  # the layout of its people, when they share one
 
 
 class _RawPerson(NamedTuple):
@@ -265,7 +266,7 @@ def _build_frame(index: int, time_s: float | None, people: list[_RawPerson], lay
         points, conf = to_universal(np.stack([people[i].raw for i in members]), name)
         for j, i in enumerate(members):
             out[i] = Person(points[j], conf[j], people[i].person_id)
-    return KeypointFrame(index, time_s, out)
+    return KeypointFrame(index, time_s, out, names[0] if len(set(names)) == 1 else None)
 
 
 def parse_openpose_json(text: str, index: int, layout: str | None = None, source: str = "") -> KeypointFrame:

@@ -90,6 +90,21 @@ def _quats(rotations: Rotation) -> np.ndarray:
     return np.where(q[..., :1] < 0, -q, q)
 
 
+def test_quaternion_step_by_hand_uses_the_angular_speed_per_joint():
+    # Same numbers as the scalar case: r = 10 Hz, a(d_cutoff) = 1/2, 2π f_c = 10 + 2 |ω̂|.
+    f = QuaternionOneEuroFilter(OneEuroParams(min_cutoff_hz=5 / np.pi, beta=1 / np.pi, d_cutoff_hz=5 / np.pi))
+    identity = np.array([[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]])
+    turned = identity.copy()
+    turned[0] = [np.cos(0.5), 0.0, 0.0, np.sin(0.5)]  # joint 0 turns 1 rad about z, joint 1 stays
+    f(identity, 0.0)
+    out = f(-turned, 0.1)  # the sign of the input is irrelevant
+    # Joint 0: |ω| = 1 rad · 10 Hz = 10 rad/s; ω̂ = ½·10 = 5; 2π f_c = 20; a = 1/(1 + 10/20) = 2/3;
+    # output = normalise(⅓ · identity + ⅔ · turned).
+    blend = np.array([1 / 3 + 2 / 3 * np.cos(0.5), 0.0, 0.0, 2 / 3 * np.sin(0.5)])
+    np.testing.assert_allclose(out[0], blend / np.linalg.norm(blend), rtol=1e-12)
+    np.testing.assert_array_equal(out[1], identity[1])
+
+
 def test_sign_alternation_never_flips_the_output():
     q = _quats(Rotation.random(3, random_state=2))
     f = QuaternionOneEuroFilter()

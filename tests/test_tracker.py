@@ -120,8 +120,8 @@ def test_double_detection_never_steals_from_a_confirmed_track():
         if k >= 2 and k % 2 == 0:
             frames[-1]["twin"] = person(500, 600, rng)  # the detector fires twice on A
     ids, updates = run(frames, shuffle_seed=12)
-    assert ids_of(ids, "twin") == set()
-    assert all(frame.get("A") == 0 for frame in ids[1:])
+    assert all(list(frame.values()) == [0] for frame in ids[1:])  # either twin may be taken: they are alike
+    assert [u.started for u in updates if u.started] == [[0]]
 
 
 def test_detection_with_three_joints_is_ignored():
