@@ -85,6 +85,7 @@ class _Tracks(_People):
     velocity: np.ndarray   # [T, 2] pixels/s
     t_s: np.ndarray        # [T] time of the last match
     hits: np.ndarray       # [T] consecutive matches
+    gain: np.ndarray       # [T] weight of the next velocity measurement (1 for the first)
     missing: np.ndarray    # [T] frames since the last match
     detection: np.ndarray  # [T] detection matched this frame, -1 if none
 
@@ -92,7 +93,8 @@ class _Tracks(_People):
     def start(cls, people: _People, detection: np.ndarray, t_s: float) -> _Tracks:
         n = len(detection)
         return cls(people.points, people.visible, people.box, np.full(n, -1), np.zeros((n, 2)),
-                   np.full(n, float(t_s)), np.ones(n, dtype=np.int64), np.zeros(n, dtype=np.int64), detection)
+                   np.full(n, float(t_s)), np.ones(n, dtype=np.int64), np.ones(n), np.zeros(n, dtype=np.int64),
+                   detection)
 
     @classmethod
     def empty(cls) -> _Tracks:
@@ -113,6 +115,7 @@ class Tracker:
         self.config = config or TrackerConfig()
         self._tracks = _Tracks.empty()
         self._next_id = 0
+        self._t_s = -np.inf  # time of the last frame
 
     @property
     def active_ids(self) -> list[int]:
@@ -131,6 +134,7 @@ class Tracker:
         dets = _People.of(points, visible)
         rows, cols = self._match(dets, t_s)
         self._advance(rows, cols, dets, t_s)
+        self._t_s = max(self._t_s, t_s)
         started = self._confirm()
         tr = self._tracks
         assigned = ((tr.ids >= 0) & (tr.detection >= 0)).nonzero()[0]  # rows, hence ids, ascending
@@ -141,6 +145,7 @@ class Tracker:
         """End every track (end of stream); returns the ids of the confirmed ones."""
         ended = self.active_ids
         self._tracks = _Tracks.empty()
+        self._t_s = -np.inf
         return ended
 
     def _match(self, dets: _People, t_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -170,13 +175,12 @@ class Tracker:
         if len(rows) == len(tr.ids):
             rows = slice(None)  # every track matched (rows ascending): cheaper views
         points, visible, box = dets.points[cols], dets.visible[cols], dets.box[cols]
-        common = tr.visible[rows] & visible
-        shift = ((points - tr.points[rows]) * common[..., None]).sum(axis=1)
-        dt = t_s - tr.t_s[rows]
-        moving = dt > 0  # a non-increasing timestamp leaves the velocity as it is
-        measured = shift / (np.maximum(common.sum(axis=1), 1) * np.where(moving, dt, 1.0))[:, None]
-        weight = np.where(tr.hits[rows] == 1, 1.0, cfg.velocity_smoothing) * moving
-        tr.velocity[rows] += weight[:, None] * (measured - tr.velocity[rows])
+        if t_s > self._t_s:  # a frame whose time did not advance leaves the velocities as they are
+            common = tr.visible[rows] & visible
+            shift = ((points - tr.points[rows]) * common[..., None]).sum(axis=1)
+            measured = shift / ((t_s - tr.t_s[rows]) * np.maximum(common.sum(axis=1), 1))[:, None]
+            tr.velocity[rows] += tr.gain[rows, None] * (measured - tr.velocity[rows])
+            tr.gain[rows] = cfg.velocity_smoothing
         tr.points[rows], tr.visible[rows], tr.box[rows], tr.t_s[rows] = points, visible, box, t_s
         tr.hits[rows] += 1
         tr.missing[rows] = 0

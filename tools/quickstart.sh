@@ -5,3 +5,5 @@ cd "$(dirname "$0")/.."
 bash tools/setup.sh
 mkdir -p demo
 .venv/bin/mocapdb build data/sample_bvh --out demo/sample.db
+.venv/bin/mocapdb reconstruct data/sample_keypoints/pose2sim_cam01 --db demo/sample.db \
+    --out demo/reconstruction --fps 60 --image-size 1088x1920 --focal 1681

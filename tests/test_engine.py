@@ -1,0 +1,81 @@
+"""The runtime engine against database truth: frames, yaw, axes, translation, temporal choice."""
+import numpy as np
+import pytest
+
+from mocapdb.geometry import Camera, project_views, quat_geodesic, yaw_matrix
+from mocapdb.keypoints import KeypointFrame, Person
+from mocapdb.skeleton import KP, PELVIS
+from runtime.engine import Engine, EngineConfig
+from runtime.temporal import temporal_costs
+
+
+def _db_views(db, clip: int, yaw_index: int, camera: Camera):
+    """Keypoint frames of one database clip seen exactly as the database saw it, and the truth."""
+    first, n = db.clip_first_frame[clip], db.clip_n_frames[clip]
+    pos = db.positions[first:first + n].astype(np.float64)
+    yaw = db.meta["yaws_deg"][yaw_index]
+    px = project_views(pos, pos[:, PELVIS], np.array([yaw]), 0.0, camera)[:, 0, :14]
+    frames = [KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9))]) for i in range(n)]
+    view = (pos - pos[:, PELVIS:PELVIS + 1]) @ yaw_matrix(yaw).T
+    return frames, view * [1.0, 1.0, -1.0], first
+
+
+@pytest.mark.parametrize("search", ["clustered", "exact"])
+def test_database_views_are_found_exactly(small_db, search):
+    camera = Camera(**small_db.meta["camera"])
+    frames, truth, first = _db_views(small_db, clip=1, yaw_index=7, camera=camera)
+    engine = Engine(small_db, EngineConfig(search=search, smoothing=False, fps=24.0, focal_px=camera.focal_px,
+                                           image_size=(camera.width_px, camera.height_px)))
+    outputs = [engine.step(f) for f in frames]
+    assert outputs[0] == []  # a track is confirmed on its second frame
+    for i, poses in enumerate(outputs[1:], start=1):
+        (pose,) = poses
+        assert pose.match.frame == i and pose.match.yaw_deg == small_db.meta["yaws_deg"][7]
+        assert pose.match.distance_2d == pytest.approx(0.0, abs=1e-4)
+        np.testing.assert_allclose(pose.joints_m - pose.root_m, truth[i], atol=1e-4)
+        # The database camera stands camera.distance_m in front of the pelvis, 1.5 m above the floor.
+        assert pose.root_m[2] == pytest.approx(camera.distance_m, rel=0.02)
+    recordings = engine.finish()
+    assert [len(r.quaternions) for r in recordings] == [len(frames) - 1]
+
+
+def test_left_side_of_a_subject_facing_the_camera_is_on_image_right(small_db):
+    camera = Camera(**small_db.meta["camera"])
+    frames, truth, _ = _db_views(small_db, clip=0, yaw_index=0, camera=camera)
+    engine = Engine(small_db, EngineConfig(smoothing=False, fps=24.0))
+    poses = [p for f in frames for p in engine.step(f)]
+    for pose, frame in zip(poses, frames[1:]):
+        px = frame.people[0].points_px
+        # Image x grows with camera-aligned x.
+        assert np.sign(px[KP["l_hip"], 0] - px[KP["r_hip"], 0]) == np.sign(
+            pose.joints_m[KP["l_hip"], 0] - pose.joints_m[KP["r_hip"], 0])
+
+
+def test_people_with_too_few_joints_are_skipped(small_db):
+    engine = Engine(small_db)
+    conf = np.zeros(14)
+    conf[:3] = 0.9
+    assert engine.step(KeypointFrame(0, None, [Person(np.zeros((14, 2)), conf)])) == []
+    assert engine.stats.skipped_people == 1
+
+
+def test_temporal_costs_match_numpy_reference():
+    rng = np.random.default_rng(0)
+    db_quats = rng.normal(size=(30, 11, 4))
+    db_quats /= np.linalg.norm(db_quats, axis=-1, keepdims=True)
+    clip_first = np.repeat([0, 12], [12, 18])
+    yaw_quats = np.array([[1.0, 0, 0, 0], [np.cos(0.3), 0, np.sin(0.3), 0]])
+    history = rng.normal(size=(4, 11, 4))
+    history /= np.linalg.norm(history, axis=-1, keepdims=True)
+    frames, yaws = np.array([5, 13, 29]), np.array([0, 1, 1])
+    window, joints = np.array([0.4, 0.3, 0.2, 0.1]), np.linspace(0.5, 1.5, 11)
+    costs = temporal_costs(db_quats.astype(np.float32), clip_first, yaw_quats, frames, yaws, history, 3, window, joints)
+    from mocapdb.geometry import quat_mul
+    for c, (f, v) in enumerate(zip(frames, yaws)):
+        total = 0.0
+        for i in range(3):
+            g = max(f - 1 - i, clip_first[f])
+            q = db_quats[g].astype(np.float32).astype(np.float64).copy()
+            q[0] = quat_mul(yaw_quats[v], q[0])
+            total += window[i] * np.sum(joints * quat_geodesic(history[i], q) ** 2)
+        assert costs[c] == pytest.approx(total / window[:3].sum(), rel=1e-5)

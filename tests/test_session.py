@@ -1,0 +1,113 @@
+"""The reconstruct/live loop: outputs, malformed input, BVH files, TCP streaming, the CLI."""
+import json
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from mocapdb.bvh import forward_kinematics, read_bvh
+from mocapdb.cli import main
+from mocapdb.geometry import Camera, project_views
+from mocapdb.skeleton import PELVIS
+from runtime.engine import Engine, EngineConfig
+from runtime.session import FrameParser, Session, SessionSummary, run_live, run_offline
+from runtime.streams import StreamStats, open_sink, open_source
+
+from .conftest import SAMPLE_KEYPOINTS
+
+BVH_NODE_OF_JOINT = {"r_knee_End": 10, "l_elbow_End": 7, "neck_End": 0, "pelvis": 14, "r_shoulder": 2}
+
+
+def _stream_lines(db, n_frames: int = 30) -> list[str]:
+    """JSON-lines input (COCO-17 layout) of a database clip seen from the database camera."""
+    pos = db.positions[:n_frames].astype(np.float64)
+    px = project_views(pos, pos[:, PELVIS], np.array([36.0]), 0.0, Camera(**db.meta["camera"]))[:, 0, :14]
+    coco_of_universal = {0: 0, 2: 6, 3: 8, 4: 10, 5: 5, 6: 7, 7: 9, 8: 12, 9: 14, 10: 16, 11: 11, 12: 13, 13: 15}
+    lines = []
+    for i in range(n_frames):
+        kp = np.zeros((17, 3))
+        for u, c in coco_of_universal.items():
+            kp[c] = [px[i, u, 0], px[i, u, 1], 0.9]
+        lines.append(json.dumps({"frame": i, "layout": "coco17", "people": [{"keypoints": kp.tolist()}]}))
+    return lines
+
+
+def test_offline_session_outputs_and_bvh_agree(small_db, tmp_path):
+    lines = _stream_lines(small_db)
+    lines.insert(5, "{not json")
+    lines.insert(9, json.dumps({"frame": 99, "people": [{"keypoints": [[1, 2]]}]}))
+    (tmp_path / "in.jsonl").write_text("\n".join(lines) + "\n")
+    summary = SessionSummary(stream=StreamStats())
+    engine = Engine(small_db, EngineConfig(fps=24.0))
+    session = Session(engine, open_sink(str(tmp_path / "out.jsonl"), summary.stream), FrameParser(), summary)
+    run_offline(session, open_source(str(tmp_path / "in.jsonl"), stats=summary.stream))
+    session.finish(tmp_path)
+    assert summary.frames == 30 and sum(summary.malformed.values()) == 2
+    out = [json.loads(line) for line in (tmp_path / "out.jsonl").read_text().splitlines()]
+    assert out[0]["format"] == "mocapdb-stream" and len(out) == 31
+    people = [f["people"][0] for f in out[1:] if f["people"]]
+    assert len(people) == 29 and all(len(p["joints"]) == 15 and len(p["quaternions"]) == 11 for p in people)
+    bvh = read_bvh(tmp_path / "track_0.bvh")
+    assert bvh.n_frames == 29 and bvh.fps == pytest.approx(24.0)
+    fk, _ = forward_kinematics(bvh)
+    for name, joint in BVH_NODE_OF_JOINT.items():
+        view = np.array([p["joints"][joint] for p in people]) * [1, 1, -1]  # camera-aligned → BVH frame
+        np.testing.assert_allclose(fk[:, bvh.index(name)], view, atol=2e-3)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_live_over_tcp(small_db, tmp_path):
+    port = _free_port()
+    summary = SessionSummary(stream=StreamStats())
+    session = Session(Engine(small_db, EngineConfig(fps=24.0)), open_sink(str(tmp_path / "live.jsonl"), summary.stream),
+                      FrameParser(), summary)
+    source = open_source(f"tcp://127.0.0.1:{port}", stats=summary.stream)
+    stop = threading.Event()
+    loop = threading.Thread(target=run_live, args=(session, source, stop))
+    loop.start()
+    lines = _stream_lines(small_db, 20)
+    with socket.create_connection(("127.0.0.1", port), timeout=2) as client:
+        for line in lines[:10] + ["garbage"] + lines[10:]:
+            client.sendall((line + "\n").encode())
+            time.sleep(0.01)
+    deadline = time.monotonic() + 5
+    while summary.frames + summary.stream.dropped_stale < 20 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    stop.set()
+    loop.join(timeout=5)
+    assert not loop.is_alive()
+    session.finish(tmp_path / "bvh")
+    assert summary.frames + summary.stream.dropped_stale == 20
+    assert sum(summary.malformed.values()) == 1
+    assert (tmp_path / "bvh" / "track_0.bvh").exists()
+    assert "latency p50" in summary.report()
+
+
+def test_cli_reconstruct_real_openpose_folder(small_db_path, tmp_path, capsys):
+    args = ["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(tmp_path),
+            "--fps", "60", "--image-size", "1088x1920", "--focal", "1681"]
+    assert main(args) == 0
+    report = capsys.readouterr().out
+    assert "frames 100" in report
+    frames = (tmp_path / "result.jsonl").read_text().splitlines()
+    assert len(frames) == 101
+    assert list(tmp_path.glob("track_*.bvh"))
+
+
+@pytest.mark.parametrize("args, message", [
+    (["reconstruct", "nowhere", "--db", "{db}", "--out", "{tmp}"], "not a folder"),
+    (["reconstruct", "{keypoints}", "--db", "{tmp}/missing", "--out", "{tmp}"], "missing"),
+    (["reconstruct", "{keypoints}", "--db", "{db}", "--out", "{tmp}", "--image-size", "big"], "WIDTHxHEIGHT"),
+    (["live", "--source", "tcp://nohostport", "--db", "{db}"], "HOST:PORT"),
+])
+def test_cli_bad_inputs_give_clear_errors(small_db_path, tmp_path, capsys, args, message):
+    fill = {"db": str(small_db_path), "tmp": str(tmp_path), "keypoints": str(SAMPLE_KEYPOINTS)}
+    assert main([a.format(**fill) for a in args]) == 2
+    assert message in capsys.readouterr().err
