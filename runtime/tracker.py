@@ -6,8 +6,8 @@ confirmed tracks are matched first, tentative ones then take what is left. A tra
 keypoints by a constant velocity (of the joints it shares with each new detection, smoothed), so
 brief dropouts and people crossing paths keep their ids.
 
-Lifecycle: an unmatched detection starts a tentative track; ``min_hits`` consecutive matches
-confirm it and give it the next id (ids only increase and are never reused); a tentative track
+Lifecycle: an unmatched detection starts a tentative track (that detection is its first hit);
+``min_hits`` consecutive hits confirm it and give it the next id (ids only increase and are never reused); a tentative track
 that misses a frame is dropped; a confirmed track unmatched for more than ``max_missing`` frames
 ends. New tracks are created left to right (then top to bottom) by box centre, so ids do not
 depend on the order of the detections in the input.
@@ -124,11 +124,18 @@ class Tracker:
         return ids[ids >= 0].tolist()
 
     def update(self, points: np.ndarray, confidence: np.ndarray, t_s: float) -> TrackUpdate:
-        """Associate one frame: ``points [P, 14, 2]`` pixels, ``confidence [P, 14]``, time in seconds."""
+        """Associate one frame: ``points [P, 14, 2]`` pixels, ``confidence [P, 14]``, time in seconds.
+
+        Times should increase; a frame whose time does not is still associated but leaves the
+        tracks' velocities unchanged. Detections with fewer than ``min_joints`` visible joints are
+        ignored (detection indices in the result still refer to the input).
+        """
         cfg = self.config
         visible = np.asarray(confidence).reshape(-1, N_KEYPOINTS_2D) > cfg.min_confidence
         kept = (visible.sum(axis=1) >= cfg.min_joints).nonzero()[0]
         points = np.asarray(points, dtype=np.float64).reshape(-1, N_KEYPOINTS_2D, 2)
+        if len(points) != len(visible):
+            raise ValueError(f"{len(points)} keypoint sets but {len(visible)} confidence rows")
         if len(kept) < len(visible):
             points, visible = points[kept], visible[kept]
         dets = _People.of(points, visible)
