@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 
 from . import __version__
 from .joint_map import UNITS, UP_AXES
@@ -150,9 +149,7 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     session = _session(args, str(out / "result.jsonl"))
-    started = time.perf_counter()
     run_offline(session, open_source(args.input, stats=session.summary.stream))
-    session.summary.wall_s = time.perf_counter() - started
     summary = session.finish(out, args.bvh_unit)
     print(f"wrote {out / 'result.jsonl'} and {len(summary.bvh_files)} BVH file(s) in {out}")
     print(summary.report())
@@ -183,10 +180,8 @@ def _run_live(args: argparse.Namespace) -> int:
     session = _session(args, args.sink)
     source = open_source(args.source, stats=session.summary.stream, follow=True, idle_timeout_s=args.idle_timeout)
     stop = threading.Event()
-    started = time.perf_counter()
     with install_stop_handlers(stop):
         run_live(session, source, stop, args.buffer)
-    session.summary.wall_s = time.perf_counter() - started
     summary = session.finish(Path(args.bvh_dir) if args.bvh_dir else None, args.bvh_unit)
     print(summary.report(), file=sys.stderr)
     return 0

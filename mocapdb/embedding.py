@@ -21,16 +21,16 @@ KMEANS_BLOCKS = 256            # fixed partition of the points for order-stable 
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def _distances_soa(a: np.ndarray, bt: np.ndarray) -> np.ndarray:
-    """Eq. 1 distances of poses ``a [N, J, 2]`` to poses stored joint-major ``bt [J, 2, M]``.
+def _distances_soa(a: np.ndarray, bt: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """Eq. 1 distances of poses ``a [N, J, 2]`` to poses stored joint-major ``bt [J, 2, M]``,
+    written to and returned as ``out [N, M]`` float64 (reused buffers avoid page faults).
 
     Per-joint differences and square roots run in the inputs' precision, sums in float64.
     """
-    n, n_joints = a.shape[0], a.shape[1]
-    out = np.zeros((n, bt.shape[2]))
-    for i in prange(n):
+    for i in prange(a.shape[0]):
         row = out[i]
-        for k in range(n_joints):
+        row[:] = 0.0
+        for k in range(a.shape[1]):
             x, y = a[i, k, 0], a[i, k, 1]
             bx, by = bt[k, 0], bt[k, 1]
             for j in range(row.shape[0]):
@@ -67,7 +67,7 @@ def pose_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     a, b = _as_poses(a, dtype), _as_poses(b, dtype)
     if a.shape[1] != b.shape[1]:
         raise ValueError(f"joint counts differ: {a.shape[1]} vs {b.shape[1]}")
-    return _distances_soa(a, _joint_major(b))
+    return _distances_soa(a, _joint_major(b), np.empty((len(a), len(b))))
 
 
 def _double_centre(sq_dist: np.ndarray) -> np.ndarray:
@@ -113,10 +113,10 @@ def _maxmin_landmarks(poses: np.ndarray, n_landmarks: int, rng: np.random.Genera
     pool_t = _joint_major(pool_poses)
     chosen = np.empty(n_landmarks, dtype=np.int64)
     chosen[0] = rng.integers(pool_size)
-    nearest = np.full(pool_size, np.inf)
+    nearest, latest = np.full(pool_size, np.inf), np.empty((1, pool_size))
     for i in range(1, n_landmarks):
-        np.minimum(nearest, _distances_soa(pool_poses[chosen[i - 1]:chosen[i - 1] + 1], pool_t)[0],
-                   out=nearest)
+        _distances_soa(pool_poses[chosen[i - 1]:chosen[i - 1] + 1], pool_t, latest)
+        np.minimum(nearest, latest[0], out=nearest)
         chosen[i] = np.argmax(nearest)
     return np.sort(pool[chosen])
 
@@ -140,8 +140,7 @@ def landmark_mds(poses: np.ndarray, dims: int = 5, n_landmarks: int = 2000, seed
     poses (the test sets; the tests assert 2e-3 and 5e-3); over 3 data sets × 10 seeds of each
     kind, mean 2e-3 and 8e-3, worst 9e-3 and 2.3e-2.
     """
-    dtype = _work_dtype(poses)
-    poses = _as_poses(poses, dtype)
+    poses = _as_poses(poses, _work_dtype(poses))
     n = len(poses)
     if n <= n_landmarks:
         coords = classical_mds(pose_distances(poses, poses), dims).astype(np.float32)
@@ -149,16 +148,23 @@ def landmark_mds(poses: np.ndarray, dims: int = 5, n_landmarks: int = 2000, seed
             progress(n)
         return coords
     landmarks = poses[_maxmin_landmarks(poses, n_landmarks, np.random.default_rng(seed))]
-    landmarks_t = _joint_major(landmarks)
-    sq = _distances_soa(landmarks, landmarks_t) ** 2
+    sq = pose_distances(landmarks, landmarks) ** 2
     vals, vecs = _top_eigen(_double_centre(sq), dims)
     root = np.sqrt(np.maximum(vals, 0.0))
-    projection = -0.5 * np.divide(vecs, root, out=np.zeros_like(vecs), where=root > 0)  # [L, dims]
-    mean_sq = sq.mean(axis=0)
-    out = np.empty((n, dims), dtype=np.float32)
-    chunk = max(1, CHUNK_BYTES // (8 * n_landmarks))
-    for start in range(0, n, chunk):
-        block = _distances_soa(poses[start:start + chunk], landmarks_t)
+    pseudo_inverse = np.divide(vecs, root, out=np.zeros_like(vecs), where=root > 0)  # [L, dims]
+    return _triangulate(poses, landmarks, -0.5 * pseudo_inverse, sq.mean(axis=0), progress)
+
+
+def _triangulate(poses: np.ndarray, landmarks: np.ndarray, projection: np.ndarray, mean_sq: np.ndarray,
+                 progress: Callable[[int], object] | None) -> np.ndarray:
+    """float32 ``[N, dims]`` rows ``(δ − mean_sq) @ projection``, ``δ`` a pose's squared Eq. 1
+    distances to the ``L`` landmarks; chunks reuse one ~``CHUNK_BYTES`` float64 buffer."""
+    n, n_landmarks = len(poses), len(landmarks)
+    landmarks_t = _joint_major(landmarks)
+    out = np.empty((n, projection.shape[1]), dtype=np.float32)
+    buffer = np.empty((min(n, max(1, CHUNK_BYTES // (8 * n_landmarks))), n_landmarks))
+    for start in range(0, n, len(buffer)):
+        block = _distances_soa(poses[start:start + len(buffer)], landmarks_t, buffer[:n - start])
         np.multiply(block, block, out=block)
         block -= mean_sq
         out[start:start + len(block)] = block @ projection

@@ -75,6 +75,7 @@ class Session:
 
     def __init__(self, engine: Engine, sink: Sink, parser: FrameParser, summary: SessionSummary):
         self.engine, self.sink, self.parser, self.summary = engine, sink, parser, summary
+        self.started = time.perf_counter()
         self.sink.write(header_line(engine.config.fps))
 
     def handle(self, message: RawMessage) -> None:
@@ -93,6 +94,7 @@ class Session:
 
     def finish(self, bvh_dir: Path | None, bvh_unit: str = "m") -> SessionSummary:
         """End all tracks, write their BVH files (if ``bvh_dir``), close the sink."""
+        self.summary.wall_s = time.perf_counter() - self.started
         recordings = self.engine.finish()
         self.summary.tracks = len(recordings)
         if bvh_dir is not None:

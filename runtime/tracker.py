@@ -7,10 +7,10 @@ keypoints by a constant velocity (of the joints it shares with each new detectio
 brief dropouts and people crossing paths keep their ids.
 
 Lifecycle: an unmatched detection starts a tentative track (that detection is its first hit);
-``min_hits`` consecutive hits confirm it and give it the next id (ids only increase and are never reused); a tentative track
-that misses a frame is dropped; a confirmed track unmatched for more than ``max_missing`` frames
-ends. New tracks are created left to right (then top to bottom) by box centre, so ids do not
-depend on the order of the detections in the input.
+``min_hits`` consecutive hits confirm it and give it the next id (ids only increase and are never
+reused); a tentative track that misses a frame is dropped; a confirmed track unmatched for more
+than ``max_missing`` frames ends. New tracks are created left to right (then top to bottom) by
+box centre, so ids do not depend on the order of the detections in the input.
 """
 from __future__ import annotations
 

@@ -185,3 +185,11 @@ def test_finish_ends_only_confirmed_tracks():
     run([{"A": person(300, 600, rng)}] * 3 + [{"A": person(300, 600, rng), "B": person(900, 600, rng)}], tracker)
     assert tracker.active_ids == [0]
     assert tracker.finish() == [0]
+
+
+def test_repeated_timestamp_does_not_break_the_track():
+    rng = np.random.default_rng(13)
+    tracker = Tracker()
+    times = [k / FPS for k in range(8)] + [7 / FPS] + [k / FPS for k in range(8, 14)]  # frame 7's time twice
+    updates = [tracker.update(*(a[None] for a in person(300 + 6 * i, 600, rng)), t) for i, t in enumerate(times)]
+    assert all(u.assignments == [(0, 0)] for u in updates[1:])  # a 1/0 velocity would lose the track

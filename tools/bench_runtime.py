@@ -1,0 +1,142 @@
+"""Benchmark the runtime: throughput, clustered vs exact search, live latency with 4 people, start-up.
+
+    python tools/bench_runtime.py --db eval.db [--heldout ../shared/data/cmu_bvh/007_*.bvh]
+
+* throughput: person-frames/s of ``Engine.step`` (parsed keypoints to smoothed skeleton, one
+  thread), clustered and exact search, on held-out clips rendered from off-grid yaws;
+* search: recall@1 of the clustered search against exact search and the time of each;
+* live: 4 people per frame streamed at 30 fps over TCP on loopback into the live loop;
+  latency p50/p99 from a message's arrival to its output line;
+* start-up: from launching ``mocapdb live --source -`` to its first output frame.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from mocapdb.database import load_database  # noqa: E402
+from mocapdb.keypoints import KeypointFrame  # noqa: E402
+from runtime.engine import Engine, EngineConfig  # noqa: E402
+from runtime.evaluate import Scenario, load_heldout, render, search_benchmark, view_of  # noqa: E402
+from runtime.session import FrameParser, Session, SessionSummary, run_live  # noqa: E402
+from runtime.streams import StreamStats, open_sink, open_source  # noqa: E402
+
+DEFAULT_HELDOUT = sorted((ROOT.parent / "shared" / "data" / "cmu_bvh").glob("007_*.bvh"))
+COCO17_OF_UNIVERSAL = {0: 0, 2: 6, 3: 8, 4: 10, 5: 5, 6: 7, 7: 9, 8: 12, 9: 14, 10: 16, 11: 11, 12: 13, 13: 15}
+
+
+def rendered_sequences(truths, yaws=(6.0, 96.0, 186.0, 276.0), noise_px: float = 5.0) -> list[list[KeypointFrame]]:
+    rng = np.random.default_rng(0)
+    scenario = Scenario("bench", noise_px=noise_px)
+    return [render(view_of(t, yaw, 1.5, 5.0), scenario, 1000.0, (1920, 1080), rng) for t in truths for yaw in yaws]
+
+
+def throughput(db, sequences, search: str) -> float:
+    config = EngineConfig(search=search, fps=24.0)
+    engine = Engine(db, config)
+    for frame in sequences[0][:5]:
+        engine.step(frame)  # compile / warm up
+    engine.finish()
+    n, seconds = 0, 0.0
+    for frames in sequences:
+        engine = Engine(db, config)
+        start = time.perf_counter()
+        for frame in frames:
+            n += len(engine.step(frame))
+        seconds += time.perf_counter() - start
+    return n / seconds
+
+
+def _coco_line(index: int, people_px: list[np.ndarray]) -> str:
+    people = []
+    for px in people_px:
+        kp = np.zeros((17, 3))
+        for u, c in COCO17_OF_UNIVERSAL.items():
+            kp[c] = [px[u, 0], px[u, 1], 0.9]
+        people.append({"keypoints": np.round(kp, 2).tolist()})
+    return json.dumps({"frame": index, "layout": "coco17", "people": people})
+
+
+def live_latency(db, sequences, n_people: int = 4, fps: float = 30.0, n_frames: int = 300) -> dict:
+    """``n_people`` side by side per frame, sent at ``fps`` over TCP into the live loop."""
+    lines = []
+    for i in range(n_frames):  # each person's sequence repeats when it runs out
+        people = [sequences[p][i % len(sequences[p])].people[0].points_px + [(p - 1.5) * 420.0, 0.0]
+                  for p in range(n_people)]
+        lines.append(_coco_line(i, people))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    summary = SessionSummary(stream=StreamStats())
+    session = Session(Engine(db, EngineConfig(fps=fps)), open_sink("/dev/null", summary.stream), FrameParser(), summary)
+    source = open_source(f"tcp://127.0.0.1:{port}", stats=summary.stream)
+    stop = threading.Event()
+    loop = threading.Thread(target=run_live, args=(session, source, stop))
+    loop.start()
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as client:
+        start = time.perf_counter()
+        for i, line in enumerate(lines):
+            client.sendall((line + "\n").encode())
+            time.sleep(max(0.0, start + (i + 1) / fps - time.perf_counter()))
+    deadline = time.monotonic() + 10
+    while summary.frames + summary.stream.dropped_stale < n_frames and time.monotonic() < deadline:
+        time.sleep(0.01)
+    stop.set()
+    loop.join()
+    session.finish(None)
+    lat = np.array(summary.latencies_s[10:]) * 1000  # after warm-up
+    return {"people": n_people, "frames_sent": n_frames, "frames_processed": summary.frames,
+            "dropped_stale": summary.stream.dropped_stale, "tracks": summary.tracks,
+            "latency_ms_p50": round(float(np.percentile(lat, 50)), 2),
+            "latency_ms_p99": round(float(np.percentile(lat, 99)), 2)}
+
+
+def startup(db_path: Path, line: str) -> float:
+    """Seconds from launching `mocapdb live --source -` to its first output frame."""
+    start = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-m", "mocapdb", "live", "--source", "-", "--db", str(db_path)],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                            cwd=ROOT)
+    proc.stdin.write(line + "\n")
+    proc.stdin.flush()
+    elapsed = float("nan")
+    for out in proc.stdout:
+        if '"frame"' in out and '"format"' not in out:
+            elapsed = time.perf_counter() - start
+            break
+    proc.stdin.close()
+    proc.wait(timeout=30)
+    return elapsed
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--db", type=Path, required=True, help="database built without the held-out clips")
+    ap.add_argument("--heldout", type=Path, nargs="+", default=DEFAULT_HELDOUT, help="held-out BVH files")
+    args = ap.parse_args()
+    db = load_database(args.db)
+    truths = load_heldout(args.heldout, 24.0)
+    sequences = rendered_sequences(truths)
+    report = {"database_projections": db.n_projections}
+    report["throughput_person_frames_per_s"] = {s: round(throughput(db, sequences, s), 1) for s in ("clustered", "exact")}
+    queries = [f.people[0] for seq in sequences for f in seq[::3]]
+    report["search"] = search_benchmark(Engine(db), queries, 0.3)
+    report["live_4_people_30fps"] = live_latency(db, sequences)
+    report["startup_to_first_frame_s"] = round(startup(args.db, _coco_line(0, [sequences[0][0].people[0].points_px])), 2)
+    print(json.dumps(report, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
