@@ -12,7 +12,6 @@ One code path serves `mocapdb reconstruct` (files) and `mocapdb live` (streams).
 """
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -93,11 +92,18 @@ class _TrackState:
     """Per-track memory: last reconstructed skeletons, filters, recording."""
 
     def __init__(self, track: int, frame: int, config: EngineConfig, window: int):
-        self.history: deque[np.ndarray] = deque(maxlen=window)
+        self.history = np.zeros((window, N_RIG_JOINTS, 4))  # last reconstructed rotations, newest first
+        self.n_history = 0
         self.rotations = QuaternionOneEuroFilter(config.rotation_filter)
         self.root = OneEuroFilter(config.root_filter)
         self.recording = TrackRecording(track, frame)
         self.last_frame = frame - 1
+
+    def remember(self, quats: np.ndarray) -> None:
+        """Push this frame's (unsmoothed) rotations onto the history window."""
+        self.history[1:] = self.history[:-1]
+        self.history[0] = quats
+        self.n_history = min(self.n_history + 1, len(self.history))
 
     def record(self, frame: int, quats: np.ndarray, root_view: np.ndarray) -> None:
         """Append this frame, holding the last pose over any frames the track missed."""
@@ -129,6 +135,7 @@ class Engine:
         self.index = SearchIndex.from_database(db)
         self.db_quats = np.ascontiguousarray(db.quaternions)
         self.clip_first = db.clip_first_frame[db.frame_clip]
+        self.proj_yaw = db.proj_yaw.astype(np.int64)
         self.yaws_deg = np.asarray(db.meta["yaws_deg"], dtype=np.float64)
         self.yaw_mats = yaw_matrix(self.yaws_deg)
         self.yaw_quats = matrix_to_quat(self.yaw_mats)
@@ -178,7 +185,7 @@ class Engine:
         row = int(rows[best])
         f, v = int(self.db.proj_frame[row]), int(self.db.proj_yaw[row])
         quats = yawed_rotations(self.db_quats, f, self.yaw_quats[v])
-        state.history.appendleft(quats)
+        state.remember(quats)
         root_view = self._root_view(f, v, points_px, visible)
         if self.config.smoothing:
             quats = state.rotations(quats, t_s)
@@ -199,13 +206,10 @@ class Engine:
 
     def _choose(self, state: _TrackState, rows: np.ndarray, dist: np.ndarray) -> int:
         """Index into ``rows`` of the candidate to use (Eq. 2, or Eq. 1 at a track's start)."""
-        if not state.history:
+        if state.n_history == 0:
             return int(np.argmin(dist))
-        history = np.array(state.history)
-        window = np.zeros((len(self.window_weights),) + history.shape[1:])
-        window[:len(history)] = history
         costs = temporal_costs(self.db_quats, self.clip_first, self.yaw_quats, self.db.proj_frame[rows],
-                               self.db.proj_yaw[rows].astype(np.int64), window, len(history),
+                               self.proj_yaw[rows], state.history, state.n_history,
                                self.window_weights, self.joint_weights)
         return int(np.argmin(costs + self.config.weight_2d * dist))
 

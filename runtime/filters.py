@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mocapdb.geometry import quat_conj, quat_geodesic, quat_mul
+from numba import njit
 
 
 @dataclass(frozen=True)
@@ -50,7 +50,8 @@ class OneEuroParams:
 ROOT_DEFAULTS = OneEuroParams(min_cutoff_hz=0.5, beta=1.0, d_cutoff_hz=1.0)
 
 
-def _alpha(rate_hz: float, cutoff_hz: float | np.ndarray) -> float | np.ndarray:
+@njit(cache=True)
+def _alpha(rate_hz: float, cutoff_hz: float) -> float:
     """The 1€ low-pass weight ``a = 1 / (1 + r / (2π f_c))`` of a new sample."""
     return 1.0 / (1.0 + rate_hz / (2.0 * np.pi * cutoff_hz))
 
@@ -84,11 +85,9 @@ class OneEuroFilter:
             return x.copy()
         if t_s <= s.t_s:
             return s.value.copy()
-        rate = 1.0 / (t_s - s.t_s)
         p = self.params
-        s.speed = s.speed + _alpha(rate, p.d_cutoff_hz) * ((x - s.value) * rate - s.speed)
-        a = _alpha(rate, p.min_cutoff_hz + p.beta * np.abs(s.speed))
-        s.value = s.value + a * (x - s.value)
+        _vector_step(s.value.reshape(-1), s.speed.reshape(-1), x.reshape(-1), 1.0 / (t_s - s.t_s),
+                     p.min_cutoff_hz, p.beta, p.d_cutoff_hz)
         s.t_s = t_s
         return s.value.copy()
 
@@ -123,21 +122,40 @@ class QuaternionOneEuroFilter:
             return q.copy()
         if t_s <= s.t_s:
             return s.value.copy()
-        rate = 1.0 / (t_s - s.t_s)
-        q = np.where(np.sum(q * s.value, axis=-1, keepdims=True) < 0, -q, q)
         p = self.params
-        omega = _rotation_vector(s.value, q) * rate
-        s.speed = s.speed + _alpha(rate, p.d_cutoff_hz) * (omega - s.speed)
-        a = _alpha(rate, p.min_cutoff_hz + p.beta * np.linalg.norm(s.speed, axis=-1))
-        blend = s.value + a[..., None] * (q - s.value)
-        s.value = blend / np.linalg.norm(blend, axis=-1, keepdims=True)
+        _quaternion_step(s.value.reshape(-1, 4), s.speed.reshape(-1, 3), q.reshape(-1, 4), 1.0 / (t_s - s.t_s),
+                         p.min_cutoff_hz, p.beta, p.d_cutoff_hz)
         s.t_s = t_s
         return s.value.copy()
 
 
-def _rotation_vector(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Axis × angle ``[..., 3]`` (radians, in ``a``'s frame) of the rotation from ``a`` to ``b``."""
-    axis = quat_mul(quat_conj(a), b)[..., 1:]
-    norm = np.linalg.norm(axis, axis=-1, keepdims=True)
-    angle = 2.0 * quat_geodesic(a, b)[..., None]
-    return np.where(norm > 0, axis * (angle / np.where(norm > 0, norm, 1.0)), 0.0)
+@njit(cache=True)
+def _vector_step(value, speed, x, rate, min_cutoff, beta, d_cutoff):
+    """One 1€ update of flat arrays ``value`` and ``speed`` (in place) with sample ``x``."""
+    a_d = _alpha(rate, d_cutoff)
+    for i in range(x.shape[0]):
+        speed[i] += a_d * ((x[i] - value[i]) * rate - speed[i])
+        value[i] += _alpha(rate, min_cutoff + beta * abs(speed[i])) * (x[i] - value[i])
+
+
+@njit(cache=True)
+def _quaternion_step(value, speed, q, rate, min_cutoff, beta, d_cutoff):
+    """One 1€ update of unit quaternions ``value [J, 4]`` and angular velocities ``speed [J, 3]``."""
+    a_d = _alpha(rate, d_cutoff)
+    for j in range(q.shape[0]):
+        v = value[j]
+        qj = q[j]
+        if v[0] * qj[0] + v[1] * qj[1] + v[2] * qj[2] + v[3] * qj[3] < 0:
+            qj = -qj
+        # v⁻¹ q: its vector part is the axis × sin(angle / 2), its scalar part cos(angle / 2) >= 0.
+        r0 = v[0] * qj[0] + v[1] * qj[1] + v[2] * qj[2] + v[3] * qj[3]
+        r = np.array([v[0] * qj[1] - v[1] * qj[0] - v[2] * qj[3] + v[3] * qj[2],
+                      v[0] * qj[2] + v[1] * qj[3] - v[2] * qj[0] - v[3] * qj[1],
+                      v[0] * qj[3] - v[1] * qj[2] + v[2] * qj[1] - v[3] * qj[0]])
+        sin_half = np.sqrt(r[0] ** 2 + r[1] ** 2 + r[2] ** 2)
+        if sin_half > 0:
+            r *= 2.0 * np.arctan2(sin_half, r0) * rate / sin_half
+        speed[j] += a_d * (r - speed[j])
+        a = _alpha(rate, min_cutoff + beta * np.sqrt(np.sum(speed[j] ** 2)))
+        blend = v + a * (qj - v)
+        value[j] = blend / np.sqrt(np.sum(blend ** 2))
