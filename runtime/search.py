@@ -119,7 +119,8 @@ def _smallest(dist, k, offset):
 
 
 @njit(cache=True)
-def _clustered(x, y, cluster_start, rep_x, rep_y, rep_cluster, query, vis_idx, renorm, n_clusters, per_cluster):
+def _clustered(x, y, cluster_start, rep_x, rep_y, rep_cluster, rows, query, visible, n_clusters, per_cluster):
+    vis_idx, renorm = _visible_joints(visible)
     n_rep = rep_x.shape[1]
     top_c, _ = _smallest(range_distances(rep_x, rep_y, 0, n_rep, query, vis_idx, renorm),
                          min(n_clusters, n_rep), 0)
@@ -132,19 +133,21 @@ def _clustered(x, y, cluster_start, rep_x, rep_y, rep_cluster, query, vis_idx, r
         out_i[n * per_cluster:(n + 1) * per_cluster] = best_i
         out_d[n * per_cluster:(n + 1) * per_cluster] = best_d
     keep = out_i >= 0
-    return out_i[keep], out_d[keep]
+    return rows[out_i[keep]], out_d[keep]
 
 
 @njit(cache=True)
-def _exact(x, y, query, vis_idx, renorm, k):
+def _exact(x, y, rows, query, visible, k):
+    vis_idx, renorm = _visible_joints(visible)
     best_i, best_d = _smallest(range_distances(x, y, 0, x.shape[1], query, vis_idx, renorm), k, 0)
     keep = best_i >= 0
-    return best_i[keep], best_d[keep]
+    return rows[best_i[keep]], best_d[keep]
 
 
-def _visible_joints(visible: np.ndarray) -> tuple[np.ndarray, bool]:
+@njit(cache=True)
+def _visible_joints(visible: np.ndarray):
     vis_idx = np.flatnonzero(visible).astype(np.int64)
-    return vis_idx, len(vis_idx) < len(visible)
+    return vis_idx, vis_idx.shape[0] < visible.shape[0]
 
 
 def search_clustered(index: SearchIndex, query: np.ndarray, visible: np.ndarray,
@@ -153,15 +156,11 @@ def search_clustered(index: SearchIndex, query: np.ndarray, visible: np.ndarray,
 
     ``query [14, 2]`` is normalised over ``visible [14]`` (see ``normalize_pose_2d``).
     """
-    vis_idx, renorm = _visible_joints(visible)
-    idx, dist = _clustered(index.x, index.y, index.cluster_start, index.rep_x, index.rep_y, index.rep_cluster,
-                           query, vis_idx, renorm, n_clusters, per_cluster)
-    return index.rows[idx], dist
+    return _clustered(index.x, index.y, index.cluster_start, index.rep_x, index.rep_y, index.rep_cluster,
+                      index.rows, query, visible, n_clusters, per_cluster)
 
 
 def search_exact(index: SearchIndex, query: np.ndarray, visible: np.ndarray,
                  k: int = 50) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` nearest projections over the whole database (brute force), nearest first."""
-    vis_idx, renorm = _visible_joints(visible)
-    idx, dist = _exact(index.x, index.y, query, vis_idx, renorm, k)
-    return index.rows[idx], dist
+    return _exact(index.x, index.y, index.rows, query, visible, k)
