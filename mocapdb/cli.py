@@ -134,7 +134,8 @@ def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("reconstruct", help="2D keypoint files → 3D skeletons (JSON lines) and BVH per person",
                        description="Reconstruct every frame of a folder of OpenPose JSON files or a JSON-lines "
                                    "keypoint file; writes OUT/result.jsonl and OUT/track_<id>.bvh.")
-    p.add_argument("input", help="folder of OpenPose JSON frames, or a .jsonl/.ndjson file")
+    p.add_argument("input", help="folder of OpenPose JSON frames, a .jsonl/.ndjson file, or a .npy/.npz "
+                                 "keypoint array [T, K, 3] or [T, P, K, 3] (x, y, confidence; COCO-17 unless --keypoints)")
     p.add_argument("--out", required=True, help="output folder")
     _add_engine_options(p)
     p.set_defaults(run=_run_reconstruct)
@@ -143,13 +144,19 @@ def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
 def _run_reconstruct(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from runtime.session import run_offline
+    from runtime.session import run_arrays, run_offline
     from runtime.streams import open_source
+
+    from .keypoints import frames_from_arrays, read_keypoint_array
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     session = _session(args, str(out / "result.jsonl"))
-    run_offline(session, open_source(args.input, stats=session.summary.stream))
+    if Path(args.input).suffix.lower() in (".npy", ".npz"):
+        keypoints = read_keypoint_array(args.input)
+        run_arrays(session, frames_from_arrays(keypoints, args.keypoints or "coco17", args.fps))
+    else:
+        run_offline(session, open_source(args.input, stats=session.summary.stream))
     summary = session.finish(out, args.bvh_unit)
     print(f"wrote {out / 'result.jsonl'} and {len(summary.bvh_files)} BVH file(s) in {out}")
     print(summary.report())

@@ -17,14 +17,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from mocapdb.database import MotionDatabase
+from mocapdb.database import DatabaseError, MotionDatabase
 from mocapdb.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
 from mocapdb.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
 from mocapdb.skeleton import N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, pose_from_rotations
 
 from .filters import ROOT_DEFAULTS, OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
-from .search import SearchIndex, search_clustered, search_exact
-from .temporal import temporal_costs, yawed_rotations
+from .search import SearchIndex, row_distances, search_clustered, search_exact
+from .temporal import temporal_costs, yaw_quaternion, yawed_rotations
 from .tracker import Tracker, TrackerConfig
 
 R_HIP, L_HIP = 8, 11
@@ -47,6 +47,7 @@ class EngineConfig:
     image_size: tuple[int, int] = (1920, 1080)  # input image width, height in pixels
     fps: float = 30.0                    # frame rate assumed when frames carry no time
     translation: bool = True             # estimate the root translation from the image
+    refine_yaw: bool = True              # refine the matched yaw between the database's yaws
     smoothing: bool = True
     rotation_filter: OneEuroParams = field(default_factory=OneEuroParams)
     root_filter: OneEuroParams = ROOT_DEFAULTS
@@ -137,8 +138,8 @@ class Engine:
         self.clip_first = db.clip_first_frame[db.frame_clip]
         self.proj_yaw = db.proj_yaw.astype(np.int64)
         self.yaws_deg = np.asarray(db.meta["yaws_deg"], dtype=np.float64)
-        self.yaw_mats = yaw_matrix(self.yaws_deg)
-        self.yaw_quats = matrix_to_quat(self.yaw_mats)
+        self.yaw_quats = matrix_to_quat(yaw_matrix(self.yaws_deg))
+        _check_frame_major(db)
         self.window_weights = np.asarray(cfg.window_weights, dtype=np.float64)
         weights = cfg.joint_weights or (1.0,) * N_RIG_JOINTS
         if len(weights) != N_RIG_JOINTS:
@@ -148,6 +149,16 @@ class Engine:
         self.tracks: dict[int, _TrackState] = {}
         self.finished: list[TrackRecording] = []
         self.stats = EngineStats()
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Run every compiled kernel once on a database pose, so the first real frame is not slow."""
+        points = self.db.keypoints_2d[0].astype(np.float64) * 400.0 + 500.0
+        visible = np.ones(N_KEYPOINTS_2D, dtype=bool)
+        Tracker(self.config.tracker).update(points[None], np.ones((1, N_KEYPOINTS_2D)), 0.0)
+        state = _TrackState(-1, 0, self.config, len(self.window_weights))
+        for i in range(2):
+            self._person(state, points, visible, i, i / self.config.fps)
 
     # -- per frame -------------------------------------------------------------------------
     def step(self, frame: KeypointFrame) -> list[PersonPose]:
@@ -184,19 +195,35 @@ class Engine:
         best = self._choose(state, rows, dist)
         row = int(rows[best])
         f, v = int(self.db.proj_frame[row]), int(self.db.proj_yaw[row])
-        quats = yawed_rotations(self.db_quats, f, self.yaw_quats[v])
+        yaw_deg = self._refined_yaw(f, v, query, visible)
+        quats = yawed_rotations(self.db_quats, f, yaw_quaternion(yaw_deg))
         state.remember(quats)
-        root_view = self._root_view(f, v, points_px, visible)
+        root_view = self._root_view(f, yaw_deg, points_px, visible)
         if self.config.smoothing:
             quats = state.rotations(quats, t_s)
             root_view = state.root(root_view, t_s)
         state.record(frame_index, quats, root_view)
         joints_view = pose_from_rotations(quats[None], root_view[None])[0]
         clip = int(self.db.frame_clip[f])
-        match = Match(self.db.clip_name[clip], int(self.db.frame_index[f]), float(self.yaws_deg[v]),
-                      float(dist[best]))
+        match = Match(self.db.clip_name[clip], int(self.db.frame_index[f]), yaw_deg, float(dist[best]))
         return PersonPose(state.recording.track, joints_view * CAMERA_FROM_VIEW, quats,
                           root_view * CAMERA_FROM_VIEW, match)
+
+    def _refined_yaw(self, frame: int, yaw: int, query: np.ndarray, visible: np.ndarray) -> float:
+        """The matched yaw refined between the database's yaws (degrees).
+
+        Eq. 1 grows about linearly with the yaw error near the match, so the distances of the
+        same frame seen from the neighbouring yaws place the minimum of a V between them.
+        """
+        n = len(self.yaws_deg)
+        if not self.config.refine_yaw or n < 3:
+            return float(self.yaws_deg[yaw])
+        rows = frame * n + (yaw + np.array([-1, 0, 1])) % n
+        before, here, after = row_distances(self.index, rows, query, visible)
+        step = self.yaws_deg[1] - self.yaws_deg[0]
+        rise = max(before, after) - here
+        offset = 0.5 * step * (before - after) / rise if rise > 1e-12 else 0.0
+        return float(self.yaws_deg[yaw] + np.clip(offset, -0.5 * step, 0.5 * step))
 
     def _search(self, query: np.ndarray, visible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config
@@ -213,12 +240,12 @@ class Engine:
                                self.window_weights, self.joint_weights)
         return int(np.argmin(costs + self.config.weight_2d * dist))
 
-    def _root_view(self, frame: int, yaw: int, points_px: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    def _root_view(self, frame: int, yaw_deg: float, points_px: np.ndarray, visible: np.ndarray) -> np.ndarray:
         """Pelvis position in the view frame: from the image by a pinhole model, or 0."""
         if not self.config.translation:
             return np.zeros(3)
         cfg = self.config
-        return root_from_image(self.db.positions[frame], self.yaw_mats[yaw], points_px, visible,
+        return root_from_image(self.db.positions[frame], yaw_deg, points_px, visible,
                                cfg.focal_px, cfg.image_size[0] / 2.0, cfg.image_size[1] / 2.0)
 
     def _end(self, track: int) -> None:
@@ -235,14 +262,23 @@ class Engine:
         return sorted(self.finished, key=lambda r: r.track)
 
 
+def _check_frame_major(db: MotionDatabase) -> None:
+    """Projections must be frame-major (row = frame × yaws + yaw), as the builder writes them."""
+    n = len(db.meta["yaws_deg"])
+    if db.n_projections != db.n_frames * n or not np.array_equal(db.proj_yaw[:n], np.arange(n)):
+        raise DatabaseError("projections are not one per (frame, yaw) in frame-major order; rebuild the database")
+
+
 @njit(cache=True)
-def root_from_image(positions_m, yaw_mat, points_px, visible, focal_px, cx, cy) -> np.ndarray:
+def root_from_image(positions_m, yaw_deg, points_px, visible, focal_px, cx, cy) -> np.ndarray:
     """The pelvis in the view frame (metres) seen at the image's pelvis with the image's size.
 
     Depth = focal × (box diagonal of the matched skeleton's visible joints turned by its yaw, in
     the image plane, metres) / (box diagonal of the visible keypoints, pixels); then x, y from the
     pelvis pixel through the pinhole model (principal point cx, cy).
     """
+    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
+    yaw_mat = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])  # as geometry.yaw_matrix
     lo_m, hi_m = np.full(2, np.inf), np.full(2, -np.inf)
     lo_px, hi_px = np.full(2, np.inf), np.full(2, -np.inf)
     pelvis, n_hips = np.zeros(2), 0

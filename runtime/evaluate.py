@@ -60,7 +60,7 @@ DEFAULT_SCENARIOS = (
 
 @dataclass
 class EvalConfig:
-    yaws_deg: tuple[float, ...] = (6.0, 51.0, 96.0, 141.0, 186.0, 231.0, 276.0, 321.0)  # off the 12° grid
+    yaws_deg: tuple[float, ...] = (6.0, 51.0, 99.0, 141.0, 186.0, 231.0, 279.0, 321.0)  # 3° or 6° off the 12° grid
     scenarios: tuple[Scenario, ...] = DEFAULT_SCENARIOS
     fps: float = 24.0
     camera_distance_m: float = 5.0   # from the clip's mean pelvis (horizontal)

@@ -35,6 +35,7 @@ class SearchIndex:
     rep_x: np.ndarray           # [14, K'] float32: representatives of the non-empty clusters
     rep_y: np.ndarray           # [14, K'] float32
     rep_cluster: np.ndarray     # [K'] int64: their cluster numbers
+    column_of_row: np.ndarray   # [P] int64: inverse of ``rows``
 
     @classmethod
     def from_database(cls, db: MotionDatabase) -> "SearchIndex":
@@ -46,7 +47,7 @@ class SearchIndex:
         reps = db.keypoints_2d[db.representative[nonempty]]
         return cls(np.ascontiguousarray(poses[..., 0].T), np.ascontiguousarray(poses[..., 1].T),
                    order.astype(np.int64), start, np.ascontiguousarray(reps[..., 0].T),
-                   np.ascontiguousarray(reps[..., 1].T), nonempty.astype(np.int64))
+                   np.ascontiguousarray(reps[..., 1].T), nonempty.astype(np.int64), np.argsort(order))
 
 
 @njit(cache=True, fastmath=True)
@@ -164,3 +165,17 @@ def search_exact(index: SearchIndex, query: np.ndarray, visible: np.ndarray,
                  k: int = 50) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` nearest projections over the whole database (brute force), nearest first."""
     return _exact(index.x, index.y, index.rows, query, visible, k)
+
+
+@njit(cache=True)
+def _row_distances(x, y, columns, query, visible):
+    vis_idx, renorm = _visible_joints(visible)
+    out = np.empty(columns.shape[0])
+    for n in range(columns.shape[0]):
+        out[n] = range_distances(x, y, columns[n], columns[n] + 1, query, vis_idx, renorm)[0]
+    return out
+
+
+def row_distances(index: SearchIndex, rows: np.ndarray, query: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """Eq. 1 distances from ``query`` to the database projections ``rows`` (as the searches measure)."""
+    return _row_distances(index.x, index.y, index.column_of_row[rows], query, visible)

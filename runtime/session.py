@@ -11,6 +11,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -85,12 +86,16 @@ class Session:
         except KeypointError as exc:
             self.summary.malformed[_short_reason(exc)] += 1
             return
+        self.handle_frame(frame, message.arrival_s)
+
+    def handle_frame(self, frame: KeypointFrame, arrival_s: float) -> None:
+        """Process and write one parsed frame that arrived at ``arrival_s`` (time.monotonic)."""
         poses = self.engine.step(frame)
         t_s = frame.time_s if frame.time_s is not None else frame.index / self.engine.config.fps
         self.sink.write(frame_line(frame.index, t_s, poses))
         self.summary.frames += 1
         self.summary.person_frames += len(poses)
-        self.summary.latencies_s.append(time.monotonic() - message.arrival_s)
+        self.summary.latencies_s.append(time.monotonic() - arrival_s)
 
     def finish(self, bvh_dir: Path | None, bvh_unit: str = "m") -> SessionSummary:
         """End all tracks, write their BVH files (if ``bvh_dir``), close the sink."""
@@ -108,6 +113,12 @@ def run_offline(session: Session, source: Source) -> None:
     with source:
         for message in source:
             session.handle(message)
+
+
+def run_arrays(session: Session, frames: Iterable[KeypointFrame]) -> None:
+    """Every frame of a detector's keypoint array (already parsed), in order."""
+    for frame in frames:
+        session.handle_frame(frame, time.monotonic())
 
 
 def run_live(session: Session, source: Source, stop: threading.Event, capacity: int = 2) -> None:

@@ -69,3 +69,9 @@ def yawed_rotations(db_quats: np.ndarray, frame: int, yaw_quat: np.ndarray) -> n
     out[0, 2] = a[0] * q[2] - a[1] * q[3] + a[2] * q[0] + a[3] * q[1]
     out[0, 3] = a[0] * q[3] + a[1] * q[2] - a[2] * q[1] + a[3] * q[0]
     return out
+
+
+def yaw_quaternion(yaw_deg: float) -> np.ndarray:
+    """The rotation about the vertical (y) axis by ``yaw_deg`` as a quaternion (w, x, y, z)."""
+    half = np.radians(yaw_deg) / 2.0
+    return np.array([np.cos(half), 0.0, np.sin(half), 0.0])

@@ -9,11 +9,11 @@ from runtime.engine import Engine, EngineConfig
 from runtime.temporal import temporal_costs
 
 
-def _db_views(db, clip: int, yaw_index: int, camera: Camera):
-    """Keypoint frames of one database clip seen exactly as the database saw it, and the truth."""
+def _db_views(db, clip: int, yaw_index: int, camera: Camera, turn_deg: float = 0.0):
+    """Keypoint frames of one database clip seen as the database saw it (turned ``turn_deg`` more)."""
     first, n = db.clip_first_frame[clip], db.clip_n_frames[clip]
     pos = db.positions[first:first + n].astype(np.float64)
-    yaw = db.meta["yaws_deg"][yaw_index]
+    yaw = db.meta["yaws_deg"][yaw_index] + turn_deg
     px = project_views(pos, pos[:, PELVIS], np.array([yaw]), 0.0, camera)[:, 0, :14]
     frames = [KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9))]) for i in range(n)]
     view = (pos - pos[:, PELVIS:PELVIS + 1]) @ yaw_matrix(yaw).T
@@ -24,7 +24,8 @@ def _db_views(db, clip: int, yaw_index: int, camera: Camera):
 def test_database_views_are_found_exactly(small_db, search):
     camera = Camera(**small_db.meta["camera"])
     frames, truth, first = _db_views(small_db, clip=1, yaw_index=7, camera=camera)
-    engine = Engine(small_db, EngineConfig(search=search, smoothing=False, fps=24.0, focal_px=camera.focal_px,
+    engine = Engine(small_db, EngineConfig(search=search, smoothing=False, refine_yaw=False, fps=24.0,
+                                           focal_px=camera.focal_px,
                                            image_size=(camera.width_px, camera.height_px)))
     outputs = [engine.step(f) for f in frames]
     assert outputs[0] == []  # a track is confirmed on its second frame
@@ -37,6 +38,19 @@ def test_database_views_are_found_exactly(small_db, search):
         assert pose.root_m[2] == pytest.approx(camera.distance_m, rel=0.02)
     recordings = engine.finish()
     assert [len(r.quaternions) for r in recordings] == [len(frames) - 1]
+
+
+@pytest.mark.parametrize("turn", [-4.0, 3.0])
+def test_yaw_between_database_yaws_is_refined(small_db, turn):
+    camera = Camera(**small_db.meta["camera"])
+    frames, _, _ = _db_views(small_db, clip=1, yaw_index=7, camera=camera, turn_deg=turn)
+    yaw = small_db.meta["yaws_deg"][7] + turn
+    for refine, tolerance in ((True, 1.5), (False, abs(turn) + 0.01)):
+        engine = Engine(small_db, EngineConfig(smoothing=False, refine_yaw=refine))
+        yaws = [p.match.yaw_deg for f in frames for p in engine.step(f)]
+        errors = np.abs(np.array(yaws) - yaw)
+        assert np.median(errors) <= tolerance
+    assert np.median(errors) >= abs(turn) - 0.01  # unrefined: the grid yaw
 
 
 def test_left_side_of_a_subject_facing_the_camera_is_on_image_right(small_db):

@@ -111,3 +111,44 @@ def test_cli_bad_inputs_give_clear_errors(small_db_path, tmp_path, capsys, args,
     fill = {"db": str(small_db_path), "tmp": str(tmp_path), "keypoints": str(SAMPLE_KEYPOINTS)}
     assert main([a.format(**fill) for a in args]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_cli_reconstruct_coco17_array(small_db, small_db_path, tmp_path, capsys):
+    lines = [json.loads(line) for line in _stream_lines(small_db, 12)]
+    array = np.array([frame["people"][0]["keypoints"] for frame in lines])  # [T, 17, 3]
+    np.save(tmp_path / "kp.npy", array)
+    assert main(["reconstruct", str(tmp_path / "kp.npy"), "--db", str(small_db_path), "--out", str(tmp_path),
+                 "--fps", "24"]) == 0
+    assert "frames 12" in capsys.readouterr().out
+    assert (tmp_path / "track_0.bvh").exists()
+
+
+def test_live_process_stops_cleanly_on_sigint(small_db, small_db_path, tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    port = _free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "mocapdb", "live", "--source", f"tcp://127.0.0.1:{port}",
+                             "--db", str(small_db_path), "--sink", str(tmp_path / "out.jsonl"),
+                             "--bvh-dir", str(tmp_path)], stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 20
+    while True:  # wait until the process listens
+        try:
+            client = socket.create_connection(("127.0.0.1", port), timeout=1)
+            break
+        except OSError:
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.05)
+    with client:
+        for line in _stream_lines(small_db, 10):
+            client.sendall((line + "\n").encode())
+            time.sleep(1 / 30)  # a 30 fps detector
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    processed = int(err.split("frames ")[1].split(",")[0])
+    stale = int(err.split("stale ")[1].split(",")[0])
+    assert processed + stale == 10 and processed >= 5
+    assert (tmp_path / "track_0.bvh").exists()
