@@ -92,12 +92,13 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--per-cluster", type=int, default=10, help="j: projections taken per cluster (default 10)")
     p.add_argument("--window-weights", default="0.4,0.3,0.2,0.1",
                    help="weights of the last w reconstructed frames, most recent first (default 0.4,0.3,0.2,0.1)")
-    p.add_argument("--weight-2d", type=float, default=0.0,
-                   help="weight of the 2D distance added to the temporal cost (default 0: the method)")
+    p.add_argument("--weight-2d", type=float, default=0.5,
+                   help="weight of the 2D (Eq. 1) distance added to the temporal cost (default 0.5; 0 is the method)")
     p.add_argument("--min-cutoff", type=float, default=1.0, help="1€ filter min cutoff for rotations, Hz (default 1)")
     p.add_argument("--beta", type=float, default=0.3, help="1€ filter beta for rotations (default 0.3)")
     p.add_argument("--no-smoothing", action="store_true", help="turn the 1€ filters off")
     p.add_argument("--no-translation", action="store_true", help="keep the pelvis at the origin")
+    p.add_argument("--no-yaw-refinement", action="store_true", help="keep the database's yaw grid (12° steps)")
     p.add_argument("--bvh-unit", choices=("m", "cm"), default="m", help="length unit of the BVH files (default m)")
 
 
@@ -116,6 +117,7 @@ def _engine(args: argparse.Namespace):
     config = EngineConfig(search=args.search, n_clusters=args.clusters_searched, per_cluster=args.per_cluster,
                           window_weights=weights, weight_2d=args.weight_2d, focal_px=args.focal,
                           image_size=(width, height), fps=args.fps, translation=not args.no_translation,
+                          refine_yaw=not args.no_yaw_refinement,
                           smoothing=not args.no_smoothing,
                           rotation_filter=OneEuroParams(min_cutoff_hz=args.min_cutoff, beta=args.beta))
     return Engine(load_database(args.db), config)
@@ -203,7 +205,7 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--bvh", nargs="+", required=True, help="held-out BVH files or folders")
     p.add_argument("--out", help="also write the report to this JSON file")
     p.add_argument("--quick", action="store_true", help="two yaws and two scenarios only")
-    p.add_argument("--weight-2d", type=float, default=0.0, help="as in reconstruct")
+    p.add_argument("--weight-2d", type=float, default=0.5, help="as in reconstruct")
     p.add_argument("--search", choices=("clustered", "exact"), default="clustered")
     p.set_defaults(run=_run_eval)
 

@@ -40,7 +40,7 @@ class EngineConfig:
     per_cluster: int = 10                # j: projections taken from each
     window_weights: tuple[float, ...] = (0.4, 0.3, 0.2, 0.1)  # w = 4, most recent first
     joint_weights: tuple[float, ...] | None = None            # per rig joint; default all 1
-    weight_2d: float = 0.0               # added to Eq. 2: this × the candidate's Eq. 1 distance
+    weight_2d: float = 0.5               # added to Eq. 2: this × the candidate's Eq. 1 distance
     confidence_threshold: float = CONFIDENCE_THRESHOLD
     min_joints: int = 6                  # fewer confident joints: the person is skipped
     focal_px: float = 1000.0             # input camera focal length, pixels
