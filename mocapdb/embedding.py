@@ -2,7 +2,7 @@
 
 Database poses are ``[N, J, 2]`` (``J = 14`` normalised 2D keypoints, unit bounding-box height).
 The pose distance (Eq. 1) sums the Euclidean distances of corresponding joints (not squared).
-Nothing here builds an ``N × N`` matrix: landmark MDS costs ``O(N·L·J)`` time and ``O(chunk·L)``
+Nothing here builds an ``N × N`` matrix: landmark MDS costs ``O(N·L·J)`` time and ``O(N·d + L²)``
 memory, one k-means iteration at most ``O(N·K·d)``; all hot loops are numba kernels.
 """
 from __future__ import annotations
@@ -14,29 +14,47 @@ from numba import njit, prange
 from scipy.linalg import eigh
 from scipy.spatial.distance import cdist
 
-CHUNK_BYTES = 100_000_000    # landmark MDS: bytes of the float64 distance block of one chunk
+TRIANGULATE_CHUNK = 50_000     # landmark MDS: poses per kernel call (and per progress report)
 MAXMIN_POOL_PER_LANDMARK = 3  # landmark MDS: MaxMin picks from a random pool of this many × L poses
 KMEANS_INIT_PER_CLUSTER = 20   # k-means++ runs on a random subsample of this many × k points
 KMEANS_BLOCKS = 256            # fixed partition of the points for order-stable partial sums
 
 
-@njit(parallel=True, cache=True, fastmath=True)
-def _distances_soa(a: np.ndarray, bt: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """Eq. 1 distances of poses ``a [N, J, 2]`` to poses stored joint-major ``bt [J, 2, M]``,
-    written to and returned as ``out [N, M]`` float64 (reused buffers avoid page faults).
+@njit(cache=True, fastmath=True)
+def _distance_row(pose: np.ndarray, bt: np.ndarray, row: np.ndarray) -> None:
+    """``row [M]`` ← Eq. 1 distances of ``pose [J, 2]`` to the poses stored joint-major in
+    ``bt [J, 2, M]`` (vectorised over the ``M`` poses). Per-joint differences and square roots
+    run in the inputs' precision, the sums in float64."""
+    row[:] = 0.0
+    for k in range(pose.shape[0]):
+        x, y = pose[k, 0], pose[k, 1]
+        bx, by = bt[k, 0], bt[k, 1]
+        for j in range(row.shape[0]):
+            dx, dy = x - bx[j], y - by[j]
+            row[j] += np.sqrt(dx * dx + dy * dy)
 
-    Per-joint differences and square roots run in the inputs' precision, sums in float64.
-    """
+
+@njit(parallel=True, cache=True, fastmath=True)
+def _distances_soa(a: np.ndarray, bt: np.ndarray) -> np.ndarray:
+    """Eq. 1 distances ``[N, M]`` float64 of poses ``a [N, J, 2]`` to joint-major ``bt [J, 2, M]``."""
+    out = np.empty((a.shape[0], bt.shape[2]))
     for i in prange(a.shape[0]):
-        row = out[i]
-        row[:] = 0.0
-        for k in range(a.shape[1]):
-            x, y = a[i, k, 0], a[i, k, 1]
-            bx, by = bt[k, 0], bt[k, 1]
-            for j in range(row.shape[0]):
-                dx, dy = x - bx[j], y - by[j]
-                row[j] += np.sqrt(dx * dx + dy * dy)
+        _distance_row(a[i], bt, out[i])
     return out
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def _triangulate_kernel(poses: np.ndarray, bt: np.ndarray, mean_sq: np.ndarray, projection_t: np.ndarray,
+                        out: np.ndarray) -> None:
+    """``out[i] = projection_t @ (δ_i − mean_sq)``, ``δ_i`` the squared Eq. 1 distances of
+    ``poses[i]`` to the landmarks ``bt [J, 2, L]``; one ``[L]`` row in cache per pose."""
+    for i in prange(poses.shape[0]):
+        row = np.empty(bt.shape[2])
+        _distance_row(poses[i], bt, row)
+        for j in range(row.shape[0]):
+            row[j] = row[j] * row[j] - mean_sq[j]
+        for d in range(projection_t.shape[0]):
+            out[i, d] = np.dot(row, projection_t[d])
 
 
 def _as_poses(poses: np.ndarray, dtype) -> np.ndarray:
@@ -67,7 +85,7 @@ def pose_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     a, b = _as_poses(a, dtype), _as_poses(b, dtype)
     if a.shape[1] != b.shape[1]:
         raise ValueError(f"joint counts differ: {a.shape[1]} vs {b.shape[1]}")
-    return _distances_soa(a, _joint_major(b), np.empty((len(a), len(b))))
+    return _distances_soa(a, _joint_major(b))
 
 
 def _double_centre(sq_dist: np.ndarray) -> np.ndarray:
@@ -113,10 +131,10 @@ def _maxmin_landmarks(poses: np.ndarray, n_landmarks: int, rng: np.random.Genera
     pool_t = _joint_major(pool_poses)
     chosen = np.empty(n_landmarks, dtype=np.int64)
     chosen[0] = rng.integers(pool_size)
-    nearest, latest = np.full(pool_size, np.inf), np.empty((1, pool_size))
+    nearest = np.full(pool_size, np.inf)
     for i in range(1, n_landmarks):
-        _distances_soa(pool_poses[chosen[i - 1]:chosen[i - 1] + 1], pool_t, latest)
-        np.minimum(nearest, latest[0], out=nearest)
+        np.minimum(nearest, _distances_soa(pool_poses[chosen[i - 1]:chosen[i - 1] + 1], pool_t)[0],
+                   out=nearest)
         chosen[i] = np.argmax(nearest)
     return np.sort(pool[chosen])
 
@@ -131,8 +149,9 @@ def landmark_mds(poses: np.ndarray, dims: int = 5, n_landmarks: int = 2000, seed
     up to 10× worse on some sets and pure MaxMin over all poses grew worse as ``N / L`` grew
     (it favours outlying poses). Classical MDS of the landmarks' distance matrix gives their
     coordinates; every pose is then triangulated from its squared distances ``δ`` to the landmarks,
-    ``y = −½ L⁺ (δ − δ̄)``, in chunks whose float64 distance block is ~100 MB. ``progress(n)`` is
-    called after each chunk with the number of poses it held. With ``N ≤ n_landmarks`` this is
+    ``y = −½ L⁺ (δ − δ̄)``, by a fused numba kernel that keeps each pose's ``[L]`` distance row
+    in cache (no distance block in memory), ``TRIANGULATE_CHUNK`` poses per call; ``progress(n)``
+    is called after each chunk with the number of poses it held. With ``N ≤ n_landmarks`` this is
     exact classical MDS. Deterministic for a fixed ``seed``.
 
     Stated error against exact classical MDS on a small set (1,500 poses, 300 landmarks, d = 5,
@@ -158,18 +177,14 @@ def landmark_mds(poses: np.ndarray, dims: int = 5, n_landmarks: int = 2000, seed
 def _triangulate(poses: np.ndarray, landmarks: np.ndarray, projection: np.ndarray, mean_sq: np.ndarray,
                  progress: Callable[[int], object] | None) -> np.ndarray:
     """float32 ``[N, dims]`` rows ``(δ − mean_sq) @ projection``, ``δ`` a pose's squared Eq. 1
-    distances to the ``L`` landmarks; chunks reuse one ~``CHUNK_BYTES`` float64 buffer."""
-    n, n_landmarks = len(poses), len(landmarks)
-    landmarks_t = _joint_major(landmarks)
-    out = np.empty((n, projection.shape[1]), dtype=np.float32)
-    buffer = np.empty((min(n, max(1, CHUNK_BYTES // (8 * n_landmarks))), n_landmarks))
-    for start in range(0, n, len(buffer)):
-        block = _distances_soa(poses[start:start + len(buffer)], landmarks_t, buffer[:n - start])
-        np.multiply(block, block, out=block)
-        block -= mean_sq
-        out[start:start + len(block)] = block @ projection
+    distances to the ``L`` landmarks, ``TRIANGULATE_CHUNK`` poses per kernel call."""
+    landmarks_t, projection_t = _joint_major(landmarks), np.ascontiguousarray(projection.T)
+    out = np.empty((len(poses), projection.shape[1]), dtype=np.float32)
+    for start in range(0, len(poses), TRIANGULATE_CHUNK):
+        stop = min(start + TRIANGULATE_CHUNK, len(poses))
+        _triangulate_kernel(poses[start:stop], landmarks_t, mean_sq, projection_t, out[start:stop])
         if progress is not None:
-            progress(len(block))
+            progress(stop - start)
     return out
 
 
@@ -301,13 +316,14 @@ def kmeans(points: np.ndarray, k: int, seed: int = 0, max_iter: int = 50, tol: f
            progress: Callable[[int, float], object] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Lloyd's k-means of ``points [N, d]`` → ``(centroids float64 [k, d], labels int32 [N])``.
 
-    Assignment steps use Hamerly's bounds (same result as brute force, most points skip the
-    ``O(k·d)`` search once clusters settle); update steps sum fixed blocks of points in parallel
-    and reduce the blocks in order. Seeded by greedy k-means++ on a random subsample of ``20 k`` points. Iterates until the summed
-    squared centroid shift is ≤ ``tol ×`` the mean per-axis variance of the points (sklearn's
-    rule) or ``max_iter`` iterations; ``progress(iteration, shift)`` reports that shift. Labels
-    are the final assignment to the returned centroids. An empty cluster is re-seeded with the
-    point farthest from its centroid. Deterministic for a fixed ``seed`` whatever the thread count.
+    Seeded by greedy k-means++ on a random subsample of ``20 k`` points. Assignment steps use
+    Hamerly's bounds (same result as brute force; once clusters settle most points skip the
+    ``O(k·d)`` search); update steps sum fixed blocks of points in parallel and reduce them in
+    order. Iterates until the summed squared centroid shift is ≤ ``tol ×`` the mean per-axis
+    variance of the points (sklearn's rule) or ``max_iter`` iterations; ``progress(iteration,
+    shift)`` reports that shift. Labels are the final assignment to the returned centroids. An
+    empty cluster is re-seeded with the point farthest from its centroid. Deterministic for a
+    fixed ``seed`` whatever the thread count.
     """
     points = _as_points(points)
     n = len(points)

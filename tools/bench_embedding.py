@@ -77,7 +77,8 @@ def main(argv: list[str] | None = None) -> None:
         poses = synthetic_poses(n, args.seed)
         embedding, t_mds = timed(landmark_mds, poses, args.dims, args.landmarks, args.seed)
         iterations = []
-        _, t_km = timed(kmeans, embedding, args.k, args.seed, progress=lambda it, shift: iterations.append(it))
+        _, t_km = timed(kmeans, embedding, args.k, args.seed,
+                        progress=lambda it, shift: iterations.append(it))
         rows.append((n, t_mds, t_km))
         print(f"{n:>10} {t_mds:>8.2f} {t_km:>10.2f} {len(iterations):>6} {peak_mb():>15.0f}", flush=True)
         del poses, embedding
