@@ -212,9 +212,13 @@ def normalize_pose_2d(points_px: np.ndarray, visible: np.ndarray | None = None
     Invisible joints are set to 0; a pose with no height or no visible hip gets scale 0.
     """
     pts = np.asarray(points_px, dtype=np.float64)
+    if visible is None:
+        visible = np.ones(pts.shape[:-1], dtype=np.bool_)
+    if pts.ndim == 2:  # one pose: the runtime's per-frame call, kept lean
+        out, origin, scale = _normalize_kernel(pts[None], np.asarray(visible, dtype=np.bool_)[None])
+        return out[0], origin[0], scale[0]
     lead = pts.shape[:-2]
-    vis = (np.ones(pts.shape[:-1], dtype=np.bool_) if visible is None
-           else np.broadcast_to(np.asarray(visible, dtype=np.bool_), pts.shape[:-1]))
+    vis = np.broadcast_to(np.asarray(visible, dtype=np.bool_), pts.shape[:-1])
     flat_pts = np.ascontiguousarray(pts.reshape(-1, pts.shape[-2], 2))
     flat_vis = np.ascontiguousarray(vis.reshape(-1, pts.shape[-2]))
     out, origin, scale = _normalize_kernel(flat_pts, flat_vis)

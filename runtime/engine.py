@@ -23,7 +23,7 @@ from mocapdb.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
 from mocapdb.skeleton import N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, pose_from_rotations
 
 from .filters import ROOT_DEFAULTS, OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
-from .search import SearchIndex, row_distances, search_clustered, search_exact
+from .search import SearchIndex, search_clustered, search_exact, yaw_offset
 from .temporal import temporal_costs, yaw_quaternion, yawed_rotations
 from .tracker import Tracker, TrackerConfig
 
@@ -210,20 +210,10 @@ class Engine:
                           root_view * CAMERA_FROM_VIEW, match)
 
     def _refined_yaw(self, frame: int, yaw: int, query: np.ndarray, visible: np.ndarray) -> float:
-        """The matched yaw refined between the database's yaws (degrees).
-
-        Eq. 1 grows about linearly with the yaw error near the match, so the distances of the
-        same frame seen from the neighbouring yaws place the minimum of a V between them.
-        """
-        n = len(self.yaws_deg)
-        if not self.config.refine_yaw or n < 3:
+        """The matched yaw, refined between the database's yaws unless turned off (degrees)."""
+        if not self.config.refine_yaw or len(self.yaws_deg) < 3:
             return float(self.yaws_deg[yaw])
-        rows = frame * n + (yaw + np.array([-1, 0, 1])) % n
-        before, here, after = row_distances(self.index, rows, query, visible)
-        step = self.yaws_deg[1] - self.yaws_deg[0]
-        rise = max(before, after) - here
-        offset = 0.5 * step * (before - after) / rise if rise > 1e-12 else 0.0
-        return float(self.yaws_deg[yaw] + np.clip(offset, -0.5 * step, 0.5 * step))
+        return float(self.yaws_deg[yaw]) + yaw_offset(self.index, frame, yaw, self.yaws_deg, query, visible)
 
     def _search(self, query: np.ndarray, visible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config

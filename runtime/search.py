@@ -168,14 +168,25 @@ def search_exact(index: SearchIndex, query: np.ndarray, visible: np.ndarray,
 
 
 @njit(cache=True)
-def _row_distances(x, y, columns, query, visible):
+def _yaw_offset(x, y, column_of_row, frame, yaw, n_yaws, step_deg, query, visible):
     vis_idx, renorm = _visible_joints(visible)
-    out = np.empty(columns.shape[0])
-    for n in range(columns.shape[0]):
-        out[n] = range_distances(x, y, columns[n], columns[n] + 1, query, vis_idx, renorm)[0]
-    return out
+    d = np.empty(3)
+    for n in range(3):
+        col = column_of_row[frame * n_yaws + (yaw + n - 1) % n_yaws]
+        d[n] = range_distances(x, y, col, col + 1, query, vis_idx, renorm)[0]
+    rise = max(d[0], d[2]) - d[1]
+    if rise <= 1e-12:
+        return 0.0
+    return min(max(0.5 * step_deg * (d[0] - d[2]) / rise, -0.5 * step_deg), 0.5 * step_deg)
 
 
-def row_distances(index: SearchIndex, rows: np.ndarray, query: np.ndarray, visible: np.ndarray) -> np.ndarray:
-    """Eq. 1 distances from ``query`` to the database projections ``rows`` (as the searches measure)."""
-    return _row_distances(index.x, index.y, index.column_of_row[rows], query, visible)
+def yaw_offset(index: SearchIndex, frame: int, yaw: int, yaws_deg: np.ndarray, query: np.ndarray,
+               visible: np.ndarray) -> float:
+    """Degrees to add to yaw ``yaw`` of database ``frame`` to best match ``query``.
+
+    Eq. 1 grows about linearly with the yaw error near the match, so the distances of the same
+    frame seen from the neighbouring yaws (rows are frame-major) place the minimum of a V between
+    them; the offset is kept within half a yaw step.
+    """
+    return _yaw_offset(index.x, index.y, index.column_of_row, frame, yaw, len(yaws_deg),
+                       float(yaws_deg[1] - yaws_deg[0]), query, visible)
