@@ -26,7 +26,7 @@ from tqdm import tqdm
 
 from mocapdb.builder import BuildConfig, process_clip
 from mocapdb.database import MotionDatabase
-from mocapdb.geometry import Camera, normalize_pose_2d, project_pinhole, quat_mul, yaw_matrix
+from mocapdb.geometry import normalize_pose_2d, project_pinhole, yaw_matrix
 from mocapdb.keypoints import KeypointFrame, Person
 from mocapdb.metrics import acceleration_error, mpjpe, pa_mpjpe
 from mocapdb.skeleton import KP, N_KEYPOINTS_2D, PELVIS, pose_from_rotations
