@@ -76,6 +76,7 @@ class Clip:
 
 @dataclass
 class BuildSummary:
+    files: int = 0
     clips: int = 0
     frames: int = 0
     projections: int = 0
@@ -85,7 +86,7 @@ class BuildSummary:
     bytes_on_disk: int = 0
 
     def report(self) -> str:
-        lines = [f"clips {self.clips}, frames {self.frames}, projections {self.projections}, "
+        lines = [f"files {self.files}, clips {self.clips} (files split at jumps in the data), frames {self.frames}, projections {self.projections}, "
                  f"clusters {self.clusters}, size on disk {self.bytes_on_disk / 1e6:.1f} MB"]
         lines += [f"  {stage:<12} {sec:8.2f} s" for stage, sec in self.seconds.items()]
         lines.append(f"  {'total':<12} {sum(self.seconds.values()):8.2f} s")
@@ -127,23 +128,56 @@ def credit_for(path: Path, root: Path, given: str | None) -> str:
         folder = folder.parent
 
 
-def process_clip(path: Path, root: Path, config: BuildConfig) -> Clip:
-    """Read, map, resample and retarget one BVH file (raises BvhError or JointMapError)."""
+def clips_from_bvh(path: Path, root: Path, config: BuildConfig) -> list[Clip]:
+    """Read, map, split at data jumps, resample and retarget one BVH file.
+
+    Each continuous run (:func:`continuous_runs`) becomes a clip, named after the file, with
+    ``@first-end`` (source frames) added when the file was split. Raises BvhError or
+    JointMapError when the file cannot be used.
+    """
     bvh = read_bvh(path)
     overrides = load_joint_map_file(config.joint_map) if config.joint_map else None
     mapping = detect_mapping(bvh, overrides.joints if overrides else None)
     unit = config.unit or (overrides.unit if overrides else None)
     up_axis = config.up_axis or (overrides.up_axis if overrides else None)
     points = extract_keypoints(bvh, mapping, unit=unit, up_axis=up_axis)
-    points = resample(points, bvh.fps, config.fps)
-    if len(points) < 2:
-        raise BvhError(f"{path}: shorter than two frames at {config.fps} fps")
-    scale = _leg_scale(points)
-    quats, positions = retarget(points * scale)
+    runs = continuous_runs(points, bvh.fps)
+    if not runs:
+        raise BvhError(f"{path}: no stretch of {MIN_RUN_S} s without a jump in the data")
+    credit = credit_for(path, root, config.credit)
+    whole = len(runs) == 1 and runs[0] == slice(0, len(points))
+    return [_clip(path.stem if whole else f"{path.stem}@{run.start}-{run.stop}", str(path), bvh.fps,
+                  mapping.convention, credit, resample(points[run], bvh.fps, config.fps)) for run in runs]
+
+
+def process_clip(path: Path, root: Path, config: BuildConfig) -> Clip:
+    """The longest continuous clip of a BVH file (what evaluations use as ground truth)."""
+    return max(clips_from_bvh(path, root, config), key=lambda c: len(c.positions))
+
+
+def _clip(name: str, source: str, source_fps: float, convention: str, credit: str, points: np.ndarray) -> Clip:
+    """Retarget resampled source keypoints (metres, y up) and put the floor at y = 0."""
+    quats, positions = retarget(points * _leg_scale(points))
     ankles = positions[:, [KP["r_ankle"], KP["l_ankle"]], 1]
     positions[..., 1] -= ankles.min() - ANKLE_HEIGHT_M
-    return Clip(path.stem, str(path), bvh.fps, mapping.convention, credit_for(path, root, config.credit),
-                quats.astype(np.float32), positions.astype(np.float32))
+    return Clip(name, source, source_fps, convention, credit, quats.astype(np.float32), positions.astype(np.float32))
+
+
+MAX_JOINT_SPEED_MPS = 15.0  # faster than any human joint: a jump in the data, not motion
+MIN_RUN_S = 0.5             # shorter continuous stretches are dropped
+
+
+def continuous_runs(points_m: np.ndarray, fps: float) -> list[slice]:
+    """The runs of frames (at least :data:`MIN_RUN_S` long) with no joint faster than
+    :data:`MAX_JOINT_SPEED_MPS` between consecutive frames.
+
+    Converted BVH files often start with a bind pose (T-pose) and then jump to the motion, and
+    some hold glitches (a knee flipping 30 cm in 1/60 s); splitting there keeps the database free
+    of teleports that the temporal match would otherwise learn. ``points_m [F, J, 3]`` at ``fps``.
+    """
+    step = np.linalg.norm(np.diff(points_m, axis=0), axis=-1).max(axis=-1)
+    cuts = np.concatenate([[0], np.flatnonzero(step * fps > MAX_JOINT_SPEED_MPS) + 1, [len(points_m)]])
+    return [slice(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:]) if b - a >= MIN_RUN_S * fps]
 
 
 def _leg_scale(points: np.ndarray) -> float:
@@ -155,10 +189,10 @@ def _leg_scale(points: np.ndarray) -> float:
     return (BONE_LENGTHS_M["thigh"] + BONE_LENGTHS_M["shin"]) / float(np.median(np.concatenate(legs)))
 
 
-def _process_one(args: tuple[Path, Path, BuildConfig]) -> Clip | tuple[str, str]:
+def _process_one(args: tuple[Path, Path, BuildConfig]) -> list[Clip] | tuple[str, str]:
     path, root, config = args
     try:
-        return process_clip(path, root, config)
+        return clips_from_bvh(path, root, config)
     except (BvhError, JointMapError, ValueError) as exc:
         return (str(path), str(exc))
 
@@ -179,8 +213,8 @@ def load_clips(files: list[tuple[Path, Path]], config: BuildConfig,
             results.append(_process_one(job))
             bar.update()
     bar.close()
-    clips = [r for r in results if isinstance(r, Clip)]
-    summary.skipped = [r for r in results if not isinstance(r, Clip)]
+    clips = [clip for r in results if isinstance(r, list) for clip in r]
+    summary.skipped = [r for r in results if isinstance(r, tuple)]
     if summary.skipped and config.strict:
         raise BuildError("--strict: " + "; ".join(f"{p}: {why}" for p, why in summary.skipped))
     if not clips:
@@ -303,6 +337,7 @@ def build(sources: list[str], out: str | os.PathLike, config: BuildConfig,
     db = assemble(clips, keypoints_2d, embedding, centroids, labels, reps, config)
     summary.bytes_on_disk = write_database(db, out)
     summary.seconds["write"] = time.perf_counter() - t2
+    summary.files = len(files) - len(summary.skipped)
     summary.clips, summary.frames = db.n_clips, db.n_frames
     summary.projections, summary.clusters = db.n_projections, db.n_clusters
     return summary

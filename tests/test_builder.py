@@ -4,7 +4,7 @@ import shutil
 import numpy as np
 import pytest
 
-from mocapdb.builder import BuildConfig, BuildError, build, find_sources
+from mocapdb.builder import BuildConfig, BuildError, build, continuous_runs, find_sources
 from mocapdb.cli import main
 from mocapdb.database import load_database
 from mocapdb.geometry import normalize_pose_2d, project_views
@@ -109,3 +109,14 @@ def test_cli_exit_codes(sources, tmp_path, capsys):
     assert "neither a BVH file nor a folder" in capsys.readouterr().err
     assert main(["inspect", str(sources / "002_03.bvh")]) == 0
     assert "character_creator" in capsys.readouterr().out
+
+
+def test_jumps_in_the_data_split_clips():
+    fps = 60.0
+    t = np.arange(200) / fps
+    points = np.zeros((200, 15, 3))
+    points[:, :, 0] = 0.5 * t[:, None]           # walking at 0.5 m/s
+    points[0] += [0.0, 0.8, 0.0]                 # a bind-pose frame before the motion
+    points[120, 9] += [0.3, 0.0, 0.0]            # a knee glitch: 0.3 m in 1/60 s
+    assert continuous_runs(points, fps) == [slice(1, 120), slice(121, 200)]
+    assert continuous_runs(points[:20], fps) == []  # nothing 0.5 s long
