@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 
 import numpy as np
+from numba import njit
 from scipy.optimize import linear_sum_assignment
 
 from mocapdb.skeleton import N_KEYPOINTS_2D
@@ -68,9 +69,8 @@ class _People:
 
     @classmethod
     def of(cls, points: np.ndarray, visible: np.ndarray) -> _People:
-        mask = visible[..., None]
-        box = np.where(mask, np.concatenate([points, -points], axis=2), np.inf).min(axis=1)
-        return cls(np.where(mask, points, 0.0), visible, box)
+        masked, box = _masked_boxes(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(visible))
+        return cls(masked, visible, box)
 
     def moved(self, shift: np.ndarray) -> _People:
         """The same people translated by ``shift [N, 2]`` pixels."""
@@ -175,22 +175,10 @@ class Tracker:
 
     def _advance(self, rows: np.ndarray, cols: np.ndarray, dets: _People, t_s: float) -> None:
         """Move matched tracks to their detections, age the others, start tracks for the rest."""
-        tr, cfg = self._tracks, self.config
-        tr.detection.fill(-1)
-        tr.detection[rows] = cols
-        tr.missing += 1
-        if len(rows) == len(tr.ids):
-            rows = slice(None)  # every track matched (rows ascending): cheaper views
-        points, visible, box = dets.points[cols], dets.visible[cols], dets.box[cols]
-        if t_s > self._t_s:  # a frame whose time did not advance leaves the velocities as they are
-            common = tr.visible[rows] & visible
-            shift = ((points - tr.points[rows]) * common[..., None]).sum(axis=1)
-            measured = shift / ((t_s - tr.t_s[rows]) * np.maximum(common.sum(axis=1), 1))[:, None]
-            tr.velocity[rows] += tr.gain[rows, None] * (measured - tr.velocity[rows])
-            tr.gain[rows] = cfg.velocity_smoothing
-        tr.points[rows], tr.visible[rows], tr.box[rows], tr.t_s[rows] = points, visible, box, t_s
-        tr.hits[rows] += 1
-        tr.missing[rows] = 0
+        tr = self._tracks
+        _advance_matched(tr.points, tr.visible, tr.box, tr.t_s, tr.velocity, tr.gain, tr.hits, tr.missing,
+                         tr.detection, rows, cols, dets.points, dets.visible, dets.box, t_s,
+                         t_s > self._t_s, self.config.velocity_smoothing)
         if len(cols) < len(dets.points):
             new = np.ones(len(dets.points), dtype=bool)
             new[cols] = False
@@ -226,18 +214,79 @@ def _cost(tracks: _People, dets: _People, cfg: TrackerConfig) -> np.ndarray:
     The box size is its height, or its width if larger (a lying person). Pairs above the gate,
     or sharing no visible joint, cost ``_GATED``.
     """
-    common = tracks.visible[:, None] & dets.visible[None]
-    diff = tracks.points[:, None] - dets.points[None]
-    total = (np.hypot(diff[..., 0], diff[..., 1]) * common).sum(axis=-1)
-    corners = np.maximum(tracks.box[:, None], dets.box[None])  # signed box of the intersection
-    overlap = np.minimum(corners[..., :2] + corners[..., 2:], 0.0)  # minus its width and height
-    inter = overlap[..., 0] * overlap[..., 1]
-    t_size, d_size = -(tracks.box[:, :2] + tracks.box[:, 2:]), -(dets.box[:, :2] + dets.box[:, 2:])
-    union = (t_size[:, 0] * t_size[:, 1])[:, None] + d_size[:, 0] * d_size[:, 1] - inter
-    scale = np.maximum(np.maximum(t_size[:, 0], t_size[:, 1]), 1.0)[:, None]
-    with np.errstate(divide="ignore", invalid="ignore"):  # no shared joint: 0 / 0, gated below
-        cost = total / (common.sum(axis=-1) * scale) + cfg.iou_weight * (1.0 - inter / np.maximum(union, 1e-9))
-        return np.where(cost <= cfg.max_cost, cost, _GATED)
+    return _cost_kernel(tracks.points, tracks.visible, tracks.box, dets.points, dets.visible, dets.box,
+                        cfg.iou_weight, cfg.max_cost)
+
+
+@njit(cache=True)
+def _advance_matched(points, visible, box, t_last, velocity, gain, hits, missing, detection, rows, cols,
+                     d_points, d_visible, d_box, t_s, update_velocity, smoothing):
+    """In place: tracks ``rows`` take detections ``cols``; every other track ages by a frame.
+
+    The velocity measurement is the mean shift of the joints visible in both, per second; a
+    frame whose time did not advance leaves velocities as they are.
+    """
+    detection[:] = -1
+    missing += 1
+    for n in range(rows.shape[0]):
+        r, c = rows[n], cols[n]
+        detection[r] = c
+        if update_velocity:
+            shift_x, shift_y, shared = 0.0, 0.0, 0
+            for k in range(points.shape[1]):
+                if visible[r, k] and d_visible[c, k]:
+                    shift_x += d_points[c, k, 0] - points[r, k, 0]
+                    shift_y += d_points[c, k, 1] - points[r, k, 1]
+                    shared += 1
+            per_s = 1.0 / ((t_s - t_last[r]) * max(shared, 1))
+            velocity[r, 0] += gain[r] * (shift_x * per_s - velocity[r, 0])
+            velocity[r, 1] += gain[r] * (shift_y * per_s - velocity[r, 1])
+            gain[r] = smoothing
+        points[r], visible[r], box[r] = d_points[c], d_visible[c], d_box[c]
+        t_last[r] = t_s
+        hits[r] += 1
+        missing[r] = 0
+
+
+@njit(cache=True)
+def _masked_boxes(points, visible):
+    """Points with invisible joints zeroed, and the signed boxes of the visible ones."""
+    masked = np.zeros_like(points)
+    box = np.full((points.shape[0], 4), np.inf)
+    for n in range(points.shape[0]):
+        for k in range(points.shape[1]):
+            if visible[n, k]:
+                x, y = points[n, k, 0], points[n, k, 1]
+                masked[n, k, 0], masked[n, k, 1] = x, y
+                box[n, 0], box[n, 1] = min(box[n, 0], x), min(box[n, 1], y)
+                box[n, 2], box[n, 3] = min(box[n, 2], -x), min(box[n, 3], -y)
+    return masked, box
+
+
+@njit(cache=True)
+def _cost_kernel(t_points, t_visible, t_box, d_points, d_visible, d_box, iou_weight, max_cost):
+    cost = np.full((t_points.shape[0], d_points.shape[0]), _GATED)
+    for i in range(t_points.shape[0]):
+        t_w, t_h = -(t_box[i, 0] + t_box[i, 2]), -(t_box[i, 1] + t_box[i, 3])
+        scale = max(max(t_w, t_h), 1.0)
+        for j in range(d_points.shape[0]):
+            total, shared = 0.0, 0
+            for k in range(t_points.shape[1]):
+                if t_visible[i, k] and d_visible[j, k]:
+                    total += np.hypot(t_points[i, k, 0] - d_points[j, k, 0], t_points[i, k, 1] - d_points[j, k, 1])
+                    shared += 1
+            if shared == 0:
+                continue
+            # Signed boxes: the element-wise maximum is the intersection, minus its width/height.
+            over_w = min(max(t_box[i, 0], d_box[j, 0]) + max(t_box[i, 2], d_box[j, 2]), 0.0)
+            over_h = min(max(t_box[i, 1], d_box[j, 1]) + max(t_box[i, 3], d_box[j, 3]), 0.0)
+            inter = over_w * over_h
+            d_w, d_h = -(d_box[j, 0] + d_box[j, 2]), -(d_box[j, 1] + d_box[j, 3])
+            union = t_w * t_h + d_w * d_h - inter
+            c = total / (shared * scale) + iou_weight * (1.0 - inter / max(union, 1e-9))
+            if c <= max_cost:
+                cost[i, j] = c
+    return cost
 
 
 def _assign(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
