@@ -115,9 +115,9 @@ class QuaternionOneEuroFilter:
     def __call__(self, q: np.ndarray, t_s: float) -> np.ndarray:
         """Filter rotations ``q [J, 4]`` taken at ``t_s`` seconds; returns unit ``[J, 4]``."""
         q = np.asarray(q, dtype=np.float64)
-        q = q / np.linalg.norm(q, axis=-1, keepdims=True)
         s = self._state
         if s is None:
+            q = q / np.linalg.norm(q, axis=-1, keepdims=True)
             self._state = _State(q, np.zeros(q.shape[:-1] + (3,)), t_s)
             return q.copy()
         if t_s <= s.t_s:
@@ -144,7 +144,7 @@ def _quaternion_step(value, speed, q, rate, min_cutoff, beta, d_cutoff):
     a_d = _alpha(rate, d_cutoff)
     for j in range(q.shape[0]):
         v = value[j]
-        qj = q[j]
+        qj = q[j] / np.sqrt(np.sum(q[j] ** 2))
         if v[0] * qj[0] + v[1] * qj[1] + v[2] * qj[2] + v[3] * qj[3] < 0:
             qj = -qj
         # v⁻¹ q: its vector part is the axis × sin(angle / 2), its scalar part cos(angle / 2) >= 0.
