@@ -170,7 +170,10 @@ def _add_live(sub: argparse._SubParsersAction) -> None:
                        description="Read keypoints as they arrive (a folder being written by a detector, "
                                    "'-' for stdin, tcp://HOST:PORT or udp://HOST:PORT to listen on), write one "
                                    "JSON line per frame to the sink, and a BVH per track on exit (Ctrl-C).")
-    p.add_argument("--source", required=True, help="folder, '-', tcp://HOST:PORT or udp://HOST:PORT")
+    p.add_argument("--source", required=True,
+                   help="folder, '-', tcp://HOST:PORT or udp://HOST:PORT; with --model: a video file or a camera index")
+    p.add_argument("--model", help="YOLO-pose or RTMO ONNX export: detect people in the --source video/camera "
+                                   "(data_specs/pose_models.md)")
     p.add_argument("--sink", default="-", help="'-' (stdout), a file, tcp://HOST:PORT or udp://HOST:PORT")
     p.add_argument("--bvh-dir", help="folder for the tracks' BVH files, written when the stream ends")
     p.add_argument("--idle-timeout", type=float, help="stop after this many seconds without input")
@@ -185,14 +188,23 @@ def _run_live(args: argparse.Namespace) -> int:
 
     from runtime.session import run_live
     from runtime.streams import install_stop_handlers, open_source
+    from runtime.video_input import open_video_source, run_video
 
     session = _session(args, args.sink)
-    source = open_source(args.source, stats=session.summary.stream, follow=True, idle_timeout_s=args.idle_timeout)
     stop = threading.Event()
+    video = None
     with install_stop_handlers(stop):
-        run_live(session, source, stop, args.buffer)
+        if args.model:
+            video = open_video_source(args.source, args.model, capacity=args.buffer, stats=session.summary.stream)
+            run_video(session, video, stop)
+        else:
+            source = open_source(args.source, stats=session.summary.stream, follow=True,
+                                 idle_timeout_s=args.idle_timeout)
+            run_live(session, source, stop, args.buffer)
     summary = session.finish(Path(args.bvh_dir) if args.bvh_dir else None, args.bvh_unit)
     print(summary.report(), file=sys.stderr)
+    if video is not None:
+        print(video.report(), file=sys.stderr)
     return 0
 
 
@@ -242,6 +254,9 @@ def parser() -> argparse.ArgumentParser:
     _add_reconstruct(sub)
     _add_live(sub)
     _add_eval(sub)
+    from .detect import add_detect_parser  # imported here: it loads OpenCV
+
+    add_detect_parser(sub)
     return top
 
 

@@ -4,6 +4,7 @@ from runtime.streams import StreamSpecError
 from .builder import BuildError
 from .bvh import BvhError
 from .database import DatabaseError
+from .detect import DetectError
 from .joint_map import JointMapError
 from .keypoints import KeypointError
 
@@ -12,5 +13,5 @@ class UsageError(ValueError):
     """A command-line value that cannot be used."""
 
 
-USER_ERRORS: tuple[type[Exception], ...] = (BuildError, BvhError, DatabaseError, JointMapError, KeypointError,
+USER_ERRORS: tuple[type[Exception], ...] = (BuildError, BvhError, DatabaseError, DetectError, JointMapError, KeypointError,
                                            StreamSpecError, UsageError, OSError)

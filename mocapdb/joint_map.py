@@ -2,7 +2,8 @@
 
 A rig's joints are matched to 13 *roles* (head, and upper arm, forearm, hand, thigh, shin, foot
 on each side) by name and topology together, for the conventions of ``data_specs/joint_conventions.md``
-(CMU ASF/AMC, CMU cgspeed/3ds Max, MotionBuilder/Mixamo, Character Creator, MakeHuman CMU+).
+(CMU ASF/AMC, CMU cgspeed/3ds Max, MotionBuilder/Mixamo, Character Creator, MakeHuman CMU+, and
+mocapdb's own universal rig).
 Nothing is guessed: a role with no candidate or several gives :class:`JointMapError`, and a
 ``--joint-map`` TOML file can name any role's joint. The length unit and the up axis are
 detected from the body (leg length; head above the feet) unless given.
@@ -68,6 +69,9 @@ def _convention(sides: tuple[str, str], head: tuple[str, ...], upperarm: tuple[s
     return table
 
 
+UNIVERSAL_CONVENTION = "mocapdb_universal"
+UNIVERSAL_NOSE = "neck_end"  # the universal rig's neck End Site is the nose (``mocapdb.skeleton``)
+
 CONVENTIONS: dict[str, dict[str, tuple[str, ...]]] = {
     "cmu_asf": _convention(("l", "r"), ("head",), ("{s}humerus",), ("{s}radius",),
                            ("{s}wrist", "{s}hand"), ("{s}femur",), ("{s}tibia",), ("{s}foot",)),
@@ -80,6 +84,10 @@ CONVENTIONS: dict[str, dict[str, tuple[str, ...]]] = {
                                      ("cc_base_{s}_calf",), ("cc_base_{s}_foot",)),
     "makehuman_cmu": _convention(("l", "r"), ("head",), ("{s}shldr",), ("{s}forearm",), ("{s}hand",),
                                  ("{s}thigh",), ("{s}shin",), ("{s}foot",)),
+    # mocapdb's own rig (``universal_bvh``: `mocapdb stereo`, `track_*.bvh`): the nose, wrists and
+    # ankles are End Sites, and the head role is the nose End Site itself.
+    UNIVERSAL_CONVENTION: _convention(("l", "r"), (UNIVERSAL_NOSE,), ("{s}_shoulder",), ("{s}_elbow",),
+                                      ("{s}_elbow_end",), ("{s}_hip",), ("{s}_knee",), ("{s}_knee_end",)),
 }
 
 _MAP_HINT = ("Name the joints yourself with --joint-map FILE.toml, for example:\n"
@@ -334,7 +342,8 @@ def extract_keypoints(bvh: Bvh, mapping: JointMapping, unit: str | None = None,
     """Universal keypoints ``[F, N_POINTS, 3]`` (KEYPOINTS order), metres, y up, right-handed.
 
     ``unit`` and ``up_axis`` are detected when ``None``. The detected up axis is turned to +y by a
-    proper rotation.
+    proper rotation. The nose is the head joint plus a fixed head-local offset, except on the
+    universal rig, whose head role is the nose End Site itself.
     """
     idx = _indexes(bvh, mapping)
     unit = unit or detect_unit(bvh, mapping)
@@ -347,8 +356,9 @@ def extract_keypoints(bvh: Bvh, mapping: JointMapping, unit: str | None = None,
         points[:, KEYPOINTS.index(keypoint)] = pos[:, idx[role]]
     points[:, KEYPOINTS.index("neck")] = (pos[:, idx["r_upperarm"]] + pos[:, idx["l_upperarm"]]) / 2
     points[:, KEYPOINTS.index("pelvis")] = (pos[:, idx["r_thigh"]] + pos[:, idx["l_thigh"]]) / 2
-    nose = rot[:, idx["head"]] @ _nose_offset(bvh, idx, UNITS[unit])
-    points[:, KEYPOINTS.index("head")] = pos[:, idx["head"]] + nose
+    points[:, KEYPOINTS.index("head")] = pos[:, idx["head"]]
+    if _normalized_name(mapping.joints["head"]) != UNIVERSAL_NOSE:
+        points[:, KEYPOINTS.index("head")] += rot[:, idx["head"]] @ _nose_offset(bvh, idx, UNITS[unit])
     return (points * UNITS[unit]) @ _TO_Y_UP[up_axis].T
 
 

@@ -16,18 +16,25 @@ STREAM_VERSION = 1
 
 
 def _rounded(values: np.ndarray, decimals: int) -> list:
-    return np.round(values, decimals).tolist()
+    """Nested lists of rounded values; NaN (a value not measured) becomes null."""
+    values = np.asarray(values, dtype=np.float64)
+    rounded = np.round(values, decimals)
+    if np.isnan(values).any():
+        return np.where(np.isnan(values), None, rounded).tolist()
+    return rounded.tolist()
 
 
 def person_record(pose: PersonPose) -> dict:
-    """One person of a frame as the stream schema writes it."""
+    """One person of a frame as the stream schema writes it (``match`` null without a database match)."""
+    match = None if pose.match is None else {
+        "clip": pose.match.clip, "frame": pose.match.frame, "yaw_deg": pose.match.yaw_deg,
+        "distance_2d": round(pose.match.distance_2d, 5)}
     return {
         "track": pose.track,
         "joints": _rounded(pose.joints_m, 4),
         "quaternions": _rounded(pose.quaternions, 5),
         "root": _rounded(pose.root_m, 4),
-        "match": {"clip": pose.match.clip, "frame": pose.match.frame, "yaw_deg": pose.match.yaw_deg,
-                  "distance_2d": round(pose.match.distance_2d, 5)},
+        "match": match,
     }
 
 

@@ -328,3 +328,29 @@ def test_real_character_creator_file(name):
     yaw = np.arctan2(face[:, 0], face[:, 2])  # facing angle from +z towards +x
     x_after_turn = np.cos(yaw) * left_minus_right[:, 0] - np.sin(yaw) * left_minus_right[:, 2]
     assert np.mean(x_after_turn > 0) > 0.95
+
+
+@pytest.mark.parametrize("unit", ["m", "cm"])
+def test_universal_rig_round_trip(tmp_path, unit):
+    """A BVH of mocapdb's own rig (`mocapdb stereo`, `track_*.bvh`) maps back onto the same 15 points."""
+    from mocapdb.builder import BuildConfig, process_clip
+    from mocapdb.bvh import write_bvh
+    from mocapdb.skeleton import PELVIS, pose_from_rotations, universal_bvh
+
+    from .conftest import SAMPLE_BVH
+
+    clip = process_clip(SAMPLE_BVH / "002_01.bvh", SAMPLE_BVH, BuildConfig(fps=30.0))
+    quats = clip.quaternions[:40].astype(np.float64)
+    expected = pose_from_rotations(quats, clip.positions[:40, PELVIS])
+    path = tmp_path / "universal.bvh"
+    write_bvh(path, universal_bvh(quats, expected[:, PELVIS], 30.0, unit))
+    bvh = read_bvh(path)
+    mapping = detect_mapping(bvh)
+    assert mapping.convention == "mocapdb_universal"
+    assert (mapping.joints["head"], mapping.joints["l_hand"], mapping.joints["r_foot"]) == \
+        ("neck_End", "l_elbow_End", "r_knee_End")
+    assert detect_unit(bvh, mapping) == unit
+    np.testing.assert_allclose(extract_keypoints(bvh, mapping), expected, atol=1e-5)
+    # `mocapdb build` takes it like any other source.
+    rebuilt = process_clip(path, tmp_path, BuildConfig(fps=30.0))
+    assert rebuilt.convention == "mocapdb_universal" and np.all(np.isfinite(rebuilt.positions))

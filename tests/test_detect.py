@@ -1,0 +1,360 @@
+"""Video → 2D keypoints: model layouts, letterbox, NMS, OpenPose files, errors, the video thread.
+
+The ONNX models are built here: graphs whose outputs are fixed tensors (Constant nodes, plus a
+term computed from the input so the input is used), holding people at known model-input pixels.
+"""
+import argparse
+import json
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto, helper, numpy_helper
+
+from mocapdb.detect import (DetectError, PoseModel, VideoReader, add_detect_parser, box_iou, coco17_to_coco18,
+                            letterbox, nms)
+from mocapdb.keypoints import read_openpose_folder, to_universal
+from runtime.streams import StreamStats
+from runtime.video_input import VideoDetections, open_video_source, run_video
+
+VIDEO_W, VIDEO_H, VIDEO_FRAMES, VIDEO_FPS = 640, 360, 10, 10.0
+SIDE = 320   # model input side: the 640×360 video is scaled by 0.5; YOLO pads 70 px above and below
+
+
+# --- helpers ---------------------------------------------------------------------------------
+
+def make_model(path: Path, input_shape: list, outputs: dict[str, np.ndarray],
+               declared: dict[str, list] | None = None) -> Path:
+    """An ONNX model whose named outputs are the given constants (shapes as declared, default
+    their own). Each output adds 0 × mean(input), so the input is consumed."""
+    declared = declared or {}
+    nodes = [helper.make_node("ReduceMean", ["images"], ["mean"], keepdims=0),
+             helper.make_node("Constant", [], ["zero"], value=numpy_helper.from_array(np.float32(0.0))),
+             helper.make_node("Mul", ["mean", "zero"], ["nothing"])]
+    for name, value in outputs.items():
+        nodes += [helper.make_node("Constant", [], [f"{name}_value"],
+                                   value=numpy_helper.from_array(value.astype(np.float32))),
+                  helper.make_node("Add", [f"{name}_value", "nothing"], [name])]
+    graph = helper.make_graph(
+        nodes, "fixed_pose", [helper.make_tensor_value_info("images", TensorProto.FLOAT, input_shape)],
+        [helper.make_tensor_value_info(n, TensorProto.FLOAT, declared.get(n, list(v.shape)))
+         for n, v in outputs.items()])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return path
+
+
+def person_keypoints(x0: float, y0: float, conf: float) -> np.ndarray:
+    """17 keypoints [17, 3] at (x0 + 3k, y0 + 6k), model-input pixels."""
+    k = np.arange(17)
+    return np.stack([x0 + 3 * k, y0 + 6 * k, np.full(17, conf)], axis=1)
+
+
+# People in model-input pixels: box (x1, y1, x2, y2), score, keypoints.
+PEOPLE = {
+    "A": (np.array([70, 100, 130, 220]), 0.9, person_keypoints(80, 105, 0.8)),
+    "B": (np.array([74, 102, 134, 222]), 0.8, person_keypoints(84, 107, 0.7)),    # overlaps A: suppressed
+    "C": (np.array([225, 110, 275, 210]), 0.7, person_keypoints(230, 115, 0.6)),  # apart from A: kept
+    "D": (np.array([170, 180, 190, 220]), 0.2, person_keypoints(172, 182, 0.5)),  # under the 0.25 threshold
+}
+
+
+def yolo_rows(people: dict) -> np.ndarray:
+    """[anchors, 56] rows (cx, cy, w, h, score, keypoints); two empty anchors at the end."""
+    rows = [np.concatenate([(b[:2] + b[2:]) / 2, b[2:] - b[:2], [s], k.ravel()]) for b, s, k in people.values()]
+    return np.vstack(rows + [np.zeros(56)] * 2)
+
+
+@pytest.fixture
+def yolo_model(tmp_path):
+    """YOLO-pose layout [1, 56, anchors], input [1, 3, 320, 320], dynamic batch and anchor count."""
+    out = yolo_rows(PEOPLE).T[None]
+    return make_model(tmp_path / "yolo.onnx", ["batch", 3, SIDE, SIDE], {"output0": out},
+                      {"output0": ["batch", 56, "anchors"]})
+
+
+@pytest.fixture
+def rtmo_model(tmp_path):
+    """RTMO layout, keypoints output first; input [1, 3, 320, 320]."""
+    dets = np.array([np.concatenate([b, [s]]) for b, s, _ in PEOPLE.values()] + [np.zeros(5)])[None]
+    keypoints = np.stack([k for _, _, k in PEOPLE.values()] + [np.zeros((17, 3))])[None]
+    return make_model(tmp_path / "rtmo.onnx", [1, 3, SIDE, SIDE], {"keypoints": keypoints, "dets": dets})
+
+
+@pytest.fixture
+def video(tmp_path):
+    """A 640×360 MJPG .avi of 10 frames at 10 fps."""
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), VIDEO_FPS, (VIDEO_W, VIDEO_H))
+    assert writer.isOpened()
+    for i in range(VIDEO_FRAMES):
+        writer.write(np.full((VIDEO_H, VIDEO_W, 3), 20 * i, dtype=np.uint8))
+    writer.release()
+    return path
+
+
+def frame_image() -> np.ndarray:
+    return np.zeros((VIDEO_H, VIDEO_W, 3), dtype=np.uint8)
+
+
+def yolo_to_frame(xy: np.ndarray) -> np.ndarray:
+    """By hand: scale 0.5, centred, 70 px of padding above → frame px = (input px − (0, 70)) × 2."""
+    return (xy - [0, 70]) * 2
+
+
+def parse_detect(*argv: str) -> argparse.Namespace:
+    top = argparse.ArgumentParser(prog="mocapdb")
+    add_detect_parser(top.add_subparsers(dest="command", required=True))
+    return top.parse_args(["detect", *argv])
+
+
+# --- pre- and post-processing ----------------------------------------------------------------
+
+def test_letterbox_inverse_on_a_non_square_frame():
+    image = np.full((VIDEO_H, VIDEO_W, 3), 255, dtype=np.uint8)
+    canvas, box = letterbox(image, (416, 416), centred=True)
+    # scale 416 / 640 = 0.65 → 416 × 234 pixels, (416 − 234) / 2 = 91 rows of padding above
+    assert canvas.shape == (416, 416, 3) and (canvas[:91] == 114).all() and (canvas[91:325] == 255).all()
+    np.testing.assert_allclose(box.to_original(np.array([[208.0, 208.0], [0.0, 91.0]])), [[320, 180], [0, 0]])
+    canvas, box = letterbox(image, (416, 416), centred=False)
+    assert (canvas[:234] == 255).all() and (canvas[234:] == 114).all()
+    np.testing.assert_allclose(box.to_original(np.array([65.0, 117.0])), [100, 180])
+
+
+def test_nms_keeps_the_better_of_two_overlapping_boxes_and_a_disjoint_one():
+    boxes = np.array([[0, 0, 10, 10], [1, 1, 11, 11], [50, 50, 60, 60]], dtype=float)
+    scores = np.array([0.6, 0.9, 0.5])
+    assert box_iou(boxes[:1], boxes[1:2])[0, 0] == pytest.approx(81 / 119)
+    assert nms(boxes, scores, 0.65).tolist() == [1, 2]
+    assert nms(boxes, scores, 0.7).tolist() == [1, 0, 2]   # IoU 0.68 is under this threshold
+
+
+def test_coco18_neck_is_the_mid_shoulder_point():
+    kp = person_keypoints(10, 20, 0.9)[None]
+    kp[0, 6, 2] = 0.4   # right shoulder less sure
+    out = coco17_to_coco18(kp)
+    np.testing.assert_allclose(out[0, 1], [(kp[0, 5, 0] + kp[0, 6, 0]) / 2, (kp[0, 5, 1] + kp[0, 6, 1]) / 2, 0.4])
+    np.testing.assert_allclose(out[0, 2], kp[0, 6])   # COCO-18 RShoulder ← COCO-17 right_shoulder
+    kp[0, 5, 2] = 0.0
+    np.testing.assert_allclose(coco17_to_coco18(kp)[0, 1], [0, 0, 0])
+
+
+# --- model layouts ---------------------------------------------------------------------------
+
+def test_yolo_pose_model_threshold_nms_and_inverse_letterbox(yolo_model):
+    model = PoseModel(yolo_model)
+    assert model.layout.name == "yolo-pose" and model.input_wh == (SIDE, SIDE)
+    found = model(frame_image())
+    np.testing.assert_allclose(found.scores, [0.9, 0.7], rtol=1e-6)
+    for got, name in zip(found.keypoints, "AC", strict=True):
+        _, _, kp = PEOPLE[name]
+        np.testing.assert_allclose(got[:, :2], yolo_to_frame(kp[:, :2]), atol=1e-3)
+        np.testing.assert_allclose(got[:, 2], kp[:, 2], rtol=1e-6)
+    np.testing.assert_allclose(found.boxes[0], yolo_to_frame(PEOPLE["A"][0].reshape(2, 2)).ravel(), atol=1e-3)
+    assert len(PoseModel(yolo_model, conf=0.1)(frame_image()).scores) == 3   # D passes a lower threshold
+    assert len(PoseModel(yolo_model, max_people=1)(frame_image()).scores) == 1
+
+
+def test_yolo_pose_transposed_output_and_dynamic_input(tmp_path):
+    path = make_model(tmp_path / "yolo_t.onnx", [1, 3, "height", "width"], {"output0": yolo_rows(PEOPLE)[None]})
+    model = PoseModel(path, input_size=SIDE)
+    assert model.input_wh == (SIDE, SIDE)
+    found = model(frame_image())
+    np.testing.assert_allclose(found.keypoints[0, :, :2], yolo_to_frame(PEOPLE["A"][2][:, :2]), atol=1e-3)
+
+
+def test_rtmo_model_top_left_letterbox(rtmo_model):
+    model = PoseModel(rtmo_model)
+    assert model.layout.name == "rtmo"
+    found = model(frame_image())
+    np.testing.assert_allclose(found.scores, [0.9, 0.7], rtol=1e-6)
+    # scale 0.5, frame at the top-left: frame px = input px × 2
+    np.testing.assert_allclose(found.keypoints[1, :, :2], PEOPLE["C"][2][:, :2] * 2, atol=1e-3)
+    np.testing.assert_allclose(found.boxes[0], PEOPLE["A"][0] * 2, atol=1e-3)
+
+
+def test_unknown_layout_is_refused_naming_the_shapes(tmp_path):
+    path = make_model(tmp_path / "other.onnx", [1, 3, 64, 64], {"logits": np.zeros((1, 10))})
+    with pytest.raises(DetectError) as err:
+        PoseModel(path)
+    message = str(err.value)
+    assert "unknown pose model layout" in message and "[1, 3, 64, 64]" in message and "logits [1, 10]" in message
+    assert "YOLO-pose" in message and "RTMO" in message
+
+
+def test_missing_and_corrupt_models(tmp_path):
+    with pytest.raises(DetectError, match="pose model not found"):
+        PoseModel(tmp_path / "absent.onnx")
+    (tmp_path / "bad.onnx").write_bytes(np.random.default_rng(0).bytes(2000))
+    with pytest.raises(DetectError, match="not a usable ONNX model"):
+        PoseModel(tmp_path / "bad.onnx")
+
+
+# --- video -----------------------------------------------------------------------------------
+
+def test_video_decoding_counts_frames_and_times(video):
+    reader = VideoReader(str(video))
+    frames = list(reader.frames())
+    reader.close()
+    assert len(frames) == VIDEO_FRAMES == reader.frames_read
+    assert [f.index for f in frames] == list(range(VIDEO_FRAMES))
+    np.testing.assert_allclose([f.time_s for f in frames], np.arange(VIDEO_FRAMES) / VIDEO_FPS, atol=1e-6)
+    reader = VideoReader(str(video))
+    assert [f.index for f in reader.frames(every=4)] == [0, 4, 8]
+    reader.close()
+
+
+def test_missing_and_corrupt_videos(tmp_path):
+    with pytest.raises(DetectError, match="video not found"):
+        VideoReader(str(tmp_path / "absent.mp4"))
+    (tmp_path / "bad.mp4").write_bytes(np.random.default_rng(1).bytes(5000))
+    with pytest.raises(DetectError, match="no frame OpenCV can decode"):
+        VideoReader(str(tmp_path / "bad.mp4"))
+
+
+# --- the command -----------------------------------------------------------------------------
+
+def test_detect_writes_coco18_openpose_files(video, yolo_model, tmp_path, capsys):
+    out = tmp_path / "keypoints"
+    args = parse_detect(str(video), "--model", str(yolo_model), "--out", str(out))
+    assert args.run(args) == 0
+    files = sorted(out.iterdir())
+    assert [f.name for f in files][:2] == ["clip_000000000000_keypoints.json", "clip_000000000001_keypoints.json"]
+    assert len(files) == VIDEO_FRAMES
+    first = json.loads(files[0].read_text())
+    assert first["version"] == 1.3 and first["people"][0]["person_id"] == [-1]
+    assert len(first["people"][0]["pose_keypoints_2d"]) == 18 * 3
+    frames = list(read_openpose_folder(out))
+    assert frames[0].layout == "coco18" and all(len(f.people) == 2 for f in frames)
+    expected = np.stack([PEOPLE[n][2] for n in "AC"])
+    expected[..., :2] = yolo_to_frame(expected[..., :2])
+    points, conf = to_universal(expected, "coco17")
+    for person, p, c in zip(frames[-1].people, points, conf, strict=True):
+        np.testing.assert_allclose(person.points_px, p, atol=0.01)
+        np.testing.assert_allclose(person.confidence, c, atol=1e-4)
+    report = capsys.readouterr().out
+    assert "frames read 10, frames written 10" in report and "mean 2.00" in report
+
+
+def test_detect_every_and_conf_options(video, rtmo_model, tmp_path):
+    out = tmp_path / "sparse"
+    args = parse_detect(str(video), "--model", str(rtmo_model), "--out", str(out), "--every", "3", "--conf", "0.1")
+    assert args.run(args) == 0
+    frames = list(read_openpose_folder(out))
+    assert [f.name.split("_")[1] for f in sorted(out.iterdir())] == ["000000000000", "000000000003",
+                                                                       "000000000006", "000000000009"]
+    assert all(len(f.people) == 3 for f in frames)
+
+
+def test_detect_user_errors_exit_2_with_clear_messages(video, yolo_model, tmp_path, capsys):
+    bad_video = tmp_path / "bad.mp4"
+    bad_video.write_bytes(np.random.default_rng(2).bytes(5000))
+    no_model = ("no pose model given: pass --model POSE.onnx (a YOLO-pose or RTMO ONNX export; "
+                "see data_specs/pose_models.md)")
+    cases = [((str(video), "--out", str(tmp_path / "o")), no_model),
+             ((str(video), "--model", str(tmp_path / "absent.onnx"), "--out", str(tmp_path / "o")),
+              "pose model not found"),
+             ((str(bad_video), "--model", str(yolo_model), "--out", str(tmp_path / "o")), "no frame OpenCV can decode"),
+             (("--model", str(yolo_model), "--out", str(tmp_path / "o")), "give either a VIDEO file or --camera N")]
+    for argv, message in cases:
+        args = parse_detect(*argv)
+        assert args.run(args) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("mocapdb detect: error: ") and message in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+# --- the live video source -------------------------------------------------------------------
+
+def test_video_detections_drop_the_oldest_for_a_slow_consumer(video, yolo_model):
+    stats = StreamStats()
+    live = open_video_source(str(video), str(yolo_model), capacity=2, stats=stats)
+    deadline = time.monotonic() + 10
+    while live.frames_detected < VIDEO_FRAMES and time.monotonic() < deadline:
+        time.sleep(0.01)   # a consumer busy elsewhere
+    got = [live.get(timeout=1.0), live.get(timeout=1.0)]
+    assert live.get(timeout=0.5) is None and live.finished
+    assert [g.frame.index for g in got] == [8, 9] and live.dropped == stats.dropped_stale == 8
+    frame = got[0].frame
+    assert frame.layout == "coco17" and frame.time_s == pytest.approx(0.8) and len(frame.people) == 2
+    np.testing.assert_allclose(frame.people[0].points_px[0], yolo_to_frame(PEOPLE["A"][2][0, :2]), atol=1e-3)
+    assert got[0].capture_s <= got[1].capture_s <= time.monotonic() and live.detection_fps > 0
+    live.close()
+    live.close()
+    assert not live._thread.is_alive()
+    assert "dropped 8" in live.report()
+
+
+def test_run_video_hands_every_frame_to_the_session(video, yolo_model):
+    class Recorder:
+        def __init__(self):
+            self.frames = []
+
+        def handle_frame(self, frame, arrival_s):
+            self.frames.append((frame.index, arrival_s))
+
+    session, stop = Recorder(), threading.Event()
+    live = VideoDetections(str(video), PoseModel(yolo_model), capacity=VIDEO_FRAMES)
+    run_video(session, live, stop)
+    assert [i for i, _ in session.frames] == list(range(VIDEO_FRAMES))
+    assert not live._thread.is_alive()
+
+
+def test_open_video_source_reads_digits_as_a_camera(yolo_model):
+    with pytest.raises(DetectError, match="camera 99: cannot be opened"):
+        open_video_source("99", str(yolo_model))
+
+
+# --- end to end: video → keypoints → 3D → BVH ---------------------------------------------------
+
+COCO17_OF_UNIVERSAL = {0: 0, 2: 6, 3: 8, 4: 10, 5: 5, 6: 7, 7: 9, 8: 12, 9: 14, 10: 16, 11: 11, 12: 13, 13: 15}
+
+
+@pytest.fixture
+def human_model(tmp_path, small_db):
+    """A YOLO-pose model that always sees one person: a database pose, 150 px high in the input."""
+    pose = small_db.keypoints_2d[40].astype(np.float64) * 150.0 + [160.0, 180.0]
+    keypoints = np.zeros((17, 3))
+    for universal, coco in COCO17_OF_UNIVERSAL.items():
+        keypoints[coco] = [pose[universal, 0], pose[universal, 1], 0.9]
+    keypoints[1:5] = [pose[0, 0], pose[0, 1], 0.9]  # eyes and ears at the nose
+    box = np.concatenate([pose.min(axis=0) - 5, pose.max(axis=0) + 5])
+    row = np.concatenate([(box[:2] + box[2:]) / 2, box[2:] - box[:2], [0.95], keypoints.ravel()])
+    return make_model(tmp_path / "human.onnx", [1, 3, SIDE, SIDE], {"output0": row[:, None][None]})
+
+
+def test_video_to_bvh_through_detect_and_reconstruct(video, human_model, small_db_path, tmp_path, capsys):
+    from mocapdb.cli import main
+
+    assert main(["detect", str(video), "--model", str(human_model), "--out", str(tmp_path / "kp")]) == 0
+    assert main(["reconstruct", str(tmp_path / "kp"), "--db", str(small_db_path), "--out", str(tmp_path / "out"),
+                 "--fps", str(VIDEO_FPS), "--image-size", f"{VIDEO_W}x{VIDEO_H}"]) == 0
+    assert f"frames {VIDEO_FRAMES}" in capsys.readouterr().out
+    assert (tmp_path / "out" / "track_0.bvh").exists()
+
+
+def test_live_video_source_to_bvh(video, human_model, small_db_path, tmp_path, capsys):
+    from mocapdb.cli import main
+
+    assert main(["live", "--source", str(video), "--model", str(human_model), "--db", str(small_db_path),
+                 "--sink", str(tmp_path / "live.jsonl"), "--bvh-dir", str(tmp_path), "--buffer", "20",
+                 "--image-size", f"{VIDEO_W}x{VIDEO_H}"]) == 0
+    err = capsys.readouterr().err
+    assert f"frames {VIDEO_FRAMES}" in err and "detection" in err
+    frames = [json.loads(line) for line in (tmp_path / "live.jsonl").read_text().splitlines()[1:]]
+    assert sum(len(f["people"]) for f in frames) == VIDEO_FRAMES - 1  # confirmed on the second frame
+    assert (tmp_path / "track_0.bvh").exists()
+
+
+def test_live_with_a_missing_model_is_a_clear_error(video, small_db_path, tmp_path, capsys):
+    from mocapdb.cli import main
+
+    assert main(["live", "--source", str(video), "--model", str(tmp_path / "none.onnx"),
+                 "--db", str(small_db_path)]) == 2
+    assert "none.onnx" in capsys.readouterr().err
