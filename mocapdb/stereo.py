@@ -1,0 +1,336 @@
+"""ElliPose: 3D joints from two uncalibrated views (Grund, Tanke, Gall; ``../shared/method``).
+
+Stage 1 estimates camera 2's pose from the body keypoints of all frames (essential matrix) and
+triangulates. Stage 2 fits one origin-centred ellipsoid to the bone vectors (one scale per bone
+type), undistorts the 3D points partway along its axes, re-fits camera 2 by PnP and
+re-triangulates, until the ellipsoid is nearly a sphere. Stage 3 makes bone lengths constant
+against the 2D evidence. Coordinates: camera 1's OpenCV axes (x right, y down, z forward), the
+baseline = 1 unless ``camera_distance_m`` gives metres.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from .cameras import CameraModel
+
+# Rigid bones over the 14 keypoints (i, j, type). The neck (mid-shoulder) and pelvis (mid-hip)
+# are derived points, so only the hip and shoulder lines stand for the torso; the nose moves
+# with the head and has no rigid partner.
+RIGID_BONES: tuple[tuple[int, int, int], ...] = (
+    (8, 11, 0),              # hip line
+    (8, 9, 1), (11, 12, 1),  # thighs
+    (9, 10, 2), (12, 13, 2),  # shins
+    (2, 5, 3),               # shoulder line
+    (2, 3, 4), (5, 6, 4),    # upper arms
+    (3, 4, 5), (6, 7, 5),    # forearms
+)
+
+
+class StereoError(ValueError):
+    """Input the stereo reconstruction cannot use; the message says why."""
+
+
+@dataclass
+class StereoConfig:
+    """The method's parameters (defaults: the paper's)."""
+
+    ransac_threshold: float = 0.005   # essential-matrix RANSAC, normalised image units
+    ransac_prob: float = 0.999
+    epsilon: float = 0.025            # sphericity that stops stage 2
+    delta: float = 0.2                # bone inlier band: length within 1 ± delta of its scale
+    gamma: float = 0.2                # fraction of the ellipsoid undistortion applied per round
+    max_rounds: int = 20
+    max_draws: int = 2500
+    good_samples: int = 100
+    pnp_iterations: int = 10000
+    alpha: float = 20.0               # stage 3 weight of the bone term
+    bone_rounds: int = 5              # stage 3 rounds m
+    confidence: float = 0.3
+    camera_distance_m: float | None = None
+    seed: int = 0
+    min_correspondences: int = 50
+
+
+@dataclass
+class StereoResult:
+    """Joints ``[T, J, 3]`` in camera 1's axes (NaN where invalid) and camera 2's pose."""
+
+    points_m: np.ndarray
+    stage1_points: np.ndarray
+    stage2_points: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    scaled: bool
+    epsilons: list[float] = field(default_factory=list)
+    kept_round: int = 0
+    warnings: list[str] = field(default_factory=list)
+    valid: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
+
+
+# ---- geometry ---------------------------------------------------------------------------------
+
+def triangulate(P1: np.ndarray, P2: np.ndarray, n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
+    """Linear (DLT) triangulation of ``N`` correspondences ``[N, 2]`` by 3×4 matrices → ``[N, 3]``."""
+    rows = np.stack([n1[:, :1] * P1[2] - P1[0], n1[:, 1:] * P1[2] - P1[1],
+                     n2[:, :1] * P2[2] - P2[0], n2[:, 1:] * P2[2] - P2[1]], axis=1)  # [N, 4, 4]
+    _, _, vt = np.linalg.svd(rows)
+    h = vt[:, -1]
+    return h[:, :3] / h[:, 3:]
+
+
+def _design(vectors: np.ndarray, bone_type: np.ndarray, n_types: int) -> tuple[np.ndarray, np.ndarray]:
+    """Turner's linear ellipsoid system with one constant per bone type: rows and right-hand side."""
+    x, y, z = vectors.T
+    rows = np.zeros((len(vectors), 5 + n_types))
+    rows[:, 0] = x * x + y * y - 2 * z * z
+    rows[:, 1] = x * x - 2 * y * y + z * z
+    rows[:, 2], rows[:, 3], rows[:, 4] = 4 * x * y, 2 * x * z, 2 * y * z
+    rows[np.arange(len(vectors)), 5 + bone_type] = 1.0
+    return rows, x * x + y * y + z * z
+
+
+def _shape_from(params: np.ndarray) -> np.ndarray:
+    """Quadratic forms ``[..., 3, 3]`` (trace 3) from Turner parameters ``[..., 5 + B]``."""
+    u, v, m, n, p = (params[..., i] for i in range(5))
+    return np.stack([np.stack([1 - u - v, -2 * m, -n], -1),
+                     np.stack([-2 * m, 1 - u + 2 * v, -p], -1),
+                     np.stack([-n, -p, 1 + 2 * u - v], -1)], -2)
+
+
+def fit_ellipsoid(vectors: np.ndarray, bone_type: np.ndarray, n_types: int) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares origin-centred ellipsoid ``vᵀ A v = scale_b²`` shared by all bone types.
+
+    Returns ``A`` (symmetric, trace 3) and the per-type scales (the bone length that ``A``'s
+    metric gives each type). ``vectors [N, 3]``, ``bone_type [N]`` in ``[0, n_types)``.
+    """
+    rows, rhs = _design(vectors, bone_type, n_types)
+    params = np.linalg.lstsq(rows, rhs, rcond=None)[0]
+    return _shape_from(params), np.sqrt(np.maximum(params[5:], 0.0))
+
+
+def sphericity(A: np.ndarray) -> float:
+    """ε: sum of squared element differences between ``A`` scaled to trace 3 and the identity."""
+    return float(np.sum((A * (3.0 / np.trace(A)) - np.eye(3)) ** 2))
+
+
+def undistort(points: np.ndarray, A: np.ndarray, gamma: float) -> np.ndarray:
+    """Move ``points [..., 3]`` a fraction ``gamma`` of the way along ``A``'s axes to a sphere."""
+    values, vectors = np.linalg.eigh(A * (3.0 / np.trace(A)))
+    step = vectors @ np.diag((1 - gamma) + gamma * np.sqrt(np.maximum(values, 1e-12))) @ vectors.T
+    return points @ step.T
+
+
+def ransac_ellipsoid(vectors: np.ndarray, bone_type: np.ndarray, n_types: int, n_frames: int,
+                     config: StereoConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Robust :func:`fit_ellipsoid`: returns ``A``, scales and the inlier mask of the best draw.
+
+    Minimal samples of ``n_types + 5`` bones (one of each type first); a bone is an inlier if
+    undistorting by the candidate puts its length within ``1 ± delta`` of its type's scale;
+    score Σ_b √inliers_b; a draw is good if its score exceeds √(0.25 T)·B; stops after
+    ``good_samples`` good draws or ``max_draws``.
+    """
+    rows, rhs = _design(vectors, bone_type, n_types)
+    by_type = [np.flatnonzero(bone_type == b) for b in range(n_types)]
+    good_score = np.sqrt(0.25 * n_frames) * n_types
+    best_score, best_inliers, good, drawn = -1.0, None, 0, 0
+    while drawn < config.max_draws and good < config.good_samples:
+        batch = min(100, config.max_draws - drawn)
+        picks = np.concatenate([np.stack([rng.choice(ix, batch) for ix in by_type], axis=1),
+                                rng.integers(0, len(vectors), (batch, 5))], axis=1)
+        params = _solve_batch(rows[picks], rhs[picks])
+        inliers, scores = _score(params, vectors, bone_type, n_types, config.delta)
+        good += int(np.sum(scores > good_score))
+        k = int(np.argmax(scores))
+        if scores[k] > best_score:
+            best_score, best_inliers = float(scores[k]), inliers[k]
+        drawn += batch
+    if best_inliers is None or best_inliers.sum() < 5 + n_types:
+        raise StereoError("no ellipsoid fits the bone vectors")
+    A, scales = fit_ellipsoid(vectors[best_inliers], bone_type[best_inliers], n_types)
+    return A, scales, best_inliers
+
+
+def _solve_batch(rows: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solutions of the square systems ``[D, n, n]`` (pseudo-inverse: degenerate draws score low)."""
+    return (np.linalg.pinv(rows) @ rhs[..., None])[..., 0]
+
+
+def _score(params: np.ndarray, vectors: np.ndarray, bone_type: np.ndarray, n_types: int,
+           delta: float) -> tuple[np.ndarray, np.ndarray]:
+    """Inlier masks ``[D, N]`` and scores ``[D]`` of candidate parameters ``[D, 5 + B]``."""
+    shapes = _shape_from(params)                                             # [D, 3, 3]
+    scale2 = params[:, 5:]                                                   # [D, B]
+    quad = np.einsum("ni,dij,nj->dn", vectors, shapes, vectors)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.sqrt(quad / scale2[:, bone_type])
+    inliers = np.abs(ratio - 1.0) <= delta                                   # NaN compares False
+    counts = np.stack([inliers[:, bone_type == b].sum(axis=1) for b in range(n_types)], axis=1)
+    return inliers, np.sqrt(counts).sum(axis=1)
+
+
+# ---- stage 3 ----------------------------------------------------------------------------------
+
+def refine_bone_lengths(points: np.ndarray, P1: np.ndarray, P2: np.ndarray, n1: np.ndarray, n2: np.ndarray,
+                        valid: np.ndarray, bones=RIGID_BONES, alpha: float = 20.0, rounds: int = 5) -> np.ndarray:
+    """Stage 3: per frame, least squares of the DLT reprojection rows of both views plus
+    ``alpha`` × Σ_b ‖v_b − w_b‖², with ``w_b`` the current bone direction at the bone's median
+    length; ``rounds`` times. The DLT row ``(u P₃ − P₁)·[p; 1]`` is the point's offset from its
+    ray times its depth, i.e. roughly a distance in the points' own units, like the bone term.
+    ``points [T, J, 3]``, ``n1, n2 [T, J, 2]`` normalised image coordinates, ``valid [T, J]``.
+    """
+    n_frames, n_joints = valid.shape
+    rep_m, rep_b = _reprojection_blocks(P1, P2, n1, n2, valid)               # [T, J, 3, 3], [T, J, 3]
+    pairs = np.array([(i, j) for i, j, _ in bones])
+    out = points.copy()
+    for _ in range(rounds):
+        vec = out[:, pairs[:, 1]] - out[:, pairs[:, 0]]                      # [T, nb, 3]
+        length = np.linalg.norm(vec, axis=-1)
+        both = valid[:, pairs[:, 0]] & valid[:, pairs[:, 1]]
+        target_len = np.array([np.median(length[both[:, b], b]) if both[:, b].any() else 0.0
+                               for b in range(len(pairs))])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            target = np.where(both[..., None], vec * (target_len / length)[..., None], 0.0)
+        out = _solve_frames(rep_m, rep_b, pairs, both, target, alpha, valid)
+    return np.where(valid[..., None], out, np.nan)
+
+
+def _reprojection_blocks(P1, P2, n1, n2, valid):
+    """Per joint, the 3×3 normal matrix and right-hand side of its four DLT rows."""
+    blocks = np.zeros(valid.shape + (3, 3))
+    rhs = np.zeros(valid.shape + (3,))
+    for P, n in ((P1, n1), (P2, n2)):
+        for axis in range(2):
+            row = np.where(valid[..., None, None], n[..., axis:axis + 1, None] * P[2] - P[axis], 0.0)[..., 0, :]
+            a, b = row[..., :3], -row[..., 3]
+            blocks += a[..., :, None] * a[..., None, :]
+            rhs += a * b[..., None]
+    return blocks, rhs
+
+
+def _solve_frames(rep_m, rep_b, pairs, both, target, alpha, valid):
+    """Batched normal equations over frames: unknowns are the 3J coordinates."""
+    n_frames, n_joints = valid.shape
+    M = np.zeros((n_frames, n_joints, 3, n_joints, 3))
+    b = rep_b.copy()
+    idx = np.arange(n_joints)
+    M[:, idx, :, idx, :] = np.moveaxis(rep_m, 1, 0)
+    eye = np.eye(3)
+    for k, (i, j) in enumerate(pairs):
+        w = alpha * both[:, k][:, None, None]
+        M[:, i, :, i, :] += w * eye
+        M[:, j, :, j, :] += w * eye
+        M[:, i, :, j, :] -= w * eye
+        M[:, j, :, i, :] -= w * eye
+        b[:, j] += alpha * both[:, k, None] * target[:, k]
+        b[:, i] -= alpha * both[:, k, None] * target[:, k]
+    M[:, idx, :, idx, :] += np.moveaxis(np.where(valid, 0.0, 1.0)[..., None, None] * eye, 1, 0)  # fix invalid at 0
+    sol = np.linalg.solve(M.reshape(n_frames, 3 * n_joints, 3 * n_joints), b.reshape(n_frames, -1, 1))
+    return sol.reshape(n_frames, n_joints, 3)
+
+
+# ---- the pipeline -----------------------------------------------------------------------------
+
+def _bone_samples(points: np.ndarray, valid: np.ndarray, bones) -> tuple[np.ndarray, np.ndarray]:
+    vectors, types = [], []
+    for i, j, b in bones:
+        ok = valid[:, i] & valid[:, j]
+        vectors.append(points[ok, j] - points[ok, i])
+        types.append(np.full(int(ok.sum()), b))
+    return np.concatenate(vectors), np.concatenate(types)
+
+
+def _projection(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    return np.hstack([R, t.reshape(3, 1)])
+
+
+def _triangulate_all(R, t, n1, n2, valid) -> np.ndarray:
+    out = np.full(valid.shape + (3,), np.nan)
+    out[valid] = triangulate(_projection(np.eye(3), np.zeros(3)), _projection(R, t), n1[valid], n2[valid])
+    return out
+
+
+def _pnp(points: np.ndarray, n2: np.ndarray, R: np.ndarray, t: np.ndarray, config: StereoConfig):
+    """Camera 2 re-fitted to corrected 3D points (normalised coordinates), baseline kept at 1."""
+    rvec, _ = cv2.Rodrigues(R)
+    ok, rvec, tvec, _ = cv2.solvePnPRansac(points.astype(np.float64), n2.astype(np.float64), np.eye(3), None,
+                                           rvec.copy(), t.reshape(3, 1).astype(np.float64).copy(),
+                                           useExtrinsicGuess=True, iterationsCount=config.pnp_iterations,
+                                           reprojectionError=2 * config.ransac_threshold, confidence=0.999)
+    if not ok:
+        return R, t
+    tvec = tvec.ravel()
+    return cv2.Rodrigues(rvec)[0], tvec / np.linalg.norm(tvec)
+
+
+# OpenCV's MAGSAC++ member of its RANSAC family. Plain cv2.RANSAC returns the best minimal-sample
+# model unrefined: with σ = 5 px detector noise it put camera 2 up to 46° off on the synthetic
+# front pair (MAGSAC++: 7°; tools/eval_stereo.py).
+ESSENTIAL_METHOD = cv2.USAC_MAGSAC
+
+
+def _stage1(n1, n2, valid, config):
+    count = int(valid.sum())
+    if count < max(config.min_correspondences, 8):
+        raise StereoError(f"{count} confident keypoint correspondences between the views; at least "
+                          f"{max(config.min_correspondences, 8)} are needed")
+    e, _ = cv2.findEssentialMat(n1[valid], n2[valid], np.eye(3), method=ESSENTIAL_METHOD,
+                                prob=config.ransac_prob, threshold=config.ransac_threshold)
+    if e is None:
+        raise StereoError("no essential matrix fits the correspondences")
+    _, R, t, _ = cv2.recoverPose(e[:3], n1[valid], n2[valid], np.eye(3))
+    return R, t.ravel() / np.linalg.norm(t)
+
+
+def _stage2(points, n1, n2, valid, R, t, config, bones, warnings):
+    """Ellipsoid rounds; returns the points, R, t of the round with the lowest ε and all ε."""
+    rng = np.random.default_rng(config.seed)
+    n_types = max(b for _, _, b in bones) + 1
+    best = (np.inf, points, R, t, 0)
+    epsilons = []
+    for round_ in range(config.max_rounds):
+        vectors, types = _bone_samples(points, valid, bones)
+        if len(np.unique(np.round(vectors, 6), axis=0)) < 10 * (n_types + 5):
+            warnings.append("sequence too short or too still for the ellipsoid fit: stage-1 geometry kept")
+            return best[1], best[2], best[3], epsilons, 0
+        try:
+            A, _, _ = ransac_ellipsoid(vectors, types, n_types, valid.shape[0], config, rng)
+        except StereoError as exc:
+            warnings.append(f"ellipsoid fit failed ({exc}): round {best[4]} kept")
+            break
+        eps = sphericity(A)
+        epsilons.append(eps)
+        if eps < best[0]:
+            best = (eps, points, R, t, round_)
+        if eps < config.epsilon or not np.all(np.linalg.eigvalsh(A) > 0):
+            break
+        corrected = undistort(points, A, config.gamma)
+        R, t = _pnp(corrected[valid], n2[valid], R, t, config)
+        points = _triangulate_all(R, t, n1, n2, valid)
+    return best[1], best[2], best[3], epsilons, best[4]
+
+
+def reconstruct(x1: np.ndarray, c1: np.ndarray, x2: np.ndarray, c2: np.ndarray, cam1: CameraModel,
+                cam2: CameraModel, config: StereoConfig, bones=RIGID_BONES) -> StereoResult:
+    """Stages 1–3 on keypoints ``x [T, J, 2]`` (pixels) with confidences ``c [T, J]``.
+
+    Only the cameras' intrinsics and distortion are used; camera 2's pose is estimated.
+    """
+    if x1.shape != x2.shape or c1.shape != c2.shape or x1.shape[:2] != c1.shape:
+        raise StereoError(f"the views do not match: {x1.shape[0]} frames × {x1.shape[1]} joints against "
+                          f"{x2.shape[0]} × {x2.shape[1]} (confidences {c1.shape}, {c2.shape})")
+    valid = ((c1 >= config.confidence) & (c2 >= config.confidence)
+             & np.isfinite(x1).all(axis=-1) & np.isfinite(x2).all(axis=-1))
+    n1, n2 = np.zeros(x1.shape), np.zeros(x2.shape)
+    n1[valid], n2[valid] = cam1.undistort_normalized(x1[valid]), cam2.undistort_normalized(x2[valid])
+    R, t = _stage1(n1, n2, valid, config)
+    stage1 = _triangulate_all(R, t, n1, n2, valid)
+    warnings: list[str] = []
+    stage2, R, t, epsilons, kept = _stage2(stage1, n1, n2, valid, R, t, config, bones, warnings)
+    final = refine_bone_lengths(np.nan_to_num(stage2), _projection(np.eye(3), np.zeros(3)), _projection(R, t),
+                                n1, n2, valid, bones, config.alpha, config.bone_rounds)
+    scale = config.camera_distance_m or 1.0
+    return StereoResult(final * scale, stage1 * scale, stage2 * scale, R, t * scale,
+                        config.camera_distance_m is not None, epsilons, kept, warnings, valid)
