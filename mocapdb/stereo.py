@@ -52,6 +52,7 @@ class StereoConfig:
     camera_distance_m: float | None = None
     seed: int = 0
     min_correspondences: int = 50
+    noise_correction: bool = True     # remove triangulation-noise bias from the ellipsoid fit (not in the paper)
 
 
 @dataclass
@@ -81,15 +82,24 @@ def triangulate(P1: np.ndarray, P2: np.ndarray, n1: np.ndarray, n2: np.ndarray) 
     return h[:, :3] / h[:, 3:]
 
 
-def _design(vectors: np.ndarray, bone_type: np.ndarray, n_types: int) -> tuple[np.ndarray, np.ndarray]:
-    """Turner's linear ellipsoid system with one constant per bone type: rows and right-hand side."""
-    x, y, z = vectors.T
+def _design(vectors: np.ndarray, bone_type: np.ndarray, n_types: int,
+            noise_cov: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Turner's linear ellipsoid system with one constant per bone type: rows and right-hand side.
+
+    The system is linear in each sample's second moments ``v vᵀ``; with ``noise_cov [N, 3, 3]``
+    (each vector's noise covariance) they are replaced by ``v vᵀ − Σ``, removing the bias that
+    triangulation noise (largest along depth) adds to the squared lengths.
+    """
+    moments = vectors[:, :, None] * vectors[:, None, :]
+    if noise_cov is not None:
+        moments = moments - noise_cov
+    xx, yy, zz = moments[:, 0, 0], moments[:, 1, 1], moments[:, 2, 2]
     rows = np.zeros((len(vectors), 5 + n_types))
-    rows[:, 0] = x * x + y * y - 2 * z * z
-    rows[:, 1] = x * x - 2 * y * y + z * z
-    rows[:, 2], rows[:, 3], rows[:, 4] = 4 * x * y, 2 * x * z, 2 * y * z
+    rows[:, 0] = xx + yy - 2 * zz
+    rows[:, 1] = xx - 2 * yy + zz
+    rows[:, 2], rows[:, 3], rows[:, 4] = 4 * moments[:, 0, 1], 2 * moments[:, 0, 2], 2 * moments[:, 1, 2]
     rows[np.arange(len(vectors)), 5 + bone_type] = 1.0
-    return rows, x * x + y * y + z * z
+    return rows, xx + yy + zz
 
 
 def _shape_from(params: np.ndarray) -> np.ndarray:
@@ -100,15 +110,27 @@ def _shape_from(params: np.ndarray) -> np.ndarray:
                      np.stack([-n, -p, 1 + 2 * u - v], -1)], -2)
 
 
-def fit_ellipsoid(vectors: np.ndarray, bone_type: np.ndarray, n_types: int) -> tuple[np.ndarray, np.ndarray]:
+def fit_ellipsoid(vectors: np.ndarray, bone_type: np.ndarray, n_types: int,
+                  noise_cov: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares origin-centred ellipsoid ``vᵀ A v = scale_b²`` shared by all bone types.
 
     Returns ``A`` (symmetric, trace 3) and the per-type scales (the bone length that ``A``'s
-    metric gives each type). ``vectors [N, 3]``, ``bone_type [N]`` in ``[0, n_types)``.
+    metric gives each type). ``vectors [N, 3]``, ``bone_type [N]`` in ``[0, n_types)``,
+    ``noise_cov [N, 3, 3]`` optional (see :func:`_design`).
     """
-    rows, rhs = _design(vectors, bone_type, n_types)
+    rows, rhs = _design(vectors, bone_type, n_types, noise_cov)
+    if noise_cov is not None:
+        weight = 1.0 / np.sqrt(_residual_variance(vectors, noise_cov))
+        rows, rhs = rows * weight[:, None], rhs * weight
     params = np.linalg.lstsq(rows, rhs, rcond=None)[0]
     return _shape_from(params), np.sqrt(np.maximum(params[5:], 0.0))
+
+
+def _residual_variance(vectors: np.ndarray, noise_cov: np.ndarray) -> np.ndarray:
+    """Variance of ``‖v‖² − s²`` under Gaussian noise ``Σ`` on ``v`` (near a sphere):
+    ``4 vᵀΣv + 2 tr(Σ²)``. Short, noisy bones (the hip line) get little weight."""
+    return (4 * np.einsum("ni,nij,nj->n", vectors, noise_cov, vectors)
+            + 2 * np.einsum("nij,nji->n", noise_cov, noise_cov))
 
 
 def sphericity(A: np.ndarray) -> float:
@@ -124,7 +146,8 @@ def undistort(points: np.ndarray, A: np.ndarray, gamma: float) -> np.ndarray:
 
 
 def ransac_ellipsoid(vectors: np.ndarray, bone_type: np.ndarray, n_types: int, n_frames: int,
-                     config: StereoConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     config: StereoConfig, rng: np.random.Generator,
+                     noise_cov: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Robust :func:`fit_ellipsoid`: returns ``A``, scales and the inlier mask of the best draw.
 
     Minimal samples of ``n_types + 5`` bones (one of each type first); a bone is an inlier if
@@ -132,7 +155,11 @@ def ransac_ellipsoid(vectors: np.ndarray, bone_type: np.ndarray, n_types: int, n
     score Σ_b √inliers_b; a draw is good if its score exceeds √(0.25 T)·B; stops after
     ``good_samples`` good draws or ``max_draws``.
     """
-    rows, rhs = _design(vectors, bone_type, n_types)
+    rows, rhs = _design(vectors, bone_type, n_types, noise_cov)
+    tolerance = np.full(len(vectors), config.delta)
+    if noise_cov is not None:  # a band of 3 noise σ where that is wider than δ: δ is for gross errors
+        spread = np.sqrt(_residual_variance(vectors, noise_cov)) / (2 * np.sum(vectors ** 2, axis=1))
+        tolerance = np.maximum(tolerance, 3 * spread)
     by_type = [np.flatnonzero(bone_type == b) for b in range(n_types)]
     good_score = np.sqrt(0.25 * n_frames) * n_types
     best_score, best_inliers, good, drawn = -1.0, None, 0, 0
@@ -141,7 +168,7 @@ def ransac_ellipsoid(vectors: np.ndarray, bone_type: np.ndarray, n_types: int, n
         picks = np.concatenate([np.stack([rng.choice(ix, batch) for ix in by_type], axis=1),
                                 rng.integers(0, len(vectors), (batch, 5))], axis=1)
         params = _solve_batch(rows[picks], rhs[picks])
-        inliers, scores = _score(params, vectors, bone_type, n_types, config.delta)
+        inliers, scores = _score(params, vectors, bone_type, n_types, tolerance)
         good += int(np.sum(scores > good_score))
         k = int(np.argmax(scores))
         if scores[k] > best_score:
@@ -149,7 +176,8 @@ def ransac_ellipsoid(vectors: np.ndarray, bone_type: np.ndarray, n_types: int, n
         drawn += batch
     if best_inliers is None or best_inliers.sum() < 5 + n_types:
         raise StereoError("no ellipsoid fits the bone vectors")
-    A, scales = fit_ellipsoid(vectors[best_inliers], bone_type[best_inliers], n_types)
+    cov = None if noise_cov is None else noise_cov[best_inliers]
+    A, scales = fit_ellipsoid(vectors[best_inliers], bone_type[best_inliers], n_types, cov)
     return A, scales, best_inliers
 
 
@@ -159,14 +187,15 @@ def _solve_batch(rows: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 
 def _score(params: np.ndarray, vectors: np.ndarray, bone_type: np.ndarray, n_types: int,
-           delta: float) -> tuple[np.ndarray, np.ndarray]:
-    """Inlier masks ``[D, N]`` and scores ``[D]`` of candidate parameters ``[D, 5 + B]``."""
+           tolerance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inlier masks ``[D, N]`` and scores ``[D]`` of candidate parameters ``[D, 5 + B]``;
+    a bone is an inlier when its undistorted length is within ``1 ± tolerance`` of its scale."""
     shapes = _shape_from(params)                                             # [D, 3, 3]
     scale2 = params[:, 5:]                                                   # [D, B]
     quad = np.einsum("ni,dij,nj->dn", vectors, shapes, vectors)
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.sqrt(quad / scale2[:, bone_type])
-    inliers = np.abs(ratio - 1.0) <= delta                                   # NaN compares False
+    inliers = np.abs(ratio - 1.0) <= tolerance                                   # NaN compares False
     counts = np.stack([inliers[:, bone_type == b].sum(axis=1) for b in range(n_types)], axis=1)
     return inliers, np.sqrt(counts).sum(axis=1)
 
@@ -233,13 +262,39 @@ def _solve_frames(rep_m, rep_b, pairs, both, target, alpha, valid):
 
 # ---- the pipeline -----------------------------------------------------------------------------
 
-def _bone_samples(points: np.ndarray, valid: np.ndarray, bones) -> tuple[np.ndarray, np.ndarray]:
-    vectors, types = [], []
+def _bone_samples(points: np.ndarray, valid: np.ndarray, bones,
+                  point_cov: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Vectors ``[N, 3]``, types ``[N]`` and (with ``point_cov [T, J, 3, 3]``) noise covariances
+    ``[N, 3, 3]`` of every bone whose two joints are valid."""
+    vectors, types, covs = [], [], []
     for i, j, b in bones:
         ok = valid[:, i] & valid[:, j]
         vectors.append(points[ok, j] - points[ok, i])
         types.append(np.full(int(ok.sum()), b))
-    return np.concatenate(vectors), np.concatenate(types)
+        if point_cov is not None:
+            covs.append(point_cov[ok, i] + point_cov[ok, j])
+    return np.concatenate(vectors), np.concatenate(types), (np.concatenate(covs) if covs else None)
+
+
+def triangulation_covariance(points: np.ndarray, R: np.ndarray, t: np.ndarray, n1: np.ndarray,
+                             n2: np.ndarray) -> np.ndarray:
+    """First-order covariances ``[N, 3, 3]`` of points ``[N, 3]`` triangulated from camera 1 = [I | 0]
+    and camera 2 = [R | t]: ``σ² (JᵀJ)⁻¹`` with ``J`` the 4×3 Jacobian of both projections and
+    the image noise σ (normalised units) from the median squared reprojection residual, which
+    for two views has one degree of freedom (median of χ²₁ = 0.455).
+    """
+    jac, residual2 = [], np.zeros(len(points))
+    for rot, shift, observed in ((np.eye(3), np.zeros(3), n1), (R, t, n2)):
+        q = points @ rot.T + shift
+        inv_z = 1.0 / q[:, 2]
+        d = np.zeros((len(points), 2, 3))
+        d[:, 0, 0] = d[:, 1, 1] = inv_z
+        d[:, :, 2] = -q[:, :2] * inv_z[:, None] ** 2
+        jac.append(d @ rot)
+        residual2 += np.sum((q[:, :2] * inv_z[:, None] - observed) ** 2, axis=1)
+    J = np.concatenate(jac, axis=1)
+    sigma2 = np.median(residual2) / 0.455
+    return sigma2 * np.linalg.inv(np.einsum("nki,nkj->nij", J, J))
 
 
 def _projection(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -252,17 +307,25 @@ def _triangulate_all(R, t, n1, n2, valid) -> np.ndarray:
     return out
 
 
-def _pnp(points: np.ndarray, n2: np.ndarray, R: np.ndarray, t: np.ndarray, config: StereoConfig):
-    """Camera 2 re-fitted to corrected 3D points (normalised coordinates), baseline kept at 1."""
+def _pnp(points: np.ndarray, normalized: np.ndarray, R: np.ndarray, t: np.ndarray,
+         config: StereoConfig) -> tuple[np.ndarray, np.ndarray]:
+    """A camera's pose fitted to 3D points and their normalised image coordinates (PnP RANSAC from ``R, t``)."""
     rvec, _ = cv2.Rodrigues(R)
-    ok, rvec, tvec, _ = cv2.solvePnPRansac(points.astype(np.float64), n2.astype(np.float64), np.eye(3), None,
-                                           rvec.copy(), t.reshape(3, 1).astype(np.float64).copy(),
+    ok, rvec, tvec, _ = cv2.solvePnPRansac(points.astype(np.float64), normalized.astype(np.float64), np.eye(3),
+                                           None, rvec.copy(), t.reshape(3, 1).astype(np.float64).copy(),
                                            useExtrinsicGuess=True, iterationsCount=config.pnp_iterations,
                                            reprojectionError=2 * config.ransac_threshold, confidence=0.999)
-    if not ok:
-        return R, t
-    tvec = tvec.ravel()
-    return cv2.Rodrigues(rvec)[0], tvec / np.linalg.norm(tvec)
+    return (cv2.Rodrigues(rvec)[0], tvec.ravel()) if ok else (R, t)
+
+
+def _refit_cameras(points: np.ndarray, n1: np.ndarray, n2: np.ndarray, R: np.ndarray, t: np.ndarray,
+                   config: StereoConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Both cameras re-fitted by PnP to corrected 3D points; camera 2 relative to camera 1, baseline 1."""
+    R1, t1 = _pnp(points, n1, np.eye(3), np.zeros(3), config)
+    R2, t2 = _pnp(points, n2, R, t, config)
+    R_rel = R2 @ R1.T
+    t_rel = t2 - R_rel @ t1
+    return R_rel, t_rel / np.linalg.norm(t_rel)
 
 
 # OpenCV's MAGSAC++ member of its RANSAC family. Plain cv2.RANSAC returns the best minimal-sample
@@ -291,12 +354,16 @@ def _stage2(points, n1, n2, valid, R, t, config, bones, warnings):
     best = (np.inf, points, R, t, 0)
     epsilons = []
     for round_ in range(config.max_rounds):
-        vectors, types = _bone_samples(points, valid, bones)
+        cov = None
+        if config.noise_correction:
+            cov = np.zeros(valid.shape + (3, 3))
+            cov[valid] = triangulation_covariance(points[valid], R, t, n1[valid], n2[valid])
+        vectors, types, cov = _bone_samples(points, valid, bones, cov)
         if len(np.unique(np.round(vectors, 6), axis=0)) < 10 * (n_types + 5):
             warnings.append("sequence too short or too still for the ellipsoid fit: stage-1 geometry kept")
             return best[1], best[2], best[3], epsilons, 0
         try:
-            A, _, _ = ransac_ellipsoid(vectors, types, n_types, valid.shape[0], config, rng)
+            A, _, _ = ransac_ellipsoid(vectors, types, n_types, valid.shape[0], config, rng, cov)
         except StereoError as exc:
             warnings.append(f"ellipsoid fit failed ({exc}): round {best[4]} kept")
             break
@@ -307,7 +374,7 @@ def _stage2(points, n1, n2, valid, R, t, config, bones, warnings):
         if eps < config.epsilon or not np.all(np.linalg.eigvalsh(A) > 0):
             break
         corrected = undistort(points, A, config.gamma)
-        R, t = _pnp(corrected[valid], n2[valid], R, t, config)
+        R, t = _refit_cameras(corrected[valid], n1[valid], n2[valid], R, t, config)
         points = _triangulate_all(R, t, n1, n2, valid)
     return best[1], best[2], best[3], epsilons, best[4]
 

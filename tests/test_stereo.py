@@ -1,0 +1,238 @@
+"""ElliPose core (mocapdb.stereo): ellipsoid fit, undistortion, stage 3, camera recovery, bad inputs."""
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from mocapdb.builder import BuildConfig, process_clip
+from mocapdb.stereo import (RIGID_BONES, StereoConfig, StereoError, _stage2, _triangulate_all, fit_ellipsoid,
+                            ransac_ellipsoid, reconstruct, refine_bone_lengths, sphericity, triangulate,
+                            triangulation_covariance, undistort)
+from mocapdb.stereo_pipeline import rotation_angle_deg
+
+from .conftest import ROOT, SAMPLE_BVH
+
+sys.path.insert(0, str(ROOT / "tools"))
+import eval_stereo  # noqa: E402
+
+N_TYPES = 6
+
+
+def _random_shape(rng, spread=0.3):
+    """A symmetric positive definite ``A`` with trace 3 and its eigen-decomposition."""
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    values = 1.0 + rng.uniform(-spread, spread, 3)
+    values *= 3.0 / values.sum()
+    return q @ np.diag(values) @ q.T
+
+
+def _on_ellipsoid(A, scales, per_type, rng):
+    """Vectors with ``vᵀ A v = scale_b²``: uniform directions mapped through ``A^{-1/2}``."""
+    values, vectors = np.linalg.eigh(A)
+    inv_sqrt = vectors @ np.diag(values ** -0.5) @ vectors.T
+    types = np.repeat(np.arange(len(scales)), per_type)
+    u = rng.normal(size=(len(types), 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return (u @ inv_sqrt.T) * scales[types, None], types
+
+
+def test_sphericity_hand_computed():
+    assert sphericity(np.eye(3)) == pytest.approx(0.0)
+    assert sphericity(5 * np.eye(3)) == pytest.approx(0.0)          # scale does not count
+    # diag(2, 1, 1) → trace 3: diag(1.5, 0.75, 0.75): 0.25 + 0.0625 + 0.0625
+    assert sphericity(np.diag([2.0, 1.0, 1.0])) == pytest.approx(0.375)
+
+
+def test_fit_recovers_a_known_ellipsoid_and_per_bone_scales():
+    rng = np.random.default_rng(0)
+    A = _random_shape(rng)
+    scales = np.array([0.2, 0.43, 0.42, 0.38, 0.29, 0.26])
+    vectors, types = _on_ellipsoid(A, scales, 400, rng)
+    vectors += rng.normal(0, 0.002, vectors.shape)                    # 2 mm noise
+    fitted, fitted_scales = fit_ellipsoid(vectors, types, N_TYPES)
+    assert np.trace(fitted) == pytest.approx(3.0)
+    np.testing.assert_allclose(fitted, A, atol=0.02)
+    np.testing.assert_allclose(fitted_scales, scales, rtol=0.01)
+
+
+def test_ransac_ignores_gross_outliers_that_break_the_plain_fit():
+    rng = np.random.default_rng(1)
+    A = _random_shape(rng)
+    scales = np.array([0.2, 0.43, 0.42, 0.38, 0.29, 0.26])
+    vectors, types = _on_ellipsoid(A, scales, 300, rng)
+    vectors += rng.normal(0, 0.002, vectors.shape)
+    bad = rng.random(len(vectors)) < 0.1
+    vectors[bad] *= rng.uniform(1.6, 2.5, (bad.sum(), 1))             # mis-detections: far too long
+    plain, _ = fit_ellipsoid(vectors, types, N_TYPES)
+    robust, robust_scales, inliers = ransac_ellipsoid(vectors, types, N_TYPES, 300, StereoConfig(),
+                                                      np.random.default_rng(0))
+    assert np.abs(plain - A).max() > 0.05
+    np.testing.assert_allclose(robust, A, atol=0.03)
+    np.testing.assert_allclose(robust_scales, scales, rtol=0.02)
+    assert not inliers[bad].any() and inliers[~bad].mean() > 0.95
+
+
+def test_noise_covariance_matches_the_empirical_triangulation_error():
+    rng = np.random.default_rng(2)
+    R, _ = cv2.Rodrigues(np.array([0.0, -0.6, 0.05]))
+    t = np.array([1.0, 0.0, 0.3]) / np.linalg.norm([1.0, 0.0, 0.3])
+    point = np.array([0.2, -0.1, 2.5])
+    sigma = 0.004
+    clean1 = point[:2] / point[2]
+    q = R @ point + t
+    clean2 = q[:2] / q[2]
+    n1 = clean1 + rng.normal(0, sigma, (4000, 2))
+    n2 = clean2 + rng.normal(0, sigma, (4000, 2))
+    P1, P2 = np.hstack([np.eye(3), np.zeros((3, 1))]), np.hstack([R, t[:, None]])
+    points = triangulate(P1, P2, n1, n2)
+    predicted = triangulation_covariance(points, R, t, n1, n2).mean(axis=0)
+    np.testing.assert_allclose(predicted, np.cov(points.T), rtol=0.15, atol=0.02 * np.abs(np.cov(points.T)).max())
+
+
+def test_undistortion_of_a_known_linear_distortion():
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(50, 3))
+    stretch = _random_shape(rng, spread=0.4)                # symmetric: distorted = stretch · true
+    distorted = points @ stretch.T
+    # bone vectors of the distorted world satisfy vᵀ A v = const with A ∝ stretch⁻²
+    A = np.linalg.inv(stretch @ stretch)
+    full = undistort(distorted, A, gamma=1.0)
+    ratio = full / points
+    np.testing.assert_allclose(ratio, ratio[0, 0], rtol=1e-9)          # the true shape up to one scale
+    np.testing.assert_allclose(undistort(distorted, A, gamma=0.0), distorted)
+    values, vectors = np.linalg.eigh(A * 3 / np.trace(A))
+    half = vectors @ np.diag(0.5 + 0.5 * np.sqrt(values)) @ vectors.T  # the γ = 0.2 ... 1 family, γ = 0.5
+    np.testing.assert_allclose(undistort(distorted, A, gamma=0.5), distorted @ half.T)
+
+
+def _dense_stage3(points, P1, P2, n1, n2, alpha):
+    """One stage-3 round as one dense least-squares problem per frame (np.linalg.lstsq)."""
+    pairs = np.array([(i, j) for i, j, _ in RIGID_BONES])
+    vec = points[:, pairs[:, 1]] - points[:, pairs[:, 0]]
+    length = np.linalg.norm(vec, axis=-1)
+    target = vec * (np.median(length, axis=0) / length)[..., None]
+    n_joints = points.shape[1]
+    out = np.zeros_like(points)
+    for f in range(len(points)):
+        rows, rhs = [], []
+        for P, n in ((P1, n1[f]), (P2, n2[f])):
+            for k in range(n_joints):
+                for axis in range(2):
+                    row = np.zeros(3 * n_joints)
+                    full = n[k, axis] * P[2] - P[axis]
+                    row[3 * k:3 * k + 3] = full[:3]
+                    rows.append(row)
+                    rhs.append(-full[3])
+        for b, (i, j) in enumerate(pairs):
+            for axis in range(3):
+                row = np.zeros(3 * n_joints)
+                row[3 * j + axis], row[3 * i + axis] = np.sqrt(alpha), -np.sqrt(alpha)
+                rows.append(row)
+                rhs.append(np.sqrt(alpha) * target[f, b, axis])
+        out[f] = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)[0].reshape(n_joints, 3)
+    return out
+
+
+def test_stage3_matches_a_dense_solve():
+    rng = np.random.default_rng(4)
+    n_frames, n_joints = 3, 14
+    truth = rng.normal(0, 0.4, (n_frames, n_joints, 3)) + np.array([0.0, 0.0, 4.0])
+    R, _ = cv2.Rodrigues(np.array([0.0, -0.8, 0.0]))
+    t = np.array([-1.0, 0.0, 0.4])
+    P1, P2 = np.hstack([np.eye(3), np.zeros((3, 1))]), np.hstack([R, t[:, None]])
+    n1 = truth[..., :2] / truth[..., 2:] + rng.normal(0, 0.003, (n_frames, n_joints, 2))
+    q = truth @ R.T + t
+    n2 = q[..., :2] / q[..., 2:] + rng.normal(0, 0.003, (n_frames, n_joints, 2))
+    start = truth + rng.normal(0, 0.02, truth.shape)
+    valid = np.ones((n_frames, n_joints), bool)
+    ours = refine_bone_lengths(start, P1, P2, n1, n2, valid, alpha=20.0, rounds=1)
+    np.testing.assert_allclose(ours, _dense_stage3(start, P1, P2, n1, n2, 20.0), atol=1e-9)
+
+
+def test_stage3_makes_bone_lengths_constant():
+    rng = np.random.default_rng(5)
+    clip = process_clip(SAMPLE_BVH / "005_11.bvh", SAMPLE_BVH, BuildConfig(fps=30.0)).positions[:, :14]
+    cam1, cam2 = eval_stereo.pair_cameras("side", clip.mean(axis=(0, 1)))
+    (x1, c1), (x2, c2) = (eval_stereo.render(clip, c, rng, 3.0, 0.0) for c in (cam1, cam2))
+    valid = (c1 > 0) & (c2 > 0)
+    n1, n2 = np.zeros(x1.shape), np.zeros(x2.shape)
+    n1[valid], n2[valid] = cam1.undistort_normalized(x1[valid]), cam2.undistort_normalized(x2[valid])
+    R, t = cam2.R @ cam1.R.T, cam2.t - cam2.R @ cam1.R.T @ cam1.t
+    raw = _triangulate_all(R, t, n1, n2, valid)
+    P1, P2 = np.hstack([np.eye(3), np.zeros((3, 1))]), np.hstack([R, t[:, None]])
+    fixed = refine_bone_lengths(np.nan_to_num(raw), P1, P2, n1, n2, valid)
+    pairs = np.array([(i, j) for i, j, _ in RIGID_BONES])
+
+    def spread(points):
+        lengths = np.linalg.norm(points[:, pairs[:, 1]] - points[:, pairs[:, 0]], axis=-1)
+        return np.nanmean(np.nanstd(lengths, axis=0))
+
+    assert spread(fixed) < 0.3 * spread(raw)
+
+
+@pytest.fixture(scope="module")
+def dance():
+    """A bundled clip with varied bone directions (dance steps, a pirouette), 30 fps, metres."""
+    return process_clip(SAMPLE_BVH / "005_11.bvh", SAMPLE_BVH, BuildConfig(fps=30.0)).positions[:, :14]
+
+
+def _pair(positions, kind, noise_px, seed=0):
+    cam1, cam2 = eval_stereo.pair_cameras(kind, positions.mean(axis=(0, 1)))
+    rng = np.random.default_rng(seed)
+    (x1, c1), (x2, c2) = (eval_stereo.render(positions, c, rng, noise_px, 0.0) for c in (cam1, cam2))
+    rel_R = cam2.R @ cam1.R.T
+    return cam1, cam2, (x1, c1, x2, c2), rel_R, cam2.t - rel_R @ cam1.t
+
+
+@pytest.mark.parametrize("kind", ["side", "front"])
+def test_camera_recovery_on_synthetic_cameras(dance, kind):
+    cam1, cam2, views, rel_R, rel_t = _pair(dance, kind, noise_px=1.0)
+    distance = float(np.linalg.norm(rel_t))
+    result = reconstruct(*views, cam1, cam2, StereoConfig(camera_distance_m=distance))
+    assert rotation_angle_deg(result.R @ rel_R.T) < 1.0
+    direction = np.degrees(np.arccos(np.clip(result.t @ rel_t / distance ** 2, -1, 1)))
+    assert direction < 1.0
+    truth = dance @ cam1.R.T + cam1.t                                 # camera-1 frame, metres
+    error = np.linalg.norm(result.points_m - truth, axis=-1)[result.valid]
+    assert np.median(error) < 0.03
+
+
+def test_ellipsoid_rounds_undo_a_wrong_camera(dance):
+    """Noise-free views, camera 2 turned 8° off: the ellipsoid rounds bring it back."""
+    cam1, cam2, (x1, c1, x2, c2), rel_R, rel_t = _pair(dance, "front", noise_px=0.0)
+    valid = (c1 > 0) & (c2 > 0)
+    n1, n2 = np.zeros(x1.shape), np.zeros(x2.shape)
+    n1[valid], n2[valid] = cam1.undistort_normalized(x1[valid]), cam2.undistort_normalized(x2[valid])
+    wrong = cv2.Rodrigues(np.array([0.0, np.radians(8.0), 0.0]))[0] @ rel_R
+    t = rel_t / np.linalg.norm(rel_t)
+    config = StereoConfig(epsilon=0.001)
+    start = _triangulate_all(wrong, t, n1, n2, valid)
+    _, R, _, epsilons, kept = _stage2(start, n1, n2, valid, wrong, t, config, RIGID_BONES, [])
+    assert kept > 0 and epsilons[kept] < epsilons[0]
+    assert rotation_angle_deg(R @ rel_R.T) < 0.3 * 8.0
+
+
+def test_too_few_correspondences():
+    x = np.zeros((3, 14, 2))
+    c = np.zeros((3, 14))
+    c[:, :2] = 1.0
+    cam = eval_stereo.look_at(np.array([0.0, 1.5, -4.0]), np.zeros(3))
+    with pytest.raises(StereoError, match="correspondences"):
+        reconstruct(x, c, x, c, cam, cam, StereoConfig())
+
+
+def test_mismatched_views():
+    cam = eval_stereo.look_at(np.array([0.0, 1.5, -4.0]), np.zeros(3))
+    with pytest.raises(StereoError, match="do not match"):
+        reconstruct(np.zeros((10, 14, 2)), np.ones((10, 14)), np.zeros((9, 14, 2)), np.ones((9, 14)),
+                    cam, cam, StereoConfig())
+
+
+def test_a_still_sequence_falls_back_to_stage1(dance):
+    still = np.repeat(dance[:1], 60, axis=0)
+    cam1, cam2, views, rel_R, _ = _pair(still, "side", noise_px=0.0)
+    result = reconstruct(*views, cam1, cam2, StereoConfig())
+    assert any("too still" in w for w in result.warnings)
+    assert result.kept_round == 0 and result.epsilons == []
+    assert np.isfinite(result.points_m[result.valid]).all()
