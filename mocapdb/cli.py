@@ -254,9 +254,11 @@ def parser() -> argparse.ArgumentParser:
     _add_reconstruct(sub)
     _add_live(sub)
     _add_eval(sub)
-    from .detect import add_detect_parser  # imported here: it loads OpenCV
+    from .detect import add_detect_parser  # imported here: they load OpenCV
+    from .stereo_pipeline import add_stereo_parser
 
     add_detect_parser(sub)
+    add_stereo_parser(sub)
     return top
 
 

@@ -3,15 +3,19 @@ from runtime.streams import StreamSpecError
 
 from .builder import BuildError
 from .bvh import BvhError
+from .cameras import CalibrationError
 from .database import DatabaseError
 from .detect import DetectError
 from .joint_map import JointMapError
 from .keypoints import KeypointError
+from .stereo import StereoError
+from .trc import TrcError
 
 
 class UsageError(ValueError):
     """A command-line value that cannot be used."""
 
 
-USER_ERRORS: tuple[type[Exception], ...] = (BuildError, BvhError, DatabaseError, DetectError, JointMapError, KeypointError,
-                                           StreamSpecError, UsageError, OSError)
+USER_ERRORS: tuple[type[Exception], ...] = (BuildError, BvhError, CalibrationError, DatabaseError, DetectError,
+                                           JointMapError, KeypointError, StereoError, StreamSpecError, TrcError,
+                                           UsageError, OSError)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,9 +23,9 @@ from runtime.output import frame_line, header_line
 
 from .builder import _leg_scale
 from .bvh import write_atomic, write_bvh
-from .cameras import CalibrationError, CameraModel, camera_from_intrinsics, read_calibration_toml
+from .cameras import CameraModel, camera_from_intrinsics, read_calibration_toml
 from .geometry import matrix_to_quat, quat_to_matrix
-from .keypoints import LAYOUTS, KeypointError, KeypointFrame, read_openpose_folder
+from .keypoints import LAYOUTS, KeypointFrame, read_openpose_folder
 from .skeleton import KP, N_KEYPOINTS_2D, PELVIS, retarget, swing_matrices, universal_bvh
 from .stereo import StereoConfig, StereoError, StereoResult, reconstruct
 
@@ -45,7 +44,6 @@ CAMERA_ALIGNED = np.diag([1.0, -1.0, 1.0])  # x right, y up, z away from the cam
 VIEW_FRAME = np.diag([1.0, -1.0, -1.0])     # x right, y up, z towards the camera (right-handed)
 
 RESULT_FILE, CAMERAS_FILE, BVH_FILE = "result.jsonl", "cameras.json", "stereo.bvh"
-STEREO_ERRORS: tuple[type[Exception], ...] = (StereoError, CalibrationError, KeypointError)
 
 
 @dataclass
@@ -470,16 +468,9 @@ def add_stereo_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run_stereo_command(args: argparse.Namespace) -> int:
-    """``mocapdb stereo``: run and print the summary; 0 on success, 2 on a user error (message, no traceback)."""
-    from .errors import USER_ERRORS
-
-    try:
-        cam1, cam2 = cameras_from_args(args)
-        config = StereoConfig(camera_distance_m=args.camera_distance)
-        summary = run_stereo(args.view1, args.view2, cam1, cam2, config, args.fps, args.out,
-                             args.keypoints, args.trim)
-    except STEREO_ERRORS + USER_ERRORS as exc:
-        print(f"mocapdb stereo: error: {exc}", file=sys.stderr)
-        return 2
+    """``mocapdb stereo``: run and print the summary (user errors are reported by the CLI, exit 2)."""
+    cam1, cam2 = cameras_from_args(args)
+    config = StereoConfig(camera_distance_m=args.camera_distance)
+    summary = run_stereo(args.view1, args.view2, cam1, cam2, config, args.fps, args.out, args.keypoints, args.trim)
     print(summary.report())
     return 0

@@ -1,5 +1,4 @@
 """`mocapdb stereo`: person selection, loading checks, outputs (JSON lines, cameras, BVH), real data, TRC."""
-import argparse
 import importlib.util
 import json
 import sys
@@ -13,7 +12,9 @@ from mocapdb.joint_map import detect_mapping, extract_keypoints
 from mocapdb.keypoints import KeypointFrame, Person
 from mocapdb.skeleton import KEYPOINTS, N_KEYPOINTS_2D, RIG_JOINTS
 from mocapdb.stereo import StereoConfig, StereoError
-from mocapdb.stereo_pipeline import (CAMERA_ALIGNED, add_stereo_parser, load_views, select_people)
+from mocapdb.cli import main
+from mocapdb.database import load_database
+from mocapdb.stereo_pipeline import CAMERA_ALIGNED, load_views, select_people
 from mocapdb.trc import TrcError, parse_trc, read_trc, trc_keypoints
 
 from .conftest import ROOT, SAMPLE_BVH, SHARED_DATA
@@ -57,10 +58,7 @@ def _write_openpose(folder, x, c):
 
 
 def _stereo(argv):
-    parser = argparse.ArgumentParser(prog="mocapdb")
-    add_stereo_parser(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(["stereo", *argv])
-    return args.run(args)
+    return main(["stereo", *argv])
 
 
 def test_selection_rejects_a_false_person(motion):
@@ -149,6 +147,13 @@ def test_run_stereo_writes_stream_cameras_and_bvh(tmp_path, motion, capsys):
     np.testing.assert_allclose(in_json_frame, joints, atol=0.005)
     up = world[:, KEYPOINTS.index("neck")] - world[:, KEYPOINTS.index("pelvis")]
     assert np.median(up[:, 1] / np.linalg.norm(up, axis=1)) > 0.99
+
+    # `mocapdb build` takes the stereo BVH as a source like any other.
+    db_dir = tmp_path / "db"
+    assert main(["build", str(out / "stereo.bvh"), "--out", str(db_dir), "--clusters", "8",
+                 "--landmarks", "100", "--workers", "1"]) == 0
+    db = load_database(db_dir)
+    assert db.n_frames > 50 and db.n_projections == 30 * db.n_frames
 
 
 @pytest.mark.skipif(not POSE2SIM.is_dir(), reason="shared Pose2Sim data not present")
