@@ -57,13 +57,20 @@ class StereoConfig:
 
 @dataclass
 class StereoResult:
-    """Joints ``[T, J, 3]`` in camera 1's axes (NaN where invalid) and camera 2's pose."""
+    """The reconstruction in camera 1's OpenCV axes (metres when ``scaled``, else baselines).
+
+    ``points_m [T, J, 3]`` final joints (NaN where invalid), ``stage1_points``/``stage2_points``
+    the intermediate ones; camera 2 is ``x₂ = R x₁ + t`` (``stage1_R``, ``stage1_t``: its stage-1
+    estimate); ``epsilons`` the sphericity of each ellipsoid round, ``kept_round`` the one kept.
+    """
 
     points_m: np.ndarray
     stage1_points: np.ndarray
     stage2_points: np.ndarray
     R: np.ndarray
     t: np.ndarray
+    stage1_R: np.ndarray
+    stage1_t: np.ndarray
     scaled: bool
     epsilons: list[float] = field(default_factory=list)
     kept_round: int = 0
@@ -74,12 +81,17 @@ class StereoResult:
 # ---- geometry ---------------------------------------------------------------------------------
 
 def triangulate(P1: np.ndarray, P2: np.ndarray, n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
-    """Linear (DLT) triangulation of ``N`` correspondences ``[N, 2]`` by 3×4 matrices → ``[N, 3]``."""
+    """Linear (DLT) triangulation of ``N`` correspondences ``[N, 2]`` by 3×4 matrices → ``[N, 3]``.
+
+    The four rows ``u P₃ − P₁``, ``v P₃ − P₂`` per point are solved for ``[p; 1]`` in the least-squares
+    sense (3×3 normal equations, batched), which equals the homogeneous SVD solution for points
+    at finite depth.
+    """
     rows = np.stack([n1[:, :1] * P1[2] - P1[0], n1[:, 1:] * P1[2] - P1[1],
                      n2[:, :1] * P2[2] - P2[0], n2[:, 1:] * P2[2] - P2[1]], axis=1)  # [N, 4, 4]
-    _, _, vt = np.linalg.svd(rows)
-    h = vt[:, -1]
-    return h[:, :3] / h[:, 3:]
+    a, b = rows[..., :3], -rows[..., 3]
+    normal = np.einsum("nki,nkj->nij", a, a)
+    return np.linalg.solve(normal, np.einsum("nki,nk->ni", a, b)[..., None])[..., 0]
 
 
 def _design(vectors: np.ndarray, bone_type: np.ndarray, n_types: int,
@@ -161,6 +173,7 @@ def ransac_ellipsoid(vectors: np.ndarray, bone_type: np.ndarray, n_types: int, n
         spread = np.sqrt(_residual_variance(vectors, noise_cov)) / (2 * np.sum(vectors ** 2, axis=1))
         tolerance = np.maximum(tolerance, 3 * spread)
     by_type = [np.flatnonzero(bone_type == b) for b in range(n_types)]
+    moments_t = (vectors[:, :, None] * vectors[:, None, :]).reshape(-1, 9).T
     good_score = np.sqrt(0.25 * n_frames) * n_types
     best_score, best_inliers, good, drawn = -1.0, None, 0, 0
     while drawn < config.max_draws and good < config.good_samples:
@@ -168,7 +181,7 @@ def ransac_ellipsoid(vectors: np.ndarray, bone_type: np.ndarray, n_types: int, n
         picks = np.concatenate([np.stack([rng.choice(ix, batch) for ix in by_type], axis=1),
                                 rng.integers(0, len(vectors), (batch, 5))], axis=1)
         params = _solve_batch(rows[picks], rhs[picks])
-        inliers, scores = _score(params, vectors, bone_type, n_types, tolerance)
+        inliers, scores = _score(params, moments_t, bone_type, n_types, tolerance)
         good += int(np.sum(scores > good_score))
         k = int(np.argmax(scores))
         if scores[k] > best_score:
@@ -186,13 +199,14 @@ def _solve_batch(rows: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     return (np.linalg.pinv(rows) @ rhs[..., None])[..., 0]
 
 
-def _score(params: np.ndarray, vectors: np.ndarray, bone_type: np.ndarray, n_types: int,
+def _score(params: np.ndarray, moments_t: np.ndarray, bone_type: np.ndarray, n_types: int,
            tolerance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Inlier masks ``[D, N]`` and scores ``[D]`` of candidate parameters ``[D, 5 + B]``;
-    a bone is an inlier when its undistorted length is within ``1 ± tolerance`` of its scale."""
-    shapes = _shape_from(params)                                             # [D, 3, 3]
+    a bone is an inlier when its undistorted length is within ``1 ± tolerance`` of its scale.
+    ``moments_t [9, N]``: each vector's ``v vᵀ``, flattened."""
+    shapes = _shape_from(params).reshape(len(params), 9)                     # [D, 9]
     scale2 = params[:, 5:]                                                   # [D, B]
-    quad = np.einsum("ni,dij,nj->dn", vectors, shapes, vectors)
+    quad = shapes @ moments_t                                                # vᵀ A v, [D, N]
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.sqrt(quad / scale2[:, bone_type])
     inliers = np.abs(ratio - 1.0) <= tolerance                                   # NaN compares False
@@ -392,12 +406,12 @@ def reconstruct(x1: np.ndarray, c1: np.ndarray, x2: np.ndarray, c2: np.ndarray, 
              & np.isfinite(x1).all(axis=-1) & np.isfinite(x2).all(axis=-1))
     n1, n2 = np.zeros(x1.shape), np.zeros(x2.shape)
     n1[valid], n2[valid] = cam1.undistort_normalized(x1[valid]), cam2.undistort_normalized(x2[valid])
-    R, t = _stage1(n1, n2, valid, config)
-    stage1 = _triangulate_all(R, t, n1, n2, valid)
+    R1, t1 = _stage1(n1, n2, valid, config)
+    stage1 = _triangulate_all(R1, t1, n1, n2, valid)
     warnings: list[str] = []
-    stage2, R, t, epsilons, kept = _stage2(stage1, n1, n2, valid, R, t, config, bones, warnings)
+    stage2, R, t, epsilons, kept = _stage2(stage1, n1, n2, valid, R1, t1, config, bones, warnings)
     final = refine_bone_lengths(np.nan_to_num(stage2), _projection(np.eye(3), np.zeros(3)), _projection(R, t),
                                 n1, n2, valid, bones, config.alpha, config.bone_rounds)
     scale = config.camera_distance_m or 1.0
-    return StereoResult(final * scale, stage1 * scale, stage2 * scale, R, t * scale,
+    return StereoResult(final * scale, stage1 * scale, stage2 * scale, R, t * scale, R1, t1 * scale,
                         config.camera_distance_m is not None, epsilons, kept, warnings, valid)

@@ -30,7 +30,7 @@ from mocapdb.cameras import CameraModel, read_calibration_toml  # noqa: E402
 from mocapdb.keypoints import read_openpose_folder  # noqa: E402
 from mocapdb.metrics import mpjpe, pa_mpjpe, pck  # noqa: E402
 from mocapdb.skeleton import N_KEYPOINTS_2D  # noqa: E402
-from mocapdb.stereo import StereoConfig, reconstruct  # noqa: E402
+from mocapdb.stereo import StereoConfig, reconstruct, triangulate  # noqa: E402
 from mocapdb.stereo_pipeline import intrinsics_only, rotation_angle_deg, select_people  # noqa: E402
 from mocapdb.trc import read_trc, trc_keypoints  # noqa: E402
 
@@ -71,6 +71,7 @@ ABLATION = {  # Table 2: label → StereoConfig changes
     "δ 0.3": {"delta": 0.3},
     "γ 1.0": {"gamma": 1.0},
     "m 0 (no bone-length step)": {"bone_rounds": 0},
+    "plain ellipsoid fit (the paper: no noise correction)": {"noise_correction": False},
 }
 
 
@@ -191,20 +192,25 @@ def table2(clips: list[tuple[str, np.ndarray]], kinds: list[str]) -> str:
 
 
 def real_pairs() -> tuple[str, list[str]]:
-    """Markdown table of the six Pose2Sim pairs and the pass/fail lines of the real targets."""
+    """Markdown table of the six Pose2Sim pairs and the pass/fail lines of the real targets.
+
+    "calibrated" is the floor a two-camera reconstruction of these detections can reach: the same
+    keypoints triangulated with the calibration's own relative pose.
+    """
     cams = read_calibration_toml(POSE2SIM / "calibration.toml")
     truth = trc_keypoints(read_trc(POSE2SIM / "triangulated_4cam.trc"))[:, :N_KEYPOINTS_2D]
     frames = {n: list(read_openpose_folder(POSE2SIM / "openpose_body25b" / f"cam{n[-2:]}_json")) for n in cams}
-    lines = ["| pair | axes apart | frames | PMPJPE | rotation error | baseline direction error | kept round |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| pair | axes apart | frames | PMPJPE | PMPJPE, calibrated | rotation error stage 1 → final | "
+             "baseline direction error | kept round |",
+             "|---|---|---|---|---|---|---|---|"]
     checks = []
     for a, b in itertools.combinations(sorted(cams), 2):
         r = _real_pair(cams[a], cams[b], frames[a], frames[b], truth)
-        lines.append(f"| {a}–{b} | {r['apart']:.0f}° | {r['frames']} | {r['pmpjpe']:.1f} mm | {r['rot']:.2f}° | "
-                     f"{r['dir']:.2f}° | {r['round']} |")
+        lines.append(f"| {a}–{b} | {r['apart']:.0f}° | {r['frames']} | {r['pmpjpe']:.1f} mm | {r['floor']:.1f} mm | "
+                     f"{r['rot1']:.2f}° → {r['rot']:.2f}° | {r['dir']:.2f}° | {r['round']} |")
         if r["apart"] >= WIDE_PAIR_DEG:
-            checks.append(_check(f"real {a}–{b} (wide) PMPJPE {r['pmpjpe']:.1f} mm ≤ {TARGET_REAL_PMPJPE_MM:g} mm",
-                                 r["pmpjpe"] <= TARGET_REAL_PMPJPE_MM))
+            checks.append(_check(f"real {a}–{b} (wide) PMPJPE {r['pmpjpe']:.1f} mm ≤ {TARGET_REAL_PMPJPE_MM:g} mm "
+                                 f"(calibrated two-view: {r['floor']:.1f} mm)", r["pmpjpe"] <= TARGET_REAL_PMPJPE_MM))
         checks.append(_check(f"real {a}–{b} rotation error {r['rot']:.2f}° ≤ {TARGET_ROTATION_DEG:g}°",
                              r["rot"] <= TARGET_ROTATION_DEG))
     return "\n".join(lines), checks
@@ -220,10 +226,15 @@ def _real_pair(cam1: CameraModel, cam2: CameraModel, frames1: list, frames2: lis
     sel = select_people(frames1, frames2, c1, c2, config)
     result = reconstruct(sel.x1, sel.c1, sel.x2, sel.c2, c1, c2, config)
     valid = result.valid & sel.kept[:, None] & np.isfinite(truth).all(axis=-1)
-    errors = masked_pa_mpjpe(result.points_m, truth, valid)
+    calibrated = np.full(valid.shape + (3,), np.nan)
+    calibrated[valid] = triangulate(np.hstack([np.eye(3), np.zeros((3, 1))]), np.hstack([rel_rot, rel_t[:, None]]),
+                                    c1.undistort_normalized(sel.x1[valid]), c2.undistort_normalized(sel.x2[valid]))
     cos_dir = np.dot(result.t, rel_t) / (np.linalg.norm(result.t) * np.linalg.norm(rel_t))
     return {"apart": float(np.degrees(np.arccos(np.clip(cam1.R[2] @ cam2.R[2], -1, 1)))),
-            "frames": len(errors), "pmpjpe": 1000 * float(np.mean(errors)),
+            "frames": int(np.sum(valid.sum(axis=1) >= MIN_SCORED_JOINTS)),
+            "pmpjpe": 1000 * float(np.mean(masked_pa_mpjpe(result.points_m, truth, valid))),
+            "floor": 1000 * float(np.mean(masked_pa_mpjpe(calibrated, truth, valid))),
+            "rot1": rotation_angle_deg(np.asarray(result.stage1_R) @ rel_rot.T),
             "rot": rotation_angle_deg(np.asarray(result.R) @ rel_rot.T),
             "dir": float(np.degrees(np.arccos(np.clip(cos_dir, -1, 1)))), "round": int(result.kept_round)}
 
