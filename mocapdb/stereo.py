@@ -219,7 +219,7 @@ def _score(params: np.ndarray, moments_t: np.ndarray, bone_type: np.ndarray, n_t
 def refine_bone_lengths(points: np.ndarray, P1: np.ndarray, P2: np.ndarray, n1: np.ndarray, n2: np.ndarray,
                         valid: np.ndarray, bones=RIGID_BONES, alpha: float = 20.0, rounds: int = 5) -> np.ndarray:
     """Stage 3: per frame, least squares of the DLT reprojection rows of both views plus
-    ``alpha`` × Σ_b ‖v_b − w_b‖², with ``w_b`` the current bone direction at the bone's median
+    ``alpha`` × Σ_b ‖v_b − w_b‖², with ``w_b`` the current bone direction at the bone's mean
     length; ``rounds`` times. The DLT row ``(u P₃ − P₁)·[p; 1]`` is the point's offset from its
     ray times its depth, i.e. roughly a distance in the points' own units, like the bone term.
     ``points [T, J, 3]``, ``n1, n2 [T, J, 2]`` normalised image coordinates, ``valid [T, J]``.
@@ -232,8 +232,7 @@ def refine_bone_lengths(points: np.ndarray, P1: np.ndarray, P2: np.ndarray, n1: 
         vec = out[:, pairs[:, 1]] - out[:, pairs[:, 0]]                      # [T, nb, 3]
         length = np.linalg.norm(vec, axis=-1)
         both = valid[:, pairs[:, 0]] & valid[:, pairs[:, 1]]
-        target_len = np.array([np.median(length[both[:, b], b]) if both[:, b].any() else 0.0
-                               for b in range(len(pairs))])
+        target_len = np.where(both, length, 0.0).sum(axis=0) / np.maximum(both.sum(axis=0), 1)
         with np.errstate(invalid="ignore", divide="ignore"):
             target = np.where(both[..., None], vec * (target_len / length)[..., None], 0.0)
         out = _solve_frames(rep_m, rep_b, pairs, both, target, alpha, valid)

@@ -111,7 +111,7 @@ def _dense_stage3(points, P1, P2, n1, n2, alpha):
     pairs = np.array([(i, j) for i, j, _ in RIGID_BONES])
     vec = points[:, pairs[:, 1]] - points[:, pairs[:, 0]]
     length = np.linalg.norm(vec, axis=-1)
-    target = vec * (np.median(length, axis=0) / length)[..., None]
+    target = vec * (length.mean(axis=0) / length)[..., None]
     n_joints = points.shape[1]
     out = np.zeros_like(points)
     for f in range(len(points)):
