@@ -144,6 +144,15 @@ def _global_rotations(points: np.ndarray) -> dict[str, np.ndarray]:
     return glob
 
 
+def head_from_torso(points_m: np.ndarray) -> np.ndarray:
+    """The head ``[F, 3]`` where the rest pose puts it on the torso (neck rotation = identity):
+    for a head no camera saw. ``points_m [F, 15, 3]`` (metres, y up) needs pelvis, neck, shoulders."""
+    prim_pair, prim_rest, sec_pair, sec_rest = _FRAME_RULES["spine"]
+    spine = frame_from_axes(_direction(points_m, prim_pair), _direction(points_m, sec_pair)) \
+        @ frame_from_axes(prim_rest, sec_rest).T
+    return _point(points_m, "neck") + spine @ NOSE_OFFSET_M
+
+
 def _reject(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
     return v - np.sum(v * axis, axis=-1, keepdims=True) * axis
 

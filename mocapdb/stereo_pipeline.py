@@ -26,7 +26,7 @@ from .bvh import write_atomic, write_bvh
 from .cameras import CameraModel, camera_from_intrinsics, read_calibration_toml
 from .geometry import matrix_to_quat, quat_to_matrix
 from .keypoints import LAYOUTS, KeypointFrame, read_openpose_folder
-from .skeleton import KP, N_KEYPOINTS_2D, PELVIS, retarget, swing_matrices, universal_bvh
+from .skeleton import KP, N_KEYPOINTS_2D, PELVIS, head_from_torso, retarget, swing_matrices, universal_bvh
 from .stereo import StereoConfig, StereoError, StereoResult, reconstruct
 
 # Person selection. A pair (person in view 1, person in view 2) is consistent when at least
@@ -265,13 +265,8 @@ def with_pelvis(points: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.n
 def fill_gaps(points: np.ndarray, valid: np.ndarray, max_gap: int) -> np.ndarray:
     """Every joint's invalid frames filled: linearly across gaps of at most ``max_gap`` frames,
     else the last valid value (the first one before it). ``points [T, J, 3]``, ``valid [T, J]``.
-
-    StereoError when a joint is never valid.
+    A joint that is never valid stays NaN.
     """
-    never = np.flatnonzero(~valid.any(axis=0))
-    if len(never):
-        names = [n for n, k in KP.items() if k in never]
-        raise StereoError(f"no frame reconstructs {', '.join(names)}: cannot fit the skeleton")
     n = len(points)
     t = np.arange(n)[:, None]
     prev = np.maximum.accumulate(np.where(valid, t, -1), axis=0)
@@ -283,6 +278,23 @@ def fill_gaps(points: np.ndarray, valid: np.ndarray, max_gap: int) -> np.ndarray
     w = np.where(short, (t - prev) / np.maximum(nxt - prev, 1), 0.0)[..., None]
     held = np.where((prev >= 0)[..., None], p_prev, p_next)
     return np.where(short[..., None], (1 - w) * p_prev + w * p_next, held)
+
+
+def require_joints(points: np.ndarray) -> None:
+    """StereoError naming the joints (other than the head) that no frame of ``points [T, 15, 3]`` has."""
+    never = [name for name, k in KP.items() if name != "head" and np.isnan(points[:, k]).all()]
+    if never:
+        raise StereoError(f"no frame reconstructs {', '.join(never)}: cannot fit the skeleton")
+
+
+def complete_head(points_m: np.ndarray, warnings: list[str]) -> np.ndarray:
+    """``points_m [T, 15, 3]`` (metres) with a head that no frame has put on the torso, and a warning."""
+    if not np.isnan(points_m[:, KP["head"]]).all():
+        return points_m
+    warnings.append("no frame has the head in both views: the head follows the torso (rest pose)")
+    out = points_m.copy()
+    out[:, KP["head"]] = head_from_torso(out)
+    return out
 
 
 def level_rotation(points_view: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -311,6 +323,7 @@ class Motion:
     bvh_from_camera: np.ndarray  # [3, 3] OpenCV camera-1 axes → BVH world axes
     scale: float                # metres per reconstruction unit
     scale_source: str
+    warnings: list[str]         # what the inverse kinematics had to assume
 
 
 def to_motion(result: StereoResult, kept: np.ndarray, fps: float) -> Motion:
@@ -321,19 +334,21 @@ def to_motion(result: StereoResult, kept: np.ndarray, fps: float) -> Motion:
     if not present.any():
         raise StereoError("no frame could be reconstructed")
     filled = fill_gaps(points, valid, int(round(MAX_GAP_S * fps)))
+    require_joints(filled)
     scale, source = 1.0, "scaled to the given camera distance"
     if not result.scaled:
         scale = _leg_scale(filled)
         source = "no camera distance given: metres assume the universal leg length"
     level = level_rotation(points @ VIEW_FRAME, valid)
     bvh_from_camera = level @ VIEW_FRAME
-    quats_world, _ = retarget(scale * filled @ bvh_from_camera.T)
+    warnings: list[str] = []
+    quats_world, _ = retarget(complete_head(scale * filled @ bvh_from_camera.T, warnings))
     root = level.T @ quat_to_matrix(quats_world[:, 0])
     quats_view = quats_world.copy()
     quats_view[:, 0] = matrix_to_quat(root)
     return Motion(scale * points @ CAMERA_ALIGNED, present, quats_view, quats_world,
                   scale * filled[:, PELVIS] @ CAMERA_ALIGNED, scale * filled[:, PELVIS] @ bvh_from_camera.T,
-                  bvh_from_camera, scale, source)
+                  bvh_from_camera, scale, source, warnings)
 
 
 def _result_lines(motion: Motion, fps: float) -> str:
@@ -396,6 +411,7 @@ def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, 
     warnings += list(result.warnings)
     lap("reconstruct")
     motion = to_motion(result, selection.kept, fps)
+    warnings += motion.warnings
     lap("ik")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -229,9 +229,10 @@ def test_mismatched_views():
                     cam, cam, StereoConfig())
 
 
-def test_a_still_sequence_falls_back_to_stage1(dance):
-    still = np.repeat(dance[:1], 60, axis=0)
-    cam1, cam2, views, rel_R, _ = _pair(still, "side", noise_px=0.0)
+@pytest.mark.parametrize("case", ["still", "short"])
+def test_a_still_or_short_sequence_falls_back_to_stage1(dance, case):
+    motion = np.repeat(dance[:1], 60, axis=0) if case == "still" else dance[:8]
+    cam1, cam2, views, rel_R, _ = _pair(motion, "side", noise_px=0.0)
     result = reconstruct(*views, cam1, cam2, StereoConfig())
     assert any("too still" in w for w in result.warnings)
     assert result.kept_round == 0 and result.epsilons == []

@@ -213,3 +213,20 @@ def test_trc_reader_small_file_and_units():
 def test_trc_reader_malformed(text, message):
     with pytest.raises(TrcError, match=message):
         parse_trc(text, "bad.trc")
+
+
+def test_a_head_no_camera_pair_sees_follows_the_torso(tmp_path, motion, capsys):
+    positions = motion[:90]
+    (cam1, cam2), (x1, c1), (x2, c2) = _views(positions, 0.5)
+    c2[:, KEYPOINTS.index("head")] = 0.0                 # camera 2 films the back of the head
+    _write_openpose(tmp_path / "v1", x1, c1)
+    _write_openpose(tmp_path / "v2", x2, c2)
+    out = tmp_path / "out"
+    assert _stereo([str(tmp_path / "v1"), str(tmp_path / "v2"), "--out", str(out), "--focal", "1145",
+                    "--size", "1000", "1000", "--fps", "30"]) == 0
+    assert "the head follows the torso" in capsys.readouterr().out
+    frames = [json.loads(line) for line in (out / "result.jsonl").read_text().splitlines()[1:]]
+    assert all(f["people"][0]["joints"][KEYPOINTS.index("head")] == [None, None, None] for f in frames)
+    world = extract_keypoints(read_bvh(out / "stereo.bvh"), detect_mapping(read_bvh(out / "stereo.bvh")))
+    head_up = world[:, KEYPOINTS.index("head"), 1] - world[:, KEYPOINTS.index("neck"), 1]
+    assert np.all(head_up > 0.1)                          # above the neck, as in the rest pose
