@@ -2,9 +2,9 @@
 
 Stage 1 estimates camera 2's pose from the body keypoints of all frames (essential matrix) and
 triangulates. Stage 2 fits one origin-centred ellipsoid to the bone vectors (one scale per bone
-type), undistorts the 3D points partway along its axes, re-fits camera 2 by PnP and
-re-triangulates, until the ellipsoid is nearly a sphere. Stage 3 makes bone lengths constant
-against the 2D evidence. Coordinates: camera 1's OpenCV axes (x right, y down, z forward), the
+type; the fit discounts each bone's triangulation noise), undistorts the 3D points partway along
+its axes, re-fits both cameras by PnP and re-triangulates, until the ellipsoid is nearly a sphere.
+Stage 3 makes bone lengths constant against the 2D evidence. Decisions: ``data_specs/stereo.md``. Coordinates: camera 1's OpenCV axes (x right, y down, z forward), the
 baseline = 1 unless ``camera_distance_m`` gives metres.
 """
 from __future__ import annotations
@@ -374,7 +374,7 @@ def _stage2(points, n1, n2, valid, R, t, config, bones, warnings):
         vectors, types, cov = _bone_samples(points, valid, bones, cov)
         if len(np.unique(np.round(vectors, 6), axis=0)) < 10 * (n_types + 5):
             warnings.append("sequence too short or too still for the ellipsoid fit: stage-1 geometry kept")
-            return best[1], best[2], best[3], epsilons, 0
+            break
         try:
             A, _, _ = ransac_ellipsoid(vectors, types, n_types, valid.shape[0], config, rng, cov)
         except StereoError as exc:

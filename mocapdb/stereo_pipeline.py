@@ -27,7 +27,7 @@ from .cameras import CameraModel, camera_from_intrinsics, read_calibration_toml
 from .geometry import matrix_to_quat, quat_to_matrix
 from .keypoints import LAYOUTS, KeypointFrame, read_openpose_folder
 from .skeleton import KP, N_KEYPOINTS_2D, PELVIS, head_from_torso, retarget, swing_matrices, universal_bvh
-from .stereo import StereoConfig, StereoError, StereoResult, reconstruct
+from .stereo import ESSENTIAL_METHOD, StereoConfig, StereoError, StereoResult, reconstruct
 
 # Person selection. A pair (person in view 1, person in view 2) is consistent when at least
 # MIN_SHARED_JOINTS joints are confident in both and the median of their first-order epipolar
@@ -161,7 +161,7 @@ def _essential_guess(n1: np.ndarray, n2: np.ndarray, config: StereoConfig) -> np
         raise StereoError(f"only {len(n1)} keypoint correspondences between the views' most prominent "
                           f"people (need {max(8, config.min_correspondences)}): too few frames or joints "
                           "seen by both cameras")
-    essential, _ = cv2.findEssentialMat(n1, n2, np.eye(3), method=cv2.RANSAC, prob=config.ransac_prob,
+    essential, _ = cv2.findEssentialMat(n1, n2, np.eye(3), method=ESSENTIAL_METHOD, prob=config.ransac_prob,
                                         threshold=config.ransac_threshold)
     if essential is None or essential.shape[0] < 3:
         raise StereoError("no essential matrix fits the two views' keypoints: are both folders the same take?")
