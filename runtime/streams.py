@@ -41,12 +41,13 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Self
+from typing import Any, Generic, Self, TypeVar
 from urllib.parse import urlsplit
 
-__all__ = ["MAX_DATAGRAM_BYTES", "MAX_MESSAGE_BYTES", "LiveInput", "RawMessage", "Sink", "Source",
+__all__ = ["MAX_DATAGRAM_BYTES", "MAX_MESSAGE_BYTES", "BufferedThread", "LiveInput", "RawMessage", "Sink", "Source",
            "StreamSpecError", "StreamStats", "install_stop_handlers", "open_sink", "open_source"]
 
+T = TypeVar("T")
 MAX_MESSAGE_BYTES = 1 << 20   # longest accepted input message (line or file)
 MAX_DATAGRAM_BYTES = 60_000   # longest UDP sink datagram; longer lines are dropped
 POLL_S = 0.02                 # how often blocking waits check for stop / new files
@@ -436,26 +437,30 @@ def open_source(spec: str, *, stats: StreamStats | None = None, follow: bool = F
         f"{spec}: not a folder, a .jsonl/.ndjson file, '-', tcp://HOST:PORT or udp://HOST:PORT")
 
 
-class LiveInput:
-    """Runs a source in a background thread behind a buffer of ``capacity`` messages; when it is
-    full the oldest message is dropped and counted (``dropped_stale``), so the consumer always gets
-    the newest frames and latency stays bounded."""
+class BufferedThread(Generic[T]):
+    """Items of :meth:`_items` produced in a background thread behind a buffer of ``capacity``;
+    when it is full the oldest item is dropped and counted (``dropped``, ``stats.dropped_stale``),
+    so the consumer always gets the newest and latency stays bounded. Subclasses set their own
+    fields, then call :meth:`_start`."""
 
-    def __init__(self, source: Source, capacity: int = 2) -> None:
-        if capacity < 1:
-            raise ValueError("capacity must be at least 1")
-        self.source, self.stats, self._capacity = source, source.stats, capacity
-        self._buffer: deque[RawMessage] = deque()
+    def __init__(self, capacity: int, stats: StreamStats, thread_name: str) -> None:
+        self.stats, self._capacity, self.dropped = stats, capacity, 0
+        self._buffer: deque[T] = deque()
         self._cond = threading.Condition()
         self._ended = False
         self._error: Exception | None = None
-        self._thread = threading.Thread(target=self._run, name="mocapdb-live-input", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=thread_name, daemon=True)
+
+    def _items(self) -> Iterator[T]:
+        raise NotImplementedError
+
+    def _start(self) -> None:
         self._thread.start()
 
     def _run(self) -> None:
         try:
-            for msg in self.source:
-                self._put(msg)
+            for item in self._items():
+                self._put(item)
         except Exception as exc:   # handed to the consumer by get()
             self._error = exc
         finally:
@@ -463,17 +468,18 @@ class LiveInput:
                 self._ended = True
                 self._cond.notify_all()
 
-    def _put(self, msg: RawMessage) -> None:
+    def _put(self, item: T) -> None:
         with self._cond:
             if len(self._buffer) >= self._capacity:
                 self._buffer.popleft()
+                self.dropped += 1
                 self.stats.add(dropped_stale=1)
-            self._buffer.append(msg)
+            self._buffer.append(item)
             self._cond.notify()
 
-    def get(self, timeout: float | None = None) -> RawMessage | None:
-        """The oldest buffered message, waiting up to ``timeout`` s; None on timeout or when
-        :attr:`finished`. An error that ended the source is raised once the buffer is empty."""
+    def get(self, timeout: float | None = None) -> T | None:
+        """The oldest buffered item, waiting up to ``timeout`` s; None on timeout or when
+        :attr:`finished`. An error that ended the thread is raised once the buffer is empty."""
         with self._cond:
             self._cond.wait_for(lambda: self._buffer or self._ended, timeout)
             if self._buffer:
@@ -485,21 +491,39 @@ class LiveInput:
 
     @property
     def finished(self) -> bool:
-        """True once the source has ended and every buffered message has been taken."""
+        """True once the thread has ended and every buffered item has been taken."""
         with self._cond:
             return self._ended and not self._buffer
-
-    def close(self) -> None:
-        """Stops the reader thread, waits for it and closes the source; idempotent."""
-        self.source.stop()
-        self._thread.join()
-        self.source.close()
 
     def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+
+class LiveInput(BufferedThread[RawMessage]):
+    """Runs a source in a background thread behind a buffer of ``capacity`` messages (see
+    :class:`BufferedThread`)."""
+
+    def __init__(self, source: Source, capacity: int = 2) -> None:
+        if capacity < 1:
+            raise ValueError("capacity must be at least 1")
+        super().__init__(capacity, source.stats, "mocapdb-live-input")
+        self.source = source
+        self._start()
+
+    def _items(self) -> Iterator[RawMessage]:
+        return iter(self.source)
+
+    def close(self) -> None:
+        """Stops the reader thread, waits for it and closes the source; idempotent."""
+        self.source.stop()
+        self._thread.join()
+        self.source.close()
 
 
 class Sink(ABC):

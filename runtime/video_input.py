@@ -11,14 +11,14 @@ detection goes (not paced to its frame rate); a camera paces itself.
 from __future__ import annotations
 
 import threading
-from collections import deque
-from typing import TYPE_CHECKING, NamedTuple, Self
+from collections.abc import Iterator
+from typing import TYPE_CHECKING, NamedTuple
 
 from mocapdb.detect import (DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU, DetectError, PoseModel, VideoFrame,
                             VideoReader)
 from mocapdb.keypoints import KeypointFrame, Person, to_universal
 
-from .streams import StreamStats
+from .streams import BufferedThread, StreamStats
 
 if TYPE_CHECKING:
     from .session import Session
@@ -33,77 +33,39 @@ class CapturedFrame(NamedTuple):
     capture_s: float
 
 
-class VideoDetections:
+class VideoDetections(BufferedThread[CapturedFrame]):
     """Frames of ``source`` (a video file path, or a camera index) with the people ``model`` finds.
 
     ``every``: detect every N-th frame only; ``capacity``: frames buffered before the oldest is
-    dropped. Opening the video happens here (DetectError if it fails); the thread starts at once.
+    dropped (see :class:`~runtime.streams.BufferedThread`). Opening the video happens here
+    (DetectError if it fails); the thread starts at once.
     """
 
     def __init__(self, source: str | int, model: PoseModel, *, every: int = 1, capacity: int = 2,
                  stats: StreamStats | None = None) -> None:
         if every < 1 or capacity < 1:
             raise DetectError("every and capacity must be at least 1")
-        self.model, self.every, self._capacity = model, every, capacity
-        self.stats = stats if stats is not None else StreamStats()
+        super().__init__(capacity, stats if stats is not None else StreamStats(), "mocapdb-video-detect")
+        self.model, self.every = model, every
         self.reader = VideoReader(source)
         self.frames_detected = 0
-        self.dropped = 0
-        self._buffer: deque[CapturedFrame] = deque()
-        self._cond = threading.Condition()
-        self._ended = False
-        self._error: Exception | None = None
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="mocapdb-video-detect", daemon=True)
-        self._thread.start()
+        self._start()
 
-    def _run(self) -> None:
-        try:
-            for video_frame in self.reader.frames(self.every):
-                if self._stop.is_set():
-                    break
-                self._put(CapturedFrame(self._detect(video_frame), video_frame.capture_s))
-        except Exception as exc:  # noqa: BLE001 - handed to the consumer by get()
-            self._error = exc
-        finally:
-            with self._cond:
-                self._ended = True
-                self._cond.notify_all()
+    def _items(self) -> Iterator[CapturedFrame]:
+        for video_frame in self.reader.frames(self.every):
+            if self._stop.is_set():
+                break
+            captured = CapturedFrame(self._detect(video_frame), video_frame.capture_s)
+            self.frames_detected += 1
+            self.stats.add(messages_in=1)
+            yield captured
 
     def _detect(self, video_frame: VideoFrame) -> KeypointFrame:
         found = self.model(video_frame.image)
         points, confidence = to_universal(found.keypoints, "coco17")
         people = [Person(p, c) for p, c in zip(points, confidence)]
         return KeypointFrame(video_frame.index, video_frame.time_s, people, "coco17")
-
-    def _put(self, item: CapturedFrame) -> None:
-        with self._cond:
-            self.frames_detected += 1
-            if len(self._buffer) >= self._capacity:
-                self._buffer.popleft()
-                self.dropped += 1
-                self.stats.add(dropped_stale=1)
-            self._buffer.append(item)
-            self.stats.add(messages_in=1)
-            self._cond.notify()
-
-    def get(self, timeout: float | None = None) -> CapturedFrame | None:
-        """The oldest buffered frame, waiting up to ``timeout`` s; None on timeout or when
-        :attr:`finished`. An error that ended the thread is raised once the buffer is empty."""
-        with self._cond:
-            self._cond.wait_for(lambda: self._buffer or self._ended, timeout)
-            if self._buffer:
-                return self._buffer.popleft()
-            error, self._error = self._error, None
-        if error is not None:
-            raise error
-        return None
-
-    @property
-    def finished(self) -> bool:
-        """True once the video has ended (or the thread stopped) and every buffered frame was taken."""
-        with self._cond:
-            return self._ended and not self._buffer
 
     @property
     def detection_fps(self) -> float:
@@ -120,12 +82,6 @@ class VideoDetections:
         self._stop.set()
         self._thread.join()
         self.reader.close()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def open_video_source(spec: str, model_path: str, *, conf: float = DEFAULT_CONF, iou: float = DEFAULT_IOU,
