@@ -11,7 +11,7 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -25,9 +25,10 @@ from .embedding import kmeans, landmark_mds, pose_distances, representatives
 from .geometry import Camera, normalize_pose_2d, project_views
 from .joint_map import JointMapError, detect_mapping, extract_keypoints, load_joint_map_file
 from .skeleton import (ANKLE_HEIGHT_M, BONE_LENGTHS_M, KEYPOINTS, KP, N_KEYPOINTS_2D, PELVIS,
-                       RIG_JOINTS, resample, retarget)
+                       RIG_JOINTS, mirror_keypoints, resample, retarget)
 
 CREDIT_FILE = "CREDIT.txt"
+MIRROR_SUFFIX = "~mirror"  # added to the name of a clip's left-right mirror image
 PROJECTION_CHUNK_FRAMES = 2000
 
 
@@ -52,6 +53,7 @@ class BuildConfig:
     unit: str | None = None
     up_axis: str | None = None
     credit: str | None = None
+    mirror: bool = True  # also store every clip's left-right mirror image
 
     @property
     def yaws_deg(self) -> np.ndarray:
@@ -72,12 +74,14 @@ class Clip:
     credit: str
     quaternions: np.ndarray  # [F, R, 4]
     positions: np.ndarray    # [F, 15, 3] metres, y up, floor at y = 0
+    mirrored: bool = False   # the left-right mirror image of the captured motion
 
 
 @dataclass
 class BuildSummary:
     files: int = 0
     clips: int = 0
+    mirrored: int = 0
     frames: int = 0
     projections: int = 0
     clusters: int = 0
@@ -86,7 +90,8 @@ class BuildSummary:
     bytes_on_disk: int = 0
 
     def report(self) -> str:
-        lines = [f"files {self.files}, clips {self.clips} (files split at jumps in the data), frames {self.frames}, projections {self.projections}, "
+        lines = [f"files {self.files}, clips {self.clips} (files split at jumps in the data; {self.mirrored} of them "
+                 f"mirrored copies), frames {self.frames}, projections {self.projections}, "
                  f"clusters {self.clusters}, size on disk {self.bytes_on_disk / 1e6:.1f} MB"]
         lines += [f"  {stage:<12} {sec:8.2f} s" for stage, sec in self.seconds.items()]
         lines.append(f"  {'total':<12} {sum(self.seconds.values()):8.2f} s")
@@ -132,8 +137,10 @@ def clips_from_bvh(path: Path, root: Path, config: BuildConfig) -> list[Clip]:
     """Read, map, split at data jumps, resample and retarget one BVH file.
 
     Each continuous run (:func:`continuous_runs`) becomes a clip, named after the file, with
-    ``@first-end`` (source frames) added when the file was split. Raises BvhError or
-    JointMapError when the file cannot be used.
+    ``@first-end`` (source frames) added when the file was split. With ``config.mirror`` each
+    clip is followed by its left-right mirror image (:data:`MIRROR_SUFFIX` added to the name),
+    retargeted from the mirrored source keypoints. Raises BvhError or JointMapError when the
+    file cannot be used.
     """
     bvh = read_bvh(path)
     overrides = load_joint_map_file(config.joint_map) if config.joint_map else None
@@ -146,21 +153,31 @@ def clips_from_bvh(path: Path, root: Path, config: BuildConfig) -> list[Clip]:
         raise BvhError(f"{path}: no stretch of {MIN_RUN_S} s without a jump in the data")
     credit = credit_for(path, root, config.credit)
     whole = len(runs) == 1 and runs[0] == slice(0, len(points))
-    return [_clip(path.stem if whole else f"{path.stem}@{run.start}-{run.stop}", str(path), bvh.fps,
-                  mapping.convention, credit, resample(points[run], bvh.fps, config.fps)) for run in runs]
+    origin = dict(source=str(path), source_fps=bvh.fps, convention=mapping.convention, credit=credit)
+    clips = []
+    for run in runs:
+        name = path.stem if whole else f"{path.stem}@{run.start}-{run.stop}"
+        resampled = resample(points[run], bvh.fps, config.fps)
+        clips.append(_clip(name, resampled, **origin))
+        if config.mirror:
+            clips.append(_clip(name + MIRROR_SUFFIX, mirror_keypoints(resampled), mirrored=True, **origin))
+    return clips
 
 
 def process_clip(path: Path, root: Path, config: BuildConfig) -> Clip:
-    """The longest continuous clip of a BVH file (what evaluations use as ground truth)."""
-    return max(clips_from_bvh(path, root, config), key=lambda c: len(c.positions))
+    """The longest continuous clip of a BVH file as captured, never a mirror image (what
+    evaluations use as ground truth)."""
+    return max(clips_from_bvh(path, root, replace(config, mirror=False)), key=lambda c: len(c.positions))
 
 
-def _clip(name: str, source: str, source_fps: float, convention: str, credit: str, points: np.ndarray) -> Clip:
+def _clip(name: str, points: np.ndarray, *, source: str, source_fps: float, convention: str, credit: str,
+          mirrored: bool = False) -> Clip:
     """Retarget resampled source keypoints (metres, y up) and put the floor at y = 0."""
     quats, positions = retarget(points * _leg_scale(points))
     ankles = positions[:, [KP["r_ankle"], KP["l_ankle"]], 1]
     positions[..., 1] -= ankles.min() - ANKLE_HEIGHT_M
-    return Clip(name, source, source_fps, convention, credit, quats.astype(np.float32), positions.astype(np.float32))
+    return Clip(name, source, source_fps, convention, credit, quats.astype(np.float32),
+                positions.astype(np.float32), mirrored)
 
 
 MAX_JOINT_SPEED_MPS = 15.0  # faster than any human joint: a jump in the data, not motion
@@ -293,6 +310,7 @@ def assemble(clips: list[Clip], keypoints_2d: np.ndarray, embedding: np.ndarray,
         clip_n_frames=n_frames.astype(np.int32),
         clip_first_frame=np.concatenate([[0], np.cumsum(n_frames)[:-1]]).astype(np.int64),
         clip_convention=[c.convention for c in clips], clip_credit=[c.credit for c in clips],
+        clip_mirrored=np.array([c.mirrored for c in clips], dtype=bool),
         frame_clip=np.repeat(np.arange(len(clips), dtype=np.int32), n_frames),
         frame_index=np.concatenate([np.arange(n, dtype=np.int32) for n in n_frames]),
         quaternions=np.concatenate([c.quaternions for c in clips]),
@@ -311,7 +329,7 @@ def _meta(config: BuildConfig) -> dict:
         "fps": config.fps, "yaw_step_deg": config.yaw_step_deg,
         "yaws_deg": config.yaws_deg.tolist(), "camera": asdict(config.camera),
         "dims": config.dims, "n_clusters": config.clusters, "seed": config.seed,
-        "landmarks": config.landmarks, "builder_version": __version__,
+        "landmarks": config.landmarks, "mirror": config.mirror, "builder_version": __version__,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "skeleton": {"keypoints": list(KEYPOINTS), "rig_joints": list(RIG_JOINTS),
                      "bone_lengths_m": BONE_LENGTHS_M},
@@ -339,5 +357,6 @@ def build(sources: list[str], out: str | os.PathLike, config: BuildConfig,
     summary.seconds["write"] = time.perf_counter() - t2
     summary.files = len(files) - len(summary.skipped)
     summary.clips, summary.frames = db.n_clips, db.n_frames
+    summary.mirrored = int(db.clip_mirrored.sum())
     summary.projections, summary.clusters = db.n_projections, db.n_clusters
     return summary

@@ -12,8 +12,9 @@ from .joint_map import UNITS, UP_AXES
 def _add_build(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("build", help="build a motion database from BVH files",
                        description="Read BVH clips (files or folders, recursively), retarget them to the "
-                                   "universal 14-joint skeleton, project every frame from every yaw, embed "
-                                   "with landmark MDS, cluster with k-means and write a Parquet database.")
+                                   "universal 14-joint skeleton (each also as its left-right mirror image), "
+                                   "project every frame from every yaw, embed with landmark MDS, cluster with "
+                                   "k-means and write a Parquet database.")
     p.add_argument("sources", nargs="+", help="BVH files or folders")
     p.add_argument("--out", required=True, help="database directory to write (replaced atomically)")
     p.add_argument("--fps", type=float, default=24.0, help="database frame rate in Hz (default 24)")
@@ -33,6 +34,8 @@ def _add_build(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--unit", choices=UNITS, help="length unit of the BVH files (default: detected)")
     p.add_argument("--up-axis", choices=UP_AXES, help="up axis of the BVH files (default: detected)")
     p.add_argument("--credit", help="credit/licence text stored with every clip (default: nearest CREDIT.txt)")
+    p.add_argument("--no-mirror", action="store_true",
+                   help="store only the clips as captured, not also their left-right mirror images")
     p.set_defaults(run=_run_build)
 
 
@@ -48,7 +51,7 @@ def _run_build(args: argparse.Namespace) -> int:
         clusters=args.clusters, dims=args.dims, seed=args.seed, landmarks=args.landmarks,
         workers=max(1, args.workers), strict=args.strict,
         joint_map=Path(args.joint_map) if args.joint_map else None,
-        unit=args.unit, up_axis=args.up_axis, credit=args.credit)
+        unit=args.unit, up_axis=args.up_axis, credit=args.credit, mirror=not args.no_mirror)
     summary = build(args.sources, args.out, config, exclude=args.exclude)
     print(f"wrote {args.out}")
     print(summary.report())
@@ -94,8 +97,15 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                    help="weights of the last w reconstructed frames, most recent first (default 0.4,0.3,0.2,0.1)")
     p.add_argument("--weight-2d", type=float, default=0.5,
                    help="weight of the 2D (Eq. 1) distance added to the temporal cost (default 0.5; 0 is the method)")
-    p.add_argument("--min-cutoff", type=float, default=1.0, help="1€ filter min cutoff for rotations, Hz (default 1)")
-    p.add_argument("--beta", type=float, default=0.3, help="1€ filter beta for rotations (default 0.3)")
+    p.add_argument("--min-cutoff", type=float,
+                   help="1€ filter min cutoff for rotations, Hz (default 4; 1 with --no-refine)")
+    p.add_argument("--beta", type=float, help="1€ filter beta for rotations (default 1; 0.3 with --no-refine)")
+    p.add_argument("--no-refine", action="store_true",
+                   help="output the retrieved database pose as it is (the method as published) instead of "
+                        "fitting it to the keypoints")
+    p.add_argument("--subject-height", type=float, metavar="METRES",
+                   help="the person's standing height in metres: sets the skeleton's size and so the depth "
+                        "(default 1.75, the universal skeleton)")
     p.add_argument("--no-smoothing", action="store_true", help="turn the 1€ filters off")
     p.add_argument("--no-translation", action="store_true", help="keep the pelvis at the origin")
     p.add_argument("--no-yaw-refinement", action="store_true", help="keep the database's yaw grid (12° steps)")
@@ -104,22 +114,32 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
 
 def _engine(args: argparse.Namespace):
     from runtime.engine import Engine, EngineConfig
-    from runtime.filters import OneEuroParams
+    from runtime.filters import REFINED_ROTATION_DEFAULTS, OneEuroParams
 
     from .database import load_database
     from .errors import UsageError
 
     try:
         width, height = (int(v) for v in args.image_size.lower().split("x"))
+    except ValueError:
+        raise UsageError(f"--image-size takes WIDTHxHEIGHT in pixels, e.g. 1920x1080, not {args.image_size!r}") from None
+    try:
         weights = tuple(float(w) for w in args.window_weights.split(","))
     except ValueError:
-        raise UsageError("--image-size takes WIDTHxHEIGHT and --window-weights numbers separated by commas") from None
-    config = EngineConfig(search=args.search, n_clusters=args.clusters_searched, per_cluster=args.per_cluster,
-                          window_weights=weights, weight_2d=args.weight_2d, focal_px=args.focal,
-                          image_size=(width, height), fps=args.fps, translation=not args.no_translation,
-                          refine_yaw=not args.no_yaw_refinement,
-                          smoothing=not args.no_smoothing,
-                          rotation_filter=OneEuroParams(min_cutoff_hz=args.min_cutoff, beta=args.beta))
+        raise UsageError(f"--window-weights takes numbers separated by commas, not {args.window_weights!r}") from None
+    default = OneEuroParams() if args.no_refine else REFINED_ROTATION_DEFAULTS
+    try:
+        rotation_filter = OneEuroParams(
+            min_cutoff_hz=default.min_cutoff_hz if args.min_cutoff is None else args.min_cutoff,
+            beta=default.beta if args.beta is None else args.beta)
+        config = EngineConfig(search=args.search, n_clusters=args.clusters_searched, per_cluster=args.per_cluster,
+                              window_weights=weights, weight_2d=args.weight_2d, focal_px=args.focal,
+                              image_size=(width, height), fps=args.fps, translation=not args.no_translation,
+                              refine_yaw=not args.no_yaw_refinement, refine=not args.no_refine,
+                              subject_height_m=args.subject_height, smoothing=not args.no_smoothing,
+                              rotation_filter=rotation_filter)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     return Engine(load_database(args.db), config)
 
 

@@ -19,7 +19,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: clips.mirrored
 FORMAT = "mocapdb"
 MANIFEST = "manifest.json"
 N_KEYPOINTS = 15
@@ -46,6 +46,7 @@ _TABLES: dict[str, tuple[_Column, ...]] = {
         _Column("clip_first_frame", "first_frame", "int64"),
         _Column("clip_convention", "convention", None),
         _Column("clip_credit", "credit", None),
+        _Column("clip_mirrored", "mirrored", "bool"),
     ),
     "frames": (
         _Column("frame_clip", "clip", "int32"),
@@ -84,6 +85,7 @@ class MotionDatabase:
     clip_first_frame: np.ndarray
     clip_convention: list[str]
     clip_credit: list[str]
+    clip_mirrored: np.ndarray
     frame_clip: np.ndarray
     frame_index: np.ndarray
     quaternions: np.ndarray

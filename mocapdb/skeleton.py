@@ -11,6 +11,7 @@ from numba import njit
 
 from .bvh import Bvh, motion_from_rotations
 from .geometry import frame_from_axes, matrix_to_quat, quat_to_matrix
+from .kernels import mat3_mul_into, quat_to_matrix_into
 
 # The 14 keypoints in OpenPose COCO-18 order (its first 14), then the pelvis (mid-hip).
 KEYPOINTS: tuple[str, ...] = (
@@ -20,6 +21,11 @@ N_KEYPOINTS_2D = 14
 N_POINTS = len(KEYPOINTS)
 PELVIS = KEYPOINTS.index("pelvis")
 KP = {name: i for i, name in enumerate(KEYPOINTS)}
+# Left/right keypoint pairs; the mirror image of a pose swaps them (head, neck, pelvis stay).
+MIRROR_PAIRS: tuple[tuple[str, str], ...] = tuple(
+    (f"r_{part}", f"l_{part}") for part in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle"))
+_OPPOSITE = {a: b for pair in MIRROR_PAIRS for a, b in (pair, pair[::-1])}
+_MIRROR_SOURCE = np.array([KP[_OPPOSITE.get(name, name)] for name in KEYPOINTS])
 
 # Bone lengths of the universal skeleton, metres (175 cm adult; ankle 8 cm above the floor).
 BONE_LENGTHS_M = {
@@ -31,6 +37,7 @@ BONE_LENGTHS_M = {
     "upper_arm": 0.29,
     "forearm": 0.26,
 }
+UNIVERSAL_HEIGHT_M = 1.75  # standing height of the universal skeleton (its bones scale with a subject's)
 NOSE_OFFSET_M = np.array([0.0, 0.19, 0.08])  # neck → nose in the rest pose
 ANKLE_HEIGHT_M = 0.08                         # ankle joint above the floor when standing
 
@@ -62,9 +69,9 @@ NODE_OFFSETS_M = np.array([n[2] for n in RIG_NODES])
 # Rotation joints (those that are not End Sites), in BVH order: the rows of stored quaternions.
 RIG_JOINTS: tuple[str, ...] = tuple(n for n in NODE_NAMES if n not in END_SITES)
 N_RIG_JOINTS = len(RIG_JOINTS)
-_NODE_OF_POINT = np.array([NODE_NAMES.index(next(n[0] for n in RIG_NODES if n[3] == kp)) for kp in KEYPOINTS])
-_JOINT_NODE = np.array([NODE_NAMES.index(j) for j in RIG_JOINTS])
-_NODE_JOINT = np.array([RIG_JOINTS.index(n) if n in RIG_JOINTS else -1 for n in NODE_NAMES])
+NODE_OF_POINT = np.array([NODE_NAMES.index(next(n[0] for n in RIG_NODES if n[3] == kp)) for kp in KEYPOINTS])
+JOINT_NODE = np.array([NODE_NAMES.index(j) for j in RIG_JOINTS])
+NODE_JOINT = np.array([RIG_JOINTS.index(n) if n in RIG_JOINTS else -1 for n in NODE_NAMES])
 
 # How each rotation joint's global frame is found from keypoints: the bone it drives (primary,
 # from→to keypoints) and a secondary direction fixing the twist, with their rest directions.
@@ -180,7 +187,7 @@ def pose_from_rotations(quats: np.ndarray, pelvis_m: np.ndarray) -> np.ndarray:
     """Universal keypoints ``[F, 15, 3]`` from local rotations ``[F, R, 4]`` and pelvis ``[F, 3]``."""
     quats = np.ascontiguousarray(quats, dtype=np.float64).reshape(-1, N_RIG_JOINTS, 4)
     pelvis = np.ascontiguousarray(pelvis_m, dtype=np.float64).reshape(-1, 3)
-    return _rig_fk(quats, pelvis, NODE_PARENTS, NODE_OFFSETS_M, _NODE_JOINT, _NODE_OF_POINT)
+    return _rig_fk(quats, pelvis, NODE_PARENTS, NODE_OFFSETS_M, NODE_JOINT, NODE_OF_POINT)
 
 
 @njit(cache=True)
@@ -192,24 +199,42 @@ def _rig_fk(quats, pelvis, parents, offsets, node_joint, node_of_point):
     g_pos = np.empty((n_nodes, 3))
     local = np.empty((3, 3))
     for f in range(n_frames):
-        for j in range(n_nodes):
-            if node_joint[j] >= 0:
-                w, x, y, z = quats[f, node_joint[j]]
-                local[0, 0], local[0, 1], local[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-                local[1, 0], local[1, 1], local[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-                local[2, 0], local[2, 1], local[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
-            else:
-                local[:] = np.eye(3)
-            p = parents[j]
-            if p < 0:
-                g_rot[j] = local
-                g_pos[j] = pelvis[f]
-            else:
-                g_rot[j] = g_rot[p] @ local
-                g_pos[j] = g_pos[p] + g_rot[p] @ offsets[j]
+        rig_globals_into(quats[f], pelvis[f], 1.0, parents, offsets, node_joint, local, g_rot, g_pos)
         for k in range(node_of_point.shape[0]):
             out[f, k] = g_pos[node_of_point[k]]
     return out
+
+
+@njit(cache=True)
+def rig_globals_into(quats, root_m, scale, parents, offsets, node_joint, local, g_rot, g_pos) -> None:
+    """Global rotation ``g_rot [N, 3, 3]`` and position ``g_pos [N, 3]`` of every rig node of one pose.
+
+    ``quats [R, 4]`` local rotations, ``root_m [3]`` the root's position, ``scale`` multiplies
+    every bone (offsets in metres); ``local [3, 3]`` is scratch space.
+    """
+    for j in range(parents.shape[0]):
+        if node_joint[j] >= 0:
+            quat_to_matrix_into(quats[node_joint[j]], local)
+        else:
+            local[:] = 0.0
+            local[0, 0] = local[1, 1] = local[2, 2] = 1.0
+        p = parents[j]
+        if p < 0:
+            g_rot[j] = local
+            g_pos[j] = root_m
+            continue
+        mat3_mul_into(g_rot[p], local, g_rot[j])
+        for a in range(3):
+            g_pos[j, a] = g_pos[p, a] + scale * (g_rot[p, a, 0] * offsets[j, 0] + g_rot[p, a, 1] * offsets[j, 1]
+                                                 + g_rot[p, a, 2] * offsets[j, 2])
+
+
+def mirror_keypoints(points: np.ndarray) -> np.ndarray:
+    """The left-right mirror image of keypoints ``[..., 15, 3]`` (KEYPOINTS order): x negated
+    (reflection in the y-z plane) and every :data:`MIRROR_PAIRS` pair swapped. Its own inverse."""
+    mirrored = points[..., _MIRROR_SOURCE, :].copy()
+    mirrored[..., 0] *= -1
+    return mirrored
 
 
 def resample(points: np.ndarray, source_fps: float, target_fps: float) -> np.ndarray:
@@ -243,6 +268,6 @@ def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str
                    np.array([n in END_SITES for n in NODE_NAMES]), 1.0 / fps,
                    np.zeros((quats.shape[0], 0)))
     local = np.broadcast_to(np.eye(3), (quats.shape[0], len(NODE_NAMES), 3, 3)).copy()
-    local[:, _JOINT_NODE] = quat_to_matrix(quats)
+    local[:, JOINT_NODE] = quat_to_matrix(quats)
     skeleton.motion = motion_from_rotations(skeleton, local, pelvis_m * scale)
     return skeleton

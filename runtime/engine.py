@@ -20,9 +20,11 @@ from numba import njit
 from mocapdb.database import DatabaseError, MotionDatabase
 from mocapdb.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
 from mocapdb.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
-from mocapdb.skeleton import N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, pose_from_rotations
+from mocapdb.skeleton import N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, UNIVERSAL_HEIGHT_M, pose_from_rotations
 
-from .filters import ROOT_DEFAULTS, OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
+from .filters import (REFINED_ROOT_DEFAULTS, REFINED_ROTATION_DEFAULTS, ROOT_DEFAULTS, OneEuroFilter,
+                      OneEuroParams, QuaternionOneEuroFilter)
+from .refine import JointLimits, RefineParams, Refiner
 from .search import SearchIndex, search_clustered, search_exact, yaw_offset
 from .temporal import temporal_costs, yaw_quaternion, yawed_rotations
 from .tracker import Tracker, TrackerConfig
@@ -48,14 +50,24 @@ class EngineConfig:
     fps: float = 30.0                    # frame rate assumed when frames carry no time
     translation: bool = True             # estimate the root translation from the image
     refine_yaw: bool = True              # refine the matched yaw between the database's yaws
+    refine: bool = True                  # 2D refinement after retrieval (False: the method as published)
+    refinement: RefineParams = field(default_factory=RefineParams)
+    subject_height_m: float | None = None  # the person's height; None: the universal 1.75 m (or from the floor)
+    camera_height_m: float | None = None   # camera above a flat floor: metric depth and size from the feet
     smoothing: bool = True
-    rotation_filter: OneEuroParams = field(default_factory=OneEuroParams)
-    root_filter: OneEuroParams = ROOT_DEFAULTS
+    rotation_filter: OneEuroParams | None = None  # None: the defaults for refined or retrieved poses
+    root_filter: OneEuroParams | None = None
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
     def __post_init__(self) -> None:
         if self.search not in ("clustered", "exact"):
             raise ValueError(f"search must be 'clustered' or 'exact', not {self.search!r}")
+        if self.rotation_filter is None:
+            self.rotation_filter = REFINED_ROTATION_DEFAULTS if self.refine else OneEuroParams()
+        if self.root_filter is None:
+            self.root_filter = REFINED_ROOT_DEFAULTS if self.refine else ROOT_DEFAULTS
+        if self.subject_height_m is not None and not 0.5 <= self.subject_height_m <= 2.5:
+            raise ValueError(f"subject height must be between 0.5 and 2.5 m, not {self.subject_height_m}")
 
 
 @dataclass
@@ -95,6 +107,7 @@ class _TrackState:
     def __init__(self, track: int, frame: int, config: EngineConfig, window: int):
         self.history = np.zeros((window, N_RIG_JOINTS, 4))  # last reconstructed rotations, newest first
         self.n_history = 0
+        self.scale = (config.subject_height_m or UNIVERSAL_HEIGHT_M) / UNIVERSAL_HEIGHT_M  # body size
         self.rotations = QuaternionOneEuroFilter(config.rotation_filter)
         self.root = OneEuroFilter(config.root_filter)
         self.recording = TrackRecording(track, frame)
@@ -105,6 +118,10 @@ class _TrackState:
         self.history[1:] = self.history[:-1]
         self.history[0] = quats
         self.n_history = min(self.n_history + 1, len(self.history))
+
+    def previous(self, frame: int) -> np.ndarray | None:
+        """The last reconstructed rotations if they belong to the frame just before ``frame``."""
+        return self.history[0] if self.n_history and self.last_frame == frame - 1 else None
 
     def record(self, frame: int, quats: np.ndarray, root_view: np.ndarray) -> None:
         """Append this frame, holding the last pose over any frames the track missed."""
@@ -146,6 +163,8 @@ class Engine:
             raise ValueError(f"joint_weights needs {N_RIG_JOINTS} values, got {len(weights)}")
         self.joint_weights = np.asarray(weights, dtype=np.float64)
         self.tracker = Tracker(cfg.tracker)
+        self.refiner = Refiner(cfg.refinement, JointLimits.from_rotations(self.db_quats)) if cfg.refine else None
+        self.center_px = (cfg.image_size[0] / 2.0, cfg.image_size[1] / 2.0)
         self.tracks: dict[int, _TrackState] = {}
         self.finished: list[TrackRecording] = []
         self.stats = EngineStats()
@@ -154,11 +173,11 @@ class Engine:
     def _warm_up(self) -> None:
         """Run every compiled kernel once on a database pose, so the first real frame is not slow."""
         points = self.db.keypoints_2d[0].astype(np.float64) * 400.0 + 500.0
-        visible = np.ones(N_KEYPOINTS_2D, dtype=bool)
-        Tracker(self.config.tracker).update(points[None], np.ones((1, N_KEYPOINTS_2D)), 0.0)
+        conf = np.ones(N_KEYPOINTS_2D)
+        Tracker(self.config.tracker).update(points[None], conf[None], 0.0)
         state = _TrackState(-1, 0, self.config, len(self.window_weights))
         for i in range(2):
-            self._person(state, points, visible, i, i / self.config.fps)
+            self._person(state, points, conf, i, i / self.config.fps)
 
     # -- per frame -------------------------------------------------------------------------
     def step(self, frame: KeypointFrame) -> list[PersonPose]:
@@ -180,7 +199,7 @@ class Engine:
             if state is None:
                 state = self.tracks[track] = _TrackState(track, frame.index, cfg, len(self.window_weights))
                 self.stats.tracks_started += 1
-            poses.append(self._person(state, points[det], conf[det] > 0, frame.index, t_s))
+            poses.append(self._person(state, points[det], conf[det], frame.index, t_s))
         self.stats.person_frames += len(poses)
         return poses
 
@@ -188,8 +207,9 @@ class Engine:
         vis = person.confidence >= self.config.confidence_threshold
         return int(vis.sum()) >= self.config.min_joints and bool(vis[R_HIP] or vis[L_HIP])
 
-    def _person(self, state: _TrackState, points_px: np.ndarray, visible: np.ndarray,
+    def _person(self, state: _TrackState, points_px: np.ndarray, confidence: np.ndarray,
                 frame_index: int, t_s: float) -> PersonPose:
+        visible = confidence > 0
         query, _, _ = normalize_pose_2d(points_px, visible)
         rows, dist = self._search(query, visible)
         best = self._choose(state, rows, dist)
@@ -197,8 +217,13 @@ class Engine:
         f, v = int(self.db.proj_frame[row]), int(self.db.proj_yaw[row])
         yaw_deg = self._refined_yaw(f, v, query, visible)
         quats = yawed_rotations(self.db_quats, f, yaw_quaternion(yaw_deg))
+        root_view = self._root_view(f, yaw_deg, points_px, visible) * state.scale
+        if self.refiner is not None:
+            self.refiner(quats, root_view, state.scale, points_px, confidence, quats.copy(),
+                         state.previous(frame_index), self.config.focal_px, self.center_px)
+        if not self.config.translation:
+            root_view = np.zeros(3)
         state.remember(quats)
-        root_view = self._root_view(f, yaw_deg, points_px, visible)
         if self.config.smoothing:
             quats = state.rotations(quats, t_s)
             root_view = state.root(root_view, t_s)
@@ -231,12 +256,9 @@ class Engine:
         return int(np.argmin(costs + self.config.weight_2d * dist))
 
     def _root_view(self, frame: int, yaw_deg: float, points_px: np.ndarray, visible: np.ndarray) -> np.ndarray:
-        """Pelvis position in the view frame: from the image by a pinhole model, or 0."""
-        if not self.config.translation:
-            return np.zeros(3)
-        cfg = self.config
+        """Pelvis position in the view frame for a 1.75 m body, from the image by a pinhole model."""
         return root_from_image(self.db.positions[frame], yaw_deg, points_px, visible,
-                               cfg.focal_px, cfg.image_size[0] / 2.0, cfg.image_size[1] / 2.0)
+                               self.config.focal_px, *self.center_px)
 
     def _end(self, track: int) -> None:
         state = self.tracks.pop(track, None)

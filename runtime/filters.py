@@ -49,6 +49,14 @@ class OneEuroParams:
 # beta = 1 Hz per m/s keeps a walker (1.4 m/s) within 5–6.5 cm of lag.
 ROOT_DEFAULTS = OneEuroParams(min_cutoff_hz=0.5, beta=1.0, d_cutoff_hz=1.0)
 
+# After the 2D refinement (runtime/refine.py) poses jitter far less than retrieved ones, and the
+# retrieval defaults' lag (~9–12° on a walking knee) became the largest error left: on held-out
+# walking at 24 fps they took clean-input MPJPE from 2.1 cm (unfiltered) to 4.4 cm and the
+# re-projection error from 0.3 % to 3.8 % of the box height. A 4 Hz floor (β = 1) keeps it at
+# 2.7 cm / 1.4 % and still cuts the jitter of σ = 5 px input (5.4 cm against 6.2 cm unfiltered).
+REFINED_ROTATION_DEFAULTS = OneEuroParams(min_cutoff_hz=4.0, beta=1.0, d_cutoff_hz=1.0)
+REFINED_ROOT_DEFAULTS = OneEuroParams(min_cutoff_hz=4.0, beta=3.0, d_cutoff_hz=1.0)
+
 
 @njit(cache=True)
 def _alpha(rate_hz: float, cutoff_hz: float) -> float:

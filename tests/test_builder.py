@@ -4,11 +4,12 @@ import shutil
 import numpy as np
 import pytest
 
-from mocapdb.builder import BuildConfig, BuildError, build, continuous_runs, find_sources
+from mocapdb.builder import BuildConfig, BuildError, build, clips_from_bvh, continuous_runs, find_sources, process_clip
 from mocapdb.cli import main
 from mocapdb.database import load_database
 from mocapdb.geometry import normalize_pose_2d, project_views
-from mocapdb.skeleton import BONE_LENGTHS_M, KP, PELVIS, pose_from_rotations
+from mocapdb.skeleton import (BONE_LENGTHS_M, KEYPOINTS, KP, MIRROR_PAIRS, PELVIS, RIG_JOINTS, mirror_keypoints,
+                              pose_from_rotations)
 
 from .conftest import SAMPLE_BVH
 
@@ -36,7 +37,8 @@ def built(sources, tmp_path_factory):
 
 def test_database_contents(built):
     summary, db = built
-    assert summary.clips == 2 and db.n_clips == 2
+    assert summary.clips == 4 and db.n_clips == 4 and summary.mirrored == 2
+    assert "2 of them mirrored copies" in summary.report()
     # 60 fps clips resampled to 24 fps: (n - 1) / 60 s long, one frame every 1/24 s.
     assert db.n_projections == db.n_frames * 30 == summary.projections
     assert db.n_clusters == 20 and db.cluster_size.sum() == db.n_projections
@@ -86,7 +88,7 @@ def test_unreadable_file_is_skipped_or_fails_strict(sources, tmp_path):
     shutil.copytree(sources, folder)
     (folder / "broken.bvh").write_text("HIERARCHY\nROOT x\n{\n")
     summary = build([str(folder)], tmp_path / "db", _config())
-    assert summary.clips == 2
+    assert summary.clips == 4
     assert [p for p, _ in summary.skipped] == [str(folder / "broken.bvh")]
     with pytest.raises(BuildError, match="broken.bvh"):
         build([str(folder)], tmp_path / "db2", _config(strict=True))
@@ -103,8 +105,9 @@ def test_exclude_and_missing_sources(sources, tmp_path):
 
 def test_cli_exit_codes(sources, tmp_path, capsys):
     assert main(["build", str(sources / "002_03.bvh"), "--out", str(tmp_path / "db"),
-                 "--clusters", "5", "--landmarks", "100", "--workers", "1"]) == 0
-    assert "projections" in capsys.readouterr().out
+                 "--clusters", "5", "--landmarks", "100", "--workers", "1", "--no-mirror"]) == 0
+    assert "clips 1 (files split at jumps in the data; 0 of them mirrored copies)" in capsys.readouterr().out
+    assert load_database(tmp_path / "db").meta["mirror"] is False
     assert main(["build", str(tmp_path / "none"), "--out", str(tmp_path / "x")]) == 2
     assert "neither a BVH file nor a folder" in capsys.readouterr().err
     assert main(["inspect", str(sources / "002_03.bvh")]) == 0
@@ -120,3 +123,59 @@ def test_jumps_in_the_data_split_clips():
     points[120, 9] += [0.3, 0.0, 0.0]            # a knee glitch: 0.3 m in 1/60 s
     assert continuous_runs(points, fps) == [slice(1, 120), slice(121, 200)]
     assert continuous_runs(points[:20], fps) == []  # nothing 0.5 s long
+
+
+def _swap_sides(names: tuple[str, ...]) -> list[int]:
+    """For each name, the index (in ``names``) of its left/right partner (itself on the midline)."""
+    opposite = {a: b for pair in MIRROR_PAIRS for a, b in (pair, pair[::-1])}
+    return [names.index(opposite.get(n, n)) for n in names]
+
+
+def test_mirror_keypoints_reflects_and_swaps_sides():
+    pose = np.arange(2 * 15 * 3, dtype=np.float64).reshape(2, 15, 3) + 1.0
+    mirrored = mirror_keypoints(pose)
+    for name in KEYPOINTS:
+        side = {"r": "l", "l": "r"}.get(name[0]) if name[1] == "_" else None
+        partner = f"{side}{name[1:]}" if side else name
+        np.testing.assert_array_equal(mirrored[:, KP[partner]], pose[:, KP[name]] * [-1, 1, 1])
+    assert mirrored[0, KP["l_wrist"], 0] == -pose[0, KP["r_wrist"], 0]
+    np.testing.assert_array_equal(mirror_keypoints(mirrored), pose)
+
+
+def test_mirrored_clip_is_the_mirror_image_of_the_original():
+    original, mirror = clips_from_bvh(SAMPLE_BVH / "002_01.bvh", SAMPLE_BVH, BuildConfig())
+    assert (original.name, mirror.name) == ("002_01", "002_01~mirror")
+    assert (original.mirrored, mirror.mirrored) == (False, True)
+    assert (mirror.source, mirror.source_fps, mirror.convention, mirror.credit) == \
+        (original.source, original.source_fps, original.convention, original.credit)
+    pos, mirror_pos = original.positions.astype(np.float64), mirror.positions.astype(np.float64)
+    assert np.abs(mirror_pos - pos).max() > 0.1  # a real walk is not its own mirror image
+    # Retargeting is mirror-equivariant: measured bit-identical on the bundled clips.
+    np.testing.assert_allclose(mirror_pos, mirror_keypoints(pos), rtol=0, atol=1e-6)
+    # Rotations: each joint's is its partner's mirrored, (w, x, y, z) → (w, x, -y, -z).
+    partner_quats = original.quaternions[:, _swap_sides(RIG_JOINTS)] * np.array([1, 1, -1, -1], np.float32)
+    np.testing.assert_allclose(mirror.quaternions, partner_quats, rtol=0, atol=1e-6)
+    for a, b, bone in [("r_hip", "r_knee", "thigh"), ("l_knee", "l_ankle", "shin"), ("r_elbow", "r_wrist", "forearm"),
+                       ("l_shoulder", "l_elbow", "upper_arm"), ("pelvis", "neck", "torso")]:
+        np.testing.assert_allclose(np.linalg.norm(mirror_pos[:, KP[b]] - mirror_pos[:, KP[a]], axis=-1),
+                                   BONE_LENGTHS_M[bone], atol=1e-5)
+
+
+def test_mirror_doubles_the_database_and_stays_out_of_ground_truth(sources, tmp_path, built):
+    _, mirrored_db = built
+    build([str(sources)], tmp_path / "plain", _config(mirror=False))
+    plain = load_database(tmp_path / "plain")
+    assert (mirrored_db.meta["mirror"], plain.meta["mirror"]) == (True, False)
+    assert mirrored_db.n_frames == 2 * plain.n_frames and mirrored_db.n_projections == 2 * plain.n_projections
+    assert mirrored_db.clip_mirrored.tolist() == [False, True, False, True] and not plain.clip_mirrored.any()
+    assert mirrored_db.clip_name == ["002_03", "002_03~mirror", "002_04", "002_04~mirror"]
+    for c in range(plain.n_clips):
+        first, n = plain.clip_first_frame[c], plain.clip_n_frames[c]
+        original = mirrored_db.clip_first_frame[2 * c]
+        mirror = mirrored_db.clip_first_frame[2 * c + 1]
+        np.testing.assert_array_equal(mirrored_db.positions[original:original + n], plain.positions[first:first + n])
+        np.testing.assert_allclose(mirrored_db.positions[mirror:mirror + n],
+                                   mirror_keypoints(plain.positions[first:first + n]), rtol=0, atol=1e-6)
+    truth = process_clip(sources / "002_04.bvh", sources, _config())
+    assert (truth.name, truth.mirrored) == ("002_04", False)
+    np.testing.assert_array_equal(truth.positions, plain.positions[plain.clip_first_frame[1]:])

@@ -32,6 +32,7 @@ def make_db(seed: int = 0, counts=(4, 2, 5), n_rig: int = 3, dims: int = 3,
         clip_first_frame=first,
         clip_convention=["cmu"] * n_clips,
         clip_credit=["CC0 — test"] * n_clips,
+        clip_mirrored=np.arange(n_clips) % 2 == 1,
         frame_clip=np.repeat(np.arange(n_clips, dtype=np.int32), counts),
         frame_index=(np.arange(n_frames) - np.repeat(first, counts)).astype(np.int32),
         quaternions=rng.standard_normal((n_frames, n_rig, 4), dtype=np.float32),
@@ -189,6 +190,10 @@ LOAD_ERRORS = {
         lambda p: edit_manifest(p, lambda m: m.update(schema_version=SCHEMA_VERSION + 1)),
         rf"schema version {SCHEMA_VERSION + 1}, this code reads version {SCHEMA_VERSION}; "
         r"rebuild the database with `mocapdb build`",
+    ),
+    "older schema version (no clips.mirrored)": (
+        lambda p: edit_manifest(p, lambda m: m.update(schema_version=SCHEMA_VERSION - 1)),
+        rf"schema version {SCHEMA_VERSION - 1}, this code reads version {SCHEMA_VERSION}; rebuild",
     ),
     "missing table": (lambda p: (p / "frames.parquet").unlink(), r"frames.parquet: table file missing"),
     "truncated": (lambda p: _cut_in_half(p, fix_manifest=False),

@@ -24,7 +24,7 @@ def _db_views(db, clip: int, yaw_index: int, camera: Camera, turn_deg: float = 0
 def test_database_views_are_found_exactly(small_db, search):
     camera = Camera(**small_db.meta["camera"])
     frames, truth, first = _db_views(small_db, clip=1, yaw_index=7, camera=camera)
-    engine = Engine(small_db, EngineConfig(search=search, smoothing=False, refine_yaw=False, fps=24.0,
+    engine = Engine(small_db, EngineConfig(search=search, smoothing=False, refine_yaw=False, refine=False, fps=24.0,
                                            focal_px=camera.focal_px,
                                            image_size=(camera.width_px, camera.height_px)))
     outputs = [engine.step(f) for f in frames]
@@ -46,7 +46,7 @@ def test_yaw_between_database_yaws_is_refined(small_db, turn):
     frames, _, _ = _db_views(small_db, clip=1, yaw_index=7, camera=camera, turn_deg=turn)
     yaw = small_db.meta["yaws_deg"][7] + turn
     for refine, tolerance in ((True, 1.5), (False, abs(turn) + 0.01)):
-        engine = Engine(small_db, EngineConfig(smoothing=False, refine_yaw=refine))
+        engine = Engine(small_db, EngineConfig(smoothing=False, refine_yaw=refine, refine=False))
         yaws = [p.match.yaw_deg for f in frames for p in engine.step(f)]
         errors = np.abs(np.array(yaws) - yaw)
         assert np.median(errors) <= tolerance
