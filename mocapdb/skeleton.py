@@ -183,15 +183,16 @@ def retarget(points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return quats, pose_from_rotations(quats, _point(points_m, "pelvis"))
 
 
-def pose_from_rotations(quats: np.ndarray, pelvis_m: np.ndarray) -> np.ndarray:
-    """Universal keypoints ``[F, 15, 3]`` from local rotations ``[F, R, 4]`` and pelvis ``[F, 3]``."""
+def pose_from_rotations(quats: np.ndarray, pelvis_m: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """Universal keypoints ``[F, 15, 3]`` from local rotations ``[F, R, 4]`` and pelvis ``[F, 3]``;
+    ``scale`` multiplies every bone (a subject's height / :data:`UNIVERSAL_HEIGHT_M`)."""
     quats = np.ascontiguousarray(quats, dtype=np.float64).reshape(-1, N_RIG_JOINTS, 4)
     pelvis = np.ascontiguousarray(pelvis_m, dtype=np.float64).reshape(-1, 3)
-    return _rig_fk(quats, pelvis, NODE_PARENTS, NODE_OFFSETS_M, NODE_JOINT, NODE_OF_POINT)
+    return _rig_fk(quats, pelvis, float(scale), NODE_PARENTS, NODE_OFFSETS_M, NODE_JOINT, NODE_OF_POINT)
 
 
 @njit(cache=True)
-def _rig_fk(quats, pelvis, parents, offsets, node_joint, node_of_point):
+def _rig_fk(quats, pelvis, scale, parents, offsets, node_joint, node_of_point):
     """Forward kinematics of the rig, frame by frame (numba: fast for one frame and for many)."""
     n_frames, n_nodes = quats.shape[0], parents.shape[0]
     out = np.empty((n_frames, node_of_point.shape[0], 3))
@@ -199,7 +200,7 @@ def _rig_fk(quats, pelvis, parents, offsets, node_joint, node_of_point):
     g_pos = np.empty((n_nodes, 3))
     local = np.empty((3, 3))
     for f in range(n_frames):
-        rig_globals_into(quats[f], pelvis[f], 1.0, parents, offsets, node_joint, local, g_rot, g_pos)
+        rig_globals_into(quats[f], pelvis[f], scale, parents, offsets, node_joint, local, g_rot, g_pos)
         for k in range(node_of_point.shape[0]):
             out[f, k] = g_pos[node_of_point[k]]
     return out
@@ -255,16 +256,18 @@ BVH_ROTATION_CHANNELS = ["Zrotation", "Yrotation", "Xrotation"]
 BVH_UNITS = {"m": 1.0, "cm": 100.0}
 
 
-def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str = "m") -> Bvh:
+def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str = "m",
+                  body_scale: float = 1.0) -> Bvh:
     """A BVH of the universal rig: root position and every joint's rotation per frame.
 
-    ``unit`` is the BVH's length unit (``"m"`` or ``"cm"``).
+    ``unit`` is the BVH's length unit (``"m"`` or ``"cm"``); ``body_scale`` multiplies every
+    bone (a subject's height / :data:`UNIVERSAL_HEIGHT_M`).
     """
     scale = BVH_UNITS[unit]
     names = [n if n not in END_SITES else f"{RIG_NODES[NODE_NAMES.index(n)][1]}_End" for n in NODE_NAMES]
     channels = [([] if n in END_SITES else BVH_ROTATION_CHANNELS.copy()) for n in NODE_NAMES]
     channels[0] = ["Xposition", "Yposition", "Zposition"] + BVH_ROTATION_CHANNELS
-    skeleton = Bvh(names, NODE_PARENTS.copy(), NODE_OFFSETS_M * scale, channels,
+    skeleton = Bvh(names, NODE_PARENTS.copy(), NODE_OFFSETS_M * (scale * body_scale), channels,
                    np.array([n in END_SITES for n in NODE_NAMES]), 1.0 / fps,
                    np.zeros((quats.shape[0], 0)))
     local = np.broadcast_to(np.eye(3), (quats.shape[0], len(NODE_NAMES), 3, 3)).copy()

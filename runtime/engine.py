@@ -22,6 +22,7 @@ from mocapdb.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
 from mocapdb.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
 from mocapdb.skeleton import N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, UNIVERSAL_HEIGHT_M, pose_from_rotations
 
+from .body_size import CameraTilt, FloorScale
 from .filters import (REFINED_ROOT_DEFAULTS, REFINED_ROTATION_DEFAULTS, ROOT_DEFAULTS, OneEuroFilter,
                       OneEuroParams, QuaternionOneEuroFilter)
 from .refine import JointLimits, RefineParams, Refiner
@@ -68,6 +69,10 @@ class EngineConfig:
             self.root_filter = REFINED_ROOT_DEFAULTS if self.refine else ROOT_DEFAULTS
         if self.subject_height_m is not None and not 0.5 <= self.subject_height_m <= 2.5:
             raise ValueError(f"subject height must be between 0.5 and 2.5 m, not {self.subject_height_m}")
+        if self.camera_height_m is not None and not self.refine:
+            raise ValueError("a camera height needs the refinement (it levels the floor): drop --no-refine")
+        if self.camera_height_m is not None and not 0.1 <= self.camera_height_m <= 50.0:
+            raise ValueError(f"camera height must be between 0.1 and 50 m, not {self.camera_height_m}")
 
 
 @dataclass
@@ -89,6 +94,7 @@ class PersonPose:
     quaternions: np.ndarray  # [R, 4] local rotations; the root's is relative to the view frame
     root_m: np.ndarray       # [3] pelvis, camera-aligned frame, metres
     match: Match
+    height_m: float = UNIVERSAL_HEIGHT_M  # the body's standing height (the skeleton's scale)
 
 
 @dataclass
@@ -99,6 +105,18 @@ class TrackRecording:
     first_frame: int
     quaternions: list[np.ndarray] = field(default_factory=list)  # [R, 4] view frame
     root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] view frame
+    scales: list[float] = field(default_factory=list)            # body scale (height / 1.75 m)
+
+    def motion(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """Rotations ``[F, R, 4]``, root ``[F, 3]`` and the one body scale of the track's BVH.
+
+        The image fixes a body only up to a scale about the camera centre, so where the scale
+        estimate changed during the track (``--camera-height``) each frame's root is moved to
+        the track's final scale: the BVH keeps one skeleton and still matches the image.
+        """
+        scales = np.array(self.scales)
+        final = float(scales[-1])
+        return np.array(self.quaternions), np.array(self.root_view_m) * (final / scales)[:, None], final
 
 
 class _TrackState:
@@ -108,6 +126,10 @@ class _TrackState:
         self.history = np.zeros((window, N_RIG_JOINTS, 4))  # last reconstructed rotations, newest first
         self.n_history = 0
         self.scale = (config.subject_height_m or UNIVERSAL_HEIGHT_M) / UNIVERSAL_HEIGHT_M  # body size
+        self.tilt = CameraTilt()
+        self.floor = None
+        if config.camera_height_m is not None and config.subject_height_m is None:
+            self.floor = FloorScale(config.camera_height_m)
         self.rotations = QuaternionOneEuroFilter(config.rotation_filter)
         self.root = OneEuroFilter(config.root_filter)
         self.recording = TrackRecording(track, frame)
@@ -130,8 +152,10 @@ class _TrackState:
             if rec.quaternions:
                 rec.quaternions.append(rec.quaternions[-1])
                 rec.root_view_m.append(rec.root_view_m[-1])
+                rec.scales.append(rec.scales[-1])
         rec.quaternions.append(quats)
         rec.root_view_m.append(root_view)
+        rec.scales.append(self.scale)
         self.last_frame = frame
 
 
@@ -209,7 +233,25 @@ class Engine:
 
     def _person(self, state: _TrackState, points_px: np.ndarray, confidence: np.ndarray,
                 frame_index: int, t_s: float) -> PersonPose:
-        visible = confidence > 0
+        quats, root_view, match = self._retrieve(state, points_px, confidence > 0)
+        if self.refiner is not None:
+            root_view = self._fit(state, quats, root_view, points_px, confidence, frame_index)
+        if not self.config.translation:
+            root_view = np.zeros(3)
+        state.remember(quats)
+        if self.config.smoothing:
+            quats = state.rotations(quats, t_s)
+            root_view = state.root(root_view, t_s)
+        state.record(frame_index, quats, root_view)
+        joints_view = pose_from_rotations(quats[None], root_view[None], state.scale)[0]
+        return PersonPose(state.recording.track, joints_view * CAMERA_FROM_VIEW, quats,
+                          root_view * CAMERA_FROM_VIEW, match, state.scale * UNIVERSAL_HEIGHT_M)
+
+    def _retrieve(self, state: _TrackState, points_px: np.ndarray,
+                  visible: np.ndarray) -> tuple[np.ndarray, np.ndarray, Match]:
+        """The method's pose: search, Eq. 2 choice, yaw refinement. Returns its rotations ``[R, 4]``
+        (root turned by the yaw), the root seen at the image's size for the track's body scale,
+        and the match."""
         query, _, _ = normalize_pose_2d(points_px, visible)
         rows, dist = self._search(query, visible)
         best = self._choose(state, rows, dist)
@@ -218,21 +260,24 @@ class Engine:
         yaw_deg = self._refined_yaw(f, v, query, visible)
         quats = yawed_rotations(self.db_quats, f, yaw_quaternion(yaw_deg))
         root_view = self._root_view(f, yaw_deg, points_px, visible) * state.scale
-        if self.refiner is not None:
-            self.refiner(quats, root_view, state.scale, points_px, confidence, quats.copy(),
-                         state.previous(frame_index), self.config.focal_px, self.center_px)
-        if not self.config.translation:
-            root_view = np.zeros(3)
-        state.remember(quats)
-        if self.config.smoothing:
-            quats = state.rotations(quats, t_s)
-            root_view = state.root(root_view, t_s)
-        state.record(frame_index, quats, root_view)
-        joints_view = pose_from_rotations(quats[None], root_view[None])[0]
         clip = int(self.db.frame_clip[f])
-        match = Match(self.db.clip_name[clip], int(self.db.frame_index[f]), yaw_deg, float(dist[best]))
-        return PersonPose(state.recording.track, joints_view * CAMERA_FROM_VIEW, quats,
-                          root_view * CAMERA_FROM_VIEW, match)
+        return quats, root_view, Match(self.db.clip_name[clip], int(self.db.frame_index[f]), yaw_deg, float(dist[best]))
+
+    def _fit(self, state: _TrackState, quats: np.ndarray, root_view: np.ndarray, points_px: np.ndarray,
+             confidence: np.ndarray, frame_index: int) -> np.ndarray:
+        """Refine ``quats`` (in place) and the root against the keypoints; with a floor, update the
+        track's body scale. Returns the root (view frame, metres)."""
+        upright_root = quats[0].copy()
+        state.tilt.tilt_root(upright_root, quats[0])
+        self.refiner(quats, root_view, state.scale, points_px, confidence, quats.copy(),
+                     state.previous(frame_index), self.config.focal_px, self.center_px)
+        state.tilt.update(quats[0], upright_root)
+        if state.floor is not None:
+            joints = pose_from_rotations(quats[None], root_view[None], state.scale)[0]
+            scale = state.floor.update(state.tilt.up, joints, state.scale)
+            root_view = root_view * (scale / state.scale)
+            state.scale = scale
+        return root_view
 
     def _refined_yaw(self, frame: int, yaw: int, query: np.ndarray, visible: np.ndarray) -> float:
         """The matched yaw, refined between the database's yaws unless turned off (degrees)."""

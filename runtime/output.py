@@ -34,6 +34,7 @@ def person_record(pose: PersonPose) -> dict:
         "joints": _rounded(pose.joints_m, 4),
         "quaternions": _rounded(pose.quaternions, 5),
         "root": _rounded(pose.root_m, 4),
+        "height": round(pose.height_m, 3),
         "match": match,
     }
 
@@ -59,7 +60,8 @@ def write_track_bvhs(recordings: list[TrackRecording], out_dir: str | Path, fps:
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     for rec in recordings:
-        bvh = universal_bvh(np.array(rec.quaternions), np.array(rec.root_view_m), fps, unit)
+        quats, root_view_m, body_scale = rec.motion()
+        bvh = universal_bvh(quats, root_view_m, fps, unit, body_scale)
         path = out_dir / f"track_{rec.track}.bvh"
         write_bvh(path, bvh)
         paths.append(path)

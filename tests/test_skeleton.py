@@ -68,10 +68,13 @@ def test_resample_matches_linear_interpolation():
     np.testing.assert_allclose(out[:, 1], np.interp(t24, t60, signal[:, 1]), atol=1e-12)
 
 
-@pytest.mark.parametrize("unit, scale", [("m", 1.0), ("cm", 100.0)])
-def test_universal_bvh_reproduces_positions(unit, scale):
+@pytest.mark.parametrize("unit, scale, body", [("m", 1.0, 1.0), ("cm", 100.0, 1.0), ("m", 1.0, 0.9)])
+def test_universal_bvh_reproduces_positions(unit, scale, body):
     quats, pos = retarget(_noisy_people(40, seed=3))
-    bvh = parse_bvh(format_bvh(universal_bvh(quats, pos[:, PELVIS], fps=30.0, unit=unit)))
+    pos = pose_from_rotations(quats, pos[:, PELVIS], scale=body)
+    np.testing.assert_allclose(np.linalg.norm(pos[:, KP["r_knee"]] - pos[:, KP["r_hip"]], axis=-1),
+                               body * BONE_LENGTHS_M["thigh"], atol=1e-9)
+    bvh = parse_bvh(format_bvh(universal_bvh(quats, pos[:, PELVIS], fps=30.0, unit=unit, body_scale=body)))
     fk, _ = forward_kinematics(bvh)
     names = ["r_hip", "r_knee", "r_knee_End", "l_elbow_End", "neck_End", "pelvis"]
     points = ["r_hip", "r_knee", "r_ankle", "l_wrist", "head", "pelvis"]

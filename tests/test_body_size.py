@@ -1,0 +1,73 @@
+"""Body size: a given subject height and a camera height (feet on the floor) put a small person at
+the right depth; BVH output keeps one skeleton of that size."""
+import numpy as np
+import pytest
+
+from mocapdb.bvh import forward_kinematics, read_bvh
+from mocapdb.geometry import axis_rotation_matrices, yaw_matrix
+from mocapdb.keypoints import KeypointFrame, Person
+from mocapdb.skeleton import KP, PELVIS, UNIVERSAL_HEIGHT_M
+from runtime.engine import Engine, EngineConfig
+from runtime.output import write_track_bvhs
+
+FOCAL, SIZE = 1000.0, (1920, 1080)
+
+
+def _seen(db, clip, height_m, camera_height_m, pitch_deg, distance_m=4.0):
+    """A database clip scaled to ``height_m``, turned 40°, seen by a camera ``camera_height_m`` above
+    the floor and pitched down by ``pitch_deg``. Returns frames and the camera-aligned truth."""
+    first, n = db.clip_first_frame[clip], db.clip_n_frames[clip]
+    world = db.positions[first:first + n].astype(np.float64) * (height_m / UNIVERSAL_HEIGHT_M)  # floor at y = 0
+    centre = world[:, PELVIS].mean(axis=0) * [1, 0, 1]
+    world = (world - centre) @ yaw_matrix(40.0).T
+    view = np.stack([world[..., 0], world[..., 1] - camera_height_m, world[..., 2] - distance_m], axis=-1)
+    view = view @ axis_rotation_matrices("X", np.radians(pitch_deg)).T
+    px = np.stack([SIZE[0] / 2 + FOCAL * view[..., 0] / -view[..., 2],
+                   SIZE[1] / 2 - FOCAL * view[..., 1] / -view[..., 2]], axis=-1)[:, :14]
+    frames = [KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9))]) for i in range(n)]
+    return frames, view * [1.0, 1.0, -1.0]
+
+
+def _run(db, frames, **options):
+    engine = Engine(db, EngineConfig(fps=24.0, focal_px=FOCAL, image_size=SIZE, **options))
+    poses = [p for f in frames for p in engine.step(f)]
+    return engine, poses
+
+
+@pytest.mark.parametrize("pitch", [0.0, 12.0])
+def test_subject_height_puts_a_small_person_at_the_right_depth(small_db, pitch):
+    frames, truth = _seen(small_db, clip=0, height_m=1.5, camera_height_m=1.4, pitch_deg=pitch)
+    depth = truth[1:, PELVIS, 2]
+    errors = {}
+    for name, height in (("given", 1.5), ("assumed 1.75 m", None)):
+        _, poses = _run(small_db, frames, subject_height_m=height)
+        roots = np.array([p.root_m for p in poses])
+        errors[name] = np.median(np.linalg.norm(roots - truth[1:, PELVIS], axis=-1) / depth)
+        if height:
+            assert all(p.height_m == pytest.approx(1.5) for p in poses)
+    assert errors["given"] < 0.05
+    assert errors["assumed 1.75 m"] > 0.1  # a 1.75 m body at this image size is 17 % further away
+
+
+@pytest.mark.parametrize("pitch", [0.0, 12.0])
+def test_camera_height_measures_the_person_from_the_feet(small_db, pitch, tmp_path):
+    frames, truth = _seen(small_db, clip=0, height_m=1.5, camera_height_m=1.4, pitch_deg=pitch)
+    engine, poses = _run(small_db, frames, camera_height_m=1.4)
+    assert poses[-1].height_m == pytest.approx(1.5, rel=0.05)
+    late = slice(len(poses) // 2, None)
+    roots = np.array([p.root_m for p in poses])[late]
+    depth = truth[1:, PELVIS, 2][late]
+    assert np.median(np.linalg.norm(roots - truth[1:, PELVIS][late], axis=-1) / depth) < 0.05
+    # The BVH holds one skeleton of the final size, its roots moved to that size.
+    (path,) = write_track_bvhs(engine.finish(), tmp_path, 24.0)
+    bvh = read_bvh(path)
+    fk, _ = forward_kinematics(bvh)
+    thigh = np.linalg.norm(fk[:, bvh.index("r_knee")] - fk[:, bvh.index("r_hip")], axis=-1)
+    np.testing.assert_allclose(thigh, 0.43 * poses[-1].height_m / UNIVERSAL_HEIGHT_M, rtol=1e-4)
+    final_root = bvh.motion[-1, :3]
+    np.testing.assert_allclose(final_root * [1, 1, -1], poses[-1].root_m, atol=0.05)
+
+
+def test_camera_height_needs_the_refinement(small_db):
+    with pytest.raises(ValueError, match="refinement"):
+        EngineConfig(camera_height_m=1.5, refine=False)
