@@ -18,6 +18,13 @@ KEYPOINTS: tuple[str, ...] = (
     "head", "neck", "r_shoulder", "r_elbow", "r_wrist", "l_shoulder", "l_elbow", "l_wrist",
     "r_hip", "r_knee", "r_ankle", "l_hip", "l_knee", "l_ankle", "pelvis")
 N_KEYPOINTS_2D = 14
+# Lines drawn between the 14 keypoints in pictures of a pose (pairs of KEYPOINTS indices).
+DRAWING_LINES: tuple[tuple[int, int], ...] = tuple(
+    (KEYPOINTS.index(a), KEYPOINTS.index(b)) for a, b in (
+        ("head", "neck"), ("neck", "r_shoulder"), ("r_shoulder", "r_elbow"), ("r_elbow", "r_wrist"),
+        ("neck", "l_shoulder"), ("l_shoulder", "l_elbow"), ("l_elbow", "l_wrist"),
+        ("r_shoulder", "r_hip"), ("l_shoulder", "l_hip"), ("r_hip", "l_hip"), ("r_hip", "r_knee"),
+        ("r_knee", "r_ankle"), ("l_hip", "l_knee"), ("l_knee", "l_ankle")))
 N_POINTS = len(KEYPOINTS)
 PELVIS = KEYPOINTS.index("pelvis")
 KP = {name: i for i, name in enumerate(KEYPOINTS)}

@@ -3,7 +3,8 @@
     python tools/bench_runtime.py --db eval.db [--heldout ../shared/data/cmu_bvh/007_*.bvh]
 
 * throughput: person-frames/s of ``Engine.step`` (parsed keypoints to smoothed skeleton, one
-  thread), clustered and exact search, on held-out clips rendered from off-grid yaws;
+  thread) with the 2D refinement (default) and without (``--no-refine``: the method as
+  published), and exact search without refinement, on held-out clips rendered from off-grid yaws;
 * search: recall@1 of the clustered search against exact search and the time of each;
 * live: 4 people per frame streamed at 30 fps over TCP on loopback into the live loop;
   latency p50/p99 from a message's arrival to its output line;
@@ -42,8 +43,8 @@ def rendered_sequences(truths, yaws=(6.0, 96.0, 186.0, 276.0), noise_px: float =
     return [render(view_of(t, yaw, 1.5, 5.0), scenario, 1000.0, (1920, 1080), rng) for t in truths for yaw in yaws]
 
 
-def throughput(db, sequences, search: str) -> float:
-    config = EngineConfig(search=search, fps=24.0)
+def throughput(db, sequences, search: str, refine: bool) -> float:
+    config = EngineConfig(search=search, fps=24.0, refine=refine)
     engine = Engine(db, config)
     for frame in sequences[0][:5]:
         engine.step(frame)  # compile / warm up
@@ -129,7 +130,10 @@ def main() -> int:
     truths = load_heldout(args.heldout, 24.0)
     sequences = rendered_sequences(truths)
     report = {"database_projections": db.n_projections}
-    report["throughput_person_frames_per_s"] = {s: round(throughput(db, sequences, s), 1) for s in ("clustered", "exact")}
+    report["throughput_person_frames_per_s"] = {
+        name: round(throughput(db, sequences, search, refine), 1)
+        for name, search, refine in (("refined", "clustered", True), ("published (--no-refine)", "clustered", False),
+                                     ("published, exact search", "exact", False))}
     queries = [f.people[0] for seq in sequences for f in seq[::3]]
     report["search"] = search_benchmark(Engine(db), queries, 0.3)
     report["live_4_people_30fps"] = live_latency(db, sequences)
