@@ -103,9 +103,13 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-refine", action="store_true",
                    help="output the retrieved database pose as it is (the method as published) instead of "
                         "fitting it to the keypoints")
-    p.add_argument("--subject-height", type=float, metavar="METRES",
-                   help="the person's standing height in metres: sets the skeleton's size and so the depth "
-                        "(default 1.75, the universal skeleton)")
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--subject-height", type=float, metavar="METRES",
+                      help="the person's standing height in metres: sets the skeleton's size and so the depth "
+                           "(default 1.75, the universal skeleton)")
+    size.add_argument("--camera-height", type=float, metavar="METRES",
+                      help="the camera's height above a flat floor the people stand on: each person's size and "
+                           "depth are measured from their feet (data_specs/stream_output.md)")
     p.add_argument("--no-smoothing", action="store_true", help="turn the 1€ filters off")
     p.add_argument("--no-translation", action="store_true", help="keep the pelvis at the origin")
     p.add_argument("--no-yaw-refinement", action="store_true", help="keep the database's yaw grid (12° steps)")
@@ -136,7 +140,8 @@ def _engine(args: argparse.Namespace):
                               window_weights=weights, weight_2d=args.weight_2d, focal_px=args.focal,
                               image_size=(width, height), fps=args.fps, translation=not args.no_translation,
                               refine_yaw=not args.no_yaw_refinement, refine=not args.no_refine,
-                              subject_height_m=args.subject_height, smoothing=not args.no_smoothing,
+                              subject_height_m=args.subject_height, camera_height_m=args.camera_height,
+                              smoothing=not args.no_smoothing,
                               rotation_filter=rotation_filter)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
@@ -231,12 +236,30 @@ def _run_live(args: argparse.Namespace) -> int:
 def _add_eval(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="accuracy and speed on held-out BVH clips (JSON report)",
                        description="Render held-out clips (not in the database) to 2D from yaws off the "
-                                   "database grid, several camera heights and noise models, reconstruct them "
-                                   "and print a JSON report.")
-    p.add_argument("--db", required=True, help="database built WITHOUT the held-out clips")
-    p.add_argument("--bvh", nargs="+", required=True, help="held-out BVH files or folders")
-    p.add_argument("--out", help="also write the report to this JSON file")
-    p.add_argument("--quick", action="store_true", help="two yaws and two scenarios only")
+                                   "database grid, several camera heights, pitches and noise models, "
+                                   "reconstruct them with the engine refined and as published, and report "
+                                   "accuracy against the truth and against the database's own floor. Either "
+                                   "one database (--db, --bvh: JSON report on stdout) or "
+                                   "--leave-one-subject-out (a database per subject; table on stdout).")
+    p.add_argument("--db", help="database built WITHOUT the held-out clips")
+    p.add_argument("--bvh", nargs="+", help="held-out BVH files or folders")
+    p.add_argument("--leave-one-subject-out", nargs="+", metavar="SOURCE", dest="loso",
+                   help="BVH files or folders named SUBJECT_TRIAL.bvh: build a database without each "
+                        "subject in turn (in a temporary folder) and evaluate that subject on it")
+    p.add_argument("--subjects", help="with --leave-one-subject-out: subjects to hold out, e.g. 1,2 (default all)")
+    p.add_argument("--max-clips", type=int, default=8,
+                   help="with --leave-one-subject-out: clips per subject, evenly spaced (default 8)")
+    p.add_argument("--max-frames", type=int, default=240,
+                   help="with --leave-one-subject-out: frames per clip from its middle, at 24 fps (default 240)")
+    p.add_argument("--clusters", type=int, default=500, help="with --leave-one-subject-out: k-means K (default 500)")
+    p.add_argument("--landmarks", type=int, default=2000,
+                   help="with --leave-one-subject-out: landmark-MDS landmarks (default 2000)")
+    p.add_argument("--workers", type=int, default=2,
+                   help="with --leave-one-subject-out: processes reading BVH files per build (default 2)")
+    p.add_argument("--out", help="also write the JSON report to this file")
+    p.add_argument("--quick", action="store_true",
+                   help="one database: two yaws and two scenarios; leave-one-subject-out: 2 clips per "
+                        "subject, 120 frames, two scenarios")
     p.add_argument("--weight-2d", type=float, default=0.5, help="as in reconstruct")
     p.add_argument("--search", choices=("clustered", "exact"), default="clustered")
     p.set_defaults(run=_run_eval)
@@ -250,17 +273,39 @@ def _run_eval(args: argparse.Namespace) -> int:
     from runtime.engine import EngineConfig
     from runtime.evaluate import EvalConfig, evaluate
 
-    from .builder import find_sources
+    from .builder import BuildConfig, find_sources
     from .database import load_database
+    from .errors import UsageError
 
-    config = EvalConfig(engine=EngineConfig(weight_2d=args.weight_2d, search=args.search))
-    if args.quick:
-        config = replace(config, yaws_deg=config.yaws_deg[:2], scenarios=config.scenarios[:2])
-    files = [f for f, _ in find_sources(args.bvh)]
-    report = json.dumps(evaluate(load_database(args.db), files, config), indent=2)
-    print(report)
+    engine = EngineConfig(weight_2d=args.weight_2d, search=args.search)
+    if args.loso:
+        from runtime.evaluate_loso import LosoConfig, format_table, leave_one_subject_out
+
+        if args.db or args.bvh:
+            raise UsageError("--leave-one-subject-out builds its own databases: leave out --db and --bvh")
+        try:
+            subjects = tuple(int(s) for s in args.subjects.split(",")) if args.subjects else None
+        except ValueError:
+            raise UsageError("--subjects takes subject numbers separated by commas, e.g. 1,2") from None
+        if min(args.max_clips, args.max_frames, args.clusters, args.landmarks, args.workers) < 1:
+            raise UsageError("--max-clips, --max-frames, --clusters, --landmarks and --workers must be positive")
+        build = BuildConfig(clusters=args.clusters, landmarks=args.landmarks, workers=args.workers)
+        loso = LosoConfig.quick() if args.quick else LosoConfig(max_clips=args.max_clips, max_frames=args.max_frames)
+        loso = replace(loso, subjects=subjects, build=build, eval=replace(loso.eval, engine=engine))
+        report = leave_one_subject_out(args.loso, loso)
+        print(format_table(report))
+        text = json.dumps(report, indent=2)
+    else:
+        if not args.db or not args.bvh:
+            raise UsageError("give --db and --bvh, or --leave-one-subject-out SOURCES")
+        config = EvalConfig(engine=engine)
+        if args.quick:
+            config = replace(config, yaws_deg=config.yaws_deg[:2], scenarios=config.scenarios[:2])
+        files = [f for f, _ in find_sources(args.bvh)]
+        text = json.dumps(evaluate(load_database(args.db), files, config), indent=2)
+        print(text)
     if args.out:
-        Path(args.out).write_text(report + "\n")
+        Path(args.out).write_text(text + "\n")
     return 0
 
 

@@ -2,17 +2,26 @@
 
 Held-out BVH clips (``data_specs/evaluation_split.md``; the database must be built without them)
 are retargeted like database clips, turned by yaws off the database's grid, seen by a pinhole
-camera at several heights, perturbed by detector-like noise, and run through the engine one
-(yaw, clip) sequence at a time. Report (JSON):
+camera at several heights and pitches, perturbed by detector-like noise, and run through the
+engine one (yaw, clip) sequence at a time, twice on the same rendered frames: refined (the
+engine's default) and as published (``EngineConfig(refine=False)``). Per scenario and variant
+(JSON):
 
-* MPJPE (cm): pelvis-aligned, in the camera-aligned frame, so a wrong yaw counts;
-* PA-MPJPE (cm) after a similarity alignment; yaw error (degrees) of the facing direction;
-* acceleration error (mm/frame²): jitter against the truth;
-* clustered-vs-exact search: recall@1 (the exact nearest projection is among the clustered
-  candidates) and the time of each, measured in separate passes over the same queries;
-* engine throughput (person-frames/s, one thread, parsed keypoints to smoothed skeleton);
-* the method's two-view test: one clip seen by two cameras 135° and 75° apart, reconstructed
-  independently, compared in the root frame (root rotation and translation removed).
+* MPJPE (cm): pelvis-aligned, in the camera-aligned frame, so a wrong yaw (or an unseen camera
+  pitch) counts; PA-MPJPE (cm) after a similarity alignment; yaw error (degrees) of the facing
+  direction; acceleration error (mm/frame²): jitter against the truth;
+* the database floor (cm, :mod:`runtime.evaluate_floor`): per frame the best database pose under
+  the best vertical turn, i.e. what no retrieval of database poses can beat; ``engine_minus_floor``
+  is what the engine adds on top of the database, ``frames_below_floor`` the share of frames the
+  engine beat it (possible only by leaving the database: smoothing or 2D refinement);
+* reprojection error (% of the truth's 2D box height): the output joints projected through the
+  same camera, against the noise-free projection of the truth and against the (noisy) input;
+* root error: the output pelvis against the true pelvis (metres, and % of the true depth);
+* clustered-vs-exact search: recall@1 and timing; engine throughput; the method's two-view test
+  (one clip seen by two cameras 135° and 75° apart, compared with root rotation and translation
+  removed).
+
+Leave-one-subject-out evaluation (databases built per fold): :mod:`runtime.evaluate_loso`.
 """
 from __future__ import annotations
 
@@ -26,16 +35,19 @@ from tqdm import tqdm
 
 from mocapdb.builder import BuildConfig, process_clip
 from mocapdb.database import MotionDatabase
-from mocapdb.geometry import normalize_pose_2d, project_pinhole, yaw_matrix
+from mocapdb.geometry import normalize_pose_2d, yaw_matrix
 from mocapdb.keypoints import KeypointFrame, Person
 from mocapdb.metrics import acceleration_error, mpjpe, pa_mpjpe
 from mocapdb.skeleton import KP, N_KEYPOINTS_2D, PELVIS, pose_from_rotations
 
 from .engine import Engine, EngineConfig
+from .evaluate_floor import FloorIndex, database_floor
 from .search import search_clustered, search_exact
 
 SWAP_PAIRS = [(2, 5), (3, 6), (4, 7), (8, 11), (9, 12), (10, 13)]  # right/left keypoint pairs
 IMAGE_HEIGHT_PX = 1080
+UNIVERSAL_HEIGHT_M = 1.75   # the database skeleton's height (data_specs/skeleton.md)
+VARIANTS = (("published", False), ("refined", True))  # report name, EngineConfig.refine
 
 
 @dataclass(frozen=True)
@@ -47,6 +59,9 @@ class Scenario:
     noise_px: float = 0.0       # Gaussian σ, pixels of a 1080-pixel-high image
     dropout: float = 0.0        # probability that a keypoint is missing
     swap: float = 0.0           # probability per frame that left and right are swapped
+    pitch_deg: float = 0.0      # camera tilted down by this angle about its x axis
+    subject_height_m: float = UNIVERSAL_HEIGHT_M  # truth scaled by this / 1.75 before rendering
+    height_given: bool = False  # the engine is told subject_height_m (EngineConfig.subject_height_m)
 
 
 DEFAULT_SCENARIOS = (
@@ -55,6 +70,8 @@ DEFAULT_SCENARIOS = (
     Scenario("clean, camera 1.0 m", camera_height_m=1.0),
     Scenario("clean, camera 2.2 m", camera_height_m=2.2),
     Scenario("sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05),
+    Scenario("clean, camera 1.5 m pitched 15 deg", pitch_deg=15.0),
+    Scenario("clean, subject 1.55 m, height given", subject_height_m=1.55, height_given=True),
 )
 
 
@@ -63,8 +80,10 @@ class EvalConfig:
     yaws_deg: tuple[float, ...] = (6.0, 51.0, 99.0, 141.0, 186.0, 231.0, 279.0, 321.0)  # 3° or 6° off the 12° grid
     scenarios: tuple[Scenario, ...] = DEFAULT_SCENARIOS
     fps: float = 24.0
-    camera_distance_m: float = 5.0   # from the clip's mean pelvis (horizontal)
+    camera_distance_m: float = 5.0   # from the clip's mean pelvis (horizontal), at least ...
+    min_clearance_m: float = 3.0     # ... and far enough that every pelvis of the turned clip is this far in front
     focal_px: float = 1000.0
+    image_size: tuple[int, int] = (1920, 1080)
     seed: int = 0
     engine: EngineConfig = field(default_factory=EngineConfig)
 
@@ -76,6 +95,7 @@ class Truth:
     name: str
     quaternions: np.ndarray  # [F, R, 4]
     positions: np.ndarray    # [F, 15, 3] world, floor at 0
+    yaws_deg: tuple[float, ...] | None = None  # this clip's yaws; None: EvalConfig.yaws_deg
 
 
 def load_heldout(paths: list[Path], fps: float) -> list[Truth]:
@@ -85,19 +105,51 @@ def load_heldout(paths: list[Path], fps: float) -> list[Truth]:
             for c in (process_clip(p, p.parent, config) for p in paths)]
 
 
-def view_of(truth: Truth, yaw_deg: float, height_m: float, distance_m: float) -> np.ndarray:
-    """Truth in the camera-aligned frame ``[F, 15, 3]``: the clip turned by ``yaw_deg`` about its
-    mean pelvis, the camera ``distance_m`` in front of it at ``height_m``, looking along −z."""
-    centre = truth.positions[:, PELVIS].mean(axis=0) * [1, 0, 1]
-    world = (truth.positions - centre) @ yaw_matrix(yaw_deg).T
-    return np.stack([world[..., 0], world[..., 1] - height_m, distance_m - world[..., 2]], axis=-1)
+def scaled_positions(positions: np.ndarray, subject_height_m: float) -> np.ndarray:
+    """``positions [F, 15, 3]`` (skeleton and root path) scaled by ``subject_height_m`` / 1.75 about
+    the floor point under the clip's mean pelvis."""
+    s = subject_height_m / UNIVERSAL_HEIGHT_M
+    if s == 1.0:
+        return positions
+    centre = positions[:, PELVIS].mean(axis=0) * [1.0, 0.0, 1.0]
+    return centre + s * (positions - centre)
+
+
+def camera_distance(positions: np.ndarray, yaw_deg: float, config: EvalConfig) -> float:
+    """Horizontal camera distance from the clip's mean pelvis for one view: ``camera_distance_m``,
+    or more so every pelvis of the turned clip stays ``min_clearance_m`` in front of the camera."""
+    centre = positions[:, PELVIS].mean(axis=0) * [1.0, 0.0, 1.0]
+    towards = ((positions[:, PELVIS] - centre) @ yaw_matrix(yaw_deg).T)[:, 2]  # the camera is at +z
+    return max(config.camera_distance_m, config.min_clearance_m + max(float(towards.max()), 0.0))
+
+
+def camera_view(positions: np.ndarray, yaw_deg: float, height_m: float, distance_m: float,
+                pitch_deg: float = 0.0) -> np.ndarray:
+    """World points ``[F, J, 3]`` in the camera-aligned frame (x right, y up, z away from the camera):
+    turned by ``yaw_deg`` about the clip's mean pelvis, seen by a camera ``distance_m`` in front of
+    it (along +z) at ``height_m`` above the floor, looking along −z and tilted down by ``pitch_deg``."""
+    centre = positions[:, PELVIS].mean(axis=0) * [1, 0, 1]
+    rel = (positions - centre) @ yaw_matrix(yaw_deg).T - [0.0, height_m, distance_m]
+    c, s = np.cos(np.radians(pitch_deg)), np.sin(np.radians(pitch_deg))
+    return np.stack([rel[..., 0], c * rel[..., 1] - s * rel[..., 2], -s * rel[..., 1] - c * rel[..., 2]], axis=-1)
+
+
+def view_of(truth: Truth, yaw_deg: float, height_m: float, distance_m: float, pitch_deg: float = 0.0) -> np.ndarray:
+    """:func:`camera_view` of a truth clip ``[F, 15, 3]``."""
+    return camera_view(truth.positions, yaw_deg, height_m, distance_m, pitch_deg)
+
+
+def project(cam_points: np.ndarray, focal_px: float, image_size: tuple[int, int]) -> np.ndarray:
+    """Pixels ``[..., 2]`` of camera-aligned points: u = cx + f·x/z, v = cy − f·y/z."""
+    z = cam_points[..., 2]
+    return np.stack([image_size[0] / 2 + focal_px * cam_points[..., 0] / z,
+                     image_size[1] / 2 - focal_px * cam_points[..., 1] / z], axis=-1)
 
 
 def render(cam_points: np.ndarray, scenario: Scenario, focal_px: float, image_size: tuple[int, int],
            rng: np.random.Generator) -> list[KeypointFrame]:
     """Detector-like keypoint frames of camera-aligned points ``[F, 15, 3]``."""
-    opencv = cam_points[:, :N_KEYPOINTS_2D] * [1.0, -1.0, 1.0]
-    px = project_pinhole(opencv, focal_px, (image_size[0] / 2, image_size[1] / 2))
+    px = project(cam_points[:, :N_KEYPOINTS_2D], focal_px, image_size)
     px = px + rng.normal(scale=scenario.noise_px * image_size[1] / IMAGE_HEIGHT_PX, size=px.shape)
     conf = np.where(rng.random(px.shape[:2]) < scenario.dropout, 0.0, 0.9)
     swapped = rng.random(len(px)) < scenario.swap
@@ -116,18 +168,33 @@ def _angle_diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.abs((a - b + 180.0) % 360.0 - 180.0)
 
 
-def run_sequence(engine: Engine, frames: list[KeypointFrame]) -> tuple[np.ndarray, np.ndarray, float]:
-    """Pelvis-aligned output joints ``[F, 15, 3]`` (NaN where no output), root-frame joints, seconds."""
+@dataclass
+class EngineRun:
+    """One sequence through the engine; NaN where the engine gave no output."""
+
+    joints: np.ndarray  # [F, 15, 3] camera-aligned frame (absolute)
+    root: np.ndarray    # [F, 3] camera-aligned frame
+    local: np.ndarray   # [F, 15, 3] root rotation and translation removed
+    seconds: float
+
+    @property
+    def ok(self) -> np.ndarray:
+        return ~np.isnan(self.joints[:, 0, 0])
+
+
+def run_sequence(engine: Engine, frames: list[KeypointFrame]) -> EngineRun:
+    """Every frame through ``engine`` (one person per frame), then :meth:`Engine.finish`."""
     joints = np.full((len(frames), 15, 3), np.nan)
+    root = np.full((len(frames), 3), np.nan)
     local = np.full_like(joints, np.nan)
     t0 = time.perf_counter()
     for i, frame in enumerate(frames):
         for pose in engine.step(frame):
-            joints[i] = pose.joints_m - pose.root_m
+            joints[i], root[i] = pose.joints_m, pose.root_m
             local[i] = _root_frame(pose.quaternions)
     elapsed = time.perf_counter() - t0
     engine.finish()
-    return joints, local, elapsed
+    return EngineRun(joints, root, local, elapsed)
 
 
 def _root_frame(quats: np.ndarray) -> np.ndarray:
@@ -137,45 +204,194 @@ def _root_frame(quats: np.ndarray) -> np.ndarray:
     return pose_from_rotations(q[None], np.zeros((1, 3)))[0]
 
 
-def _new_engine(db: MotionDatabase, config: EvalConfig, image_size: tuple[int, int]) -> Engine:
-    return Engine(db, replace(config.engine, fps=config.fps, focal_px=config.focal_px, image_size=image_size))
+def reprojection_pct(joints: np.ndarray, target_px: np.ndarray, box_height_px: np.ndarray, focal_px: float,
+                     image_size: tuple[int, int], visible: np.ndarray | None = None) -> np.ndarray:
+    """Per frame: mean 2D distance between camera-aligned ``joints [F, ≥14, 3]`` projected and
+    ``target_px [F, 14, 2]`` (over ``visible [F, 14]`` keypoints), as % of ``box_height_px [F]``."""
+    px = project(joints[:, :N_KEYPOINTS_2D], focal_px, image_size)
+    dist = np.linalg.norm(px - target_px, axis=-1)
+    dist[joints[:, :N_KEYPOINTS_2D, 2] <= 1e-6] = np.nan  # at or behind the camera: no projection
+    if visible is not None:
+        dist = np.where(visible, dist, np.nan)
+    with np.errstate(invalid="ignore"):
+        return 100.0 * np.nanmean(dist, axis=1) / box_height_px
+
+
+@dataclass
+class VariantStats:
+    """Per-frame results of one engine variant in one scenario (frames with an output)."""
+
+    mpjpe: list[np.ndarray] = field(default_factory=list)
+    pa: list[np.ndarray] = field(default_factory=list)
+    yaw: list[np.ndarray] = field(default_factory=list)
+    accel: list[np.ndarray] = field(default_factory=list)
+    floor: list[np.ndarray] = field(default_factory=list)
+    reproj: list[np.ndarray] = field(default_factory=list)
+    reproj_input: list[np.ndarray] = field(default_factory=list)
+    root: list[np.ndarray] = field(default_factory=list)
+    root_pct: list[np.ndarray] = field(default_factory=list)
+    seconds: float = 0.0
+    person_frames: int = 0
+
+    def add(self, run: EngineRun, cam: np.ndarray, floor: np.ndarray, frames: list[KeypointFrame],
+            config: EvalConfig) -> None:
+        ok = run.ok
+        self.seconds += run.seconds
+        self.person_frames += len(ok)
+        joints, root, truth = run.joints[ok], run.root[ok], cam[ok]
+        gt = truth - truth[:, PELVIS:PELVIS + 1]
+        rel = joints - root[:, None]
+        self.mpjpe.append(mpjpe(rel, gt))
+        self.pa.append(pa_mpjpe(rel, gt))
+        self.yaw.append(_angle_diff(facing_deg(rel), facing_deg(gt)))
+        run_idx = np.flatnonzero(ok)
+        if len(run_idx) > 2 and np.all(np.diff(run_idx) == 1):
+            self.accel.append(acceleration_error(rel, gt))
+        self.floor.append(floor[ok])
+        if not config.engine.translation:  # the pelvis is kept at the origin: no root, no projection
+            return
+        clean_px = project(truth[:, :N_KEYPOINTS_2D], config.focal_px, config.image_size)
+        box = np.ptp(clean_px[..., 1], axis=1)
+        self.reproj.append(reprojection_pct(joints, clean_px, box, config.focal_px, config.image_size))
+        given = np.array([f.people[0].points_px for f in frames])[ok]
+        visible = np.array([f.people[0].confidence for f in frames])[ok] >= config.engine.confidence_threshold
+        self.reproj_input.append(reprojection_pct(joints, given, box, config.focal_px, config.image_size, visible))
+        err = np.linalg.norm(root - truth[:, PELVIS], axis=-1)
+        self.root.append(err)
+        self.root_pct.append(100.0 * err / truth[:, PELVIS, 2])
+
+    def extend(self, other: VariantStats) -> None:
+        for name in ("mpjpe", "pa", "yaw", "accel", "floor", "reproj", "reproj_input", "root", "root_pct"):
+            getattr(self, name).extend(getattr(other, name))
+        self.seconds += other.seconds
+        self.person_frames += other.person_frames
+
+    def summary(self) -> dict:
+        cat = _cat
+        err, floor, yaw, acc = cat(self.mpjpe), cat(self.floor), cat(self.yaw), cat(self.accel)
+        return {
+            "frames_with_output": int(len(err)),
+            "mpjpe_cm": _r(100 * _mean(err)),
+            "pa_mpjpe_cm": _r(100 * _mean(cat(self.pa))),
+            "yaw_error_deg": {"mean": _r(_mean(yaw), 1), "median": _r(float(np.median(yaw)) if len(yaw) else None, 1)},
+            "accel_error_mm_per_frame2": _r(1000 * _mean(acc)) if len(acc) else None,
+            "floor_mpjpe_cm": _r(100 * _mean(floor)),
+            "engine_minus_floor_cm": _r(100 * (_mean(err) - _mean(floor))),
+            "frames_below_floor": _r(float(np.mean(err < floor)) if len(err) else None, 4),
+            "reprojection_error_pct": _r(_mean(cat(self.reproj))),
+            "reprojection_error_input_pct": _r(_mean(cat(self.reproj_input))),
+            "root_error_m": _r(_mean(cat(self.root)), 3),
+            "root_error_pct_distance": _r(_mean(cat(self.root_pct))),
+            "engine_person_frames_per_s": _r(self.person_frames / self.seconds if self.seconds else None, 1),
+        }
+
+
+def _cat(parts: list[np.ndarray]) -> np.ndarray:
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def _mean(values: np.ndarray) -> float:
+    values = values[np.isfinite(values)]
+    return float(values.mean()) if len(values) else float("nan")
+
+
+def _r(value: float | None, digits: int = 2) -> float | None:
+    return None if value is None or not np.isfinite(value) else round(float(value), digits)
+
+
+@dataclass
+class ScenarioResult:
+    """One scenario's results, per engine variant; :meth:`report` is its JSON entry."""
+
+    scenario: Scenario
+    variants: dict[str, VariantStats] = field(default_factory=lambda: {name: VariantStats() for name, _ in VARIANTS})
+    person_frames: int = 0
+    camera_distances_m: list[float] = field(default_factory=list)
+    queries: list[Person] = field(default_factory=list)
+
+    def extend(self, other: ScenarioResult) -> None:
+        for name, stats in self.variants.items():
+            stats.extend(other.variants[name])
+        self.person_frames += other.person_frames
+        self.camera_distances_m.extend(other.camera_distances_m)
+
+    def report(self) -> dict:
+        out = {"scenario": asdict(self.scenario), "person_frames": self.person_frames,
+               "camera_distance_m": {"min": _r(min(self.camera_distances_m, default=np.nan)),
+                                     "max": _r(max(self.camera_distances_m, default=np.nan))}}
+        out.update({name: stats.summary() for name, stats in self.variants.items()})
+        pub, ref = (_mean(_cat(self.variants[name].mpjpe)) for name in ("published", "refined"))
+        out["mpjpe_change_pct"] = _r(100 * (ref - pub) / pub, 1) if pub > 0 else None
+        return out
+
+
+def engine_scale(scenario: Scenario) -> float:
+    """Body size the engine is told, relative to the database skeleton (1 unless ``height_given``)."""
+    return scenario.subject_height_m / UNIVERSAL_HEIGHT_M if scenario.height_given else 1.0
+
+
+def compute_floors(db: MotionDatabase, truths: list[Truth], scenarios: tuple[Scenario, ...],
+                   log=None) -> dict[tuple[int, float, float], np.ndarray]:
+    """Per-frame database floors (metres) of every truth clip for every scenario's sizes, keyed
+    ``(clip index, subject_height_m, engine scale)``.
+
+    The floor is against the database at the size the engine is told (1.75 m unless the scenario
+    gives the subject's height): min over frames of MPJPE(truth, s·db) = s · floor(truth / s).
+    """
+    index = FloorIndex.from_positions(db.positions)
+    floors = {}
+    for height, scale in sorted({(s.subject_height_m, engine_scale(s)) for s in scenarios}):
+        t0 = time.perf_counter()
+        poses = [scaled_positions(t.positions, height) / scale for t in truths]
+        result = scale * database_floor(index, np.concatenate(poses)).mpjpe_m
+        bounds = np.cumsum([0] + [len(p) for p in poses])
+        for i in range(len(truths)):
+            floors[(i, height, scale)] = result[bounds[i]:bounds[i + 1]]
+        if log:
+            log(f"floor: {bounds[-1]} truth frames x {index.n_frames} database frames in "
+                f"{time.perf_counter() - t0:.2f} s (subject {height:.2f} m, engine scale {scale:.3f})")
+    return floors
+
+
+def variant_config(base: EngineConfig, refine: bool) -> EngineConfig:
+    """``base`` with ``refine`` set. 1€ filters left at their defaults follow the variant (the engine
+    picks different defaults for refined and retrieved poses); filters set explicitly are kept."""
+    if EngineConfig.__dataclass_fields__["rotation_filter"].default is None:  # defaults chosen per variant
+        if base == replace(base, rotation_filter=None, root_filter=None):
+            return replace(base, refine=refine, rotation_filter=None, root_filter=None)
+    return replace(base, refine=refine)
+
+
+def _new_engine(db: MotionDatabase, config: EvalConfig, scenario: Scenario | None = None,
+                refine: bool | None = None) -> Engine:
+    cfg = replace(config.engine, fps=config.fps, focal_px=config.focal_px, image_size=config.image_size)
+    if refine is not None:
+        cfg = variant_config(cfg, refine)
+    if scenario is not None and scenario.height_given:
+        cfg = replace(cfg, subject_height_m=scenario.subject_height_m)
+    return Engine(db, cfg)
 
 
 def evaluate_scenario(db: MotionDatabase, truths: list[Truth], scenario: Scenario, config: EvalConfig,
-                      rng: np.random.Generator, bar: tqdm) -> tuple[dict, list[np.ndarray]]:
-    """Accuracy of one scenario over every clip and yaw; also returns the normalised queries."""
-    image_size = (1920, 1080)
-    errs, pa, yaw_err, acc, seconds, n = [], [], [], [], 0.0, 0
-    queries = []
-    for truth in truths:
-        for yaw in config.yaws_deg:
-            cam = view_of(truth, yaw, scenario.camera_height_m, config.camera_distance_m)
-            frames = render(cam, scenario, config.focal_px, image_size, rng)
-            engine = _new_engine(db, config, image_size)
-            joints, _, elapsed = run_sequence(engine, frames)
-            seconds, n = seconds + elapsed, n + len(frames)
-            gt = cam - cam[:, PELVIS:PELVIS + 1]
-            ok = ~np.isnan(joints[:, 0, 0])
-            errs.append(mpjpe(joints[ok], gt[ok]))
-            pa.append(pa_mpjpe(joints[ok], gt[ok]))
-            yaw_err.append(_angle_diff(facing_deg(joints[ok]), facing_deg(gt[ok])))
-            run = np.flatnonzero(ok)
-            if len(run) > 2 and np.all(np.diff(run) == 1):
-                acc.append(acceleration_error(joints[ok], gt[ok]))
-            queries.extend(f.people[0] for f in frames[::4])
-            bar.update(len(frames))
-    cat = np.concatenate
-    return {
-        "scenario": asdict(scenario),
-        "person_frames": n,
-        "frames_with_output": int(sum(len(e) for e in errs)),
-        "mpjpe_cm": round(100 * float(cat(errs).mean()), 2),
-        "pa_mpjpe_cm": round(100 * float(cat(pa).mean()), 2),
-        "yaw_error_deg": {"mean": round(float(cat(yaw_err).mean()), 1),
-                          "median": round(float(np.median(cat(yaw_err))), 1)},
-        "accel_error_mm_per_frame2": round(1000 * float(cat(acc).mean()), 2) if acc else None,
-        "engine_person_frames_per_s": round(n / seconds, 1),
-    }, queries
+                      rng: np.random.Generator, floors: dict, bar: tqdm | None = None) -> ScenarioResult:
+    """Every clip and yaw of one scenario, rendered once and run through each engine variant."""
+    result = ScenarioResult(scenario)
+    for i, truth in enumerate(truths):
+        positions = scaled_positions(truth.positions, scenario.subject_height_m)
+        floor = floors[(i, scenario.subject_height_m, engine_scale(scenario))]
+        for yaw in truth.yaws_deg or config.yaws_deg:
+            distance = camera_distance(positions, yaw, config)
+            cam = camera_view(positions, yaw, scenario.camera_height_m, distance, scenario.pitch_deg)
+            frames = render(cam, scenario, config.focal_px, config.image_size, rng)
+            for name, refine in VARIANTS:
+                run = run_sequence(_new_engine(db, config, scenario, refine), frames)
+                result.variants[name].add(run, cam, floor, frames, config)
+            result.person_frames += len(frames)
+            result.camera_distances_m.append(distance)
+            result.queries.extend(f.people[0] for f in frames[::4])
+            if bar is not None:
+                bar.update(len(frames))
+    return result
 
 
 def search_benchmark(engine: Engine, people: list[Person], threshold: float) -> dict:
@@ -203,7 +419,6 @@ def search_benchmark(engine: Engine, people: list[Person], threshold: float) -> 
 
 def two_view(db: MotionDatabase, truths: list[Truth], config: EvalConfig, separation_deg: float) -> dict:
     """Mean distance (cm) between independent reconstructions from two cameras ``separation_deg`` apart."""
-    image_size = (1920, 1080)
     rng = np.random.default_rng(config.seed + 1)
     scenario = Scenario("two-view")
     dists = []
@@ -211,34 +426,43 @@ def two_view(db: MotionDatabase, truths: list[Truth], config: EvalConfig, separa
         for yaw in config.yaws_deg[::2]:
             views = []
             for turn in (yaw, yaw + separation_deg):
-                cam = view_of(truth, turn, scenario.camera_height_m, config.camera_distance_m)
-                frames = render(cam, scenario, config.focal_px, image_size, rng)
-                views.append(run_sequence(_new_engine(db, config, image_size), frames)[1])
+                cam = view_of(truth, turn, scenario.camera_height_m, camera_distance(truth.positions, turn, config))
+                frames = render(cam, scenario, config.focal_px, config.image_size, rng)
+                views.append(run_sequence(_new_engine(db, config), frames).local)
             ok = ~np.isnan(views[0][:, 0, 0]) & ~np.isnan(views[1][:, 0, 0])
             dists.append(mpjpe(views[0][ok], views[1][ok]))
-    return {"separation_deg": separation_deg, "mean_distance_cm": round(100 * float(np.concatenate(dists).mean()), 2)}
+    return {"separation_deg": separation_deg, "variant": "refined" if config.engine.refine else "published",
+            "mean_distance_cm": round(100 * float(np.concatenate(dists).mean()), 2)}
+
+
+def engine_summary(engine: EngineConfig) -> dict:
+    return {"search": engine.search, "n_clusters": engine.n_clusters, "per_cluster": engine.per_cluster,
+            "window_weights": engine.window_weights, "weight_2d": engine.weight_2d, "smoothing": engine.smoothing,
+            "variants": {name: {"refine": refine} for name, refine in VARIANTS}}
+
+
+def _stderr(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
 
 
 def evaluate(db: MotionDatabase, heldout: list[Path], config: EvalConfig) -> dict:
-    """The full report (see the module docstring)."""
+    """The full report of one database against held-out clips (see the module docstring)."""
     truths = load_heldout(heldout, config.fps)
+    t0 = time.perf_counter()
+    floors = compute_floors(db, truths, config.scenarios, log=_stderr)
+    floor_seconds = time.perf_counter() - t0
     rng = np.random.default_rng(config.seed)
     total = sum(len(t.positions) for t in truths) * len(config.yaws_deg) * len(config.scenarios)
     bar = tqdm(total=total, desc="eval", unit="frame", disable=None, file=sys.stderr)
-    scenarios, first_queries = [], None
-    for scenario in config.scenarios:
-        report, queries = evaluate_scenario(db, truths, scenario, config, rng, bar)
-        scenarios.append(report)
-        first_queries = first_queries or queries
+    results = [evaluate_scenario(db, truths, scenario, config, rng, floors, bar) for scenario in config.scenarios]
     bar.close()
-    engine = _new_engine(db, config, (1920, 1080))
+    engine = _new_engine(db, config)
     return {
         "database": {"projections": db.n_projections, "frames": db.n_frames, "clusters": db.n_clusters},
         "heldout_clips": [t.name for t in truths],
-        "engine": {"search": config.engine.search, "n_clusters": config.engine.n_clusters,
-                   "per_cluster": config.engine.per_cluster, "window_weights": config.engine.window_weights,
-                   "weight_2d": config.engine.weight_2d, "smoothing": config.engine.smoothing},
-        "scenarios": scenarios,
-        "search": search_benchmark(engine, first_queries, config.engine.confidence_threshold),
+        "engine": engine_summary(config.engine),
+        "floor_seconds": round(floor_seconds, 2),
+        "scenarios": [r.report() for r in results],
+        "search": search_benchmark(engine, results[0].queries, config.engine.confidence_threshold),
         "two_view": [two_view(db, truths, config, 135.0), two_view(db, truths, config, 75.0)],
     }
