@@ -23,8 +23,8 @@ from mocapdb.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
 from mocapdb.skeleton import N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, UNIVERSAL_HEIGHT_M, pose_from_rotations
 
 from .body_size import CameraTilt, FloorScale
-from .filters import (REFINED_ROOT_DEFAULTS, REFINED_ROTATION_DEFAULTS, ROOT_DEFAULTS, OneEuroFilter,
-                      OneEuroParams, QuaternionOneEuroFilter)
+from .filters import (REFINED_ROOT_DEFAULTS, REFINED_ROTATION_DEFAULTS, ROOT_DEFAULTS, KeypointFilter,
+                      KeypointFilterParams, OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter)
 from .refine import JointLimits, RefineParams, Refiner
 from .search import SearchIndex, search_clustered, search_exact, yaw_offset
 from .temporal import temporal_costs, yaw_quaternion, yawed_rotations
@@ -57,6 +57,7 @@ class EngineConfig:
     camera_height_m: float | None = None   # camera above a flat floor: metric depth and size from the feet
     smoothing: bool = True
     rotation_filter: OneEuroParams | None = None  # None: the defaults for refined or retrieved poses
+    keypoint_filter: KeypointFilterParams | None = None  # 2D clean-up; None: on when refining
     root_filter: OneEuroParams | None = None
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
@@ -67,6 +68,8 @@ class EngineConfig:
             self.rotation_filter = REFINED_ROTATION_DEFAULTS if self.refine else OneEuroParams()
         if self.root_filter is None:
             self.root_filter = REFINED_ROOT_DEFAULTS if self.refine else ROOT_DEFAULTS
+        if self.keypoint_filter is None and self.refine and self.smoothing:
+            self.keypoint_filter = KeypointFilterParams()
         if self.subject_height_m is not None and not 0.5 <= self.subject_height_m <= 2.5:
             raise ValueError(f"subject height must be between 0.5 and 2.5 m, not {self.subject_height_m}")
         if self.camera_height_m is not None and not self.refine:
@@ -127,6 +130,7 @@ class _TrackState:
         self.n_history = 0
         self.scale = (config.subject_height_m or UNIVERSAL_HEIGHT_M) / UNIVERSAL_HEIGHT_M  # body size
         self.tilt = CameraTilt()
+        self.keypoints = KeypointFilter(config.keypoint_filter, N_KEYPOINTS_2D) if config.keypoint_filter else None
         self.floor = None
         if config.camera_height_m is not None and config.subject_height_m is None:
             self.floor = FloorScale(config.camera_height_m)
@@ -223,7 +227,8 @@ class Engine:
             if state is None:
                 state = self.tracks[track] = _TrackState(track, frame.index, cfg, len(self.window_weights))
                 self.stats.tracks_started += 1
-            poses.append(self._person(state, points[det], conf[det], frame.index, t_s))
+            person_px = points[det] if state.keypoints is None else state.keypoints(points[det], conf[det], t_s)
+            poses.append(self._person(state, person_px, conf[det], frame.index, t_s))
         self.stats.person_frames += len(poses)
         return poses
 
