@@ -98,8 +98,8 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weight-2d", type=float, default=0.5,
                    help="weight of the 2D (Eq. 1) distance added to the temporal cost (default 0.5; 0 is the method)")
     p.add_argument("--min-cutoff", type=float,
-                   help="1€ filter min cutoff for rotations, Hz (default 4; 1 with --no-refine)")
-    p.add_argument("--beta", type=float, help="1€ filter beta for rotations (default 1; 0.3 with --no-refine)")
+                   help="1€ filter min cutoff for rotations, Hz (default 8; 1 with --no-refine)")
+    p.add_argument("--beta", type=float, help="1€ filter beta for rotations (default 2; 0.3 with --no-refine)")
     p.add_argument("--no-refine", action="store_true",
                    help="output the retrieved database pose as it is (the method as published) instead of "
                         "fitting it to the keypoints")

@@ -181,12 +181,22 @@ SWAP_MARGIN = 0.5  # a side swap is undone when swapping back makes the group th
 
 @dataclass(frozen=True)
 class KeypointFilterParams:
-    """2D keypoint clean-up before the fit; speeds in box heights per second."""
+    """2D keypoint clean-up before the fit; speeds and jitter in box heights (per second).
+
+    The 1€ floor adapts to the track's measured jitter σ: ``min_cutoff_hz`` at ``noise_ref`` or
+    more, rising in proportion as σ falls, up to ``max_cutoff_hz`` (clean input: almost no lag).
+    """
 
     min_cutoff_hz: float = 6.0
+    max_cutoff_hz: float = 30.0
+    noise_ref: float = 0.014   # σ where the floor is min_cutoff_hz (5 px on a 350 px person)
     beta: float = 4.0
     d_cutoff_hz: float = 1.0
     undo_swaps: bool = True
+
+    def __post_init__(self) -> None:
+        if not 0 < self.min_cutoff_hz <= self.max_cutoff_hz or self.noise_ref <= 0 or self.beta < 0:
+            raise ValueError(f"keypoint filter needs 0 < min_cutoff <= max_cutoff, noise_ref > 0, beta >= 0: {self}")
 
 
 class KeypointFilter:
@@ -210,18 +220,56 @@ class KeypointFilter:
         self.seen_s = np.full(n_keypoints, -np.inf)
         self.last_s = np.array([np.nan])
         self.out = np.zeros((n_keypoints, 2))
+        self.raw = np.zeros((2, n_keypoints, 2))      # the last two frames' input, newest first
+        self.raw_seen = np.zeros((2, n_keypoints), dtype=np.bool_)
+        self.noise = np.array([params.noise_ref])    # running jitter σ (box heights)
         self.swaps = 0
 
     def __call__(self, points_px: np.ndarray, confidence: np.ndarray, t_s: float) -> np.ndarray:
         """Cleaned keypoints ``[K, 2]`` (pixels) for ``points_px`` seen where ``confidence > 0``."""
         p = self.params
-        self.swaps += _keypoint_step(self.value, self.speed, self.seen_s, self.last_s, self.out,
-                                     np.asarray(points_px, dtype=np.float64), confidence > 0, t_s, self.reset_s,
-                                     p.min_cutoff_hz, p.beta, p.d_cutoff_hz, p.undo_swaps, _SWAP_GROUPS)
+        points, seen = np.asarray(points_px, dtype=np.float64), confidence > 0
+        self.swaps += _keypoint_step(self.value, self.speed, self.seen_s, self.last_s, self.out, points, seen, t_s,
+                                     self.reset_s, self._cutoff(points, seen), p.beta, p.d_cutoff_hz, p.undo_swaps,
+                                     _SWAP_GROUPS)
         return self.out.copy()
+
+    def _cutoff(self, points: np.ndarray, seen: np.ndarray) -> float:
+        """The 1€ floor for this frame from the track's jitter (updated with this frame)."""
+        p = self.params
+        _update_jitter(self.raw, self.raw_seen, points, seen, self.noise)
+        return float(np.clip(p.min_cutoff_hz * p.noise_ref / max(self.noise[0], 1e-9), p.min_cutoff_hz,
+                             p.max_cutoff_hz))
 
 
 _SWAP_GROUPS = np.array([ARM_PAIRS, LEG_PAIRS], dtype=np.int64)  # [group, pair, right/left]
+JITTER_RATE = 0.1  # weight of a new frame in the running jitter estimate
+
+
+@njit(cache=True)
+def _update_jitter(raw, raw_seen, points, seen, noise) -> None:
+    """Running jitter σ (box heights) from second differences of the raw keypoints.
+
+    For white noise σ the second difference has standard deviation σ√6 and median absolute value
+    1.65σ; the median over keypoints and axes ignores the few joints that really accelerate.
+    """
+    values = np.empty(2 * points.shape[0])
+    n = 0
+    lo, hi = np.inf, -np.inf
+    for k in range(points.shape[0]):
+        if seen[k]:
+            lo, hi = min(lo, points[k, 1]), max(hi, points[k, 1])
+        if seen[k] and raw_seen[0, k] and raw_seen[1, k]:
+            for c in range(2):
+                values[n] = abs(points[k, c] - 2.0 * raw[0, k, c] + raw[1, k, c])
+                n += 1
+    if n >= 8 and hi - lo > 1.0:
+        sigma = np.median(values[:n]) / (1.65 * (hi - lo))
+        noise[0] += JITTER_RATE * (sigma - noise[0])
+    raw[1] = raw[0]
+    raw_seen[1] = raw_seen[0]
+    raw[0] = points
+    raw_seen[0] = seen
 
 
 @njit(cache=True)

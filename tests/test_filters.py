@@ -171,7 +171,7 @@ def test_keypoint_filter_undoes_a_left_right_swap_of_the_arms():
         swapped[[r, l]] = px[[l, r]]
     np.testing.assert_allclose(f(swapped, conf, 5 / 30.0), px, atol=1e-9)
     assert f.swaps == 1
-    off = KeypointFilter(KeypointFilterParams(undo_swaps=False, min_cutoff_hz=1e6), 14)
+    off = KeypointFilter(KeypointFilterParams(undo_swaps=False, min_cutoff_hz=1e6, max_cutoff_hz=1e6), 14)
     for i in range(5):
         off(px, conf, i / 30.0)
     np.testing.assert_allclose(off(swapped, conf, 5 / 30.0), swapped, atol=0.01)
@@ -208,3 +208,19 @@ def test_keypoint_filter_holds_unseen_points_and_ignores_repeated_times():
     np.testing.assert_allclose(f.value[3], before[3])  # unseen: held
     out = f(px + [300.0, 0.0], conf, 1.0)  # seen again after 0.8 s: starts afresh
     np.testing.assert_allclose(out[3], px[3] + [300.0, 0.0])
+
+
+def test_keypoint_filter_measures_jitter_and_only_smooths_noisy_tracks():
+    from runtime.filters import KeypointFilter, KeypointFilterParams
+    rng = np.random.default_rng(1)
+    px, conf, fps = _standing_keypoints(), np.ones(14), 30.0
+    box = np.ptp(px[:, 1])
+    noisy, clean = KeypointFilter(KeypointFilterParams(), 14), KeypointFilter(KeypointFilterParams(), 14)
+    for i in range(120):
+        noisy(px + rng.normal(scale=5.0, size=px.shape), conf, i / fps)
+        clean(px + [2.0 * i, 0.0], conf, i / fps)  # steady motion, no jitter
+    assert noisy.noise[0] == pytest.approx(5.0 / box, rel=0.25)
+    assert clean.noise[0] < 0.001
+    next_noisy, next_clean = px + rng.normal(scale=5.0, size=px.shape), px + [2.0 * 120, 0.0]
+    assert noisy._cutoff(next_noisy, conf > 0) < 1.5 * KeypointFilterParams().min_cutoff_hz
+    assert clean._cutoff(next_clean, conf > 0) == KeypointFilterParams().max_cutoff_hz
