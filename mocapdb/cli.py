@@ -9,6 +9,9 @@ from . import __version__
 from .joint_map import UNITS, UP_AXES
 
 
+DEFAULT_FPS = 30.0  # input frame rate assumed when neither --fps nor the frames give one
+
+
 def _add_build(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("build", help="build a motion database from BVH files",
                        description="Read BVH clips (files or folders, recursively), retarget them to the "
@@ -86,7 +89,8 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", required=True, help="database directory written by `mocapdb build`")
     p.add_argument("--keypoints", choices=("body25", "body25b", "coco18", "coco17"),
                    help="keypoint layout of the input (default: detected)")
-    p.add_argument("--fps", type=float, default=30.0, help="input frame rate in Hz when frames carry no time (default 30)")
+    p.add_argument("--fps", type=float,
+                   help="input frame rate in Hz when frames carry no time (default 30, with a warning)")
     p.add_argument("--focal", type=float, default=1000.0, help="input camera focal length in pixels (default 1000)")
     p.add_argument("--image-size", default="1920x1080", help="input image WIDTHxHEIGHT in pixels (default 1920x1080)")
     p.add_argument("--search", choices=("clustered", "exact"), default="clustered",
@@ -114,6 +118,8 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-translation", action="store_true", help="keep the pelvis at the origin")
     p.add_argument("--no-yaw-refinement", action="store_true", help="keep the database's yaw grid (12° steps)")
     p.add_argument("--bvh-unit", choices=("m", "cm"), default="m", help="length unit of the BVH files (default m)")
+    p.add_argument("--keep-static", action="store_true",
+                   help="also write BVH files for tracks whose keypoints never moved (posters, false detections)")
 
 
 def _engine(args: argparse.Namespace):
@@ -138,7 +144,8 @@ def _engine(args: argparse.Namespace):
             beta=default.beta if args.beta is None else args.beta)
         config = EngineConfig(search=args.search, n_clusters=args.clusters_searched, per_cluster=args.per_cluster,
                               window_weights=weights, weight_2d=args.weight_2d, focal_px=args.focal,
-                              image_size=(width, height), fps=args.fps, translation=not args.no_translation,
+                              image_size=(width, height), fps=args.fps or DEFAULT_FPS,
+                              translation=not args.no_translation,
                               refine_yaw=not args.no_yaw_refinement, refine=not args.no_refine,
                               subject_height_m=args.subject_height, camera_height_m=args.camera_height,
                               smoothing=not args.no_smoothing,
@@ -148,13 +155,14 @@ def _engine(args: argparse.Namespace):
     return Engine(load_database(args.db), config)
 
 
-def _session(args: argparse.Namespace, sink_spec: str):
-    from runtime.session import FrameParser, Session, SessionSummary
+def _session(args: argparse.Namespace, sink_spec: str, strict: bool):
+    from runtime.session import FrameParser, Session, SessionOptions, SessionSummary
     from runtime.streams import StreamStats, open_sink
 
     summary = SessionSummary(stream=StreamStats())
     engine = _engine(args)
-    return Session(engine, open_sink(sink_spec, summary.stream), FrameParser(args.keypoints), summary)
+    options = SessionOptions(strict=strict, fps_given=args.fps is not None, keep_static=args.keep_static)
+    return Session(engine, open_sink(sink_spec, summary.stream), FrameParser(args.keypoints), summary, options)
 
 
 def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
@@ -174,11 +182,12 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
     from runtime.session import run_arrays, run_offline
     from runtime.streams import open_source
 
+    from .errors import UsageError
     from .keypoints import frames_from_arrays, read_keypoint_array
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    session = _session(args, str(out / "result.jsonl"))
+    session = _session(args, str(out / "result.jsonl"), strict=True)
     if Path(args.input).suffix.lower() in (".npy", ".npz"):
         keypoints = read_keypoint_array(args.input)
         run_arrays(session, frames_from_arrays(keypoints, args.keypoints or "coco17", args.fps))
@@ -187,7 +196,9 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
     summary = session.finish(out, args.bvh_unit)
     print(f"wrote {out / 'result.jsonl'} and {len(summary.bvh_files)} BVH file(s) in {out}")
     print(summary.report())
-    return 0 if summary.frames else 1
+    if not summary.frames:
+        raise UsageError(f"no keypoint frame in {args.input}")
+    return 0
 
 
 def _add_live(sub: argparse._SubParsersAction) -> None:
@@ -215,7 +226,7 @@ def _run_live(args: argparse.Namespace) -> int:
     from runtime.streams import install_stop_handlers, open_source
     from runtime.video_input import open_video_source, run_video
 
-    session = _session(args, args.sink)
+    session = _session(args, args.sink, strict=False)
     stop = threading.Event()
     video = None
     with install_stop_handlers(stop):

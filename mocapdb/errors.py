@@ -1,4 +1,5 @@
 """The errors a user can cause (bad files, bad options); the CLI prints them without a traceback."""
+from runtime.session import InputError
 from runtime.streams import StreamSpecError
 
 from .builder import BuildError
@@ -17,5 +18,5 @@ class UsageError(ValueError):
 
 
 USER_ERRORS: tuple[type[Exception], ...] = (BuildError, BvhError, CalibrationError, DatabaseError, DetectError,
-                                           JointMapError, KeypointError, StereoError, StreamSpecError, TrcError,
-                                           UsageError, OSError)
+                                           InputError, JointMapError, KeypointError, StereoError, StreamSpecError,
+                                           TrcError, UsageError, OSError)

@@ -49,6 +49,7 @@ class EngineConfig:
     focal_px: float = 1000.0             # input camera focal length, pixels
     image_size: tuple[int, int] = (1920, 1080)  # input image width, height in pixels
     fps: float = 30.0                    # frame rate assumed when frames carry no time
+    max_gap_s: float = 1.0               # a longer jump in time (or frame number / fps) ends every track
     translation: bool = True             # estimate the root translation from the image
     refine_yaw: bool = True              # refine the matched yaw between the database's yaws
     refine: bool = True                  # 2D refinement after retrieval (False: the method as published)
@@ -109,6 +110,7 @@ class TrackRecording:
     quaternions: list[np.ndarray] = field(default_factory=list)  # [R, 4] view frame
     root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] view frame
     scales: list[float] = field(default_factory=list)            # body scale (height / 1.75 m)
+    static: bool = False  # its keypoints never moved (see StillnessCheck): a poster, not a person
 
     def motion(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Rotations ``[F, R, 4]``, root ``[F, 3]`` and the one body scale of the track's BVH.
@@ -131,6 +133,8 @@ class _TrackState:
         self.scale = (config.subject_height_m or UNIVERSAL_HEIGHT_M) / UNIVERSAL_HEIGHT_M  # body size
         self.tilt = CameraTilt()
         self.keypoints = KeypointFilter(config.keypoint_filter, N_KEYPOINTS_2D) if config.keypoint_filter else None
+        self.stillness = StillnessCheck()
+        self.max_fill = max(int(config.max_gap_s * config.fps), 0)
         self.floor = None
         if config.camera_height_m is not None and config.subject_height_m is None:
             self.floor = FloorScale(config.camera_height_m)
@@ -152,7 +156,7 @@ class _TrackState:
     def record(self, frame: int, quats: np.ndarray, root_view: np.ndarray) -> None:
         """Append this frame, holding the last pose over any frames the track missed."""
         rec = self.recording
-        for _ in range(frame - self.last_frame - 1):
+        for _ in range(min(frame - self.last_frame - 1, self.max_fill)):
             if rec.quaternions:
                 rec.quaternions.append(rec.quaternions[-1])
                 rec.root_view_m.append(rec.root_view_m[-1])
@@ -163,12 +167,50 @@ class _TrackState:
         self.last_frame = frame
 
 
+STATIC_RANGE = 0.05  # a track is static if no keypoint ever moved more than this × its box height
+STATIC_MIN_S = 1.0   # … over at least this long
+
+
+class StillnessCheck:
+    """Whether a track's input keypoints ever moved: per joint, the range of positions seen.
+
+    A detection that never moves nor changes shape (a poster, a statue, a false positive at the
+    image edge) is static when, after :data:`STATIC_MIN_S`, no joint's range of positions exceeds
+    :data:`STATIC_RANGE` of its first box height. (Measured on the bundled Pose2Sim sample: the
+    false detection at the image edge 3.8 %, the balancing person 133 %.)
+    """
+
+    def __init__(self) -> None:
+        self.lo = np.full((N_KEYPOINTS_2D, 2), np.inf)
+        self.hi = np.full((N_KEYPOINTS_2D, 2), -np.inf)
+        self.box_px = 0.0
+        self.first_s: float | None = None
+        self.last_s = 0.0
+
+    def add(self, points_px: np.ndarray, visible: np.ndarray, t_s: float) -> None:
+        if self.first_s is None:
+            self.first_s = t_s
+            self.box_px = float(np.ptp(points_px[visible, 1]))
+        self.last_s = t_s
+        self.lo[visible] = np.minimum(self.lo[visible], points_px[visible])
+        self.hi[visible] = np.maximum(self.hi[visible], points_px[visible])
+
+    @property
+    def static(self) -> bool:
+        if self.first_s is None or self.last_s - self.first_s < STATIC_MIN_S:
+            return False
+        seen = np.isfinite(self.lo[:, 0])
+        moved = np.linalg.norm(self.hi[seen] - self.lo[seen], axis=-1).max()
+        return bool(moved <= STATIC_RANGE * max(self.box_px, 1.0))
+
+
 @dataclass
 class EngineStats:
     frames: int = 0
     person_frames: int = 0
     skipped_people: int = 0  # detections with too few confident joints or no hip
     tracks_started: int = 0
+    gaps: int = 0            # jumps in time or frame number that ended every track
 
 
 class Engine:
@@ -196,6 +238,7 @@ class Engine:
         self.tracks: dict[int, _TrackState] = {}
         self.finished: list[TrackRecording] = []
         self.stats = EngineStats()
+        self._last_seen: tuple[int, float] | None = None
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -212,6 +255,7 @@ class Engine:
         """Process one frame; returns the poses of the confirmed tracks seen in it."""
         cfg = self.config
         t_s = frame.time_s if frame.time_s is not None else frame.index / cfg.fps
+        self._end_tracks_after_a_gap(frame.index, t_s)
         self.stats.frames += 1
         people = [p for p in frame.people if self._usable(p)]
         self.stats.skipped_people += len(frame.people) - len(people)
@@ -227,10 +271,20 @@ class Engine:
             if state is None:
                 state = self.tracks[track] = _TrackState(track, frame.index, cfg, len(self.window_weights))
                 self.stats.tracks_started += 1
+            state.stillness.add(points[det], conf[det] > 0, t_s)
             person_px = points[det] if state.keypoints is None else state.keypoints(points[det], conf[det], t_s)
             poses.append(self._person(state, person_px, conf[det], frame.index, t_s))
         self.stats.person_frames += len(poses)
         return poses
+
+    def _end_tracks_after_a_gap(self, frame_index: int, t_s: float) -> None:
+        """A jump of more than ``max_gap_s`` ends every track, so a time (or, for frames without
+        one, a frame number) far in the future costs one frame, not the frames in between."""
+        last = self._last_seen
+        self._last_seen = (frame_index, t_s)
+        if last is not None and t_s - last[1] > self.config.max_gap_s:
+            self.stats.gaps += 1
+            self._end_all()
 
     def _usable(self, person: Person) -> bool:
         vis = person.confidence >= self.config.confidence_threshold
@@ -313,14 +367,18 @@ class Engine:
     def _end(self, track: int) -> None:
         state = self.tracks.pop(track, None)
         if state is not None and state.recording.quaternions:
+            state.recording.static = state.stillness.static
             self.finished.append(state.recording)
 
-    def finish(self) -> list[TrackRecording]:
-        """End every track; returns all recordings (ended earlier or now), by track id."""
+    def _end_all(self) -> None:
         for track in self.tracker.finish():
             self._end(track)
         for track in list(self.tracks):
             self._end(track)
+
+    def finish(self) -> list[TrackRecording]:
+        """End every track; returns all recordings (ended earlier or now), by track id."""
+        self._end_all()
         return sorted(self.finished, key=lambda r: r.track)
 
 

@@ -8,6 +8,7 @@ and throughput.
 """
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from collections import Counter
@@ -36,6 +37,8 @@ class SessionSummary:
     latencies_s: list[float] = field(default_factory=list)
     wall_s: float = 0.0
     bvh_files: list[Path] = field(default_factory=list)
+    static_tracks: list[int] = field(default_factory=list)  # left out of the BVH output
+    gaps: int = 0
 
     def report(self) -> str:
         lat = np.array(self.latencies_s) * 1000.0
@@ -47,6 +50,11 @@ class SessionSummary:
                  f"skipped: stale {self.stream.dropped_stale}, oversized {self.stream.oversized}, "
                  f"not UTF-8 {self.stream.decode_errors}, undelivered output lines {self.stream.sink_dropped}"]
         lines += [f"skipped malformed ({n}): {why}" for why, n in self.malformed.most_common()]
+        if self.static_tracks:
+            lines.append(f"static tracks (keypoints never moved; no BVH, --keep-static keeps them): "
+                         f"{', '.join(map(str, self.static_tracks))}")
+        if self.gaps:
+            lines.append(f"jumps in time longer than the gap limit (every track ended): {self.gaps}")
         return "\n".join(lines)
 
 
@@ -71,11 +79,32 @@ def _short_reason(exc: KeypointError) -> str:
     return str(exc).split(": ", 1)[-1][:120]
 
 
+class InputError(ValueError):
+    """Input that contradicts the command's parameters (e.g. keypoints outside --image-size)."""
+
+
+IMAGE_MARGIN = 0.1  # keypoints may lie this fraction of the image size outside it (detectors extrapolate)
+
+
+@dataclass
+class SessionOptions:
+    """What a session does beyond the engine: ``strict`` stops at input that contradicts the
+    parameters (reconstruct) instead of skipping and counting it (live); ``fps_given`` says
+    whether ``--fps`` was given (else frames without time warn once)."""
+
+    strict: bool = True
+    fps_given: bool = True
+    keep_static: bool = False
+
+
 class Session:
     """Runs an engine over a message source and writes its outputs."""
 
-    def __init__(self, engine: Engine, sink: Sink, parser: FrameParser, summary: SessionSummary):
+    def __init__(self, engine: Engine, sink: Sink, parser: FrameParser, summary: SessionSummary,
+                 options: SessionOptions | None = None):
         self.engine, self.sink, self.parser, self.summary = engine, sink, parser, summary
+        self.options = options or SessionOptions()
+        self._fps_warned = self.options.fps_given
         self.started = time.perf_counter()
         self.sink.write(header_line(engine.config.fps))
 
@@ -90,6 +119,12 @@ class Session:
 
     def handle_frame(self, frame: KeypointFrame, arrival_s: float) -> None:
         """Process and write one parsed frame that arrived at ``arrival_s`` (time.monotonic)."""
+        problem = self._contradiction(frame)
+        if problem:
+            if self.options.strict:
+                raise InputError(problem)
+            self.summary.malformed["keypoints outside --image-size"] += 1
+            return
         poses = self.engine.step(frame)
         t_s = frame.time_s if frame.time_s is not None else frame.index / self.engine.config.fps
         self.sink.write(frame_line(frame.index, t_s, poses))
@@ -97,11 +132,38 @@ class Session:
         self.summary.person_frames += len(poses)
         self.summary.latencies_s.append(time.monotonic() - arrival_s)
 
+    def _contradiction(self, frame: KeypointFrame) -> str | None:
+        """Why ``frame`` contradicts the parameters, or None; warns once about an assumed rate."""
+        if frame.time_s is None and not self._fps_warned:
+            self._fps_warned = True
+            print(f"warning: the input carries no timestamps and no --fps was given: assuming "
+                  f"{self.engine.config.fps:g} fps (BVH frame time 1/{self.engine.config.fps:g} s)", file=sys.stderr)
+        width, height = self.engine.config.image_size
+        for person in frame.people:
+            seen = person.points_px[person.confidence >= self.engine.config.confidence_threshold]
+            if len(seen) == 0:
+                continue
+            lo, hi = seen.min(axis=0), seen.max(axis=0)
+            if lo.min() >= -IMAGE_MARGIN * min(width, height) and hi[0] <= (1 + IMAGE_MARGIN) * width \
+                    and hi[1] <= (1 + IMAGE_MARGIN) * height:
+                continue
+            hint = ""
+            if hi[0] <= (1 + IMAGE_MARGIN) * height and hi[1] <= (1 + IMAGE_MARGIN) * width:
+                hint = f"; is the image {height}x{width} (width x height)?"
+            return (f"frame {frame.index}: keypoints reach x = {hi[0]:.0f} px, y = {hi[1]:.0f} px in an image "
+                    f"said to be {width}x{height} by --image-size{hint}")
+        return None
+
     def finish(self, bvh_dir: Path | None, bvh_unit: str = "m") -> SessionSummary:
-        """End all tracks, write their BVH files (if ``bvh_dir``), close the sink."""
+        """End all tracks, write their BVH files (if ``bvh_dir``; static tracks only with
+        ``keep_static``), close the sink."""
         self.summary.wall_s = time.perf_counter() - self.started
         recordings = self.engine.finish()
         self.summary.tracks = len(recordings)
+        self.summary.gaps = self.engine.stats.gaps
+        self.summary.static_tracks = [r.track for r in recordings if r.static]
+        if not self.options.keep_static:
+            recordings = [r for r in recordings if not r.static]
         if bvh_dir is not None:
             self.summary.bvh_files = write_track_bvhs(recordings, bvh_dir, self.engine.config.fps, bvh_unit)
         self.sink.close()

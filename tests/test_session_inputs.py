@@ -1,0 +1,103 @@
+"""Input that contradicts the parameters or could blow up work: time jumps, static detections,
+keypoints outside the image, missing frame rate, empty input (issue 10)."""
+import json
+import resource
+
+import numpy as np
+import pytest
+
+from mocapdb.cli import main
+from mocapdb.database import load_database
+from mocapdb.geometry import Camera, project_views
+from mocapdb.keypoints import KeypointFrame, Person
+from mocapdb.skeleton import PELVIS
+from runtime.engine import Engine, EngineConfig
+from runtime.session import FrameParser, InputError, Session, SessionOptions, SessionSummary
+from runtime.streams import StreamStats, open_sink
+
+
+def _walking_px(db, n: int, offset=(0.0, 0.0)) -> np.ndarray:
+    pos = db.positions[:n].astype(np.float64)
+    camera = Camera(**db.meta["camera"])
+    return project_views(pos, pos[:, PELVIS], np.array([36.0]), 0.0, camera)[:, 0, :14] + offset
+
+
+def _session(db, tmp_path, **options) -> Session:
+    summary = SessionSummary(stream=StreamStats())
+    engine = Engine(db, EngineConfig(fps=24.0))
+    return Session(engine, open_sink(str(tmp_path / "out.jsonl"), summary.stream), FrameParser(), summary,
+                   SessionOptions(**options))
+
+
+def test_a_jump_far_into_the_future_costs_one_frame(small_db, tmp_path):
+    px = _walking_px(small_db, 20)
+    session = _session(small_db, tmp_path)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    for i in range(10):
+        session.handle_frame(KeypointFrame(i, None, [Person(px[i], np.full(14, 0.9))]), 0.0)
+    for i in range(10, 20):  # frame numbers jump by 5·10⁶ s at 24 fps
+        session.handle_frame(KeypointFrame(i + 120_000_000, None, [Person(px[i], np.full(14, 0.9))]), 0.0)
+    summary = session.finish(tmp_path)
+    assert summary.gaps == 1 and summary.tracks == 2
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 200_000  # kB: nothing materialised
+    lengths = sorted(len(r.read_text().split("MOTION")[1].splitlines()) for r in summary.bvh_files)
+    assert max(lengths) < 20
+
+
+def test_a_detection_that_never_moves_gets_no_bvh(small_db, tmp_path):
+    px = _walking_px(small_db, 48)
+    poster = px[0] + [-600.0, 0.0]  # the same pose, still, at the image's left
+    frames = [KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9)), Person(poster, np.full(14, 1.0))])
+              for i in range(48)]
+    for keep, written in ((False, 1), (True, 2)):
+        (tmp_path / str(keep)).mkdir()
+        session = _session(small_db, tmp_path / str(keep), keep_static=keep)
+        for frame in frames:
+            session.handle_frame(frame, 0.0)
+        summary = session.finish(tmp_path / str(keep))
+        assert len(summary.static_tracks) == 1 and len(summary.bvh_files) == written
+        assert "static tracks" in summary.report()
+
+
+def test_keypoints_outside_the_image_size_name_the_likely_swap(small_db, tmp_path):
+    px = _walking_px(small_db, 3)
+    px[..., 1] += 600.0  # y up to ~1300 px in a frame said to be 1920x1080
+    session = _session(small_db, tmp_path)
+    with pytest.raises(InputError, match="1080x1920"):
+        session.handle_frame(KeypointFrame(0, None, [Person(px[0], np.full(14, 0.9))]), 0.0)
+    live = _session(small_db, tmp_path, strict=False)
+    live.handle_frame(KeypointFrame(0, None, [Person(px[0], np.full(14, 0.9))]), 0.0)
+    assert live.summary.malformed["keypoints outside --image-size"] == 1 and live.summary.frames == 0
+
+
+def _write_jsonl(db, path, n=10):
+    px = _walking_px(db, n)
+    coco = {0: 0, 2: 6, 3: 8, 4: 10, 5: 5, 6: 7, 7: 9, 8: 12, 9: 14, 10: 16, 11: 11, 12: 13, 13: 15}
+    lines = []
+    for i in range(n):
+        kp = np.zeros((17, 3))
+        for u, c in coco.items():
+            kp[c] = [px[i, u, 0], px[i, u, 1], 0.9]
+        lines.append(json.dumps({"frame": i, "layout": "coco17", "people": [{"keypoints": kp.tolist()}]}))
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_cli_warns_about_an_assumed_frame_rate_and_refuses_empty_input(small_db_path, tmp_path, capsys):
+    _write_jsonl(load_database(small_db_path), tmp_path / "in.jsonl")
+    assert main(["reconstruct", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--out", str(tmp_path / "a")]) == 0
+    assert "assuming 30 fps" in capsys.readouterr().err
+    assert main(["reconstruct", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--out", str(tmp_path / "b"),
+                 "--fps", "24"]) == 0
+    assert "assuming" not in capsys.readouterr().err
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "notes.txt").write_text("not keypoints")
+    assert main(["reconstruct", str(empty), "--db", str(small_db_path), "--out", str(tmp_path / "c")]) == 2
+    assert "no keypoint frame" in capsys.readouterr().err
+
+
+def test_cli_image_size_errors_name_the_argument(small_db_path, tmp_path, capsys):
+    assert main(["reconstruct", str(tmp_path), "--db", str(small_db_path), "--out", str(tmp_path / "o"),
+                 "--image-size", "1920by1080"]) == 2
+    err = capsys.readouterr().err
+    assert "--image-size" in err and "--window-weights" not in err
