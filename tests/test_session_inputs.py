@@ -1,6 +1,5 @@
 """Input that contradicts the parameters or could blow up work: time jumps, static detections,
 keypoints outside the image, missing frame rate, empty input (issue 10)."""
-import json
 import resource
 
 import numpy as np
@@ -14,6 +13,8 @@ from mocapdb.skeleton import PELVIS
 from runtime.engine import Engine, EngineConfig
 from runtime.session import FrameParser, InputError, Session, SessionOptions, SessionSummary
 from runtime.streams import StreamStats, open_sink
+
+from .test_session import _stream_lines
 
 
 def _walking_px(db, n: int, offset=(0.0, 0.0)) -> np.ndarray:
@@ -70,20 +71,8 @@ def test_keypoints_outside_the_image_size_name_the_likely_swap(small_db, tmp_pat
     assert live.summary.malformed["keypoints outside --image-size"] == 1 and live.summary.frames == 0
 
 
-def _write_jsonl(db, path, n=10):
-    px = _walking_px(db, n)
-    coco = {0: 0, 2: 6, 3: 8, 4: 10, 5: 5, 6: 7, 7: 9, 8: 12, 9: 14, 10: 16, 11: 11, 12: 13, 13: 15}
-    lines = []
-    for i in range(n):
-        kp = np.zeros((17, 3))
-        for u, c in coco.items():
-            kp[c] = [px[i, u, 0], px[i, u, 1], 0.9]
-        lines.append(json.dumps({"frame": i, "layout": "coco17", "people": [{"keypoints": kp.tolist()}]}))
-    path.write_text("\n".join(lines) + "\n")
-
-
 def test_cli_warns_about_an_assumed_frame_rate_and_refuses_empty_input(small_db_path, tmp_path, capsys):
-    _write_jsonl(load_database(small_db_path), tmp_path / "in.jsonl")
+    (tmp_path / "in.jsonl").write_text("\n".join(_stream_lines(load_database(small_db_path), 10)) + "\n")
     assert main(["reconstruct", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--out", str(tmp_path / "a")]) == 0
     assert "assuming 30 fps" in capsys.readouterr().err
     assert main(["reconstruct", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--out", str(tmp_path / "b"),
