@@ -20,7 +20,7 @@ from tqdm import tqdm
 
 from . import __version__
 from .bvh import BvhError, read_bvh
-from .database import MotionDatabase, write_database
+from .database import MotionDatabase, check_output_path, write_database
 from .embedding import kmeans, landmark_mds, pose_distances, representatives
 from .geometry import Camera, normalize_pose_2d, project_views
 from .joint_map import JointMapError, detect_mapping, extract_keypoints, load_joint_map_file
@@ -140,7 +140,7 @@ def clips_from_bvh(path: Path, root: Path, config: BuildConfig) -> list[Clip]:
     ``@first-end`` (source frames) added when the file was split. With ``config.mirror`` each
     clip is followed by its left-right mirror image (:data:`MIRROR_SUFFIX` added to the name),
     retargeted from the mirrored source keypoints. Raises BvhError or JointMapError when the
-    file cannot be used.
+    file cannot be used, also when a clip would hold a NaN or infinite value.
     """
     bvh = read_bvh(path)
     overrides = load_joint_map_file(config.joint_map) if config.joint_map else None
@@ -161,6 +161,9 @@ def clips_from_bvh(path: Path, root: Path, config: BuildConfig) -> list[Clip]:
         clips.append(_clip(name, resampled, **origin))
         if config.mirror:
             clips.append(_clip(name + MIRROR_SUFFIX, mirror_keypoints(resampled), mirrored=True, **origin))
+    if not all(np.isfinite(c.positions).all() and np.isfinite(c.quaternions).all() for c in clips):
+        raise BvhError(f"{path}: NaN or infinite joint positions after retargeting "
+                       "(absurdly large values in the file, or a degenerate skeleton)")
     return clips
 
 
@@ -207,16 +210,20 @@ def _leg_scale(points: np.ndarray) -> float:
 
 
 def _process_one(args: tuple[Path, Path, BuildConfig]) -> list[Clip] | tuple[str, str]:
+    """One file's clips, or ``(file, reason)`` when anything goes wrong: one bad file never ends a build."""
     path, root, config = args
     try:
         return clips_from_bvh(path, root, config)
-    except (BvhError, JointMapError, ValueError) as exc:
+    except (BvhError, JointMapError) as exc:
         return (str(path), str(exc))
+    except Exception as exc:  # noqa: BLE001 - any failure on one file is that file's skip reason
+        return (str(path), f"unexpected {type(exc).__name__}: {exc}")
 
 
 def load_clips(files: list[tuple[Path, Path]], config: BuildConfig,
                summary: BuildSummary) -> list[Clip]:
-    """Process every file (in ``config.workers`` processes); unreadable ones go to ``summary.skipped``."""
+    """Process every file (in ``config.workers`` processes); files that fail go to ``summary.skipped``
+    with the reason (``config.strict``: :class:`BuildError` naming them all)."""
     jobs = [(path, root, config) for path, root in files]
     bar = tqdm(total=len(jobs), desc="read+retarget", unit="clip", disable=None, file=sys.stderr)
     results = []
@@ -336,15 +343,23 @@ def _meta(config: BuildConfig) -> dict:
     }
 
 
+def _check_before_work(out: str | os.PathLike, config: BuildConfig) -> None:
+    """Fail in milliseconds, before any file is read, on what would stop the build at the end."""
+    check_output_path(out)
+    config.yaws_deg  # validates the yaw step
+    if config.joint_map:
+        load_joint_map_file(config.joint_map)
+
+
 def build(sources: list[str], out: str | os.PathLike, config: BuildConfig,
           exclude: list[str] = ()) -> BuildSummary:
     """Build a database at ``out`` from BVH files and folders; returns the summary."""
     summary = BuildSummary()
     t0 = time.perf_counter()
+    _check_before_work(out, config)
     files = find_sources(sources, exclude)
     if not files:
         raise BuildError(f"no .bvh file found in {', '.join(sources)}")
-    config.yaws_deg  # validate the yaw step before the long work
     clips = load_clips(files, config, summary)
     t1 = time.perf_counter()
     positions = np.concatenate([c.positions for c in clips])

@@ -1,25 +1,44 @@
 """BVH motion files: reading, writing and forward kinematics.
 
 Reads what real exporters write: any channel order and count per joint, ``End Site`` blocks,
-CRLF or LF, tabs, scientific notation. Semantics (the common reading, also Blender's):
+CRLF or LF, tabs, scientific notation, a UTF-8 byte-order mark, joint names with spaces (3ds Max
+Biped's ``Bip01 L Thigh``: a name is the rest of its ``ROOT``/``JOINT`` line). Semantics
+(``data_specs/joint_conventions.md``):
 
-* a joint's local translation is ``OFFSET`` plus its position channels (if any);
+* the root's local translation is its ``OFFSET`` plus its position channels (if any);
+* a non-root joint's position channels are read per file (:func:`detect_position_mode`): added
+  to its ``OFFSET``, or replacing it when frame 0 repeats the offsets (as Blender's exporter
+  writes them);
 * rotation channels compose intrinsically in the listed order: ``Zrotation Yrotation Xrotation``
   gives ``R = Rz @ Ry @ Rx`` (degrees);
 * ``End Site`` blocks become joints with no channels whose name is ``<parent>_End``.
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from .geometry import euler_to_matrix, matrix_to_euler
 
 VALID_CHANNELS = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
+MAX_FRAMES = 10_000_000     # more is a broken header, not motion (a day at 100 fps is 8.6 M)
+MAX_FRAME_TIME_S = 10.0     # a longer frame time is a broken header
+# How non-root position channels are read (``Bvh.position_mode``), and how `mocapdb inspect` says it.
+NO_POSITIONS = "none"
+ADDED = "offset+channel"
+REPLACED = "channel replaces offset"
+POSITION_MODE_TEXT = {NO_POSITIONS: "none",
+                      ADDED: "added to the OFFSET",
+                      REPLACED: "replace the OFFSET (Blender style)"}
+# Frame-0 position channels "equal" a joint's OFFSET within this fraction of the bone, or ABS units.
+POSITION_MATCH_REL = 0.01
+POSITION_MATCH_ABS = 1e-3
 
 
 class BvhError(ValueError):
@@ -33,6 +52,8 @@ class Bvh:
     ``names[j]``, ``parents[j]`` (-1 for the root; parents come before children),
     ``offsets[j]`` (file units), ``channels[j]`` (channel names, empty for end sites),
     ``end_site[j]``; ``motion [F, C]`` holds the channel values frame by frame in file order.
+    ``position_mode`` says how non-root position channels are read (:data:`ADDED`,
+    :data:`REPLACED`, or :data:`NO_POSITIONS` when there are none).
     """
 
     names: list[str]
@@ -43,6 +64,7 @@ class Bvh:
     frame_time: float
     motion: np.ndarray
     source: str = ""
+    position_mode: str = NO_POSITIONS
     channel_start: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
@@ -74,100 +96,156 @@ def _fail(source: str, line: int, message: str) -> BvhError:
 
 def parse_bvh(text: str, source: str = "<text>") -> Bvh:
     """Parse BVH text; raises :class:`BvhError` naming ``source`` and the line on any defect."""
-    motion_at = re.search(r"^\s*MOTION\s*$", text, flags=re.MULTILINE)
+    text = text.removeprefix("\ufeff")
+    if "\0" in text:
+        raise _fail(source, 0, "not a text file (it holds NUL bytes: binary data, not BVH)")
     if not text.lstrip().startswith("HIERARCHY"):
         raise _fail(source, 1, "not a BVH file (it does not start with HIERARCHY)")
+    motion_at = re.search(r"^[ \t]*MOTION[ \t\r]*$", text, flags=re.MULTILINE)
     if motion_at is None:
         raise _fail(source, 0, "no MOTION section (file truncated?)")
     header = text[:motion_at.start()]
-    names, parents, offsets, channels, end_site = _parse_hierarchy(header, source)
-    first_motion_line = header.count("\n") + 2
-    frame_time, motion = _parse_motion(text[motion_at.end():], sum(len(c) for c in channels),
-                                       source, first_motion_line)
-    return Bvh(names, np.array(parents, dtype=np.int64), np.array(offsets, dtype=np.float64),
-               channels, np.array(end_site, dtype=bool), frame_time, motion, source)
+    joints = _parse_hierarchy(header, source)
+    labels = [f"{name} {c}" for name, chans in zip(joints.names, joints.channels) for c in chans]
+    frame_time, motion = _parse_motion(text[motion_at.end():], labels, source, header.count("\n") + 1)
+    bvh = Bvh(joints.names, np.array(joints.parents, dtype=np.int64), np.array(joints.offsets, dtype=np.float64),
+              joints.channels, np.array(joints.end_site, dtype=bool), frame_time, motion, source)
+    bvh.position_mode = detect_position_mode(bvh)
+    return bvh
 
 
-def _parse_hierarchy(header: str, source: str):
-    tokens = [(m.group(0), header.count("\n", 0, m.start()) + 1) for m in _TOKEN.finditer(header)]
-    names: list[str] = []
-    parents: list[int] = []
-    offsets: list[list[float]] = []
-    channels: list[list[str]] = []
-    end_site: list[bool] = []
-    stack: list[int] = []
+class _Token(NamedTuple):
+    text: str
+    line: int   # 1-based
+    start: int  # span within the line
+    end: int
+
+
+@dataclass
+class _Hierarchy:
+    """The joints a HIERARCHY section declares, filled token by token."""
+
+    source: str
+    names: list[str] = field(default_factory=list)
+    parents: list[int] = field(default_factory=list)
+    offsets: list[list[float]] = field(default_factory=list)
+    channels: list[list[str]] = field(default_factory=list)
+    end_site: list[bool] = field(default_factory=list)
+    stack: list[int] = field(default_factory=list)  # the open joints
     pending: int | None = None  # joint declared, waiting for its "{"
+
+    def declare(self, keyword: str, name: str, line: int) -> None:
+        """A ``ROOT``, ``JOINT`` or ``End`` (Site) line."""
+        if keyword == "ROOT" and self.names:
+            raise _fail(self.source, line, "more than one ROOT is not supported")
+        if keyword != "ROOT" and not self.stack:
+            raise _fail(self.source, line, f"{'End Site' if keyword == 'End' else keyword} outside any parent")
+        if keyword == "End":
+            name = f"{self.names[self.stack[-1]]}_End"
+        elif not name:
+            raise _fail(self.source, line, f"{keyword} without a name")
+        if name in self.names:
+            raise _fail(self.source, line, f"joint name {name!r} appears twice")
+        self.names.append(name)
+        self.parents.append(self.stack[-1] if self.stack else -1)
+        self.offsets.append([0.0, 0.0, 0.0])
+        self.channels.append([])
+        self.end_site.append(keyword == "End")
+        self.pending = len(self.names) - 1
+
+    def open(self, line: int) -> None:
+        if self.pending is None:
+            raise _fail(self.source, line, "'{' without a joint")
+        self.stack.append(self.pending)
+        self.pending = None
+
+    def close(self, line: int) -> None:
+        if not self.stack:
+            raise _fail(self.source, line, "unbalanced '}'")
+        self.stack.pop()
+
+    def offset(self, values: list[str], line: int) -> None:
+        if not self.stack:
+            raise _fail(self.source, line, "OFFSET outside a joint")
+        try:
+            offset = [float(v) for v in values]
+        except ValueError:
+            raise _fail(self.source, line, "OFFSET needs three numbers") from None
+        if len(offset) != 3:
+            raise _fail(self.source, line, "OFFSET needs three numbers")
+        if not all(math.isfinite(v) for v in offset):
+            raise _fail(self.source, line, f"OFFSET of {self.names[self.stack[-1]]!r} is not finite "
+                                           f"({' '.join(values)})")
+        self.offsets[self.stack[-1]] = offset
+
+    def set_channels(self, tokens: list[_Token], i: int) -> int:
+        """The ``CHANNELS`` list at ``tokens[i]``; returns the index of the token after it."""
+        line = tokens[i].line
+        if not self.stack or self.end_site[self.stack[-1]]:
+            raise _fail(self.source, line, "CHANNELS outside a joint")
+        try:
+            count = int(tokens[i + 1].text)
+        except (ValueError, IndexError):
+            raise _fail(self.source, line, "CHANNELS needs a count") from None
+        names = [t.text for t in tokens[i + 2:i + 2 + max(count, 0)]]
+        if count < 0 or len(names) != count or any(c not in VALID_CHANNELS for c in names):
+            raise _fail(self.source, line, f"bad channel list {names!r} (count {count})")
+        self.channels[self.stack[-1]] = names
+        return i + 2 + count
+
+
+def _joint_name(tokens: list[_Token], lines: list[str], i: int) -> tuple[str, int]:
+    """The name after the ROOT/JOINT at ``tokens[i]`` (the rest of its line but a final
+    ``{``; spaces inside kept) and the index of the token after it."""
+    end = i + 1
+    while end < len(tokens) and tokens[end].line == tokens[i].line:
+        end += 1
+    if end > i + 1 and tokens[end - 1].text == "{":
+        end -= 1
+    if end == i + 1:
+        return "", end
+    return lines[tokens[i].line - 1][tokens[i + 1].start:tokens[end - 1].end], end
+
+
+def _parse_hierarchy(header: str, source: str) -> _Hierarchy:
+    lines = header.split("\n")
+    tokens = [_Token(m.group(0), n, m.start(), m.end())
+              for n, text in enumerate(lines, 1) for m in _TOKEN.finditer(text)]
+    joints = _Hierarchy(source)
     i = 1  # skip HIERARCHY
     while i < len(tokens):
-        tok, line = tokens[i]
-        if tok in ("ROOT", "JOINT") or tok == "End":
-            if tok == "ROOT" and names:
-                raise _fail(source, line, "more than one ROOT is not supported")
-            if tok == "JOINT" and not stack:
-                raise _fail(source, line, "JOINT outside any parent")
-            if tok == "End":
-                if i + 1 >= len(tokens) or tokens[i + 1][0] != "Site":
-                    raise _fail(source, line, "'End' must be followed by 'Site'")
-                name = f"{names[stack[-1]]}_End" if stack else "End"
-            else:
-                if i + 1 >= len(tokens):
-                    raise _fail(source, line, f"{tok} without a name")
-                name = tokens[i + 1][0]
-            if name in names:
-                raise _fail(source, line, f"joint name {name!r} appears twice")
-            names.append(name)
-            parents.append(stack[-1] if stack else -1)
-            offsets.append([0.0, 0.0, 0.0])
-            channels.append([])
-            end_site.append(tok == "End")
-            pending = len(names) - 1
+        tok, line = tokens[i].text, tokens[i].line
+        if tok in ("ROOT", "JOINT"):
+            name, i = _joint_name(tokens, lines, i)
+            joints.declare(tok, name, line)
+        elif tok == "End":
+            if i + 1 >= len(tokens) or tokens[i + 1].text != "Site":
+                raise _fail(source, line, "'End' must be followed by 'Site'")
+            joints.declare(tok, "", line)
             i += 2
-        elif tok == "{":
-            if pending is None:
-                raise _fail(source, line, "'{' without a joint")
-            stack.append(pending)
-            pending = None
-            i += 1
-        elif tok == "}":
-            if not stack:
-                raise _fail(source, line, "unbalanced '}'")
-            stack.pop()
+        elif tok in ("{", "}"):
+            (joints.open if tok == "{" else joints.close)(line)
             i += 1
         elif tok == "OFFSET":
-            if not stack:
-                raise _fail(source, line, "OFFSET outside a joint")
-            try:
-                offsets[stack[-1]] = [float(t) for t, _ in tokens[i + 1:i + 4]]
-            except ValueError:
-                raise _fail(source, line, "OFFSET needs three numbers") from None
-            if len(offsets[stack[-1]]) != 3:
-                raise _fail(source, line, "OFFSET needs three numbers")
+            joints.offset([t.text for t in tokens[i + 1:i + 4]], line)
             i += 4
         elif tok == "CHANNELS":
-            if not stack or end_site[stack[-1]]:
-                raise _fail(source, line, "CHANNELS outside a joint")
-            try:
-                count = int(tokens[i + 1][0])
-            except (ValueError, IndexError):
-                raise _fail(source, line, "CHANNELS needs a count") from None
-            names_here = [t for t, _ in tokens[i + 2:i + 2 + count]]
-            bad = [c for c in names_here if c not in VALID_CHANNELS]
-            if bad or len(names_here) != count:
-                raise _fail(source, line, f"bad channel list {names_here!r} (count {count})")
-            channels[stack[-1]] = names_here
-            i += 2 + count
+            i = joints.set_channels(tokens, i)
         else:
             raise _fail(source, line, f"unexpected {tok!r} in HIERARCHY")
-    if stack:
-        raise _fail(source, tokens[-1][1] if tokens else 0, "unclosed '{' in HIERARCHY")
-    if not names:
+    if joints.stack:
+        raise _fail(source, tokens[-1].line if tokens else 0, "unclosed '{' in HIERARCHY")
+    if not joints.names:
         raise _fail(source, 0, "no ROOT joint")
-    return names, parents, offsets, channels, end_site
+    return joints
 
 
-def _parse_motion(body: str, n_channels: int, source: str, line0: int) -> tuple[float, np.ndarray]:
-    lines = body.splitlines()
-    fields = {}
+def _motion_header(lines: list[str], source: str, line0: int) -> tuple[int, float, int]:
+    """``Frames:`` and ``Frame Time:``, checked, and the index of the line after them.
+
+    ``lines[k]`` is line ``line0 + k`` of the file (``lines[0]``: the rest of the MOTION line).
+    """
+    fields: dict[str, tuple[str, int]] = {}
     k = 0
     while k < len(lines) and len(fields) < 2:
         stripped = lines[k].strip()
@@ -178,14 +256,28 @@ def _parse_motion(body: str, n_channels: int, source: str, line0: int) -> tuple[
         key = " ".join(key.split())
         if key not in ("Frames", "Frame Time"):
             raise _fail(source, line0 + k - 1, f"expected 'Frames:' and 'Frame Time:', got {stripped[:40]!r}")
-        fields[key] = value.strip()
+        fields[key] = (value.strip(), line0 + k - 1)
     try:
-        n_frames = int(fields["Frames"])
-        frame_time = float(fields["Frame Time"])
+        (frames_text, frames_line), (time_text, time_line) = fields["Frames"], fields["Frame Time"]
+        n_frames, frame_time = int(frames_text), float(time_text)
     except (KeyError, ValueError):
         raise _fail(source, line0, "missing or malformed 'Frames:' / 'Frame Time:'") from None
-    if n_frames < 1 or not frame_time > 0:
-        raise _fail(source, line0, f"{n_frames} frames at frame time {frame_time}: nothing to read")
+    if n_frames < 1:
+        raise _fail(source, frames_line, f"Frames: {n_frames}: no motion to read")
+    if n_frames > MAX_FRAMES:
+        raise _fail(source, frames_line, f"Frames: {n_frames} is absurd (more than {MAX_FRAMES}): a broken header")
+    if not 0 < frame_time <= MAX_FRAME_TIME_S:  # also false for NaN
+        raise _fail(source, time_line, f"Frame Time: {time_text} is not a frame duration "
+                                       f"(seconds, above 0 and at most {MAX_FRAME_TIME_S:g})")
+    return n_frames, frame_time, k
+
+
+def _parse_motion(body: str, labels: list[str], source: str, line0: int) -> tuple[float, np.ndarray]:
+    """Frame time and motion ``[F, C]`` from what follows the MOTION keyword (on line ``line0``);
+    ``labels`` name the C channels ("joint Xrotation")."""
+    lines = body.splitlines()
+    n_frames, frame_time, k = _motion_header(lines, source, line0)
+    n_channels = len(labels)
     rows = [ln for ln in lines[k:] if ln.strip()]
     if len(rows) < n_frames:
         raise _fail(source, 0, f"header says {n_frames} frames but only {len(rows)} are present (truncated?)")
@@ -197,9 +289,42 @@ def _parse_motion(body: str, n_channels: int, source: str, line0: int) -> tuple[
         per_row = [len(r.split()) for r in rows[:n_frames]]
         bad = next(i for i, n in enumerate(per_row) if n != n_channels)
         raise _fail(source, line0 + k + bad, f"frame {bad} has {per_row[bad]} values, expected {n_channels}")
-    if not np.all(np.isfinite(values)):
-        raise _fail(source, 0, "NaN or infinite value in the MOTION data")
+    not_finite = np.flatnonzero(~np.isfinite(values))
+    if not_finite.size:
+        frame, column = divmod(int(not_finite[0]), n_channels)
+        raise _fail(source, 0, f"NaN or infinite value in the MOTION data (frame {frame}, {labels[column]}; "
+                               f"{not_finite.size} such values)")
     return frame_time, values.reshape(n_frames, n_channels)
+
+
+def _position_channels(bvh: Bvh, joint: int) -> tuple[list[int], list[int]]:
+    """Motion columns and axes (0 x, 1 y, 2 z) of a joint's position channels."""
+    pairs = [(int(bvh.channel_start[joint]) + i, "XYZ".index(c[0]))
+             for i, c in enumerate(bvh.channels[joint]) if c.endswith("position")]
+    return [column for column, _ in pairs], [axis for _, axis in pairs]
+
+
+def detect_position_mode(bvh: Bvh) -> str:
+    """How ``bvh``'s non-root position channels are meant, judged on frame 0.
+
+    :data:`REPLACED` (Blender's exporter) when they equal the ``OFFSET`` (within
+    :data:`POSITION_MATCH_REL` of the bone or :data:`POSITION_MATCH_ABS` units) for more than half
+    of the joints whose ``OFFSET`` is not ~0 (where the two readings differ); else :data:`ADDED`;
+    :data:`NO_POSITIONS` when no non-root joint has position channels.
+    """
+    votes, found = [], False
+    for j in np.flatnonzero(bvh.parents >= 0):
+        columns, axes = _position_channels(bvh, j)
+        if not columns:
+            continue
+        found = True
+        offset = bvh.offsets[j]
+        tolerance = max(POSITION_MATCH_REL * float(np.linalg.norm(offset)), POSITION_MATCH_ABS)
+        if np.abs(offset[axes]).max() > tolerance:
+            votes.append(np.abs(bvh.motion[0, columns] - offset[axes]).max() <= tolerance)
+    if not found:
+        return NO_POSITIONS
+    return REPLACED if 2 * sum(votes) > len(votes) else ADDED
 
 
 def read_bvh(path: str | os.PathLike) -> Bvh:
@@ -261,15 +386,17 @@ def local_transforms(bvh: Bvh) -> tuple[np.ndarray, np.ndarray]:
     n_frames, n_joints = bvh.n_frames, len(bvh.names)
     rot = np.broadcast_to(np.eye(3), (n_frames, n_joints, 3, 3)).copy()
     trans = np.broadcast_to(bvh.offsets, (n_frames, n_joints, 3)).copy()
+    replaced = bvh.position_mode == REPLACED
     for j, chans in enumerate(bvh.channels):
         start = bvh.channel_start[j]
         rot_cols = [start + i for i, c in enumerate(chans) if c.endswith("rotation")]
         if rot_cols:
             order = "".join(c[0] for c in chans if c.endswith("rotation"))
             rot[:, j] = euler_to_matrix(bvh.motion[:, rot_cols], order)
-        for i, c in enumerate(chans):
-            if c.endswith("position"):
-                trans[:, j, "XYZ".index(c[0])] += bvh.motion[:, start + i]
+        columns, axes = _position_channels(bvh, j)
+        if columns:
+            base = 0.0 if replaced and bvh.parents[j] >= 0 else bvh.offsets[j, axes]
+            trans[:, j, axes] = base + bvh.motion[:, columns]
     return rot, trans
 
 
@@ -301,7 +428,8 @@ def forward_kinematics(bvh: Bvh) -> tuple[np.ndarray, np.ndarray]:
 def motion_from_rotations(bvh: Bvh, local_rot: np.ndarray, root_translation: np.ndarray) -> np.ndarray:
     """Channel values ``[F, C]`` that give local rotations ``[F, J, 3, 3]`` and root translation.
 
-    ``root_translation [F, 3]`` is the root's position channels (added to its OFFSET).
+    ``root_translation [F, 3]`` is the root's position channels (added to its OFFSET); other
+    joints' position channels keep the OFFSET (0, or the OFFSET itself when they replace it).
     Every joint's rotation channels must be three distinct axes.
     """
     motion = np.zeros((local_rot.shape[0], int(sum(len(c) for c in bvh.channels))))
@@ -311,7 +439,9 @@ def motion_from_rotations(bvh: Bvh, local_rot: np.ndarray, root_translation: np.
         if rot_cols:
             order = "".join(c[0] for c in chans if c.endswith("rotation"))
             motion[:, rot_cols] = matrix_to_euler(local_rot[:, j], order)
-        for i, c in enumerate(chans):
-            if c.endswith("position") and j == 0:
-                motion[:, start + i] = root_translation[:, "XYZ".index(c[0])]
+        columns, axes = _position_channels(bvh, j)
+        if j == 0:
+            motion[:, columns] = root_translation[:, axes]
+        elif bvh.position_mode == REPLACED:
+            motion[:, columns] = bvh.offsets[j, axes]
     return motion

@@ -32,7 +32,9 @@ def _add_build(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes reading BVH files")
     p.add_argument("--exclude", action="append", default=[], metavar="PATTERN",
                    help="skip files whose name or path matches this glob (repeatable)")
-    p.add_argument("--strict", action="store_true", help="fail the build on any unreadable BVH")
+    p.add_argument("--strict", action="store_true",
+                   help="fail the build when any file is skipped (by default a file that cannot be read, "
+                        "mapped or retargeted is skipped and named with the reason)")
     p.add_argument("--joint-map", help="TOML file mapping skeleton roles to source joint names")
     p.add_argument("--unit", choices=UNITS, help="length unit of the BVH files (default: detected)")
     p.add_argument("--up-axis", choices=UP_AXES, help="up axis of the BVH files (default: detected)")
@@ -87,8 +89,10 @@ def _run_inspect(args: argparse.Namespace) -> int:
 
 def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", required=True, help="database directory written by `mocapdb build`")
-    p.add_argument("--keypoints", choices=("body25", "body25b", "coco18", "coco17"),
-                   help="keypoint layout of the input (default: detected)")
+    p.add_argument("--keypoints",
+                   choices=("body25", "body25b", "coco18", "coco17", "halpe26", "wholebody133", "mediapipe33"),
+                   help="keypoint layout of the input (default: detected from the keypoint count; 25 keypoints: "
+                        "BODY_25 or BODY_25B by geometry); data_specs/keypoint_formats.md")
     p.add_argument("--fps", type=float,
                    help="input frame rate in Hz when frames carry no time (default 30, with a warning)")
     p.add_argument("--focal", type=float, default=1000.0, help="input camera focal length in pixels (default 1000)")
@@ -169,8 +173,9 @@ def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("reconstruct", help="2D keypoint files → 3D skeletons (JSON lines) and BVH per person",
                        description="Reconstruct every frame of a folder of OpenPose JSON files or a JSON-lines "
                                    "keypoint file; writes OUT/result.jsonl and OUT/track_<id>.bvh.")
-    p.add_argument("input", help="folder of OpenPose JSON frames, a .jsonl/.ndjson file, or a .npy/.npz "
-                                 "keypoint array [T, K, 3] or [T, P, K, 3] (x, y, confidence; COCO-17 unless --keypoints)")
+    p.add_argument("input", help="folder of OpenPose JSON frames, a .jsonl/.ndjson file, an MMPose prediction "
+                                 ".json, or a .npy/.npz keypoint array [T, K, 3] or [T, P, K, 3] (x, y, confidence) "
+                                 "or RTMLib keypoints + scores (layout detected from the keypoint count)")
     p.add_argument("--out", required=True, help="output folder")
     _add_engine_options(p)
     p.set_defaults(run=_run_reconstruct)
@@ -183,14 +188,16 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
     from runtime.streams import open_source
 
     from .errors import UsageError
-    from .keypoints import frames_from_arrays, read_keypoint_array
+    from .keypoints import KEYPOINT_FILE_SUFFIXES, read_keypoint_file
 
     out = Path(args.out)
+    frames = None  # a keypoint file (.npy, .npz, MMPose .json) is read and checked before any output
+    if Path(args.input).suffix.lower() in KEYPOINT_FILE_SUFFIXES and not Path(args.input).is_dir():
+        frames = read_keypoint_file(args.input, args.keypoints, args.fps)
     out.mkdir(parents=True, exist_ok=True)
     session = _session(args, str(out / "result.jsonl"), strict=True)
-    if Path(args.input).suffix.lower() in (".npy", ".npz"):
-        keypoints = read_keypoint_array(args.input)
-        run_arrays(session, frames_from_arrays(keypoints, args.keypoints or "coco17", args.fps))
+    if frames is not None:
+        run_arrays(session, frames)
     else:
         run_offline(session, open_source(args.input, stats=session.summary.stream))
     summary = session.finish(out, args.bvh_unit)

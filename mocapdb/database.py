@@ -212,11 +212,13 @@ def _check_clusters(db: MotionDatabase) -> None:
 def write_database(db: MotionDatabase, path: str | os.PathLike) -> int:
     """Validate ``db`` and write it atomically as directory ``path``; return its size in bytes.
 
-    Replaces an existing mocapdb database or empty directory at ``path``; refuses anything else.
+    Replaces an existing mocapdb database or empty directory at ``path``; refuses anything else,
+    and a database holding a NaN or infinite value.
     """
     db.validate()
+    _check_finite(db)
     path = Path(os.path.abspath(path))
-    _check_replaceable(path)
+    check_output_path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -228,6 +230,13 @@ def write_database(db: MotionDatabase, path: str | os.PathLike) -> int:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return total
+
+
+def _check_finite(db: MotionDatabase) -> None:
+    bad = [col.field for columns in _TABLES.values() for col in columns
+           if col.dtype and col.dtype.startswith("float") and not np.isfinite(getattr(db, col.field)).all()]
+    if bad:
+        raise DatabaseError(f"NaN or infinite values in {', '.join(bad)}: refusing to write them")
 
 
 def _is_database(path: Path) -> bool:
@@ -247,6 +256,19 @@ def _check_replaceable(path: Path) -> None:
         f"{path}: exists and is not a mocapdb database (no {MANIFEST} with format {FORMAT!r}); "
         "refusing to replace it: choose another path or remove it yourself"
     )
+
+
+def check_output_path(path: str | os.PathLike) -> None:
+    """Raise DatabaseError unless :func:`write_database` may write ``path``: nothing there but an
+    empty folder or a mocapdb database, in a folder that exists or can be created and that this
+    process may write. Cheap, so a build checks it before any work."""
+    path = Path(os.path.abspath(path))
+    _check_replaceable(path)
+    folder = next(p for p in path.parents if os.path.lexists(p))
+    if not folder.is_dir():
+        raise DatabaseError(f"{path}: cannot create its folder {path.parent}: {folder} is not a folder")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise DatabaseError(f"{path}: cannot write in {folder} (permission denied or read-only)")
 
 
 def _write_contents(db: MotionDatabase, directory: Path) -> int:

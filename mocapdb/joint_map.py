@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bvh import Bvh, forward_kinematics
+from .bvh import POSITION_MODE_TEXT, Bvh, forward_kinematics
 from .skeleton import KEYPOINTS, N_POINTS
 
 ROLES: tuple[str, ...] = (
@@ -268,7 +268,8 @@ def _indexes(bvh: Bvh, mapping: JointMapping) -> dict[str, int]:
 
 
 def rest_positions(bvh: Bvh) -> np.ndarray:
-    """Joint positions ``[J, 3]`` (file units) with every channel zero; every rotation is then identity."""
+    """Joint positions ``[J, 3]`` (file units) with every rotation identity and every joint at its
+    ``OFFSET`` (position channels zero, or equal to the OFFSET where they replace it)."""
     pos = np.zeros_like(bvh.offsets)
     for j, p in enumerate(bvh.parents):
         pos[j] = bvh.offsets[j] + (pos[p] if p >= 0 else 0.0)
@@ -363,7 +364,8 @@ def extract_keypoints(bvh: Bvh, mapping: JointMapping, unit: str | None = None,
 
 
 def describe(bvh: Bvh, mapping: JointMapping, unit: str | None = None, up_axis: str | None = None) -> str:
-    """Human-readable summary for ``mocapdb inspect``: file, timing, convention, unit, up axis, roles."""
+    """Human-readable summary for ``mocapdb inspect``: file, timing, joints and how their position
+    channels are read, convention, unit, up axis, roles."""
     idx = _indexes(bvh, mapping)
     unit_how = "given" if unit else "detected"
     unit = unit or detect_unit(bvh, mapping)
@@ -374,6 +376,7 @@ def describe(bvh: Bvh, mapping: JointMapping, unit: str | None = None, up_axis: 
     lines = [f"file:        {bvh.source}",
              f"frames:      {bvh.n_frames} at {bvh.fps:.2f} fps ({bvh.n_frames * bvh.frame_time:.2f} s)",
              f"joints:      {len(bvh.names)} ({int(bvh.end_site.sum())} of them end sites)",
+             f"non-root position channels: {POSITION_MODE_TEXT[bvh.position_mode]}",
              f"convention:  {mapping.convention}",
              f"unit:        {unit} ({unit_how})",
              f"up axis:     {up_axis} ({axis_how})",

@@ -1,4 +1,5 @@
 """`mocapdb build` end to end on real bundled clips: contents, determinism, bad inputs, CLI."""
+import os
 import shutil
 
 import numpy as np
@@ -179,3 +180,142 @@ def test_mirror_doubles_the_database_and_stays_out_of_ground_truth(sources, tmp_
     truth = process_clip(sources / "002_04.bvh", sources, _config())
     assert (truth.name, truth.mirrored) == ("002_04", False)
     np.testing.assert_array_equal(truth.positions, plain.positions[plain.clip_first_frame[1]:])
+
+
+def _first_value(text: str, value: str) -> str:
+    """``text`` with the first number of the first frame replaced by ``value``."""
+    header, rows = text.split("Frame Time: 0.016667\n")
+    return f"{header}Frame Time: 0.016667\n{value} {rows.split(' ', 1)[1]}"
+
+
+# File → (how it breaks 002_03.bvh, the reason the build must give for skipping it).
+BAD_FILES = {
+    "zero_time.bvh": (lambda t: t.replace("Frame Time: 0.016667", "Frame Time: 0"),
+                      ":673: Frame Time: 0 is not a frame duration"),
+    "negative_time.bvh": (lambda t: t.replace("Frame Time: 0.016667", "Frame Time: -0.016667"),
+                          "Frame Time: -0.016667 is not a frame duration"),
+    "inf_time.bvh": (lambda t: t.replace("Frame Time: 0.016667", "Frame Time: inf"), "Frame Time: inf is not"),
+    "nan_time.bvh": (lambda t: t.replace("Frame Time: 0.016667", "Frame Time: NaN"), "Frame Time: NaN is not"),
+    "nan_offset.bvh": (lambda t: t.replace("OFFSET 0.000000 0.000000 105.214241", "OFFSET 0.000000 nan 105.2"),
+                       ":8: OFFSET of 'CC_Base_Hip' is not finite"),
+    "nan_motion.bvh": (lambda t: _first_value(t, "nan"),
+                       "NaN or infinite value in the MOTION data (frame 0, RL_BoneRoot Xposition"),
+    "inf_motion.bvh": (lambda t: _first_value(t, "-inf"), "NaN or infinite value in the MOTION data"),
+    "overflow.bvh": (lambda t: _first_value(t, "1e308"), "NaN or infinite joint positions after retargeting"),
+    "short.bvh": (lambda t: t.replace("Frames: 86", "Frames: 87"), "header says 87 frames but only 86 are present"),
+    "absurd.bvh": (lambda t: t.replace("Frames: 86", "Frames: 99999999"), ":672: Frames: 99999999 is absurd"),
+    "boom.bvh": (lambda t: t, "unexpected ZeroDivisionError: float division by zero"),
+}
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning",
+                            "ignore:invalid value encountered:RuntimeWarning")
+def test_bad_files_are_named_skips_and_never_reach_the_database(tmp_path, monkeypatch):
+    import mocapdb.builder as builder
+
+    folder = tmp_path / "src"
+    folder.mkdir()
+    text = (SAMPLE_BVH / "002_03.bvh").read_text()
+    for name, (corrupt, _) in BAD_FILES.items():
+        (folder / name).write_text(corrupt(text))
+    (folder / "fbx.bvh").write_bytes(b"Kaydara FBX Binary  \x00\x1a\x00" + bytes(range(256)))
+    (folder / "bom.bvh").write_bytes(b"\xef\xbb\xbf" + text.encode())  # fine: a UTF-8 byte-order mark
+    extract = builder.extract_keypoints
+
+    def extract_or_fail(bvh, *args, **kwargs):
+        if bvh.source.endswith("boom.bvh"):
+            raise ZeroDivisionError("float division by zero")  # what `Frame Time: 0` once gave
+        return extract(bvh, *args, **kwargs)
+
+    monkeypatch.setattr(builder, "extract_keypoints", extract_or_fail)
+    summary = build([str(folder)], tmp_path / "db", _config(mirror=False))
+    reasons = dict(summary.skipped)
+    assert sorted(reasons) == sorted(str(folder / n) for n in [*BAD_FILES, "fbx.bvh"])
+    for name, (_, reason) in BAD_FILES.items():
+        assert reason in reasons[str(folder / name)], name
+    assert "fbx.bvh: not a text file" in reasons[str(folder / "fbx.bvh")]
+    db = load_database(tmp_path / "db")
+    assert db.clip_name == ["bom"] and np.isfinite(db.positions).all() and np.isfinite(db.keypoints_2d).all()
+    assert f"skipped {folder / 'zero_time.bvh'}: " in summary.report()
+    with pytest.raises(BuildError, match=r"--strict: .*absurd.bvh: .*Frames: 99999999 is absurd"):
+        build([str(folder)], tmp_path / "strict", _config(strict=True))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["db", "src"]  # nothing half-written
+
+
+def test_blender_export_reads_as_the_original(tmp_path):
+    from mocapdb.bvh import REPLACED, format_bvh, read_bvh
+
+    from .test_bvh import blender_style
+
+    (tmp_path / "blender.bvh").write_text(format_bvh(blender_style(read_bvh(SAMPLE_BVH / "002_03.bvh"))))
+    assert read_bvh(tmp_path / "blender.bvh").position_mode == REPLACED
+    original = process_clip(SAMPLE_BVH / "002_03.bvh", SAMPLE_BVH, _config())
+    exported = process_clip(tmp_path / "blender.bvh", tmp_path, _config())
+    np.testing.assert_allclose(exported.positions, original.positions, atol=1e-4)
+
+
+def _unwritable_outputs(tmp_path):
+    (tmp_path / "file.txt").write_text("mine")
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "cat.jpg").write_text("mine")
+    return {tmp_path / "file.txt": "exists and is not a mocapdb database",
+            tmp_path / "photos": "exists and is not a mocapdb database",
+            tmp_path / "file.txt" / "sub" / "db": f"{tmp_path / 'file.txt'} is not a folder"}
+
+
+def test_unwritable_output_fails_before_any_file_is_read(sources, tmp_path, monkeypatch, capsys):
+    import time
+
+    import mocapdb.builder as builder
+    from mocapdb.database import DatabaseError
+
+    read = []
+    monkeypatch.setattr(builder, "read_bvh", lambda path: read.append(path))
+    for out, message in _unwritable_outputs(tmp_path).items():
+        with pytest.raises(DatabaseError, match=message):
+            build([str(sources)], out, _config())
+        start = time.perf_counter()
+        assert main(["build", str(sources), "--out", str(out), "--workers", "1"]) == 2
+        assert time.perf_counter() - start < 0.5
+        assert f"mocapdb build: error: {out}" in capsys.readouterr().err
+    assert read == []
+    assert (tmp_path / "file.txt").read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == \
+        ["file.txt", "photos"] and [p.name for p in (tmp_path / "photos").iterdir()] == ["cat.jpg"]
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root may write anywhere")
+def test_output_in_a_read_only_folder_fails_before_work(sources, tmp_path):
+    from mocapdb.database import DatabaseError
+
+    (tmp_path / "locked").mkdir()
+    (tmp_path / "locked").chmod(0o500)
+    try:
+        with pytest.raises(DatabaseError, match="cannot write in"):
+            build([str(sources)], tmp_path / "locked" / "new" / "db", _config())
+    finally:
+        (tmp_path / "locked").chmod(0o700)
+
+
+def test_bad_joint_map_fails_before_any_file_is_read(sources, tmp_path, monkeypatch):
+    import mocapdb.builder as builder
+    from mocapdb.joint_map import JointMapError
+
+    read = []
+    monkeypatch.setattr(builder, "read_bvh", lambda path: read.append(path))
+    (tmp_path / "map.toml").write_text("[joints]\nleft_hand = 'LeftHand'\n")
+    with pytest.raises(JointMapError, match="map.toml: unknown role"):
+        build([str(sources)], tmp_path / "db", _config(joint_map=tmp_path / "map.toml"))
+    assert read == [] and not (tmp_path / "db").exists()
+
+
+def test_database_with_a_nan_is_never_written(built, tmp_path):
+    from dataclasses import replace
+
+    from mocapdb.database import DatabaseError, write_database
+
+    _, db = built
+    positions = db.positions.copy()
+    positions[3, 2, 1] = np.nan
+    with pytest.raises(DatabaseError, match="NaN or infinite values in positions"):
+        write_database(replace(db, positions=positions), tmp_path / "db")
+    assert list(tmp_path.iterdir()) == []

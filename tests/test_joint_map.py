@@ -180,6 +180,75 @@ def test_toml_override_fixes_incomplete_rig(tmp_path):
     assert mapping.convention == "motionbuilder_mixamo + joint map"
 
 
+# The mixamo rig's joints under 3ds Max Biped names (spaces inside), and a joint map naming every role.
+_BIPED_LIMBS = {"Shoulder": "Clavicle", "Arm": "UpperArm", "ForeArm": "Forearm", "Hand": "Hand",
+                "HandIndex1": "Finger0", "UpLeg": "Thigh", "Leg": "Calf", "Foot": "Foot", "ToeBase": "Toe0"}
+BIPED_NAMES = {"Hips": "Bip01 Pelvis", "Spine": "Bip01 Spine", "Spine1": "Bip01 Spine1", "Neck": "Bip01 Neck",
+               "Head": "Bip01 Head", **{f"{side}{mixamo}": f"Bip01 {side[0]} {biped}" for side in ("Left", "Right")
+                                        for mixamo, biped in _BIPED_LIMBS.items()}}
+BIPED_MAP = """[joints]
+head = "Bip01 Head"
+l_upperarm = "Bip01 L UpperArm"
+l_forearm = "Bip01 L Forearm"
+l_hand = "Bip01 L Hand"
+r_upperarm = "Bip01 R UpperArm"
+r_forearm = "Bip01 R Forearm"
+r_hand = "Bip01 R Hand"
+l_thigh = "Bip01 L Thigh"
+l_shin = "Bip01 L Calf"
+l_foot = "Bip01 L Foot"
+r_thigh = "Bip01 R Thigh"
+r_shin = "Bip01 R Calf"
+r_foot = "Bip01 R Foot"
+"""
+MOVE = [{}, {"Hips:Yrotation": 40.0, "LeftArm:Zrotation": 30.0, "RightLeg:Xrotation": 25.0, "Hips:Xposition": 7.0}]
+
+
+def _mapped(bvh):
+    """``bvh`` and its detected mapping (the first arguments of ``extract_keypoints``, ``describe``)."""
+    return bvh, detect_mapping(bvh)
+
+
+def test_biped_names_with_spaces_through_a_joint_map(tmp_path):
+    frames = [{f"{BIPED_NAMES[k.split(':')[0]]}:{k.split(':')[1]}": v for k, v in f.items()} for f in MOVE]
+    (tmp_path / "biped.bvh").write_text(rig_text(rename=BIPED_NAMES, frames=frames))
+    (tmp_path / "biped.toml").write_text(BIPED_MAP)
+    bvh = read_bvh(tmp_path / "biped.bvh")
+    assert "Bip01 L Thigh" in bvh.names and "Bip01 L Toe0_End" in bvh.names
+    mapping = detect_mapping(bvh, load_joint_map_file(tmp_path / "biped.toml").joints)
+    assert mapping.convention == "joint map" and mapping.joints["l_shin"] == "Bip01 L Calf"
+    np.testing.assert_allclose(extract_keypoints(bvh, mapping), extract_keypoints(*_mapped(rig(frames=MOVE))),
+                               atol=1e-9)
+
+
+def test_joint_map_example_of_the_docs_works(tmp_path):
+    from .conftest import ROOT
+
+    doc = (ROOT / "data_specs" / "joint_conventions.md").read_text(encoding="utf-8")
+    example = doc.split("## The joint-map file")[1].split("```toml\n")[1].split("```")[0]
+    (tmp_path / "map.toml").write_text(example)
+    loaded = load_joint_map_file(tmp_path / "map.toml")
+    bvh = rig(rename={"LeftHand": "Bip01 L Palm", "RightHand": "Bip01 R Palm"})
+    mapping = detect_mapping(bvh, loaded.joints)
+    assert (mapping.joints["l_hand"], mapping.joints["r_hand"]) == ("Bip01 L Palm", "Bip01 R Palm")
+    assert np.isfinite(extract_keypoints(bvh, mapping, loaded.unit, loaded.up_axis)).all()
+
+
+def test_blender_style_position_channels_keep_the_keypoints(tmp_path, capsys):
+    from mocapdb.bvh import format_bvh
+    from mocapdb.cli import main
+
+    from .test_bvh import blender_style
+
+    plain = rig(frames=MOVE)
+    (tmp_path / "blender.bvh").write_text(format_bvh(blender_style(plain)))
+    styled = read_bvh(tmp_path / "blender.bvh")
+    np.testing.assert_allclose(extract_keypoints(*_mapped(styled)), extract_keypoints(*_mapped(plain)), atol=1e-5)
+    assert "non-root position channels: none" in describe(*_mapped(plain))
+    assert main(["inspect", str(tmp_path / "blender.bvh")]) == 0
+    assert "non-root position channels: replace the OFFSET (Blender style)" in capsys.readouterr().out
+
+
 def test_ambiguous_candidates_are_listed_and_override_resolves():
     bvh = rig(extra_child=("mixamorig:LeftHand", "LeftHand"))
     with pytest.raises(JointMapError) as err:

@@ -1,15 +1,20 @@
-"""Keypoint input: layout orders, the universal mapping, layout detection, OpenPose JSON, streams, arrays."""
+"""Keypoint input: layout orders, the universal mapping, layout detection, OpenPose and MMPose JSON,
+streams, arrays and their corrupt forms."""
+import io
 import json
+import tracemalloc
+import zipfile
 
 import numpy as np
 import pytest
 
+from mocapdb.cli import main
 from mocapdb.keypoints import (CONFIDENCE_THRESHOLD, LAYOUTS, KeypointError, Person, detect_layout,
                                frames_from_arrays, parse_openpose_json, parse_stream_line, read_keypoint_array,
-                               read_openpose_folder, to_universal, visible)
+                               read_keypoint_file, read_mmpose_json, read_openpose_folder, to_universal, visible)
 from mocapdb.skeleton import KP, N_KEYPOINTS_2D
 
-from .conftest import SHARED_DATA
+from .conftest import SAMPLE_KEYPOINTS, SHARED_DATA
 
 BODY25B_DIR = SHARED_DATA / "pose2sim_balancing" / "openpose_body25b"
 needs_body25b = pytest.mark.skipif(not BODY25B_DIR.is_dir(), reason="shared pose2sim BODY_25B data not present")
@@ -24,6 +29,12 @@ FIGURE = {
     "r_ank": (270, 500), "l_ank": (330, 500),
     "r_bigtoe": (265, 520), "r_smalltoe": (255, 515), "r_heel": (272, 505),
     "l_bigtoe": (335, 520), "l_smalltoe": (345, 515), "l_heel": (328, 505),
+    # MediaPipe's extra points
+    "r_eye_in": (294, 93), "r_eye_out": (286, 93), "l_eye_in": (306, 93), "l_eye_out": (314, 93),
+    "r_mouth": (294, 115), "l_mouth": (306, 115), "r_pinky": (242, 320), "l_pinky": (358, 320),
+    "r_index": (246, 322), "l_index": (354, 322), "r_thumb": (250, 312), "l_thumb": (350, 312),
+    "r_foot_idx": (266, 522), "l_foot_idx": (334, 522),
+    "other": (1, 1),  # COCO-WholeBody's face and hand points
 }
 # Each concept gets its own confidence, so the mapping of confidences is checked too.
 CONF = {name: 0.5 + 0.01 * i for i, name in enumerate(FIGURE)}
@@ -40,6 +51,16 @@ ORDERS = {
                "r_ank", "l_hip", "l_kne", "l_ank", "r_eye", "l_eye", "r_ear", "l_ear"),
     "coco17": ("nose", "l_eye", "r_eye", "l_ear", "r_ear", "l_sho", "r_sho", "l_elb", "r_elb", "l_wri",
                "r_wri", "l_hip", "r_hip", "l_kne", "r_kne", "l_ank", "r_ank"),
+    "halpe26": ("nose", "l_eye", "r_eye", "l_ear", "r_ear", "l_sho", "r_sho", "l_elb", "r_elb", "l_wri",
+                "r_wri", "l_hip", "r_hip", "l_kne", "r_kne", "l_ank", "r_ank", "head_top", "neck", "mid_hip",
+                "l_bigtoe", "r_bigtoe", "l_smalltoe", "r_smalltoe", "l_heel", "r_heel"),
+    "wholebody133": ("nose", "l_eye", "r_eye", "l_ear", "r_ear", "l_sho", "r_sho", "l_elb", "r_elb", "l_wri",
+                     "r_wri", "l_hip", "r_hip", "l_kne", "r_kne", "l_ank", "r_ank", "l_bigtoe", "l_smalltoe",
+                     "l_heel", "r_bigtoe", "r_smalltoe", "r_heel") + ("other",) * (68 + 21 + 21),
+    "mediapipe33": ("nose", "l_eye_in", "l_eye", "l_eye_out", "r_eye_in", "r_eye", "r_eye_out", "l_ear", "r_ear",
+                    "l_mouth", "r_mouth", "l_sho", "r_sho", "l_elb", "r_elb", "l_wri", "r_wri", "l_pinky",
+                    "r_pinky", "l_index", "r_index", "l_thumb", "r_thumb", "l_hip", "r_hip", "l_kne", "r_kne",
+                    "l_ank", "r_ank", "l_heel", "r_heel", "l_foot_idx", "r_foot_idx"),
 }
 # Universal index → concept (the neck is checked separately).
 UNIVERSAL = ("nose", None, "r_sho", "r_elb", "r_wri", "l_sho", "l_elb", "l_wri",
@@ -77,7 +98,8 @@ def test_mapping_index_by_index(layout):
 
 
 @pytest.mark.parametrize("layout, neck", [("body25", FIGURE["neck"]), ("coco18", FIGURE["neck"]),
-                                          ("body25b", None), ("coco17", None)])
+                                          ("halpe26", FIGURE["neck"]), ("body25b", None), ("coco17", None),
+                                          ("wholebody133", None), ("mediapipe33", None)])
 def test_neck_without_confident_shoulders(layout, neck):
     conf = dict(CONF, r_sho=0.1)
     points, c = to_universal(raw_person(layout, conf)[None], layout)
@@ -106,7 +128,27 @@ def test_to_universal_rejects_wrong_shape_and_layout():
     with pytest.raises(KeypointError, match="needs \\[P, 17, 3\\]"):
         to_universal(raw_person("coco18")[None], "coco17")
     with pytest.raises(KeypointError, match="unknown keypoint layout"):
-        to_universal(raw_person("coco17")[None], "halpe26")
+        to_universal(raw_person("coco17")[None], "halpe_26")
+
+
+def test_mediapipe_left_right_by_index():
+    """MediaPipe's odd indices are the subject's left: 11 left shoulder, 12 right, ..., 27 left ankle."""
+    raw = np.zeros((1, 33, 3))
+    for index, (x, y) in {11: (340, 150), 12: (260, 150), 13: (350, 230), 14: (250, 230), 15: (355, 300),
+                          16: (245, 300), 23: (325, 300), 24: (275, 300), 25: (328, 400), 26: (272, 400),
+                          27: (330, 500), 28: (270, 500), 0: (300, 100)}.items():
+        raw[0, index] = (x, y, 0.9)
+    points = to_universal(raw, "mediapipe33")[0][0]
+    assert points[KP["head"]].tolist() == [300, 100]
+    for part in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle"):
+        assert points[KP[f"l_{part}"], 0] > 300 > points[KP[f"r_{part}"], 0], part  # facing the camera
+
+
+def test_mediapipe_normalised_positions_refused():
+    raw = raw_person("mediapipe33")
+    raw[:, :2] /= (600, 600)
+    with pytest.raises(KeypointError, match="normalised"):
+        to_universal(raw[None], "mediapipe33")
 
 
 def test_visible_threshold():
@@ -124,9 +166,9 @@ def test_detect_hand_made(layout):
 def test_detect_weak_evidence_asks_for_layout():
     raw = raw_person("body25")
     raw[[0, 1, 8, 17, 18], 2] = 0  # no nose, neck, mid-hip, ears: no relation can be checked
-    with pytest.raises(KeypointError, match="--keypoints body25\\|body25b\\|coco18\\|coco17"):
+    with pytest.raises(KeypointError, match="give --keypoints body25 or body25b"):
         detect_layout(raw[None])
-    with pytest.raises(KeypointError, match="20 keypoints"):
+    with pytest.raises(KeypointError, match="20 keypoints per person fit no known layout \\(17, 18, 25, 26, 33 or 133"):
         detect_layout(np.zeros((1, 20, 3)))
 
 
@@ -345,12 +387,22 @@ def test_frames_from_arrays_people_and_padding():
 @pytest.mark.parametrize("array, reason", [
     (np.zeros((4, 17, 2)), "expected \\[T, K, 3\\]"),
     (np.zeros((17, 3)), "expected \\[T, K, 3\\]"),
-    (np.zeros((4, 18, 3)), "needs \\[P, 17, 3\\]"),
     (np.full((4, 17, 3), "x"), "non-numeric"),
+    (np.zeros((4, 20, 3)), "20 keypoints"),
 ])
 def test_frames_from_arrays_errors(array, reason):
     with pytest.raises(KeypointError, match=reason):
         frames_from_arrays(array)
+
+
+@pytest.mark.parametrize("layout", ["coco17", "coco18", "halpe26", "mediapipe33", "wholebody133"])
+def test_frames_from_arrays_layout_by_count_and_override(layout):
+    seq = np.stack([[raw_person(layout)]] * 2)  # [T, P, K, 3]
+    frame = next(frames_from_arrays(seq))
+    np.testing.assert_array_equal(frame.people[0].points_px[KP["l_knee"]], FIGURE["l_kne"])
+    other = "coco18" if layout == "coco17" else "coco17"
+    with pytest.raises(KeypointError, match=f"does not fit layout {other}"):  # the given layout wins
+        frames_from_arrays(seq, layout=other)
 
 
 def test_keypoint_array_files(tmp_path):
@@ -364,8 +416,256 @@ def test_keypoint_array_files(tmp_path):
     np.savez(tmp_path / "other.npz", poses=seq)
     with pytest.raises(KeypointError, match="other.npz: no 'keypoints'"):
         read_keypoint_array(tmp_path / "other.npz")
-    (tmp_path / "bad.npy").write_bytes(b"not numpy")
-    with pytest.raises(KeypointError, match="bad.npy: not a readable numpy file"):
-        read_keypoint_array(tmp_path / "bad.npy")
     with pytest.raises(KeypointError, match="not a .npy or .npz"):
         read_keypoint_array(tmp_path / "kp.csv")
+
+
+def test_refusal_messages_are_complete():
+    """Reasons for refused lines survive stream reports whole: no ": " (taken as a source prefix), <= 120 characters."""
+    ambiguous = raw_person("body25")
+    ambiguous[[0, 1, 8, 17, 18], 2] = 0
+    refused = [_line(people=[{"keypoints": [[1, 2, 3]] * 20}]),
+               _line(people=[{"keypoints": ambiguous.tolist()}]),
+               _line(layout="halpe_26", people=[]),
+               _line(layout="x" * 500, people=[]),
+               _line(people=[{"id": "y" * 500, "keypoints": [[1, 2, 3]] * 17}]),
+               _line(layout="coco18", people=[{"keypoints": raw_person("halpe26").tolist()}]),
+               _line(people=[{"keypoints": (raw_person("mediapipe33") / 1000).tolist()}]),
+               '{"people": [', "[" * 100000, "7"]
+    for line in refused:
+        with pytest.raises(KeypointError) as err:
+            parse_stream_line(line)
+        assert ": " not in str(err.value) and len(str(err.value)) <= 120, str(err.value)
+
+
+def test_stream_line_new_layouts_by_count():
+    for layout in ("halpe26", "mediapipe33", "wholebody133"):
+        frame = parse_stream_line(_line(people=[{"keypoints": raw_person(layout).tolist()}]))
+        assert frame.layout == layout
+        np.testing.assert_array_equal(frame.people[0].points_px[KP["r_ankle"]], FIGURE["r_ank"])
+    with pytest.raises(KeypointError, match="person 0 has 26 keypoints; layout mediapipe33 has 33"):
+        parse_stream_line(_line(people=[{"keypoints": raw_person("halpe26").tolist()}]), default_layout="mediapipe33")
+
+
+def mmpose_instance(layout: str) -> dict:
+    """One person as MMPose's inferencer writes it (``split_instances``)."""
+    raw = raw_person(layout)
+    return {"keypoints": raw[:, :2].tolist(), "keypoint_scores": raw[:, 2].tolist(),
+            "bbox": [[240.0, 60.0, 360.0, 520.0]], "bbox_score": 0.97}
+
+
+def _check_mmpose_frames(frames, n_frames: int, fps: float | None = None) -> None:
+    assert [f.index for f in frames] == list(range(n_frames))
+    if fps:
+        assert frames[-1].time_s == pytest.approx((n_frames - 1) / fps)
+    person = frames[-1].people[0]
+    np.testing.assert_array_equal(person.points_px[KP["l_wrist"]], FIGURE["l_wri"])
+    assert person.confidence[KP["r_knee"]] == pytest.approx(CONF["r_kne"])
+    assert person.person_id is None
+
+
+@pytest.mark.parametrize("layout", ["coco17", "halpe26", "wholebody133"])
+def test_mmpose_video_forms(tmp_path, layout):
+    frames = [{"frame_id": i, "instances": [mmpose_instance(layout)] * (1 + i % 2)} for i in range(3)]
+    (tmp_path / "inferencer.json").write_text(json.dumps(frames, indent="  "))  # --pred-out-dir, a video
+    demo = {"meta_info": {"dataset_name": "coco"}, "instance_info": [dict(f, frame_id=f["frame_id"] + 1) for f in frames]}
+    (tmp_path / "demo.json").write_text(json.dumps(demo, indent="\t"))  # topdown_demo_with_mmdet --save-predictions
+    for name in ("inferencer.json", "demo.json"):
+        read = read_mmpose_json(tmp_path / name, fps=25.0)
+        _check_mmpose_frames(read, 3, 25.0)
+        assert [len(f.people) for f in read] == [1, 2, 1] and read[0].layout == layout
+        _check_mmpose_frames(list(read_keypoint_file(tmp_path / name)), 3)
+
+
+def test_mmpose_per_image_forms(tmp_path):
+    image = [mmpose_instance("halpe26"), mmpose_instance("halpe26")]
+    (tmp_path / "img.json").write_text(json.dumps(image))
+    _check_mmpose_frames(read_mmpose_json(tmp_path / "img.json"), 1)
+    (tmp_path / "demo_img.json").write_text(json.dumps({"meta_info": {}, "instance_info": image}))
+    _check_mmpose_frames(read_mmpose_json(tmp_path / "demo_img.json"), 1)
+    # A folder of per-image files, as frames: through the folder reader and as stream messages.
+    folder = tmp_path / "pred"
+    folder.mkdir()
+    for i in range(3):
+        (folder / f"frame_{i}.json").write_text(json.dumps(image[:1 + i % 2]))
+    _check_mmpose_frames(list(read_openpose_folder(folder)), 3)
+    assert len(parse_stream_line(json.dumps(image)).people) == 2
+    assert parse_stream_line("[]").people == []
+
+
+@pytest.mark.parametrize("content, reason", [
+    ({"meta_info": {}}, "not an MMPose prediction file"),
+    ([{"frame_id": 0, "instances": [mmpose_instance("coco17")]}, {"frame_id": 1}], "frame 1: no 'instances' list"),
+    ([{"keypoints": [[1, 2]] * 17}], "person 0 keypoints must be"),
+    ([dict(mmpose_instance("coco17"), keypoint_scores=[0.9] * 16)], "keypoint_scores of shape \\(16,\\)"),
+    ([{"keypoints": [[1, 2, 3]] * 17, "keypoint_scores": [0.9] * 17}], "keypoint_scores"),  # 3D
+    ([{"keypoints": [[1, 2]] * 20, "keypoint_scores": [0.9] * 20}], "20 keypoints"),
+    ("not json", "not JSON"),
+])
+def test_mmpose_errors_name_the_file(tmp_path, content, reason):
+    path = tmp_path / "pred.json"
+    path.write_text(content if isinstance(content, str) else json.dumps(content))
+    with pytest.raises(KeypointError, match=reason) as err:
+        read_keypoint_file(path)
+    assert str(err.value).startswith(f"{path}: ")
+
+
+def test_mmpose_video_file_as_stream_message():
+    video = json.dumps([{"frame_id": 0, "instances": [mmpose_instance("coco17")]}])
+    with pytest.raises(KeypointError, match="MMPose video file"):
+        parse_stream_line(video)
+
+
+def test_rtmlib_separate_arrays(tmp_path):
+    seq = np.zeros((3, 2, 26, 3))  # RTMLib's Body/Wholebody per frame: keypoints [P, K, 2], scores [P, K]
+    seq[:, 0] = raw_person("halpe26")
+    seq[1, 1] = raw_person("halpe26")
+    np.savez(tmp_path / "rtmlib.npz", keypoints=seq[..., :2], scores=seq[..., 2])
+    np.testing.assert_array_equal(read_keypoint_array(tmp_path / "rtmlib.npz"), seq)
+    frames = list(read_keypoint_file(tmp_path / "rtmlib.npz", fps=30.0))
+    assert [len(f.people) for f in frames] == [1, 2, 1] and frames[2].time_s == pytest.approx(2 / 30)
+    np.testing.assert_array_equal(frames[1].people[1].points_px[KP["neck"]], (300, 150))
+    np.savez_compressed(tmp_path / "compressed.npz", keypoints=seq[..., :2].astype(np.float32), scores=seq[..., 2])
+    assert len(list(read_keypoint_file(tmp_path / "compressed.npz", layout="halpe26"))) == 3
+    with pytest.raises(KeypointError, match="does not fit layout coco17"):  # a given layout wins
+        read_keypoint_file(tmp_path / "rtmlib.npz", layout="coco17")
+
+
+def _npy_bytes(array: np.ndarray, **save) -> bytes:
+    buffer = io.BytesIO()
+    np.save(buffer, array, **save)
+    return buffer.getvalue()
+
+
+def _npz_bytes(**arrays: bytes) -> bytes:
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as zf:
+        for name, data in arrays.items():
+            zf.writestr(f"{name}.npy", data)
+    return buffer.getvalue()
+
+
+def _npy_claiming(shape: tuple, data: bytes) -> bytes:
+    """A .npy header claiming ``shape`` of float64, followed by ``data``."""
+    buffer = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buffer, {"descr": "<f8", "fortran_order": False, "shape": shape})
+    return buffer.getvalue() + data
+
+
+GOOD = np.stack([[raw_person("coco17")]] * 4)
+GOOD_NPY = _npy_bytes(GOOD)
+ABSURD_NPY = _npy_claiming((5_000_000_000_000,), GOOD.tobytes())
+NAN, INF = GOOD.copy(), GOOD.copy()
+NAN[2, 0, 5, 1] = np.nan
+INF[3, 0, 0, 2] = np.inf
+
+
+@pytest.mark.parametrize("name, data, reason", [
+    ("truncated.npz", _npz_bytes(keypoints=GOOD_NPY)[:900], "not a readable .npz \\(zip\\) file"),
+    ("not_zip.npz", b"keypoints, scores\n1, 2\n", "not a readable .npz \\(zip\\) file"),
+    ("npy_named.npz", GOOD_NPY, "not a readable .npz \\(zip\\) file"),
+    ("text.npy", b"not numpy", "not a .npy array \\(missing or damaged header\\)"),
+    ("header.npy", GOOD_NPY.replace(b"'shape': (4, 1, 17, 3)", b"'shape': (4, 1, 17, x)"), "damaged header"),
+    ("header_cut.npy", GOOD_NPY[:30], "damaged header"),
+    ("absurd.npy", ABSURD_NPY, "header says shape \\(5000000000000,\\) of float64 \\(40000000000000 bytes\\) but "
+                               "1632 bytes follow it"),
+    ("absurd.npz", _npz_bytes(keypoints=ABSURD_NPY), "array 'keypoints'.*5000000000000"),
+    ("truncated.npy", GOOD_NPY[:-8], "but 1624 bytes follow it"),
+    ("negative.npy", _npy_claiming((-4, 1, 17, 3), GOOD.tobytes()), "negative size"),
+    ("object.npy", _npy_bytes(np.array([{"x": 1}, None], dtype=object), allow_pickle=True), "holds object values"),
+    ("object.npz", _npz_bytes(keypoints=_npy_bytes(np.array([[1.0], None], dtype=object), allow_pickle=True)),
+     "array 'keypoints'.*holds object values"),
+    ("strings.npy", _npy_bytes(np.full((4, 17, 3), "x")), "holds <U1 values, not numbers"),
+    ("shape.npy", _npy_bytes(np.zeros((4, 17, 5))), "keypoints of shape \\(4, 17, 5\\), expected"),
+    ("flat.npy", _npy_bytes(np.zeros(51)), "keypoints of shape \\(51,\\), expected"),
+    ("positions.npy", _npy_bytes(np.zeros((4, 17, 2))), "positions \\[..., 2\\] with scores"),
+    ("scores.npz", _npz_bytes(keypoints=_npy_bytes(np.zeros((4, 17, 2))), scores=_npy_bytes(np.zeros((4, 16)))),
+     "scores of shape \\(4, 16\\) do not fit positions of shape \\(4, 17, 2\\)"),
+    ("empty.npy", _npy_bytes(np.zeros((0, 17, 3))), "hold no values"),
+    ("nan.npy", _npy_bytes(NAN), "1 non-finite values \\(NaN or infinite\\), the first at index \\(2, 0, 5, 1\\)"),
+    ("inf.npz", _npz_bytes(keypoints=_npy_bytes(INF)), "the first at index \\(3, 0, 0, 2\\)"),
+    ("no_keypoints.npz", _npz_bytes(poses=GOOD_NPY), "no 'keypoints' array"),
+    ("text.csv", b"1,2,3", "not a .npy or .npz keypoint file"),
+])
+def test_corrupt_arrays_fail_clearly(tmp_path, name, data, reason):
+    path = tmp_path / name
+    path.write_bytes(data)
+    tracemalloc.start()
+    try:
+        with pytest.raises(KeypointError, match=reason) as err:
+            read_keypoint_array(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert str(err.value).startswith(f"{path}: ")
+    assert peak < 2_000_000  # nothing the size of a header's claim is allocated
+
+
+def test_damaged_array_files_only_raise_keypoint_errors(tmp_path):
+    """Truncated or byte-flipped .npy/.npz files either read or raise KeypointError, nothing else."""
+    rng = np.random.default_rng(2)
+    seq = rng.random((3, 2, 17, 3)) * 100
+    originals = {"a.npy": _npy_bytes(seq), "a.npz": _npz_bytes(keypoints=_npy_bytes(seq[..., :2]),
+                                                                scores=_npy_bytes(seq[..., 2]))}
+    np.savez_compressed(tmp_path / "c.npz", keypoints=seq)
+    originals["c.npz"] = (tmp_path / "c.npz").read_bytes()
+    rejected = 0
+    for name, data in originals.items():
+        for _ in range(300):
+            damaged = bytearray(data[:rng.integers(1, len(data))] if rng.random() < 0.3 else data)
+            for pos in rng.integers(0, len(damaged), size=rng.integers(1, 4)):
+                damaged[pos] = rng.integers(256)
+            (tmp_path / name).write_bytes(bytes(damaged))
+            try:
+                read_keypoint_array(tmp_path / name)
+            except KeypointError:
+                rejected += 1
+    assert rejected > 300
+
+
+def _halpe_from_body25b(raw: np.ndarray) -> np.ndarray:
+    """Real BODY_25B people ``[P, 25, 3]`` re-written as HALPE_26 (head = head top, neck and hip the mid-points)."""
+    pos = {name: raw[:, i] for i, name in enumerate(ORDERS["body25b"])}
+    pos["neck"] = 0.5 * (pos["r_sho"] + pos["l_sho"])
+    pos["mid_hip"] = 0.5 * (pos["r_hip"] + pos["l_hip"])
+    return np.stack([pos[name] for name in ORDERS["halpe26"]], axis=1)
+
+
+def test_halpe26_openpose_folder_end_to_end(small_db_path, tmp_path, capsys):
+    """Pose2Sim's default: OpenPose-style JSON with 26 HALPE points, read by count, reconstructed."""
+    folder = tmp_path / "halpe"
+    folder.mkdir()
+    for path in sorted(SAMPLE_KEYPOINTS.glob("*.json"))[:40]:
+        people = [np.reshape(p["pose_keypoints_2d"], (25, 3)) for p in json.loads(path.read_text())["people"]]
+        halpe = [_halpe_from_body25b(p[None])[0] for p in people]
+        (folder / path.name).write_text(openpose_json(halpe))
+    frames = list(read_openpose_folder(folder, fps=60.0))
+    body25b = list(read_openpose_folder(SAMPLE_KEYPOINTS, fps=60.0))[:40]
+    assert len(frames) == 40 and frames[0].layout == "halpe26"
+    for got, want in zip(frames, body25b):
+        assert len(got.people) == len(want.people)
+        for a, b in zip(got.people, want.people):
+            both = (b.confidence > 0) & (np.arange(N_KEYPOINTS_2D) != KP["neck"])
+            np.testing.assert_array_equal(a.points_px[both], b.points_px[both])
+    args = ["reconstruct", str(folder), "--db", str(small_db_path), "--out", str(tmp_path / "out"),
+            "--fps", "60", "--image-size", "1088x1920", "--focal", "1681"]
+    assert main(args) == 0
+    assert "frames 40" in capsys.readouterr().out
+    lines = (tmp_path / "out" / "result.jsonl").read_text().splitlines()
+    assert len(lines) == 41 and any(json.loads(line).get("people") for line in lines[1:])
+
+
+def test_cli_reads_keypoint_files_before_writing(small_db_path, tmp_path, capsys):
+    (tmp_path / "bad.npz").write_bytes(b"PK\x03\x04 truncated")
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(tmp_path / "bad.npz"), "--db", str(small_db_path), "--out", str(out)]) == 2
+    assert f"{tmp_path / 'bad.npz'}: not a readable .npz" in capsys.readouterr().err
+    assert not out.exists()
+    seq = np.stack([[raw_person("mediapipe33")]] * 5)
+    np.save(tmp_path / "mp.npy", seq)
+    assert main(["reconstruct", str(tmp_path / "mp.npy"), "--db", str(small_db_path), "--out", str(out),
+                 "--fps", "30"]) == 0
+    assert "frames 5" in capsys.readouterr().out
+    assert main(["reconstruct", str(tmp_path / "mp.npy"), "--db", str(small_db_path), "--out", str(out),
+                 "--keypoints", "halpe26"]) == 2
+    assert "does not fit layout halpe26" in capsys.readouterr().err

@@ -1,0 +1,52 @@
+"""Keypoint layouts: each input layout's point order and the points it gives the universal 14.
+
+Orders, index tables and the mapping rules: ``data_specs/keypoint_formats.md``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+_COCO17 = (
+    "nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
+    "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip",
+    "left_knee", "right_knee", "left_ankle", "right_ankle")
+_FEET = ("left_big_toe", "left_small_toe", "left_heel", "right_big_toe", "right_small_toe", "right_heel")
+_OPENPOSE_BODY = (
+    "Nose", "Neck", "RShoulder", "RElbow", "RWrist", "LShoulder", "LElbow", "LWrist")
+_OPENPOSE_FEET = ("LBigToe", "LSmallToe", "LHeel", "RBigToe", "RSmallToe", "RHeel")
+_OPENPOSE_FACE = ("REye", "LEye", "REar", "LEar")
+_OPENPOSE_LEGS = ("RHip", "RKnee", "RAnkle", "LHip", "LKnee", "LAnkle")
+_MEDIAPIPE33 = (
+    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye",
+    "right_eye_outer", "left_ear", "right_ear", "mouth_left", "mouth_right") + tuple(
+    f"{side}_{part}" for part in ("shoulder", "elbow", "wrist", "pinky", "index", "thumb", "hip", "knee",
+                                  "ankle", "heel", "foot_index") for side in ("left", "right"))
+
+# Keypoint names of each input layout, in the layout's index order.
+LAYOUTS: dict[str, tuple[str, ...]] = {
+    "body25": _OPENPOSE_BODY + ("MidHip",) + _OPENPOSE_LEGS + _OPENPOSE_FACE + _OPENPOSE_FEET,
+    "body25b": _COCO17 + ("upper_neck", "head_top") + _FEET,
+    "coco18": _OPENPOSE_BODY + _OPENPOSE_LEGS + _OPENPOSE_FACE,
+    "coco17": _COCO17,
+    "halpe26": _COCO17 + ("head", "neck", "hip", "left_big_toe", "right_big_toe", "left_small_toe",
+                          "right_small_toe", "left_heel", "right_heel"),
+    "wholebody133": _COCO17 + _FEET + tuple(f"face_{i}" for i in range(68))
+    + tuple(f"{side}_hand_{i}" for side in ("left", "right") for i in range(21)),
+    "mediapipe33": _MEDIAPIPE33,
+}
+# The layout keypoint giving each universal keypoint (KEYPOINTS[:14] order); None: no such point
+# (the neck then comes from the shoulders only; BODY_25B's "upper_neck" is not the mid-shoulder).
+_OPENPOSE_SOURCES = _OPENPOSE_BODY + _OPENPOSE_LEGS
+_COCO_SOURCES = (
+    "nose", None, "right_shoulder", "right_elbow", "right_wrist", "left_shoulder", "left_elbow",
+    "left_wrist", "right_hip", "right_knee", "right_ankle", "left_hip", "left_knee", "left_ankle")
+_SOURCES: dict[str, tuple[str | None, ...]] = {
+    "body25": _OPENPOSE_SOURCES, "body25b": _COCO_SOURCES, "coco18": _OPENPOSE_SOURCES,
+    "coco17": _COCO_SOURCES, "halpe26": ("nose", "neck") + _COCO_SOURCES[2:],
+    "wholebody133": _COCO_SOURCES, "mediapipe33": _COCO_SOURCES}
+# Per layout, the index of the source of each universal keypoint; -1: none.
+SOURCE_INDEX: dict[str, np.ndarray] = {
+    name: np.array([LAYOUTS[name].index(s) if s else -1 for s in sources]) for name, sources in _SOURCES.items()}
+# The layout of each keypoint count that only one layout has (25 is BODY_25 or BODY_25B).
+LAYOUT_OF_COUNT: dict[int, str] = {
+    len(LAYOUTS[name]): name for name in ("coco17", "coco18", "halpe26", "mediapipe33", "wholebody133")}
