@@ -1,5 +1,5 @@
-"""Blender's own BVH importer reads the universal-rig BVH as mocapdb means it (skipped without Blender)."""
-import shutil
+"""Blender reads mocapdb's BVH as mocapdb means it, and mocapdb reads Blender's export as Blender
+means it (skipped without Blender: the bpy wheel in $MOCAPDB_BPY_PYTHON, or the blender program)."""
 import sys
 
 import numpy as np
@@ -10,11 +10,13 @@ from mocapdb.skeleton import PELVIS, rest_positions_m, retarget, universal_bvh
 
 from .conftest import ROOT
 
-pytestmark = pytest.mark.skipif(shutil.which("blender") is None, reason="Blender not installed")
+sys.path.insert(0, str(ROOT / "tools"))
+from blender_check import blender_available  # noqa: E402
+
+pytestmark = pytest.mark.skipif(not blender_available(), reason="Blender not installed")
 
 
 def test_blender_imports_universal_bvh_with_the_same_joint_positions(tmp_path):
-    sys.path.insert(0, str(ROOT / "tools"))
     from blender_check import compare
 
     rng = np.random.default_rng(0)
@@ -22,3 +24,16 @@ def test_blender_imports_universal_bvh_with_the_same_joint_positions(tmp_path):
     quats, pos = retarget(points)
     write_bvh(tmp_path / "track.bvh", universal_bvh(quats, pos[:, PELVIS], fps=30.0))
     assert compare(tmp_path / "track.bvh", [0, 7, 19]) < 1e-5  # metres
+
+
+def test_a_blender_export_builds_the_same_database_clip(tmp_path):
+    # Blender's exporter writes position channels on every joint (they replace the OFFSET).
+    from blender_roundtrip import compare, round_trip
+
+    source = ROOT / "data" / "sample_bvh" / "002_01.bvh"
+    exported = tmp_path / "002_01_blender.bvh"
+    round_trip(source, exported)
+    assert "CHANNELS 6" in exported.read_text().split("JOINT", 2)[2]  # a non-root joint has positions
+    result = compare(source, exported)
+    assert result["frames"][0] == result["frames"][1]
+    assert result["max_cm"] < 1.0 and result["pelvis_max_cm"] < 1.0

@@ -2,8 +2,8 @@
 
     python tools/blender_check.py FILE.bvh [--frames 0 10 50]
 
-Runs Blender (``blender`` on the PATH; Debian package ``blender``) in background mode with its
-own BVH importer, reads every bone's head and tail at the given frames, and compares them with
+Runs Blender's own BVH importer (a Python with the ``bpy`` wheel given by ``--bpy-python`` or
+the ``MOCAPDB_BPY_PYTHON`` environment variable, else ``blender`` on the PATH in background mode), reads every bone's head and tail at the given frames, and compares them with
 mocapdb's forward kinematics of the same file (Blender turns the BVH's y-up into its z-up:
 x → x, y → z, z → −y). Prints the largest difference in millimetres; exit code 0 when it is
 below 1 mm.
@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -47,23 +48,34 @@ print("MOCAPDB" + json.dumps(out))
 """
 
 BLENDER_FROM_BVH = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+BPY_PYTHON_ENV = "MOCAPDB_BPY_PYTHON"  # a Python with the bpy wheel, used instead of the blender program
 
 
-def blender_pose(path: Path, frames: list[int]) -> dict:
+def blender_available(bpy_python: str | None = None) -> bool:
+    return bool(bpy_python or os.environ.get(BPY_PYTHON_ENV) or shutil.which("blender"))
+
+
+def run_in_blender(script: str, args: list[str], bpy_python: str | None = None) -> subprocess.CompletedProcess:
+    """Run ``script`` inside Blender with ``args`` last on its ``sys.argv``."""
+    python = bpy_python or os.environ.get(BPY_PYTHON_ENV)
+    command = [python, "-c", script] if python else ["blender", "-b", "--factory-startup", "--python-expr", script]
+    return subprocess.run(command + ["--", *args], capture_output=True, text=True, timeout=600)
+
+
+def blender_pose(path: Path, frames: list[int], bpy_python: str | None = None) -> dict:
     """Bone heads/tails (Blender world, metres per BVH unit) at ``frames`` after Blender's import."""
-    run = subprocess.run(["blender", "-b", "--factory-startup", "--python-expr", INSIDE, "--",
-                          str(path), json.dumps(frames)], capture_output=True, text=True, timeout=300)
+    run = run_in_blender(INSIDE, [str(path), json.dumps(frames)], bpy_python)
     line = next((ln for ln in run.stdout.splitlines() if ln.startswith("MOCAPDB")), None)
     if line is None:
         raise RuntimeError(f"Blender did not import {path}:\n{run.stdout[-2000:]}\n{run.stderr[-2000:]}")
     return json.loads(line[len("MOCAPDB"):])
 
 
-def compare(path: Path, frames: list[int]) -> float:
+def compare(path: Path, frames: list[int], bpy_python: str | None = None) -> float:
     """Largest distance (file units) between Blender's bone heads and mocapdb's joint positions."""
     bvh = read_bvh(path)
     positions, _ = forward_kinematics(bvh)
-    seen = blender_pose(path, frames)
+    seen = blender_pose(path, frames, bpy_python)
     print(f"{path}: Blender imported {len(seen['bones'])} bones, frames {seen['first']}–{seen['last']}, "
           f"{seen['fps']:.3f} fps (the file: {bvh.n_frames} frames at {bvh.fps:.3f} fps)")
     worst = 0.0
@@ -78,13 +90,14 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("bvh", type=Path, nargs="+", help="BVH files")
     ap.add_argument("--frames", type=int, nargs="+", default=[0, 1], help="0-based frames to compare")
+    ap.add_argument("--bpy-python", help=f"a Python with `pip install bpy` (default: ${BPY_PYTHON_ENV}, else blender)")
     args = ap.parse_args()
-    if shutil.which("blender") is None:
-        print("blender is not installed (Debian: apt-get install blender)", file=sys.stderr)
+    if not blender_available(args.bpy_python):
+        print("no Blender: pass --bpy-python or install blender (Debian: apt-get install blender)", file=sys.stderr)
         return 2
     ok = True
     for path in args.bvh:
-        worst = compare(path, args.frames)
+        worst = compare(path, args.frames, args.bpy_python)
         print(f"  largest joint difference: {worst * 1000:.3f} mm (in the file's units × 1000)")
         ok &= worst < 1e-3
     return 0 if ok else 1
