@@ -159,13 +159,14 @@ def _engine(args: argparse.Namespace):
     return Engine(load_database(args.db), config)
 
 
-def _session(args: argparse.Namespace, sink_spec: str, strict: bool):
+def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=None):
     from runtime.session import FrameParser, Session, SessionOptions, SessionSummary
     from runtime.streams import StreamStats, open_sink
 
     summary = SessionSummary(stream=StreamStats())
     engine = _engine(args)
-    options = SessionOptions(strict=strict, fps_given=args.fps is not None, keep_static=args.keep_static)
+    options = SessionOptions(strict=strict, fps_given=args.fps is not None, keep_static=args.keep_static,
+                             bvh_dir=bvh_dir, bvh_unit=args.bvh_unit)
     return Session(engine, open_sink(sink_spec, summary.stream), FrameParser(args.keypoints), summary, options)
 
 
@@ -184,28 +185,44 @@ def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
 def _run_reconstruct(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from runtime.output import output_folder
+
+    from .keypoints import KEYPOINT_FILE_SUFFIXES, read_keypoint_file
+
+    frames = None  # a keypoint file (.npy, .npz, MMPose .json) is read and checked before any output
+    if Path(args.input).suffix.lower() in KEYPOINT_FILE_SUFFIXES and not Path(args.input).is_dir():
+        frames = read_keypoint_file(args.input, args.keypoints, args.fps)
+    with output_folder(args.out) as tmp:
+        summary, interrupted = _reconstruct_into(args, tmp, frames)
+    print(f"wrote {Path(args.out) / 'result.jsonl'} and {len(summary.bvh_files)} BVH file(s) in {args.out}")
+    print(summary.report())
+    if interrupted:
+        print(f"mocapdb reconstruct: interrupted after {summary.frames} frames; wrote what was done", file=sys.stderr)
+        return 130
+    return 0
+
+
+def _reconstruct_into(args: argparse.Namespace, out_dir, frames):
+    """Run the session into ``out_dir``; returns its summary and whether Ctrl-C stopped it early."""
     from runtime.session import run_arrays, run_offline
     from runtime.streams import open_source
 
     from .errors import UsageError
-    from .keypoints import KEYPOINT_FILE_SUFFIXES, read_keypoint_file
 
-    out = Path(args.out)
-    frames = None  # a keypoint file (.npy, .npz, MMPose .json) is read and checked before any output
-    if Path(args.input).suffix.lower() in KEYPOINT_FILE_SUFFIXES and not Path(args.input).is_dir():
-        frames = read_keypoint_file(args.input, args.keypoints, args.fps)
-    out.mkdir(parents=True, exist_ok=True)
-    session = _session(args, str(out / "result.jsonl"), strict=True)
-    if frames is not None:
-        run_arrays(session, frames)
-    else:
-        run_offline(session, open_source(args.input, stats=session.summary.stream))
-    summary = session.finish(out, args.bvh_unit)
-    print(f"wrote {out / 'result.jsonl'} and {len(summary.bvh_files)} BVH file(s) in {out}")
-    print(summary.report())
+    session = _session(args, str(out_dir / "result.jsonl"), strict=True, bvh_dir=out_dir)
+    interrupted = False
+    try:
+        if frames is not None:
+            run_arrays(session, frames)
+        else:
+            run_offline(session, open_source(args.input, stats=session.summary.stream))
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        summary = session.finish()
     if not summary.frames:
         raise UsageError(f"no keypoint frame in {args.input}")
-    return 0
+    return summary, interrupted
 
 
 def _add_live(sub: argparse._SubParsersAction) -> None:

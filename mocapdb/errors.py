@@ -1,4 +1,5 @@
 """The errors a user can cause (bad files, bad options); the CLI prints them without a traceback."""
+from runtime.output import OutputFolderError
 from runtime.session import InputError
 from runtime.streams import StreamSpecError
 
@@ -18,5 +19,5 @@ class UsageError(ValueError):
 
 
 USER_ERRORS: tuple[type[Exception], ...] = (BuildError, BvhError, CalibrationError, DatabaseError, DetectError,
-                                           InputError, JointMapError, KeypointError, StereoError, StreamSpecError,
-                                           TrcError, UsageError, OSError)
+                                           InputError, JointMapError, KeypointError, OutputFolderError, StereoError,
+                                           StreamSpecError, TrcError, UsageError, OSError)

@@ -376,6 +376,12 @@ class Engine:
         for track in list(self.tracks):
             self._end(track)
 
+    def open_recordings(self) -> list[TrackRecording]:
+        """The recordings of the tracks still open (``static`` says whether they are so far)."""
+        for state in self.tracks.values():
+            state.recording.static = state.stillness.static
+        return [s.recording for s in self.tracks.values() if s.recording.quaternions]
+
     def finish(self) -> list[TrackRecording]:
         """End every track; returns all recordings (ended earlier or now), by track id."""
         self._end_all()

@@ -2,6 +2,10 @@
 from __future__ import annotations
 
 import json
+import os
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +14,13 @@ from mocapdb.bvh import write_bvh
 from mocapdb.skeleton import KEYPOINTS, RIG_JOINTS, universal_bvh
 
 from .engine import PersonPose, TrackRecording
+
+OUTPUT_FILES = ("result.jsonl", "track_*.bvh")  # what a reconstruct output folder holds
+
+
+class OutputFolderError(ValueError):
+    """An output folder that cannot be (re)placed; the message says why."""
+
 
 STREAM_FORMAT = "mocapdb-stream"
 STREAM_VERSION = 1
@@ -66,3 +77,38 @@ def write_track_bvhs(recordings: list[TrackRecording], out_dir: str | Path, fps:
         write_bvh(path, bvh)
         paths.append(path)
     return paths
+
+
+def _is_output_folder(path: Path) -> bool:
+    """An empty folder, or one holding only what a run writes (:data:`OUTPUT_FILES`)."""
+    return path.is_dir() and not path.is_symlink() and all(
+        any(f.match(pattern) for pattern in OUTPUT_FILES) and f.is_file() for f in path.iterdir())
+
+
+@contextmanager
+def output_folder(out: str | Path) -> Iterator[Path]:
+    """A fresh temporary folder beside ``out`` that replaces ``out`` when the block ends normally.
+
+    An earlier output at ``out`` (a folder of only :data:`OUTPUT_FILES`) is removed only then, so
+    a failing run leaves it as it was and a new run never mixes with an old one's files; any
+    other existing ``out`` is refused before work starts. On an exception the temporary folder
+    is deleted.
+    """
+    out = Path(out)
+    if out.exists() and not _is_output_folder(out):
+        raise OutputFolderError(f"{out} exists and is not an output folder of mocapdb (only result.jsonl and "
+                                f"track_*.bvh): choose another --out")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    old = out.parent / f".{out.name}.old-{os.getpid()}"
+    if out.exists():
+        out.rename(old)
+    tmp.rename(out)
+    shutil.rmtree(old, ignore_errors=True)

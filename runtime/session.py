@@ -90,11 +90,16 @@ IMAGE_MARGIN = 0.1  # keypoints may lie this fraction of the image size outside 
 class SessionOptions:
     """What a session does beyond the engine: ``strict`` stops at input that contradicts the
     parameters (reconstruct) instead of skipping and counting it (live); ``fps_given`` says
-    whether ``--fps`` was given (else frames without time warn once)."""
+    whether ``--fps`` was given (else frames without time warn once). With ``bvh_dir`` each
+    track's BVH is written (atomically) when the track ends, and every ``checkpoint_s`` seconds
+    the open tracks' BVH so far, so a killed process loses at most that much of them."""
 
     strict: bool = True
     fps_given: bool = True
     keep_static: bool = False
+    bvh_dir: Path | None = None
+    bvh_unit: str = "m"
+    checkpoint_s: float = 30.0
 
 
 class Session:
@@ -105,7 +110,8 @@ class Session:
         self.engine, self.sink, self.parser, self.summary = engine, sink, parser, summary
         self.options = options or SessionOptions()
         self._fps_warned = self.options.fps_given
-        self.started = time.perf_counter()
+        self._written = 0  # engine.finished recordings whose BVH is written
+        self.started = self._checkpointed = time.perf_counter()
         self.sink.write(header_line(engine.config.fps))
 
     def handle(self, message: RawMessage) -> None:
@@ -131,6 +137,22 @@ class Session:
         self.summary.frames += 1
         self.summary.person_frames += len(poses)
         self.summary.latencies_s.append(time.monotonic() - arrival_s)
+        if self.options.bvh_dir is not None:
+            self._write_bvhs()
+
+    def _write_bvhs(self) -> None:
+        """BVH files of the tracks that ended; every ``checkpoint_s``, of the open ones so far."""
+        ended = self.engine.finished[self._written:]
+        self._written = len(self.engine.finished)
+        self._write(ended)
+        if time.perf_counter() - self._checkpointed >= self.options.checkpoint_s:
+            self._checkpointed = time.perf_counter()
+            self._write([r for r in self.engine.open_recordings() if not r.static])
+
+    def _write(self, recordings: list) -> None:
+        keep = [r for r in recordings if self.options.keep_static or not r.static]
+        self.summary.bvh_files += write_track_bvhs(keep, self.options.bvh_dir, self.engine.config.fps,
+                                                   self.options.bvh_unit)
 
     def _contradiction(self, frame: KeypointFrame) -> str | None:
         """Why ``frame`` contradicts the parameters, or None; warns once about an assumed rate."""
@@ -154,20 +176,35 @@ class Session:
                     f"said to be {width}x{height} by --image-size{hint}")
         return None
 
-    def finish(self, bvh_dir: Path | None, bvh_unit: str = "m") -> SessionSummary:
-        """End all tracks, write their BVH files (if ``bvh_dir``; static tracks only with
-        ``keep_static``), close the sink."""
+    def finish(self, bvh_dir: Path | None = None, bvh_unit: str | None = None) -> SessionSummary:
+        """End all tracks, write the BVH files not yet written (into ``bvh_dir`` if given, else the
+        options'; static tracks only with ``keep_static``), close the sink (even if writing fails)."""
         self.summary.wall_s = time.perf_counter() - self.started
-        recordings = self.engine.finish()
-        self.summary.tracks = len(recordings)
-        self.summary.gaps = self.engine.stats.gaps
-        self.summary.static_tracks = [r.track for r in recordings if r.static]
-        if not self.options.keep_static:
-            recordings = [r for r in recordings if not r.static]
         if bvh_dir is not None:
-            self.summary.bvh_files = write_track_bvhs(recordings, bvh_dir, self.engine.config.fps, bvh_unit)
-        self.sink.close()
+            self.options.bvh_dir, self._written = Path(bvh_dir), 0
+        if bvh_unit is not None:
+            self.options.bvh_unit = bvh_unit
+        try:
+            recordings = self.engine.finish()
+            self.summary.tracks = len(recordings)
+            self.summary.gaps = self.engine.stats.gaps
+            self.summary.static_tracks = [r.track for r in recordings if r.static]
+            if self.options.bvh_dir is not None:
+                self._write_bvhs()
+                self._drop_static_checkpoints()
+                self.summary.bvh_files = list(dict.fromkeys(self.summary.bvh_files))
+        finally:
+            self.sink.close()
         return self.summary
+
+    def _drop_static_checkpoints(self) -> None:
+        """A track found static at its end loses the BVH a checkpoint wrote while it was open."""
+        if self.options.keep_static:
+            return
+        static = {f"track_{t}.bvh" for t in self.summary.static_tracks}
+        for path in [p for p in self.summary.bvh_files if p.name in static]:
+            path.unlink(missing_ok=True)
+            self.summary.bvh_files.remove(path)
 
 
 def run_offline(session: Session, source: Source) -> None:

@@ -117,10 +117,10 @@ def test_cli_reconstruct_coco17_array(small_db, small_db_path, tmp_path, capsys)
     lines = [json.loads(line) for line in _stream_lines(small_db, 12)]
     array = np.array([frame["people"][0]["keypoints"] for frame in lines])  # [T, 17, 3]
     np.save(tmp_path / "kp.npy", array)
-    assert main(["reconstruct", str(tmp_path / "kp.npy"), "--db", str(small_db_path), "--out", str(tmp_path),
+    assert main(["reconstruct", str(tmp_path / "kp.npy"), "--db", str(small_db_path), "--out", str(tmp_path / "out"),
                  "--fps", "24"]) == 0
     assert "frames 12" in capsys.readouterr().out
-    assert (tmp_path / "track_0.bvh").exists()
+    assert (tmp_path / "out" / "track_0.bvh").exists()
 
 
 def test_live_process_stops_cleanly_on_sigint(small_db, small_db_path, tmp_path):

@@ -90,3 +90,42 @@ def test_cli_image_size_errors_name_the_argument(small_db_path, tmp_path, capsys
                  "--image-size", "1920by1080"]) == 2
     err = capsys.readouterr().err
     assert "--image-size" in err and "--window-weights" not in err
+
+
+def test_output_that_survives(small_db, small_db_path, tmp_path, capsys):
+    (tmp_path / "in.jsonl").write_text("\n".join(_stream_lines(small_db, 10)) + "\n")
+    out = tmp_path / "out"
+    args = ["reconstruct", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--out", str(out), "--fps", "24"]
+    assert main(args) == 0
+    (out / "track_7.bvh").write_text("stale")  # as if left by an earlier run
+    before = (out / "result.jsonl").read_text()
+    # A failing run (missing input) leaves the earlier output as it was.
+    assert main(["reconstruct", str(tmp_path / "missing"), "--db", str(small_db_path), "--out", str(out)]) == 2
+    assert (out / "result.jsonl").read_text() == before and (out / "track_7.bvh").exists()
+    # A new run replaces it whole: no stale files of another run.
+    assert main(args) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["result.jsonl", "track_0.bvh"]
+    # A folder holding anything else is never replaced.
+    (out / "notes.txt").write_text("mine")
+    assert main(args) == 2 and "not an output folder" in capsys.readouterr().err
+    assert (out / "notes.txt").read_text() == "mine"
+    assert not list(tmp_path.glob(".out.tmp-*"))
+
+
+def test_a_track_bvh_is_written_when_the_track_ends(small_db, tmp_path):
+    px = _walking_px(small_db, 40)
+    summary = SessionSummary(stream=StreamStats())
+    engine = Engine(small_db, EngineConfig(fps=24.0))
+    session = Session(engine, open_sink(str(tmp_path / "out.jsonl"), summary.stream), FrameParser(), summary,
+                      SessionOptions(bvh_dir=tmp_path, checkpoint_s=1e9))
+    for i in range(20):
+        session.handle_frame(KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9))]), 0.0)
+    assert not (tmp_path / "track_0.bvh").exists()
+    for i in range(20, 40):  # the person is gone: the track ends after its missed frames
+        session.handle_frame(KeypointFrame(i, i / 24.0, []), 0.0)
+    assert (tmp_path / "track_0.bvh").exists()  # before the session ends
+    session.options.checkpoint_s = 0.0  # an open track's BVH so far, at every frame
+    for i in range(40, 45):
+        session.handle_frame(KeypointFrame(i, i / 24.0, [Person(px[i - 40], np.full(14, 0.9))]), 0.0)
+    assert (tmp_path / "track_1.bvh").exists()
+    assert session.finish().bvh_files == [tmp_path / "track_0.bvh", tmp_path / "track_1.bvh"]
