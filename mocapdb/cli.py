@@ -160,11 +160,15 @@ def _engine(args: argparse.Namespace):
 
 
 def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=None):
+    from pathlib import Path
+
     from runtime.session import FrameParser, Session, SessionOptions, SessionSummary
     from runtime.streams import StreamStats, open_sink
 
     summary = SessionSummary(stream=StreamStats())
     engine = _engine(args)
+    if bvh_dir is None and getattr(args, "bvh_dir", None):  # live --bvh-dir
+        bvh_dir = Path(args.bvh_dir)
     options = SessionOptions(strict=strict, fps_given=args.fps is not None, keep_static=args.keep_static,
                              bvh_dir=bvh_dir, bvh_unit=args.bvh_unit)
     return Session(engine, open_sink(sink_spec, summary.stream), FrameParser(args.keypoints), summary, options)

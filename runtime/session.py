@@ -180,7 +180,7 @@ class Session:
         """End all tracks, write the BVH files not yet written (into ``bvh_dir`` if given, else the
         options'; static tracks only with ``keep_static``), close the sink (even if writing fails)."""
         self.summary.wall_s = time.perf_counter() - self.started
-        if bvh_dir is not None:
+        if bvh_dir is not None and Path(bvh_dir) != self.options.bvh_dir:
             self.options.bvh_dir, self._written = Path(bvh_dir), 0
         if bvh_unit is not None:
             self.options.bvh_unit = bvh_unit
