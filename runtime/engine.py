@@ -167,6 +167,7 @@ class _TrackState:
         self.last_frame = frame
 
 
+MIN_EXTENT_PX = 4.0  # a person whose confident keypoints span less is skipped (degenerate)
 STATIC_RANGE = 0.05  # a track is static if no keypoint ever moved more than this × its box height
 STATIC_MIN_S = 1.0   # … over at least this long
 
@@ -209,6 +210,7 @@ class EngineStats:
     frames: int = 0
     person_frames: int = 0
     skipped_people: int = 0  # detections with too few confident joints or no hip
+    degenerate_people: int = 0  # detections whose confident keypoints span less than MIN_EXTENT_PX
     tracks_started: int = 0
     gaps: int = 0            # jumps in time or frame number that ended every track
 
@@ -288,7 +290,12 @@ class Engine:
 
     def _usable(self, person: Person) -> bool:
         vis = person.confidence >= self.config.confidence_threshold
-        return int(vis.sum()) >= self.config.min_joints and bool(vis[R_HIP] or vis[L_HIP])
+        if int(vis.sum()) < self.config.min_joints or not (vis[R_HIP] or vis[L_HIP]):
+            return False
+        if np.ptp(person.points_px[vis], axis=0).max() < MIN_EXTENT_PX:  # all at one point: no size, no depth
+            self.stats.degenerate_people += 1
+            return False
+        return True
 
     def _person(self, state: _TrackState, points_px: np.ndarray, confidence: np.ndarray,
                 frame_index: int, t_s: float) -> PersonPose:

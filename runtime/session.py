@@ -39,6 +39,7 @@ class SessionSummary:
     bvh_files: list[Path] = field(default_factory=list)
     static_tracks: list[int] = field(default_factory=list)  # left out of the BVH output
     gaps: int = 0
+    degenerate: int = 0
 
     def report(self) -> str:
         lat = np.array(self.latencies_s) * 1000.0
@@ -53,6 +54,8 @@ class SessionSummary:
         if self.static_tracks:
             lines.append(f"static tracks (keypoints never moved; no BVH, --keep-static keeps them): "
                          f"{', '.join(map(str, self.static_tracks))}")
+        if self.degenerate:
+            lines.append(f"people skipped with all keypoints within 4 px (no size, no depth): {self.degenerate}")
         if self.gaps:
             lines.append(f"jumps in time longer than the gap limit (every track ended): {self.gaps}")
         return "\n".join(lines)
@@ -188,6 +191,7 @@ class Session:
             recordings = self.engine.finish()
             self.summary.tracks = len(recordings)
             self.summary.gaps = self.engine.stats.gaps
+            self.summary.degenerate = self.engine.stats.degenerate_people
             self.summary.static_tracks = [r.track for r in recordings if r.static]
             if self.options.bvh_dir is not None:
                 self._write_bvhs()

@@ -129,3 +129,12 @@ def test_a_track_bvh_is_written_when_the_track_ends(small_db, tmp_path):
         session.handle_frame(KeypointFrame(i, i / 24.0, [Person(px[i - 40], np.full(14, 0.9))]), 0.0)
     assert (tmp_path / "track_1.bvh").exists()
     assert session.finish().bvh_files == [tmp_path / "track_0.bvh", tmp_path / "track_1.bvh"]
+
+
+def test_a_person_with_every_keypoint_at_one_pixel_is_skipped(small_db, tmp_path):
+    session = _session(small_db, tmp_path)
+    for i in range(5):
+        session.handle_frame(KeypointFrame(i, i / 24.0, [Person(np.full((14, 2), 500.0), np.full(14, 0.9))]), 0.0)
+    summary = session.finish(tmp_path)
+    assert summary.person_frames == 0 and summary.degenerate == 5
+    assert "within 4 px" in summary.report()
