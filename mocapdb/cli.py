@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 
@@ -305,7 +306,6 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_eval(args: argparse.Namespace) -> int:
-    import json
     from dataclasses import replace
     from pathlib import Path
 
@@ -333,7 +333,7 @@ def _run_eval(args: argparse.Namespace) -> int:
         loso = replace(loso, subjects=subjects, build=build, eval=replace(loso.eval, engine=engine))
         report = leave_one_subject_out(args.loso, loso)
         print(format_table(report))
-        text = json.dumps(report, indent=2)
+        text = _report_json(report)
     else:
         if not args.db or not args.bvh:
             raise UsageError("give --db and --bvh, or --leave-one-subject-out SOURCES")
@@ -341,11 +341,29 @@ def _run_eval(args: argparse.Namespace) -> int:
         if args.quick:
             config = replace(config, yaws_deg=config.yaws_deg[:2], scenarios=config.scenarios[:2])
         files = [f for f, _ in find_sources(args.bvh)]
-        text = json.dumps(evaluate(load_database(args.db), files, config), indent=2)
+        text = _report_json(evaluate(load_database(args.db), files, config))
         print(text)
     if args.out:
         Path(args.out).write_text(text + "\n")
     return 0
+
+
+def _finite(value):
+    """``value`` with every NaN or infinite float (nested in dicts and lists) replaced by None."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _report_json(report: dict) -> str:
+    """Strict JSON (undefined figures are null, never a bare NaN)."""
+    import json
+
+    return json.dumps(_finite(report), indent=2, allow_nan=False)
 
 
 def parser() -> argparse.ArgumentParser:

@@ -27,3 +27,13 @@ def test_stereo_without_intrinsics_is_a_clear_error(tmp_path, capsys):
     assert main(["stereo", str(tmp_path), str(tmp_path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert "--calibration" in err and "Traceback" not in err
+
+
+def test_eval_reports_are_strict_json():
+    import json
+
+    from mocapdb.cli import _report_json
+
+    text = _report_json({"mpjpe_cm": float("nan"), "rows": [1.5, float("inf")], "nested": {"x": -float("inf")}})
+    assert json.loads(text) == {"mpjpe_cm": None, "rows": [1.5, None], "nested": {"x": None}}
+    assert "NaN" not in text and "Infinity" not in text
