@@ -7,6 +7,8 @@ k-means O(I·N·K·d); writing O(N). ``tools/bench_build.py`` prints how each gr
 from __future__ import annotations
 
 import fnmatch
+import math
+import numbers
 import os
 import sys
 import time
@@ -20,16 +22,17 @@ from tqdm import tqdm
 
 from . import __version__
 from .bvh import BvhError, read_bvh
-from .database import MotionDatabase, check_output_path, write_database
+from .database import MotionDatabase, check_output_path, recover_interrupted, write_database
 from .embedding import kmeans, landmark_mds, pose_distances, representatives
 from .geometry import Camera, normalize_pose_2d, project_views
-from .joint_map import JointMapError, detect_mapping, extract_keypoints, load_joint_map_file
+from .joint_map import UNITS, UP_AXES, JointMapError, detect_mapping, extract_keypoints, load_joint_map_file
 from .skeleton import (ANKLE_HEIGHT_M, BONE_LENGTHS_M, KEYPOINTS, KP, N_KEYPOINTS_2D, PELVIS,
                        RIG_JOINTS, mirror_keypoints, resample, retarget)
 
 CREDIT_FILE = "CREDIT.txt"
 MIRROR_SUFFIX = "~mirror"  # added to the name of a clip's left-right mirror image
 PROJECTION_CHUNK_FRAMES = 2000
+MAX_YAWS = 32767  # projections.yaw is int16
 
 
 class BuildError(RuntimeError):
@@ -57,10 +60,42 @@ class BuildConfig:
 
     @property
     def yaws_deg(self) -> np.ndarray:
-        n = int(round(360.0 / self.yaw_step_deg))
-        if n < 1 or abs(n * self.yaw_step_deg - 360.0) > 1e-6:
-            raise BuildError(f"--yaw-step {self.yaw_step_deg} does not divide 360 degrees")
-        return np.arange(n) * self.yaw_step_deg
+        step = self.yaw_step_deg
+        _check_positive("--yaw-step", step)
+        ratio = 360.0 / step
+        n = round(ratio) if ratio < MAX_YAWS + 1 else 0
+        if n < 1 or abs(n * step - 360.0) > 1e-6:
+            raise BuildError(f"--yaw-step {step} does not divide 360 degrees into 1 to {MAX_YAWS} yaws")
+        return np.arange(n) * step
+
+    def check(self) -> None:
+        """Raise BuildError naming the first option (by its ``mocapdb build`` flag) that cannot work."""
+        for flag, value in [("--fps", self.fps), ("--camera-height", self.camera.height_m),
+                            ("--camera-distance", self.camera.distance_m), ("--focal", self.camera.focal_px)]:
+            _check_positive(flag, value)
+        self.yaws_deg
+        for flag, value, least in [("--clusters", self.clusters, 1), ("--dims", self.dims, 1),
+                                   ("--landmarks", self.landmarks, 2), ("--workers", self.workers, 1),
+                                   ("--seed", self.seed, 0), ("camera width_px", self.camera.width_px, 1),
+                                   ("camera height_px", self.camera.height_px, 1)]:
+            _check_int(flag, value, least)
+        if self.landmarks <= self.dims:
+            raise BuildError(f"--landmarks {self.landmarks} is too few for --dims {self.dims}: "
+                             "landmark MDS needs at least dims + 1 landmarks")
+        if self.unit not in (None, *UNITS) or self.up_axis not in (None, *UP_AXES):
+            raise BuildError(f"unknown --unit {self.unit!r} or --up-axis {self.up_axis!r}: "
+                             f"units {', '.join(UNITS)}; up axes {', '.join(UP_AXES)}")
+
+
+def _check_positive(flag: str, value: object) -> None:
+    if not (isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+            and value > 0):
+        raise BuildError(f"{flag} must be a positive finite number, got {value!r}")
+
+
+def _check_int(flag: str, value: object, least: int) -> None:
+    if not (isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= least):
+        raise BuildError(f"{flag} must be a whole number ≥ {least}, got {value!r}")
 
 
 @dataclass
@@ -88,6 +123,7 @@ class BuildSummary:
     skipped: list[tuple[str, str]] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     bytes_on_disk: int = 0
+    warnings: list[str] = field(default_factory=list)
 
     def report(self) -> str:
         lines = [f"files {self.files}, clips {self.clips} (files split at jumps in the data; {self.mirrored} of them "
@@ -96,6 +132,7 @@ class BuildSummary:
         lines += [f"  {stage:<12} {sec:8.2f} s" for stage, sec in self.seconds.items()]
         lines.append(f"  {'total':<12} {sum(self.seconds.values()):8.2f} s")
         lines += [f"skipped {path}: {why}" for path, why in self.skipped]
+        lines += [f"warning: {text}" for text in self.warnings]
         return "\n".join(lines)
 
 
@@ -268,9 +305,8 @@ def _embed_and_cluster(keypoints_2d: np.ndarray, config: BuildConfig, summary: B
                              seed=config.seed, progress=bar.update)
     bar.close()
     t1 = time.perf_counter()
-    k = min(config.clusters, len(keypoints_2d))
     bar = tqdm(total=None, desc="k-means", unit="iter", disable=None, file=sys.stderr)
-    centroids, labels = kmeans(embedding, k, seed=config.seed, progress=lambda it, shift: bar.update())
+    centroids, labels = kmeans(embedding, config.clusters, seed=config.seed, progress=lambda it, shift: bar.update())
     bar.close()
     reps = representatives(embedding, labels, centroids)
     labels = assign_to_representatives(keypoints_2d, reps)
@@ -343,12 +379,23 @@ def _meta(config: BuildConfig) -> dict:
     }
 
 
-def _check_before_work(out: str | os.PathLike, config: BuildConfig) -> None:
-    """Fail in milliseconds, before any file is read, on what would stop the build at the end."""
-    check_output_path(out)
-    config.yaws_deg  # validates the yaw step
+def _check_before_work(out: str | os.PathLike, config: BuildConfig, summary: BuildSummary) -> None:
+    """Fail in milliseconds, before any file is read, on what would stop the build at the end; then
+    clean up after interrupted earlier writes of ``out``."""
+    config.check()
     if config.joint_map:
         load_joint_map_file(config.joint_map)
+    check_output_path(out)
+    summary.warnings += recover_interrupted(out)
+
+
+def _fit_clusters(config: BuildConfig, n_projections: int, summary: BuildSummary) -> BuildConfig:
+    """``config`` with at most one cluster per projection (a warning says when it had more)."""
+    if config.clusters <= n_projections:
+        return config
+    summary.warnings.append(f"--clusters {config.clusters} is more than the {n_projections} projections: "
+                            f"made {n_projections} clusters")
+    return replace(config, clusters=n_projections)
 
 
 def build(sources: list[str], out: str | os.PathLike, config: BuildConfig,
@@ -356,7 +403,7 @@ def build(sources: list[str], out: str | os.PathLike, config: BuildConfig,
     """Build a database at ``out`` from BVH files and folders; returns the summary."""
     summary = BuildSummary()
     t0 = time.perf_counter()
-    _check_before_work(out, config)
+    _check_before_work(out, config, summary)
     files = find_sources(sources, exclude)
     if not files:
         raise BuildError(f"no .bvh file found in {', '.join(sources)}")
@@ -365,6 +412,7 @@ def build(sources: list[str], out: str | os.PathLike, config: BuildConfig,
     positions = np.concatenate([c.positions for c in clips])
     keypoints_2d = project_all(positions, config)
     summary.seconds.update({"read": t1 - t0, "project": time.perf_counter() - t1})
+    config = _fit_clusters(config, len(keypoints_2d), summary)
     embedding, centroids, labels, reps = _embed_and_cluster(keypoints_2d, config, summary)
     t2 = time.perf_counter()
     db = assemble(clips, keypoints_2d, embedding, centroids, labels, reps, config)

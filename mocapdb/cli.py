@@ -20,7 +20,8 @@ def _add_build(sub: argparse._SubParsersAction) -> None:
                                    "project every frame from every yaw, embed with landmark MDS, cluster with "
                                    "k-means and write a Parquet database.")
     p.add_argument("sources", nargs="+", help="BVH files or folders")
-    p.add_argument("--out", required=True, help="database directory to write (replaced atomically)")
+    p.add_argument("--out", required=True,
+                   help="database directory to write (replaced atomically; a symlink is followed and kept)")
     p.add_argument("--fps", type=float, default=24.0, help="database frame rate in Hz (default 24)")
     p.add_argument("--yaw-step", type=float, default=12.0, help="yaw step in degrees; must divide 360 (default 12)")
     p.add_argument("--camera-height", type=float, default=1.5, help="camera height above the floor, metres (default 1.5)")
@@ -30,7 +31,8 @@ def _add_build(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dims", type=int, default=5, help="MDS embedding dimensions (default 5)")
     p.add_argument("--landmarks", type=int, default=2000, help="landmark-MDS landmarks (default 2000)")
     p.add_argument("--seed", type=int, default=0, help="random seed (the build is deterministic for a seed)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes reading BVH files")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="processes reading BVH files (default: one per CPU)")
     p.add_argument("--exclude", action="append", default=[], metavar="PATTERN",
                    help="skip files whose name or path matches this glob (repeatable)")
     p.add_argument("--strict", action="store_true",
@@ -49,17 +51,19 @@ def _run_build(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from .builder import BuildConfig, build
+    from .database import output_target
     from .geometry import Camera
 
     config = BuildConfig(
         fps=args.fps, yaw_step_deg=args.yaw_step,
         camera=Camera(height_m=args.camera_height, distance_m=args.camera_distance, focal_px=args.focal),
         clusters=args.clusters, dims=args.dims, seed=args.seed, landmarks=args.landmarks,
-        workers=max(1, args.workers), strict=args.strict,
+        workers=args.workers, strict=args.strict,
         joint_map=Path(args.joint_map) if args.joint_map else None,
         unit=args.unit, up_axis=args.up_axis, credit=args.credit, mirror=not args.no_mirror)
     summary = build(args.sources, args.out, config, exclude=args.exclude)
-    print(f"wrote {args.out}")
+    target = output_target(args.out)
+    print(f"wrote {args.out}" + (f" (symlink to {target})" if os.path.islink(args.out) else ""))
     print(summary.report())
     return 0
 
@@ -90,6 +94,9 @@ def _run_inspect(args: argparse.Namespace) -> int:
 
 def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", required=True, help="database directory written by `mocapdb build`")
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip checking the database files' sha256 checksums on load (sizes, row counts and "
+                        "finite values are still checked)")
     p.add_argument("--keypoints",
                    choices=("body25", "body25b", "coco18", "coco17", "halpe26", "wholebody133", "mediapipe33"),
                    help="keypoint layout of the input (default: detected from the keypoint count; 25 keypoints: "
@@ -157,7 +164,7 @@ def _engine(args: argparse.Namespace):
                               rotation_filter=rotation_filter)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    return Engine(load_database(args.db), config)
+    return Engine(load_database(args.db, verify_checksums=not args.no_verify), config)
 
 
 def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=None):
@@ -241,7 +248,16 @@ def _add_live(sub: argparse._SubParsersAction) -> None:
                                    "(data_specs/pose_models.md)")
     p.add_argument("--sink", default="-", help="'-' (stdout), a file, tcp://HOST:PORT or udp://HOST:PORT")
     p.add_argument("--bvh-dir", help="folder for the tracks' BVH files, written when the stream ends")
-    p.add_argument("--idle-timeout", type=float, help="stop after this many seconds without input")
+    p.add_argument("--idle-timeout", type=float,
+                   help="stop after this many seconds without a message (any source; default: never)")
+    p.add_argument("--client-timeout", type=float, default=30.0,
+                   help="tcp:// source: close a client that sends no complete line for this many seconds "
+                        "(default 30)")
+    p.add_argument("--max-clients", type=int, default=16,
+                   help="tcp:// source: simultaneous clients; further connections are refused (default 16)")
+    p.add_argument("--max-rate", type=float, default=1000.0,
+                   help="tcp:// and udp:// sources: messages per second per sender address, the excess "
+                        "dropped and counted; 0: no limit (default 1000)")
     p.add_argument("--buffer", type=int, default=2, help="messages buffered before the oldest is dropped (default 2)")
     _add_engine_options(p)
     p.set_defaults(run=_run_live)
@@ -252,9 +268,10 @@ def _run_live(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from runtime.session import run_live
-    from runtime.streams import install_stop_handlers, open_source
+    from runtime.streams import NetworkLimits, install_stop_handlers, open_source
     from runtime.video_input import open_video_source, run_video
 
+    limits = NetworkLimits(args.max_clients, args.client_timeout, args.max_rate)   # checked before any work
     session = _session(args, args.sink, strict=False)
     stop = threading.Event()
     video = None
@@ -264,10 +281,12 @@ def _run_live(args: argparse.Namespace) -> int:
             run_video(session, video, stop)
         else:
             source = open_source(args.source, stats=session.summary.stream, follow=True,
-                                 idle_timeout_s=args.idle_timeout)
+                                 idle_timeout_s=args.idle_timeout, limits=limits)
             run_live(session, source, stop, args.buffer)
     summary = session.finish(Path(args.bvh_dir) if args.bvh_dir else None, args.bvh_unit)
     print(summary.report(), file=sys.stderr)
+    if source_line := summary.stream.source_report():
+        print(source_line, file=sys.stderr)
     if video is not None:
         print(video.report(), file=sys.stderr)
     return 0

@@ -5,12 +5,17 @@ The builder writes it (:func:`write_database`), the real-time runtime loads it
 """
 from __future__ import annotations
 
+import ctypes
+import errno
+import functools
 import hashlib
 import json
 import math
 import numbers
 import os
+import re
 import shutil
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -213,15 +218,17 @@ def write_database(db: MotionDatabase, path: str | os.PathLike) -> int:
     """Validate ``db`` and write it atomically as directory ``path``; return its size in bytes.
 
     Replaces an existing mocapdb database or empty directory at ``path``; refuses anything else,
-    and a database holding a NaN or infinite value.
+    and a database holding a NaN or infinite value. A symlink at ``path`` is followed: the database
+    is written at its target and the link stays. Leftovers of interrupted writes to ``path`` are
+    cleaned up first (:func:`recover_interrupted`).
     """
     db.validate()
     _check_finite(db)
-    path = Path(os.path.abspath(path))
+    path = output_target(path)
     check_output_path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    shutil.rmtree(tmp, ignore_errors=True)
+    recover_interrupted(path)
+    tmp = _sibling(path, "tmp", os.getpid())
     try:
         tmp.mkdir()
         total = _write_contents(db, tmp)
@@ -232,9 +239,21 @@ def write_database(db: MotionDatabase, path: str | os.PathLike) -> int:
     return total
 
 
+def _is_float(col: _Column) -> bool:
+    return col.dtype is not None and col.dtype.startswith("float")
+
+
+def _nonfinite_row(values: np.ndarray) -> int | None:
+    """The first row of ``values`` holding a NaN or infinity, None if there is none (vectorised)."""
+    finite = np.isfinite(values)
+    if finite.all():
+        return None
+    return int(np.argmin(finite.reshape(len(values), -1).all(axis=1)))
+
+
 def _check_finite(db: MotionDatabase) -> None:
     bad = [col.field for columns in _TABLES.values() for col in columns
-           if col.dtype and col.dtype.startswith("float") and not np.isfinite(getattr(db, col.field)).all()]
+           if _is_float(col) and _nonfinite_row(getattr(db, col.field)) is not None]
     if bad:
         raise DatabaseError(f"NaN or infinite values in {', '.join(bad)}: refusing to write them")
 
@@ -258,11 +277,17 @@ def _check_replaceable(path: Path) -> None:
     )
 
 
+def output_target(path: str | os.PathLike) -> Path:
+    """The absolute path :func:`write_database` writes for ``path``: symlinks (also a dangling one
+    at ``path`` itself) are followed, so a linked database is replaced at its target."""
+    return Path(os.path.realpath(os.path.abspath(path)))
+
+
 def check_output_path(path: str | os.PathLike) -> None:
     """Raise DatabaseError unless :func:`write_database` may write ``path``: nothing there but an
     empty folder or a mocapdb database, in a folder that exists or can be created and that this
     process may write. Cheap, so a build checks it before any work."""
-    path = Path(os.path.abspath(path))
+    path = output_target(path)
     _check_replaceable(path)
     folder = next(p for p in path.parents if os.path.lexists(p))
     if not folder.is_dir():
@@ -327,36 +352,124 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
+def _sibling(path: Path, kind: str, pid: int) -> Path:
+    """``.<name>.<kind>-<pid>`` next to ``path``: a write's temporary (``tmp``) or set-aside (``old``) folder."""
+    return path.with_name(f".{path.name}.{kind}-{pid}")
+
+
 def _replace(tmp: Path, path: Path) -> None:
-    """Move the finished ``tmp`` to ``path``, deleting the database it replaces."""
+    """Move the finished ``tmp`` to ``path``, deleting what it replaces; ``path`` is never missing."""
     _check_replaceable(path)
-    old = path.with_name(f".{path.name}.old-{os.getpid()}")
+    if not os.path.lexists(path):
+        os.rename(tmp, path)
+        _fsync_dir(path.parent)
+    elif _exchange(tmp, path):  # atomic swap: ``tmp`` now holds the old database
+        _fsync_dir(path.parent)
+        shutil.rmtree(tmp, ignore_errors=True)
+    else:
+        _replace_by_renames(tmp, path)
+
+
+def _replace_by_renames(tmp: Path, path: Path) -> None:
+    """Where no atomic swap exists: old aside, new in, old deleted; the old comes back on any failure
+    between the renames (and after a crash there, :func:`recover_interrupted` brings it back)."""
+    old = _sibling(path, "old", os.getpid())
     shutil.rmtree(old, ignore_errors=True)
-    if os.path.lexists(path):
-        os.rename(path, old)
+    os.rename(path, old)
     try:
         os.rename(tmp, path)
     except BaseException:
-        if os.path.lexists(old):
-            os.rename(old, path)
+        os.rename(old, path)
         raise
     _fsync_dir(path.parent)
     shutil.rmtree(old, ignore_errors=True)
 
 
+_RENAME_EXCHANGE = 2  # linux/fs.h
+_AT_FDCWD = -100
+_NO_EXCHANGE = {errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP}
+
+
+@functools.cache
+def _renameat2():
+    """libc's ``renameat2`` (Linux, glibc ≥ 2.28), or None."""
+    try:
+        return getattr(ctypes.CDLL(None, use_errno=True), "renameat2", None)
+    except OSError:
+        return None
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Atomically swap the existing paths ``a`` and ``b``; False where the OS or file system cannot."""
+    renameat2 = _renameat2()
+    if renameat2 is None:
+        return False
+    if renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in _NO_EXCHANGE:
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def _pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this machine (unknown counts as running)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (OSError, OverflowError):
+        return True
+    return True
+
+
+def _stale_siblings(path: Path) -> list[tuple[str, str]]:
+    """``(folder name, "tmp" | "old")`` of the write folders of ``path`` whose process has ended (or is
+    this one), ``old`` first."""
+    pattern = re.compile(rf"\.{re.escape(path.name)}\.(tmp|old)-(\d+)")
+    try:
+        entries = sorted(os.scandir(path.parent), key=lambda e: e.name)
+    except OSError:
+        return []
+    found = [(e.name, m.group(1), int(m.group(2))) for e in entries
+             if (m := pattern.fullmatch(e.name)) and e.is_dir(follow_symlinks=False)]
+    stale = [(name, kind) for name, kind, pid in found if pid == os.getpid() or not _pid_alive(pid)]
+    return sorted(stale, key=lambda s: s[1] != "old")
+
+
+def recover_interrupted(path: str | os.PathLike) -> list[str]:
+    """Clean up after writes to ``path`` that died (killed, power loss): put a set-aside old database
+    (``.<name>.old-<pid>``) back at ``path`` if ``path`` is missing, and delete the other such
+    folders and the temporary ones (``.<name>.tmp-<pid>``). Only folders of processes no longer
+    running (or of this process) are touched. Returns what was done, one line each."""
+    path = output_target(path)
+    done = []
+    for name, kind in _stale_siblings(path):
+        folder = path.with_name(name)
+        if kind == "old" and not os.path.lexists(path):
+            os.rename(folder, path)
+            done.append(f"restored {path} from {name}, left by an interrupted write")
+        else:
+            shutil.rmtree(folder, ignore_errors=True)
+            done.append(f"removed {name}, left by an interrupted write")
+    return done
+
+
 # ----------------------------------------------------------------------------------- loading
 
 
-def load_database(path: str | os.PathLike, verify_checksums: bool = False) -> MotionDatabase:
+def load_database(path: str | os.PathLike, verify_checksums: bool = True) -> MotionDatabase:
     """Load and validate the database at ``path``; raise DatabaseError on any problem.
 
-    Sizes are always checked against the manifest; sha256 checksums only if ``verify_checksums``.
+    Sizes are always checked against the manifest, and every float value must be finite; the
+    files' sha256 checksums unless ``verify_checksums`` is False (``--no-verify``).
     """
     path = Path(path)
     manifest = _read_manifest(path)
     columns = {}
-    for table, entry in manifest["tables"].items():
-        columns.update(_read_table(path, table, entry, verify_checksums))
+    with ThreadPoolExecutor(max_workers=1) as hasher:  # hashing overlaps Parquet decoding (both release the GIL)
+        for table, entry in manifest["tables"].items():
+            columns.update(_read_table(path, table, entry, hasher if verify_checksums else None))
     db = MotionDatabase(meta=manifest["meta"], **columns)
     try:
         db.validate()
@@ -399,16 +512,7 @@ def _read_manifest(path: Path) -> dict:
     return manifest
 
 
-def _sha256_file(file: Path) -> str:
-    digest = hashlib.sha256()
-    with open(file, "rb") as f:
-        while chunk := f.read(1 << 24):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
-def _read_table(path: Path, table: str, entry: dict, verify_checksum: bool) -> dict:
-    file = path / entry["file"]
+def _read_bytes(file: Path, entry: dict) -> pa.Buffer:
     if not file.is_file():
         raise DatabaseError(f"{file}: table file missing; rebuild the database")
     size = file.stat().st_size
@@ -416,13 +520,40 @@ def _read_table(path: Path, table: str, entry: dict, verify_checksum: bool) -> d
         raise DatabaseError(
             f"{file}: size {size} bytes, manifest says {entry['bytes']}: file truncated or modified"
         )
-    if verify_checksum and _sha256_file(file) != entry["sha256"]:
-        raise DatabaseError(f"{file}: sha256 checksum differs from the manifest: file corrupt")
     try:
-        with pq.ParquetFile(file) as parquet:
-            data = parquet.read()
+        with pa.OSFile(str(file)) as f:  # into Arrow's memory pool: faster than bytes
+            return f.read_buffer()
+    except OSError as e:
+        raise DatabaseError(f"{file}: cannot read it ({e})") from None
+
+
+def _sha256(data: pa.Buffer) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _check_digest(file: Path, digest: Future | None, expected: str) -> None:
+    if digest is not None and (actual := digest.result()) != expected:
+        raise DatabaseError(
+            f"checksum mismatch: {file} has sha256 {actual[:16]}…, the manifest says {expected[:16]}…; "
+            "the database is damaged: rebuild it, or --no-verify to load it anyway"
+        )
+
+
+def _parse_parquet(file: Path, raw: pa.Buffer, entry: dict, hasher: ThreadPoolExecutor | None) -> pa.Table:
+    """Decode the file's bytes; with a ``hasher``, its sha256 (computed meanwhile) must match first."""
+    digest = hasher.submit(_sha256, raw) if hasher is not None else None
+    try:
+        data = pq.ParquetFile(pa.BufferReader(raw)).read()
     except (pa.ArrowException, OSError, ValueError) as e:
+        _check_digest(file, digest, entry["sha256"])
         raise DatabaseError(f"{file}: corrupt Parquet file, cannot read it ({e})") from None
+    _check_digest(file, digest, entry["sha256"])
+    return data
+
+
+def _read_table(path: Path, table: str, entry: dict, hasher: ThreadPoolExecutor | None) -> dict:
+    file = path / entry["file"]
+    data = _parse_parquet(file, _read_bytes(file, entry), entry, hasher)
     metadata = data.schema.metadata or {}
     tag = (metadata.get(b"mocapdb.table"), metadata.get(b"mocapdb.schema_version"))
     if tag != (table.encode(), str(SCHEMA_VERSION).encode()):
@@ -430,7 +561,12 @@ def _read_table(path: Path, table: str, entry: dict, verify_checksum: bool) -> d
                             f"{SCHEMA_VERSION}, file metadata says {tag}")
     if data.num_rows != entry["rows"]:
         raise DatabaseError(f"{file}: {data.num_rows} rows, manifest says {entry['rows']}")
-    return {col.field: _column_to_numpy(data, col, file) for col in _TABLES[table]}
+    columns = {col.field: _column_to_numpy(data, col, file) for col in _TABLES[table]}
+    for col in filter(_is_float, _TABLES[table]):
+        if (row := _nonfinite_row(columns[col.field])) is not None:
+            raise DatabaseError(f"{file}: NaN or infinite value in table {table!r}, column {col.name!r} "
+                                f"(row {row}); the database is damaged: rebuild it")
+    return columns
 
 
 def _column_to_numpy(data: pa.Table, col: _Column, file: Path) -> np.ndarray | list[str]:

@@ -26,7 +26,7 @@ def sources(tmp_path_factory):
 
 
 def _config(**kw) -> BuildConfig:
-    return BuildConfig(clusters=20, landmarks=300, workers=1, **kw)
+    return BuildConfig(**{"clusters": 20, "landmarks": 300, "workers": 1, **kw})
 
 
 @pytest.fixture(scope="module")
@@ -319,3 +319,116 @@ def test_database_with_a_nan_is_never_written(built, tmp_path):
     with pytest.raises(DatabaseError, match="NaN or infinite values in positions"):
         write_database(replace(db, positions=positions), tmp_path / "db")
     assert list(tmp_path.iterdir()) == []
+
+
+BAD_OPTIONS = {  # `mocapdb build` options → what the error must say
+    ("--clusters", "0"): "--clusters must be a whole number ≥ 1, got 0",
+    ("--clusters", "-5"): "--clusters must be a whole number ≥ 1, got -5",
+    ("--dims", "0"): "--dims must be a whole number ≥ 1, got 0",
+    ("--landmarks", "0"): "--landmarks must be a whole number ≥ 2, got 0",
+    ("--landmarks", "1"): "--landmarks must be a whole number ≥ 2, got 1",
+    ("--landmarks", "5"): "--landmarks 5 is too few for --dims 5: landmark MDS needs at least dims + 1",
+    ("--fps", "0"): "--fps must be a positive finite number, got 0.0",
+    ("--fps", "-24"): "--fps must be a positive finite number, got -24.0",
+    ("--fps", "nan"): "--fps must be a positive finite number, got nan",
+    ("--fps", "inf"): "--fps must be a positive finite number, got inf",
+    ("--yaw-step", "0"): "--yaw-step must be a positive finite number, got 0.0",
+    ("--yaw-step", "-12"): "--yaw-step must be a positive finite number, got -12.0",
+    ("--yaw-step", "nan"): "--yaw-step must be a positive finite number, got nan",
+    ("--yaw-step", "inf"): "--yaw-step must be a positive finite number, got inf",
+    ("--yaw-step", "7"): "--yaw-step 7.0 does not divide 360 degrees",
+    ("--yaw-step", "720"): "--yaw-step 720.0 does not divide 360 degrees",
+    ("--yaw-step", "0.01"): "--yaw-step 0.01 does not divide 360 degrees into 1 to 32767 yaws",
+    ("--focal", "0"): "--focal must be a positive finite number, got 0.0",
+    ("--focal", "-1000"): "--focal must be a positive finite number, got -1000.0",
+    ("--focal", "nan"): "--focal must be a positive finite number, got nan",
+    ("--camera-height", "0"): "--camera-height must be a positive finite number, got 0.0",
+    ("--camera-height", "-1.5"): "--camera-height must be a positive finite number",
+    ("--camera-height", "inf"): "--camera-height must be a positive finite number",
+    ("--camera-distance", "0"): "--camera-distance must be a positive finite number, got 0.0",
+    ("--camera-distance", "nan"): "--camera-distance must be a positive finite number",
+    ("--workers", "0"): "--workers must be a whole number ≥ 1, got 0",
+    ("--workers", "-2"): "--workers must be a whole number ≥ 1, got -2",
+    ("--seed", "-1"): "--seed must be a whole number ≥ 0, got -1",
+}
+
+
+@pytest.mark.parametrize("option", BAD_OPTIONS, ids=" ".join)
+def test_bad_build_option_fails_before_any_work(sources, tmp_path, monkeypatch, capsys, option):
+    import time
+
+    import mocapdb.builder as builder
+    from mocapdb.cli import parser
+
+    parser()  # its imports (OpenCV) are not the build's time
+    read = []
+    monkeypatch.setattr(builder, "read_bvh", lambda path: read.append(path))
+    monkeypatch.setattr(builder, "find_sources", lambda *a: read.append(a))
+    start = time.perf_counter()
+    assert main(["build", str(sources), "--out", str(tmp_path / "db"), "--workers", "1", *option]) == 2
+    assert time.perf_counter() - start < 1.0
+    err = capsys.readouterr().err
+    assert err.startswith(f"mocapdb build: error: {BAD_OPTIONS[option]}") and "Traceback" not in err
+    assert read == [] and list(tmp_path.iterdir()) == []
+
+
+def test_bad_config_is_refused_by_the_library_too(sources, tmp_path):
+    from mocapdb.geometry import Camera
+
+    for config in [_config(clusters=0), _config(dims=2.5), _config(landmarks=True), _config(fps=float("nan")),
+                   _config(camera=Camera(focal_px=0.0)), _config(camera=Camera(width_px=0)),
+                   _config(workers=0), _config(unit="furlong")]:
+        with pytest.raises(BuildError):
+            build([str(sources)], tmp_path / "db", config)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_more_clusters_than_projections_are_reduced_with_a_warning(sources, tmp_path):
+    summary = build([str(sources / "002_03.bvh")], tmp_path / "db", _config(clusters=10**6, mirror=False))
+    db = load_database(tmp_path / "db")
+    assert db.n_clusters == db.n_projections == summary.clusters == db.meta["n_clusters"] < 10**6
+    assert summary.warnings == [f"--clusters 1000000 is more than the {db.n_projections} projections: "
+                                f"made {db.n_projections} clusters"]
+    assert f"warning: {summary.warnings[0]}" in summary.report()
+
+
+def test_build_cleans_up_after_an_interrupted_build(sources, tmp_path, capsys):
+    import subprocess
+    import sys
+
+    dead = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                              capture_output=True, text=True, check=True).stdout)
+    (tmp_path / f".db.tmp-{dead}").mkdir()
+    (tmp_path / f".db.tmp-{dead}" / "projections.parquet").write_bytes(b"half written")
+    assert main(["build", str(sources / "002_03.bvh"), "--out", str(tmp_path / "db"), "--clusters", "5",
+                 "--landmarks", "100", "--workers", "1", "--no-mirror"]) == 0
+    assert f"warning: removed .db.tmp-{dead}, left by an interrupted write" in capsys.readouterr().out
+    assert os.listdir(tmp_path) == ["db"]
+
+
+def test_build_through_a_symlink_writes_its_target(sources, tmp_path, capsys):
+    (tmp_path / "store").mkdir()
+    (tmp_path / "link").symlink_to(tmp_path / "store" / "db")
+    assert main(["build", str(sources / "002_03.bvh"), "--out", str(tmp_path / "link"), "--clusters", "5",
+                 "--landmarks", "100", "--workers", "1", "--no-mirror"]) == 0
+    assert f"wrote {tmp_path / 'link'} (symlink to {tmp_path / 'store' / 'db'})" in capsys.readouterr().out
+    assert (tmp_path / "link").is_symlink() and os.listdir(tmp_path / "store") == ["db"]
+    assert load_database(tmp_path / "link").n_clusters == 5
+
+
+def test_engine_commands_verify_checksums_unless_no_verify(small_db_path, tmp_path):
+    from mocapdb import cli
+    from mocapdb.database import DatabaseError
+
+    db = tmp_path / "db"
+    shutil.copytree(small_db_path, db)
+    frames = db / "frames.parquet"
+    data = bytearray(frames.read_bytes())
+    data[data.index(b"parquet-cpp-arrow")] ^= 1  # a harmless bit: the file still decodes
+    frames.write_bytes(bytes(data))
+    for command in (["reconstruct", "in", "--out", "out"], ["live", "--source", "-"]):
+        args = cli.parser().parse_args([*command, "--db", str(db)])
+        with pytest.raises(DatabaseError, match=r"checksum mismatch: .*frames.parquet .*--no-verify to load it"):
+            cli._engine(args)
+        args = cli.parser().parse_args([*command, "--db", str(db), "--no-verify"])
+        assert cli._engine(args).db.n_frames == load_database(small_db_path).n_frames

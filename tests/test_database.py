@@ -1,13 +1,17 @@
+import hashlib
 import json
 import os
 import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
 from mocapdb import database
-from mocapdb.database import SCHEMA_VERSION, DatabaseError, MotionDatabase, load_database, write_database
+from mocapdb.database import (SCHEMA_VERSION, DatabaseError, MotionDatabase, load_database, recover_interrupted,
+                              write_database)
 
 
 def make_db(seed: int = 0, counts=(4, 2, 5), n_rig: int = 3, dims: int = 3,
@@ -66,13 +70,19 @@ def edit_manifest(path, edit) -> None:
     file.write_text(json.dumps(manifest))
 
 
+def fix_manifest(path, table: str) -> None:
+    """Make the manifest's size and checksum of ``table`` match its (edited) file."""
+    data = (path / f"{table}.parquet").read_bytes()
+    edit_manifest(path, lambda m: m["tables"][table].update(bytes=len(data), sha256=hashlib.sha256(data).hexdigest()))
+
+
 def rewrite_table(path, table: str, column: str, values) -> None:
     """Replace one column of a table file, keeping its metadata, and update the manifest."""
     file = path / f"{table}.parquet"
     data = pq.read_table(file)
     data = data.set_column(data.column_names.index(column), column, [values])
     pq.write_table(data, file)
-    edit_manifest(path, lambda m: m["tables"][table].update(bytes=file.stat().st_size))
+    fix_manifest(path, table)
 
 
 @pytest.fixture
@@ -165,19 +175,12 @@ def test_write_rejects_inconsistent_database(tmp_path):
     assert os.listdir(tmp_path) == []
 
 
-def _cut_in_half(path, fix_manifest: bool) -> None:
+def _cut_in_half(path, fix: bool) -> None:
     file = path / "projections.parquet"
     data = file.read_bytes()
     file.write_bytes(data[: len(data) // 2])
-    if fix_manifest:
-        edit_manifest(path, lambda m: m["tables"]["projections"].update(bytes=len(data) // 2))
-
-
-def _flip_byte(path) -> None:
-    file = path / "frames.parquet"
-    data = bytearray(file.read_bytes())
-    data[len(data) // 2] ^= 0xFF
-    file.write_bytes(bytes(data))
+    if fix:
+        fix_manifest(path, "projections")
 
 
 LOAD_ERRORS = {
@@ -196,9 +199,9 @@ LOAD_ERRORS = {
         rf"schema version {SCHEMA_VERSION - 1}, this code reads version {SCHEMA_VERSION}; rebuild",
     ),
     "missing table": (lambda p: (p / "frames.parquet").unlink(), r"frames.parquet: table file missing"),
-    "truncated": (lambda p: _cut_in_half(p, fix_manifest=False),
+    "truncated": (lambda p: _cut_in_half(p, fix=False),
                   r"projections.parquet: size \d+ bytes, manifest says \d+: file truncated"),
-    "unreadable parquet": (lambda p: _cut_in_half(p, fix_manifest=True),
+    "unreadable parquet": (lambda p: _cut_in_half(p, fix=True),
                            r"projections.parquet: corrupt Parquet file, cannot read it"),
     "row count": (lambda p: edit_manifest(p, lambda m: m["tables"]["frames"].update(rows=12)),
                   r"frames.parquet: 11 rows, manifest says 12"),
@@ -223,7 +226,152 @@ def test_load_errors(db_path, case):
         load_database(db_path)
 
 
-def test_checksum_verification(db_path):
-    _flip_byte(db_path)
-    with pytest.raises(DatabaseError, match=r"frames.parquet: sha256 checksum differs from the manifest"):
-        load_database(db_path, verify_checksums=True)
+def _flip_bit(file, position: int, bit: int = 0) -> None:
+    data = bytearray(file.read_bytes())
+    data[position] ^= 1 << bit
+    file.write_bytes(bytes(data))
+
+
+DAMAGED = r"the database is damaged: rebuild it, or --no-verify to load it anyway"
+
+
+@pytest.mark.parametrize("table", ["clips", "frames", "projections", "clusters"])
+@pytest.mark.parametrize("where", [0.0, 0.5, 1.0])
+def test_any_bit_flip_is_detected(db_path, table, where):
+    file = db_path / f"{table}.parquet"
+    _flip_bit(file, round(where * (file.stat().st_size - 1)), bit=3)
+    with pytest.raises(DatabaseError, match=rf"^checksum mismatch: {file} has sha256 .*; {DAMAGED}$"):
+        load_database(db_path)
+
+
+def test_damaged_file_loads_without_verification(db_path):
+    file = db_path / "frames.parquet"
+    data = file.read_bytes()
+    _flip_bit(file, data.index(b"parquet-cpp-arrow"))  # the writer's name in the footer: harmless
+    with pytest.raises(DatabaseError, match=rf"checksum mismatch: .*frames.parquet .*{DAMAGED}"):
+        load_database(db_path)
+    assert_db_equal(make_db(), load_database(db_path, verify_checksums=False))
+
+
+def test_manifest_records_the_files_sha256(db_path):
+    manifest = json.loads((db_path / "manifest.json").read_text())
+    for table, entry in manifest["tables"].items():
+        data = (db_path / entry["file"]).read_bytes()
+        assert (entry["bytes"], entry["sha256"]) == (len(data), hashlib.sha256(data).hexdigest()), table
+
+
+NON_FINITE = {  # field, index, value → table and column the error must name
+    "clip_source_fps": ((1,), np.nan, "clips", "source_fps", 1),
+    "positions": ((3, 2, 1), np.inf, "frames", "positions", 3),
+    "quaternions": ((10, 0, 0), -np.inf, "frames", "quaternions", 10),
+    "keypoints_2d": ((43, 13, 1), np.nan, "projections", "keypoints_2d", 43),
+    "embedding": ((7, 2), np.nan, "projections", "embedding", 7),
+    "centroids": ((5, 0), np.inf, "clusters", "centroid", 5),
+}
+
+
+@pytest.mark.parametrize("field", NON_FINITE)
+def test_non_finite_value_on_load_names_table_and_column(tmp_path, monkeypatch, field):
+    index, value, table, column, row = NON_FINITE[field]
+    db = make_db()
+    getattr(db, field)[index] = value
+    monkeypatch.setattr(database, "_check_finite", lambda db: None)  # as a writer without the check would
+    write_database(db, tmp_path / "DB")
+    for verify in (True, False):
+        with pytest.raises(DatabaseError, match=rf"{table}.parquet: NaN or infinite value in table '{table}', "
+                                                rf"column '{column}' \(row {row}\)"):
+            load_database(tmp_path / "DB", verify_checksums=verify)
+
+
+def _dead_pid() -> int:
+    """The id of a process that has ended."""
+    return int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                              capture_output=True, text=True, check=True).stdout)
+
+
+def test_stale_temporary_folders_of_dead_writers_are_removed(db_path):
+    dead, alive = _dead_pid(), os.getppid()
+    for name in [f".DB.tmp-{dead}", f".DB.old-{dead}", f".DB.tmp-{alive}", f".OTHER.tmp-{dead}"]:
+        (db_path.parent / name).mkdir()
+        (db_path.parent / name / "projections.parquet").write_bytes(b"half written")
+    write_database(make_db(seed=1), db_path)
+    assert sorted(os.listdir(db_path.parent)) == [".DB.tmp-" + str(alive), ".OTHER.tmp-" + str(dead), "DB"]
+    assert_db_equal(make_db(seed=1), load_database(db_path))
+
+
+def test_crash_between_the_renames_is_recovered(db_path):
+    """A writer killed after moving the old database aside: the next writer (or build) puts it back."""
+    dead = _dead_pid()
+    write_database(make_db(seed=1), db_path.parent / f".DB.tmp-{dead}")  # the finished new one
+    os.rename(db_path, db_path.parent / f".DB.old-{dead}")
+    assert recover_interrupted(db_path) == [f"restored {db_path} from .DB.old-{dead}, left by an interrupted write",
+                                            f"removed .DB.tmp-{dead}, left by an interrupted write"]
+    assert os.listdir(db_path.parent) == ["DB"]
+    assert_db_equal(make_db(), load_database(db_path))
+
+
+def test_failure_between_the_renames_restores_the_old_database(db_path, monkeypatch):
+    """Without an atomic swap: old aside, new in; a failure in between puts the old back."""
+    monkeypatch.setattr(database, "_exchange", lambda a, b: False)
+    real_rename, calls = os.rename, []
+
+    def rename(src, dst):
+        calls.append((os.path.basename(src), os.path.basename(dst)))
+        if len(calls) == 2:
+            assert not os.path.lexists(db_path)  # the moment a reader could miss it
+            raise OSError("simulated failure")
+        real_rename(src, dst)
+
+    monkeypatch.setattr(database.os, "rename", rename)
+    with pytest.raises(OSError, match="simulated failure"):
+        write_database(make_db(seed=1), db_path)
+    pid = os.getpid()
+    assert calls == [("DB", f".DB.old-{pid}"), (f".DB.tmp-{pid}", "DB"), (f".DB.old-{pid}", "DB")]
+    assert os.listdir(db_path.parent) == ["DB"]
+    assert_db_equal(make_db(), load_database(db_path))
+
+
+def test_replace_by_renames_without_atomic_swap(db_path, monkeypatch):
+    monkeypatch.setattr(database, "_exchange", lambda a, b: False)
+    write_database(make_db(seed=1), db_path)
+    assert os.listdir(db_path.parent) == ["DB"]
+    assert_db_equal(make_db(seed=1), load_database(db_path))
+
+
+def test_replace_is_an_atomic_swap_where_supported(db_path, monkeypatch):
+    swaps = []
+
+    def exchange(a, b):
+        swaps.append(real(a, b))
+        return swaps[-1]
+
+    real = database._exchange
+    monkeypatch.setattr(database, "_exchange", exchange)
+    write_database(make_db(seed=1), db_path)
+    if swaps != [True]:
+        pytest.skip("no renameat2(RENAME_EXCHANGE) on this system or file system")
+    assert os.listdir(db_path.parent) == ["DB"]
+    assert_db_equal(make_db(seed=1), load_database(db_path))
+
+
+def test_symlinked_output_is_written_at_its_target(tmp_path):
+    (tmp_path / "store").mkdir()
+    write_database(make_db(), tmp_path / "store" / "DB")
+    (tmp_path / "link").symlink_to(tmp_path / "store" / "DB")
+    write_database(make_db(seed=1), tmp_path / "link")
+    assert (tmp_path / "link").is_symlink() and sorted(os.listdir(tmp_path)) == ["link", "store"]
+    assert os.listdir(tmp_path / "store") == ["DB"]
+    assert_db_equal(make_db(seed=1), load_database(tmp_path / "link"))
+    (tmp_path / "dangling").symlink_to(tmp_path / "store" / "new" / "DB2")  # target created
+    write_database(make_db(), tmp_path / "dangling")
+    assert (tmp_path / "dangling").is_symlink()
+    assert_db_equal(make_db(), load_database(tmp_path / "store" / "new" / "DB2"))
+
+
+def test_symlink_to_other_content_is_refused(tmp_path):
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "cat.jpg").write_text("mine")
+    (tmp_path / "link").symlink_to(tmp_path / "photos")
+    with pytest.raises(DatabaseError, match=r"photos: exists and is not a mocapdb database"):
+        write_database(make_db(), tmp_path / "link")
+    assert (tmp_path / "link").is_symlink() and os.listdir(tmp_path / "photos") == ["cat.jpg"]

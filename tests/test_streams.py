@@ -9,8 +9,8 @@ import time
 
 import pytest
 
-from runtime.streams import (LiveInput, RawMessage, StreamSpecError, StreamStats, install_stop_handlers,
-                             open_sink, open_source)
+from runtime.streams import (LiveInput, NetworkLimits, RawMessage, StreamSpecError, StreamStats,
+                             install_stop_handlers, open_sink, open_source)
 
 LOOPBACK = "127.0.0.1"
 
@@ -73,6 +73,15 @@ def test_folder_source_passes_on_an_unparsable_file_once_settled(tmp_path):
     (tmp_path / "cam_000000000000_keypoints.json").write_text("{broken")
     with LiveInput(open_source(str(tmp_path), follow=True, settle_s=0.1), capacity=4) as live:
         assert payloads(drain(live, 1)) == ["{broken"]
+
+
+def test_folder_source_waits_for_a_file_created_empty(tmp_path):
+    empty = tmp_path / "cam_000000000000_keypoints.json"
+    empty.touch()
+    with LiveInput(open_source(str(tmp_path), follow=True, settle_s=5.0), capacity=4) as live:
+        assert live.get(timeout=0.15) is None
+        empty.write_text('{"frame": 0}')
+        assert payloads(drain(live, 1)) == ['{"frame": 0}']
 
 
 def test_folder_source_offline_reads_existing_files_in_natural_order(tmp_path):
@@ -183,6 +192,236 @@ def test_open_source_rejects_unknown_specs(tmp_path):
         open_source(str(tmp_path / "video.mp4"))
     with pytest.raises(StreamSpecError):
         open_source("tcp://127.0.0.1")
+
+
+# --- live sources that one sender cannot take down -----------------------------------------------
+
+def connect(source, timeout_s: float = 1.0) -> socket.socket:
+    return socket.create_connection((LOOPBACK, source.address[1]), timeout=timeout_s)
+
+
+def wait_for(condition, timeout_s: float = 2.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return condition()
+
+
+def test_tcp_source_serves_other_clients_while_one_sends_nothing():
+    with LiveInput(open_source(f"tcp://{LOOPBACK}:0"), capacity=16) as live:
+        with connect(live.source) as idle, connect(live.source) as partial, connect(live.source) as sender:
+            partial.sendall(b'{"half": ')
+            for i in range(3):
+                sender.sendall(f'{{"b": {i}}}\n'.encode())
+            assert payloads(drain(live, 3)) == [f'{{"b": {i}}}' for i in range(3)]
+            partial.sendall(b'1}\n')   # its own line splitter kept the first half
+            idle.sendall(b'{"late": 1}\n')
+            assert sorted(payloads(drain(live, 2))) == ['{"half": 1}', '{"late": 1}']
+            assert live.source.client_count == 3
+    assert live.stats.reconnects == 2
+    assert no_stream_threads()
+
+
+def test_tcp_source_closes_a_client_without_a_line_after_the_timeout(capsys):
+    source = open_source(f"tcp://{LOOPBACK}:0", limits=NetworkLimits(client_timeout_s=0.2))
+    with LiveInput(source, capacity=4) as live:
+        with connect(source) as silent, connect(source) as talker:
+            silent.sendall(b'{"never": "ends"')
+            start = time.monotonic()
+            for i in range(8):   # a line every 0.1 s keeps the talker open
+                talker.sendall(f"{i}\n".encode())
+                time.sleep(0.1)
+            assert silent.recv(16) == b""   # closed by the source
+            assert time.monotonic() - start < 2.0
+            assert source.client_count == 1
+            assert live.stats.clients_timed_out == 1
+            assert len(drain(live, 4)) == 4   # the talker's newest lines (capacity 4)
+    assert "no complete line for 0.2 s" in capsys.readouterr().err
+
+
+def test_tcp_source_refuses_clients_over_the_limit(capsys):
+    source = open_source(f"tcp://{LOOPBACK}:0", limits=NetworkLimits(max_clients=2))
+    with LiveInput(source, capacity=16) as live:
+        first, second = connect(source), connect(source)
+        assert wait_for(lambda: source.client_count == 2)
+        with connect(source) as third:
+            assert third.recv(16) == b""   # accepted and closed at once
+        assert wait_for(lambda: live.stats.clients_refused == 1)
+        first.close()
+        assert wait_for(lambda: source.client_count == 1)
+        with connect(source) as fourth:   # a freed slot is taken again
+            fourth.sendall(b'{"four": 4}\n')
+            assert payloads(drain(live, 1)) == ['{"four": 4}']
+        second.close()
+    assert "2 clients already connected" in capsys.readouterr().err
+
+
+def test_tcp_source_refusals_are_logged_at_most_once_a_second(capsys):
+    source = open_source(f"tcp://{LOOPBACK}:0", limits=NetworkLimits(max_clients=1))
+    with LiveInput(source), connect(source):
+        assert wait_for(lambda: source.client_count == 1)
+        for _ in range(3):
+            with connect(source) as refused:
+                assert refused.recv(16) == b""
+        assert wait_for(lambda: source.stats.clients_refused == 3)
+    err = capsys.readouterr().err
+    assert err.count("tcp source: refused tcp:127.0.0.1:") == 1   # one line per second, not per connection
+    assert "1 clients already connected" in err
+
+
+def idle_source(kind: str, tmp_path, monkeypatch, **options):
+    """An open source of ``kind`` whose input stays open and silent."""
+    if kind == "stdin":
+        read_fd, write_fd = os.pipe()   # the write end stays open: no end of input
+        monkeypatch.setattr(sys, "stdin", os.fdopen(read_fd))
+        return open_source("-", **options), write_fd
+    spec = {"tcp": f"tcp://{LOOPBACK}:0", "udp": f"udp://{LOOPBACK}:0", "folder": str(tmp_path)}[kind]
+    return open_source(spec, follow=True, **options), None
+
+
+@pytest.mark.parametrize("kind", ["tcp", "udp", "stdin", "folder"])
+def test_idle_timeout_ends_every_source(kind, tmp_path, monkeypatch):
+    source, write_fd = idle_source(kind, tmp_path, monkeypatch, idle_timeout_s=0.3)
+    start = time.monotonic()
+    with LiveInput(source) as live:
+        if kind == "tcp":
+            with connect(source) as client:   # a connected client that sends nothing is no message
+                assert wait_for(lambda: live.finished)
+        assert wait_for(lambda: live.finished)
+    assert 0.3 <= time.monotonic() - start < 2.0
+    if write_fd is not None:
+        os.close(write_fd)
+        sys.stdin.close()
+
+
+@pytest.mark.parametrize("kind", ["tcp", "udp", "stdin", "folder"])
+def test_every_source_stops_promptly_while_waiting(kind, tmp_path, monkeypatch):
+    source, write_fd = idle_source(kind, tmp_path, monkeypatch)
+    live = LiveInput(source)
+    client = connect(source) if kind == "tcp" else None   # the old single-client source blocked on it
+    time.sleep(0.1)
+    start = time.monotonic()
+    live.close()
+    assert time.monotonic() - start < 0.5
+    assert not live._thread.is_alive()
+    for closable in (client, write_fd and os.fdopen(write_fd), kind == "stdin" and sys.stdin):
+        if closable:
+            closable.close()
+
+
+def test_tcp_source_drops_and_counts_messages_over_a_senders_rate():
+    source = open_source(f"tcp://{LOOPBACK}:0", limits=NetworkLimits(max_rate=10))
+    with LiveInput(source, capacity=100) as live:
+        with connect(source) as a, connect(source) as b:   # one address: one budget for both
+            a.sendall(b"".join(f"{i}\n".encode() for i in range(40)))
+            b.sendall(b"".join(f"{i}\n".encode() for i in range(40)))
+            assert wait_for(lambda: live.stats.messages_in + live.stats.rate_limited == 80)
+            time.sleep(0.3)   # about 3 tokens come back
+            a.sendall(b"again\n")
+            assert "again" in payloads(drain(live, 100, timeout_s=0.5))
+    assert 10 <= live.stats.messages_in <= 14
+    assert live.stats.rate_limited == 81 - live.stats.messages_in
+
+
+def test_udp_source_rate_limit_counts_every_message_of_a_datagram():
+    source = open_source(f"udp://{LOOPBACK}:0", limits=NetworkLimits(max_rate=5))
+    with LiveInput(source, capacity=100) as live, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+        for _ in range(4):
+            sender.sendto(b"1\n2\n3\n4\n5\n", source.address)
+        assert wait_for(lambda: live.stats.messages_in + live.stats.rate_limited == 20)
+    assert live.stats.messages_in in (5, 6)
+    assert live.stats.rate_limited == 20 - live.stats.messages_in
+
+
+def test_rate_limit_zero_means_no_limit():
+    source = open_source(f"udp://{LOOPBACK}:0", limits=NetworkLimits(max_rate=0))
+    with LiveInput(source, capacity=5000) as live, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+        sender.sendto(b"".join(f"{i}\n".encode() for i in range(3000)), source.address)
+        assert wait_for(lambda: live.stats.messages_in == 3000)
+    assert live.stats.rate_limited == 0
+
+
+@pytest.mark.parametrize("limits", [dict(max_clients=0), dict(client_timeout_s=0), dict(max_rate=-1)])
+def test_network_limits_are_checked(limits):
+    with pytest.raises(StreamSpecError):
+        NetworkLimits(**limits)
+    with pytest.raises(StreamSpecError):
+        open_source("-", idle_timeout_s=0)
+
+
+def test_folder_source_idles_cheaply_and_still_sees_new_files(tmp_path):
+    for i in range(3000):
+        frame_file(tmp_path, i)
+    source = open_source(str(tmp_path), follow=True)
+    with LiveInput(source, capacity=2) as live:
+        assert wait_for(lambda: source.stats.messages_in == 3000, timeout_s=30)
+        while live.get(timeout=0.2) is not None:
+            pass
+        started = time.process_time()
+        time.sleep(2.0)
+        idle_cpu = time.process_time() - started
+        written_later = frame_file(tmp_path, 3000)
+        assert payloads(drain(live, 1)) == [written_later]
+    assert idle_cpu < 0.1, f"{idle_cpu:.3f} s of CPU in 2 s idle"
+
+
+def test_folder_source_lists_again_only_when_the_folder_changes(tmp_path):
+    old_ns = time.time_ns() - 3600 * 10**9
+    frame_file(tmp_path, 0)
+    os.utime(tmp_path, ns=(old_ns, old_ns))
+    source = open_source(str(tmp_path), follow=True)
+    with LiveInput(source, capacity=8) as live:
+        assert len(drain(live, 1)) == 1
+        scans = source.scans
+        time.sleep(0.3)
+        assert source.scans == scans   # an unchanged folder is not listed
+        later = frame_file(tmp_path, 1)
+        assert payloads(drain(live, 1)) == [later]
+        assert source.scans > scans
+
+
+def test_folder_source_rescans_a_folder_whose_time_stamp_hides_a_new_file(tmp_path):
+    from runtime.sources import FolderSource
+
+    old_ns = time.time_ns() - 3600 * 10**9
+    os.utime(tmp_path, ns=(old_ns, old_ns))
+    source = FolderSource(tmp_path, follow=True, rescan_s=0.5)
+    polls = source._poll()   # driven here, without a thread: messages, and None once per poll
+    assert next(polls) is None and source.scans == 1
+    hidden = frame_file(tmp_path, 0)
+    os.utime(tmp_path, ns=(old_ns, old_ns))   # as a coarse or lagging file system might leave it
+    assert next(polls) is None and source.scans == 1
+    time.sleep(0.5)
+    assert next(polls).payload == hidden
+    assert source.scans == 2
+
+
+@pytest.mark.parametrize("scheme", ["tcp", "udp"])
+def test_listening_beyond_loopback_warns(scheme, capsys):
+    with open_source(f"{scheme}://0.0.0.0:0"):
+        pass
+    assert ("warning: listening on 0.0.0.0: anyone on the network can send poses (there is no authentication)"
+            in capsys.readouterr().err)
+    with open_source(f"{scheme}://{LOOPBACK}:0"):
+        pass
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_live_cli_stops_after_the_idle_timeout(small_db_path, tmp_path, capsys):
+    from mocapdb.cli import main
+
+    start = time.monotonic()
+    assert main(["live", "--source", f"udp://{LOOPBACK}:0", "--db", str(small_db_path),
+                 "--sink", str(tmp_path / "out.jsonl"), "--idle-timeout", "0.3"]) == 0
+    assert time.monotonic() - start < 10
+    assert "frames 0" in capsys.readouterr().err
+
+
+def test_live_cli_rejects_bad_limits(small_db_path, capsys):
+    from mocapdb.cli import main
+
+    assert main(["live", "--source", f"tcp://{LOOPBACK}:0", "--db", str(small_db_path), "--max-clients", "0"]) == 2
+    assert "max clients" in capsys.readouterr().err
 
 
 # --- sinks ---------------------------------------------------------------------------------------

@@ -1,0 +1,191 @@
+"""Output sinks for ``mocapdb live`` and ``mocapdb reconstruct`` (see :mod:`runtime.streams`): one
+line per :meth:`Sink.write`; an unreachable consumer is counted, never raised and never waited for."""
+from __future__ import annotations
+
+import socket
+import sys
+import threading
+from abc import ABC, abstractmethod
+from collections import deque
+from pathlib import Path
+from typing import Self
+
+from .sources import StreamStats, parse_host_port, resolve_address
+
+__all__ = ["MAX_DATAGRAM_BYTES", "FileSink", "Sink", "StdoutSink", "TcpSink", "UdpSink", "open_sink"]
+
+MAX_DATAGRAM_BYTES = 60_000   # longest UDP sink datagram; longer lines are dropped
+
+
+class Sink(ABC):
+    """Writes one output line per :meth:`write`; an unreachable consumer is counted
+    (``sink_dropped``), never raised and never waited for."""
+
+    def __init__(self, stats: StreamStats | None = None) -> None:
+        self.stats = stats if stats is not None else StreamStats()
+
+    def write(self, line: str) -> None:
+        """Writes ``line`` and a newline; ``line`` itself must not contain one."""
+        if "\n" in line:
+            raise ValueError("a sink line must not contain a newline")
+        self._put(line + "\n")
+
+    @abstractmethod
+    def _put(self, text: str) -> None:
+        """Delivers one newline-terminated line."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Flushes and releases the sink; idempotent."""
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class StdoutSink(Sink):
+    """Standard output, flushed after every line."""
+
+    def _put(self, text: str) -> None:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+
+    def close(self) -> None:
+        sys.stdout.flush()
+
+
+class FileSink(Sink):
+    """A file truncated at open and written through line by line (see the module notes)."""
+
+    def __init__(self, path: Path, stats: StreamStats | None = None) -> None:
+        super().__init__(stats)
+        self._file = open(path, "w", encoding="utf-8", newline="\n", buffering=1)
+
+    def _put(self, text: str) -> None:
+        self._file.write(text)
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class TcpSink(Sink):
+    """Connects to a consumer listening on HOST:PORT. A sender thread owns the connection; ``write``
+    only queues (at most ``queue_lines``, the oldest dropped first). Lines queued when a connection
+    attempt fails or a send fails, and lines written until the next attempt, are dropped and
+    counted; attempts are retried after ``backoff_s[0]`` s, doubling up to ``backoff_s[1]``.
+    :meth:`close` sends what is queued (bounded by ``send_timeout_s``) before closing."""
+
+    def __init__(self, host: str, port: int, stats: StreamStats | None = None, *, queue_lines: int = 1024,
+                 connect_timeout_s: float = 1.0, send_timeout_s: float = 1.0,
+                 backoff_s: tuple[float, float] = (0.05, 2.0)) -> None:
+        super().__init__(stats)
+        self._address = (host, port)
+        self._connect_timeout_s, self._send_timeout_s = connect_timeout_s, send_timeout_s
+        self._backoff_s = backoff_s
+        self._queue: deque[str] = deque(maxlen=queue_lines)
+        self._cond = threading.Condition()
+        self._accepting = True   # False from a failed attempt until the next one
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="mocapdb-tcp-sink", daemon=True)
+        self._thread.start()
+
+    def _put(self, text: str) -> None:
+        with self._cond:
+            if not self._accepting:
+                self.stats.add(sink_dropped=1)
+                return
+            if len(self._queue) == self._queue.maxlen:
+                self.stats.add(sink_dropped=1)   # append() pushes the oldest line out
+            self._queue.append(text)
+            self._cond.notify()
+
+    def _set_accepting(self, accepting: bool) -> None:
+        with self._cond:
+            self._accepting = accepting
+            if not accepting:
+                self.stats.add(sink_dropped=len(self._queue))
+                self._queue.clear()
+
+    def _run(self) -> None:
+        delay, connected_before = self._backoff_s[0], False
+        while not self._stop.is_set():
+            self._set_accepting(True)
+            if (sock := self._connect()) is None:
+                self._set_accepting(False)
+                self._stop.wait(delay)
+                delay = min(2 * delay, self._backoff_s[1])
+                continue
+            if connected_before:
+                self.stats.add(reconnects=1)
+            delay, connected_before = self._backoff_s[0], True
+            with sock:
+                self._pump(sock)
+        self._set_accepting(False)
+
+    def _connect(self) -> socket.socket | None:
+        try:
+            sock = socket.create_connection(self._address, timeout=self._connect_timeout_s)
+        except OSError:
+            return None
+        sock.settimeout(self._send_timeout_s)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)   # one frame per line: no Nagle delay
+        return sock
+
+    def _pump(self, sock: socket.socket) -> None:
+        """Sends queued lines until a send fails or the sink is closed (after a last drain)."""
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._queue or self._stop.is_set())
+                batch, stopping = list(self._queue), self._stop.is_set()
+                self._queue.clear()
+            try:
+                sock.sendall("".join(batch).encode("utf-8"))
+            except OSError:
+                self.stats.add(sink_dropped=len(batch))
+                return
+            if stopping:
+                return
+
+    def close(self) -> None:
+        with self._cond:
+            self._stop.set()
+            self._cond.notify_all()
+        self._thread.join()
+
+
+class UdpSink(Sink):
+    """Sends each line as one datagram to HOST:PORT; lines over ``MAX_DATAGRAM_BYTES`` and failed
+    sends are dropped and counted. Never blocks."""
+
+    def __init__(self, host: str, port: int, stats: StreamStats | None = None) -> None:
+        super().__init__(stats)
+        family, self._address = resolve_address(host, port, socket.SOCK_DGRAM)
+        self._sock = socket.socket(family, socket.SOCK_DGRAM)
+        self._sock.setblocking(False)
+
+    def _put(self, text: str) -> None:
+        data = text.encode("utf-8")
+        if len(data) > MAX_DATAGRAM_BYTES:
+            self.stats.add(sink_dropped=1)
+            return
+        try:
+            self._sock.sendto(data, self._address)
+        except OSError:
+            self.stats.add(sink_dropped=1)
+
+    def close(self) -> None:
+        self._sock.close()
+
+
+def open_sink(spec: str, stats: StreamStats | None = None) -> Sink:
+    """The sink named by ``spec``: ``-`` (stdout), ``tcp://HOST:PORT`` (connect to a listening
+    consumer), ``udp://HOST:PORT`` or a file path."""
+    if spec == "-":
+        return StdoutSink(stats)
+    if spec.startswith("tcp://"):
+        return TcpSink(*parse_host_port(spec), stats)
+    if spec.startswith("udp://"):
+        return UdpSink(*parse_host_port(spec), stats)
+    return FileSink(Path(spec), stats)
