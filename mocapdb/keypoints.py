@@ -264,13 +264,15 @@ def _raw_person(obj: object, i: int) -> _RawPerson:
 
 
 def _raw_people(obj: dict | list) -> list[_RawPerson]:
-    """The people of an OpenPose-style object (its ``people``) or of an MMPose list of instances."""
+    """The people of an OpenPose-style object (its ``people``) or of an MMPose list of instances.
+
+    An entry without keypoints (``"pose_keypoints_2d": []``, as Pose2Sim writes) is an absent person."""
     people = obj if isinstance(obj, list) else obj.get("people")
     if not isinstance(people, list):
         raise KeypointError("no 'people' list")
     if people and isinstance(people[0], dict) and "instances" in people[0]:
         raise KeypointError("an MMPose video file (a list of frames), to be read as a file of its own")
-    return [_raw_person(p, i) for i, p in enumerate(people)]
+    return [p for p in (_raw_person(p, i) for i, p in enumerate(people)) if len(p.raw)]
 
 
 def _build_frame(index: int, time_s: float | None, people: list[_RawPerson], layout: str | None) -> KeypointFrame:

@@ -1,21 +1,23 @@
 """`mocapdb stereo`: two uncalibrated cameras' OpenPose JSON → 3D motion (ElliPose), JSON lines and BVH.
 
-Steps: load both folders (frame-synchronised, same frame count) → choose per frame the person pair
-that agrees across the views (epipolar test) → :func:`mocapdb.stereo.reconstruct` (relative camera
-pose from the body, ellipsoid correction, bone-length consistency) → metres → ``result.jsonl``
-(runtime schema, camera-aligned frame of camera 1), ``cameras.json`` and ``stereo.bvh`` (universal
-rig by :func:`mocapdb.skeleton.retarget`, levelled y-up world). Output contract:
-``data_specs/stream_output.md``; method: ``../shared/method/ellipose_stereo.md``.
+Steps: load both folders (frame-synchronised, same frame count) → find everyone seen by both views
+(:mod:`mocapdb.stereo_people`: 2D tracks per view, matched by epipolar consistency over time) →
+:func:`mocapdb.stereo.reconstruct` on all of them stacked along time (relative camera pose from the
+bodies, ellipsoid correction) → each person triangulated with those cameras and given its own
+bone-length consistency → metres → ``result.jsonl`` (runtime schema, camera-aligned
+frame of camera 1, one track per person), ``cameras.json`` and one BVH per person (universal rig by
+:func:`mocapdb.skeleton.retarget`, one levelled y-up world for all). Output contract:
+``data_specs/stream_output.md``; method: ``../shared/method/ellipose_stereo.md``; decisions:
+``data_specs/stereo.md``.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from runtime.engine import PersonPose
@@ -26,17 +28,11 @@ from .bvh import write_atomic, write_bvh
 from .cameras import CameraModel, camera_from_intrinsics, read_calibration_toml
 from .geometry import matrix_to_quat, quat_to_matrix
 from .keypoints import LAYOUTS, KeypointFrame, read_openpose_folder
-from .skeleton import KP, N_KEYPOINTS_2D, PELVIS, head_from_torso, retarget, swing_matrices, universal_bvh
-from .stereo import ESSENTIAL_METHOD, StereoConfig, StereoError, StereoResult, reconstruct
+from .skeleton import KP, PELVIS, head_from_torso, retarget, swing_matrices, universal_bvh
+from .stereo import RIGID_BONES, StereoConfig, StereoError, StereoResult, reconstruct, refine_bone_lengths, triangulate
+from .stereo_people import (MAX_EPIPOLAR_PX, MIN_PERSON_FRAMES, MIN_SHARED_JOINTS, People,  # noqa: F401
+                            Selection, match_people, sampson_distance)
 
-# Person selection. A pair (person in view 1, person in view 2) is consistent when at least
-# MIN_SHARED_JOINTS joints are confident in both and the median of their first-order epipolar
-# (Sampson) distances is at most MAX_EPIPOLAR_PX. Distances are measured in undistorted normalised
-# coordinates and multiplied by the mean focal length of the two cameras (≈ pixels). On the
-# Pose2Sim take (f ≈ 1680 px) the true pairs' medians are 2-17 px (median 4-6 px), while a false
-# person paired with the true one in the other view lies 18-300 px off.
-MIN_SHARED_JOINTS = 6
-MAX_EPIPOLAR_PX = 20.0
 MAX_GAP_S = 0.5  # the BVH interpolates gaps up to this long linearly; longer ones hold the last pose
 
 # Views (x right, y down, z forward: OpenCV camera 1) to the output frames.
@@ -46,25 +42,17 @@ VIEW_FRAME = np.diag([1.0, -1.0, -1.0])     # x right, y up, z towards the camer
 RESULT_FILE, CAMERAS_FILE, BVH_FILE = "result.jsonl", "cameras.json", "stereo.bvh"
 
 
-@dataclass
-class Selection:
-    """One person per view and frame: ``x [T, 14, 2]`` pixels (NaN when missing), ``c [T, 14]``."""
-
-    x1: np.ndarray
-    c1: np.ndarray
-    x2: np.ndarray
-    c2: np.ndarray
-    kept: np.ndarray         # [T] bool: a consistent pair was found
-    distance_px: np.ndarray  # [T] median epipolar distance of the chosen pair (NaN when dropped)
-    dropped: dict[str, list[int]] = field(default_factory=dict)  # reason → frame indices
+def bvh_name(track: int) -> str:
+    """The BVH of a track: ``stereo.bvh`` for the main person (track 0), ``stereo_track_<id>.bvh`` for the others."""
+    return BVH_FILE if track == 0 else f"stereo_track_{track}.bvh"
 
 
 @dataclass
 class StereoSummary:
-    """What `mocapdb stereo` did: frames, dropped frames and why, the camera fit, times (s)."""
+    """What `mocapdb stereo` did: frames, people, dropped frames and why, the camera fit, times (s)."""
 
     frames: int
-    dropped: dict[str, list[int]]
+    dropped: dict[str, list[int]]  # frames where nobody is reconstructed, by reason
     epsilons: list[float]
     kept_round: int
     rotation_deg: float
@@ -74,12 +62,19 @@ class StereoSummary:
     warnings: list[str]
     seconds: dict[str, float]
     outputs: list[Path]
+    tracks: list[dict]             # per person: track, frames, first, last, correspondences, bvh
+    unmatched: list[str]           # detections that are no person, per view
 
     def report(self) -> str:
         """Human-readable lines for the command line."""
         n_dropped = sum(len(v) for v in self.dropped.values())
-        lines = [f"frames {self.frames}, reconstructed {self.frames - n_dropped}, dropped {n_dropped}"]
-        lines += [f"  dropped {len(frames)}: {why} (frames {_listed(frames)})" for why, frames in self.dropped.items()]
+        lines = [f"frames {self.frames}, with a person {self.frames - n_dropped}, without {n_dropped}; "
+                 f"people {len(self.tracks)}"]
+        lines += [f"  track {t['track']}: {t['frames']} frames ({t['first_frame']}–{t['last_frame']}), "
+                  f"{t['correspondences']} joints seen by both views, BVH {t['bvh'] or 'none'}" for t in self.tracks]
+        lines += [f"  no person in {len(frames)}: {why} (frames {_listed(frames)})"
+                  for why, frames in self.dropped.items()]
+        lines += [f"  not a person: {line}" for line in self.unmatched]
         eps = ", ".join(f"{e:.4f}" for e in self.epsilons) or "none"
         lines.append(f"ellipsoid ε per round: {eps}; kept round {self.kept_round}")
         lines.append(f"camera 2 relative to camera 1: rotation {self.rotation_deg:.2f}°, "
@@ -116,139 +111,47 @@ def load_views(view1: str | Path, view2: str | Path, layout: str | None = None,
     return frames1[:n], frames2[:n], [f"{counts}; trimmed both to the first {n}"]
 
 
-# --------------------------------------------------------------------------- person selection
-
-def _candidates(frames: list[KeypointFrame], threshold: float) -> tuple[np.ndarray, ...]:
-    """Every person with a confident joint, flattened: frame ``[N]``, points ``[N, 14, 2]``,
-    visibility ``[N, 14]``, confidence ``[N, 14]`` and prominence ``[N]``."""
-    people = [(t, p) for t, f in enumerate(frames) for p in f.people]
-    frame = np.array([i for i, _ in people], dtype=np.int64)
-    points = np.array([p.points_px for _, p in people]).reshape(-1, N_KEYPOINTS_2D, 2)
-    conf = np.array([p.confidence for _, p in people]).reshape(-1, N_KEYPOINTS_2D)
-    vis = (conf >= threshold) & (conf > 0) & np.isfinite(points).all(axis=-1)
-    keep = vis.any(axis=1)
-    frame, points, conf, vis = frame[keep], points[keep], conf[keep], vis[keep]
-    return frame, points, vis, conf, _prominence(points, vis, conf)
-
-
-def _prominence(points: np.ndarray, vis: np.ndarray, conf: np.ndarray) -> np.ndarray:
-    """Sum of confident confidences times the diagonal of their box (px): big, clear people first."""
-    xy = np.where(vis[..., None], points, np.nan)
-    diag = np.linalg.norm(np.fmax.reduce(xy, axis=1) - np.fmin.reduce(xy, axis=1), axis=-1)
-    return np.where(vis, conf, 0.0).sum(axis=1) * np.nan_to_num(diag)
-
-
-def _first_per_frame(frame: np.ndarray, *keys: np.ndarray) -> np.ndarray:
-    """Index of the entry sorting first by ``keys`` (first key first, ascending) in each frame present."""
-    order = np.lexsort(tuple(reversed(keys)) + (frame,))
-    _, first = np.unique(frame[order], return_index=True)
-    return order[first]
-
-
-def _normalised(cam: CameraModel, points: np.ndarray) -> np.ndarray:
-    """Undistorted normalised coordinates of ``[N, 14, 2]`` pixels (NaN stays NaN)."""
-    flat = points.reshape(-1, 2)
-    ok = np.isfinite(flat).all(axis=1)
-    out = np.full_like(flat, np.nan)
-    if ok.any():
-        out[ok] = np.asarray(cam.undistort_normalized(flat[ok])).reshape(-1, 2)
-    return out.reshape(points.shape)
-
-
-def _essential_guess(n1: np.ndarray, n2: np.ndarray, config: StereoConfig) -> np.ndarray:
-    """Essential matrix by RANSAC from normalised correspondences ``[N, 2]``."""
-    if len(n1) < max(8, config.min_correspondences):
-        raise StereoError(f"only {len(n1)} keypoint correspondences between the views' most prominent "
-                          f"people (need {max(8, config.min_correspondences)}): too few frames or joints "
-                          "seen by both cameras")
-    essential, _ = cv2.findEssentialMat(n1, n2, np.eye(3), method=ESSENTIAL_METHOD, prob=config.ransac_prob,
-                                        threshold=config.ransac_threshold)
-    if essential is None or essential.shape[0] < 3:
-        raise StereoError("no essential matrix fits the two views' keypoints: are both folders the same take?")
-    return essential[:3]
-
-
-def sampson_distance(essential: np.ndarray, n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
-    """First-order geometric (Sampson) distance ``[...]`` of normalised correspondences ``[..., 2]``."""
-    h1 = np.concatenate([n1, np.ones(n1.shape[:-1] + (1,))], axis=-1)
-    h2 = np.concatenate([n2, np.ones(n2.shape[:-1] + (1,))], axis=-1)
-    e1 = h1 @ essential.T          # E x1
-    e2 = h2 @ essential            # Eᵀ x2
-    num = np.sum(h2 * e1, axis=-1)
-    den = e1[..., 0] ** 2 + e1[..., 1] ** 2 + e2[..., 0] ** 2 + e2[..., 1] ** 2
-    return np.abs(num) / np.sqrt(np.maximum(den, 1e-30))
-
-
-def _pairs(frame1: np.ndarray, frame2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every (view-1 person, view-2 person) index pair of the same frame."""
-    by_frame2: dict[int, list[int]] = {}
-    for j, f in enumerate(frame2.tolist()):
-        by_frame2.setdefault(f, []).append(j)
-    pairs = [(i, j) for i, f in enumerate(frame1.tolist()) for j in by_frame2.get(f, [])]
-    arr = np.array(pairs, dtype=np.int64).reshape(-1, 2)
-    return arr[:, 0], arr[:, 1]
-
+# --------------------------------------------------------------------------- people
 
 def select_people(frames1: list[KeypointFrame], frames2: list[KeypointFrame], cam1: CameraModel,
                   cam2: CameraModel, config: StereoConfig) -> Selection:
-    """Per frame, the person pair that agrees across the views (see :data:`MAX_EPIPOLAR_PX`).
-
-    An essential matrix is first fitted by RANSAC to the most prominent person of each view in
-    every frame. A pair is consistent when the median Sampson distance over its shared confident
-    joints is small; each frame keeps its most prominent consistent pair (a static false person
-    seen by both cameras is consistent too, so the smallest distance alone is not the rule).
-    Frames with no consistent pair are dropped (NaN, confidence 0) and listed by reason; frame
-    indices are kept.
-    """
-    n_frames = len(frames1)
-    f1, p1, v1, c1, prom1 = _candidates(frames1, config.confidence)
-    f2, p2, v2, c2, prom2 = _candidates(frames2, config.confidence)
-    n1, n2 = _normalised(cam1, p1), _normalised(cam2, p2)
-    main1, main2 = _first_per_frame(f1, -prom1), _first_per_frame(f2, -prom2)
-    both = np.intersect1d(f1[main1], f2[main2])
-    a, b = main1[np.isin(f1[main1], both)], main2[np.isin(f2[main2], both)]
-    shared = v1[a] & v2[b]
-    essential = _essential_guess(n1[a][shared], n2[b][shared], config)
-
-    i, j = _pairs(f1, f2)
-    shared = v1[i] & v2[j]
-    focal = float(np.mean([cam1.K[0, 0], cam1.K[1, 1], cam2.K[0, 0], cam2.K[1, 1]]))
-    dist = np.where(shared, sampson_distance(essential, np.nan_to_num(n1[i]), np.nan_to_num(n2[j])) * focal, np.nan)
-    enough = shared.sum(axis=1) >= MIN_SHARED_JOINTS
-    median = np.full(len(i), np.inf)
-    if enough.any():
-        median[enough] = np.nanmedian(dist[enough], axis=1)
-    rank = np.where(median <= MAX_EPIPOLAR_PX, -(prom1[i] + prom2[j]), np.inf)
-    best = _first_per_frame(f1[i], rank, median)
-    return _selection(n_frames, (f1, f2), (i[best], j[best]), median[best], (p1, p2), (c1, c2))
+    """The main person (track 0: the most joints seen by both views) of :func:`match_people`;
+    ``dropped`` lists the frames where nobody is reconstructed."""
+    return _require_people(match_people(frames1, frames2, cam1, cam2, config)).persons[0]
 
 
-def _selection(n_frames: int, frames: tuple[np.ndarray, np.ndarray], chosen: tuple[np.ndarray, np.ndarray],
-               median: np.ndarray, points: tuple[np.ndarray, np.ndarray],
-               conf: tuple[np.ndarray, np.ndarray]) -> Selection:
-    """Arrays of the chosen pairs, and the dropped frames by reason."""
-    (f1, f2), (i, j) = frames, chosen
-    ok = median <= MAX_EPIPOLAR_PX
-    t = f1[i]
-    x1 = np.full((n_frames, N_KEYPOINTS_2D, 2), np.nan)
-    x2 = x1.copy()
-    cc1, cc2 = np.zeros((n_frames, N_KEYPOINTS_2D)), np.zeros((n_frames, N_KEYPOINTS_2D))
-    x1[t[ok]], cc1[t[ok]] = points[0][i[ok]], conf[0][i[ok]]
-    x2[t[ok]], cc2[t[ok]] = points[1][j[ok]], conf[1][j[ok]]
-    kept = np.zeros(n_frames, dtype=bool)
-    kept[t[ok]] = True
-    distance = np.full(n_frames, np.nan)
-    distance[t[ok]] = median[ok]
-    everyone = np.arange(n_frames)
-    reasons = {
-        "no person in view 1": np.setdiff1d(everyone, f1),
-        "no person in view 2": np.setdiff1d(np.intersect1d(everyone, f1), f2),
-        f"no pair with {MIN_SHARED_JOINTS} joints confident in both views": t[np.isinf(median)],
-        f"no pair within {MAX_EPIPOLAR_PX:g} px of the epipolar geometry": t[np.isfinite(median) & ~ok],
-    }
-    dropped = {why: sorted(int(f) for f in frames_) for why, frames_ in reasons.items() if len(frames_)}
-    return Selection(x1, np.where(np.isfinite(x1).all(-1), cc1, 0.0), x2,
-                     np.where(np.isfinite(x2).all(-1), cc2, 0.0), kept, distance, dropped)
+def _require_people(people: People) -> People:
+    if not people.persons:
+        raise StereoError(f"no person is seen consistently by both cameras in {MIN_PERSON_FRAMES} frames or more "
+                          f"({'; '.join(people.unmatched) or 'no detections'})")
+    return people
+
+
+def estimate_cameras(people: People, cam1: CameraModel, cam2: CameraModel, config: StereoConfig) -> StereoResult:
+    """Camera 2's pose from every person's correspondences: :func:`mocapdb.stereo.reconstruct` on
+    the people stacked one after the other along time (one essential matrix and one ellipsoid
+    per bone type for all; each person's stage 3 is :func:`person_points`)."""
+    stacked = [np.concatenate([getattr(p, name) for p in people.persons]) for name in ("x1", "c1", "x2", "c2")]
+    return reconstruct(*stacked, cam1, cam2, config)
+
+
+def person_points(result: StereoResult, person: Selection, cam1: CameraModel, cam2: CameraModel,
+                  config: StereoConfig) -> tuple[np.ndarray, np.ndarray]:
+    """A person's joints ``[T, 14, 3]`` and validity ``[T, 14]`` under the cameras of ``result``:
+    DLT triangulation, then stage 3 (bone-length consistency) with the person's own bone lengths.
+    A joint is valid exactly when both views see it (confidence ≥ threshold) in a kept frame."""
+    valid = ((person.c1 >= config.confidence) & (person.c2 >= config.confidence) & person.kept[:, None]
+             & np.isfinite(person.x1).all(axis=-1) & np.isfinite(person.x2).all(axis=-1))
+    n1, n2 = np.zeros(person.x1.shape), np.zeros(person.x2.shape)
+    if valid.any():
+        n1[valid], n2[valid] = cam1.undistort_normalized(person.x1[valid]), cam2.undistort_normalized(person.x2[valid])
+    scale = config.camera_distance_m or 1.0
+    P1, P2 = np.hstack([np.eye(3), np.zeros((3, 1))]), np.hstack([result.R, result.t.reshape(3, 1) / scale])
+    points = np.zeros(valid.shape + (3,))
+    if valid.any():
+        points[valid] = triangulate(P1, P2, n1[valid], n2[valid])
+    final = refine_bone_lengths(points, P1, P2, n1, n2, valid, RIGID_BONES, config.alpha, config.bone_rounds)
+    return final * scale, valid
 
 
 # --------------------------------------------------------------------------- 3D output
@@ -311,51 +214,95 @@ def level_rotation(points_view: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class Motion:
-    """The reconstruction in output form (metres)."""
+class World:
+    """The output world every person shares: metres and the levelled BVH axes (from the main person)."""
 
+    bvh_from_camera: np.ndarray  # [3, 3] OpenCV camera-1 axes → BVH world axes (y up)
+    scale: float                 # metres per reconstruction unit
+    scale_source: str
+
+
+@dataclass
+class Motion:
+    """One person's reconstruction in output form (metres)."""
+
+    track: int
     joints_aligned: np.ndarray  # [T, 15, 3] camera-aligned frame of camera 1, NaN where not measured
-    present: np.ndarray         # [T] a person is written for the frame
-    quats_view: np.ndarray      # [T, R, 4] local rotations, root relative to the view frame
+    present: np.ndarray         # [T] the person is written for the frame
+    quats_view: np.ndarray      # [T, R, 4] local rotations, root relative to the view frame (NaN: no skeleton)
     quats_world: np.ndarray     # [T, R, 4] the same, root relative to the levelled BVH world
     pelvis_aligned: np.ndarray  # [T, 3] the (gap-filled) pelvis, camera-aligned frame
     pelvis_world: np.ndarray    # [T, 3] the same in the BVH world
-    bvh_from_camera: np.ndarray  # [3, 3] OpenCV camera-1 axes → BVH world axes
-    scale: float                # metres per reconstruction unit
-    scale_source: str
+    fitted: bool                # the skeleton was fitted (else: joints only, no BVH)
     warnings: list[str]         # what the inverse kinematics had to assume
 
 
-def to_motion(result: StereoResult, kept: np.ndarray, fps: float) -> Motion:
-    """Metres, pelvis, gap filling, levelling and inverse kinematics on the universal rig."""
-    valid14 = result.valid & kept[:, None] & np.isfinite(result.points_m).all(axis=-1)
-    points, valid = with_pelvis(result.points_m, valid14)
+def make_world(points: np.ndarray, valid: np.ndarray, filled: np.ndarray, scaled: bool) -> World:
+    """Scale and levelling from the main person's 15 points (``filled``: gap-filled)."""
+    scale, source = 1.0, "scaled to the given camera distance"
+    if not scaled:
+        scale = _leg_scale(filled)
+        source = "no camera distance given: metres assume the universal leg length (of track 0)"
+    return World(level_rotation(points @ VIEW_FRAME, valid) @ VIEW_FRAME, scale, source)
+
+
+def to_motion(points_m: np.ndarray, valid14: np.ndarray, fps: float, scaled: bool, track: int = 0,
+              world: World | None = None) -> tuple[Motion, World]:
+    """Metres, pelvis, gap filling, levelling and inverse kinematics on the universal rig.
+
+    ``points_m [T, 14, 3]``, ``valid14 [T, 14]``; ``world`` None: made from this person (the main one).
+    """
+    points, valid = with_pelvis(points_m, valid14 & np.isfinite(points_m).all(axis=-1))
     present = valid.any(axis=1)
     if not present.any():
-        raise StereoError("no frame could be reconstructed")
+        raise StereoError(f"track {track}: no frame could be reconstructed")
     filled = fill_gaps(points, valid, int(round(MAX_GAP_S * fps)))
     require_joints(filled)
-    scale, source = 1.0, "scaled to the given camera distance"
-    if not result.scaled:
-        scale = _leg_scale(filled)
-        source = "no camera distance given: metres assume the universal leg length"
-    level = level_rotation(points @ VIEW_FRAME, valid)
-    bvh_from_camera = level @ VIEW_FRAME
+    world = world or make_world(points, valid, filled, scaled)
     warnings: list[str] = []
-    quats_world, _ = retarget(complete_head(scale * filled @ bvh_from_camera.T, warnings))
-    root = level.T @ quat_to_matrix(quats_world[:, 0])
+    quats_world, _ = retarget(complete_head(world.scale * filled @ world.bvh_from_camera.T, warnings))
+    level = world.bvh_from_camera @ VIEW_FRAME  # VIEW_FRAME is its own inverse
     quats_view = quats_world.copy()
-    quats_view[:, 0] = matrix_to_quat(root)
-    return Motion(scale * points @ CAMERA_ALIGNED, present, quats_view, quats_world,
-                  scale * filled[:, PELVIS] @ CAMERA_ALIGNED, scale * filled[:, PELVIS] @ bvh_from_camera.T,
-                  bvh_from_camera, scale, source, warnings)
+    quats_view[:, 0] = matrix_to_quat(level.T @ quat_to_matrix(quats_world[:, 0]))
+    pelvis = world.scale * filled[:, PELVIS]
+    return Motion(track, world.scale * points @ CAMERA_ALIGNED, present, quats_view, quats_world,
+                  pelvis @ CAMERA_ALIGNED, pelvis @ world.bvh_from_camera.T, True, warnings), world
 
 
-def _result_lines(motion: Motion, fps: float) -> str:
+def joints_only(points_m: np.ndarray, valid14: np.ndarray, track: int, world: World, why: str) -> Motion:
+    """A person the skeleton cannot be fitted to: measured joints only (no rotations, no BVH)."""
+    points, valid = with_pelvis(points_m, valid14 & np.isfinite(points_m).all(axis=-1))
+    nan_quats = np.full((len(points), 11, 4), np.nan)
+    pelvis = world.scale * points[:, PELVIS]
+    return Motion(track, world.scale * points @ CAMERA_ALIGNED, valid.any(axis=1), nan_quats, nan_quats,
+                  pelvis @ CAMERA_ALIGNED, pelvis @ world.bvh_from_camera.T, False,
+                  [f"{why}: no BVH, joints only in {RESULT_FILE}"])
+
+
+def people_motions(people: People, result: StereoResult, cam1: CameraModel, cam2: CameraModel,
+                   config: StereoConfig, fps: float) -> tuple[list[Motion], World]:
+    """Every person's Motion in one world (the main person's: levelling, and the scale without a
+    camera distance), each triangulated with the cameras of ``result``. A person other than the
+    main one whose skeleton cannot be fitted keeps its joints (warning)."""
+    motion, world = to_motion(*person_points(result, people.persons[0], cam1, cam2, config), fps,
+                              bool(result.scaled))
+    motions = [motion]
+    for person in people.persons[1:]:
+        points, valid = person_points(result, person, cam1, cam2, config)
+        try:
+            motions.append(to_motion(points, valid, fps, bool(result.scaled), person.track, world)[0])
+        except StereoError as exc:
+            motions.append(joints_only(points, valid, person.track, world, str(exc)))
+    for m in motions:
+        m.warnings = [w if m.track == 0 else f"track {m.track}: {w}" for w in m.warnings]
+    return motions, world
+
+
+def _result_lines(motions: list[Motion], fps: float) -> str:
     lines = [header_line(fps)]
-    for t in range(len(motion.present)):
-        poses = [PersonPose(0, motion.joints_aligned[t], motion.quats_view[t], motion.pelvis_aligned[t], None)] \
-            if motion.present[t] else []
+    for t in range(len(motions[0].present)):
+        poses = [PersonPose(m.track, m.joints_aligned[t], m.quats_view[t], m.pelvis_aligned[t], None)
+                 for m in motions if m.present[t]]
         lines.append(frame_line(t, t / fps, poses))
     return "\n".join(lines) + "\n"
 
@@ -370,25 +317,53 @@ def rotation_angle_deg(rotation: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1.0, 1.0))))
 
 
-def _cameras_json(cam1: CameraModel, cam2: CameraModel, result: StereoResult, motion: Motion,
-                  selection: Selection, warnings: list[str]) -> str:
-    t = np.asarray(result.t, dtype=np.float64) * motion.scale
+def track_records(people: People, motions: list[Motion]) -> list[dict]:
+    """Per person: track id, frames written, first and last, joints seen by both views, BVH file."""
+    records = []
+    for person, m in zip(people.persons, motions):
+        frames = np.flatnonzero(m.present)
+        first, last = (int(frames[0]), int(frames[-1])) if len(frames) else (None, None)
+        records.append({"track": m.track, "frames": len(frames), "first_frame": first, "last_frame": last,
+                        "correspondences": person.correspondences,
+                        "bvh": bvh_name(m.track) if m.fitted else None})
+    return records
+
+
+def _cameras_json(cam1: CameraModel, cam2: CameraModel, result: StereoResult, world: World, people: People,
+                  tracks: list[dict], warnings: list[str]) -> str:
+    t = np.asarray(result.t, dtype=np.float64) * world.scale
     record = {
         "frame": "camera 1 (OpenCV: x right, y down, z forward), metres; x2 = R x1 + t",
         "cameras": [_camera_record(cam1, np.eye(3), np.zeros(3)), _camera_record(cam2, np.asarray(result.R), t)],
-        "baseline_m": float(np.linalg.norm(t)), "scaled": bool(result.scaled), "scale_source": motion.scale_source,
+        "baseline_m": float(np.linalg.norm(t)), "scaled": bool(result.scaled), "scale_source": world.scale_source,
         "rotation_deg": rotation_angle_deg(np.asarray(result.R)),
+        "camera_source": "all people's correspondences (tracks stacked along time)",
         "epsilons": [float(e) for e in result.epsilons], "kept_round": int(result.kept_round),
-        "warnings": warnings, "dropped_frames": selection.dropped,
-        "bvh_from_camera1": motion.bvh_from_camera.tolist(),
+        "warnings": warnings, "dropped_frames": people.dropped, "tracks": tracks, "not_people": people.unmatched,
+        "bvh_from_camera1": world.bvh_from_camera.tolist(),
     }
     return "{\n" + ",\n".join(f"  {json.dumps(k)}: {json.dumps(v)}" for k, v in record.items()) + "\n}\n"
+
+
+def _write_outputs(out_dir: str | Path, motions: list[Motion], world: World, cameras_json: str,
+                   fps: float) -> list[Path]:
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / RESULT_FILE, out / CAMERAS_FILE]
+    write_atomic(paths[0], _result_lines(motions, fps))
+    write_atomic(paths[1], cameras_json)
+    for m in motions:
+        if m.fitted:
+            paths.append(out / bvh_name(m.track))
+            write_bvh(paths[-1], universal_bvh(m.quats_world, m.pelvis_world, fps))
+    return paths
 
 
 def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, cam2: CameraModel,
                config: StereoConfig, fps: float, out_dir: str | Path, layout: str | None = None,
                trim: bool = False) -> StereoSummary:
-    """Reconstruct a take seen by two cameras; writes ``result.jsonl``, ``cameras.json``, ``stereo.bvh``.
+    """Reconstruct everyone two cameras see; writes ``result.jsonl``, ``cameras.json`` and one BVH
+    per person (:func:`bvh_name`).
 
     ``cam1``, ``cam2``: intrinsics and distortion (their extrinsics are not used). ``fps`` (Hz)
     times the frames. Raises StereoError, CalibrationError or KeypointError with a clear message.
@@ -405,25 +380,22 @@ def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, 
 
     frames1, frames2, warnings = load_views(view1_dir, view2_dir, layout, trim)
     lap("load")
-    selection = select_people(frames1, frames2, cam1, cam2, config)
+    people = _require_people(match_people(frames1, frames2, cam1, cam2, config))
     lap("select")
-    result = reconstruct(selection.x1, selection.c1, selection.x2, selection.c2, cam1, cam2, config)
+    result = estimate_cameras(people, cam1, cam2, config)
     warnings += list(result.warnings)
     lap("reconstruct")
-    motion = to_motion(result, selection.kept, fps)
-    warnings += motion.warnings
+    motions, world = people_motions(people, result, cam1, cam2, config, fps)
+    warnings += [w for m in motions for w in m.warnings]
     lap("ik")
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = [out / RESULT_FILE, out / CAMERAS_FILE, out / BVH_FILE]
-    write_atomic(paths[0], _result_lines(motion, fps))
-    write_atomic(paths[1], _cameras_json(cam1, cam2, result, motion, selection, warnings))
-    write_bvh(paths[2], universal_bvh(motion.quats_world, motion.pelvis_world, fps))
+    tracks = track_records(people, motions)
+    paths = _write_outputs(out_dir, motions, world, _cameras_json(cam1, cam2, result, world, people, tracks,
+                                                                   warnings), fps)
     lap("write")
-    return StereoSummary(len(frames1), selection.dropped, [float(e) for e in result.epsilons],
+    return StereoSummary(len(frames1), people.dropped, [float(e) for e in result.epsilons],
                          int(result.kept_round), rotation_angle_deg(np.asarray(result.R)),
-                         float(np.linalg.norm(result.t)) * motion.scale, bool(result.scaled),
-                         motion.scale_source, warnings, seconds, paths)
+                         float(np.linalg.norm(result.t)) * world.scale, bool(result.scaled),
+                         world.scale_source, warnings, seconds, paths, tracks, people.unmatched)
 
 
 # --------------------------------------------------------------------------- command line
@@ -457,12 +429,15 @@ def add_stereo_parser(sub: argparse._SubParsersAction) -> None:
     """Add the ``stereo`` subcommand (``run`` returns the exit code)."""
     p = sub.add_parser(
         "stereo", help="two uncalibrated cameras' 2D keypoints → 3D motion (ElliPose), JSON lines and BVH",
-        description="Reconstruct one person filmed by two synchronised cameras whose relative pose is unknown: "
-                    "the camera pose is estimated from the body itself (ElliPose: triangulation, ellipsoid "
-                    "correction, bone-length consistency). Writes OUT/result.jsonl (camera-aligned frame of "
-                    "camera 1), OUT/cameras.json (both cameras, the estimated relative pose) and OUT/stereo.bvh "
-                    "(universal rig, y up). Intrinsics are needed; with --calibration only the intrinsics and "
-                    "distortion of the two named cameras are used, never their extrinsics.")
+        description="Reconstruct everyone filmed by two synchronised cameras whose relative pose is unknown: "
+                    "people are matched across the views by epipolar consistency over time, and the camera pose "
+                    "is estimated from their bodies (ElliPose: triangulation, ellipsoid correction, "
+                    "bone-length consistency). Writes OUT/result.jsonl (camera-aligned frame of camera 1, one "
+                    "track per person), OUT/cameras.json (both cameras, the estimated relative pose, the people) "
+                    "and one BVH per person: OUT/stereo.bvh for the main person (track 0), "
+                    "OUT/stereo_track_<id>.bvh for the others (universal rig, one y-up world). Intrinsics are "
+                    "needed; with --calibration only the intrinsics and distortion of the two named cameras are "
+                    "used, never their extrinsics.")
     p.add_argument("view1", help="folder of OpenPose JSON frames from camera 1 (the output's reference)")
     p.add_argument("view2", help="folder of OpenPose JSON frames from camera 2 (same frames, same rate)")
     p.add_argument("--out", required=True, help="output folder")

@@ -263,6 +263,21 @@ def test_folder_order_and_fixed_layout(tmp_path):
     np.testing.assert_array_equal(frames[1].people[0].points_px[KP["l_ankle"]], FIGURE["l_ank"])
 
 
+def test_empty_person_entries_are_absent_people(tmp_path):
+    """Pose2Sim writes ``"pose_keypoints_2d": []`` for a person it lost: an absent person, never a
+    layout conflict (it used to stop a folder: "the first frames mix people with different keypoint counts")."""
+    empty = {"person_id": [-1], "pose_keypoints_2d": []}
+    for t in range(3):
+        obj = json.loads(openpose_json([raw_person("body25b")]))
+        obj["people"].insert(t % 2, empty)
+        (tmp_path / f"take_{t:012d}_keypoints.json").write_text(json.dumps(obj))
+    (tmp_path / f"take_{3:012d}_keypoints.json").write_text(json.dumps({"people": [empty]}))
+    frames = list(read_openpose_folder(tmp_path))
+    assert [len(f.people) for f in frames] == [1, 1, 1, 0]
+    np.testing.assert_array_equal(frames[1].people[0].points_px[KP["head"]], FIGURE["nose"])
+    assert parse_openpose_json(json.dumps({"people": [empty]}), 0).people == []
+
+
 def test_folder_natural_order_and_errors(tmp_path):
     for name in ("f10.json", "f2.json", "f1.json"):
         (tmp_path / name).write_text(openpose_json([raw_person("coco18")] * int(name[1:-5])))

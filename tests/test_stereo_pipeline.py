@@ -1,4 +1,5 @@
-"""`mocapdb stereo`: person selection, loading checks, outputs (JSON lines, cameras, BVH), real data, TRC."""
+"""`mocapdb stereo`: person selection, several people, loading checks, outputs (JSON lines, cameras, BVH),
+real data, TRC."""
 import importlib.util
 import json
 import sys
@@ -8,16 +9,18 @@ import pytest
 
 from mocapdb.builder import BuildConfig, process_clip
 from mocapdb.bvh import read_bvh
+from mocapdb.cameras import read_calibration_toml
 from mocapdb.joint_map import detect_mapping, extract_keypoints
 from mocapdb.keypoints import KeypointFrame, Person
 from mocapdb.skeleton import KEYPOINTS, N_KEYPOINTS_2D, RIG_JOINTS
 from mocapdb.stereo import StereoConfig, StereoError
 from mocapdb.cli import main
 from mocapdb.database import load_database
-from mocapdb.stereo_pipeline import CAMERA_ALIGNED, load_views, select_people
+from mocapdb.stereo_pipeline import CAMERA_ALIGNED, load_views, rotation_angle_deg, select_people
+from mocapdb.stereo_people import match_people
 from mocapdb.trc import TrcError, parse_trc, read_trc, trc_keypoints
 
-from .conftest import ROOT, SAMPLE_BVH, SHARED_DATA
+from .conftest import ROOT, SAMPLE_BVH, SAMPLE_KEYPOINTS, SHARED_DATA
 
 POSE2SIM = SHARED_DATA / "pose2sim_balancing"
 _spec = importlib.util.spec_from_file_location("eval_stereo", ROOT / "tools" / "eval_stereo.py")
@@ -165,9 +168,15 @@ def test_real_pose2sim_pair(tmp_path, capsys):
     assert code == 0, capsys.readouterr().err
     frames = [json.loads(line) for line in (tmp_path / "result.jsonl").read_text().splitlines()[1:]]
     assert len(frames) == 100
-    joints = np.array([f["people"][0]["joints"] if f["people"] else [[None] * 3] * 15 for f in frames],
-                      dtype=np.float64)
+    main = [[p for p in f["people"] if p["track"] == 0] for f in frames]
+    assert sum(bool(m) for m in main) == 100
+    joints = np.array([m[0]["joints"] for m in main], dtype=np.float64)
     joints = joints @ CAMERA_ALIGNED  # back to a right-handed frame (camera 1's OpenCV axes)
+    assert np.isfinite(joints[:, KEYPOINTS.index("head")]).all(axis=-1).sum() >= 98  # both see the nose
+    # A static partial figure at the image edge that both cameras see consistently is a second
+    # person: joints only (its neck is never seen), no BVH.
+    tracks = json.loads((tmp_path / "cameras.json").read_text())["tracks"]
+    assert [(t["track"], t["bvh"]) for t in tracks] == [(0, "stereo.bvh"), (1, None)]
     truth = trc_keypoints(read_trc(POSE2SIM / "triangulated_4cam.trc"))
     errors = eval_stereo.masked_pa_mpjpe(joints[:, :N_KEYPOINTS_2D], truth[:, :N_KEYPOINTS_2D],
                                          np.isfinite(joints[:, :N_KEYPOINTS_2D]).all(axis=-1))
@@ -230,3 +239,155 @@ def test_a_head_no_camera_pair_sees_follows_the_torso(tmp_path, motion, capsys):
     world = extract_keypoints(read_bvh(out / "stereo.bvh"), detect_mapping(read_bvh(out / "stereo.bvh")))
     head_up = world[:, KEYPOINTS.index("head"), 1] - world[:, KEYPOINTS.index("neck"), 1]
     assert np.all(head_up > 0.1)                          # above the neck, as in the rest pose
+
+
+# --------------------------------------------------------------------------- several people
+
+# BODY_25B index of each universal keypoint (the neck is the shoulders' midpoint, not written).
+BODY25B_OF = {0: 0, 2: 6, 3: 8, 4: 10, 5: 5, 6: 7, 7: 9, 8: 12, 9: 14, 10: 16, 11: 11, 12: 13, 13: 15}
+HEAD, NECK = KEYPOINTS.index("head"), KEYPOINTS.index("neck")
+
+
+def _render_body25b(positions, cam, rng, noise_px=1.0):
+    """OpenPose BODY_25B keypoints ``[T, 25, 3]`` of ``positions [T, 15, 3]`` (m) seen by ``cam``:
+    the universal joints, an upper neck and a head top on the neck → nose line, the face and feet
+    left undetected (0, 0, 0); 1 px noise; confidence 0.9 inside the image."""
+    pts = np.zeros((len(positions), 25, 3))
+    for u, b in BODY25B_OF.items():
+        pts[:, b] = positions[:, u]
+    up = positions[:, HEAD] - positions[:, NECK]
+    pts[:, 17], pts[:, 18] = positions[:, NECK] + 0.4 * up, positions[:, NECK] + 1.5 * up
+    used = sorted(BODY25B_OF.values()) + [17, 18]
+    px = cam.project(pts) + rng.normal(0.0, noise_px, pts.shape[:2] + (2,))
+    inside = np.all((px >= 0) & (px < np.array(cam.size)), axis=-1) & ((pts @ cam.R.T + cam.t)[..., 2] > 0)
+    raw = np.zeros((len(positions), 25, 3))
+    raw[:, used, :2], raw[:, used, 2] = px[:, used], 0.9
+    raw[~inside] = 0.0
+    return raw
+
+
+def _write_body25b(folder, people_per_frame):
+    """One OpenPose JSON per frame; each frame's list of ``[25, 3]`` arrays, or None for Pose2Sim's empty entry."""
+    folder.mkdir(parents=True)
+    for t, people in enumerate(people_per_frame):
+        entries = [{"person_id": [-1], "pose_keypoints_2d": [] if raw is None else raw.ravel().tolist()}
+                   for raw in people]
+        (folder / f"scene_{t:012d}_keypoints.json").write_text(json.dumps({"version": 1.3, "people": entries}))
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """Two CMU clips in one scene, 120 frames at 30 fps: a dancer (005_11) and, 2.6 m away, a jumper
+    (002_04): positions ``[2, T, 15, 3]`` m, y up; and two cameras 6.5 m from them, 90° apart, that
+    see both people apart (≥ 150 px between their boxes) and whole."""
+    a = process_clip(SAMPLE_BVH / "005_11.bvh", SAMPLE_BVH, BuildConfig(fps=30.0)).positions[:120]
+    b = process_clip(SAMPLE_BVH / "002_04.bvh", SAMPLE_BVH, BuildConfig(fps=30.0)).positions[:120]
+    positions = np.stack([a, b + [2.25, 0.0, -1.3]]).astype(np.float64)
+    target = positions.mean(axis=(0, 1, 2))
+    cams = [eval_stereo.look_at(target + [6.5 * np.cos(np.radians(az)), height - target[1],
+                                          6.5 * np.sin(np.radians(az))], target, f"cam{k}")
+            for k, (az, height) in enumerate(((20.0, 1.6), (-70.0, 1.9)), start=1)]
+    return positions, cams
+
+
+def test_two_people_each_get_a_track_and_a_bvh(tmp_path, scene, capsys):
+    two_people, (cam1, cam2) = scene
+    n = two_people.shape[1]
+    rng = np.random.default_rng(3)
+    raw1 = [_render_body25b(p, cam1, rng) for p in two_people]
+    raw2 = [_render_body25b(p, cam2, rng) for p in two_people]
+    assert all((r[:, list(BODY25B_OF.values()), 2] > 0).all() for r in raw1 + raw2)  # every joint in both views
+    raw2[1][30:40, 0] = 0.0          # camera 2 loses person B's nose for 10 frames
+    gone = range(60, 64)             # and person B altogether for 4 frames (a gap its 2D track bridges)
+    # A false detection in view 1 only, frames 20-79: person A's pose of another moment, half size,
+    # above and between the two people.
+    decoy = raw1[0][np.arange(n) - 37].copy()
+    centre = decoy[:, :, :2].sum(axis=1, keepdims=True) / (decoy[:, :, 2:] > 0).sum(axis=1, keepdims=True)
+    decoy[..., :2] = np.where(decoy[..., 2:] > 0, 0.5 * (decoy[..., :2] - centre) + [540.0, 180.0], 0.0)
+    frames1, frames2 = [], []
+    for t in range(n):
+        people1 = [raw1[0][t], None, raw1[1][t]] + ([decoy[t]] if 20 <= t < 80 else [])
+        people2 = [None, raw2[0][t]] + ([] if t in gone else [raw2[1][t]])
+        frames1.append(people1[::-1] if t % 2 else people1)  # the order of the entries means nothing
+        frames2.append(people2[::-1] if t % 3 else people2)
+    _write_body25b(tmp_path / "v1", frames1)
+    _write_body25b(tmp_path / "v2", frames2)
+    out = tmp_path / "out"
+    distance = np.linalg.norm(cam1.center_m - cam2.center_m)
+    assert _stereo([str(tmp_path / "v1"), str(tmp_path / "v2"), "--out", str(out), "--focal", "1145",
+                    "--size", "1000", "1000", "--camera-distance", f"{distance:.6f}", "--fps", "30"]) == 0
+    printed = capsys.readouterr().out
+    assert "people 2" in printed and "not a person: view 1: 1 2D track(s), 60 detections" in printed
+
+    # One track per person, the same person throughout; every joint both views see is there.
+    frames = [json.loads(line) for line in (out / "result.jsonl").read_text().splitlines()[1:]]
+    truth = two_people @ cam1.R.T + cam1.t  # camera 1's OpenCV axes
+    tracks = {}
+    for t, f in enumerate(frames):
+        assert sorted(p["track"] for p in f["people"]) == ([0] if t in gone else [0, 1])
+        for p in f["people"]:
+            joints = np.array(p["joints"], dtype=np.float64) @ CAMERA_ALIGNED
+            errors = np.linalg.norm(joints[None] - truth[:, t], axis=-1)  # against both people
+            who = int(np.argmin(np.nanmedian(errors, axis=1)))
+            tracks.setdefault(p["track"], set()).add(who)
+            null = sorted(np.flatnonzero(np.isnan(joints).any(axis=1)))
+            assert null == ([HEAD] if who == 1 and 30 <= t < 40 else []), (t, p["track"])  # seen by one view
+            assert np.nanmax(errors[who]) < 0.1
+    assert len(tracks[0]) == 1 and len(tracks[1]) == 1 and tracks[0] != tracks[1]
+
+    cameras = json.loads((out / "cameras.json").read_text())
+    rel = cam2.R @ cam1.R.T
+    assert rotation_angle_deg(np.array(cameras["cameras"][1]["R"]) @ rel.T) < 2.0
+    assert [t["bvh"] for t in cameras["tracks"]] == ["stereo.bvh", "stereo_track_1.bvh"]
+    assert sorted(t["frames"] for t in cameras["tracks"]) == [n - len(gone), n]
+    assert len(cameras["not_people"]) == 1 and cameras["dropped_frames"] == {}
+
+    # A BVH per person, both in one levelled world: each maps back onto its own JSON joints.
+    bvh_from_camera = np.array(cameras["bvh_from_camera1"])
+    for track, name in ((0, "stereo.bvh"), (1, "stereo_track_1.bvh")):
+        bvh = read_bvh(out / name)
+        assert bvh.n_frames == n
+        world = extract_keypoints(bvh, detect_mapping(bvh)) @ bvh_from_camera @ CAMERA_ALIGNED
+        mine = [(t, p) for t, f in enumerate(frames) for p in f["people"] if p["track"] == track]
+        pelvis = np.array([p["root"] for _, p in mine])
+        np.testing.assert_allclose(world[[t for t, _ in mine], KEYPOINTS.index("pelvis")], pelvis, atol=0.005)
+
+
+def test_matching_pairs_each_person_across_views_and_reports_a_lone_one(scene):
+    """The matching itself: both people paired right whatever the order of the entries, a person
+    seen by camera 1 only reported, not reconstructed."""
+    two_people, (cam1, cam2) = scene
+    (x1a, c1a), (x1b, c1b) = (eval_stereo.render(p, cam1, np.random.default_rng(0), 1.0, 0.0) for p in two_people)
+    (x2a, c2a), (x2b, c2b) = (eval_stereo.render(p, cam2, np.random.default_rng(1), 1.0, 0.0) for p in two_people)
+    n = len(x1a)
+    lone, lone_c = x1a[::-1] + [300.0, 0.0], c1a[::-1]  # another moment of person A, 300 px to the right
+    frames1 = [KeypointFrame(t, None, [Person(x1b[t], c1b[t]), Person(lone[t], lone_c[t]), Person(x1a[t], c1a[t])])
+               for t in range(n)]
+    frames2 = [KeypointFrame(t, None, [Person(x2a[t], c2a[t]), Person(x2b[t], c2b[t])][::(-1) ** t])
+               for t in range(n)]
+    people = match_people(frames1, frames2, cam1, cam2, StereoConfig())
+    assert [p.track for p in people.persons] == [0, 1] and people.dropped == {}
+    assert all(p.kept.all() for p in people.persons)
+    is_b = [np.array_equal(p.x1, x1b, equal_nan=True) for p in people.persons]
+    assert sorted(is_b) == [False, True]
+    for p, b in zip(people.persons, is_b):
+        np.testing.assert_array_equal(p.x1, x1b if b else x1a)
+        np.testing.assert_array_equal(p.x2, x2b if b else x2a)
+    assert len(people.unmatched) == 1 and people.unmatched[0].startswith("view 1: 1 2D track(s), 120 detections")
+
+
+def test_bundled_pose2sim_pair_one_person_good_camera(tmp_path, capsys):
+    """The quickstart's pair (camera 1 has a false second person; camera 4 never sees the nose)."""
+    calibration = SAMPLE_KEYPOINTS.parent / "calibration.toml"
+    code = _stereo([str(SAMPLE_KEYPOINTS), str(SAMPLE_KEYPOINTS.parent / "pose2sim_cam04"), "--out", str(tmp_path),
+                    "--calibration", str(calibration), "--cameras", "cam_01", "cam_04", "--fps", "60",
+                    "--camera-distance", "5.24"])
+    assert code == 0, capsys.readouterr().err
+    assert "not a person: view 1" in capsys.readouterr().out
+    cameras = json.loads((tmp_path / "cameras.json").read_text())
+    tracks = [(t["track"], t["frames"], t["first_frame"], t["last_frame"]) for t in cameras["tracks"]]
+    assert tracks == [(0, 100, 0, 99)]
+    assert sorted(p.name for p in tmp_path.glob("*.bvh")) == ["stereo.bvh"]
+    cams = read_calibration_toml(calibration)
+    rel = cams["cam_04"].R @ cams["cam_01"].R.T
+    assert rotation_angle_deg(np.array(cameras["cameras"][1]["R"]) @ rel.T) < 3.0

@@ -1,0 +1,444 @@
+"""`mocapdb stereo`: which detections of the two views are the same person, frame by frame.
+
+Each view's detections are linked into 2D tracks by proximity (median joint displacement in units
+of the body's box diagonal). Pairs of 2D tracks, one per view, are matched by epipolar consistency
+over the frames they share, under an essential matrix chosen as the one that makes the scene most
+consistent (each of the best-corresponding pairings proposes one), then re-fitted to every matched
+person. Matched 2D tracks chain into people (a person keeps its id when one view's 2D track breaks
+and the other's does not). Detections that match no one are not people: they are reported.
+Decisions and thresholds: ``data_specs/stereo.md``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from .cameras import CameraModel
+from .keypoints import KeypointFrame
+from .skeleton import N_KEYPOINTS_2D
+from .stereo import ESSENTIAL_METHOD, StereoConfig, StereoError
+
+# A pair (person in view 1, person in view 2) of one frame is consistent when at least
+# MIN_SHARED_JOINTS joints are confident in both and the median of their first-order epipolar
+# (Sampson) distances is at most MAX_EPIPOLAR_PX. Distances are measured in undistorted normalised
+# coordinates and multiplied by the mean focal length of the two cameras (≈ pixels). On the
+# Pose2Sim take (f ≈ 1680 px) the true pairs' medians are 2-17 px (median 4-6 px), while a false
+# person paired with the true one in the other view lies 18-300 px off.
+MIN_SHARED_JOINTS = 6
+MAX_EPIPOLAR_PX = 20.0
+# 2D tracks. A detection continues a track when the median displacement of their common confident
+# joints is at most TRACK_STEP box diagonals (of the track's last detection; ≥ 3 common joints), the
+# track was last seen at most TRACK_GAP frames before, and neither has a rival choice within
+# TRACK_AMBIGUITY times that displacement (two people overlapping: their tracks end, new ones start).
+TRACK_STEP = 0.3
+TRACK_GAP = 10
+TRACK_AMBIGUITY = 2.0
+MIN_TRACK_JOINTS = 3
+# Two 2D tracks are the same person when they are consistent in at least MIN_LINK_SHARE of the
+# frames they share with MIN_SHARED_JOINTS joints, and in no frame that either already gives to a
+# better-matching partner. A person needs MIN_PERSON_FRAMES consistent frames.
+MIN_LINK_SHARE = 0.5
+MIN_PERSON_FRAMES = 5
+SEED_PAIRINGS = 8  # the best-corresponding pairings of 2D tracks whose own essential matrix is tried
+MAX_MATCH_CORRESPONDENCES = 3000  # per essential matrix fitted for matching (the cameras' fit uses all)
+
+
+@dataclass
+class Selection:
+    """One person's detections per frame: ``x [T, 14, 2]`` pixels (NaN when missing), ``c [T, 14]``."""
+
+    x1: np.ndarray
+    c1: np.ndarray
+    x2: np.ndarray
+    c2: np.ndarray
+    kept: np.ndarray         # [T] bool: the person is seen consistently in both views
+    distance_px: np.ndarray  # [T] median epipolar distance of the chosen pair (NaN when not kept)
+    dropped: dict[str, list[int]] = field(default_factory=dict)  # frames with no person at all, by reason
+    track: int = 0
+    correspondences: int = 0  # joints confident in both views, over the kept frames
+
+
+@dataclass
+class People:
+    """Everyone seen in both views: ``persons[k]`` has track id ``k``; track 0 has the most
+    correspondences (the camera estimate's source)."""
+
+    persons: list[Selection]
+    dropped: dict[str, list[int]]  # frames with no person, by reason
+    unmatched: list[str]           # per view, the detections that are no person (one line each)
+    essential: np.ndarray
+
+
+@dataclass
+class Detections:
+    """One view's people with a confident joint, flattened in frame order."""
+
+    frame: np.ndarray       # [N] frame index
+    points: np.ndarray      # [N, 14, 2] pixels, NaN where missing
+    conf: np.ndarray        # [N, 14]
+    vis: np.ndarray         # [N, 14] confident
+    normalised: np.ndarray  # [N, 14, 2] undistorted normalised coordinates (NaN where missing)
+    track: np.ndarray       # [N] 2D track id within the view
+
+
+@dataclass
+class Pairs:
+    """Every same-frame (view-1, view-2) detection pair and its epipolar distance."""
+
+    i: np.ndarray         # [M] view-1 detection
+    j: np.ndarray         # [M] view-2 detection
+    frame: np.ndarray     # [M]
+    shared: np.ndarray    # [M, 14] joints confident in both
+    distance: np.ndarray  # [M] median Sampson distance (px); inf with fewer than MIN_SHARED_JOINTS shared
+
+    @property
+    def consistent(self) -> np.ndarray:
+        return self.distance <= MAX_EPIPOLAR_PX
+
+
+# --------------------------------------------------------------------------- detections and 2D tracks
+
+def masked_median(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Median over the last axis of the entries where ``mask``; NaN where there are none."""
+    ordered = np.sort(np.where(mask, values, np.inf), axis=-1)
+    n = mask.sum(axis=-1)
+    lo = np.take_along_axis(ordered, np.maximum((n - 1) // 2, 0)[..., None], -1)[..., 0]
+    hi = np.take_along_axis(ordered, (n // 2)[..., None].clip(0, values.shape[-1] - 1), -1)[..., 0]
+    return np.where(n > 0, 0.5 * (lo + hi), np.nan)
+
+
+def normalised(cam: CameraModel, points: np.ndarray) -> np.ndarray:
+    """Undistorted normalised coordinates of ``[N, 14, 2]`` pixels (NaN stays NaN)."""
+    flat = points.reshape(-1, 2)
+    ok = np.isfinite(flat).all(axis=1)
+    out = np.full_like(flat, np.nan)
+    if ok.any():
+        out[ok] = np.asarray(cam.undistort_normalized(flat[ok])).reshape(-1, 2)
+    return out.reshape(points.shape)
+
+
+def detections(frames: list[KeypointFrame], cam: CameraModel, threshold: float) -> Detections:
+    """Every person of ``frames`` with a confident joint, with its 2D track."""
+    people = [(t, p) for t, f in enumerate(frames) for p in f.people]
+    frame = np.array([t for t, _ in people], dtype=np.int64)
+    points = np.array([p.points_px for _, p in people], dtype=np.float64).reshape(-1, N_KEYPOINTS_2D, 2)
+    conf = np.array([p.confidence for _, p in people], dtype=np.float64).reshape(-1, N_KEYPOINTS_2D)
+    vis = (conf >= threshold) & (conf > 0) & np.isfinite(points).all(axis=-1)
+    keep = vis.any(axis=1)
+    frame, points, conf, vis = frame[keep], points[keep], conf[keep], vis[keep]
+    return Detections(frame, points, conf, vis, normalised(cam, points), track_2d(frame, points, vis))
+
+
+def _box_diagonal(points: np.ndarray, vis: np.ndarray) -> np.ndarray:
+    xy = np.where(vis[..., None], points, np.nan)
+    with np.errstate(invalid="ignore"):
+        diag = np.linalg.norm(np.fmax.reduce(xy, axis=1) - np.fmin.reduce(xy, axis=1), axis=-1)
+    return np.maximum(np.nan_to_num(diag), 1.0)
+
+
+def _step_cost(points: np.ndarray, vis: np.ndarray, size: np.ndarray, prev: np.ndarray,
+               now: np.ndarray) -> np.ndarray:
+    """``[K, D]``: median displacement of the common confident joints from each track's last
+    detection ``prev`` to each detection ``now``, in box diagonals (the larger of the two boxes:
+    a detection with few joints has a small one; inf with too few common joints)."""
+    both = vis[prev][:, None] & vis[now][None]
+    moved = np.linalg.norm(np.nan_to_num(points[prev][:, None] - points[now][None]), axis=-1)
+    cost = masked_median(moved, both) / np.maximum(size[prev][:, None], size[now][None])
+    return np.where(both.sum(axis=-1) >= MIN_TRACK_JOINTS, cost, np.inf)
+
+
+def _contested(near: np.ndarray, axis: int) -> np.ndarray:
+    """Rows (``axis`` 1) or columns (0) whose second-best finite cost is within TRACK_AMBIGUITY of the best."""
+    if near.shape[axis] < 2:
+        return np.zeros(near.shape[1 - axis], dtype=bool)
+    best2 = np.sort(near, axis=axis).take([0, 1], axis=axis)
+    first, second = best2.take(0, axis=axis), best2.take(1, axis=axis)
+    return np.isfinite(second) & (second < TRACK_AMBIGUITY * first)
+
+
+def continuations(cost: np.ndarray, last_seen: np.ndarray) -> tuple[list[tuple[int, int]], np.ndarray]:
+    """(track, detection) pairs continuing tracks, greedily by increasing cost up to TRACK_STEP,
+    and the tracks that end because a choice was contested (a rival nearly as good: two people
+    close together). ``last_seen [K]``: the tracks' last frames; of the tracks near a detection
+    only the most recently seen may take it (an older one is the same person's broken-off track)."""
+    near = np.where(cost <= TRACK_STEP, cost, np.inf)
+    latest = np.max(np.where(np.isfinite(near), last_seen[:, None], -1), axis=0, initial=-1)
+    near[last_seen[:, None] < latest[None]] = np.inf
+    rows, cols = _contested(near, 1), _contested(near, 0)
+    ended = rows | np.isfinite(near[:, cols]).any(axis=1)
+    near[ended], near[:, cols] = np.inf, np.inf
+    pairs: list[tuple[int, int]] = []
+    used_r, used_c = set(), set()
+    for flat in np.argsort(near, axis=None)[:int(np.isfinite(near).sum())]:
+        r, c = (int(v) for v in np.unravel_index(flat, near.shape))
+        if r not in used_r and c not in used_c:
+            pairs.append((r, c))
+            used_r.add(r)
+            used_c.add(c)
+    return pairs, ended
+
+
+def track_2d(frame: np.ndarray, points: np.ndarray, vis: np.ndarray) -> np.ndarray:
+    """2D track id ``[N]`` of every detection (``frame`` sorted), by proximity to the tracks' last detections."""
+    size = _box_diagonal(points, vis)
+    track = np.full(len(frame), -1, dtype=np.int64)
+    last: dict[int, int] = {}  # open track → its latest detection
+    n_tracks = 0
+    for now in np.split(np.arange(len(frame)), np.flatnonzero(np.diff(frame)) + 1):
+        if not len(now):
+            continue
+        last = {k: d for k, d in last.items() if frame[now[0]] - frame[d] <= TRACK_GAP}
+        open_ = np.array(list(last), dtype=np.int64)
+        prev = np.array(list(last.values()), dtype=np.int64)
+        pairs, ended = continuations(_step_cost(points, vis, size, prev, now), frame[prev])
+        for r, c in pairs:
+            track[now[c]] = open_[r]
+            last[int(open_[r])] = int(now[c])
+        for k in open_[ended]:
+            del last[int(k)]
+        for c in np.flatnonzero(track[now] < 0):
+            track[now[c]], last[n_tracks] = n_tracks, int(now[c])
+            n_tracks += 1
+    return track
+
+
+# --------------------------------------------------------------------------- epipolar consistency
+
+def sampson_distance(essential: np.ndarray, n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
+    """First-order geometric (Sampson) distance ``[...]`` of normalised correspondences ``[..., 2]``."""
+    h1 = np.concatenate([n1, np.ones(n1.shape[:-1] + (1,))], axis=-1)
+    h2 = np.concatenate([n2, np.ones(n2.shape[:-1] + (1,))], axis=-1)
+    e1 = h1 @ essential.T          # E x1
+    e2 = h2 @ essential            # Eᵀ x2
+    num = np.sum(h2 * e1, axis=-1)
+    den = e1[..., 0] ** 2 + e1[..., 1] ** 2 + e2[..., 0] ** 2 + e2[..., 1] ** 2
+    return np.abs(num) / np.sqrt(np.maximum(den, 1e-30))
+
+
+def all_pairs(d1: Detections, d2: Detections) -> Pairs:
+    """Every (view-1, view-2) detection pair of the same frame (distances not yet measured)."""
+    by_frame: dict[int, list[int]] = {}
+    for j, f in enumerate(d2.frame.tolist()):
+        by_frame.setdefault(f, []).append(j)
+    ij = np.array([(i, j) for i, f in enumerate(d1.frame.tolist()) for j in by_frame.get(f, [])],
+                  dtype=np.int64).reshape(-1, 2)
+    i, j = ij[:, 0], ij[:, 1]
+    return Pairs(i, j, d1.frame[i], d1.vis[i] & d2.vis[j], np.full(len(i), np.inf))
+
+
+def measure(pairs: Pairs, d1: Detections, d2: Detections, essential: np.ndarray, focal: float) -> Pairs:
+    """``pairs`` with their median Sampson distances (px) under ``essential``."""
+    n1, n2 = np.nan_to_num(d1.normalised[pairs.i]), np.nan_to_num(d2.normalised[pairs.j])
+    median = masked_median(sampson_distance(essential, n1, n2) * focal, pairs.shared)
+    enough = pairs.shared.sum(axis=1) >= MIN_SHARED_JOINTS
+    return Pairs(pairs.i, pairs.j, pairs.frame, pairs.shared, np.where(enough, median, np.inf))
+
+
+def fit_essential(n1: np.ndarray, n2: np.ndarray, config: StereoConfig) -> np.ndarray | None:
+    """Essential matrix by RANSAC from normalised correspondences ``[N, 2]`` (None when none fits);
+    at most MAX_MATCH_CORRESPONDENCES of them, evenly spread (matching needs no more)."""
+    step = max(1, int(np.ceil(len(n1) / MAX_MATCH_CORRESPONDENCES)))
+    n1, n2 = n1[::step], n2[::step]
+    essential, _ = cv2.findEssentialMat(n1, n2, np.eye(3), method=ESSENTIAL_METHOD, prob=config.ransac_prob,
+                                        threshold=config.ransac_threshold)
+    return None if essential is None or essential.shape[0] < 3 else essential[:3]
+
+
+def _correspondences(pairs: Pairs, rows: np.ndarray, d1: Detections, d2: Detections) -> tuple[np.ndarray, ...]:
+    shared = pairs.shared[rows]
+    return d1.normalised[pairs.i[rows]][shared], d2.normalised[pairs.j[rows]][shared]
+
+
+# --------------------------------------------------------------------------- 2D tracks → people
+
+def _pairing_groups(pairs: Pairs, d1: Detections, d2: Detections) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The (view-1 2D track, view-2 2D track) pairings ``[K, 2]`` present in ``pairs``, and each one's rows."""
+    n2 = int(d2.track.max(initial=-1)) + 1
+    keys, inverse = np.unique(d1.track[pairs.i] * n2 + d2.track[pairs.j], return_inverse=True)
+    order = np.argsort(inverse, kind="stable")
+    groups = np.split(order, np.cumsum(np.bincount(inverse, minlength=len(keys)))[:-1]) if len(keys) else []
+    return np.stack([keys // max(n2, 1), keys % max(n2, 1)], axis=1), groups
+
+
+def link_tracks(pairs: Pairs, d1: Detections, d2: Detections, n_frames: int) -> set[tuple[int, int]]:
+    """The pairings (view-1 2D track, view-2 2D track) that are the same person.
+
+    Pairings by decreasing count of consistent frames; one is kept when it is consistent in at
+    least MIN_LINK_SHARE of the frames it shares with enough joints, and its consistent frames are
+    not already given to another partner of either track.
+    """
+    pairings, groups = _pairing_groups(pairs, d1, d2)
+    ok, enough = pairs.consistent, np.isfinite(pairs.distance)
+    good = np.array([ok[g].sum() for g in groups], dtype=np.int64)
+    used1 = np.zeros((int(d1.track.max(initial=-1)) + 1, n_frames), dtype=bool)
+    used2 = np.zeros((int(d2.track.max(initial=-1)) + 1, n_frames), dtype=bool)
+    links = set()
+    for k in np.argsort(-good, kind="stable"):
+        if good[k] < 1 or good[k] < MIN_LINK_SHARE * enough[groups[k]].sum():
+            continue
+        (ta, tb), frames = pairings[k], pairs.frame[groups[k][ok[groups[k]]]]
+        if not (used1[ta, frames].any() or used2[tb, frames].any()):
+            used1[ta, frames] = used2[tb, frames] = True
+            links.add((int(ta), int(tb)))
+    return links
+
+
+def _components(links: set[tuple[int, int]]) -> dict[tuple[int, int], int]:
+    """Person index of each link: links sharing a 2D track are the same person (union-find)."""
+    parent: dict[tuple[int, int], tuple[int, int]] = {}
+
+    def root(node: tuple[int, int]) -> tuple[int, int]:
+        while parent.setdefault(node, node) != node:
+            node = parent[node]
+        return node
+
+    for ta, tb in sorted(links):
+        parent[root((2, tb))] = root((1, ta))
+    roots = {link: root((1, link[0])) for link in links}
+    ids = {r: n for n, r in enumerate(dict.fromkeys(roots[link] for link in sorted(links)))}
+    return {link: ids[r] for link, r in roots.items()}
+
+
+def person_rows(pairs: Pairs, d1: Detections, d2: Detections,
+                links: set[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """The chosen pair row of each (person, frame): consistent rows of linked 2D tracks, the
+    closest when a person has two in one frame. Returns rows ``[K]`` and their persons ``[K]``."""
+    person_of = _components(links)
+    person = np.array([person_of.get((int(a), int(b)), -1)
+                       for a, b in zip(d1.track[pairs.i], d2.track[pairs.j])], dtype=np.int64)
+    rows = np.flatnonzero((person >= 0) & pairs.consistent)
+    order = rows[np.lexsort((pairs.distance[rows], pairs.frame[rows], person[rows]))]
+    first = np.r_[True, (np.diff(person[order]) != 0) | (np.diff(pairs.frame[order]) != 0)] if len(order) else []
+    rows = order[np.asarray(first, dtype=bool)]
+    return rows, person[rows]
+
+
+def _match(pairs: Pairs, d1: Detections, d2: Detections, essential: np.ndarray, focal: float,
+           n_frames: int) -> tuple[Pairs, np.ndarray, np.ndarray]:
+    """Pairs measured under ``essential``, and the chosen rows with their persons."""
+    measured = measure(pairs, d1, d2, essential, focal)
+    rows, person = person_rows(measured, d1, d2, link_tracks(measured, d1, d2, n_frames))
+    return measured, rows, person
+
+
+def _most_prominent_rows(pairs: Pairs, d1: Detections, d2: Detections) -> np.ndarray:
+    """The rows pairing each frame's most prominent detection of view 1 with that of view 2
+    (prominence: confident confidences × box diagonal)."""
+    top = []
+    for d in (d1, d2):
+        prominence = np.where(d.vis, d.conf, 0.0).sum(axis=1) * _box_diagonal(d.points, d.vis)
+        order = np.lexsort((-prominence, d.frame))
+        top.append(order[np.r_[True, np.diff(d.frame[order]) != 0]] if len(order) else order)
+    return np.flatnonzero(np.isin(pairs.i, top[0]) & np.isin(pairs.j, top[1]))
+
+
+def seed_essential(pairs: Pairs, d1: Detections, d2: Detections, focal: float, n_frames: int,
+                   config: StereoConfig) -> np.ndarray:
+    """The essential matrix under which the most person-frames are matched, among those of the
+    SEED_PAIRINGS best-corresponding 2D-track pairings and of the frames' most prominent pairs
+    (a fallback when the 2D tracks are short)."""
+    need = max(8, config.min_correspondences)
+    _, groups = _pairing_groups(pairs, d1, d2)
+    counts = np.array([pairs.shared[g].sum() for g in groups], dtype=np.int64)
+    candidates = [groups[k] for k in np.argsort(-counts, kind="stable")[:SEED_PAIRINGS]]
+    best, best_score = None, -1
+    for rows in candidates + [_most_prominent_rows(pairs, d1, d2)]:
+        essential = fit_essential(*_correspondences(pairs, rows, d1, d2), config) \
+            if pairs.shared[rows].sum() >= need else None
+        score = -1 if essential is None else len(_match(pairs, d1, d2, essential, focal, n_frames)[1])
+        if score > best_score:
+            best, best_score = essential, score
+    if best is None:
+        raise StereoError(f"at most {int(counts.max(initial=0))} keypoint correspondences between a person of "
+                          f"view 1 and one of view 2 (need {need}), or no essential matrix fits them: too few "
+                          "frames or joints seen by both cameras, or the folders are not the same take")
+    return best
+
+
+def match_people(frames1: list[KeypointFrame], frames2: list[KeypointFrame], cam1: CameraModel,
+                 cam2: CameraModel, config: StereoConfig) -> People:
+    """Everyone seen in both views, one :class:`Selection` per person (see the module docstring)."""
+    n_frames = len(frames1)
+    d1, d2 = detections(frames1, cam1, config.confidence), detections(frames2, cam2, config.confidence)
+    essential, measured, rows, person = _matched(d1, d2, _focal(cam1, cam2), n_frames, config)
+    big = np.flatnonzero(np.bincount(person, minlength=1) >= MIN_PERSON_FRAMES)
+    rows, person = rows[np.isin(person, big)], person[np.isin(person, big)]
+    persons = sorted((_selection(measured, rows[person == k], d1, d2, n_frames) for k in big),
+                     key=lambda sel: -sel.correspondences)
+    kept = np.flatnonzero(np.any([sel.kept for sel in persons], axis=0)) if persons else np.zeros(0, np.int64)
+    dropped = dropped_frames(n_frames, d1, d2, measured, kept)
+    for k, sel in enumerate(persons):
+        sel.track, sel.dropped = k, dropped
+    return People(persons, dropped, unmatched_lines((d1, d2), (measured.i[rows], measured.j[rows])), essential)
+
+
+def _focal(cam1: CameraModel, cam2: CameraModel) -> float:
+    return float(np.mean([cam1.K[0, 0], cam1.K[1, 1], cam2.K[0, 0], cam2.K[1, 1]]))
+
+
+def _matched(d1: Detections, d2: Detections, focal: float, n_frames: int,
+             config: StereoConfig) -> tuple[np.ndarray, Pairs, np.ndarray, np.ndarray]:
+    """The essential matrix (seeded, then re-fitted to every matched person when that matches at
+    least as many person-frames), the measured pairs, the chosen rows and their persons."""
+    pairs = all_pairs(d1, d2)
+    essential = seed_essential(pairs, d1, d2, focal, n_frames, config)
+    measured, rows, person = _match(pairs, d1, d2, essential, focal, n_frames)
+    refit = fit_essential(*_correspondences(measured, rows, d1, d2), config) if len(rows) >= 8 else None
+    if refit is not None:
+        again = _match(pairs, d1, d2, refit, focal, n_frames)
+        if len(again[1]) >= len(rows):
+            return (refit,) + again
+    return essential, measured, rows, person
+
+
+def _selection(pairs: Pairs, rows: np.ndarray, d1: Detections, d2: Detections, n_frames: int) -> Selection:
+    """The arrays of one person's chosen pairs ``rows`` (one per frame)."""
+    t, i, j = pairs.frame[rows], pairs.i[rows], pairs.j[rows]
+    x1 = np.full((n_frames, N_KEYPOINTS_2D, 2), np.nan)
+    x2 = x1.copy()
+    c1, c2 = np.zeros((n_frames, N_KEYPOINTS_2D)), np.zeros((n_frames, N_KEYPOINTS_2D))
+    x1[t], c1[t], x2[t], c2[t] = d1.points[i], d1.conf[i], d2.points[j], d2.conf[j]
+    kept = np.zeros(n_frames, dtype=bool)
+    kept[t] = True
+    distance = np.full(n_frames, np.nan)
+    distance[t] = pairs.distance[rows]
+    return Selection(x1, np.where(np.isfinite(x1).all(-1), c1, 0.0), x2, np.where(np.isfinite(x2).all(-1), c2, 0.0),
+                     kept, distance, correspondences=int(pairs.shared[rows].sum()))
+
+
+def dropped_frames(n_frames: int, d1: Detections, d2: Detections, pairs: Pairs,
+                   kept: np.ndarray) -> dict[str, list[int]]:
+    """The frames where no person is reconstructed, by the first reason that applies."""
+    everyone = np.setdiff1d(np.arange(n_frames), kept)
+    enough = np.unique(pairs.frame[np.isfinite(pairs.distance)])
+    consistent = np.unique(pairs.frame[pairs.consistent])
+    reasons = {
+        "no person in view 1": np.setdiff1d(everyone, d1.frame),
+        "no person in view 2": np.setdiff1d(np.intersect1d(everyone, d1.frame), d2.frame),
+        f"no pair with {MIN_SHARED_JOINTS} joints confident in both views":
+            np.setdiff1d(np.intersect1d(everyone, pairs.frame), enough),
+        f"no pair within {MAX_EPIPOLAR_PX:g} px of the epipolar geometry":
+            np.setdiff1d(np.intersect1d(everyone, enough), consistent),
+        f"consistent pairs, but none of a person matched over at least {MIN_PERSON_FRAMES} frames":
+            np.intersect1d(everyone, consistent),
+    }
+    return {why: sorted(int(f) for f in frames) for why, frames in reasons.items() if len(frames)}
+
+
+def unmatched_lines(views: tuple[Detections, Detections], used: tuple[np.ndarray, np.ndarray]) -> list[str]:
+    """Per view, one line on the 2D tracks of which no detection (``used``: indices) is in a person."""
+    lines = []
+    for view, (d, in_person) in enumerate(zip(views, used), start=1):
+        spare = ~np.isin(d.track, d.track[in_person])
+        if spare.any():
+            frames = np.unique(d.frame[spare]).tolist()
+            lines.append(f"view {view}: {len(np.unique(d.track[spare]))} 2D track(s), {int(spare.sum())} detections "
+                         f"in {len(frames)} frames (frames {_listed(frames)}) match no one in view {3 - view}: "
+                         "seen by one camera only or not epipolar-consistent, not reconstructed")
+    return lines
+
+
+def _listed(frames: list[int], most: int = 10) -> str:
+    return ", ".join(map(str, frames[:most])) + (", ..." if len(frames) > most else "")
