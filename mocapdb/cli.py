@@ -360,6 +360,8 @@ def _run_eval(args: argparse.Namespace) -> int:
         if args.quick:
             config = replace(config, yaws_deg=config.yaws_deg[:2], scenarios=config.scenarios[:2])
         files = [f for f, _ in find_sources(args.bvh)]
+        if not files:
+            raise UsageError(f"no .bvh file in {', '.join(args.bvh)}")
         text = _report_json(evaluate(load_database(args.db), files, config))
         print(text)
     if args.out:
