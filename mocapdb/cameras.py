@@ -1,6 +1,8 @@
 """Pinhole cameras with OpenCV lens distortion, and the Pose2Sim/OpenCV calibration TOML."""
 from __future__ import annotations
 
+import math
+import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,9 +53,51 @@ class CameraModel:
         return out.reshape(pts.shape)
 
 
+# The principal point may lie outside the image (a crop), but not by more than this share of the
+# image's width or height beyond its border: further out, the matrix or the size is wrong.
+MAX_CENTER_OUTSIDE = 0.5
+
+
+def os_error_message(exc: OSError, path: str | Path, doing: str) -> str:
+    """``<file>: cannot <doing> (<reason>)``: an OS error that always names its file."""
+    name = exc.filename if exc.filename is not None else path
+    return f"{name}: cannot {doing} ({exc.strerror or type(exc).__name__})"
+
+
+def check_intrinsics(k: np.ndarray, size: tuple[float, float], where: str) -> None:
+    """CalibrationError (prefixed ``where``) unless ``k`` is a usable pinhole matrix for an image
+    of ``size`` (width, height) px: finite, not singular, bottom row [0, 0, 1], positive focal
+    lengths, the principal point within :data:`MAX_CENTER_OUTSIDE` image sizes of the image."""
+    k = np.asarray(k, dtype=np.float64)
+    width, height = (float(v) for v in size)
+    if not (math.isfinite(width) and math.isfinite(height) and width > 0 and height > 0):
+        raise CalibrationError(f"{where}: image size {width:g} × {height:g} px is not two positive numbers")
+    if k.shape != (3, 3) or not np.all(np.isfinite(k)):
+        raise CalibrationError(f"{where}: the camera matrix is not 3×3 finite numbers")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        singular = abs(np.linalg.det(k)) <= 1e-12 * float(np.abs(k).max()) ** 2 or not np.linalg.cond(k) < 1e12
+    if singular:
+        raise CalibrationError(f"{where}: the camera matrix {_numbers(k)} is singular (no inverse)")
+    if not np.allclose(k[2], [0.0, 0.0, 1.0], atol=1e-6):
+        raise CalibrationError(f"{where}: the camera matrix's last row is {_numbers(k[2])}, not [0, 0, 1]")
+    if k[0, 0] <= 0 or k[1, 1] <= 0:
+        raise CalibrationError(f"{where}: focal lengths fx = {k[0, 0]:g}, fy = {k[1, 1]:g} px must be positive")
+    cx, cy = k[0, 2], k[1, 2]
+    if not (-MAX_CENTER_OUTSIDE * width <= cx <= (1 + MAX_CENTER_OUTSIDE) * width
+            and -MAX_CENTER_OUTSIDE * height <= cy <= (1 + MAX_CENTER_OUTSIDE) * height):
+        raise CalibrationError(f"{where}: principal point ({cx:g}, {cy:g}) px is far outside the "
+                               f"{width:g} × {height:g} px image (wrong matrix or size?)")
+
+
+def _numbers(a: np.ndarray) -> str:
+    return np.array2string(np.asarray(a), separator=", ", precision=6, suppress_small=True).replace("\n", "")
+
+
 def camera_from_intrinsics(focal_px: float, center_px: tuple[float, float], size: tuple[int, int]) -> CameraModel:
-    """A distortion-free camera at the world origin (for ``--focal/--center``)."""
-    k = np.array([[focal_px, 0.0, center_px[0]], [0.0, focal_px, center_px[1]], [0.0, 0.0, 1.0]])
+    """A distortion-free camera at the world origin (for ``--focal/--center``); CalibrationError when
+    the values cannot be a camera (:func:`check_intrinsics`)."""
+    k = np.array([[focal_px, 0.0, center_px[0]], [0.0, focal_px, center_px[1]], [0.0, 0.0, 1.0]], dtype=np.float64)
+    check_intrinsics(k, size, "intrinsics (--focal, --center, --size)")
     return CameraModel(k, np.zeros(4), np.eye(3), np.zeros(3), (int(size[0]), int(size[1])))
 
 
@@ -81,6 +125,7 @@ def _camera(key: str, section: dict, where: str) -> CameraModel:
     rvec = _field(section, "rotation", where, (3,))
     t = _field(section, "translation", where, (3,))
     size = _field(section, "size", where, (2,))
+    check_intrinsics(k, (size[0], size[1]), where)
     rot, _ = cv2.Rodrigues(rvec)
     return CameraModel(k, dist, rot, t, (int(size[0]), int(size[1])), str(section.get("name", key)))
 
@@ -90,16 +135,37 @@ def read_calibration_toml(path: str | Path) -> dict[str, CameraModel]:
 
     Each section: ``matrix`` (3×3 px), ``distortions`` (k1, k2, p1, p2), ``rotation`` (Rodrigues,
     world→camera), ``translation`` (metres), ``size`` (width, height px), ``fisheye`` (false).
+    Every error is a CalibrationError naming the file (and the line, or the section and field).
     """
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        raw = path.read_bytes()
     except OSError as exc:
-        raise CalibrationError(f"{path}: cannot read ({exc.strerror})") from None
+        raise CalibrationError(os_error_message(exc, path, "read the calibration")) from None
+    if b"\0" in raw:
+        raise CalibrationError(f"{path}: a binary file, not a calibration TOML (text)")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise CalibrationError(f"{path}, line {line}: not UTF-8 text: not a calibration TOML") from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise CalibrationError(f"{path}: not valid TOML ({exc})") from None
+        raise CalibrationError(_toml_message(path, str(exc))) from None
     cams = {key: _camera(key, sec, f"{path} [{key}]") for key, sec in data.items()
             if isinstance(sec, dict) and key != "metadata"}
     if not cams:
         raise CalibrationError(f"{path}: no camera section")
     return cams
+
+
+def _toml_message(path: Path, message: str) -> str:
+    """``<file>, line L, column C: not valid TOML (<reason>)`` from tomllib's message."""
+    at = re.search(r"\s*\(at line (\d+), column (\d+)\)$", message)
+    if at:
+        return f"{path}, line {at[1]}, column {at[2]}: not valid TOML ({message[:at.start()]})"
+    end = re.search(r"\s*\(at end of document\)$", message)
+    if end:
+        return f"{path}, at its end: not valid TOML ({message[:end.start()]})"
+    return f"{path}: not valid TOML ({message})"

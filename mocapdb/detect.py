@@ -48,6 +48,25 @@ class DetectError(RuntimeError):
     """A model, video or option that cannot be used; the message says which and why."""
 
 
+def os_error_message(exc: OSError, path: str | Path | None = None, doing: str | None = None) -> str:
+    """An OS error that names its file: ``<file>: cannot <doing> (<reason>)`` or ``<file>: <reason>``."""
+    name = exc.filename if exc.filename is not None else path
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    what = f"cannot {doing} ({reason})" if doing else reason
+    return f"{name}: {what}" if name is not None else what
+
+
+def _check_readable(path: Path, what: str) -> None:
+    """DetectError naming ``path`` when it is a folder or cannot be opened for reading."""
+    if path.is_dir():
+        raise DetectError(f"{path}: is a folder, not a {what} file")
+    try:
+        with open(path, "rb"):
+            pass
+    except OSError as exc:
+        raise DetectError(os_error_message(exc, path, f"read the {what}")) from None
+
+
 # --- letterbox -------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -184,8 +203,9 @@ def _first_line(exc: Exception) -> str:
 
 def _load_session(path: Path) -> Any:
     """An onnxruntime CPU session for ``path``; DetectError when missing or not loadable."""
-    if not path.is_file():
+    if not path.exists():
         raise DetectError(f"pose model not found: {path}")
+    _check_readable(path, "pose model")
     import onnxruntime as ort
 
     options = ort.SessionOptions()
@@ -296,19 +316,31 @@ class VideoFrame(NamedTuple):
     image: np.ndarray      # [H, W, 3] uint8 BGR
 
 
+# A video file that ends more than max(TRUNCATION_SLACK_FRAMES, TRUNCATION_SLACK_SHARE × count)
+# frames before the frame count its container declares looks truncated. The slack: containers
+# that give no count of their own have one estimated from the duration, which can be a frame or
+# two off (and a few per cent for a variable frame rate).
+TRUNCATION_SLACK_FRAMES = 2
+TRUNCATION_SLACK_SHARE = 0.01
+
+
 class VideoReader:
     """The frames of a video file (``str``) or a camera (``int`` index), decoded by OpenCV.
 
     The first frame is decoded when opening, so a missing, corrupt or unsupported video fails here
-    with DetectError. ``frames_read`` counts frames decoded or skipped.
+    with DetectError. ``frames_read`` counts frames decoded or skipped; ``ended`` is set once
+    :meth:`frames` has run to the end of the video (see :meth:`truncation`).
     """
 
     def __init__(self, source: str | int) -> None:
         self.is_camera = isinstance(source, int)
         self.name = f"camera{source}" if self.is_camera else Path(source).stem
         self.label = f"camera {source}" if self.is_camera else str(source)
-        if not self.is_camera and not Path(source).is_file():
-            raise DetectError(f"video not found: {source}")
+        self.ended = False
+        if not self.is_camera:
+            if not Path(source).exists():
+                raise DetectError(f"video not found: {source}")
+            _check_readable(Path(source), "video")
         self._cap = cv2.VideoCapture(source)
         if self.is_camera:
             self._cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)   # the newest frame, not a stale queue
@@ -329,6 +361,19 @@ class VideoReader:
         while frame is not None:
             yield frame
             frame = self._decode() if self._skip(every - 1) else None
+        self.ended = True
+
+    def truncation(self) -> str | None:
+        """Why the video file looks truncated, once :meth:`frames` has reached its end: it ended
+        more than the slack (:data:`TRUNCATION_SLACK_FRAMES`) before the frame count its container
+        declares. None otherwise, and for a camera or a container without a frame count."""
+        if self.is_camera or not self.ended or self.frame_count is None:
+            return None
+        slack = max(TRUNCATION_SLACK_FRAMES, math.ceil(TRUNCATION_SLACK_SHARE * self.frame_count))
+        if self.frames_read >= self.frame_count - slack:
+            return None
+        return (f"{self.label}: video ended after {self.frames_read} of {self.frame_count} frames: "
+                "the file looks truncated (an interrupted copy or download, or a recording that was not closed)")
 
     def _skip(self, count: int) -> bool:
         for _ in range(count):
@@ -418,13 +463,15 @@ class DetectSummary:
     people: list[int] = field(default_factory=list)   # people in each frame written
     detection_fps: float = 0.0
     interrupted: bool = False
+    truncated: str | None = None   # why the video looks truncated (VideoReader.truncation), else None
 
     def report(self) -> str:
         counts = np.array(self.people, dtype=np.int64)
         mean, most = (counts.mean(), counts.max()) if counts.size else (0.0, 0)
         return "\n".join([
             f"frames read {self.frames_read}, frames written {counts.size}"
-            + (" (interrupted)" if self.interrupted else ""),
+            + (" (interrupted)" if self.interrupted else "")
+            + (" (the video ended early: truncated?)" if self.truncated else ""),
             f"people per frame: mean {mean:.2f}, max {most}, frames with nobody {int(np.sum(counts == 0))}",
             f"detection {self.detection_fps:.1f} frames/s"])
 
@@ -432,20 +479,30 @@ class DetectSummary:
 def detect_video(reader: VideoReader, model: PoseModel, out_dir: Path, every: int = 1,
                  stop: threading.Event | None = None) -> DetectSummary:
     """Detect people in every ``every``-th frame and write one OpenPose JSON file per frame
-    (atomically) into ``out_dir``; ends with the video or once ``stop`` is set."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+    (atomically) into ``out_dir``; ends with the video or once ``stop`` is set. ``truncated`` of
+    the summary says when the video file ended before its declared frame count (the files written
+    are complete); DetectError naming the path when the folder or a file cannot be written."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DetectError(os_error_message(exc, out_dir, "create the output folder")) from None
     summary = DetectSummary()
     total = -(-reader.frame_count // every) if reader.frame_count else None
     with tqdm(total=total, desc=f"detect {reader.name}", unit="frame", disable=None, file=sys.stderr) as bar:
         for frame in reader.frames(every):
             found = model(frame.image)
-            write_atomic(out_dir / frame_file_name(reader.name, frame.index), openpose_json(found.keypoints))
+            path = out_dir / frame_file_name(reader.name, frame.index)
+            try:
+                write_atomic(path, openpose_json(found.keypoints))
+            except OSError as exc:
+                raise DetectError(os_error_message(exc, path, "write the keypoints")) from None
             summary.people.append(len(found.scores))
             bar.update()
             if stop is not None and stop.is_set():
                 summary.interrupted = True
                 break
     summary.frames_read, summary.detection_fps = reader.frames_read, model.fps
+    summary.truncated = None if summary.interrupted else reader.truncation()
     return summary
 
 
@@ -473,12 +530,16 @@ def add_detect_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run_detect(args: argparse.Namespace) -> int:
-    """``mocapdb detect``: 0 on success, 2 on a user error (message on stderr), 130 if a video
-    file was interrupted before its end."""
+    """``mocapdb detect``: 0 on success, 2 on a user error (message on stderr; also a video file
+    that ends before its declared frame count, whose frames read are kept), 130 if a video file
+    was interrupted before its end."""
     try:
         return _detect(args)
-    except (DetectError, OSError) as exc:
+    except DetectError as exc:
         print(f"mocapdb detect: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"mocapdb detect: error: {os_error_message(exc)}", file=sys.stderr)
         return 2
 
 
@@ -491,6 +552,9 @@ def _detect(args: argparse.Namespace) -> int:
         raise DetectError("give either a VIDEO file or --camera N")
     if args.every < 1:
         raise DetectError("--every must be at least 1")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise DetectError(f"{out}: the output (--out) exists and is not a folder")
     model = PoseModel(args.model, conf=args.conf, iou=args.iou, max_people=args.max_people,
                       input_size=args.input_size)
     reader = VideoReader(args.camera if args.camera is not None else args.video)
@@ -502,4 +566,6 @@ def _detect(args: argparse.Namespace) -> int:
         reader.close()
     print(f"wrote {len(summary.people)} file(s) in {args.out} (model {model.describe()})")
     print(summary.report())
+    if summary.truncated:
+        raise DetectError(f"{summary.truncated}; the {len(summary.people)} file(s) written in {args.out} are kept")
     return 130 if summary.interrupted and not reader.is_camera else 0

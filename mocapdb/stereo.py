@@ -4,11 +4,14 @@ Stage 1 estimates camera 2's pose from the body keypoints of all frames (essenti
 triangulates. Stage 2 fits one origin-centred ellipsoid to the bone vectors (one scale per bone
 type; the fit discounts each bone's triangulation noise), undistorts the 3D points partway along
 its axes, re-fits both cameras by PnP and re-triangulates, until the ellipsoid is nearly a sphere.
-Stage 3 makes bone lengths constant against the 2D evidence. Decisions: ``data_specs/stereo.md``. Coordinates: camera 1's OpenCV axes (x right, y down, z forward), the
-baseline = 1 unless ``camera_distance_m`` gives metres.
+Stage 3 makes bone lengths constant against the 2D evidence. Views without parallax and camera
+poses that put the people behind a camera are refused (``check_parallax``, ``check_geometry``).
+Decisions: ``data_specs/stereo.md``. Coordinates: camera 1's OpenCV axes (x right, y down, z
+forward), the baseline = 1 unless ``camera_distance_m`` gives metres.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import cv2
@@ -53,6 +56,12 @@ class StereoConfig:
     seed: int = 0
     min_correspondences: int = 50
     noise_correction: bool = True     # remove triangulation-noise bias from the ellipsoid fit (not in the paper)
+
+    def __post_init__(self) -> None:
+        distance = self.camera_distance_m
+        if distance is not None and not (isinstance(distance, (int, float)) and math.isfinite(distance)
+                                         and distance > 0):
+            raise StereoError(f"camera distance (--camera-distance) {distance!r} is not a positive number of metres")
 
 
 @dataclass
@@ -347,7 +356,7 @@ def _refit_cameras(points: np.ndarray, n1: np.ndarray, n2: np.ndarray, R: np.nda
 ESSENTIAL_METHOD = cv2.USAC_MAGSAC
 
 
-def _stage1(n1, n2, valid, config):
+def _stage1(n1, n2, valid, config, focal_px: float):
     count = int(valid.sum())
     if count < max(config.min_correspondences, 8):
         raise StereoError(f"{count} confident keypoint correspondences between the views; at least "
@@ -356,8 +365,20 @@ def _stage1(n1, n2, valid, config):
                                 prob=config.ransac_prob, threshold=config.ransac_threshold)
     if e is None:
         raise StereoError("no essential matrix fits the correspondences")
+    check_parallax(n1[valid], n2[valid], e[:3], focal_px)
     _, R, t, _ = cv2.recoverPose(e[:3], n1[valid], n2[valid], np.eye(3))
     return R, t.ravel() / np.linalg.norm(t)
+
+
+def sampson_distance(essential: np.ndarray, n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
+    """First-order geometric (Sampson) distance ``[...]`` of normalised correspondences ``[..., 2]``."""
+    h1 = np.concatenate([n1, np.ones(n1.shape[:-1] + (1,))], axis=-1)
+    h2 = np.concatenate([n2, np.ones(n2.shape[:-1] + (1,))], axis=-1)
+    e1 = h1 @ essential.T          # E x1
+    e2 = h2 @ essential            # Eᵀ x2
+    num = np.sum(h2 * e1, axis=-1)
+    den = e1[..., 0] ** 2 + e1[..., 1] ** 2 + e2[..., 0] ** 2 + e2[..., 1] ** 2
+    return np.abs(num) / np.sqrt(np.maximum(den, 1e-30))
 
 
 def _stage2(points, n1, n2, valid, R, t, config, bones, warnings):
@@ -396,7 +417,9 @@ def reconstruct(x1: np.ndarray, c1: np.ndarray, x2: np.ndarray, c2: np.ndarray, 
                 cam2: CameraModel, config: StereoConfig, bones=RIGID_BONES) -> StereoResult:
     """Stages 1–3 on keypoints ``x [T, J, 2]`` (pixels) with confidences ``c [T, J]``.
 
-    Only the cameras' intrinsics and distortion are used; camera 2's pose is estimated.
+    Only the cameras' intrinsics and distortion are used; camera 2's pose is estimated. StereoError
+    when the views have no parallax (:func:`check_parallax`, after stage 1) or the final cameras
+    cannot be right (:func:`check_geometry`).
     """
     if x1.shape != x2.shape or c1.shape != c2.shape or x1.shape[:2] != c1.shape:
         raise StereoError(f"the views do not match: {x1.shape[0]} frames × {x1.shape[1]} joints against "
@@ -405,12 +428,127 @@ def reconstruct(x1: np.ndarray, c1: np.ndarray, x2: np.ndarray, c2: np.ndarray, 
              & np.isfinite(x1).all(axis=-1) & np.isfinite(x2).all(axis=-1))
     n1, n2 = np.zeros(x1.shape), np.zeros(x2.shape)
     n1[valid], n2[valid] = cam1.undistort_normalized(x1[valid]), cam2.undistort_normalized(x2[valid])
-    R1, t1 = _stage1(n1, n2, valid, config)
+    focal_px = 0.25 * float(cam1.K[0, 0] + cam1.K[1, 1] + cam2.K[0, 0] + cam2.K[1, 1])
+    R1, t1 = _stage1(n1, n2, valid, config, focal_px)
     stage1 = _triangulate_all(R1, t1, n1, n2, valid)
     warnings: list[str] = []
     stage2, R, t, epsilons, kept = _stage2(stage1, n1, n2, valid, R1, t1, config, bones, warnings)
     final = refine_bone_lengths(np.nan_to_num(stage2), _projection(np.eye(3), np.zeros(3)), _projection(R, t),
                                 n1, n2, valid, bones, config.alpha, config.bone_rounds)
+    warnings += check_geometry(final, valid, R, t)
     scale = config.camera_distance_m or 1.0
     return StereoResult(final * scale, stage1 * scale, stage2 * scale, R, t * scale, R1, t1 * scale,
                         config.camera_distance_m is not None, epsilons, kept, warnings, valid)
+
+
+# ---- sanity of the result ---------------------------------------------------------------------
+
+# No parallax (checked after stage 1's essential matrix): a single homography maps view 1's
+# keypoints onto view 2's within HOMOGRAPHY_RATIO times the epipolar residual (medians, pixels).
+# Measured ratios: 14-83 on the Pose2Sim pairs, 18 and 12 on the synthetic side and front pairs;
+# two cameras 0.5 m apart 4.6 m from the person 6.6, 0.2 m apart 3.6; 5 cm apart or at one place
+# (turned 10°) 2.7-3.3 over 2-5 px of noise (those above the ratio fail check_geometry instead);
+# the same view shifted, scaled or mirrored 0.
+HOMOGRAPHY_RATIO = 3.4
+NOISE_FLOOR_PX = 0.5   # the epipolar residual counted at least this much (noise-free views)
+MAX_HOMOGRAPHY_POINTS = 3000  # correspondences the homography is fitted to (its residual: all)
+# The final cameras are refused when the people's median joint lies behind camera 1 or camera 2 in
+# more than BEHIND_REFUSED of the frames, or when the median angle at which the two cameras' rays
+# meet at a joint (the parallax) is under MIN_PARALLAX_DEG (a warning under LOW_PARALLAX_DEG).
+# Median parallax: 46-148° on the Pose2Sim pairs, 44-87° on the synthetic ones; the same view
+# twice 0.6°, cameras at one place 0.14°. `mocapdb stereo` warns per person above BEHIND_WARNED.
+BEHIND_REFUSED = 0.5
+BEHIND_WARNED = 0.05
+MIN_PARALLAX_DEG = 1.0
+LOW_PARALLAX_DEG = 5.0
+
+
+def homography_residual(n1: np.ndarray, n2: np.ndarray, essential: np.ndarray,
+                        focal_px: float) -> tuple[float, float] | None:
+    """Median residuals (px) of correspondences ``n1, n2 [N, 2]`` (normalised) under the best
+    homography (RANSAC, 3 px, on at most :data:`MAX_HOMOGRAPHY_POINTS` of them) and under ``essential`` (Sampson distance, at least
+    :data:`NOISE_FLOOR_PX`); None when no homography is found. ``focal_px`` turns them into pixels."""
+    fit = np.linspace(0, len(n1) - 1, min(len(n1), MAX_HOMOGRAPHY_POINTS)).astype(int)  # evenly spread
+    # Few draws suffice: a view pair a homography explains has most points inliers (found at once);
+    # for a real pair the best of many draws would still be far off.
+    H, _ = cv2.findHomography(n1[fit], n2[fit], cv2.RANSAC, 3.0 / focal_px, maxIters=200, confidence=0.995)
+    if H is None:
+        return None
+    mapped = np.c_[n1, np.ones(len(n1))] @ H.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        moved = np.linalg.norm(mapped[:, :2] / mapped[:, 2:] - n2, axis=1)
+    homography_px = float(np.median(np.where(np.isfinite(moved), moved, np.inf))) * focal_px
+    epipolar_px = max(float(np.median(sampson_distance(essential, n1, n2))) * focal_px, NOISE_FLOOR_PX)
+    return homography_px, epipolar_px
+
+
+def check_parallax(n1: np.ndarray, n2: np.ndarray, essential: np.ndarray, focal_px: float) -> None:
+    """StereoError when a homography explains the correspondences about as well as the essential
+    matrix does (:data:`HOMOGRAPHY_RATIO`): the views then have no parallax, and the relative pose and
+    the depths are not determined."""
+    residuals = homography_residual(n1, n2, essential, focal_px)
+    if residuals is not None and residuals[0] <= HOMOGRAPHY_RATIO * residuals[1]:
+        raise StereoError(
+            f"the two views have no parallax: one homography maps view 1's keypoints onto view 2's (median "
+            f"{residuals[0]:.1f} px off, against {residuals[1]:.1f} px for the epipolar geometry). They are the "
+            "same view (possibly shifted, scaled, mirrored or cropped) or two cameras at the same place, so depth "
+            "cannot be recovered; give the keypoints of two cameras set apart")
+
+
+def behind_cameras(points: np.ndarray, valid: np.ndarray, R: np.ndarray, t: np.ndarray) -> tuple[float, float, int]:
+    """Shares of the frames of ``points [T, J, 3]`` (camera 1's axes, ``valid [T, J]``) whose median
+    valid joint is behind camera 1 and behind camera 2 (``x₂ = R x₁ + t``), and the frames counted."""
+    ok = valid & np.isfinite(points).all(axis=-1)
+    frames = ok.any(axis=1)
+    if not frames.any():
+        return 0.0, 0.0, 0
+    depth1 = np.where(ok, points[..., 2], np.nan)[frames]
+    depth2 = np.where(ok, (points @ R.T + np.ravel(t))[..., 2], np.nan)[frames]
+    return (float(np.mean(np.nanmedian(depth1, axis=1) <= 0)), float(np.mean(np.nanmedian(depth2, axis=1) <= 0)),
+            int(frames.sum()))
+
+
+def describe_pose(R: np.ndarray, t: np.ndarray) -> str:
+    """``camera 2 at rotation A°, baseline direction (x, y, z)`` for messages."""
+    direction = np.ravel(t) / np.linalg.norm(t)
+    return (f"camera 2 at rotation {_angle_deg(R):.1f}°, baseline direction "
+            f"({', '.join(f'{v:.2f}' for v in direction)}) in camera 1's axes")
+
+
+def behind_message(who: str, camera: int, share: float, frames: int, R: np.ndarray, t: np.ndarray) -> str:
+    """Why a pose that puts ``who`` behind a camera cannot be right."""
+    return (f"the estimated camera pose ({describe_pose(R, t)}) puts {who} behind camera {camera} in "
+            f"{round(share * frames)} of {frames} frames: it cannot be right. The views are probably not two cameras "
+            "filming the same scene from two places (the same view twice? different takes? mirrored keypoints or "
+            "a wrong --keypoints layout?), or the intrinsics are wrong")
+
+
+def check_geometry(points: np.ndarray, valid: np.ndarray, R: np.ndarray, t: np.ndarray) -> list[str]:
+    """StereoError when camera 2's pose ``x₂ = R x₁ + t`` cannot be right for ``points [T, J, 3]``
+    (camera 1's axes, ``valid [T, J]``): the people behind a camera in most frames, or (almost) no
+    parallax between the views. Returns a warning when the parallax is low."""
+    ok = valid & np.isfinite(points).all(axis=-1)
+    if not ok.any():
+        raise StereoError("no joint could be triangulated: the views share no usable geometry")
+    *shares, frames = behind_cameras(points, valid, R, t)
+    for camera, share in enumerate(shares, start=1):
+        if share > BEHIND_REFUSED:
+            raise StereoError(behind_message("the people", camera, share, frames, R, t))
+    centre2 = -R.T @ np.ravel(t)
+    p = points[ok]
+    ray1 = p / np.linalg.norm(p, axis=1, keepdims=True)
+    ray2 = (p - centre2) / np.linalg.norm(p - centre2, axis=1, keepdims=True)
+    parallax = float(np.degrees(np.median(np.arccos(np.clip(np.sum(ray1 * ray2, axis=1), -1.0, 1.0)))))
+    if parallax < MIN_PARALLAX_DEG:
+        raise StereoError(
+            f"the two views have almost no parallax (the rays of a joint meet at a median {parallax:.2f}°, "
+            f"under {MIN_PARALLAX_DEG:g}°; {describe_pose(R, t)}): the cameras are at (nearly) the same place or "
+            "the two views are the same, so depth cannot be recovered; film with two cameras set apart")
+    if parallax < LOW_PARALLAX_DEG:
+        return [f"little parallax between the views (the rays of a joint meet at a median {parallax:.1f}°): the "
+                "cameras are close together for the distance to the people, depth is poorly determined"]
+    return []
+
+
+def _angle_deg(R: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))

@@ -18,7 +18,7 @@ import numpy as np
 from .cameras import CameraModel
 from .keypoints import KeypointFrame
 from .skeleton import N_KEYPOINTS_2D
-from .stereo import ESSENTIAL_METHOD, StereoConfig, StereoError
+from .stereo import ESSENTIAL_METHOD, StereoConfig, StereoError, sampson_distance
 
 # A pair (person in view 1, person in view 2) of one frame is consistent when at least
 # MIN_SHARED_JOINTS joints are confident in both and the median of their first-order epipolar
@@ -205,17 +205,6 @@ def track_2d(frame: np.ndarray, points: np.ndarray, vis: np.ndarray) -> np.ndarr
 
 
 # --------------------------------------------------------------------------- epipolar consistency
-
-def sampson_distance(essential: np.ndarray, n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
-    """First-order geometric (Sampson) distance ``[...]`` of normalised correspondences ``[..., 2]``."""
-    h1 = np.concatenate([n1, np.ones(n1.shape[:-1] + (1,))], axis=-1)
-    h2 = np.concatenate([n2, np.ones(n2.shape[:-1] + (1,))], axis=-1)
-    e1 = h1 @ essential.T          # E x1
-    e2 = h2 @ essential            # Eᵀ x2
-    num = np.sum(h2 * e1, axis=-1)
-    den = e1[..., 0] ** 2 + e1[..., 1] ** 2 + e2[..., 0] ** 2 + e2[..., 1] ** 2
-    return np.abs(num) / np.sqrt(np.maximum(den, 1e-30))
-
 
 def all_pairs(d1: Detections, d2: Detections) -> Pairs:
     """Every (view-1, view-2) detection pair of the same frame (distances not yet measured)."""

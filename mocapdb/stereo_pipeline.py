@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,11 +27,12 @@ from runtime.output import frame_line, header_line
 
 from .builder import _leg_scale
 from .bvh import write_atomic, write_bvh
-from .cameras import CameraModel, camera_from_intrinsics, read_calibration_toml
+from .cameras import CameraModel, camera_from_intrinsics, os_error_message, read_calibration_toml
 from .geometry import matrix_to_quat, quat_to_matrix
 from .keypoints import LAYOUTS, KeypointFrame, read_openpose_folder
 from .skeleton import KP, PELVIS, head_from_torso, retarget, swing_matrices, universal_bvh
-from .stereo import RIGID_BONES, StereoConfig, StereoError, StereoResult, reconstruct, refine_bone_lengths, triangulate
+from .stereo import (BEHIND_REFUSED, BEHIND_WARNED, RIGID_BONES, StereoConfig, StereoError, StereoResult,
+                     behind_cameras, behind_message, reconstruct, refine_bone_lengths, triangulate)
 from .stereo_people import (MAX_EPIPOLAR_PX, MIN_PERSON_FRAMES, MIN_SHARED_JOINTS, People,  # noqa: F401
                             Selection, match_people, sampson_distance)
 
@@ -94,21 +97,92 @@ def _listed(frames: list[int], most: int = 10) -> str:
 
 def load_views(view1: str | Path, view2: str | Path, layout: str | None = None,
                trim: bool = False) -> tuple[list[KeypointFrame], list[KeypointFrame], list[str]]:
-    """Both folders' frames; StereoError when their frame counts differ (unless ``trim``).
+    """Both folders' frames; StereoError when their frame counts differ (unless ``trim``), when
+    they are the same folder, or when they hold the same keypoints (:func:`check_distinct_views`).
 
     ``trim`` cuts both to the shorter, assuming they start together; the warning says so.
     """
-    frames1 = list(read_openpose_folder(view1, layout))
-    frames2 = list(read_openpose_folder(view2, layout))
-    if len(frames1) == len(frames2):
-        return frames1, frames2, []
-    counts = f"view 1 ({view1}) has {len(frames1)} frames, view 2 ({view2}) has {len(frames2)}"
-    if not trim:
-        raise StereoError(f"{counts}: the views must be synchronised frame by frame (same start, same "
-                          "frame rate; a different frame rate gives a different count for the same take). "
-                          "--trim cuts both to the shorter if they start together")
-    n = min(len(frames1), len(frames2))
-    return frames1[:n], frames2[:n], [f"{counts}; trimmed both to the first {n}"]
+    if _same_folder(view1, view2):
+        raise StereoError(f"view 1 and view 2 are the same folder ({view1}): the same view twice has no "
+                          "parallax, so no depth can be recovered; give the folders of two different cameras")
+    frames1, frames2 = _read_view(view1, layout), _read_view(view2, layout)
+    warnings = []
+    if len(frames1) != len(frames2):
+        counts = f"view 1 ({view1}) has {len(frames1)} frames, view 2 ({view2}) has {len(frames2)}"
+        if not trim:
+            raise StereoError(f"{counts}: the views must be synchronised frame by frame (same start, same "
+                              "frame rate; a different frame rate gives a different count for the same take). "
+                              "--trim cuts both to the shorter if they start together")
+        n = min(len(frames1), len(frames2))
+        frames1, frames2 = frames1[:n], frames2[:n]
+        warnings.append(f"{counts}; trimmed both to the first {n}")
+    check_distinct_views(frames1, frames2, view1, view2)
+    return frames1, frames2, warnings
+
+
+def _same_folder(a: str | Path, b: str | Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one is missing: reading it says so
+        return Path(a).resolve() == Path(b).resolve()
+
+
+def _read_view(folder: str | Path, layout: str | None) -> list[KeypointFrame]:
+    try:
+        return list(read_openpose_folder(folder, layout))
+    except OSError as exc:
+        raise StereoError(os_error_message(exc, folder, "read the keypoint folder")) from None
+
+
+# Two views are the same when, in at least SAME_VIEW_FRAMES of the frames where both have people,
+# every person of each view has a twin in the other whose joints (≥ 3 confident in both) lie within
+# SAME_VIEW_SHARE of its box diagonal (median). Two cameras set apart never give that: parallax
+# moves the joints of a body by different amounts.
+SAME_VIEW_SHARE = 0.02
+SAME_VIEW_FRAMES = 0.95
+
+
+def same_view_frames(frames1: list[KeypointFrame], frames2: list[KeypointFrame],
+                     confidence: float = 0.3) -> tuple[int, int]:
+    """(frames whose people are the same in both views, frames with people in both views)."""
+    same = both = 0
+    for f1, f2 in zip(frames1, frames2):
+        people1, people2 = _confident(f1, confidence), _confident(f2, confidence)
+        if not people1 or not people2:
+            continue
+        both += 1
+        share = np.full((len(people1), len(people2)), np.inf)
+        for i, (x1, v1, diagonal) in enumerate(people1):
+            for j, (x2, v2, _) in enumerate(people2):
+                common = v1 & v2
+                if common.sum() >= 3:
+                    share[i, j] = np.median(np.linalg.norm(x1[common] - x2[common], axis=-1)) / diagonal
+        twins = share <= SAME_VIEW_SHARE
+        same += bool(twins.any(axis=1).all() and twins.any(axis=0).all())
+    return same, both
+
+
+def _confident(frame: KeypointFrame, confidence: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """Each person with ≥ 3 confident joints: points, confident mask, box diagonal (≥ 1 px)."""
+    out = []
+    for person in frame.people:
+        ok = (person.confidence >= confidence) & np.isfinite(person.points_px).all(axis=-1)
+        if ok.sum() >= 3:
+            pts = person.points_px[ok]
+            out.append((person.points_px, ok, max(float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))), 1.0)))
+    return out
+
+
+def check_distinct_views(frames1: list[KeypointFrame], frames2: list[KeypointFrame], view1: str | Path = "view 1",
+                         view2: str | Path = "view 2") -> None:
+    """StereoError when the two views hold the same keypoints (:func:`same_view_frames`)."""
+    same, both = same_view_frames(frames1, frames2)
+    if both and same >= SAME_VIEW_FRAMES * both:
+        raise StereoError(
+            f"view 1 ({view1}) and view 2 ({view2}) hold the same keypoints: every person is at the same place "
+            f"in both (within {100 * SAME_VIEW_SHARE:g} % of its size) in {same} of the {both} frames with people "
+            "in both. The same view twice has no parallax, so no depth can be recovered; give the keypoints of "
+            "two different cameras")
 
 
 # --------------------------------------------------------------------------- people
@@ -284,18 +358,39 @@ def people_motions(people: People, result: StereoResult, cam1: CameraModel, cam2
     """Every person's Motion in one world (the main person's: levelling, and the scale without a
     camera distance), each triangulated with the cameras of ``result``. A person other than the
     main one whose skeleton cannot be fitted keeps its joints (warning)."""
-    motion, world = to_motion(*person_points(result, people.persons[0], cam1, cam2, config), fps,
-                              bool(result.scaled))
+    main_points, main_valid = person_points(result, people.persons[0], cam1, cam2, config)
+    behind = in_front_check(main_points, main_valid, result, people.persons[0].track)
+    motion, world = to_motion(main_points, main_valid, fps, bool(result.scaled))
+    motion.warnings[:0] = behind
     motions = [motion]
     for person in people.persons[1:]:
         points, valid = person_points(result, person, cam1, cam2, config)
+        behind = in_front_check(points, valid, result, person.track)
         try:
             motions.append(to_motion(points, valid, fps, bool(result.scaled), person.track, world)[0])
         except StereoError as exc:
             motions.append(joints_only(points, valid, person.track, world, str(exc)))
+        motions[-1].warnings[:0] = behind
     for m in motions:
         m.warnings = [w if m.track == 0 else f"track {m.track}: {w}" for w in m.warnings]
     return motions, world
+
+
+def in_front_check(points: np.ndarray, valid: np.ndarray, result: StereoResult, track: int) -> list[str]:
+    """Warnings when a person's median joint is behind a camera in more than BEHIND_WARNED of its
+    frames; for the main person (track 0) StereoError beyond BEHIND_REFUSED (no other person is
+    refused: it is written with the warning)."""
+    *shares, frames = behind_cameras(points, valid, np.asarray(result.R), np.asarray(result.t))
+    warnings = []
+    for camera, share in enumerate(shares, start=1):
+        if track == 0 and share > BEHIND_REFUSED:
+            raise StereoError(behind_message("the main person (track 0)", camera, share, frames,
+                                             np.asarray(result.R), np.asarray(result.t)))
+        if share > BEHIND_WARNED:
+            who = "track 0 (the main person) is behind" if track == 0 else "behind"  # others get "track k: "
+            warnings.append(f"{who} camera {camera} in {round(share * frames)} of its {frames} frames: not a person "
+                            "both cameras see (a false match?), or a wrong camera estimate")
+    return warnings
 
 
 def _result_lines(motions: list[Motion], fps: float) -> str:
@@ -345,17 +440,30 @@ def _cameras_json(cam1: CameraModel, cam2: CameraModel, result: StereoResult, wo
     return "{\n" + ",\n".join(f"  {json.dumps(k)}: {json.dumps(v)}" for k, v in record.items()) + "\n}\n"
 
 
+def _check_out_dir(out_dir: str | Path) -> None:
+    """StereoError before any work when ``out_dir`` exists and is no folder."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise StereoError(f"{out}: the output (--out) exists and is not a folder")
+
+
 def _write_outputs(out_dir: str | Path, motions: list[Motion], world: World, cameras_json: str,
                    fps: float) -> list[Path]:
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StereoError(os_error_message(exc, out, "create the output folder")) from None
     paths = [out / RESULT_FILE, out / CAMERAS_FILE]
-    write_atomic(paths[0], _result_lines(motions, fps))
-    write_atomic(paths[1], cameras_json)
-    for m in motions:
-        if m.fitted:
-            paths.append(out / bvh_name(m.track))
-            write_bvh(paths[-1], universal_bvh(m.quats_world, m.pelvis_world, fps))
+    try:
+        write_atomic(paths[0], _result_lines(motions, fps))
+        write_atomic(paths[1], cameras_json)
+        for m in motions:
+            if m.fitted:
+                paths.append(out / bvh_name(m.track))
+                write_bvh(paths[-1], universal_bvh(m.quats_world, m.pelvis_world, fps))
+    except OSError as exc:
+        raise StereoError(os_error_message(exc, out, "write the output")) from None
     return paths
 
 
@@ -370,6 +478,7 @@ def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, 
     """
     if not (np.isfinite(fps) and fps > 0):
         raise StereoError(f"frame rate {fps!r} is not a positive number of frames per second")
+    _check_out_dir(out_dir)
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
 
@@ -406,8 +515,13 @@ def intrinsics_only(cam: CameraModel) -> CameraModel:
 
 
 def cameras_from_args(args: argparse.Namespace) -> tuple[CameraModel, CameraModel]:
-    """The two cameras' intrinsics from ``--calibration``/``--cameras`` or ``--focal``/``--size``."""
+    """The two cameras' intrinsics from ``--calibration``/``--cameras`` or ``--focal``/``--size``;
+    StereoError or CalibrationError naming the option or the file when they cannot be cameras."""
+    manual = [flag for flag, value in (("--focal", args.focal), ("--size", args.size), ("--center", args.center))
+              if value is not None]
     if args.calibration:
+        if manual:
+            raise StereoError(f"--calibration gives the intrinsics: leave out {', '.join(manual)}")
         cams = read_calibration_toml(args.calibration)
         names = args.cameras or (list(cams) if len(cams) == 2 else None)
         if names is None:
@@ -417,9 +531,17 @@ def cameras_from_args(args: argparse.Namespace) -> tuple[CameraModel, CameraMode
         if missing:
             raise StereoError(f"{args.calibration} has no camera {', '.join(missing)} (it has {', '.join(cams)})")
         return intrinsics_only(cams[names[0]]), intrinsics_only(cams[names[1]])
+    if args.cameras:
+        raise StereoError("--cameras names sections of --calibration FILE.toml: give the file too")
     if args.focal is None or args.size is None:
         raise StereoError("give the intrinsics: --calibration FILE.toml --cameras NAME1 NAME2, "
                           "or --focal F --size W H [--center CX CY]")
+    if not (math.isfinite(args.focal) and args.focal > 0):
+        raise StereoError(f"--focal {args.focal:g} is not a positive focal length in pixels")
+    if min(args.size) <= 0:
+        raise StereoError(f"--size {args.size[0]} {args.size[1]} is not a positive width and height in pixels")
+    if args.center is not None and not all(math.isfinite(c) for c in args.center):
+        raise StereoError(f"--center {args.center[0]:g} {args.center[1]:g} is not two finite pixel coordinates")
     size = (int(args.size[0]), int(args.size[1]))
     center = tuple(args.center) if args.center else (size[0] / 2, size[1] / 2)
     return tuple(camera_from_intrinsics(args.focal, center, size) for _ in range(2))  # type: ignore[return-value]

@@ -73,9 +73,12 @@ class VideoDetections(BufferedThread[CapturedFrame]):
         return self.model.fps
 
     def report(self) -> str:
-        """One summary line: frames read, detected, dropped, detection rate."""
+        """One summary line: frames read, detected, dropped, detection rate; a warning line after it
+        when the video file ended before its declared frame count (:meth:`VideoReader.truncation`)."""
+        truncated = self.reader.truncation()
         return (f"video {self.reader.label}: frames read {self.reader.frames_read}, detected {self.frames_detected}, "
-                f"dropped {self.dropped}; detection {self.detection_fps:.1f} frames/s ({self.model.describe()})")
+                f"dropped {self.dropped}; detection {self.detection_fps:.1f} frames/s ({self.model.describe()})"
+                + (f"\nwarning: {truncated}" if truncated else ""))
 
     def close(self) -> None:
         """Stops the thread (after the frame in hand), waits for it and releases the video; idempotent."""

@@ -5,6 +5,7 @@ term computed from the input so the input is used), holding people at known mode
 """
 import argparse
 import json
+import os
 import threading
 import time
 from pathlib import Path
@@ -90,11 +91,15 @@ def rtmo_model(tmp_path):
 @pytest.fixture
 def video(tmp_path):
     """A 640×360 MJPG .avi of 10 frames at 10 fps."""
-    path = tmp_path / "clip.avi"
+    return _write_video(tmp_path / "clip.avi", VIDEO_FRAMES, step=20)
+
+
+def _write_video(path, n_frames: int, step: int):
+    """An MJPG .avi of ``n_frames`` grey frames, each ``step`` levels brighter."""
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), VIDEO_FPS, (VIDEO_W, VIDEO_H))
     assert writer.isOpened()
-    for i in range(VIDEO_FRAMES):
-        writer.write(np.full((VIDEO_H, VIDEO_W, 3), 20 * i, dtype=np.uint8))
+    for i in range(n_frames):
+        writer.write(np.full((VIDEO_H, VIDEO_W, 3), step * i, dtype=np.uint8))
     writer.release()
     return path
 
@@ -358,3 +363,104 @@ def test_live_with_a_missing_model_is_a_clear_error(video, small_db_path, tmp_pa
     assert main(["live", "--source", str(video), "--model", str(tmp_path / "none.onnx"),
                  "--db", str(small_db_path)]) == 2
     assert "none.onnx" in capsys.readouterr().err
+
+
+# --- truncated videos and OS errors (issue 13) ----------------------------------------------------
+
+TRUNCATED_FRAMES = 20
+
+
+@pytest.fixture
+def truncated_video(tmp_path):
+    """A 20-frame MJPG .avi cut after its first frame's chunk: the header still declares 20 frames."""
+    path = _write_video(tmp_path / "full.avi", TRUNCATED_FRAMES, step=10)
+    data = path.read_bytes()
+    first = data.index(b"movi") + 4                       # the first frame's chunk: '00dc', size, JPEG
+    assert data[first:first + 4] == b"00dc"
+    size = int.from_bytes(data[first + 4:first + 8], "little")
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(data[:first + 8 + size + (size & 1)])
+    return cut
+
+
+def test_a_truncated_video_is_an_error_that_keeps_the_frames_read(truncated_video, yolo_model, tmp_path, capsys):
+    reader = VideoReader(str(truncated_video))
+    assert reader.frame_count == TRUNCATED_FRAMES and reader.truncation() is None   # not at its end yet
+    assert len(list(reader.frames())) == 1 and reader.ended
+    assert reader.truncation().endswith("video ended after 1 of 20 frames: the file looks truncated "
+                                        "(an interrupted copy or download, or a recording that was not closed)")
+    reader.close()
+    out = tmp_path / "kp"
+    args = parse_detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out))
+    assert args.run(args) == 2
+    captured = capsys.readouterr()
+    assert "frames read 1, frames written 1 (the video ended early: truncated?)" in captured.out
+    assert captured.err.startswith(f"mocapdb detect: error: {truncated_video}: video ended after 1 of 20 frames: "
+                                   "the file looks truncated") and "Traceback" not in captured.err
+    assert f"the 1 file(s) written in {out} are kept" in captured.err
+    assert [f.name for f in out.iterdir()] == ["cut_000000000000_keypoints.json"]
+    assert len(list(read_openpose_folder(out))[0].people) == 2
+    args = parse_detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out), "--every", "3")
+    assert args.run(args) == 2 and "video ended after 1 of 20 frames" in capsys.readouterr().err
+
+
+def test_a_video_read_to_its_declared_end_or_without_a_count_is_fine(video, truncated_video):
+    reader = VideoReader(str(video))
+    assert len(list(reader.frames(every=3))) == 4 and reader.truncation() is None   # 10 of 10 read
+    reader.close()
+    reader = VideoReader(str(truncated_video))
+    reader.frame_count = None                       # a container that declares no frame count
+    assert len(list(reader.frames())) == 1 and reader.truncation() is None
+    reader.close()
+    reader = VideoReader(str(truncated_video))
+    frames = reader.frames()
+    next(frames)
+    frames.close()                                  # stopped by the consumer: never "truncated"
+    assert not reader.ended and reader.truncation() is None
+    reader.close()
+
+
+def test_the_live_video_source_warns_about_a_truncated_file(truncated_video, yolo_model):
+    live = VideoDetections(str(truncated_video), PoseModel(yolo_model), capacity=4)
+    deadline = time.monotonic() + 10
+    while not live.finished and time.monotonic() < deadline:
+        live.get(timeout=0.1)
+    live.close()
+    assert "\nwarning: " in live.report() and "video ended after 1 of 20 frames" in live.report()
+
+
+def test_detect_os_errors_name_the_path(video, yolo_model, tmp_path, capsys, monkeypatch):
+    (tmp_path / "a_file").write_text("x")
+    (tmp_path / "a_folder").mkdir()
+    cases = [((str(video), "--model", str(yolo_model), "--out", str(tmp_path / "a_file")),
+              f"{tmp_path / 'a_file'}: the output (--out) exists and is not a folder"),
+             ((str(video), "--model", str(yolo_model), "--out", str(tmp_path / "a_file" / "sub")),
+              f"{tmp_path / 'a_file' / 'sub'}: cannot create the output folder (Not a directory)"),
+             ((str(tmp_path / "a_folder"), "--model", str(yolo_model), "--out", str(tmp_path / "o")),
+              f"{tmp_path / 'a_folder'}: is a folder, not a video file"),
+             ((str(video), "--model", str(tmp_path / "a_folder"), "--out", str(tmp_path / "o")),
+              f"{tmp_path / 'a_folder'}: is a folder, not a pose model file"),
+             ((str(tmp_path / "absent.avi"), "--model", str(yolo_model), "--out", str(tmp_path / "o")),
+              f"video not found: {tmp_path / 'absent.avi'}")]
+    for argv, message in cases:
+        args = parse_detect(*argv)
+        assert args.run(args) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("mocapdb detect: error: ") and message in err and "Traceback" not in err, err
+
+    def full(*args, **kwargs):  # an OS error without a file name
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("mocapdb.detect.write_atomic", full)
+    args = parse_detect(str(video), "--model", str(yolo_model), "--out", str(tmp_path / "kp"))
+    assert args.run(args) == 2
+    err = capsys.readouterr().err
+    assert (f"{tmp_path / 'kp' / 'clip_000000000000_keypoints.json'}: cannot write the keypoints "
+            "(No space left on device)") in err and "[Errno" not in err
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() == 0, reason="root reads any file")
+def test_an_unreadable_video_names_it(video):
+    video.chmod(0)
+    with pytest.raises(DetectError, match=f"{video}: cannot read the video \\(Permission denied\\)"):
+        VideoReader(str(video))

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from mocapdb.builder import BuildConfig, process_clip
-from mocapdb.stereo import (RIGID_BONES, StereoConfig, StereoError, _stage2, _triangulate_all, fit_ellipsoid,
-                            ransac_ellipsoid, reconstruct, refine_bone_lengths, sphericity, triangulate,
-                            triangulation_covariance, undistort)
+from mocapdb.stereo import (RIGID_BONES, StereoConfig, StereoError, _stage2, _triangulate_all, check_geometry,
+                            check_parallax, fit_ellipsoid, ransac_ellipsoid, reconstruct, refine_bone_lengths,
+                            sphericity, triangulate, triangulation_covariance, undistort)
 from mocapdb.stereo_pipeline import rotation_angle_deg
 
 from .conftest import ROOT, SAMPLE_BVH
@@ -237,3 +237,53 @@ def test_a_still_or_short_sequence_falls_back_to_stage1(dance, case):
     assert any("too still" in w for w in result.warnings)
     assert result.kept_round == 0 and result.epsilons == []
     assert np.isfinite(result.points_m[result.valid]).all()
+
+
+# --- sanity checks (issue 13) ---------------------------------------------------------------------
+
+@pytest.mark.parametrize("distance", [0.0, -5.0, float("inf"), float("nan")])
+def test_a_camera_distance_must_be_positive(distance):
+    with pytest.raises(StereoError, match="is not a positive number of metres"):
+        StereoConfig(camera_distance_m=distance)
+    assert StereoConfig(camera_distance_m=2.5).camera_distance_m == 2.5
+
+
+def test_check_geometry_refuses_a_camera_facing_away_and_no_parallax():
+    rng = np.random.default_rng(0)
+    points = rng.normal(0.0, 0.3, (50, 14, 3)) + [0.0, 0.0, 4.0]      # in front of camera 1
+    valid = np.ones((50, 14), bool)
+    turned = cv2.Rodrigues(np.array([0.0, np.pi, 0.0]))[0]            # camera 2 turned 180°, 1 unit aside
+    with pytest.raises(StereoError, match=r"camera 2 at rotation 180.0°.*puts the people behind camera 2 in 50 of "
+                                          r"50 frames: it cannot be right"):
+        check_geometry(points, valid, turned, np.array([1.0, 0.0, 0.0]))
+    # camera 2 on the other side of the people, facing camera 1: right
+    assert check_geometry(points, valid, turned, np.array([0.0, 0.0, 8.0])) == []
+    behind = points.copy()
+    behind[:30, :, 2] *= -1                                           # most frames behind camera 1
+    with pytest.raises(StereoError, match="behind camera 1 in 30 of 50 frames"):
+        check_geometry(behind, valid, np.eye(3), np.array([1.0, 0.0, 0.0]))
+    # cameras side by side (baseline 1 unit): the people 1000 units away, 20 units away, 3 units away
+    with pytest.raises(StereoError, match=r"almost no parallax \(the rays of a joint meet at a median 0.06°"):
+        check_geometry(points + [0.0, 0.0, 996.0], valid, np.eye(3), np.array([1.0, 0.0, 0.0]))
+    warned = check_geometry(points + [0.0, 0.0, 16.0], valid, np.eye(3), np.array([1.0, 0.0, 0.0]))
+    assert len(warned) == 1 and warned[0].startswith("little parallax between the views")
+    assert check_geometry(points - [0.0, 0.0, 1.0], valid, np.eye(3), np.array([1.0, 0.0, 0.0])) == []
+
+
+def test_check_parallax_refuses_views_one_homography_maps():
+    rng = np.random.default_rng(1)
+    n1 = rng.uniform(-0.3, 0.3, (200, 2))
+    essential = np.cross(np.eye(3), np.array([1.0, 0.0, 0.0]))        # [t]× for R = I, t = x
+    with pytest.raises(StereoError, match="no parallax: one homography maps"):
+        check_parallax(n1, n1 * 1.1 + 0.02, essential, 1000.0)
+
+
+def test_cameras_at_one_place_are_refused(dance):
+    """Camera 2 where camera 1 is, turned 10°: a homography maps the views, depth is undetermined."""
+    cam1, _ = eval_stereo.pair_cameras("side", dance.mean(axis=(0, 1)))
+    turn = cv2.Rodrigues(np.array([0.0, np.radians(10.0), 0.0]))[0]
+    cam2 = eval_stereo.CameraModel(cam1.K, cam1.dist, turn @ cam1.R, turn @ cam1.t, cam1.size)
+    rng = np.random.default_rng(0)
+    (x1, c1), (x2, c2) = (eval_stereo.render(dance, c, rng, 1.0, 0.0) for c in (cam1, cam2))
+    with pytest.raises(StereoError, match="no parallax"):
+        reconstruct(x1, c1, x2, c2, cam1, cam2, StereoConfig())

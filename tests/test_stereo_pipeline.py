@@ -2,21 +2,27 @@
 real data, TRC."""
 import importlib.util
 import json
+import os
+import re
+import shutil
 import sys
+from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from mocapdb.builder import BuildConfig, process_clip
 from mocapdb.bvh import read_bvh
-from mocapdb.cameras import read_calibration_toml
+from mocapdb import stereo_pipeline
+from mocapdb.cameras import CalibrationError, read_calibration_toml
 from mocapdb.joint_map import detect_mapping, extract_keypoints
 from mocapdb.keypoints import KeypointFrame, Person
 from mocapdb.skeleton import KEYPOINTS, N_KEYPOINTS_2D, RIG_JOINTS
 from mocapdb.stereo import StereoConfig, StereoError
 from mocapdb.cli import main
 from mocapdb.database import load_database
-from mocapdb.stereo_pipeline import CAMERA_ALIGNED, load_views, rotation_angle_deg, select_people
+from mocapdb.stereo_pipeline import CAMERA_ALIGNED, in_front_check, load_views, rotation_angle_deg, select_people
 from mocapdb.stereo_people import match_people
 from mocapdb.trc import TrcError, parse_trc, read_trc, trc_keypoints
 
@@ -391,3 +397,184 @@ def test_bundled_pose2sim_pair_one_person_good_camera(tmp_path, capsys):
     cams = read_calibration_toml(calibration)
     rel = cams["cam_04"].R @ cams["cam_01"].R.T
     assert rotation_angle_deg(np.array(cameras["cameras"][1]["R"]) @ rel.T) < 3.0
+
+
+# --------------------------------------------------------------------------- sanity checks (issue 13)
+
+BUNDLED = SAMPLE_KEYPOINTS.parent
+CALIBRATION = BUNDLED / "calibration.toml"
+BUNDLED_ARGS = ["--calibration", str(CALIBRATION), "--cameras", "cam_01", "cam_04", "--fps", "60"]
+
+
+def _refused(argv, capsys, out, *messages):
+    """The command exits 2 with each message on stderr, no traceback, and writes nothing."""
+    assert _stereo([*argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("mocapdb stereo: error: ") and "Traceback" not in err
+    for message in messages:
+        assert message in err, err
+    assert not out.exists()
+    return err
+
+
+def test_the_same_folder_twice_is_refused(tmp_path, capsys):
+    link = tmp_path / "link"
+    link.symlink_to(BUNDLED / "pose2sim_cam04", target_is_directory=True)
+    for second in (str(BUNDLED / "pose2sim_cam04"), str(BUNDLED / "pose2sim_cam04") + "/", str(link)):
+        _refused([str(BUNDLED / "pose2sim_cam04"), second, *BUNDLED_ARGS], capsys, tmp_path / "out",
+                 "view 1 and view 2 are the same folder", "no parallax")
+
+
+def test_copied_keypoints_are_refused(tmp_path, motion, capsys):
+    """A copy of a view (here with 1 px of noise, as the same video detected twice) is the same view."""
+    (_, _), (x1, c1), _ = _views(motion[:60], 1.0)
+    _write_openpose(tmp_path / "a", x1, c1)
+    _write_openpose(tmp_path / "b", x1 + np.random.default_rng(5).normal(0.0, 1.0, x1.shape), c1)
+    with pytest.raises(StereoError, match="hold the same keypoints: .* in 60 of the 60 frames"):
+        load_views(tmp_path / "a", tmp_path / "b")
+    shutil.copytree(BUNDLED / "pose2sim_cam01", tmp_path / "cam01_copy")
+    _refused([str(BUNDLED / "pose2sim_cam01"), str(tmp_path / "cam01_copy"), *BUNDLED_ARGS], capsys,
+             tmp_path / "out", "hold the same keypoints", "in 100 of the 100 frames")
+
+
+@pytest.mark.parametrize("change", ["shifted", "scaled", "mirrored"])
+def test_a_transformed_copy_has_no_parallax(tmp_path, motion, capsys, change):
+    """The same view shifted, scaled or mirrored is not a copy, but one homography maps it: no parallax."""
+    (_, _), (x1, c1), _ = _views(motion[:90], 1.0)
+    x2 = {"shifted": x1 + [60.0, 25.0], "scaled": 500.0 + 1.15 * (x1 - 500.0),
+          "mirrored": np.stack([1000.0 - x1[..., 0], x1[..., 1]], axis=-1)}[change]
+    _write_openpose(tmp_path / "a", x1, c1)
+    _write_openpose(tmp_path / "b", x2, c1)
+    _refused([str(tmp_path / "a"), str(tmp_path / "b"), "--focal", "1145", "--size", "1000", "1000"], capsys,
+             tmp_path / "out", "the two views have no parallax: one homography maps view 1's keypoints")
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--focal", "-1000", "--size", "1088", "1920"], "--focal -1000 is not a positive focal length"),
+    (["--focal", "0", "--size", "1088", "1920"], "--focal 0 is not a positive focal length"),
+    (["--focal", "nan", "--size", "1088", "1920"], "--focal nan is not a positive focal length"),
+    (["--focal", "1000", "--size", "0", "0"], "--size 0 0 is not a positive width and height"),
+    (["--focal", "1000", "--size", "-5", "10"], "--size -5 10 is not a positive width and height"),
+    (["--focal", "1000", "--size", "1088", "1920", "--center", "nan", "5"], "--center nan 5 is not two finite"),
+    (["--focal", "1000", "--size", "1088", "1920", "--center", "5000", "10"],
+     "principal point (5000, 10) px is far outside the 1088 × 1920 px image"),
+    ([*BUNDLED_ARGS, "--camera-distance", "0"], "camera distance (--camera-distance) 0.0 is not a positive"),
+    ([*BUNDLED_ARGS, "--camera-distance", "-5"], "camera distance (--camera-distance) -5.0 is not a positive"),
+    ([*BUNDLED_ARGS, "--camera-distance", "inf"], "camera distance (--camera-distance) inf is not a positive"),
+    ([*BUNDLED_ARGS, "--focal", "1000"], "--calibration gives the intrinsics: leave out --focal"),
+    (["--cameras", "cam_01", "cam_04", "--focal", "1000", "--size", "9", "9"], "--cameras names sections of"),
+    (["--calibration", str(CALIBRATION), "--cameras", "cam_01", "cam_09"],
+     "has no camera cam_09 (it has cam_01, cam_02, cam_03, cam_04)"),
+])
+def test_bad_options_are_refused_before_any_work(tmp_path, capsys, options, message):
+    _refused([str(BUNDLED / "pose2sim_cam01"), str(BUNDLED / "pose2sim_cam04"), *options], capsys,
+             tmp_path / "out", message)
+
+
+CAM_01 = CALIBRATION.read_text().split("[cam_02]")[0]   # one section, as written by Pose2Sim
+GOOD_MATRIX = "[ [ 1681.244873046875, 0.0, 532.97369384375], [ 0.0, 1681.075439453125, 948.137390140625], [ 0.0, 0.0, 1.0]]"
+
+
+@pytest.mark.parametrize("matrix, size, message", [
+    ("[[0, 0, 0], [0, 0, 0], [0, 0, 0]]", None, "is singular (no inverse)"),
+    ("[[1000, 0, 500], [2000, 0, 900], [0, 0, 1]]", None, "is singular (no inverse)"),
+    ("[[nan, 0, 500], [0, 1000, 900], [0, 0, 1]]", None, "'matrix' holds a non-finite value"),
+    ("[[inf, 0, 500], [0, 1000, 900], [0, 0, 1]]", None, "'matrix' holds a non-finite value"),
+    ("[[-1000, 0, 500], [0, 1000, 900], [0, 0, 1]]", None, "focal lengths fx = -1000, fy = 1000 px must be positive"),
+    ("[[1000, 0, 500], [0, 1000, 900], [0, 0, 2]]", None, "last row is [0., 0., 2.], not [0, 0, 1]"),
+    ("[[1000, 0, 9000], [0, 1000, 900], [0, 0, 1]]", None,
+     "principal point (9000, 900) px is far outside the 1088 × 1920 px image"),
+    (GOOD_MATRIX, "[ 0.0, 1920.0]", "image size 0 × 1920 px is not two positive numbers"),
+])
+def test_unusable_camera_matrices_are_refused(tmp_path, capsys, matrix, size, message):
+    text = CAM_01.replace(GOOD_MATRIX, matrix)
+    if size:
+        text = text.replace("size = [ 1088.0, 1920.0]", f"size = {size}")
+    assert text != CAM_01
+    path = tmp_path / "calibration.toml"
+    path.write_text(text + CALIBRATION.read_text()[len(CAM_01):])
+    with pytest.raises(CalibrationError, match=re.escape(f"{path} [cam_01]: ") + ".*" + re.escape(message)):
+        read_calibration_toml(path)
+    args = ["--calibration", str(path), "--cameras", "cam_01", "cam_04"]
+    _refused([str(BUNDLED / "pose2sim_cam01"), str(BUNDLED / "pose2sim_cam04"), *args], capsys, tmp_path / "out",
+             f"{path} [cam_01]", message)
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"\x7fELF\x02\x01\x01\x00\x00\x00garbage", "a binary file, not a calibration TOML"),
+    ("[cam_01]\nname = \"caméra\"\n".encode("latin-1"), "line 2: not UTF-8 text"),
+    (b"[cam_01]\nname = \"cam_01\"\nsize = [1088.0, 1920.0\nmatrix = 3\n", "line 4, column 1: not valid TOML"),
+    (b"[cam_01]\nmatrix = [1, 0, 0\n", "at its end: not valid TOML (Unclosed array)"),
+])
+def test_unreadable_calibration_files_name_the_file(tmp_path, capsys, content, message):
+    path = tmp_path / "calibration.toml"
+    path.write_bytes(content)
+    with pytest.raises(CalibrationError, match=re.escape(f"{path}") + ".*" + re.escape(message)):
+        read_calibration_toml(path)
+    _refused([str(BUNDLED / "pose2sim_cam01"), str(BUNDLED / "pose2sim_cam04"), "--calibration", str(path),
+              "--cameras", "cam_01", "cam_04"], capsys, tmp_path / "out", str(path), message)
+
+
+def test_os_errors_name_the_path(tmp_path, capsys, monkeypatch):
+    missing, folder = tmp_path / "absent.toml", tmp_path / "a_folder"
+    folder.mkdir()
+    with pytest.raises(CalibrationError, match=re.escape(f"{missing}: cannot read the calibration (No such file")):
+        read_calibration_toml(missing)
+    with pytest.raises(CalibrationError, match=re.escape(f"{folder}: cannot read the calibration (Is a directory)")):
+        read_calibration_toml(folder)
+    views = [str(BUNDLED / "pose2sim_cam01"), str(BUNDLED / "pose2sim_cam04")]
+    _refused([views[0], str(tmp_path / "no_such_folder"), *BUNDLED_ARGS], capsys, tmp_path / "out",
+             str(tmp_path / "no_such_folder"))
+    (tmp_path / "a_file").write_text("x")
+    assert _stereo([*views, *BUNDLED_ARGS, "--out", str(tmp_path / "a_file")]) == 2
+    assert f"{tmp_path / 'a_file'}: the output (--out) exists and is not a folder" in capsys.readouterr().err
+
+    # OS errors that carry no file name (as some do) get the path added.
+    def denied(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(Path, "read_bytes", denied)
+    with pytest.raises(CalibrationError, match=re.escape(f"{CALIBRATION}: cannot read the calibration "
+                                                         "(Permission denied)")):
+        read_calibration_toml(CALIBRATION)
+    monkeypatch.undo()
+    monkeypatch.setattr(stereo_pipeline, "read_openpose_folder", denied)
+    _refused([*views, *BUNDLED_ARGS], capsys, tmp_path / "out",
+             f"{views[0]}: cannot read the keypoint folder (Permission denied)")
+    monkeypatch.undo()
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(stereo_pipeline, "write_atomic", full)
+    assert _stereo([*views, *BUNDLED_ARGS, "--out", str(tmp_path / "full")]) == 2
+    err = capsys.readouterr().err
+    assert f"{tmp_path / 'full'}: cannot write the output (No space left on device)" in err and "[Errno" not in err
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() == 0, reason="root reads any file")
+def test_an_unreadable_calibration_file_names_it(tmp_path):
+    path = tmp_path / "calibration.toml"
+    path.write_text(CALIBRATION.read_text())
+    path.chmod(0)
+    with pytest.raises(CalibrationError, match=re.escape(f"{path}: cannot read the calibration (Permission denied)")):
+        read_calibration_toml(path)
+
+
+def test_a_main_person_behind_a_camera_is_refused_others_warned():
+    """Per person: the main person behind a camera in most frames stops the run, another is a warning."""
+    rng = np.random.default_rng(0)
+    points = rng.normal(0.0, 0.3, (40, 14, 3)) + [0.0, 0.0, 4.0]    # 4 m in front of camera 1
+    valid = np.ones((40, 14), bool)
+    turned = SimpleNamespace(R=np.diag([-1.0, 1.0, -1.0]), t=np.array([1.0, 0.0, 0.0]))  # camera 2 looks away
+    with pytest.raises(StereoError, match=r"rotation 180.0°.* puts the main person \(track 0\) behind camera 2 in 40 of "
+                                          r"40 frames: it cannot be right"):
+        in_front_check(points, valid, turned, 0)
+    assert in_front_check(points, valid, turned, 1) == [
+        "behind camera 2 in 40 of its 40 frames: not a person both cameras see (a false match?), or a wrong "
+        "camera estimate"]
+    facing = SimpleNamespace(R=np.diag([-1.0, 1.0, -1.0]), t=np.array([0.0, 0.0, 8.0]))  # opposite, 8 m away
+    assert in_front_check(points, valid, facing, 0) == []
+    points[:5, :, 2] *= -1                                          # 5 of 40 frames behind camera 1
+    assert in_front_check(points, valid, facing, 0)[0].startswith("track 0 (the main person) is behind camera 1 "
+                                                                  "in 5 of its 40 frames")
