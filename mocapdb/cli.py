@@ -132,6 +132,19 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bvh-unit", choices=("m", "cm"), default="m", help="length unit of the BVH files (default m)")
     p.add_argument("--keep-static", action="store_true",
                    help="also write BVH files for tracks whose keypoints never moved (posters, false detections)")
+    limits = p.add_argument_group("limits (0: no limit; data_specs/stream_output.md)")
+    limits.add_argument("--max-tracks", type=int, default=32,
+                        help="tracks alive at once; further detections are not tracked, counted (default 32)")
+    limits.add_argument("--max-new-tracks-per-min", type=int, default=120,
+                        help="tracks started per minute (live: of arrival time; reconstruct: of the input's time); "
+                             "further detections wait untracked, counted (default 120)")
+    limits.add_argument("--max-bvh-files", type=int, default=1000,
+                        help="BVH files per run; further tracks stay in the stream only, counted (default 1000)")
+    limits.add_argument("--min-track-s", type=float, default=0.5,
+                        help="a track with fewer seconds of BVH frames gets no BVH file, counted (default 0.5)")
+    limits.add_argument("--bvh-part-min", type=float, default=10.0,
+                        help="a longer track is written as track_<id>_part<k>.bvh parts of this many minutes, "
+                             "each as soon as it is complete (default 10)")
 
 
 def _engine(args: argparse.Namespace):
@@ -170,15 +183,25 @@ def _engine(args: argparse.Namespace):
 def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=None):
     from pathlib import Path
 
+    from runtime.engine import TrackLimits
     from runtime.session import FrameParser, Session, SessionOptions, SessionSummary
     from runtime.streams import StreamStats, open_sink
 
+    from .errors import UsageError
+
     summary = SessionSummary(stream=StreamStats())
-    engine = _engine(args)
     if bvh_dir is None and getattr(args, "bvh_dir", None):  # live --bvh-dir
         bvh_dir = Path(args.bvh_dir)
-    options = SessionOptions(strict=strict, fps_given=args.fps is not None, keep_static=args.keep_static,
-                             bvh_dir=bvh_dir, bvh_unit=args.bvh_unit)
+    try:  # checked before the database is loaded
+        limits = TrackLimits(args.max_tracks, args.max_new_tracks_per_min)
+        options = SessionOptions(strict=strict, fps_given=args.fps is not None, keep_static=args.keep_static,
+                                 bvh_dir=bvh_dir, bvh_unit=args.bvh_unit, max_bvh_files=args.max_bvh_files,
+                                 min_track_s=args.min_track_s, bvh_part_min=args.bvh_part_min,
+                                 rate_by_arrival=not strict)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    engine = _engine(args)
+    engine.config.limits = limits
     return Session(engine, open_sink(sink_spec, summary.stream), FrameParser(args.keypoints), summary, options)
 
 
@@ -264,32 +287,46 @@ def _add_live(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_live(args: argparse.Namespace) -> int:
+    """Stream until the source ends, a signal or a sink failure (exit 1); the BVH files are written
+    in every case, with the signal handlers kept (further signals ignored) until they are."""
     import threading
     from pathlib import Path
 
-    from runtime.session import run_live
+    from runtime.session import SinkError, run_live
     from runtime.streams import NetworkLimits, install_stop_handlers, open_source
     from runtime.video_input import open_video_source, run_video
 
     limits = NetworkLimits(args.max_clients, args.client_timeout, args.max_rate)   # checked before any work
     session = _session(args, args.sink, strict=False)
-    stop = threading.Event()
-    video = None
-    with install_stop_handlers(stop):
-        if args.model:
-            video = open_video_source(args.source, args.model, capacity=args.buffer, stats=session.summary.stream)
-            run_video(session, video, stop)
-        else:
-            source = open_source(args.source, stats=session.summary.stream, follow=True,
-                                 idle_timeout_s=args.idle_timeout, limits=limits)
-            run_live(session, source, stop, args.buffer)
-    summary = session.finish(Path(args.bvh_dir) if args.bvh_dir else None, args.bvh_unit)
-    print(summary.report(), file=sys.stderr)
-    if source_line := summary.stream.source_report():
-        print(source_line, file=sys.stderr)
-    if video is not None:
-        print(video.report(), file=sys.stderr)
-    return 0
+    stop, video = threading.Event(), None
+    with install_stop_handlers(stop, force_quit=False):
+        try:
+            if args.model:
+                video = open_video_source(args.source, args.model, capacity=args.buffer, stats=session.summary.stream)
+                run_video(session, video, stop)
+            else:
+                source = open_source(args.source, stats=session.summary.stream, follow=True,
+                                     idle_timeout_s=args.idle_timeout, limits=limits)
+                run_live(session, source, stop, args.buffer)
+        except SinkError:
+            pass  # recorded in the summary; reported below
+        finally:
+            summary = session.finish(Path(args.bvh_dir) if args.bvh_dir else None, args.bvh_unit)
+        print(summary.report(), file=sys.stderr)
+        if source_line := summary.stream.source_report():
+            print(source_line, file=sys.stderr)
+        if video is not None:
+            print(video.report(), file=sys.stderr)
+    if summary.sink_error is None:
+        return 0
+    if args.sink == "-":  # a closed pipe: nothing more can reach it, not even Python's flush at exit
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError):  # stdout is not a file descriptor (tests capture it)
+            pass
+    print(f"mocapdb live: error: the sink {args.sink} failed ({summary.sink_error}): the stream stopped there; "
+          f"wrote {len(summary.bvh_files)} BVH file(s)", file=sys.stderr)
+    return 1
 
 
 def _add_eval(sub: argparse._SubParsersAction) -> None:

@@ -12,6 +12,7 @@ One code path serves `mocapdb reconstruct` (files) and `mocapdb live` (streams).
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,10 +29,28 @@ from .filters import (REFINED_ROOT_DEFAULTS, REFINED_ROTATION_DEFAULTS, ROOT_DEF
 from .refine import JointLimits, RefineParams, Refiner
 from .search import SearchIndex, search_clustered, search_exact, yaw_offset
 from .temporal import temporal_costs, yaw_quaternion, yawed_rotations
-from .tracker import Tracker, TrackerConfig
+from .tracker import Tracker, TrackerConfig, TrackUpdate
 
 R_HIP, L_HIP = 8, 11
 CAMERA_FROM_VIEW = np.array([1.0, 1.0, -1.0])  # view frame → camera-aligned frame (z negated)
+
+
+@dataclass(frozen=True)
+class TrackLimits:
+    """Bounds on the tracking work a stream can cause (0: no limit; data_specs/stream_output.md).
+
+    ``max_tracks``: tracks alive at once, tentative ones included; a further detection starts none.
+    ``max_new_per_min``: tracks confirmed in any 60 s (of :meth:`Engine.step`'s ``now_s``); a
+    further one waits unconfirmed, without output. Detections held back are counted in
+    :class:`EngineStats`.
+    """
+
+    max_tracks: int = 32
+    max_new_per_min: int = 120
+
+    def __post_init__(self) -> None:
+        if self.max_tracks < 0 or self.max_new_per_min < 0:
+            raise ValueError("--max-tracks and --max-new-tracks-per-min must be 0 (no limit) or positive")
 
 
 @dataclass
@@ -61,6 +80,7 @@ class EngineConfig:
     keypoint_filter: KeypointFilterParams | None = None  # 2D clean-up; None: on when refining
     root_filter: OneEuroParams | None = None
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    limits: TrackLimits = field(default_factory=TrackLimits)  # read at every step: may be replaced
 
     def __post_init__(self) -> None:
         if self.search not in ("clustered", "exact"):
@@ -111,6 +131,13 @@ class TrackRecording:
     root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] view frame
     scales: list[float] = field(default_factory=list)            # body scale (height / 1.75 m)
     static: bool = False  # its keypoints never moved (see StillnessCheck): a poster, not a person
+    part: int = 0         # earlier parts of the track cut off (Engine.cut_recordings)
+    first_s: float = 0.0  # input time of the first and the last recorded frame
+    last_s: float = 0.0
+
+    def duration_s(self, fps: float) -> float:
+        """Input time from the first recorded frame to the last, plus one frame (``1 / fps``)."""
+        return self.last_s - self.first_s + 1.0 / fps
 
     def motion(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Rotations ``[F, R, 4]``, root ``[F, 3]`` and the one body scale of the track's BVH.
@@ -153,9 +180,12 @@ class _TrackState:
         """The last reconstructed rotations if they belong to the frame just before ``frame``."""
         return self.history[0] if self.n_history and self.last_frame == frame - 1 else None
 
-    def record(self, frame: int, quats: np.ndarray, root_view: np.ndarray) -> None:
+    def record(self, frame: int, t_s: float, quats: np.ndarray, root_view: np.ndarray) -> None:
         """Append this frame, holding the last pose over any frames the track missed."""
         rec = self.recording
+        if not rec.quaternions:
+            rec.first_frame, rec.first_s = frame, t_s
+        rec.last_s = t_s
         for _ in range(min(frame - self.last_frame - 1, self.max_fill)):
             if rec.quaternions:
                 rec.quaternions.append(rec.quaternions[-1])
@@ -213,6 +243,27 @@ class EngineStats:
     degenerate_people: int = 0  # detections whose confident keypoints span less than MIN_EXTENT_PX
     tracks_started: int = 0
     gaps: int = 0            # jumps in time or frame number that ended every track
+    over_max_tracks: int = 0  # detections not tracked: TrackLimits.max_tracks tracks were alive
+    over_max_new: int = 0     # detections not tracked: TrackLimits.max_new_per_min reached
+
+
+class NewTrackWindow:
+    """When the tracks of the last 60 s were confirmed, to hold their number to a limit."""
+
+    def __init__(self) -> None:
+        self.times: deque[float] = deque()
+
+    def allowed(self, limit: int, now_s: float) -> int | None:
+        """How many tracks may be confirmed at ``now_s`` (None: no limit)."""
+        if not limit:
+            return None
+        while self.times and self.times[0] <= now_s - 60.0:
+            self.times.popleft()
+        return max(limit - len(self.times), 0)
+
+    def add(self, n: int, limit: int, now_s: float) -> None:
+        if limit:
+            self.times.extend([now_s] * n)
 
 
 class Engine:
@@ -240,6 +291,7 @@ class Engine:
         self.tracks: dict[int, _TrackState] = {}
         self.finished: list[TrackRecording] = []
         self.stats = EngineStats()
+        self._new_tracks = NewTrackWindow()
         self._last_seen: tuple[int, float] | None = None
         self._warm_up()
 
@@ -253,8 +305,9 @@ class Engine:
             self._person(state, points, conf, i, i / self.config.fps)
 
     # -- per frame -------------------------------------------------------------------------
-    def step(self, frame: KeypointFrame) -> list[PersonPose]:
-        """Process one frame; returns the poses of the confirmed tracks seen in it."""
+    def step(self, frame: KeypointFrame, now_s: float | None = None) -> list[PersonPose]:
+        """Process one frame; returns the poses of the confirmed tracks seen in it. ``now_s``: the
+        clock of the new-track limit (seconds; default the frame's time)."""
         cfg = self.config
         t_s = frame.time_s if frame.time_s is not None else frame.index / cfg.fps
         self._end_tracks_after_a_gap(frame.index, t_s)
@@ -264,7 +317,7 @@ class Engine:
         points = np.array([p.points_px for p in people]).reshape(-1, N_KEYPOINTS_2D, 2)
         conf = np.array([p.confidence for p in people]).reshape(-1, N_KEYPOINTS_2D)
         conf = np.where(conf >= cfg.confidence_threshold, conf, 0.0)
-        update = self.tracker.update(points, conf, t_s)
+        update = self._track(points, conf, t_s, t_s if now_s is None else now_s)
         for track in update.ended:
             self._end(track)
         poses = []
@@ -278,6 +331,16 @@ class Engine:
             poses.append(self._person(state, person_px, conf[det], frame.index, t_s))
         self.stats.person_frames += len(poses)
         return poses
+
+    def _track(self, points: np.ndarray, conf: np.ndarray, t_s: float, now_s: float) -> TrackUpdate:
+        """The tracker's update within the limits, counting what they held back."""
+        limits = self.config.limits
+        allowed = self._new_tracks.allowed(limits.max_new_per_min, now_s)
+        update = self.tracker.update(points, conf, t_s, limits.max_tracks, allowed)
+        self._new_tracks.add(len(update.started), limits.max_new_per_min, now_s)
+        self.stats.over_max_tracks += update.over_max_tracks
+        self.stats.over_max_new += update.over_max_new
+        return update
 
     def _end_tracks_after_a_gap(self, frame_index: int, t_s: float) -> None:
         """A jump of more than ``max_gap_s`` ends every track, so a time (or, for frames without
@@ -308,7 +371,7 @@ class Engine:
         if self.config.smoothing:
             quats = state.rotations(quats, t_s)
             root_view = state.root(root_view, t_s)
-        state.record(frame_index, quats, root_view)
+        state.record(frame_index, t_s, quats, root_view)
         joints_view = pose_from_rotations(quats[None], root_view[None], state.scale)[0]
         return PersonPose(state.recording.track, joints_view * CAMERA_FROM_VIEW, quats,
                           root_view * CAMERA_FROM_VIEW, match, state.scale * UNIVERSAL_HEIGHT_M)
@@ -389,8 +452,25 @@ class Engine:
             state.recording.static = state.stillness.static
         return [s.recording for s in self.tracks.values() if s.recording.quaternions]
 
+    def cut_recordings(self, max_frames: int) -> list[TrackRecording]:
+        """The recordings of open tracks that reached ``max_frames`` frames (``static`` set so far),
+        each replaced by an empty one (next ``part``): no recording grows beyond ``max_frames``."""
+        cut = []
+        for state in self.tracks.values():
+            rec = state.recording
+            if len(rec.quaternions) >= max_frames:
+                rec.static = state.stillness.static
+                state.recording = TrackRecording(rec.track, state.last_frame + 1, part=rec.part + 1)
+                cut.append(rec)
+        return cut
+
+    def pop_finished(self) -> list[TrackRecording]:
+        """The recordings of the tracks ended since the last call; the engine forgets them."""
+        done, self.finished = self.finished, []
+        return done
+
     def finish(self) -> list[TrackRecording]:
-        """End every track; returns all recordings (ended earlier or now), by track id."""
+        """End every track; returns the recordings not yet popped (ended earlier or now), by track id."""
         self._end_all()
         return sorted(self.finished, key=lambda r: r.track)
 

@@ -3,8 +3,11 @@
 ``reconstruct`` reads every message of a folder or file in order; ``live`` reads through
 :class:`~runtime.streams.LiveInput`, which drops stale messages when the engine falls behind.
 Malformed messages are counted by reason and skipped; the summary reports them with frame,
-people and track counts, per-frame latency (p50/p99, from a message's arrival to its output line)
-and throughput.
+people and track counts, per-frame latency (p50/p99, from a message's arrival to its output line),
+throughput and what the limits held back. Whatever arrives, memory stays bounded: tracks by
+:class:`~runtime.engine.TrackLimits`, recordings by BVH parts, the summary's lists by caps.
+A sink that fails stops the session (:class:`SinkError`); :meth:`Session.finish` still writes
+every BVH file.
 """
 from __future__ import annotations
 
@@ -18,11 +21,39 @@ from pathlib import Path
 
 import numpy as np
 
+from mocapdb.bvh import write_bvh
 from mocapdb.keypoints import KeypointError, KeypointFrame, parse_stream_line
+from mocapdb.skeleton import universal_bvh
 
-from .engine import Engine
-from .output import frame_line, header_line, write_track_bvhs
+from .engine import Engine, TrackRecording
+from .output import frame_line, header_line
 from .streams import LiveInput, RawMessage, Sink, Source, StreamStats
+
+
+MAX_LATENCIES = 100_000  # latency percentiles cover at most the last 2 × this many frames
+MAX_REASONS = 50         # distinct malformed-message reasons counted; further ones as "other"
+MAX_LISTED = 100         # static track ids listed in the summary
+
+
+@dataclass
+class LimitReport:
+    """The limits in force and what they held back (data_specs/stream_output.md, "Limits")."""
+
+    max_tracks: int = 0
+    max_new_per_min: int = 0
+    max_bvh_files: int = 0
+    min_track_s: float = 0.0
+    over_max_tracks: int = 0   # detections not tracked
+    over_max_new: int = 0      # detections not tracked
+    over_max_files: int = 0    # tracks (or parts) without a BVH file
+    short_tracks: int = 0      # tracks without a BVH file
+
+    def lines(self) -> list[str]:
+        held = [(self.over_max_tracks, f"detections not tracked (--max-tracks {self.max_tracks} alive)"),
+                (self.over_max_new, f"detections not tracked (--max-new-tracks-per-min {self.max_new_per_min})"),
+                (self.over_max_files, f"tracks or parts without BVH (--max-bvh-files {self.max_bvh_files})"),
+                (self.short_tracks, f"tracks without BVH (shorter than --min-track-s {self.min_track_s:g} s)")]
+        return [f"limits: {what}: {n}" for n, what in held if n]
 
 
 @dataclass
@@ -37,9 +68,27 @@ class SessionSummary:
     latencies_s: list[float] = field(default_factory=list)
     wall_s: float = 0.0
     bvh_files: list[Path] = field(default_factory=list)
-    static_tracks: list[int] = field(default_factory=list)  # left out of the BVH output
+    static_tracks: list[int] = field(default_factory=list)  # left out of the BVH output (first MAX_LISTED)
+    n_static: int = 0
     gaps: int = 0
     degenerate: int = 0
+    limits: LimitReport = field(default_factory=LimitReport)
+    sink_error: str | None = None  # why the sink failed, which stopped the session
+
+    def add_latency(self, latency_s: float) -> None:
+        self.latencies_s.append(latency_s)
+        if len(self.latencies_s) >= 2 * MAX_LATENCIES:
+            del self.latencies_s[:MAX_LATENCIES]
+
+    def add_malformed(self, reason: str) -> None:
+        if reason not in self.malformed and len(self.malformed) >= MAX_REASONS:
+            reason = "other reasons"
+        self.malformed[reason] += 1
+
+    def add_static(self, track: int) -> None:
+        self.n_static += 1
+        if len(self.static_tracks) < MAX_LISTED:
+            self.static_tracks.append(track)
 
     def report(self) -> str:
         lat = np.array(self.latencies_s) * 1000.0
@@ -52,12 +101,17 @@ class SessionSummary:
                  f"not UTF-8 {self.stream.decode_errors}, undelivered output lines {self.stream.sink_dropped}"]
         lines += [f"skipped malformed ({n}): {why}" for why, n in self.malformed.most_common()]
         if self.static_tracks:
+            unlisted = self.n_static - len(self.static_tracks)
+            more = f" and {unlisted} more" if unlisted else ""
             lines.append(f"static tracks (keypoints never moved; no BVH, --keep-static keeps them): "
-                         f"{', '.join(map(str, self.static_tracks))}")
+                         f"{', '.join(map(str, self.static_tracks))}{more}")
         if self.degenerate:
             lines.append(f"people skipped with all keypoints within 4 px (no size, no depth): {self.degenerate}")
         if self.gaps:
             lines.append(f"jumps in time longer than the gap limit (every track ended): {self.gaps}")
+        lines += self.limits.lines()
+        if self.sink_error:
+            lines.append(f"output stopped: the sink failed ({self.sink_error})")
         return "\n".join(lines)
 
 
@@ -86,6 +140,10 @@ class InputError(ValueError):
     """Input that contradicts the command's parameters (e.g. keypoints outside --image-size)."""
 
 
+class SinkError(OSError):
+    """The sink could not take a line (disk full, closed pipe): the session stops there."""
+
+
 IMAGE_MARGIN = 0.1  # keypoints may lie this fraction of the image size outside it (detectors extrapolate)
 
 
@@ -95,7 +153,13 @@ class SessionOptions:
     parameters (reconstruct) instead of skipping and counting it (live); ``fps_given`` says
     whether ``--fps`` was given (else frames without time warn once). With ``bvh_dir`` each
     track's BVH is written (atomically) when the track ends, and every ``checkpoint_s`` seconds
-    the open tracks' BVH so far, so a killed process loses at most that much of them."""
+    the open tracks' BVH so far, so a killed process loses at most that much of them.
+
+    Limits (0: none): at most ``max_bvh_files`` files; a track shorter than ``min_track_s`` gets
+    none; a track longer than ``bvh_part_min`` minutes is written in parts of that length.
+    ``rate_by_arrival``: the engine's new-track limit counts by arrival time (live: the sender
+    chooses the frames' times), not by the frames' time (reconstruct: the same result every run).
+    """
 
     strict: bool = True
     fps_given: bool = True
@@ -103,6 +167,102 @@ class SessionOptions:
     bvh_dir: Path | None = None
     bvh_unit: str = "m"
     checkpoint_s: float = 30.0
+    max_bvh_files: int = 1000
+    min_track_s: float = 0.5
+    bvh_part_min: float = 10.0
+    rate_by_arrival: bool = False
+
+    def __post_init__(self) -> None:
+        if self.max_bvh_files < 0 or self.min_track_s < 0:
+            raise ValueError("--max-bvh-files and --min-track-s must be 0 or positive")
+        if not self.bvh_part_min > 0:
+            raise ValueError("--bvh-part-min must be positive")
+
+
+def bvh_name(track: int, part: int | None) -> str:
+    """``track_<id>.bvh``, or ``track_<id>_part<k>.bvh`` for part k (from 1) of a split track."""
+    return f"track_{track}.bvh" if part is None else f"track_{track}_part{part}.bvh"
+
+
+class TrackFiles:
+    """The session's BVH files within its limits (:class:`SessionOptions`). Without a folder yet,
+    recordings wait for :meth:`flush` (at most ``max_bvh_files`` of them)."""
+
+    def __init__(self, options: SessionOptions, fps: float, summary: SessionSummary):
+        self.options, self.fps, self.summary = options, fps, summary
+        self.part_frames = max(round(options.bvh_part_min * 60.0 * fps), 1)
+        self._names: set[str] = set()  # written or waiting
+        self._paths: set[Path] = set()  # written
+        self._waiting: list[tuple[TrackRecording, str]] = []
+
+    def ended(self, rec: TrackRecording) -> None:
+        """A track ended: its file (or last part), unless static or too short."""
+        name = bvh_name(rec.track, rec.part + 1 if rec.part else None)
+        if rec.static:
+            self.summary.add_static(rec.track)
+        if rec.static and not self.options.keep_static:
+            self._remove(name)  # a checkpoint written while it was open
+        elif not rec.part and self._short(rec):
+            self.summary.limits.short_tracks += 1
+        else:
+            self._write(rec, name, final=True)
+
+    def cut(self, rec: TrackRecording) -> None:
+        """A full part of an open track (``Engine.cut_recordings``); part 1 replaces its checkpoint."""
+        if not rec.part:
+            self._remove(bvh_name(rec.track, None))
+        if self.options.keep_static or not rec.static:
+            self._write(rec, bvh_name(rec.track, rec.part + 1), final=True)
+
+    def checkpoint(self, recordings: list[TrackRecording]) -> None:
+        """The open tracks' files so far (long enough, not static, within the file limit)."""
+        for rec in recordings:
+            if (rec.part or not self._short(rec)) and not rec.static:
+                self._write(rec, bvh_name(rec.track, rec.part + 1 if rec.part else None), final=False)
+
+    def _short(self, rec: TrackRecording) -> bool:
+        return rec.duration_s(self.fps) < self.options.min_track_s - 1e-9
+
+    def flush(self) -> None:
+        """Write the recordings that waited for a folder."""
+        waiting, self._waiting = self._waiting, []
+        for rec, name in waiting:
+            self._save(rec, name)
+
+    def _write(self, rec: TrackRecording, name: str, final: bool) -> None:
+        limit = self.options.max_bvh_files
+        if name not in self._names and limit and len(self._names) >= limit:
+            if final:
+                self._refuse()
+        elif self.options.bvh_dir is None:
+            self._names.add(name)
+            self._waiting.append((rec, name))
+        else:
+            self._save(rec, name)
+
+    def _save(self, rec: TrackRecording, name: str) -> None:
+        quats, root_view_m, body_scale = rec.motion()
+        path = self.options.bvh_dir / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_bvh(path, universal_bvh(quats, root_view_m, self.fps, self.options.bvh_unit, body_scale))
+        self._names.add(name)
+        if path not in self._paths:
+            self._paths.add(path)
+            self.summary.bvh_files.append(path)
+
+    def _remove(self, name: str) -> None:
+        path = None if self.options.bvh_dir is None else self.options.bvh_dir / name
+        if path in self._paths:
+            path.unlink(missing_ok=True)
+            self._paths.discard(path)
+            self._names.discard(name)
+            self.summary.bvh_files.remove(path)
+
+    def _refuse(self) -> None:
+        self.summary.limits.over_max_files += 1
+        if self.summary.limits.over_max_files == 1:
+            print(f"warning: --max-bvh-files {self.options.max_bvh_files} reached: further tracks get no BVH file "
+                  f"(their frames stay in the stream)", file=sys.stderr, flush=True)
 
 
 class Session:
@@ -112,50 +272,60 @@ class Session:
                  options: SessionOptions | None = None):
         self.engine, self.sink, self.parser, self.summary = engine, sink, parser, summary
         self.options = options or SessionOptions()
+        self.files = TrackFiles(self.options, engine.config.fps, summary)
+        limits = engine.config.limits
+        summary.limits = LimitReport(limits.max_tracks, limits.max_new_per_min, self.options.max_bvh_files,
+                                     self.options.min_track_s)
         self._fps_warned = self.options.fps_given
-        self._written = 0  # engine.finished recordings whose BVH is written
         self.started = self._checkpointed = time.perf_counter()
-        self.sink.write(header_line(engine.config.fps))
+        try:
+            self._emit(header_line(engine.config.fps))
+        except SinkError:
+            self._close_sink()
+            raise
 
     def handle(self, message: RawMessage) -> None:
         """Parse, process and write one message; a malformed one is counted and skipped."""
         try:
             frame = self.parser(message)
         except KeypointError as exc:
-            self.summary.malformed[_short_reason(exc)] += 1
+            self.summary.add_malformed(_short_reason(exc))
             return
         self.handle_frame(frame, message.arrival_s)
 
     def handle_frame(self, frame: KeypointFrame, arrival_s: float) -> None:
-        """Process and write one parsed frame that arrived at ``arrival_s`` (time.monotonic)."""
+        """Process and write one parsed frame that arrived at ``arrival_s`` (time.monotonic);
+        raises :class:`SinkError` if the sink fails."""
         problem = self._contradiction(frame)
         if problem:
             if self.options.strict:
                 raise InputError(problem)
-            self.summary.malformed["keypoints outside --image-size"] += 1
+            self.summary.add_malformed("keypoints outside --image-size")
             return
-        poses = self.engine.step(frame)
+        poses = self.engine.step(frame, arrival_s if self.options.rate_by_arrival else None)
         t_s = frame.time_s if frame.time_s is not None else frame.index / self.engine.config.fps
-        self.sink.write(frame_line(frame.index, t_s, poses))
+        self._emit(frame_line(frame.index, t_s, poses))
         self.summary.frames += 1
         self.summary.person_frames += len(poses)
-        self.summary.latencies_s.append(time.monotonic() - arrival_s)
-        if self.options.bvh_dir is not None:
-            self._write_bvhs()
+        self.summary.add_latency(time.monotonic() - arrival_s)
+        self._bvhs()
 
-    def _write_bvhs(self) -> None:
-        """BVH files of the tracks that ended; every ``checkpoint_s``, of the open ones so far."""
-        ended = self.engine.finished[self._written:]
-        self._written = len(self.engine.finished)
-        self._write(ended)
-        if time.perf_counter() - self._checkpointed >= self.options.checkpoint_s:
+    def _emit(self, line: str) -> None:
+        try:
+            self.sink.write(line)
+        except OSError as exc:
+            self.summary.sink_error = self.summary.sink_error or str(exc) or type(exc).__name__
+            raise SinkError(f"the sink failed: {self.summary.sink_error}") from exc
+
+    def _bvhs(self) -> None:
+        """Ended tracks' files, full parts of long ones; every ``checkpoint_s``, the open ones so far."""
+        for rec in self.engine.pop_finished():
+            self.files.ended(rec)
+        for rec in self.engine.cut_recordings(self.files.part_frames):
+            self.files.cut(rec)
+        if self.options.bvh_dir is not None and time.perf_counter() - self._checkpointed >= self.options.checkpoint_s:
             self._checkpointed = time.perf_counter()
-            self._write([r for r in self.engine.open_recordings() if not r.static])
-
-    def _write(self, recordings: list) -> None:
-        keep = [r for r in recordings if self.options.keep_static or not r.static]
-        self.summary.bvh_files += write_track_bvhs(keep, self.options.bvh_dir, self.engine.config.fps,
-                                                   self.options.bvh_unit)
+            self.files.checkpoint(self.engine.open_recordings())
 
     def _contradiction(self, frame: KeypointFrame) -> str | None:
         """Why ``frame`` contradicts the parameters, or None; warns once about an assumed rate."""
@@ -181,34 +351,38 @@ class Session:
 
     def finish(self, bvh_dir: Path | None = None, bvh_unit: str | None = None) -> SessionSummary:
         """End all tracks, write the BVH files not yet written (into ``bvh_dir`` if given, else the
-        options'; static tracks only with ``keep_static``), close the sink (even if writing fails)."""
+        options'), close the sink (even if writing fails). A sink that failed earlier is only
+        recorded (``summary.sink_error``); one first failing at close raises SinkError, files written."""
         self.summary.wall_s = time.perf_counter() - self.started
-        if bvh_dir is not None and Path(bvh_dir) != self.options.bvh_dir:
-            self.options.bvh_dir, self._written = Path(bvh_dir), 0
+        if bvh_dir is not None:
+            self.options.bvh_dir = Path(bvh_dir)
         if bvh_unit is not None:
             self.options.bvh_unit = bvh_unit
         try:
-            recordings = self.engine.finish()
-            self.summary.tracks = len(recordings)
-            self.summary.gaps = self.engine.stats.gaps
-            self.summary.degenerate = self.engine.stats.degenerate_people
-            self.summary.static_tracks = [r.track for r in recordings if r.static]
+            self.engine.finish()
+            for rec in sorted(self.engine.pop_finished(), key=lambda r: r.track):
+                self.files.ended(rec)
             if self.options.bvh_dir is not None:
-                self._write_bvhs()
-                self._drop_static_checkpoints()
-                self.summary.bvh_files = list(dict.fromkeys(self.summary.bvh_files))
+                self.files.flush()
         finally:
-            self.sink.close()
+            self._count()
+            self._close_sink()
         return self.summary
 
-    def _drop_static_checkpoints(self) -> None:
-        """A track found static at its end loses the BVH a checkpoint wrote while it was open."""
-        if self.options.keep_static:
-            return
-        static = {f"track_{t}.bvh" for t in self.summary.static_tracks}
-        for path in [p for p in self.summary.bvh_files if p.name in static]:
-            path.unlink(missing_ok=True)
-            self.summary.bvh_files.remove(path)
+    def _count(self) -> None:
+        stats = self.engine.stats
+        self.summary.tracks, self.summary.gaps = stats.tracks_started, stats.gaps
+        self.summary.degenerate = stats.degenerate_people
+        self.summary.limits.over_max_tracks = stats.over_max_tracks
+        self.summary.limits.over_max_new = stats.over_max_new
+
+    def _close_sink(self) -> None:
+        try:
+            self.sink.close()
+        except OSError as exc:
+            if self.summary.sink_error is None:
+                self.summary.sink_error = str(exc) or type(exc).__name__
+                raise SinkError(f"the sink failed: {self.summary.sink_error}") from exc
 
 
 def run_offline(session: Session, source: Source) -> None:

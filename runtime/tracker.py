@@ -11,6 +11,10 @@ Lifecycle: an unmatched detection starts a tentative track (that detection is it
 reused); a tentative track that misses a frame is dropped; a confirmed track unmatched for more
 than ``max_missing`` frames ends. New tracks are created left to right (then top to bottom) by
 box centre, so ids do not depend on the order of the detections in the input.
+
+Limits (:meth:`Tracker.update`'s ``max_tracks``, ``max_new``): while ``max_tracks`` tracks (tentative
+included) live on, a further detection starts no track; a tentative track with enough hits waits,
+unconfirmed and without output, while confirming it would exceed ``max_new``. Both are counted.
 """
 from __future__ import annotations
 
@@ -51,11 +55,14 @@ class TrackUpdate:
 
     ``assignments``: ``(track_id, detection index)`` of every confirmed track matched this frame
     (including one confirmed on this frame), by track id. ``started``/``ended``: track ids.
+    ``over_max_tracks``/``over_max_new``: detections not tracked because of either limit.
     """
 
     assignments: list[tuple[int, int]] = field(default_factory=list)
     started: list[int] = field(default_factory=list)
     ended: list[int] = field(default_factory=list)
+    over_max_tracks: int = 0
+    over_max_new: int = 0
 
 
 @dataclass
@@ -123,12 +130,14 @@ class Tracker:
         ids = self._tracks.ids
         return ids[ids >= 0].tolist()
 
-    def update(self, points: np.ndarray, confidence: np.ndarray, t_s: float) -> TrackUpdate:
+    def update(self, points: np.ndarray, confidence: np.ndarray, t_s: float, max_tracks: int = 0,
+               max_new: int | None = None) -> TrackUpdate:
         """Associate one frame: ``points [P, 14, 2]`` pixels, ``confidence [P, 14]``, time in seconds.
 
         Times should increase; a frame whose time does not is still associated but leaves the
         tracks' velocities unchanged. Detections with fewer than ``min_joints`` visible joints are
-        ignored (detection indices in the result still refer to the input).
+        ignored (detection indices in the result still refer to the input). ``max_tracks``: tracks
+        alive at once (0: no limit); ``max_new``: tracks that may be confirmed now (None: any).
         """
         cfg = self.config
         visible = np.asarray(confidence).reshape(-1, N_KEYPOINTS_2D) > cfg.min_confidence
@@ -140,13 +149,13 @@ class Tracker:
             points, visible = points[kept], visible[kept]
         dets = _People.of(points, visible)
         rows, cols = self._match(dets, t_s)
-        self._advance(rows, cols, dets, t_s)
+        over_max_tracks = self._advance(rows, cols, dets, t_s, max_tracks)
         self._t_s = max(self._t_s, t_s)
-        started = self._confirm()
+        started, over_max_new = self._confirm(max_new)
         tr = self._tracks
         assigned = ((tr.ids >= 0) & (tr.detection >= 0)).nonzero()[0]  # rows, hence ids, ascending
         assignments = list(zip(tr.ids[assigned].tolist(), kept[tr.detection[assigned]].tolist()))
-        return TrackUpdate(assignments, started, self._prune())
+        return TrackUpdate(assignments, started, self._prune(), over_max_tracks, over_max_new)
 
     def finish(self) -> list[int]:
         """End every track (end of stream); returns the ids of the confirmed ones."""
@@ -173,28 +182,39 @@ class Tracker:
         order = np.argsort(rows)
         return rows[order], cols[order]
 
-    def _advance(self, rows: np.ndarray, cols: np.ndarray, dets: _People, t_s: float) -> None:
-        """Move matched tracks to their detections, age the others, start tracks for the rest."""
+    def _advance(self, rows: np.ndarray, cols: np.ndarray, dets: _People, t_s: float, max_tracks: int) -> int:
+        """Move matched tracks to their detections, age the others, start tracks for the rest (while
+        fewer than ``max_tracks`` live on); returns how many detections got no track for that limit."""
         tr = self._tracks
         _advance_matched(tr.points, tr.visible, tr.box, tr.t_s, tr.velocity, tr.gain, tr.hits, tr.missing,
                          tr.detection, rows, cols, dets.points, dets.visible, dets.box, t_s,
                          t_s > self._t_s, self.config.velocity_smoothing)
-        if len(cols) < len(dets.points):
-            new = np.ones(len(dets.points), dtype=bool)
-            new[cols] = False
-            new = new.nonzero()[0]
-            centre = dets.box[new, :2] - dets.box[new, 2:]  # twice the box centre
-            new = new[np.lexsort((centre[:, 1], centre[:, 0]))]  # left to right: input order is irrelevant
+        if len(cols) == len(dets.points):
+            return 0
+        new = np.ones(len(dets.points), dtype=bool)
+        new[cols] = False
+        new = new.nonzero()[0]
+        centre = dets.box[new, :2] - dets.box[new, 2:]  # twice the box centre
+        new = new[np.lexsort((centre[:, 1], centre[:, 0]))]  # left to right: input order is irrelevant
+        n_new = len(new)
+        if max_tracks:
+            staying = (tr.detection >= 0) | ((tr.ids >= 0) & (tr.missing <= self.config.max_missing))
+            new = new[:max(max_tracks - int(staying.sum()), 0)]
+        if len(new):
             self._tracks = tr.extend(_Tracks.start(_People(dets.points[new], dets.visible[new], dets.box[new]),
                                                    new, t_s))
+        return n_new - len(new)
 
-    def _confirm(self) -> list[int]:
-        """Give ids, in creation order, to tentative tracks with enough hits; returns them."""
+    def _confirm(self, max_new: int | None) -> tuple[list[int], int]:
+        """Give ids, in creation order, to matched tentative tracks with enough hits, at most
+        ``max_new`` of them; returns their ids and how many wait."""
         tr = self._tracks
-        rows = ((tr.ids < 0) & (tr.hits >= self.config.min_hits)).nonzero()[0]
+        rows = ((tr.ids < 0) & (tr.hits >= self.config.min_hits) & (tr.detection >= 0)).nonzero()[0]
+        waiting = 0 if max_new is None else max(len(rows) - max_new, 0)
+        rows = rows[:len(rows) - waiting]
         tr.ids[rows] = np.arange(self._next_id, self._next_id + len(rows))
         self._next_id += len(rows)
-        return tr.ids[rows].tolist()
+        return tr.ids[rows].tolist(), waiting
 
     def _prune(self) -> list[int]:
         """Drop expired confirmed tracks and unmatched tentative ones; returns the expired ids."""

@@ -114,12 +114,12 @@ def test_cli_bad_inputs_give_clear_errors(small_db_path, tmp_path, capsys, args,
 
 
 def test_cli_reconstruct_coco17_array(small_db, small_db_path, tmp_path, capsys):
-    lines = [json.loads(line) for line in _stream_lines(small_db, 12)]
+    lines = [json.loads(line) for line in _stream_lines(small_db, 24)]
     array = np.array([frame["people"][0]["keypoints"] for frame in lines])  # [T, 17, 3]
     np.save(tmp_path / "kp.npy", array)
     assert main(["reconstruct", str(tmp_path / "kp.npy"), "--db", str(small_db_path), "--out", str(tmp_path / "out"),
                  "--fps", "24"]) == 0
-    assert "frames 12" in capsys.readouterr().out
+    assert "frames 24" in capsys.readouterr().out
     assert (tmp_path / "out" / "track_0.bvh").exists()
 
 
@@ -141,7 +141,7 @@ def test_live_process_stops_cleanly_on_sigint(small_db, small_db_path, tmp_path)
             assert time.monotonic() < deadline and proc.poll() is None
             time.sleep(0.05)
     with client:
-        for line in _stream_lines(small_db, 10):
+        for line in _stream_lines(small_db, 30):
             client.sendall((line + "\n").encode())
             time.sleep(1 / 30)  # a 30 fps detector
     time.sleep(0.5)
@@ -150,5 +150,106 @@ def test_live_process_stops_cleanly_on_sigint(small_db, small_db_path, tmp_path)
     assert proc.returncode == 0, err
     processed = int(err.split("frames ")[1].split(",")[0])
     stale = int(err.split("stale ")[1].split(",")[0])
-    assert processed + stale == 10 and processed >= 5
+    assert processed + stale == 30 and processed >= 15
     assert (tmp_path / "track_0.bvh").exists()
+
+
+def _live_process(small_db_path, tmp_path, *extra, **popen):
+    import subprocess
+    import sys
+
+    return subprocess.Popen([sys.executable, "-m", "mocapdb", "live", "--db", str(small_db_path), "--fps", "30",
+                             "--bvh-dir", str(tmp_path), *extra], stderr=subprocess.PIPE, text=True, **popen)
+
+
+def _connect(port: int, proc) -> socket.socket:
+    deadline = time.monotonic() + 20
+    while True:  # wait until the process listens
+        try:
+            return socket.create_connection(("127.0.0.1", port), timeout=1)
+        except OSError:
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.05)
+
+
+def test_live_process_writes_its_bvh_files_through_a_second_sigterm(small_db, small_db_path, tmp_path):
+    import signal
+
+    port = _free_port()
+    proc = _live_process(small_db_path, tmp_path, "--source", f"tcp://127.0.0.1:{port}",
+                         "--sink", str(tmp_path / "out.jsonl"))
+    with _connect(port, proc) as client:
+        for line in _stream_lines(small_db, 30):
+            client.sendall((line + "\n").encode())
+            time.sleep(1 / 30)
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGTERM)
+        time.sleep(0.005)
+        proc.send_signal(signal.SIGTERM)  # while it stops: ignored, never fatal
+        _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert "further signals are ignored" in err and "frames 30" in err
+    assert read_bvh(tmp_path / "track_0.bvh").n_frames == 29
+
+
+def test_live_process_whose_stdout_closes_stops_and_still_writes_its_bvh_files(small_db, small_db_path, tmp_path):
+    import subprocess
+
+    proc = _live_process(small_db_path, tmp_path, "--source", "-", "--sink", "-", "--buffer", "1000",
+                         stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    proc.stdin.write("".join(line + "\n" for line in _stream_lines(small_db, 60)))
+    proc.stdin.flush()
+    for _ in range(21):  # the header and 20 frames, then the consumer goes away
+        assert proc.stdout.readline()
+    proc.stdout.close()
+    _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 1, err
+    assert "mocapdb live: error: the sink - failed" in err and "wrote 1 BVH file(s)" in err
+    assert "Traceback" not in err and "Exception ignored" not in err
+    assert 20 <= read_bvh(tmp_path / "track_0.bvh").n_frames < 59
+
+
+def test_live_cli_with_a_failing_sink_exits_non_zero_after_writing_the_bvh_files(small_db, small_db_path, tmp_path,
+                                                                                  capsys, monkeypatch):
+    import runtime.streams
+    from runtime.sinks import Sink
+
+    class FullDisk(Sink):
+        def __init__(self, stats):
+            super().__init__(stats)
+            self.lines = 0
+
+        def _put(self, text):
+            self.lines += 1
+            if self.lines > 20:
+                raise OSError(28, "No space left on device")
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(runtime.streams, "open_sink", lambda spec, stats: FullDisk(stats))
+    (tmp_path / "in.jsonl").write_text("\n".join(_stream_lines(small_db, 40)) + "\n")
+    assert main(["live", "--source", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--fps", "24",
+                 "--sink", str(tmp_path / "out.jsonl"), "--bvh-dir", str(tmp_path / "bvh"), "--buffer", "100",
+                 "--idle-timeout", "5"]) == 1
+    err = capsys.readouterr().err
+    assert "out.jsonl failed ([Errno 28] No space left on device): the stream stopped there" in err
+    assert "output stopped: the sink failed" in err
+    assert read_bvh(tmp_path / "bvh" / "track_0.bvh").n_frames == 19  # frames 1–20: the last one failed to go out
+
+
+@pytest.mark.parametrize("option, value", [("--max-tracks", "-1"), ("--max-bvh-files", "-5"),
+                                           ("--min-track-s", "-0.1"), ("--bvh-part-min", "0")])
+def test_cli_rejects_bad_limits(small_db_path, tmp_path, capsys, option, value):
+    assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(tmp_path / "o"),
+                 option, value]) == 2
+    assert option in capsys.readouterr().err
+
+
+def test_cli_reports_what_the_limits_held_back(small_db_path, tmp_path, capsys):
+    assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(tmp_path),
+                 "--fps", "60", "--image-size", "1088x1920", "--focal", "1681", "--max-tracks", "1"]) == 0
+    out = capsys.readouterr().out
+    # The one track goes to the leftmost detection: the false one at the image's edge (static, no BVH).
+    assert "limits: detections not tracked (--max-tracks 1 alive): 100" in out and "static tracks" in out
+    assert not list(tmp_path.glob("track_*.bvh"))

@@ -1,6 +1,8 @@
 """Input that contradicts the parameters or could blow up work: time jumps, static detections,
 keypoints outside the image, missing frame rate, empty input (issue 10)."""
+import json
 import resource
+import time
 
 import numpy as np
 import pytest
@@ -10,8 +12,8 @@ from mocapdb.database import load_database
 from mocapdb.geometry import Camera, project_views
 from mocapdb.keypoints import KeypointFrame, Person
 from mocapdb.skeleton import PELVIS
-from runtime.engine import Engine, EngineConfig
-from runtime.session import FrameParser, InputError, Session, SessionOptions, SessionSummary
+from runtime.engine import Engine, EngineConfig, TrackLimits
+from runtime.session import FrameParser, InputError, Session, SessionOptions, SessionSummary, SinkError
 from runtime.streams import StreamStats, open_sink
 
 from .test_session import _stream_lines
@@ -32,7 +34,7 @@ def _session(db, tmp_path, **options) -> Session:
 
 def test_a_jump_far_into_the_future_costs_one_frame(small_db, tmp_path):
     px = _walking_px(small_db, 20)
-    session = _session(small_db, tmp_path)
+    session = _session(small_db, tmp_path, min_track_s=0.0)
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     for i in range(10):
         session.handle_frame(KeypointFrame(i, None, [Person(px[i], np.full(14, 0.9))]), 0.0)
@@ -93,7 +95,7 @@ def test_cli_image_size_errors_name_the_argument(small_db_path, tmp_path, capsys
 
 
 def test_output_that_survives(small_db, small_db_path, tmp_path, capsys):
-    (tmp_path / "in.jsonl").write_text("\n".join(_stream_lines(small_db, 10)) + "\n")
+    (tmp_path / "in.jsonl").write_text("\n".join(_stream_lines(small_db, 24)) + "\n")
     out = tmp_path / "out"
     args = ["reconstruct", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--out", str(out), "--fps", "24"]
     assert main(args) == 0
@@ -117,7 +119,7 @@ def test_a_track_bvh_is_written_when_the_track_ends(small_db, tmp_path):
     summary = SessionSummary(stream=StreamStats())
     engine = Engine(small_db, EngineConfig(fps=24.0))
     session = Session(engine, open_sink(str(tmp_path / "out.jsonl"), summary.stream), FrameParser(), summary,
-                      SessionOptions(bvh_dir=tmp_path, checkpoint_s=1e9))
+                      SessionOptions(bvh_dir=tmp_path, checkpoint_s=1e9, min_track_s=0.0))
     for i in range(20):
         session.handle_frame(KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9))]), 0.0)
     assert not (tmp_path / "track_0.bvh").exists()
@@ -138,3 +140,149 @@ def test_a_person_with_every_keypoint_at_one_pixel_is_skipped(small_db, tmp_path
     summary = session.finish(tmp_path)
     assert summary.person_frames == 0 and summary.degenerate == 5
     assert "within 4 px" in summary.report()
+
+
+# --- limits (issue 13): a hostile sender makes bounded work, memory and files -----------------------
+
+COCO17_OF_UNIVERSAL = {0: 0, 2: 6, 3: 8, 4: 10, 5: 5, 6: 7, 7: 9, 8: 12, 9: 14, 10: 16, 11: 11, 12: 13, 13: 15}
+
+
+def _coco17(px: np.ndarray) -> list:
+    kp = np.zeros((17, 3))
+    for u, c in COCO17_OF_UNIVERSAL.items():
+        kp[c] = [px[u, 0], px[u, 1], 0.9]
+    return np.round(kp, 1).tolist()
+
+
+def _flood(db, n_messages: int, stay: int):
+    """Message k brings a new person (walking, ~110 px tall) to one of 64 places far apart; each
+    stays ``stay`` frames. Yields ``RawMessage``s, built as they go (no memory of their own)."""
+    from runtime.streams import RawMessage
+
+    walk = _walking_px(db, stay)
+    walk = (walk - walk.reshape(-1, 2).mean(axis=0)) * 0.25
+    for i in range(n_messages):
+        people = [{"keypoints": _coco17(walk[i - k] + [120 + 240 * (k % 64 % 8), 70 + 135 * (k % 64 // 8)])}
+                  for k in range(max(i - stay + 1, 0), i + 1)]
+        yield RawMessage(json.dumps({"frame": i, "time": i / 24.0, "layout": "coco17", "people": people}),
+                         "flood", time.monotonic())
+
+
+def _rss_bytes() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * resource.getpagesize()
+
+
+def test_a_flood_of_new_people_makes_bounded_tracks_files_and_memory(small_db, tmp_path, capsys):
+    summary = SessionSummary(stream=StreamStats())
+    engine = Engine(small_db, EngineConfig(fps=24.0, limits=TrackLimits(max_tracks=8, max_new_per_min=60)))
+    options = SessionOptions(strict=False, bvh_dir=tmp_path, max_bvh_files=20, rate_by_arrival=True)
+    session = Session(engine, open_sink(str(tmp_path / "out.jsonl"), summary.stream), FrameParser(), summary, options)
+    start = time.monotonic()
+    for k, message in enumerate(_flood(small_db, 5000, stay=16)):
+        session.handle(message)
+        if k == 1000:
+            rss_1000 = _rss_bytes()
+        assert len(engine.tracks) <= 8 and len(engine.tracker._tracks.ids) <= 8
+    minutes = (time.monotonic() - start) / 60.0
+    growth = _rss_bytes() - rss_1000
+    summary = session.finish()
+    assert summary.frames == 5000 and summary.person_frames < 16 * 60 * (1 + minutes)
+    assert 20 <= summary.tracks <= 60 * (1 + minutes)  # 5,000 without the limits
+    assert sorted(tmp_path.glob("track_*.bvh")) == sorted(summary.bvh_files) and len(summary.bvh_files) == 20
+    limits = summary.limits
+    assert limits.over_max_tracks > 0 and limits.over_max_new > 0
+    assert limits.over_max_files + limits.short_tracks == summary.tracks - 20
+    assert growth < 20e6, f"RSS grew by {growth / 1e6:.0f} MB over 4,000 messages"
+    assert capsys.readouterr().err.count("--max-bvh-files 20 reached") == 1
+    report = summary.report()
+    for option in ("--max-tracks 8", "--max-new-tracks-per-min 60", "--max-bvh-files 20"):
+        assert option in report
+
+
+def test_the_limits_default_to_sensible_values():
+    assert (TrackLimits().max_tracks, TrackLimits().max_new_per_min) == (32, 120)
+    options = SessionOptions()
+    assert (options.max_bvh_files, options.min_track_s, options.bvh_part_min) == (1000, 0.5, 10.0)
+    with pytest.raises(ValueError):
+        TrackLimits(max_tracks=-1)
+    with pytest.raises(ValueError):
+        SessionOptions(bvh_part_min=0)
+
+
+def test_one_frame_tracks_get_no_bvh_and_are_reported(small_db, tmp_path):
+    px = _walking_px(small_db, 30)
+    session = _session(small_db, tmp_path, bvh_dir=tmp_path)
+    for i in range(0, 600, 15):  # a person seen for 2 frames (a 1-frame track), then gone long enough to end
+        for j in range(i, i + 15):
+            people = [Person(px[i % 30], np.full(14, 0.9))] if j < i + 2 else []
+            session.handle_frame(KeypointFrame(j, j / 24.0, people), 0.0)
+    for i in range(600, 630):  # and one person for 1.25 s
+        session.handle_frame(KeypointFrame(i, i / 24.0, [Person(px[i - 600], np.full(14, 0.9))]), 0.0)
+    summary = session.finish()
+    assert summary.limits.short_tracks == summary.tracks - 1 and len(summary.bvh_files) == 1
+    assert "shorter than --min-track-s 0.5 s" in summary.report()
+
+
+def test_a_long_track_is_written_in_parts_as_they_complete(small_db, tmp_path):
+    px = _walking_px(small_db, 40)
+    part_min = 15 / 24.0 / 60.0  # 15 frames
+    session = _session(small_db, tmp_path, bvh_dir=tmp_path, bvh_part_min=part_min, checkpoint_s=0.0)
+    names = []
+    for i in range(40):
+        session.handle_frame(KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9))]), 0.0)
+        names.append(sorted(p.name for p in tmp_path.glob("track_*.bvh")))
+        assert all(len(r.quaternions) < 15 for r in session.engine.open_recordings())  # memory per track
+    assert names[13] == ["track_0.bvh"]  # a checkpoint of the open track (13 frames: over 0.5 s)
+    assert names[15] == ["track_0_part1.bvh"]  # part 1 complete: it replaces the checkpoint
+    summary = session.finish()
+    assert [p.name for p in summary.bvh_files] == ["track_0_part1.bvh", "track_0_part2.bvh", "track_0_part3.bvh"]
+    lengths = [len(p.read_text().split("Frame Time")[1].splitlines()) - 1 for p in summary.bvh_files]
+    assert lengths == [15, 15, 9]  # 39 frames: the track is confirmed on its second
+
+
+class _FailingSink:
+    """A sink whose disk fills after ``n`` lines."""
+
+    def __init__(self, n: int):
+        self.n, self.closed = n, False
+
+    def write(self, line: str) -> None:
+        self.n -= 1
+        if self.n < 0:
+            raise OSError(28, "No space left on device")
+
+    def close(self) -> None:
+        self.closed = True
+        raise OSError(28, "No space left on device")  # the flush at close fails too
+
+
+def test_a_sink_that_fails_stops_the_session_and_every_bvh_is_still_written(small_db, tmp_path):
+    summary = SessionSummary(stream=StreamStats())
+    sink = _FailingSink(25)
+    session = Session(Engine(small_db, EngineConfig(fps=24.0)), sink, FrameParser(), summary,
+                      SessionOptions(strict=False, bvh_dir=tmp_path, checkpoint_s=1e9))
+    px = _walking_px(small_db, 40)
+    with pytest.raises(SinkError, match="No space left"):
+        for i in range(40):
+            session.handle_frame(KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9)),
+                                                             Person(px[i] + [600, 0], np.full(14, 0.9))]), 0.0)
+    assert i == 24 and not list(tmp_path.glob("*.bvh"))
+    summary = session.finish()
+    assert sink.closed and "No space left" in summary.sink_error and "the sink failed" in summary.report()
+    assert sorted(p.name for p in summary.bvh_files) == ["track_0.bvh", "track_1.bvh"]
+
+
+def test_new_tracks_per_minute_count_by_arrival_time_in_live(small_db, tmp_path):
+    px = _walking_px(small_db, 40)
+    summary = SessionSummary(stream=StreamStats())
+    engine = Engine(small_db, EngineConfig(fps=24.0, limits=TrackLimits(max_new_per_min=2)))
+    session = Session(engine, open_sink(str(tmp_path / "out.jsonl"), summary.stream), FrameParser(), summary,
+                      SessionOptions(strict=False, rate_by_arrival=True))
+    started = []
+    for i in range(40):  # three people side by side; 61 s pass (by arrival) after frame 19
+        people = [Person(px[i] + [x, 0.0], np.full(14, 0.9)) for x in (-500.0, 0.0, 500.0)]
+        session.handle_frame(KeypointFrame(i, i / 24.0, people), 0.0 if i < 20 else 61.0)
+        started.append(engine.stats.tracks_started)
+    assert started[1] == 2 and started[19] == 2 and started[20] == 3
+    assert engine.stats.over_max_new == 19

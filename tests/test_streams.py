@@ -545,3 +545,16 @@ def test_second_sigint_forces_quit():
         with pytest.raises(KeyboardInterrupt):
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(1.0)
+
+
+def test_further_signals_are_ignored_while_stopping_without_force_quit(capfd):
+    stop = threading.Event()
+    with install_stop_handlers(stop, force_quit=False):
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert stop.wait(1.0)
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGINT):  # nothing raised, nothing killed
+            os.kill(os.getpid(), sig)
+            time.sleep(0.05)
+        assert signal.getsignal(signal.SIGTERM) not in (signal.SIG_DFL, None)
+    assert capfd.readouterr().err.count("further signals are ignored") == 1
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

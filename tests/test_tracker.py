@@ -193,3 +193,34 @@ def test_repeated_timestamp_does_not_break_the_track():
     times = [k / FPS for k in range(8)] + [7 / FPS] + [k / FPS for k in range(8, 14)]  # frame 7's time twice
     updates = [tracker.update(*(a[None] for a in person(300 + 6 * i, 600, rng)), t) for i, t in enumerate(times)]
     assert all(u.assignments == [(0, 0)] for u in updates[1:])  # a 1/0 velocity would lose the track
+
+
+def _update(tracker, people, k, **limits):
+    points = np.array([p[0] for p in people]).reshape(-1, N_KEYPOINTS_2D, 2)
+    confidence = np.array([p[1] for p in people]).reshape(-1, N_KEYPOINTS_2D)
+    return tracker.update(points, confidence, k / FPS, **limits)
+
+
+def test_max_tracks_leaves_further_detections_untracked_and_counts_them():
+    rng = np.random.default_rng(14)
+    tracker = Tracker()
+    xs = [1500, 300, 1200, 600, 900]  # in no particular order: the leftmost three get the tracks
+    for k in range(12):
+        update = _update(tracker, [person(x, 600, rng) for x in xs], k, max_tracks=3)
+        assert update.over_max_tracks == 2 and len(tracker._tracks.ids) == 3
+    assert sorted(d for _, d in update.assignments) == [1, 3, 4]  # x = 300, 600, 900
+    for k in range(12, 40):  # the person at x = 300 leaves; once the track ends, x = 1200 gets one
+        update = _update(tracker, [person(x, 600, rng) for x in xs[2:] + [1500]], k, max_tracks=3)
+    assert [t for t, _ in update.assignments] == [1, 2, 3] and update.over_max_tracks == 1
+
+
+def test_max_new_keeps_tracks_waiting_unconfirmed_and_counts_them():
+    rng = np.random.default_rng(15)
+    tracker = Tracker()
+    updates = [_update(tracker, [person(x, 600, rng) for x in (300, 700, 1100)], k, max_new=1 if k < 3 else 0)
+               for k in range(6)]
+    assert [u.started for u in updates] == [[], [0], [1], [], [], []]  # at most 1 per frame, then none
+    assert [u.over_max_new for u in updates] == [0, 2, 1, 1, 1, 1]
+    assert [len(u.assignments) for u in updates] == [0, 1, 2, 2, 2, 2]  # a waiting track has no output
+    update = _update(tracker, [person(x, 600, rng) for x in (300, 700, 1100)], 6)  # no limit: it goes on
+    assert update.started == [2] and update.over_max_new == 0
