@@ -64,6 +64,7 @@ class SessionSummary:
     person_frames: int = 0
     tracks: int = 0
     malformed: Counter = field(default_factory=Counter)
+    malformed_first: dict = field(default_factory=dict)  # reason → where it was first seen
     stream: StreamStats = field(default_factory=StreamStats)
     latencies_s: list[float] = field(default_factory=list)
     wall_s: float = 0.0
@@ -80,10 +81,12 @@ class SessionSummary:
         if len(self.latencies_s) >= 2 * MAX_LATENCIES:
             del self.latencies_s[:MAX_LATENCIES]
 
-    def add_malformed(self, reason: str) -> None:
+    def add_malformed(self, reason: str, origin: str | None = None) -> None:
         if reason not in self.malformed and len(self.malformed) >= MAX_REASONS:
             reason = "other reasons"
         self.malformed[reason] += 1
+        if origin and reason not in self.malformed_first:
+            self.malformed_first[reason] = origin
 
     def add_static(self, track: int) -> None:
         self.n_static += 1
@@ -99,7 +102,9 @@ class SessionSummary:
                  f"{self.frames / max(self.wall_s, 1e-9):.1f} frames/s over {self.wall_s:.2f} s",
                  f"skipped: stale {self.stream.dropped_stale}, oversized {self.stream.oversized}, "
                  f"not UTF-8 {self.stream.decode_errors}, undelivered output lines {self.stream.sink_dropped}"]
-        lines += [f"skipped malformed ({n}): {why}" for why, n in self.malformed.most_common()]
+        lines += [f"skipped malformed ({n}): {why}" + (f" (first in {self.malformed_first[why]})"
+                                                         if why in self.malformed_first else "")
+                  for why, n in self.malformed.most_common()]
         if self.static_tracks:
             unlisted = self.n_static - len(self.static_tracks)
             more = f" and {unlisted} more" if unlisted else ""
@@ -130,10 +135,6 @@ class FrameParser:
             frame.index = self.next_index
         self.next_index = frame.index + 1
         return frame
-
-
-def _short_reason(exc: KeypointError) -> str:
-    return str(exc).split(": ", 1)[-1][:120]
 
 
 class InputError(ValueError):
@@ -289,7 +290,7 @@ class Session:
         try:
             frame = self.parser(message)
         except KeypointError as exc:
-            self.summary.add_malformed(_short_reason(exc))
+            self.summary.add_malformed(str(exc)[:160], message.origin)
             return
         self.handle_frame(frame, message.arrival_s)
 

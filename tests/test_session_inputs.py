@@ -286,3 +286,12 @@ def test_new_tracks_per_minute_count_by_arrival_time_in_live(small_db, tmp_path)
         started.append(engine.stats.tracks_started)
     assert started[1] == 2 and started[19] == 2 and started[20] == 3
     assert engine.stats.over_max_new == 19
+
+
+def test_skip_reasons_are_whole_and_say_where(small_db, tmp_path):
+    from runtime.streams import RawMessage
+
+    session = _session(small_db, tmp_path)
+    session.handle(RawMessage('{"frame": 1, "people": [' + " " * 300 + "x]}", "in.jsonl line 7", 0.0))
+    report = session.finish(tmp_path).report()
+    assert "not JSON (Expecting value at line 1 column" in report and "first in in.jsonl line 7" in report
