@@ -223,8 +223,7 @@ class StillnessCheck:
             self.first_s = t_s
             self.box_px = float(np.ptp(points_px[visible, 1]))
         self.last_s = t_s
-        self.lo[visible] = np.minimum(self.lo[visible], points_px[visible])
-        self.hi[visible] = np.maximum(self.hi[visible], points_px[visible])
+        _widen_range(self.lo, self.hi, points_px, visible)
 
     @property
     def static(self) -> bool:
@@ -233,6 +232,28 @@ class StillnessCheck:
         seen = np.isfinite(self.lo[:, 0])
         moved = np.linalg.norm(self.hi[seen] - self.lo[seen], axis=-1).max()
         return bool(moved <= STATIC_RANGE * max(self.box_px, 1.0))
+
+
+@njit(cache=True)
+def _widen_range(lo, hi, points, visible) -> None:
+    """Per visible keypoint, stretch ``[lo, hi]`` (per axis) to include ``points``."""
+    for k in range(points.shape[0]):
+        if visible[k]:
+            for a in range(2):
+                lo[k, a] = min(lo[k, a], points[k, a])
+                hi[k, a] = max(hi[k, a], points[k, a])
+
+
+@njit(cache=True)
+def _extent_px(points, visible) -> float:
+    """The larger side (pixels) of the box of the visible keypoints (0 with none)."""
+    lo_x = lo_y = np.inf
+    hi_x = hi_y = -np.inf
+    for k in range(points.shape[0]):
+        if visible[k]:
+            lo_x, hi_x = min(lo_x, points[k, 0]), max(hi_x, points[k, 0])
+            lo_y, hi_y = min(lo_y, points[k, 1]), max(hi_y, points[k, 1])
+    return max(hi_x - lo_x, hi_y - lo_y, 0.0)
 
 
 @dataclass
@@ -355,7 +376,7 @@ class Engine:
         vis = person.confidence >= self.config.confidence_threshold
         if int(vis.sum()) < self.config.min_joints or not (vis[R_HIP] or vis[L_HIP]):
             return False
-        if np.ptp(person.points_px[vis], axis=0).max() < MIN_EXTENT_PX:  # all at one point: no size, no depth
+        if _extent_px(person.points_px, vis) < MIN_EXTENT_PX:  # all at one point: no size, no depth
             self.stats.degenerate_people += 1
             return False
         return True
