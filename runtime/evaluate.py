@@ -38,13 +38,13 @@ from mocapdb.database import MotionDatabase
 from mocapdb.geometry import normalize_pose_2d, yaw_matrix
 from mocapdb.keypoints import KeypointFrame, Person
 from mocapdb.metrics import acceleration_error, mpjpe, pa_mpjpe
-from mocapdb.skeleton import KP, N_KEYPOINTS_2D, PELVIS, pose_from_rotations
+from mocapdb.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS, pose_from_rotations
 
 from .engine import Engine, EngineConfig
 from .evaluate_floor import FloorIndex, database_floor
 from .search import search_clustered, search_exact
 
-SWAP_PAIRS = [(2, 5), (3, 6), (4, 7), (8, 11), (9, 12), (10, 13)]  # right/left keypoint pairs
+SWAP_PAIRS = [(KP[r], KP[l]) for r, l in MIRROR_PAIRS]  # right/left keypoint pairs
 IMAGE_HEIGHT_PX = 1080
 UNIVERSAL_HEIGHT_M = 1.75   # the database skeleton's height (data_specs/skeleton.md)
 VARIANTS = (("published", False), ("refined", True))  # report name, EngineConfig.refine
