@@ -6,7 +6,7 @@ import pytest
 from mocapdb.bvh import forward_kinematics, read_bvh
 from mocapdb.geometry import axis_rotation_matrices, yaw_matrix
 from mocapdb.keypoints import KeypointFrame, Person
-from mocapdb.skeleton import KP, PELVIS, UNIVERSAL_HEIGHT_M
+from mocapdb.skeleton import PELVIS, UNIVERSAL_HEIGHT_M
 from runtime.engine import Engine, EngineConfig
 from runtime.output import write_track_bvhs
 

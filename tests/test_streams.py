@@ -285,7 +285,7 @@ def test_idle_timeout_ends_every_source(kind, tmp_path, monkeypatch):
     start = time.monotonic()
     with LiveInput(source) as live:
         if kind == "tcp":
-            with connect(source) as client:   # a connected client that sends nothing is no message
+            with connect(source):   # a connected client that sends nothing is no message
                 assert wait_for(lambda: live.finished)
         assert wait_for(lambda: live.finished)
     assert 0.3 <= time.monotonic() - start < 2.0
