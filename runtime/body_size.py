@@ -3,7 +3,7 @@
 One camera cannot tell a small person near it from a tall one further away: the image fixes
 the body only up to a scale ``k`` about the camera centre. A flat floor at a known distance
 below the camera (``--camera-height``) fixes it: the lowest ankle of a standing or walking
-person sits :data:`~mocapdb.skeleton.ANKLE_HEIGHT_M` (times the body scale) above the floor.
+person sits :data:`~mocapdb.core.skeleton.ANKLE_HEIGHT_M` (times the body scale) above the floor.
 
 The floor's normal in the view frame is the world's up seen by the camera (:class:`CameraTilt`). Per frame, with ``u`` that normal and ``a``
 the lower ankle (view frame, metres, body scale ``s``)::
@@ -23,8 +23,8 @@ import numpy as np
 
 from numba import njit
 
-from mocapdb.kernels import quat_mul_into
-from mocapdb.skeleton import ANKLE_HEIGHT_M, KP, UNIVERSAL_HEIGHT_M
+from mocapdb.core.kernels import quat_mul_into
+from mocapdb.core.skeleton import ANKLE_HEIGHT_M, KP, UNIVERSAL_HEIGHT_M
 
 MIN_SAMPLES = 6        # frames before the floor's estimate replaces the starting scale
 WINDOW = 240           # the median runs over the last this many frames

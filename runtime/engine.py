@@ -18,18 +18,18 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from mocapdb.database import DatabaseError, MotionDatabase
-from mocapdb.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
-from mocapdb.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
-from mocapdb.skeleton import N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, UNIVERSAL_HEIGHT_M, pose_from_rotations
+from mocapdb.core.formats.database import DatabaseError, MotionDatabase
+from mocapdb.core.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
+from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
+from mocapdb.core.skeleton import N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, UNIVERSAL_HEIGHT_M, pose_from_rotations
 
-from .body_size import CameraTilt, FloorScale
-from .filters import (REFINED_ROOT_DEFAULTS, REFINED_ROTATION_DEFAULTS, ROOT_DEFAULTS, KeypointFilter,
+from mocapdb.runtime.body_size import CameraTilt, FloorScale
+from mocapdb.runtime.filters import (REFINED_ROOT_DEFAULTS, REFINED_ROTATION_DEFAULTS, ROOT_DEFAULTS, KeypointFilter,
                       KeypointFilterParams, OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter)
-from .refine import JointLimits, RefineParams, Refiner
-from .search import SearchIndex, search_clustered, search_exact, yaw_offset
-from .temporal import temporal_costs, yaw_quaternion, yawed_rotations
-from .tracker import Tracker, TrackerConfig, TrackUpdate
+from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
+from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact, yaw_offset
+from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotations
+from mocapdb.runtime.tracker import Tracker, TrackerConfig, TrackUpdate
 
 R_HIP, L_HIP = 8, 11
 CAMERA_FROM_VIEW = np.array([1.0, 1.0, -1.0])  # view frame → camera-aligned frame (z negated)

@@ -19,7 +19,7 @@ import numpy as np
 
 from numba import njit
 
-from mocapdb.skeleton import KP
+from mocapdb.core.skeleton import KP
 
 
 @dataclass(frozen=True)

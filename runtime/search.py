@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from mocapdb.database import MotionDatabase
+from mocapdb.core.formats.database import MotionDatabase
 
 R_HIP, L_HIP = 8, 11
 

@@ -1,11 +1,11 @@
 """The one loop behind `mocapdb reconstruct` and `mocapdb live`: messages → frames → engine → outputs.
 
 ``reconstruct`` reads every message of a folder or file in order; ``live`` reads through
-:class:`~runtime.streams.LiveInput`, which drops stale messages when the engine falls behind.
+:class:`~mocapdb.runtime.streams.LiveInput`, which drops stale messages when the engine falls behind.
 Malformed messages are counted by reason and skipped; the summary reports them with frame,
 people and track counts, per-frame latency (p50/p99, from a message's arrival to its output line),
 throughput and what the limits held back. Whatever arrives, memory stays bounded: tracks by
-:class:`~runtime.engine.TrackLimits`, recordings by BVH parts, the summary's lists by caps.
+:class:`~mocapdb.runtime.engine.TrackLimits`, recordings by BVH parts, the summary's lists by caps.
 A sink that fails stops the session (:class:`SinkError`); :meth:`Session.finish` still writes
 every BVH file.
 """
@@ -21,13 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapdb.bvh import write_bvh
-from mocapdb.keypoints import KeypointError, KeypointFrame, parse_stream_line
-from mocapdb.skeleton import universal_bvh
+from mocapdb.core.formats.bvh import write_bvh
+from mocapdb.core.formats.keypoints import KeypointError, KeypointFrame, parse_stream_line
+from mocapdb.core.skeleton import universal_bvh
 
-from .engine import Engine, TrackRecording
-from .output import frame_line, header_line
-from .streams import LiveInput, RawMessage, Sink, Source, StreamStats
+from mocapdb.runtime.engine import Engine, TrackRecording
+from mocapdb.core.outputs import frame_line, header_line
+from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source, StreamStats
 
 
 MAX_LATENCIES = 100_000  # latency percentiles cover at most the last 2 × this many frames

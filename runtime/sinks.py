@@ -1,4 +1,4 @@
-"""Output sinks for ``mocapdb live`` and ``mocapdb reconstruct`` (see :mod:`runtime.streams`): one
+"""Output sinks for ``mocapdb live`` and ``mocapdb reconstruct`` (see :mod:`mocapdb.runtime.streams`): one
 line per :meth:`Sink.write`; an unreachable consumer is counted, never raised and never waited for."""
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from collections import deque
 from pathlib import Path
 from typing import Self
 
-from .sources import StreamStats, parse_host_port, resolve_address
+from mocapdb.runtime.sources import StreamStats, parse_host_port, resolve_address
 
 __all__ = ["MAX_DATAGRAM_BYTES", "FileSink", "Sink", "StdoutSink", "TcpSink", "UdpSink", "open_sink"]
 

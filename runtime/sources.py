@@ -1,4 +1,4 @@
-"""Message sources for ``mocapdb live`` and ``mocapdb reconstruct`` (see :mod:`runtime.streams`).
+"""Message sources for ``mocapdb live`` and ``mocapdb reconstruct`` (see :mod:`mocapdb.runtime.streams`).
 
 Every source yields :class:`RawMessage` texts and never parses them. A live source is built so that
 one sender cannot take it down:
@@ -274,7 +274,7 @@ def _is_json(data: bytes) -> bool:
 
 class FolderSource(Source):
     """The ``*.json`` files of a folder, one message each, in frame order (see the module notes of
-    :mod:`runtime.streams` and of this module)."""
+    :mod:`mocapdb.runtime.streams` and of this module)."""
 
     def __init__(self, folder: Path, *, follow: bool = False, settle_s: float = SETTLE_S,
                  rescan_s: float = RESCAN_S, **common: Any) -> None:

@@ -1,14 +1,14 @@
 """Transport for ``mocapdb live`` and ``mocapdb reconstruct``: raw messages in, output lines out.
 
-Sources (:func:`open_source`, in :mod:`runtime.sources`) yield :class:`RawMessage` texts and never
-parse them; the caller's parser does. Sinks (:func:`open_sink`, in :mod:`runtime.sinks`) write one
+Sources (:func:`open_source`, in :mod:`mocapdb.runtime.sources`) yield :class:`RawMessage` texts and never
+parse them; the caller's parser does. Sinks (:func:`open_sink`, in :mod:`mocapdb.runtime.sinks`) write one
 line per call. :class:`LiveInput` runs a source in a background thread behind a small drop-oldest
 buffer, so a slow engine skips stale frames instead of falling further and further behind;
 ``reconstruct`` iterates the source itself and processes every frame. Bad input never raises:
 oversized messages, non-UTF-8 payloads, messages over a sender's rate and undelivered output lines
 are counted in :class:`StreamStats` and skipped. Blank messages are skipped silently. How a live
 source stays up whatever one sender does (concurrent TCP clients, timeouts, rate limits, a cheap
-folder watch): :mod:`runtime.sources`.
+folder watch): :mod:`mocapdb.runtime.sources`.
 
 Choices:
 
@@ -37,8 +37,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, Generic, Self, TypeVar
 
-from .sinks import MAX_DATAGRAM_BYTES, Sink, open_sink
-from .sources import (MAX_MESSAGE_BYTES, NetworkLimits, RawMessage, Source, StreamSpecError, StreamStats,
+from mocapdb.runtime.sinks import MAX_DATAGRAM_BYTES, Sink, open_sink
+from mocapdb.runtime.sources import (MAX_MESSAGE_BYTES, NetworkLimits, RawMessage, Source, StreamSpecError, StreamStats,
                       open_source)
 
 __all__ = ["MAX_DATAGRAM_BYTES", "MAX_MESSAGE_BYTES", "BufferedThread", "LiveInput", "NetworkLimits", "RawMessage",

@@ -1,6 +1,6 @@
 """Associates the people detected in successive frames into tracks with stable ids.
 
-Each frame's detections (14 OpenPose keypoints per person, see :mod:`mocapdb.skeleton`) are
+Each frame's detections (14 OpenPose keypoints per person, see :mod:`mocapdb.core.skeleton`) are
 matched to the tracks by a scale-free cost, gated, and solved with the Hungarian algorithm;
 confirmed tracks are matched first, tentative ones then take what is left. A track predicts its
 keypoints by a constant velocity (of the joints it shares with each new detection, smoothed), so
@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import linear_sum_assignment
 
-from mocapdb.skeleton import N_KEYPOINTS_2D
+from mocapdb.core.skeleton import N_KEYPOINTS_2D
 
 _BOX_SHIFT = np.array([[1.0, 0.0, -1.0, 0.0], [0.0, 1.0, 0.0, -1.0]])  # (dx, dy) -> signed box
 _GATED = 1e6  # cost of a gated pair: finite, so the solver stays feasible; such pairs are dropped

@@ -1,10 +1,10 @@
 """Video as a live source: decoding and 2D pose detection in their own thread, feeding the live loop.
 
-:class:`VideoDetections` decodes a video file or a camera and runs a :class:`~mocapdb.detect.PoseModel`
+:class:`VideoDetections` decodes a video file or a camera and runs a :class:`~mocapdb.detect.model.PoseModel`
 on each frame in a background thread, so detection of the next frame overlaps the engine's
 retrieval of this one. Frames (universal 14 keypoints) wait in a small buffer; when the consumer
 falls behind, the oldest is dropped and counted (``StreamStats.dropped_stale``), as
-:class:`~runtime.streams.LiveInput` does for messages. Every frame carries the moment it was
+:class:`~mocapdb.runtime.streams.LiveInput` does for messages. Every frame carries the moment it was
 decoded, so the session's latency is end to end: capture → output line. A file is read as fast as
 detection goes (not paced to its frame rate); a camera paces itself.
 """
@@ -14,14 +14,14 @@ import threading
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, NamedTuple
 
-from mocapdb.detect import (DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU, DetectError, PoseModel, VideoFrame,
+from mocapdb.detect.model import (DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU, DetectError, PoseModel, VideoFrame,
                             VideoReader)
-from mocapdb.keypoints import KeypointFrame, Person, to_universal
+from mocapdb.core.formats.keypoints import KeypointFrame, Person, to_universal
 
-from .streams import BufferedThread, StreamStats
+from mocapdb.runtime.streams import BufferedThread, StreamStats
 
 if TYPE_CHECKING:
-    from .session import Session
+    from mocapdb.runtime.session import Session
 
 POLL_S = 0.05   # how often the live loop checks ``stop`` while no frame is ready
 
@@ -37,7 +37,7 @@ class VideoDetections(BufferedThread[CapturedFrame]):
     """Frames of ``source`` (a video file path, or a camera index) with the people ``model`` finds.
 
     ``every``: detect every N-th frame only; ``capacity``: frames buffered before the oldest is
-    dropped (see :class:`~runtime.streams.BufferedThread`). Opening the video happens here
+    dropped (see :class:`~mocapdb.runtime.streams.BufferedThread`). Opening the video happens here
     (DetectError if it fails); the thread starts at once.
     """
 
@@ -91,7 +91,7 @@ def open_video_source(spec: str, model_path: str, *, conf: float = DEFAULT_CONF,
                       max_people: int | None = None, input_size: int = DEFAULT_INPUT_SIZE, every: int = 1,
                       capacity: int = 2, stats: StreamStats | None = None) -> VideoDetections:
     """``mocapdb live --source SPEC --model POSE.onnx``: SPEC of digits is a camera index, anything
-    else a video file. The model options are :class:`~mocapdb.detect.PoseModel`'s; DetectError on failure."""
+    else a video file. The model options are :class:`~mocapdb.detect.model.PoseModel`'s; DetectError on failure."""
     model = PoseModel(model_path, conf=conf, iou=iou, max_people=max_people, input_size=input_size)
     source: str | int = int(spec) if spec.isdigit() else spec
     return VideoDetections(source, model, every=every, capacity=capacity, stats=stats)

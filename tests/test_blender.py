@@ -5,8 +5,8 @@ import sys
 import numpy as np
 import pytest
 
-from mocapdb.bvh import write_bvh
-from mocapdb.skeleton import PELVIS, rest_positions_m, retarget, universal_bvh
+from mocapdb.core.formats.bvh import write_bvh
+from mocapdb.core.skeleton import PELVIS, rest_positions_m, retarget, universal_bvh
 
 from .conftest import ROOT
 

@@ -3,12 +3,12 @@ the right depth; BVH output keeps one skeleton of that size."""
 import numpy as np
 import pytest
 
-from mocapdb.bvh import forward_kinematics, read_bvh
-from mocapdb.geometry import axis_rotation_matrices, yaw_matrix
-from mocapdb.keypoints import KeypointFrame, Person
-from mocapdb.skeleton import PELVIS, UNIVERSAL_HEIGHT_M
-from runtime.engine import Engine, EngineConfig
-from runtime.output import write_track_bvhs
+from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
+from mocapdb.core.geometry import axis_rotation_matrices, yaw_matrix
+from mocapdb.core.formats.keypoints import KeypointFrame, Person
+from mocapdb.core.skeleton import PELVIS, UNIVERSAL_HEIGHT_M
+from mocapdb.runtime.engine import Engine, EngineConfig
+from mocapdb.core.outputs import write_track_bvhs
 
 FOCAL, SIZE = 1000.0, (1920, 1080)
 

@@ -5,11 +5,11 @@ import shutil
 import numpy as np
 import pytest
 
-from mocapdb.builder import BuildConfig, BuildError, build, clips_from_bvh, continuous_runs, find_sources, process_clip
-from mocapdb.cli import main
-from mocapdb.database import load_database
-from mocapdb.geometry import normalize_pose_2d, project_views
-from mocapdb.skeleton import (BONE_LENGTHS_M, KEYPOINTS, KP, MIRROR_PAIRS, PELVIS, RIG_JOINTS, mirror_keypoints,
+from mocapdb.builder.pipeline import BuildConfig, BuildError, build, clips_from_bvh, continuous_runs, find_sources, process_clip
+from mocapdb.cli.main import main
+from mocapdb.core.formats.database import load_database
+from mocapdb.core.geometry import normalize_pose_2d, project_views
+from mocapdb.core.skeleton import (BONE_LENGTHS_M, KEYPOINTS, KP, MIRROR_PAIRS, PELVIS, RIG_JOINTS, mirror_keypoints,
                               pose_from_rotations)
 
 from .conftest import SAMPLE_BVH
@@ -64,7 +64,7 @@ def test_projections_are_normalised_views_of_the_frames(built):
     yaws = np.array(db.meta["yaws_deg"])[db.proj_yaw[rows]]
     for r, f, yaw in zip(rows, frames, yaws):
         pos = db.positions[f:f + 1].astype(np.float64)
-        from mocapdb.geometry import Camera
+        from mocapdb.core.geometry import Camera
         uv = project_views(pos, pos[:, PELVIS], np.array([yaw]), 0.0, Camera(**db.meta["camera"]))
         expected, _, _ = normalize_pose_2d(uv[0, 0, :14])
         np.testing.assert_allclose(db.keypoints_2d[r], expected, atol=1e-5)
@@ -211,7 +211,7 @@ BAD_FILES = {
 @pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning",
                             "ignore:invalid value encountered:RuntimeWarning")
 def test_bad_files_are_named_skips_and_never_reach_the_database(tmp_path, monkeypatch):
-    import mocapdb.builder as builder
+    import mocapdb.builder.pipeline as builder
 
     folder = tmp_path / "src"
     folder.mkdir()
@@ -243,7 +243,7 @@ def test_bad_files_are_named_skips_and_never_reach_the_database(tmp_path, monkey
 
 
 def test_blender_export_reads_as_the_original(tmp_path):
-    from mocapdb.bvh import REPLACED, format_bvh, read_bvh
+    from mocapdb.core.formats.bvh import REPLACED, format_bvh, read_bvh
 
     from .test_bvh import blender_style
 
@@ -266,8 +266,8 @@ def _unwritable_outputs(tmp_path):
 def test_unwritable_output_fails_before_any_file_is_read(sources, tmp_path, monkeypatch, capsys):
     import time
 
-    import mocapdb.builder as builder
-    from mocapdb.database import DatabaseError
+    import mocapdb.builder.pipeline as builder
+    from mocapdb.core.formats.database import DatabaseError
 
     read = []
     monkeypatch.setattr(builder, "read_bvh", lambda path: read.append(path))
@@ -285,7 +285,7 @@ def test_unwritable_output_fails_before_any_file_is_read(sources, tmp_path, monk
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root may write anywhere")
 def test_output_in_a_read_only_folder_fails_before_work(sources, tmp_path):
-    from mocapdb.database import DatabaseError
+    from mocapdb.core.formats.database import DatabaseError
 
     (tmp_path / "locked").mkdir()
     (tmp_path / "locked").chmod(0o500)
@@ -297,8 +297,8 @@ def test_output_in_a_read_only_folder_fails_before_work(sources, tmp_path):
 
 
 def test_bad_joint_map_fails_before_any_file_is_read(sources, tmp_path, monkeypatch):
-    import mocapdb.builder as builder
-    from mocapdb.joint_map import JointMapError
+    import mocapdb.builder.pipeline as builder
+    from mocapdb.core.joint_map import JointMapError
 
     read = []
     monkeypatch.setattr(builder, "read_bvh", lambda path: read.append(path))
@@ -311,7 +311,7 @@ def test_bad_joint_map_fails_before_any_file_is_read(sources, tmp_path, monkeypa
 def test_database_with_a_nan_is_never_written(built, tmp_path):
     from dataclasses import replace
 
-    from mocapdb.database import DatabaseError, write_database
+    from mocapdb.core.formats.database import DatabaseError, write_database
 
     _, db = built
     positions = db.positions.copy()
@@ -357,8 +357,8 @@ BAD_OPTIONS = {  # `mocapdb build` options → what the error must say
 def test_bad_build_option_fails_before_any_work(sources, tmp_path, monkeypatch, capsys, option):
     import time
 
-    import mocapdb.builder as builder
-    from mocapdb.cli import parser
+    import mocapdb.builder.pipeline as builder
+    from mocapdb.cli.main import parser
 
     parser()  # its imports (OpenCV) are not the build's time
     read = []
@@ -373,7 +373,7 @@ def test_bad_build_option_fails_before_any_work(sources, tmp_path, monkeypatch, 
 
 
 def test_bad_config_is_refused_by_the_library_too(sources, tmp_path):
-    from mocapdb.geometry import Camera
+    from mocapdb.core.geometry import Camera
 
     for config in [_config(clusters=0), _config(dims=2.5), _config(landmarks=True), _config(fps=float("nan")),
                    _config(camera=Camera(focal_px=0.0)), _config(camera=Camera(width_px=0)),
@@ -417,8 +417,8 @@ def test_build_through_a_symlink_writes_its_target(sources, tmp_path, capsys):
 
 
 def test_engine_commands_verify_checksums_unless_no_verify(small_db_path, tmp_path):
-    from mocapdb import cli
-    from mocapdb.database import DatabaseError
+    from mocapdb.cli import main as cli
+    from mocapdb.core.formats.database import DatabaseError
 
     db = tmp_path / "db"
     shutil.copytree(small_db_path, db)

@@ -4,7 +4,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mocapdb.bvh import (ADDED, NO_POSITIONS, REPLACED, Bvh, BvhError, format_bvh, forward_kinematics,
+from mocapdb.core.formats.bvh import (ADDED, NO_POSITIONS, REPLACED, Bvh, BvhError, format_bvh, forward_kinematics,
                          local_transforms, motion_from_rotations, parse_bvh, read_bvh)
 
 from .conftest import SHARED_BVH
@@ -60,7 +60,7 @@ def test_round_trip_keeps_positions():
 
 @pytest.mark.skipif(not SHARED_BVH.is_dir(), reason="shared CMU data not present")
 def test_real_file_round_trip(tmp_path):
-    from mocapdb.bvh import write_bvh
+    from mocapdb.core.formats.bvh import write_bvh
     bvh = read_bvh(SHARED_BVH / "002_03.bvh")
     write_bvh(tmp_path / "out.bvh", bvh)
     again = read_bvh(tmp_path / "out.bvh")

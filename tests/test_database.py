@@ -9,8 +9,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from mocapdb import database
-from mocapdb.database import (SCHEMA_VERSION, DatabaseError, MotionDatabase, load_database, recover_interrupted,
+from mocapdb.core.formats import database
+from mocapdb.core.formats.database import (SCHEMA_VERSION, DatabaseError, MotionDatabase, load_database, recover_interrupted,
                               write_database)
 
 

@@ -16,11 +16,11 @@ import onnx
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
-from mocapdb.detect import (DetectError, PoseModel, VideoReader, add_detect_parser, box_iou, coco17_to_coco18,
+from mocapdb.detect.model import (DetectError, PoseModel, VideoReader, add_detect_parser, box_iou, coco17_to_coco18,
                             letterbox, nms)
-from mocapdb.keypoints import read_openpose_folder, to_universal
-from runtime.streams import StreamStats
-from runtime.video_input import VideoDetections, open_video_source, run_video
+from mocapdb.core.formats.keypoints import read_openpose_folder, to_universal
+from mocapdb.runtime.streams import StreamStats
+from mocapdb.runtime.video_input import VideoDetections, open_video_source, run_video
 
 VIDEO_W, VIDEO_H, VIDEO_FRAMES, VIDEO_FPS = 640, 360, 10, 10.0
 SIDE = 320   # model input side: the 640×360 video is scaled by 0.5; YOLO pads 70 px above and below
@@ -335,7 +335,7 @@ def human_model(tmp_path, small_db):
 
 
 def test_video_to_bvh_through_detect_and_reconstruct(video, human_model, small_db_path, tmp_path, capsys):
-    from mocapdb.cli import main
+    from mocapdb.cli.main import main
 
     assert main(["detect", str(video), "--model", str(human_model), "--out", str(tmp_path / "kp")]) == 0
     assert main(["reconstruct", str(tmp_path / "kp"), "--db", str(small_db_path), "--out", str(tmp_path / "out"),
@@ -345,7 +345,7 @@ def test_video_to_bvh_through_detect_and_reconstruct(video, human_model, small_d
 
 
 def test_live_video_source_to_bvh(video, human_model, small_db_path, tmp_path, capsys):
-    from mocapdb.cli import main
+    from mocapdb.cli.main import main
 
     assert main(["live", "--source", str(video), "--model", str(human_model), "--db", str(small_db_path),
                  "--sink", str(tmp_path / "live.jsonl"), "--bvh-dir", str(tmp_path), "--buffer", "20",
@@ -358,7 +358,7 @@ def test_live_video_source_to_bvh(video, human_model, small_db_path, tmp_path, c
 
 
 def test_live_with_a_missing_model_is_a_clear_error(video, small_db_path, tmp_path, capsys):
-    from mocapdb.cli import main
+    from mocapdb.cli.main import main
 
     assert main(["live", "--source", str(video), "--model", str(tmp_path / "none.onnx"),
                  "--db", str(small_db_path)]) == 2
@@ -451,7 +451,7 @@ def test_detect_os_errors_name_the_path(video, yolo_model, tmp_path, capsys, mon
     def full(*args, **kwargs):  # an OS error without a file name
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr("mocapdb.detect.write_atomic", full)
+    monkeypatch.setattr("mocapdb.detect.model.write_atomic", full)
     args = parse_detect(str(video), "--model", str(yolo_model), "--out", str(tmp_path / "kp"))
     assert args.run(args) == 2
     err = capsys.readouterr().err

@@ -8,8 +8,8 @@ from sklearn.cluster import KMeans
 from sklearn.datasets import make_blobs
 from sklearn.metrics import adjusted_rand_score
 
-from mocapdb import embedding
-from mocapdb.embedding import (classical_mds, kmeans, landmark_mds, mean_member_distance,
+from mocapdb.builder import embedding
+from mocapdb.builder.embedding import (classical_mds, kmeans, landmark_mds, mean_member_distance,
                                pose_distances, representatives)
 
 # Articulated test skeleton in OpenPose order (neck is the root): parent, bone length, rest angle.

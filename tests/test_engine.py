@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from mocapdb.geometry import Camera, project_views, quat_geodesic, yaw_matrix
-from mocapdb.keypoints import KeypointFrame, Person
-from mocapdb.skeleton import KP, PELVIS
-from runtime.engine import Engine, EngineConfig
-from runtime.temporal import temporal_costs
+from mocapdb.core.geometry import Camera, project_views, quat_geodesic, yaw_matrix
+from mocapdb.core.formats.keypoints import KeypointFrame, Person
+from mocapdb.core.skeleton import KP, PELVIS
+from mocapdb.runtime.engine import Engine, EngineConfig
+from mocapdb.runtime.temporal import temporal_costs
 
 
 def _db_views(db, clip: int, yaw_index: int, camera: Camera, turn_deg: float = 0.0):
@@ -84,7 +84,7 @@ def test_temporal_costs_match_numpy_reference():
     frames, yaws = np.array([5, 13, 29]), np.array([0, 1, 1])
     window, joints = np.array([0.4, 0.3, 0.2, 0.1]), np.linspace(0.5, 1.5, 11)
     costs = temporal_costs(db_quats.astype(np.float32), clip_first, yaw_quats, frames, yaws, history, 3, window, joints)
-    from mocapdb.geometry import quat_mul
+    from mocapdb.core.geometry import quat_mul
     for c, (f, v) in enumerate(zip(frames, yaws)):
         total = 0.0
         for i in range(3):

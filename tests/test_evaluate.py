@@ -7,15 +7,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mocapdb.builder import BuildConfig, process_clip
-from mocapdb.errors import UsageError
-from mocapdb.geometry import yaw_matrix
-from mocapdb.keypoints import KeypointFrame, Person
-from mocapdb.skeleton import PELVIS
-from runtime.evaluate import (EngineRun, EvalConfig, Scenario, Truth, VariantStats, camera_distance, camera_view,
+from mocapdb.builder.pipeline import BuildConfig, process_clip
+from mocapdb.core.errors import UsageError
+from mocapdb.core.geometry import yaw_matrix
+from mocapdb.core.formats.keypoints import KeypointFrame, Person
+from mocapdb.core.skeleton import PELVIS
+from mocapdb.evaluation.reconstruction import (EngineRun, EvalConfig, Scenario, Truth, VariantStats, camera_distance, camera_view,
                               compute_floors, evaluate, project, render, reprojection_pct, scaled_positions)
-from runtime.evaluate_floor import FloorIndex, database_floor
-from runtime.evaluate_loso import (LosoConfig, format_table, group_by_subject, leave_one_subject_out, subject_of,
+from mocapdb.evaluation.floor import FloorIndex, database_floor
+from mocapdb.evaluation.loso import (LosoConfig, format_table, group_by_subject, leave_one_subject_out, subject_of,
                                    trial_of)
 
 from .conftest import SAMPLE_BVH
@@ -245,7 +245,7 @@ def test_files_without_a_subject_number_are_refused():
 def test_leave_one_subject_out_end_to_end(tmp_path, monkeypatch):
     import tempfile
 
-    import runtime.evaluate_loso as loso
+    import mocapdb.evaluation.loso as loso
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     built = []
@@ -288,7 +288,7 @@ def test_leave_one_subject_out_needs_two_subjects_and_known_subjects():
 
 
 def test_eval_command_line_checks(capsys):
-    from mocapdb.cli import main
+    from mocapdb.cli.main import main
 
     assert main(["eval"]) == 2
     assert "--leave-one-subject-out" in capsys.readouterr().err

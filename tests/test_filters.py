@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mocapdb.geometry import quat_geodesic
-from runtime.filters import OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
+from mocapdb.core.geometry import quat_geodesic
+from mocapdb.runtime.filters import OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
 
 RNG = np.random.default_rng(11)
 
@@ -150,7 +150,7 @@ def test_constant_rotation_stays_constant():
 
 
 def _standing_keypoints():
-    from mocapdb.skeleton import KP
+    from mocapdb.core.skeleton import KP
     px = np.zeros((14, 2))
     for name, (x, y) in {"head": (500, 100), "neck": (500, 160), "r_shoulder": (460, 165), "l_shoulder": (540, 165),
                          "r_elbow": (440, 240), "l_elbow": (560, 240), "r_wrist": (430, 310), "l_wrist": (570, 310),
@@ -161,7 +161,7 @@ def _standing_keypoints():
 
 
 def test_keypoint_filter_undoes_a_left_right_swap_of_the_arms():
-    from runtime.filters import ARM_PAIRS, KeypointFilter, KeypointFilterParams
+    from mocapdb.runtime.filters import ARM_PAIRS, KeypointFilter, KeypointFilterParams
     f = KeypointFilter(KeypointFilterParams(), 14)
     px, conf = _standing_keypoints(), np.ones(14)
     for i in range(5):
@@ -178,7 +178,7 @@ def test_keypoint_filter_undoes_a_left_right_swap_of_the_arms():
 
 
 def test_keypoint_filter_smooths_jitter_and_follows_motion():
-    from runtime.filters import KeypointFilter, KeypointFilterParams
+    from mocapdb.runtime.filters import KeypointFilter, KeypointFilterParams
     rng = np.random.default_rng(0)
     px, conf, fps = _standing_keypoints(), np.ones(14), 30.0
     f = KeypointFilter(KeypointFilterParams(), 14)
@@ -194,7 +194,7 @@ def test_keypoint_filter_smooths_jitter_and_follows_motion():
 
 
 def test_keypoint_filter_holds_unseen_points_and_ignores_repeated_times():
-    from runtime.filters import KeypointFilter, KeypointFilterParams
+    from mocapdb.runtime.filters import KeypointFilter, KeypointFilterParams
     px, conf = _standing_keypoints(), np.ones(14)
     f = KeypointFilter(KeypointFilterParams(), 14, reset_s=0.5)
     f(px, conf, 0.0)
@@ -211,7 +211,7 @@ def test_keypoint_filter_holds_unseen_points_and_ignores_repeated_times():
 
 
 def test_keypoint_filter_measures_jitter_and_only_smooths_noisy_tracks():
-    from runtime.filters import KeypointFilter, KeypointFilterParams
+    from mocapdb.runtime.filters import KeypointFilter, KeypointFilterParams
     rng = np.random.default_rng(1)
     px, conf, fps = _standing_keypoints(), np.ones(14), 30.0
     box = np.ptp(px[:, 1])

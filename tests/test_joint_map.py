@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from mocapdb.bvh import forward_kinematics, parse_bvh, read_bvh
-from mocapdb.joint_map import (UNITS, UP_AXES, JointMapError, _TO_Y_UP, describe, detect_mapping, detect_unit,
+from mocapdb.core.formats.bvh import forward_kinematics, parse_bvh, read_bvh
+from mocapdb.core.joint_map import (UNITS, UP_AXES, JointMapError, _TO_Y_UP, describe, detect_mapping, detect_unit,
                                detect_up_axis, extract_keypoints, load_joint_map_file)
-from mocapdb.skeleton import KEYPOINTS, N_POINTS
+from mocapdb.core.skeleton import KEYPOINTS, N_POINTS
 
 from .conftest import SHARED_BVH
 
@@ -235,8 +235,8 @@ def test_joint_map_example_of_the_docs_works(tmp_path):
 
 
 def test_blender_style_position_channels_keep_the_keypoints(tmp_path, capsys):
-    from mocapdb.bvh import format_bvh
-    from mocapdb.cli import main
+    from mocapdb.core.formats.bvh import format_bvh
+    from mocapdb.cli.main import main
 
     from .test_bvh import blender_style
 
@@ -402,9 +402,9 @@ def test_real_character_creator_file(name):
 @pytest.mark.parametrize("unit", ["m", "cm"])
 def test_universal_rig_round_trip(tmp_path, unit):
     """A BVH of mocapdb's own rig (`mocapdb stereo`, `track_*.bvh`) maps back onto the same 15 points."""
-    from mocapdb.builder import BuildConfig, process_clip
-    from mocapdb.bvh import write_bvh
-    from mocapdb.skeleton import PELVIS, pose_from_rotations, universal_bvh
+    from mocapdb.builder.pipeline import BuildConfig, process_clip
+    from mocapdb.core.formats.bvh import write_bvh
+    from mocapdb.core.skeleton import PELVIS, pose_from_rotations, universal_bvh
 
     from .conftest import SAMPLE_BVH
 

@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mocapdb.geometry import quat_mul
-from mocapdb.kernels import (cholesky_solve_into, quat_exp_into, quat_relative_log_into,
+from mocapdb.core.geometry import quat_mul
+from mocapdb.core.kernels import (cholesky_solve_into, quat_exp_into, quat_relative_log_into,
                              right_jacobian_inverse_into)
-from mocapdb.skeleton import KP, RIG_JOINTS, pose_from_rotations
-from runtime import refine
-from runtime.refine import JointLimits, RefineParams, Refiner, rotation_vectors
+from mocapdb.core.skeleton import KP, RIG_JOINTS, pose_from_rotations
+from mocapdb.runtime import refine
+from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner, rotation_vectors
 
 FOCAL, CENTER = 1000.0, (960.0, 540.0)
 ROOT = np.array([0.2, -0.4, -5.0])  # view frame: 5 m in front of the camera

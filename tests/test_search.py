@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from mocapdb.geometry import normalize_pose_2d
-from runtime.search import SearchIndex, search_clustered, search_exact
+from mocapdb.core.geometry import normalize_pose_2d
+from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact
 
 
 class _Db:

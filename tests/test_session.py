@@ -7,13 +7,13 @@ import time
 import numpy as np
 import pytest
 
-from mocapdb.bvh import forward_kinematics, read_bvh
-from mocapdb.cli import main
-from mocapdb.geometry import Camera, project_views
-from mocapdb.skeleton import PELVIS
-from runtime.engine import Engine, EngineConfig
-from runtime.session import FrameParser, Session, SessionSummary, run_live, run_offline
-from runtime.streams import StreamStats, open_sink, open_source
+from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
+from mocapdb.cli.main import main
+from mocapdb.core.geometry import Camera, project_views
+from mocapdb.core.skeleton import PELVIS
+from mocapdb.runtime.engine import Engine, EngineConfig
+from mocapdb.runtime.session import FrameParser, Session, SessionSummary, run_live, run_offline
+from mocapdb.runtime.streams import StreamStats, open_sink, open_source
 
 from .conftest import SAMPLE_KEYPOINTS
 
@@ -211,8 +211,8 @@ def test_live_process_whose_stdout_closes_stops_and_still_writes_its_bvh_files(s
 
 def test_live_cli_with_a_failing_sink_exits_non_zero_after_writing_the_bvh_files(small_db, small_db_path, tmp_path,
                                                                                   capsys, monkeypatch):
-    import runtime.streams
-    from runtime.sinks import Sink
+    import mocapdb.runtime.streams
+    from mocapdb.runtime.sinks import Sink
 
     class FullDisk(Sink):
         def __init__(self, stats):
@@ -227,7 +227,7 @@ def test_live_cli_with_a_failing_sink_exits_non_zero_after_writing_the_bvh_files
         def close(self):
             pass
 
-    monkeypatch.setattr(runtime.streams, "open_sink", lambda spec, stats: FullDisk(stats))
+    monkeypatch.setattr(mocapdb.runtime.streams, "open_sink", lambda spec, stats: FullDisk(stats))
     (tmp_path / "in.jsonl").write_text("\n".join(_stream_lines(small_db, 40)) + "\n")
     assert main(["live", "--source", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--fps", "24",
                  "--sink", str(tmp_path / "out.jsonl"), "--bvh-dir", str(tmp_path / "bvh"), "--buffer", "100",

@@ -7,14 +7,14 @@ import time
 import numpy as np
 import pytest
 
-from mocapdb.cli import main
-from mocapdb.database import load_database
-from mocapdb.geometry import Camera, project_views
-from mocapdb.keypoints import KeypointFrame, Person
-from mocapdb.skeleton import PELVIS
-from runtime.engine import Engine, EngineConfig, TrackLimits
-from runtime.session import FrameParser, InputError, Session, SessionOptions, SessionSummary, SinkError
-from runtime.streams import StreamStats, open_sink
+from mocapdb.cli.main import main
+from mocapdb.core.formats.database import load_database
+from mocapdb.core.geometry import Camera, project_views
+from mocapdb.core.formats.keypoints import KeypointFrame, Person
+from mocapdb.core.skeleton import PELVIS
+from mocapdb.runtime.engine import Engine, EngineConfig, TrackLimits
+from mocapdb.runtime.session import FrameParser, InputError, Session, SessionOptions, SessionSummary, SinkError
+from mocapdb.runtime.streams import StreamStats, open_sink
 
 from .test_session import _stream_lines
 
@@ -157,7 +157,7 @@ def _coco17(px: np.ndarray) -> list:
 def _flood(db, n_messages: int, stay: int):
     """Message k brings a new person (walking, ~110 px tall) to one of 64 places far apart; each
     stays ``stay`` frames. Yields ``RawMessage``s, built as they go (no memory of their own)."""
-    from runtime.streams import RawMessage
+    from mocapdb.runtime.streams import RawMessage
 
     walk = _walking_px(db, stay)
     walk = (walk - walk.reshape(-1, 2).mean(axis=0)) * 0.25
@@ -289,7 +289,7 @@ def test_new_tracks_per_minute_count_by_arrival_time_in_live(small_db, tmp_path)
 
 
 def test_skip_reasons_are_whole_and_say_where(small_db, tmp_path):
-    from runtime.streams import RawMessage
+    from mocapdb.runtime.streams import RawMessage
 
     session = _session(small_db, tmp_path)
     session.handle(RawMessage('{"frame": 1, "people": [' + " " * 300 + "x]}", "in.jsonl line 7", 0.0))

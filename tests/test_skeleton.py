@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mocapdb.bvh import forward_kinematics, format_bvh, parse_bvh
-from mocapdb.skeleton import (BONE_LENGTHS_M, KP, N_RIG_JOINTS, PELVIS, RIG_JOINTS, pose_from_rotations, resample,
+from mocapdb.core.formats.bvh import forward_kinematics, format_bvh, parse_bvh
+from mocapdb.core.skeleton import (BONE_LENGTHS_M, KP, N_RIG_JOINTS, PELVIS, RIG_JOINTS, pose_from_rotations, resample,
                               rest_positions_m, retarget, universal_bvh)
 
 LIMBS = [("r_hip", "r_knee", "thigh"), ("r_knee", "r_ankle", "shin"), ("l_hip", "l_knee", "thigh"),

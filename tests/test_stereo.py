@@ -1,15 +1,15 @@
-"""ElliPose core (mocapdb.stereo): ellipsoid fit, undistortion, stage 3, camera recovery, bad inputs."""
+"""ElliPose core (mocapdb.stereo.ellipsoid): ellipsoid fit, undistortion, stage 3, camera recovery, bad inputs."""
 import sys
 
 import cv2
 import numpy as np
 import pytest
 
-from mocapdb.builder import BuildConfig, process_clip
-from mocapdb.stereo import (RIGID_BONES, StereoConfig, StereoError, _stage2, _triangulate_all, check_geometry,
+from mocapdb.builder.pipeline import BuildConfig, process_clip
+from mocapdb.stereo.ellipsoid import (RIGID_BONES, StereoConfig, StereoError, _stage2, _triangulate_all, check_geometry,
                             check_parallax, fit_ellipsoid, ransac_ellipsoid, reconstruct, refine_bone_lengths,
                             sphericity, triangulate, triangulation_covariance, undistort)
-from mocapdb.stereo_pipeline import rotation_angle_deg
+from mocapdb.stereo.pipeline import rotation_angle_deg
 
 from .conftest import ROOT, SAMPLE_BVH
 

@@ -12,19 +12,19 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from mocapdb.builder import BuildConfig, process_clip
-from mocapdb.bvh import read_bvh
-from mocapdb import stereo_pipeline
-from mocapdb.cameras import CalibrationError, read_calibration_toml
-from mocapdb.joint_map import detect_mapping, extract_keypoints
-from mocapdb.keypoints import KeypointFrame, Person
-from mocapdb.skeleton import KEYPOINTS, N_KEYPOINTS_2D, RIG_JOINTS
-from mocapdb.stereo import StereoConfig, StereoError
-from mocapdb.cli import main
-from mocapdb.database import load_database
-from mocapdb.stereo_pipeline import CAMERA_ALIGNED, in_front_check, load_views, rotation_angle_deg, select_people
-from mocapdb.stereo_people import match_people
-from mocapdb.trc import TrcError, parse_trc, read_trc, trc_keypoints
+from mocapdb.builder.pipeline import BuildConfig, process_clip
+from mocapdb.core.formats.bvh import read_bvh
+from mocapdb.stereo import pipeline as stereo_pipeline
+from mocapdb.core.cameras import CalibrationError, read_calibration_toml
+from mocapdb.core.joint_map import detect_mapping, extract_keypoints
+from mocapdb.core.formats.keypoints import KeypointFrame, Person
+from mocapdb.core.skeleton import KEYPOINTS, N_KEYPOINTS_2D, RIG_JOINTS
+from mocapdb.stereo.ellipsoid import StereoConfig, StereoError
+from mocapdb.cli.main import main
+from mocapdb.core.formats.database import load_database
+from mocapdb.stereo.pipeline import CAMERA_ALIGNED, in_front_check, load_views, rotation_angle_deg, select_people
+from mocapdb.stereo.people import match_people
+from mocapdb.core.formats.trc import TrcError, parse_trc, read_trc, trc_keypoints
 
 from .conftest import ROOT, SAMPLE_BVH, SAMPLE_KEYPOINTS, SHARED_DATA
 

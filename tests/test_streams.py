@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from runtime.streams import (LiveInput, NetworkLimits, RawMessage, StreamSpecError, StreamStats,
+from mocapdb.runtime.streams import (LiveInput, NetworkLimits, RawMessage, StreamSpecError, StreamStats,
                              install_stop_handlers, open_sink, open_source)
 
 LOOPBACK = "127.0.0.1"
@@ -381,7 +381,7 @@ def test_folder_source_lists_again_only_when_the_folder_changes(tmp_path):
 
 
 def test_folder_source_rescans_a_folder_whose_time_stamp_hides_a_new_file(tmp_path):
-    from runtime.sources import FolderSource
+    from mocapdb.runtime.sources import FolderSource
 
     old_ns = time.time_ns() - 3600 * 10**9
     os.utime(tmp_path, ns=(old_ns, old_ns))
@@ -408,7 +408,7 @@ def test_listening_beyond_loopback_warns(scheme, capsys):
 
 
 def test_live_cli_stops_after_the_idle_timeout(small_db_path, tmp_path, capsys):
-    from mocapdb.cli import main
+    from mocapdb.cli.main import main
 
     start = time.monotonic()
     assert main(["live", "--source", f"udp://{LOOPBACK}:0", "--db", str(small_db_path),
@@ -418,7 +418,7 @@ def test_live_cli_stops_after_the_idle_timeout(small_db_path, tmp_path, capsys):
 
 
 def test_live_cli_rejects_bad_limits(small_db_path, capsys):
-    from mocapdb.cli import main
+    from mocapdb.cli.main import main
 
     assert main(["live", "--source", f"tcp://{LOOPBACK}:0", "--db", str(small_db_path), "--max-clients", "0"]) == 2
     assert "max clients" in capsys.readouterr().err

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from mocapdb.skeleton import KP, N_KEYPOINTS_2D
-from runtime.tracker import Tracker, TrackerConfig
+from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D
+from mocapdb.runtime.tracker import Tracker, TrackerConfig
 
 FPS = 30.0
 # A standing person in pixels, mid-hip at the origin, y down, about 310 px tall (OpenPose order).

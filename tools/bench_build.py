@@ -22,7 +22,7 @@ DEFAULT_SOURCES = ROOT.parent / "shared" / "data" / "cmu_bvh"
 
 CHILD = """
 import json, sys
-from mocapdb.builder import BuildConfig, build
+from mocapdb.builder.pipeline import BuildConfig, build
 cfg = BuildConfig(yaw_step_deg=float(sys.argv[2]), workers=int(sys.argv[4]))
 s = build([sys.argv[1]], sys.argv[3], cfg, exclude=sys.argv[5:])
 print(json.dumps({"projections": s.projections, "frames": s.frames, "clips": s.clips,

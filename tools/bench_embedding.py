@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from mocapdb.embedding import kmeans, landmark_mds  # noqa: E402
+from mocapdb.builder.embedding import kmeans, landmark_mds  # noqa: E402
 
 # A standing skeleton in OpenPose order (head, neck, arms, legs): unit height, mid-hip at 0, y down.
 BASE_POSE = np.array([

@@ -26,12 +26,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mocapdb.database import load_database  # noqa: E402
-from mocapdb.keypoints import KeypointFrame  # noqa: E402
-from runtime.engine import Engine, EngineConfig  # noqa: E402
-from runtime.evaluate import Scenario, load_heldout, render, search_benchmark, view_of  # noqa: E402
-from runtime.session import FrameParser, Session, SessionSummary, run_live  # noqa: E402
-from runtime.streams import StreamStats, open_sink, open_source  # noqa: E402
+from mocapdb.core.formats.database import load_database  # noqa: E402
+from mocapdb.core.formats.keypoints import KeypointFrame  # noqa: E402
+from mocapdb.runtime.engine import Engine, EngineConfig  # noqa: E402
+from mocapdb.evaluation.reconstruction import Scenario, load_heldout, render, search_benchmark, view_of  # noqa: E402
+from mocapdb.runtime.session import FrameParser, Session, SessionSummary, run_live  # noqa: E402
+from mocapdb.runtime.streams import StreamStats, open_sink, open_source  # noqa: E402
 
 DEFAULT_HELDOUT = sorted((ROOT.parent / "shared" / "data" / "cmu_bvh").glob("007_*.bvh"))
 COCO17_OF_UNIVERSAL = {0: 0, 2: 6, 3: 8, 4: 10, 5: 5, 6: 7, 7: 9, 8: 12, 9: 14, 10: 16, 11: 11, 12: 13, 13: 15}

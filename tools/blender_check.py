@@ -23,7 +23,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mocapdb.bvh import forward_kinematics, read_bvh  # noqa: E402
+from mocapdb.core.formats.bvh import forward_kinematics, read_bvh  # noqa: E402
 
 # Runs inside Blender. Blender 3.4's importer opens files with mode "rU", which Python 3.11
 # rejects; the shim drops the "U" (a Blender bug, not a property of the file).

@@ -23,8 +23,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 from blender_check import BPY_PYTHON_ENV, blender_available, run_in_blender  # noqa: E402
-from mocapdb.builder import BuildConfig, clips_from_bvh  # noqa: E402
-from mocapdb.skeleton import PELVIS  # noqa: E402
+from mocapdb.builder.pipeline import BuildConfig, clips_from_bvh  # noqa: E402
+from mocapdb.core.skeleton import PELVIS  # noqa: E402
 
 INSIDE = r"""
 import builtins, sys

@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from . import __version__
-from .bvh import BvhError, read_bvh
-from .database import MotionDatabase, check_output_path, recover_interrupted, write_database
-from .embedding import kmeans, landmark_mds, pose_distances, representatives
-from .geometry import Camera, normalize_pose_2d, project_views
-from .joint_map import UNITS, UP_AXES, JointMapError, detect_mapping, extract_keypoints, load_joint_map_file
-from .skeleton import (ANKLE_HEIGHT_M, BONE_LENGTHS_M, KEYPOINTS, KP, N_KEYPOINTS_2D, PELVIS,
+from mocapdb import __version__
+from mocapdb.core.formats.bvh import BvhError, read_bvh
+from mocapdb.core.formats.database import MotionDatabase, check_output_path, recover_interrupted, write_database
+from mocapdb.builder.embedding import kmeans, landmark_mds, pose_distances, representatives
+from mocapdb.core.geometry import Camera, normalize_pose_2d, project_views
+from mocapdb.core.joint_map import UNITS, UP_AXES, JointMapError, detect_mapping, extract_keypoints, load_joint_map_file
+from mocapdb.core.skeleton import (ANKLE_HEIGHT_M, BONE_LENGTHS_M, KEYPOINTS, KP, N_KEYPOINTS_2D, PELVIS,
                        RIG_JOINTS, mirror_keypoints, resample, retarget)
 
 CREDIT_FILE = "CREDIT.txt"

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .skeleton import KP, N_POINTS
+from mocapdb.core.skeleton import KP, N_POINTS
 
 TRC_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}  # metres per file unit
 _REQUIRED_KEYS = ("DataRate", "NumFrames", "NumMarkers", "Units")

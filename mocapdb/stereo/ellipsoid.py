@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .cameras import CameraModel
+from mocapdb.core.cameras import CameraModel
 
 # Rigid bones over the 14 keypoints (i, j, type). The neck (mid-shoulder) and pelvis (mid-hip)
 # are derived points, so only the hip and shoulder lines stand for the torso; the nose moves

@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .cameras import CameraModel
-from .keypoints import KeypointFrame
-from .skeleton import N_KEYPOINTS_2D
-from .stereo import ESSENTIAL_METHOD, StereoConfig, StereoError, sampson_distance
+from mocapdb.core.cameras import CameraModel
+from mocapdb.core.formats.keypoints import KeypointFrame
+from mocapdb.core.skeleton import N_KEYPOINTS_2D
+from mocapdb.stereo.ellipsoid import ESSENTIAL_METHOD, StereoConfig, StereoError, sampson_distance
 
 # A pair (person in view 1, person in view 2) of one frame is consistent when at least
 # MIN_SHARED_JOINTS joints are confident in both and the median of their first-order epipolar

@@ -16,7 +16,7 @@ Computation (:func:`database_floor`):
    x-z plane): with ``Y = Σ a_y b_y``, ``C = Σ (a_x b_x + a_z b_z)`` and
    ``S = Σ (a_z b_x − a_x b_z)`` (sums over the 15 keypoints),
    ``min_θ Σ‖a − R(θ) b‖² = ‖a‖² + ‖b‖² − 2 (Y + √(C² + S²))`` at ``θ* = atan2(−S, C)``
-   (``R`` as :func:`mocapdb.geometry.yaw_matrix`). ``‖b‖²`` is precomputed per database frame,
+   (``R`` as :func:`mocapdb.core.geometry.yaw_matrix`). ``‖b‖²`` is precomputed per database frame,
    so a (truth, database) pair costs the three 15-term sums. A numba kernel (parallel over blocks
    of truth frames, float32 sums, SIMD over database frames) keeps the :data:`TOP_K` database
    frames with the smallest squared error for every truth frame: ~2 s for 2,000 truth frames
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from mocapdb.skeleton import PELVIS
+from mocapdb.core.skeleton import PELVIS
 
 TOP_K = 128          # database frames kept per truth frame by squared error
 CHUNK = 1024         # database frames scored together (kept in cache while a block of truth frames runs)

@@ -1,12 +1,12 @@
 """`mocapdb stereo`: two uncalibrated cameras' OpenPose JSON → 3D motion (ElliPose), JSON lines and BVH.
 
 Steps: load both folders (frame-synchronised, same frame count) → find everyone seen by both views
-(:mod:`mocapdb.stereo_people`: 2D tracks per view, matched by epipolar consistency over time) →
-:func:`mocapdb.stereo.reconstruct` on all of them stacked along time (relative camera pose from the
+(:mod:`mocapdb.stereo.people`: 2D tracks per view, matched by epipolar consistency over time) →
+:func:`mocapdb.stereo.ellipsoid.reconstruct` on all of them stacked along time (relative camera pose from the
 bodies, ellipsoid correction) → each person triangulated with those cameras and given its own
 bone-length consistency → metres → ``result.jsonl`` (runtime schema, camera-aligned
 frame of camera 1, one track per person), ``cameras.json`` and one BVH per person (universal rig by
-:func:`mocapdb.skeleton.retarget`, one levelled y-up world for all). Output contract:
+:func:`mocapdb.core.skeleton.retarget`, one levelled y-up world for all). Output contract:
 ``data_specs/stream_output.md``; method: ``../shared/method/ellipose_stereo.md``; decisions:
 ``data_specs/stereo.md``.
 """
@@ -22,18 +22,18 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.engine import PersonPose
-from runtime.output import frame_line, header_line
+from mocapdb.runtime.engine import PersonPose
+from mocapdb.core.outputs import frame_line, header_line
 
-from .builder import _leg_scale
-from .bvh import write_atomic, write_bvh
-from .cameras import CameraModel, camera_from_intrinsics, os_error_message, read_calibration_toml
-from .geometry import matrix_to_quat, quat_to_matrix
-from .keypoints import LAYOUTS, KeypointFrame, read_openpose_folder
-from .skeleton import KP, PELVIS, head_from_torso, retarget, swing_matrices, universal_bvh
-from .stereo import (BEHIND_REFUSED, BEHIND_WARNED, RIGID_BONES, StereoConfig, StereoError, StereoResult,
+from mocapdb.builder.pipeline import _leg_scale
+from mocapdb.core.formats.bvh import write_atomic, write_bvh
+from mocapdb.core.cameras import CameraModel, camera_from_intrinsics, os_error_message, read_calibration_toml
+from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
+from mocapdb.core.formats.keypoints import LAYOUTS, KeypointFrame, read_openpose_folder
+from mocapdb.core.skeleton import KP, PELVIS, head_from_torso, retarget, swing_matrices, universal_bvh
+from mocapdb.stereo.ellipsoid import (BEHIND_REFUSED, BEHIND_WARNED, RIGID_BONES, StereoConfig, StereoError, StereoResult,
                      behind_cameras, behind_message, reconstruct, refine_bone_lengths, triangulate)
-from .stereo_people import (MAX_EPIPOLAR_PX, MIN_PERSON_FRAMES, MIN_SHARED_JOINTS, People,  # noqa: F401
+from mocapdb.stereo.people import (MAX_EPIPOLAR_PX, MIN_PERSON_FRAMES, MIN_SHARED_JOINTS, People,  # noqa: F401
                             Selection, match_people, sampson_distance)
 
 MAX_GAP_S = 0.5  # the BVH interpolates gaps up to this long linearly; longer ones hold the last pose
@@ -202,7 +202,7 @@ def _require_people(people: People) -> People:
 
 
 def estimate_cameras(people: People, cam1: CameraModel, cam2: CameraModel, config: StereoConfig) -> StereoResult:
-    """Camera 2's pose from every person's correspondences: :func:`mocapdb.stereo.reconstruct` on
+    """Camera 2's pose from every person's correspondences: :func:`mocapdb.stereo.ellipsoid.reconstruct` on
     the people stacked one after the other along time (one essential matrix and one ellipsoid
     per bone type for all; each person's stage 3 is :func:`person_points`)."""
     stacked = [np.concatenate([getattr(p, name) for p in people.persons]) for name in ("x1", "c1", "x2", "c2")]

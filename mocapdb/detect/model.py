@@ -25,8 +25,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from .bvh import write_atomic
-from .keypoints import LAYOUTS
+from mocapdb.core.formats.bvh import write_atomic
+from mocapdb.core.formats.keypoints import LAYOUTS
 
 DEFAULT_CONF = 0.25        # a person is kept when its model score is at least this
 DEFAULT_IOU = 0.65         # NMS drops a person whose box overlaps a better one's by more than this IoU
@@ -544,7 +544,7 @@ def run_detect(args: argparse.Namespace) -> int:
 
 
 def _detect(args: argparse.Namespace) -> int:
-    from runtime.streams import install_stop_handlers
+    from mocapdb.runtime.streams import install_stop_handlers
 
     if not args.model:
         raise DetectError(NO_MODEL)

@@ -1,8 +1,8 @@
 """2D body keypoints in: OpenPose and MMPose JSON, JSON-lines streams and detector arrays, on the universal 14.
 
 Every input layout (OpenPose BODY_25, BODY_25B, COCO-18; COCO-17, HALPE_26 and COCO-WholeBody-133
-from MMPose, RTMLib or YOLO-pose; MediaPipe BlazePose 33; tables in :mod:`mocapdb.keypoint_layouts`)
-is mapped onto the 14 keypoints of :data:`mocapdb.skeleton.KEYPOINTS` (pixels, x right, y down).
+from MMPose, RTMLib or YOLO-pose; MediaPipe BlazePose 33; tables in :mod:`mocapdb.core.formats.keypoint_layouts`)
+is mapped onto the 14 keypoints of :data:`mocapdb.core.skeleton.KEYPOINTS` (pixels, x right, y down).
 Orders, mapping, layout detection, file forms and the JSON-lines schema: ``data_specs/keypoint_formats.md``.
 """
 from __future__ import annotations
@@ -23,8 +23,8 @@ from typing import BinaryIO, NamedTuple
 
 import numpy as np
 
-from .keypoint_layouts import LAYOUT_OF_COUNT, LAYOUTS, SOURCE_INDEX
-from .skeleton import KP, N_KEYPOINTS_2D
+from mocapdb.core.formats.keypoint_layouts import LAYOUT_OF_COUNT, LAYOUTS, SOURCE_INDEX
+from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D
 
 CONFIDENCE_THRESHOLD = 0.3  # a keypoint is confident (visible) at or above this confidence
 

@@ -6,8 +6,8 @@ import math
 import os
 import sys
 
-from . import __version__
-from .joint_map import UNITS, UP_AXES
+from mocapdb import __version__
+from mocapdb.core.joint_map import UNITS, UP_AXES
 
 
 DEFAULT_FPS = 30.0  # input frame rate assumed when neither --fps nor the frames give one
@@ -50,9 +50,9 @@ def _add_build(sub: argparse._SubParsersAction) -> None:
 def _run_build(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .builder import BuildConfig, build
-    from .database import output_target
-    from .geometry import Camera
+    from mocapdb.builder.pipeline import BuildConfig, build
+    from mocapdb.core.formats.database import output_target
+    from mocapdb.core.geometry import Camera
 
     config = BuildConfig(
         fps=args.fps, yaw_step_deg=args.yaw_step,
@@ -80,8 +80,8 @@ def _add_inspect(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_inspect(args: argparse.Namespace) -> int:
-    from .bvh import read_bvh
-    from .joint_map import describe, detect_mapping, load_joint_map_file
+    from mocapdb.core.formats.bvh import read_bvh
+    from mocapdb.core.joint_map import describe, detect_mapping, load_joint_map_file
 
     bvh = read_bvh(args.bvh)
     overrides = load_joint_map_file(args.joint_map) if args.joint_map else None
@@ -148,11 +148,11 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
 
 
 def _engine(args: argparse.Namespace):
-    from runtime.engine import Engine, EngineConfig
-    from runtime.filters import REFINED_ROTATION_DEFAULTS, OneEuroParams
+    from mocapdb.runtime.engine import Engine, EngineConfig
+    from mocapdb.runtime.filters import REFINED_ROTATION_DEFAULTS, OneEuroParams
 
-    from .database import load_database
-    from .errors import UsageError
+    from mocapdb.core.formats.database import load_database
+    from mocapdb.core.errors import UsageError
 
     try:
         width, height = (int(v) for v in args.image_size.lower().split("x"))
@@ -183,11 +183,11 @@ def _engine(args: argparse.Namespace):
 def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=None):
     from pathlib import Path
 
-    from runtime.engine import TrackLimits
-    from runtime.session import FrameParser, Session, SessionOptions, SessionSummary
-    from runtime.streams import StreamStats, open_sink
+    from mocapdb.runtime.engine import TrackLimits
+    from mocapdb.runtime.session import FrameParser, Session, SessionOptions, SessionSummary
+    from mocapdb.runtime.streams import StreamStats, open_sink
 
-    from .errors import UsageError
+    from mocapdb.core.errors import UsageError
 
     summary = SessionSummary(stream=StreamStats())
     if bvh_dir is None and getattr(args, "bvh_dir", None):  # live --bvh-dir
@@ -220,9 +220,9 @@ def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
 def _run_reconstruct(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from runtime.output import output_folder
+    from mocapdb.core.outputs import output_folder
 
-    from .keypoints import KEYPOINT_FILE_SUFFIXES, read_keypoint_file
+    from mocapdb.core.formats.keypoints import KEYPOINT_FILE_SUFFIXES, read_keypoint_file
 
     frames = None  # a keypoint file (.npy, .npz, MMPose .json) is read and checked before any output
     if Path(args.input).suffix.lower() in KEYPOINT_FILE_SUFFIXES and not Path(args.input).is_dir():
@@ -239,10 +239,10 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
 
 def _reconstruct_into(args: argparse.Namespace, out_dir, frames):
     """Run the session into ``out_dir``; returns its summary and whether Ctrl-C stopped it early."""
-    from runtime.session import run_arrays, run_offline
-    from runtime.streams import open_source
+    from mocapdb.runtime.session import run_arrays, run_offline
+    from mocapdb.runtime.streams import open_source
 
-    from .errors import UsageError
+    from mocapdb.core.errors import UsageError
 
     session = _session(args, str(out_dir / "result.jsonl"), strict=True, bvh_dir=out_dir)
     interrupted = False
@@ -292,9 +292,9 @@ def _run_live(args: argparse.Namespace) -> int:
     import threading
     from pathlib import Path
 
-    from runtime.session import SinkError, run_live
-    from runtime.streams import NetworkLimits, install_stop_handlers, open_source
-    from runtime.video_input import open_video_source, run_video
+    from mocapdb.runtime.session import SinkError, run_live
+    from mocapdb.runtime.streams import NetworkLimits, install_stop_handlers, open_source
+    from mocapdb.runtime.video_input import open_video_source, run_video
 
     limits = NetworkLimits(args.max_clients, args.client_timeout, args.max_rate)   # checked before any work
     session = _session(args, args.sink, strict=False)
@@ -365,16 +365,16 @@ def _run_eval(args: argparse.Namespace) -> int:
     from dataclasses import replace
     from pathlib import Path
 
-    from runtime.engine import EngineConfig
-    from runtime.evaluate import EvalConfig, evaluate
+    from mocapdb.runtime.engine import EngineConfig
+    from mocapdb.evaluation.reconstruction import EvalConfig, evaluate
 
-    from .builder import BuildConfig, find_sources
-    from .database import load_database
-    from .errors import UsageError
+    from mocapdb.builder.pipeline import BuildConfig, find_sources
+    from mocapdb.core.formats.database import load_database
+    from mocapdb.core.errors import UsageError
 
     engine = EngineConfig(weight_2d=args.weight_2d, search=args.search)
     if args.loso:
-        from runtime.evaluate_loso import LosoConfig, format_table, leave_one_subject_out
+        from mocapdb.evaluation.loso import LosoConfig, format_table, leave_one_subject_out
 
         if args.db or args.bvh:
             raise UsageError("--leave-one-subject-out builds its own databases: leave out --db and --bvh")
@@ -434,8 +434,8 @@ def parser() -> argparse.ArgumentParser:
     _add_reconstruct(sub)
     _add_live(sub)
     _add_eval(sub)
-    from .detect import add_detect_parser  # imported here: they load OpenCV
-    from .stereo_pipeline import add_stereo_parser
+    from mocapdb.detect.model import add_detect_parser  # imported here: they load OpenCV
+    from mocapdb.stereo.pipeline import add_stereo_parser
 
     add_detect_parser(sub)
     add_stereo_parser(sub)
@@ -445,7 +445,7 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 only on success)."""
     args = parser().parse_args(argv)
-    from .errors import USER_ERRORS
+    from mocapdb.core.errors import USER_ERRORS
 
     try:
         return args.run(args)

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .bvh import POSITION_MODE_TEXT, Bvh, forward_kinematics
-from .skeleton import KEYPOINTS, N_POINTS
+from mocapdb.core.formats.bvh import POSITION_MODE_TEXT, Bvh, forward_kinematics
+from mocapdb.core.skeleton import KEYPOINTS, N_POINTS
 
 ROLES: tuple[str, ...] = (
     "head", "r_upperarm", "r_forearm", "r_hand", "l_upperarm", "l_forearm", "l_hand",
@@ -70,7 +70,7 @@ def _convention(sides: tuple[str, str], head: tuple[str, ...], upperarm: tuple[s
 
 
 UNIVERSAL_CONVENTION = "mocapdb_universal"
-UNIVERSAL_NOSE = "neck_end"  # the universal rig's neck End Site is the nose (``mocapdb.skeleton``)
+UNIVERSAL_NOSE = "neck_end"  # the universal rig's neck End Site is the nose (``mocapdb.core.skeleton``)
 
 CONVENTIONS: dict[str, dict[str, tuple[str, ...]]] = {
     "cmu_asf": _convention(("l", "r"), ("head",), ("{s}humerus",), ("{s}radius",),

@@ -10,7 +10,7 @@ engine's default) and as published (``EngineConfig(refine=False)``). Per scenari
 * MPJPE (cm): pelvis-aligned, in the camera-aligned frame, so a wrong yaw (or an unseen camera
   pitch) counts; PA-MPJPE (cm) after a similarity alignment; yaw error (degrees) of the facing
   direction; acceleration error (mm/frame²): jitter against the truth;
-* the database floor (cm, :mod:`runtime.evaluate_floor`): per frame the best database pose under
+* the database floor (cm, :mod:`mocapdb.evaluation.floor`): per frame the best database pose under
   the best vertical turn, i.e. what no retrieval of database poses can beat; ``engine_minus_floor``
   is what the engine adds on top of the database, ``frames_below_floor`` the share of frames the
   engine beat it (possible only by leaving the database: smoothing or 2D refinement);
@@ -21,7 +21,7 @@ engine's default) and as published (``EngineConfig(refine=False)``). Per scenari
   (one clip seen by two cameras 135° and 75° apart, compared with root rotation and translation
   removed).
 
-Leave-one-subject-out evaluation (databases built per fold): :mod:`runtime.evaluate_loso`.
+Leave-one-subject-out evaluation (databases built per fold): :mod:`mocapdb.evaluation.loso`.
 """
 from __future__ import annotations
 
@@ -33,16 +33,16 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from mocapdb.builder import BuildConfig, process_clip
-from mocapdb.database import MotionDatabase
-from mocapdb.geometry import normalize_pose_2d, yaw_matrix
-from mocapdb.keypoints import KeypointFrame, Person
-from mocapdb.metrics import acceleration_error, mpjpe, pa_mpjpe
-from mocapdb.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS, pose_from_rotations
+from mocapdb.builder.pipeline import BuildConfig, process_clip
+from mocapdb.core.formats.database import MotionDatabase
+from mocapdb.core.geometry import normalize_pose_2d, yaw_matrix
+from mocapdb.core.formats.keypoints import KeypointFrame, Person
+from mocapdb.evaluation.metrics import acceleration_error, mpjpe, pa_mpjpe
+from mocapdb.core.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS, pose_from_rotations
 
-from .engine import Engine, EngineConfig
-from .evaluate_floor import FloorIndex, database_floor
-from .search import search_clustered, search_exact
+from mocapdb.runtime.engine import Engine, EngineConfig
+from mocapdb.evaluation.floor import FloorIndex, database_floor
+from mocapdb.runtime.search import search_clustered, search_exact
 
 SWAP_PAIRS = [(KP[r], KP[l]) for r, l in MIRROR_PAIRS]  # right/left keypoint pairs
 IMAGE_HEIGHT_PX = 1080

@@ -2,12 +2,12 @@
 
 Subject = the number before the first ``_`` of a BVH file name (``002_05.bvh`` → 2). For each
 subject a database is built from all the other subjects' files with the normal builder (default
-:class:`~mocapdb.builder.BuildConfig` except ``workers``, and ``clusters``/``landmarks`` when
+:class:`~mocapdb.builder.pipeline.BuildConfig` except ``workers``, and ``clusters``/``landmarks`` when
 given) into a temporary folder that is removed afterwards, and a bounded sample of the subject's
-own clips is evaluated against it (:mod:`runtime.evaluate`: both engine variants on the same
+own clips is evaluated against it (:mod:`mocapdb.evaluation.reconstruction`: both engine variants on the same
 rendered frames, the database floor of that fold's database):
 
-* per clip the longest continuous run (:func:`~mocapdb.builder.process_clip`), at most
+* per clip the longest continuous run (:func:`~mocapdb.builder.pipeline.process_clip`), at most
   ``max_frames`` frames from its middle; at most ``max_clips`` clips per subject, evenly spaced in
   sorted order;
 * ``yaws_per_clip`` yaws per clip off the database's 12° grid, taken in turn from
@@ -31,11 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapdb.builder import BuildConfig, build, find_sources, process_clip
-from mocapdb.database import load_database
-from mocapdb.errors import UsageError
+from mocapdb.builder.pipeline import BuildConfig, build, find_sources, process_clip
+from mocapdb.core.formats.database import load_database
+from mocapdb.core.errors import UsageError
 
-from .evaluate import (EvalConfig, Scenario, ScenarioResult, Truth, compute_floors, engine_summary,
+from mocapdb.evaluation.reconstruction import (EvalConfig, Scenario, ScenarioResult, Truth, compute_floors, engine_summary,
                        evaluate_scenario)
 
 LOSO_YAWS = (6.0, 51.0, 99.0, 141.0, 186.0, 231.0, 279.0, 321.0)  # 3° or 6° off the 12° grid

@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .bvh import Bvh, motion_from_rotations
-from .geometry import frame_from_axes, matrix_to_quat, quat_to_matrix
-from .kernels import mat3_mul_into, quat_to_matrix_into
+from mocapdb.core.formats.bvh import Bvh, motion_from_rotations
+from mocapdb.core.geometry import frame_from_axes, matrix_to_quat, quat_to_matrix
+from mocapdb.core.kernels import mat3_mul_into, quat_to_matrix_into
 
 # The 14 keypoints in OpenPose COCO-18 order (its first 14), then the pelvis (mid-hip).
 KEYPOINTS: tuple[str, ...] = (

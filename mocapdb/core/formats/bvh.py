@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .geometry import euler_to_matrix, matrix_to_euler
+from mocapdb.core.geometry import euler_to_matrix, matrix_to_euler
 
 VALID_CHANNELS = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
 MAX_FRAMES = 10_000_000     # more is a broken header, not motion (a day at 100 fps is 8.6 M)

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapdb.bvh import write_bvh
-from mocapdb.skeleton import KEYPOINTS, RIG_JOINTS, universal_bvh
+from mocapdb.core.formats.bvh import write_bvh
+from mocapdb.core.skeleton import KEYPOINTS, RIG_JOINTS, universal_bvh
 
-from .engine import PersonPose, TrackRecording
+from mocapdb.runtime.engine import PersonPose, TrackRecording
 
 OUTPUT_FILES = ("result.jsonl", "track_*.bvh")  # what a reconstruct output folder holds
 
