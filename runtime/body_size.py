@@ -20,7 +20,6 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
-
 from numba import njit
 
 from mocapdb.core.kernels import quat_mul_into

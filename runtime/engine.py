@@ -19,13 +19,21 @@ import numpy as np
 from numba import njit
 
 from mocapdb.core.formats.database import DatabaseError, MotionDatabase
-from mocapdb.core.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
 from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
+from mocapdb.core.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
+from mocapdb.core.outputs import Match, PersonPose, TrackRecording
 from mocapdb.core.skeleton import N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, UNIVERSAL_HEIGHT_M, pose_from_rotations
-
 from mocapdb.runtime.body_size import CameraTilt, FloorScale
-from mocapdb.runtime.filters import (REFINED_ROOT_DEFAULTS, REFINED_ROTATION_DEFAULTS, ROOT_DEFAULTS, KeypointFilter,
-                      KeypointFilterParams, OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter)
+from mocapdb.runtime.filters import (
+    REFINED_ROOT_DEFAULTS,
+    REFINED_ROTATION_DEFAULTS,
+    ROOT_DEFAULTS,
+    KeypointFilter,
+    KeypointFilterParams,
+    OneEuroFilter,
+    OneEuroParams,
+    QuaternionOneEuroFilter,
+)
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
 from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact, yaw_offset
 from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotations
@@ -97,58 +105,6 @@ class EngineConfig:
             raise ValueError("a camera height needs the refinement (it levels the floor): drop --no-refine")
         if self.camera_height_m is not None and not 0.1 <= self.camera_height_m <= 50.0:
             raise ValueError(f"camera height must be between 0.1 and 50 m, not {self.camera_height_m}")
-
-
-@dataclass
-class Match:
-    """The database projection a pose was retrieved from."""
-
-    clip: str
-    frame: int          # frame index within the clip (database frame rate)
-    yaw_deg: float
-    distance_2d: float  # Eq. 1 distance to the normalised input
-
-
-@dataclass
-class PersonPose:
-    """One person's output for one frame."""
-
-    track: int
-    joints_m: np.ndarray     # [15, 3] camera-aligned frame, metres (KEYPOINTS order)
-    quaternions: np.ndarray  # [R, 4] local rotations; the root's is relative to the view frame
-    root_m: np.ndarray       # [3] pelvis, camera-aligned frame, metres
-    match: Match
-    height_m: float = UNIVERSAL_HEIGHT_M  # the body's standing height (the skeleton's scale)
-
-
-@dataclass
-class TrackRecording:
-    """What a track produced, for its BVH: one entry per frame from its first to its last."""
-
-    track: int
-    first_frame: int
-    quaternions: list[np.ndarray] = field(default_factory=list)  # [R, 4] view frame
-    root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] view frame
-    scales: list[float] = field(default_factory=list)            # body scale (height / 1.75 m)
-    static: bool = False  # its keypoints never moved (see StillnessCheck): a poster, not a person
-    part: int = 0         # earlier parts of the track cut off (Engine.cut_recordings)
-    first_s: float = 0.0  # input time of the first and the last recorded frame
-    last_s: float = 0.0
-
-    def duration_s(self, fps: float) -> float:
-        """Input time from the first recorded frame to the last, plus one frame (``1 / fps``)."""
-        return self.last_s - self.first_s + 1.0 / fps
-
-    def motion(self) -> tuple[np.ndarray, np.ndarray, float]:
-        """Rotations ``[F, R, 4]``, root ``[F, 3]`` and the one body scale of the track's BVH.
-
-        The image fixes a body only up to a scale about the camera centre, so where the scale
-        estimate changed during the track (``--camera-height``) each frame's root is moved to
-        the track's final scale: the BVH keeps one skeleton and still matches the image.
-        """
-        scales = np.array(self.scales)
-        final = float(scales[-1])
-        return np.array(self.quaternions), np.array(self.root_view_m) * (final / scales)[:, None], final
 
 
 class _TrackState:

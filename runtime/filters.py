@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from numba import njit
 
 from mocapdb.core.skeleton import KP

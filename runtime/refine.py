@@ -31,10 +31,24 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from mocapdb.core.kernels import (cholesky_solve_into, quat_exp_into, quat_log_into, quat_mul_into,
-                             quat_relative_log_into, right_jacobian_inverse_into)
-from mocapdb.core.skeleton import (JOINT_NODE, N_KEYPOINTS_2D, N_RIG_JOINTS, NODE_JOINT, NODE_OF_POINT,
-                              NODE_OFFSETS_M, NODE_PARENTS, rig_globals_into)
+from mocapdb.core.kernels import (
+    cholesky_solve_into,
+    quat_exp_into,
+    quat_log_into,
+    quat_mul_into,
+    quat_relative_log_into,
+    right_jacobian_inverse_into,
+)
+from mocapdb.core.skeleton import (
+    JOINT_NODE,
+    N_KEYPOINTS_2D,
+    N_RIG_JOINTS,
+    NODE_JOINT,
+    NODE_OF_POINT,
+    NODE_OFFSETS_M,
+    NODE_PARENTS,
+    rig_globals_into,
+)
 
 N_PARAMS = 3 + 3 * N_RIG_JOINTS
 MAX_CHAIN = 4  # rotation joints above a keypoint at most (wrist: pelvis, spine, shoulder, elbow)

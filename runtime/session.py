@@ -21,14 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
+from mocapdb.core.errors import MocapdbError
 from mocapdb.core.formats.bvh import write_bvh
 from mocapdb.core.formats.keypoints import KeypointError, KeypointFrame, parse_stream_line
-from mocapdb.core.skeleton import universal_bvh
-
-from mocapdb.runtime.engine import Engine, TrackRecording
-from mocapdb.core.outputs import frame_line, header_line
+from mocapdb.core.outputs import TrackRecording, frame_line, header_line, universal_bvh
+from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source, StreamStats
-
 
 MAX_LATENCIES = 100_000  # latency percentiles cover at most the last 2 × this many frames
 MAX_REASONS = 50         # distinct malformed-message reasons counted; further ones as "other"
@@ -137,7 +135,7 @@ class FrameParser:
         return frame
 
 
-class InputError(ValueError):
+class InputError(MocapdbError, ValueError):
     """Input that contradicts the command's parameters (e.g. keypoints outside --image-size)."""
 
 

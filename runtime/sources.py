@@ -41,6 +41,8 @@ from pathlib import Path
 from typing import Any, Self
 from urllib.parse import urlsplit
 
+from mocapdb.core.errors import MocapdbError
+
 __all__ = ["CLIENT_TIMEOUT_S", "MAX_CLIENTS", "MAX_MESSAGE_BYTES", "MAX_RATE", "FolderSource",
            "JsonLinesFileSource", "RawMessage", "Source", "StdinSource", "StreamSpecError", "StreamStats",
            "TcpSource", "UdpSource", "open_source"]
@@ -61,7 +63,7 @@ _FRAME_RE = re.compile(r"_([0-9]+)_keypoints\.json$")   # OpenPose: <name>_<fram
 _DIGITS_RE = re.compile(r"([0-9]+)")
 
 
-class StreamSpecError(ValueError):
+class StreamSpecError(MocapdbError, ValueError):
     """A --source or --sink value that names no supported stream."""
 
 

@@ -14,10 +14,16 @@ import threading
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, NamedTuple
 
-from mocapdb.detect.model import (DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU, DetectError, PoseModel, VideoFrame,
-                            VideoReader)
 from mocapdb.core.formats.keypoints import KeypointFrame, Person, to_universal
-
+from mocapdb.detect.model import (
+    DEFAULT_CONF,
+    DEFAULT_INPUT_SIZE,
+    DEFAULT_IOU,
+    DetectError,
+    PoseModel,
+    VideoFrame,
+    VideoReader,
+)
 from mocapdb.runtime.streams import BufferedThread, StreamStats
 
 if TYPE_CHECKING:

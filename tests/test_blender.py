@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from mocapdb.core.formats.bvh import write_bvh
-from mocapdb.core.skeleton import PELVIS, rest_positions_m, retarget, universal_bvh
+from mocapdb.core.outputs import universal_bvh
+from mocapdb.core.skeleton import PELVIS, rest_positions_m, retarget
 
 from .conftest import ROOT
 

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
-from mocapdb.core.geometry import axis_rotation_matrices, yaw_matrix
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
+from mocapdb.core.geometry import axis_rotation_matrices, yaw_matrix
+from mocapdb.core.outputs import write_track_bvhs
 from mocapdb.core.skeleton import PELVIS, UNIVERSAL_HEIGHT_M
 from mocapdb.runtime.engine import Engine, EngineConfig
-from mocapdb.core.outputs import write_track_bvhs
 
 FOCAL, SIZE = 1000.0, (1920, 1080)
 

@@ -5,12 +5,26 @@ import shutil
 import numpy as np
 import pytest
 
-from mocapdb.builder.pipeline import BuildConfig, BuildError, build, clips_from_bvh, continuous_runs, find_sources, process_clip
+from mocapdb.builder.pipeline import (
+    BuildConfig,
+    BuildError,
+    build,
+    find_sources,
+)
 from mocapdb.cli.main import main
+from mocapdb.core.clips import ClipOptions, clips_from_bvh, continuous_runs, process_clip
 from mocapdb.core.formats.database import load_database
 from mocapdb.core.geometry import normalize_pose_2d, project_views
-from mocapdb.core.skeleton import (BONE_LENGTHS_M, KEYPOINTS, KP, MIRROR_PAIRS, PELVIS, RIG_JOINTS, mirror_keypoints,
-                              pose_from_rotations)
+from mocapdb.core.skeleton import (
+    BONE_LENGTHS_M,
+    KEYPOINTS,
+    KP,
+    MIRROR_PAIRS,
+    PELVIS,
+    RIG_JOINTS,
+    mirror_keypoints,
+    pose_from_rotations,
+)
 
 from .conftest import SAMPLE_BVH
 
@@ -144,7 +158,7 @@ def test_mirror_keypoints_reflects_and_swaps_sides():
 
 
 def test_mirrored_clip_is_the_mirror_image_of_the_original():
-    original, mirror = clips_from_bvh(SAMPLE_BVH / "002_01.bvh", SAMPLE_BVH, BuildConfig())
+    original, mirror = clips_from_bvh(SAMPLE_BVH / "002_01.bvh", SAMPLE_BVH, ClipOptions())
     assert (original.name, mirror.name) == ("002_01", "002_01~mirror")
     assert (original.mirrored, mirror.mirrored) == (False, True)
     assert (mirror.source, mirror.source_fps, mirror.convention, mirror.credit) == \
@@ -177,7 +191,7 @@ def test_mirror_doubles_the_database_and_stays_out_of_ground_truth(sources, tmp_
         np.testing.assert_array_equal(mirrored_db.positions[original:original + n], plain.positions[first:first + n])
         np.testing.assert_allclose(mirrored_db.positions[mirror:mirror + n],
                                    mirror_keypoints(plain.positions[first:first + n]), rtol=0, atol=1e-6)
-    truth = process_clip(sources / "002_04.bvh", sources, _config())
+    truth = process_clip(sources / "002_04.bvh", sources, _config().clip_options())
     assert (truth.name, truth.mirrored) == ("002_04", False)
     np.testing.assert_array_equal(truth.positions, plain.positions[plain.clip_first_frame[1]:])
 
@@ -211,7 +225,7 @@ BAD_FILES = {
 @pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning",
                             "ignore:invalid value encountered:RuntimeWarning")
 def test_bad_files_are_named_skips_and_never_reach_the_database(tmp_path, monkeypatch):
-    import mocapdb.builder.pipeline as builder
+    import mocapdb.core.clips as clips
 
     folder = tmp_path / "src"
     folder.mkdir()
@@ -220,14 +234,14 @@ def test_bad_files_are_named_skips_and_never_reach_the_database(tmp_path, monkey
         (folder / name).write_text(corrupt(text))
     (folder / "fbx.bvh").write_bytes(b"Kaydara FBX Binary  \x00\x1a\x00" + bytes(range(256)))
     (folder / "bom.bvh").write_bytes(b"\xef\xbb\xbf" + text.encode())  # fine: a UTF-8 byte-order mark
-    extract = builder.extract_keypoints
+    extract = clips.extract_keypoints
 
     def extract_or_fail(bvh, *args, **kwargs):
         if bvh.source.endswith("boom.bvh"):
             raise ZeroDivisionError("float division by zero")  # what `Frame Time: 0` once gave
         return extract(bvh, *args, **kwargs)
 
-    monkeypatch.setattr(builder, "extract_keypoints", extract_or_fail)
+    monkeypatch.setattr(clips, "extract_keypoints", extract_or_fail)
     summary = build([str(folder)], tmp_path / "db", _config(mirror=False))
     reasons = dict(summary.skipped)
     assert sorted(reasons) == sorted(str(folder / n) for n in [*BAD_FILES, "fbx.bvh"])
@@ -249,8 +263,8 @@ def test_blender_export_reads_as_the_original(tmp_path):
 
     (tmp_path / "blender.bvh").write_text(format_bvh(blender_style(read_bvh(SAMPLE_BVH / "002_03.bvh"))))
     assert read_bvh(tmp_path / "blender.bvh").position_mode == REPLACED
-    original = process_clip(SAMPLE_BVH / "002_03.bvh", SAMPLE_BVH, _config())
-    exported = process_clip(tmp_path / "blender.bvh", tmp_path, _config())
+    original = process_clip(SAMPLE_BVH / "002_03.bvh", SAMPLE_BVH, _config().clip_options())
+    exported = process_clip(tmp_path / "blender.bvh", tmp_path, _config().clip_options())
     np.testing.assert_allclose(exported.positions, original.positions, atol=1e-4)
 
 
@@ -266,11 +280,11 @@ def _unwritable_outputs(tmp_path):
 def test_unwritable_output_fails_before_any_file_is_read(sources, tmp_path, monkeypatch, capsys):
     import time
 
-    import mocapdb.builder.pipeline as builder
+    import mocapdb.core.clips as clips
     from mocapdb.core.formats.database import DatabaseError
 
     read = []
-    monkeypatch.setattr(builder, "read_bvh", lambda path: read.append(path))
+    monkeypatch.setattr(clips, "read_bvh", lambda path: read.append(path))
     for out, message in _unwritable_outputs(tmp_path).items():
         with pytest.raises(DatabaseError, match=message):
             build([str(sources)], out, _config())
@@ -297,11 +311,11 @@ def test_output_in_a_read_only_folder_fails_before_work(sources, tmp_path):
 
 
 def test_bad_joint_map_fails_before_any_file_is_read(sources, tmp_path, monkeypatch):
-    import mocapdb.builder.pipeline as builder
+    import mocapdb.core.clips as clips
     from mocapdb.core.joint_map import JointMapError
 
     read = []
-    monkeypatch.setattr(builder, "read_bvh", lambda path: read.append(path))
+    monkeypatch.setattr(clips, "read_bvh", lambda path: read.append(path))
     (tmp_path / "map.toml").write_text("[joints]\nleft_hand = 'LeftHand'\n")
     with pytest.raises(JointMapError, match="map.toml: unknown role"):
         build([str(sources)], tmp_path / "db", _config(joint_map=tmp_path / "map.toml"))
@@ -358,11 +372,12 @@ def test_bad_build_option_fails_before_any_work(sources, tmp_path, monkeypatch, 
     import time
 
     import mocapdb.builder.pipeline as builder
+    import mocapdb.core.clips as clips
     from mocapdb.cli.main import parser
 
     parser()  # its imports (OpenCV) are not the build's time
     read = []
-    monkeypatch.setattr(builder, "read_bvh", lambda path: read.append(path))
+    monkeypatch.setattr(clips, "read_bvh", lambda path: read.append(path))
     monkeypatch.setattr(builder, "find_sources", lambda *a: read.append(a))
     start = time.perf_counter()
     assert main(["build", str(sources), "--out", str(tmp_path / "db"), "--workers", "1", *option]) == 2

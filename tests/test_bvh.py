@@ -4,8 +4,19 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mocapdb.core.formats.bvh import (ADDED, NO_POSITIONS, REPLACED, Bvh, BvhError, format_bvh, forward_kinematics,
-                         local_transforms, motion_from_rotations, parse_bvh, read_bvh)
+from mocapdb.core.formats.bvh import (
+    ADDED,
+    NO_POSITIONS,
+    REPLACED,
+    Bvh,
+    BvhError,
+    format_bvh,
+    forward_kinematics,
+    local_transforms,
+    motion_from_rotations,
+    parse_bvh,
+    read_bvh,
+)
 
 from .conftest import SHARED_BVH
 

@@ -10,8 +10,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from mocapdb.core.formats import database
-from mocapdb.core.formats.database import (SCHEMA_VERSION, DatabaseError, MotionDatabase, load_database, recover_interrupted,
-                              write_database)
+from mocapdb.core.formats.database import (
+    SCHEMA_VERSION,
+    DatabaseError,
+    MotionDatabase,
+    load_database,
+    recover_interrupted,
+    write_database,
+)
 
 
 def make_db(seed: int = 0, counts=(4, 2, 5), n_rig: int = 3, dims: int = 3,

@@ -16,9 +16,17 @@ import onnx
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
-from mocapdb.detect.model import (DetectError, PoseModel, VideoReader, add_detect_parser, box_iou, coco17_to_coco18,
-                            letterbox, nms)
 from mocapdb.core.formats.keypoints import read_openpose_folder, to_universal
+from mocapdb.detect.model import (
+    DetectError,
+    PoseModel,
+    VideoReader,
+    add_detect_parser,
+    box_iou,
+    coco17_to_coco18,
+    letterbox,
+    nms,
+)
 from mocapdb.runtime.streams import StreamStats
 from mocapdb.runtime.video_input import VideoDetections, open_video_source, run_video
 

@@ -9,8 +9,14 @@ from sklearn.datasets import make_blobs
 from sklearn.metrics import adjusted_rand_score
 
 from mocapdb.builder import embedding
-from mocapdb.builder.embedding import (classical_mds, kmeans, landmark_mds, mean_member_distance,
-                               pose_distances, representatives)
+from mocapdb.builder.embedding import (
+    classical_mds,
+    kmeans,
+    landmark_mds,
+    mean_member_distance,
+    pose_distances,
+    representatives,
+)
 
 # Articulated test skeleton in OpenPose order (neck is the root): parent, bone length, rest angle.
 PARENTS = (1, -1, 1, 2, 3, 1, 5, 6, 1, 8, 9, 1, 11, 12)

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from mocapdb.core.geometry import Camera, project_views, quat_geodesic, yaw_matrix
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
+from mocapdb.core.geometry import Camera, project_views, quat_geodesic, yaw_matrix
 from mocapdb.core.skeleton import KP, PELVIS
 from mocapdb.runtime.engine import Engine, EngineConfig
 from mocapdb.runtime.temporal import temporal_costs

@@ -7,16 +7,36 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mocapdb.builder.pipeline import BuildConfig, process_clip
+from mocapdb.builder.pipeline import BuildConfig
+from mocapdb.core.clips import ClipOptions, process_clip
 from mocapdb.core.errors import UsageError
-from mocapdb.core.geometry import yaw_matrix
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
+from mocapdb.core.geometry import yaw_matrix
 from mocapdb.core.skeleton import PELVIS
-from mocapdb.evaluation.reconstruction import (EngineRun, EvalConfig, Scenario, Truth, VariantStats, camera_distance, camera_view,
-                              compute_floors, evaluate, project, render, reprojection_pct, scaled_positions)
 from mocapdb.evaluation.floor import FloorIndex, database_floor
-from mocapdb.evaluation.loso import (LosoConfig, format_table, group_by_subject, leave_one_subject_out, subject_of,
-                                   trial_of)
+from mocapdb.evaluation.loso import (
+    LosoConfig,
+    format_table,
+    group_by_subject,
+    leave_one_subject_out,
+    subject_of,
+    trial_of,
+)
+from mocapdb.evaluation.reconstruction import (
+    EngineRun,
+    EvalConfig,
+    Scenario,
+    Truth,
+    VariantStats,
+    camera_distance,
+    camera_view,
+    compute_floors,
+    evaluate,
+    project,
+    render,
+    reprojection_pct,
+    scaled_positions,
+)
 
 from .conftest import SAMPLE_BVH
 
@@ -24,7 +44,7 @@ from .conftest import SAMPLE_BVH
 @pytest.fixture(scope="module")
 def walk_and_dance():
     """Two real clips on the universal skeleton (24 fps): subject 2 walking, subject 5 dancing."""
-    cfg = BuildConfig()
+    cfg = ClipOptions()
     return [process_clip(SAMPLE_BVH / name, SAMPLE_BVH, cfg).positions.astype(np.float64)
             for name in ("002_01.bvh", "005_11.bvh")]
 

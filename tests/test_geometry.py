@@ -4,9 +4,19 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mocapdb.core.geometry import (Camera, camera_axes_world, euler_to_matrix, matrix_to_euler, matrix_to_quat,
-                              normalize_pose_2d, project_views, quat_geodesic, quat_mul, quat_to_matrix,
-                              yaw_matrix)
+from mocapdb.core.geometry import (
+    Camera,
+    camera_axes_world,
+    euler_to_matrix,
+    matrix_to_euler,
+    matrix_to_quat,
+    normalize_pose_2d,
+    project_views,
+    quat_geodesic,
+    quat_mul,
+    quat_to_matrix,
+    yaw_matrix,
+)
 
 RNG = np.random.default_rng(7)
 

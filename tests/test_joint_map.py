@@ -3,8 +3,18 @@ import numpy as np
 import pytest
 
 from mocapdb.core.formats.bvh import forward_kinematics, parse_bvh, read_bvh
-from mocapdb.core.joint_map import (UNITS, UP_AXES, JointMapError, _TO_Y_UP, describe, detect_mapping, detect_unit,
-                               detect_up_axis, extract_keypoints, load_joint_map_file)
+from mocapdb.core.joint_map import (
+    _TO_Y_UP,
+    UNITS,
+    UP_AXES,
+    JointMapError,
+    describe,
+    detect_mapping,
+    detect_unit,
+    detect_up_axis,
+    extract_keypoints,
+    load_joint_map_file,
+)
 from mocapdb.core.skeleton import KEYPOINTS, N_POINTS
 
 from .conftest import SHARED_BVH
@@ -235,8 +245,8 @@ def test_joint_map_example_of_the_docs_works(tmp_path):
 
 
 def test_blender_style_position_channels_keep_the_keypoints(tmp_path, capsys):
-    from mocapdb.core.formats.bvh import format_bvh
     from mocapdb.cli.main import main
+    from mocapdb.core.formats.bvh import format_bvh
 
     from .test_bvh import blender_style
 
@@ -402,13 +412,14 @@ def test_real_character_creator_file(name):
 @pytest.mark.parametrize("unit", ["m", "cm"])
 def test_universal_rig_round_trip(tmp_path, unit):
     """A BVH of mocapdb's own rig (`mocapdb stereo`, `track_*.bvh`) maps back onto the same 15 points."""
-    from mocapdb.builder.pipeline import BuildConfig, process_clip
+    from mocapdb.core.clips import ClipOptions, process_clip
     from mocapdb.core.formats.bvh import write_bvh
-    from mocapdb.core.skeleton import PELVIS, pose_from_rotations, universal_bvh
+    from mocapdb.core.outputs import universal_bvh
+    from mocapdb.core.skeleton import PELVIS, pose_from_rotations
 
     from .conftest import SAMPLE_BVH
 
-    clip = process_clip(SAMPLE_BVH / "002_01.bvh", SAMPLE_BVH, BuildConfig(fps=30.0))
+    clip = process_clip(SAMPLE_BVH / "002_01.bvh", SAMPLE_BVH, ClipOptions(fps=30.0))
     quats = clip.quaternions[:40].astype(np.float64)
     expected = pose_from_rotations(quats, clip.positions[:40, PELVIS])
     path = tmp_path / "universal.bvh"
@@ -421,5 +432,5 @@ def test_universal_rig_round_trip(tmp_path, unit):
     assert detect_unit(bvh, mapping) == unit
     np.testing.assert_allclose(extract_keypoints(bvh, mapping), expected, atol=1e-5)
     # `mocapdb build` takes it like any other source.
-    rebuilt = process_clip(path, tmp_path, BuildConfig(fps=30.0))
+    rebuilt = process_clip(path, tmp_path, ClipOptions(fps=30.0))
     assert rebuilt.convention == "mocapdb_universal" and np.all(np.isfinite(rebuilt.positions))

@@ -9,9 +9,22 @@ import numpy as np
 import pytest
 
 from mocapdb.cli.main import main
-from mocapdb.core.formats.keypoints import (CONFIDENCE_THRESHOLD, LAYOUTS, KeypointError, Person, detect_layout,
-                               frames_from_arrays, parse_openpose_json, parse_stream_line, read_keypoint_array,
-                               read_keypoint_file, read_mmpose_json, read_openpose_folder, to_universal, visible)
+from mocapdb.core.formats.keypoints import (
+    CONFIDENCE_THRESHOLD,
+    LAYOUTS,
+    KeypointError,
+    Person,
+    detect_layout,
+    frames_from_arrays,
+    parse_openpose_json,
+    parse_stream_line,
+    read_keypoint_array,
+    read_keypoint_file,
+    read_mmpose_json,
+    read_openpose_folder,
+    to_universal,
+    visible,
+)
 from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D
 
 from .conftest import SAMPLE_KEYPOINTS, SHARED_DATA

@@ -6,8 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mocapdb.core.geometry import quat_mul
-from mocapdb.core.kernels import (cholesky_solve_into, quat_exp_into, quat_relative_log_into,
-                             right_jacobian_inverse_into)
+from mocapdb.core.kernels import cholesky_solve_into, quat_exp_into, quat_relative_log_into, right_jacobian_inverse_into
 from mocapdb.core.skeleton import KP, RIG_JOINTS, pose_from_rotations
 from mocapdb.runtime import refine
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner, rotation_vectors

@@ -7,8 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
 from mocapdb.cli.main import main
+from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
 from mocapdb.core.geometry import Camera, project_views
 from mocapdb.core.skeleton import PELVIS
 from mocapdb.runtime.engine import Engine, EngineConfig

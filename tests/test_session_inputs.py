@@ -9,8 +9,8 @@ import pytest
 
 from mocapdb.cli.main import main
 from mocapdb.core.formats.database import load_database
-from mocapdb.core.geometry import Camera, project_views
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
+from mocapdb.core.geometry import Camera, project_views
 from mocapdb.core.skeleton import PELVIS
 from mocapdb.runtime.engine import Engine, EngineConfig, TrackLimits
 from mocapdb.runtime.session import FrameParser, InputError, Session, SessionOptions, SessionSummary, SinkError

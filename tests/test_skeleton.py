@@ -3,9 +3,19 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mocapdb.core.formats.bvh import forward_kinematics, format_bvh, parse_bvh
-from mocapdb.core.skeleton import (BONE_LENGTHS_M, KP, N_RIG_JOINTS, PELVIS, RIG_JOINTS, pose_from_rotations, resample,
-                              rest_positions_m, retarget, universal_bvh)
+from mocapdb.core.formats.bvh import format_bvh, forward_kinematics, parse_bvh
+from mocapdb.core.outputs import universal_bvh
+from mocapdb.core.skeleton import (
+    BONE_LENGTHS_M,
+    KP,
+    N_RIG_JOINTS,
+    PELVIS,
+    RIG_JOINTS,
+    pose_from_rotations,
+    resample,
+    rest_positions_m,
+    retarget,
+)
 
 LIMBS = [("r_hip", "r_knee", "thigh"), ("r_knee", "r_ankle", "shin"), ("l_hip", "l_knee", "thigh"),
          ("l_knee", "l_ankle", "shin"), ("r_shoulder", "r_elbow", "upper_arm"),

@@ -5,10 +5,24 @@ import cv2
 import numpy as np
 import pytest
 
-from mocapdb.builder.pipeline import BuildConfig, process_clip
-from mocapdb.stereo.ellipsoid import (RIGID_BONES, StereoConfig, StereoError, _stage2, _triangulate_all, check_geometry,
-                            check_parallax, fit_ellipsoid, ransac_ellipsoid, reconstruct, refine_bone_lengths,
-                            sphericity, triangulate, triangulation_covariance, undistort)
+from mocapdb.core.clips import ClipOptions, process_clip
+from mocapdb.stereo.ellipsoid import (
+    RIGID_BONES,
+    StereoConfig,
+    StereoError,
+    _stage2,
+    _triangulate_all,
+    check_geometry,
+    check_parallax,
+    fit_ellipsoid,
+    ransac_ellipsoid,
+    reconstruct,
+    refine_bone_lengths,
+    sphericity,
+    triangulate,
+    triangulation_covariance,
+    undistort,
+)
 from mocapdb.stereo.pipeline import rotation_angle_deg
 
 from .conftest import ROOT, SAMPLE_BVH
@@ -152,7 +166,7 @@ def test_stage3_matches_a_dense_solve():
 
 def test_stage3_makes_bone_lengths_constant():
     rng = np.random.default_rng(5)
-    clip = process_clip(SAMPLE_BVH / "005_11.bvh", SAMPLE_BVH, BuildConfig(fps=30.0)).positions[:, :14]
+    clip = process_clip(SAMPLE_BVH / "005_11.bvh", SAMPLE_BVH, ClipOptions(fps=30.0)).positions[:, :14]
     cam1, cam2 = eval_stereo.pair_cameras("side", clip.mean(axis=(0, 1)))
     (x1, c1), (x2, c2) = (eval_stereo.render(clip, c, rng, 3.0, 0.0) for c in (cam1, cam2))
     valid = (c1 > 0) & (c2 > 0)
@@ -174,7 +188,7 @@ def test_stage3_makes_bone_lengths_constant():
 @pytest.fixture(scope="module")
 def dance():
     """A bundled clip with varied bone directions (dance steps, a pirouette), 30 fps, metres."""
-    return process_clip(SAMPLE_BVH / "005_11.bvh", SAMPLE_BVH, BuildConfig(fps=30.0)).positions[:, :14]
+    return process_clip(SAMPLE_BVH / "005_11.bvh", SAMPLE_BVH, ClipOptions(fps=30.0)).positions[:, :14]
 
 
 def _pair(positions, kind, noise_px, seed=0):

@@ -12,19 +12,19 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from mocapdb.builder.pipeline import BuildConfig, process_clip
-from mocapdb.core.formats.bvh import read_bvh
-from mocapdb.stereo import pipeline as stereo_pipeline
-from mocapdb.core.cameras import CalibrationError, read_calibration_toml
-from mocapdb.core.joint_map import detect_mapping, extract_keypoints
-from mocapdb.core.formats.keypoints import KeypointFrame, Person
-from mocapdb.core.skeleton import KEYPOINTS, N_KEYPOINTS_2D, RIG_JOINTS
-from mocapdb.stereo.ellipsoid import StereoConfig, StereoError
 from mocapdb.cli.main import main
+from mocapdb.core.cameras import CalibrationError, read_calibration_toml
+from mocapdb.core.clips import ClipOptions, process_clip
+from mocapdb.core.formats.bvh import read_bvh
 from mocapdb.core.formats.database import load_database
-from mocapdb.stereo.pipeline import CAMERA_ALIGNED, in_front_check, load_views, rotation_angle_deg, select_people
-from mocapdb.stereo.people import match_people
+from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.formats.trc import TrcError, parse_trc, read_trc, trc_keypoints
+from mocapdb.core.joint_map import detect_mapping, extract_keypoints
+from mocapdb.core.skeleton import KEYPOINTS, N_KEYPOINTS_2D, RIG_JOINTS
+from mocapdb.stereo import pipeline as stereo_pipeline
+from mocapdb.stereo.ellipsoid import StereoConfig, StereoError
+from mocapdb.stereo.people import match_people
+from mocapdb.stereo.pipeline import CAMERA_ALIGNED, in_front_check, load_views, rotation_angle_deg, select_people
 
 from .conftest import ROOT, SAMPLE_BVH, SAMPLE_KEYPOINTS, SHARED_DATA
 
@@ -38,7 +38,7 @@ _spec.loader.exec_module(eval_stereo)
 def motion():
     """A bundled clip (sideways dance steps, a pirouette) on the universal skeleton, 30 fps:
     positions ``[148, 15, 3]`` m, y up."""
-    clip = process_clip(SAMPLE_BVH / "005_11.bvh", SAMPLE_BVH, BuildConfig(fps=30.0))
+    clip = process_clip(SAMPLE_BVH / "005_11.bvh", SAMPLE_BVH, ClipOptions(fps=30.0))
     return clip.positions.astype(np.float64)
 
 
@@ -286,8 +286,8 @@ def scene():
     """Two CMU clips in one scene, 120 frames at 30 fps: a dancer (005_11) and, 2.6 m away, a jumper
     (002_04): positions ``[2, T, 15, 3]`` m, y up; and two cameras 6.5 m from them, 90° apart, that
     see both people apart (≥ 150 px between their boxes) and whole."""
-    a = process_clip(SAMPLE_BVH / "005_11.bvh", SAMPLE_BVH, BuildConfig(fps=30.0)).positions[:120]
-    b = process_clip(SAMPLE_BVH / "002_04.bvh", SAMPLE_BVH, BuildConfig(fps=30.0)).positions[:120]
+    a = process_clip(SAMPLE_BVH / "005_11.bvh", SAMPLE_BVH, ClipOptions(fps=30.0)).positions[:120]
+    b = process_clip(SAMPLE_BVH / "002_04.bvh", SAMPLE_BVH, ClipOptions(fps=30.0)).positions[:120]
     positions = np.stack([a, b + [2.25, 0.0, -1.3]]).astype(np.float64)
     target = positions.mean(axis=(0, 1, 2))
     cams = [eval_stereo.look_at(target + [6.5 * np.cos(np.radians(az)), height - target[1],

@@ -9,8 +9,16 @@ import time
 
 import pytest
 
-from mocapdb.runtime.streams import (LiveInput, NetworkLimits, RawMessage, StreamSpecError, StreamStats,
-                             install_stop_handlers, open_sink, open_source)
+from mocapdb.core.signals import install_stop_handlers
+from mocapdb.runtime.streams import (
+    LiveInput,
+    NetworkLimits,
+    RawMessage,
+    StreamSpecError,
+    StreamStats,
+    open_sink,
+    open_source,
+)
 
 LOOPBACK = "127.0.0.1"
 

@@ -23,7 +23,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 from blender_check import BPY_PYTHON_ENV, blender_available, run_in_blender  # noqa: E402
-from mocapdb.builder.pipeline import BuildConfig, clips_from_bvh  # noqa: E402
+
+from mocapdb.core.clips import ClipOptions, clips_from_bvh  # noqa: E402
 from mocapdb.core.skeleton import PELVIS  # noqa: E402
 
 INSIDE = r"""
@@ -51,7 +52,7 @@ def round_trip(path: Path, out: Path, bpy_python: str | None = None) -> None:
 
 def compare(original: Path, exported: Path) -> dict:
     """Largest and mean keypoint difference and pelvis-path difference (cm) of the two files' clips."""
-    config = BuildConfig(mirror=False)
+    config = ClipOptions(mirror=False)
     a = max(clips_from_bvh(original, original.parent, config), key=lambda c: len(c.positions))
     b = max(clips_from_bvh(exported, exported.parent, config), key=lambda c: len(c.positions))
     n = min(len(a.positions), len(b.positions))

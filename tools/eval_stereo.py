@@ -25,14 +25,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mocapdb.builder.pipeline import BuildConfig, process_clip  # noqa: E402
 from mocapdb.core.cameras import CameraModel, read_calibration_toml  # noqa: E402
+from mocapdb.core.clips import ClipOptions, process_clip  # noqa: E402
 from mocapdb.core.formats.keypoints import read_openpose_folder  # noqa: E402
-from mocapdb.evaluation.metrics import mpjpe, pa_mpjpe, pck  # noqa: E402
+from mocapdb.core.formats.trc import read_trc, trc_keypoints  # noqa: E402
 from mocapdb.core.skeleton import N_KEYPOINTS_2D  # noqa: E402
+from mocapdb.evaluation.metrics import mpjpe, pa_mpjpe, pck  # noqa: E402
 from mocapdb.stereo.ellipsoid import StereoConfig, reconstruct, triangulate  # noqa: E402
 from mocapdb.stereo.pipeline import intrinsics_only, rotation_angle_deg, select_people  # noqa: E402
-from mocapdb.core.formats.trc import read_trc, trc_keypoints  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 HELD_OUT = SHARED / "cmu_bvh"
@@ -138,7 +138,7 @@ def load_held_out(quick: bool) -> list[tuple[str, np.ndarray]]:
     files = sorted(HELD_OUT.glob("007_*.bvh"))[: 3 if quick else None]
     if not files:
         raise SystemExit(f"no held-out clips in {HELD_OUT}")
-    return [(f.stem, process_clip(f, HELD_OUT, BuildConfig(fps=FPS)).positions.astype(np.float64)) for f in files]
+    return [(f.stem, process_clip(f, HELD_OUT, ClipOptions(fps=FPS)).positions.astype(np.float64)) for f in files]
 
 
 def to_world(points_cam: np.ndarray, cam1: CameraModel) -> np.ndarray:

@@ -21,21 +21,26 @@ import numpy as np
 from tqdm import tqdm
 
 from mocapdb import __version__
-from mocapdb.core.formats.bvh import BvhError, read_bvh
-from mocapdb.core.formats.database import MotionDatabase, check_output_path, recover_interrupted, write_database
 from mocapdb.builder.embedding import kmeans, landmark_mds, pose_distances, representatives
+from mocapdb.core.clips import Clip, ClipOptions, clips_from_bvh
+from mocapdb.core.errors import MocapdbError
+from mocapdb.core.formats.bvh import BvhError
+from mocapdb.core.formats.database import MotionDatabase, check_output_path, recover_interrupted, write_database
 from mocapdb.core.geometry import Camera, normalize_pose_2d, project_views
-from mocapdb.core.joint_map import UNITS, UP_AXES, JointMapError, detect_mapping, extract_keypoints, load_joint_map_file
-from mocapdb.core.skeleton import (ANKLE_HEIGHT_M, BONE_LENGTHS_M, KEYPOINTS, KP, N_KEYPOINTS_2D, PELVIS,
-                       RIG_JOINTS, mirror_keypoints, resample, retarget)
+from mocapdb.core.joint_map import UNITS, UP_AXES, JointMapError, load_joint_map_file
+from mocapdb.core.skeleton import (
+    BONE_LENGTHS_M,
+    KEYPOINTS,
+    N_KEYPOINTS_2D,
+    PELVIS,
+    RIG_JOINTS,
+)
 
-CREDIT_FILE = "CREDIT.txt"
-MIRROR_SUFFIX = "~mirror"  # added to the name of a clip's left-right mirror image
 PROJECTION_CHUNK_FRAMES = 2000
 MAX_YAWS = 32767  # projections.yaw is int16
 
 
-class BuildError(RuntimeError):
+class BuildError(MocapdbError, RuntimeError):
     """A build that cannot go on; the message says why."""
 
 
@@ -57,6 +62,10 @@ class BuildConfig:
     up_axis: str | None = None
     credit: str | None = None
     mirror: bool = True  # also store every clip's left-right mirror image
+
+    def clip_options(self) -> ClipOptions:
+        """The options that turn a BVH file into clips (:mod:`mocapdb.core.clips`)."""
+        return ClipOptions(self.fps, self.joint_map, self.unit, self.up_axis, self.credit, self.mirror)
 
     @property
     def yaws_deg(self) -> np.ndarray:
@@ -96,20 +105,6 @@ def _check_positive(flag: str, value: object) -> None:
 def _check_int(flag: str, value: object, least: int) -> None:
     if not (isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= least):
         raise BuildError(f"{flag} must be a whole number ≥ {least}, got {value!r}")
-
-
-@dataclass
-class Clip:
-    """One source clip on the universal skeleton at the database frame rate."""
-
-    name: str
-    source: str
-    source_fps: float
-    convention: str
-    credit: str
-    quaternions: np.ndarray  # [F, R, 4]
-    positions: np.ndarray    # [F, 15, 3] metres, y up, floor at y = 0
-    mirrored: bool = False   # the left-right mirror image of the captured motion
 
 
 @dataclass
@@ -156,101 +151,11 @@ def find_sources(sources: list[str], exclude: list[str] = ()) -> list[tuple[Path
     return sorted(found.items())
 
 
-def credit_for(path: Path, root: Path, given: str | None) -> str:
-    """``given``, else the nearest CREDIT.txt from the file's folder up to its source root."""
-    if given is not None:
-        return given
-    folder = path.parent
-    while True:
-        candidate = folder / CREDIT_FILE
-        if candidate.is_file():
-            return candidate.read_text(encoding="utf-8").strip()
-        if folder == root or folder == folder.parent or root not in folder.parents:
-            return ""
-        folder = folder.parent
-
-
-def clips_from_bvh(path: Path, root: Path, config: BuildConfig) -> list[Clip]:
-    """Read, map, split at data jumps, resample and retarget one BVH file.
-
-    Each continuous run (:func:`continuous_runs`) becomes a clip, named after the file, with
-    ``@first-end`` (source frames) added when the file was split. With ``config.mirror`` each
-    clip is followed by its left-right mirror image (:data:`MIRROR_SUFFIX` added to the name),
-    retargeted from the mirrored source keypoints. Raises BvhError or JointMapError when the
-    file cannot be used, also when a clip would hold a NaN or infinite value.
-    """
-    bvh = read_bvh(path)
-    overrides = load_joint_map_file(config.joint_map) if config.joint_map else None
-    mapping = detect_mapping(bvh, overrides.joints if overrides else None)
-    unit = config.unit or (overrides.unit if overrides else None)
-    up_axis = config.up_axis or (overrides.up_axis if overrides else None)
-    points = extract_keypoints(bvh, mapping, unit=unit, up_axis=up_axis)
-    runs = continuous_runs(points, bvh.fps)
-    if not runs:
-        raise BvhError(f"{path}: no stretch of {MIN_RUN_S} s without a jump in the data")
-    credit = credit_for(path, root, config.credit)
-    whole = len(runs) == 1 and runs[0] == slice(0, len(points))
-    origin = dict(source=str(path), source_fps=bvh.fps, convention=mapping.convention, credit=credit)
-    clips = []
-    for run in runs:
-        name = path.stem if whole else f"{path.stem}@{run.start}-{run.stop}"
-        resampled = resample(points[run], bvh.fps, config.fps)
-        clips.append(_clip(name, resampled, **origin))
-        if config.mirror:
-            clips.append(_clip(name + MIRROR_SUFFIX, mirror_keypoints(resampled), mirrored=True, **origin))
-    if not all(np.isfinite(c.positions).all() and np.isfinite(c.quaternions).all() for c in clips):
-        raise BvhError(f"{path}: NaN or infinite joint positions after retargeting "
-                       "(absurdly large values in the file, or a degenerate skeleton)")
-    return clips
-
-
-def process_clip(path: Path, root: Path, config: BuildConfig) -> Clip:
-    """The longest continuous clip of a BVH file as captured, never a mirror image (what
-    evaluations use as ground truth)."""
-    return max(clips_from_bvh(path, root, replace(config, mirror=False)), key=lambda c: len(c.positions))
-
-
-def _clip(name: str, points: np.ndarray, *, source: str, source_fps: float, convention: str, credit: str,
-          mirrored: bool = False) -> Clip:
-    """Retarget resampled source keypoints (metres, y up) and put the floor at y = 0."""
-    quats, positions = retarget(points * _leg_scale(points))
-    ankles = positions[:, [KP["r_ankle"], KP["l_ankle"]], 1]
-    positions[..., 1] -= ankles.min() - ANKLE_HEIGHT_M
-    return Clip(name, source, source_fps, convention, credit, quats.astype(np.float32),
-                positions.astype(np.float32), mirrored)
-
-
-MAX_JOINT_SPEED_MPS = 15.0  # faster than any human joint: a jump in the data, not motion
-MIN_RUN_S = 0.5             # shorter continuous stretches are dropped
-
-
-def continuous_runs(points_m: np.ndarray, fps: float) -> list[slice]:
-    """The runs of frames (at least :data:`MIN_RUN_S` long) with no joint faster than
-    :data:`MAX_JOINT_SPEED_MPS` between consecutive frames.
-
-    Converted BVH files often start with a bind pose (T-pose) and then jump to the motion, and
-    some hold glitches (a knee flipping 30 cm in 1/60 s); splitting there keeps the database free
-    of teleports that the temporal match would otherwise learn. ``points_m [F, J, 3]`` at ``fps``.
-    """
-    step = np.linalg.norm(np.diff(points_m, axis=0), axis=-1).max(axis=-1)
-    cuts = np.concatenate([[0], np.flatnonzero(step * fps > MAX_JOINT_SPEED_MPS) + 1, [len(points_m)]])
-    return [slice(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:]) if b - a >= MIN_RUN_S * fps]
-
-
-def _leg_scale(points: np.ndarray) -> float:
-    """Universal over source leg length (hip→knee→ankle, median over the clip), for root motion."""
-    legs = []
-    for side in ("r", "l"):
-        hip, knee, ankle = (points[:, KP[f"{side}_{j}"]] for j in ("hip", "knee", "ankle"))
-        legs.append(np.linalg.norm(knee - hip, axis=-1) + np.linalg.norm(ankle - knee, axis=-1))
-    return (BONE_LENGTHS_M["thigh"] + BONE_LENGTHS_M["shin"]) / float(np.median(np.concatenate(legs)))
-
-
 def _process_one(args: tuple[Path, Path, BuildConfig]) -> list[Clip] | tuple[str, str]:
     """One file's clips, or ``(file, reason)`` when anything goes wrong: one bad file never ends a build."""
     path, root, config = args
     try:
-        return clips_from_bvh(path, root, config)
+        return clips_from_bvh(path, root, config.clip_options())
     except (BvhError, JointMapError) as exc:
         return (str(path), str(exc))
     except Exception as exc:  # noqa: BLE001 - any failure on one file is that file's skip reason

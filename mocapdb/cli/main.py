@@ -9,7 +9,6 @@ import sys
 from mocapdb import __version__
 from mocapdb.core.joint_map import UNITS, UP_AXES
 
-
 DEFAULT_FPS = 30.0  # input frame rate assumed when neither --fps nor the frames give one
 
 
@@ -148,11 +147,10 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
 
 
 def _engine(args: argparse.Namespace):
+    from mocapdb.core.errors import UsageError
+    from mocapdb.core.formats.database import load_database
     from mocapdb.runtime.engine import Engine, EngineConfig
     from mocapdb.runtime.filters import REFINED_ROTATION_DEFAULTS, OneEuroParams
-
-    from mocapdb.core.formats.database import load_database
-    from mocapdb.core.errors import UsageError
 
     try:
         width, height = (int(v) for v in args.image_size.lower().split("x"))
@@ -183,11 +181,10 @@ def _engine(args: argparse.Namespace):
 def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=None):
     from pathlib import Path
 
+    from mocapdb.core.errors import UsageError
     from mocapdb.runtime.engine import TrackLimits
     from mocapdb.runtime.session import FrameParser, Session, SessionOptions, SessionSummary
     from mocapdb.runtime.streams import StreamStats, open_sink
-
-    from mocapdb.core.errors import UsageError
 
     summary = SessionSummary(stream=StreamStats())
     if bvh_dir is None and getattr(args, "bvh_dir", None):  # live --bvh-dir
@@ -220,9 +217,8 @@ def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
 def _run_reconstruct(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from mocapdb.core.outputs import output_folder
-
     from mocapdb.core.formats.keypoints import KEYPOINT_FILE_SUFFIXES, read_keypoint_file
+    from mocapdb.core.outputs import output_folder
 
     frames = None  # a keypoint file (.npy, .npz, MMPose .json) is read and checked before any output
     if Path(args.input).suffix.lower() in KEYPOINT_FILE_SUFFIXES and not Path(args.input).is_dir():
@@ -239,10 +235,9 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
 
 def _reconstruct_into(args: argparse.Namespace, out_dir, frames):
     """Run the session into ``out_dir``; returns its summary and whether Ctrl-C stopped it early."""
+    from mocapdb.core.errors import UsageError
     from mocapdb.runtime.session import run_arrays, run_offline
     from mocapdb.runtime.streams import open_source
-
-    from mocapdb.core.errors import UsageError
 
     session = _session(args, str(out_dir / "result.jsonl"), strict=True, bvh_dir=out_dir)
     interrupted = False
@@ -292,8 +287,9 @@ def _run_live(args: argparse.Namespace) -> int:
     import threading
     from pathlib import Path
 
+    from mocapdb.core.signals import install_stop_handlers
     from mocapdb.runtime.session import SinkError, run_live
-    from mocapdb.runtime.streams import NetworkLimits, install_stop_handlers, open_source
+    from mocapdb.runtime.streams import NetworkLimits, open_source
     from mocapdb.runtime.video_input import open_video_source, run_video
 
     limits = NetworkLimits(args.max_clients, args.client_timeout, args.max_rate)   # checked before any work
@@ -365,12 +361,11 @@ def _run_eval(args: argparse.Namespace) -> int:
     from dataclasses import replace
     from pathlib import Path
 
-    from mocapdb.runtime.engine import EngineConfig
-    from mocapdb.evaluation.reconstruction import EvalConfig, evaluate
-
     from mocapdb.builder.pipeline import BuildConfig, find_sources
-    from mocapdb.core.formats.database import load_database
     from mocapdb.core.errors import UsageError
+    from mocapdb.core.formats.database import load_database
+    from mocapdb.evaluation.reconstruction import EvalConfig, evaluate
+    from mocapdb.runtime.engine import EngineConfig
 
     engine = EngineConfig(weight_2d=args.weight_2d, search=args.search)
     if args.loso:

@@ -10,8 +10,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mocapdb.core.errors import MocapdbError
+from mocapdb.core.files import os_error_message
 
-class CalibrationError(ValueError):
+
+class CalibrationError(MocapdbError, ValueError):
     """A calibration file that cannot be used; the message names the section and field."""
 
 
@@ -56,12 +59,6 @@ class CameraModel:
 # The principal point may lie outside the image (a crop), but not by more than this share of the
 # image's width or height beyond its border: further out, the matrix or the size is wrong.
 MAX_CENTER_OUTSIDE = 0.5
-
-
-def os_error_message(exc: OSError, path: str | Path, doing: str) -> str:
-    """``<file>: cannot <doing> (<reason>)``: an OS error that always names its file."""
-    name = exc.filename if exc.filename is not None else path
-    return f"{name}: cannot {doing} ({exc.strerror or type(exc).__name__})"
 
 
 def check_intrinsics(k: np.ndarray, size: tuple[float, float], where: str) -> None:

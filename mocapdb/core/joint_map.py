@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mocapdb.core.errors import MocapdbError
 from mocapdb.core.formats.bvh import POSITION_MODE_TEXT, Bvh, forward_kinematics
 from mocapdb.core.skeleton import KEYPOINTS, N_POINTS
 
@@ -94,7 +95,7 @@ _MAP_HINT = ("Name the joints yourself with --joint-map FILE.toml, for example:\
              "  [joints]\n  l_hand = \"SourceJointName\"")
 
 
-class JointMapError(ValueError):
+class JointMapError(MocapdbError, ValueError):
     """A rig whose joints cannot be mapped onto the roles, or a bad joint-map file."""
 
 

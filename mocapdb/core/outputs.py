@@ -6,19 +6,106 @@ import os
 import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from mocapdb.core.formats.bvh import write_bvh
-from mocapdb.core.skeleton import KEYPOINTS, RIG_JOINTS, universal_bvh
-
-from mocapdb.runtime.engine import PersonPose, TrackRecording
+from mocapdb.core.errors import MocapdbError
+from mocapdb.core.formats.bvh import Bvh, motion_from_rotations, write_bvh
+from mocapdb.core.geometry import quat_to_matrix
+from mocapdb.core.skeleton import (
+    END_SITES,
+    JOINT_NODE,
+    KEYPOINTS,
+    NODE_NAMES,
+    NODE_OFFSETS_M,
+    NODE_PARENTS,
+    RIG_JOINTS,
+    RIG_NODES,
+    UNIVERSAL_HEIGHT_M,
+)
 
 OUTPUT_FILES = ("result.jsonl", "track_*.bvh")  # what a reconstruct output folder holds
 
 
-class OutputFolderError(ValueError):
+@dataclass
+class Match:
+    """The database projection a pose was retrieved from."""
+
+    clip: str
+    frame: int          # frame index within the clip (database frame rate)
+    yaw_deg: float
+    distance_2d: float  # Eq. 1 distance to the normalised input
+
+
+@dataclass
+class PersonPose:
+    """One person's output for one frame."""
+
+    track: int
+    joints_m: np.ndarray     # [15, 3] camera-aligned frame, metres (KEYPOINTS order)
+    quaternions: np.ndarray  # [R, 4] local rotations; the root's is relative to the view frame
+    root_m: np.ndarray       # [3] pelvis, camera-aligned frame, metres
+    match: Match
+    height_m: float = UNIVERSAL_HEIGHT_M  # the body's standing height (the skeleton's scale)
+
+
+@dataclass
+class TrackRecording:
+    """What a track produced, for its BVH: one entry per frame from its first to its last."""
+
+    track: int
+    first_frame: int
+    quaternions: list[np.ndarray] = field(default_factory=list)  # [R, 4] view frame
+    root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] view frame
+    scales: list[float] = field(default_factory=list)            # body scale (height / 1.75 m)
+    static: bool = False  # its keypoints never moved (see StillnessCheck): a poster, not a person
+    part: int = 0         # earlier parts of the track cut off (Engine.cut_recordings)
+    first_s: float = 0.0  # input time of the first and the last recorded frame
+    last_s: float = 0.0
+
+    def duration_s(self, fps: float) -> float:
+        """Input time from the first recorded frame to the last, plus one frame (``1 / fps``)."""
+        return self.last_s - self.first_s + 1.0 / fps
+
+    def motion(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """Rotations ``[F, R, 4]``, root ``[F, 3]`` and the one body scale of the track's BVH.
+
+        The image fixes a body only up to a scale about the camera centre, so where the scale
+        estimate changed during the track (``--camera-height``) each frame's root is moved to
+        the track's final scale: the BVH keeps one skeleton and still matches the image.
+        """
+        scales = np.array(self.scales)
+        final = float(scales[-1])
+        return np.array(self.quaternions), np.array(self.root_view_m) * (final / scales)[:, None], final
+
+
+BVH_ROTATION_CHANNELS = ["Zrotation", "Yrotation", "Xrotation"]
+BVH_UNITS = {"m": 1.0, "cm": 100.0}
+
+
+def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str = "m",
+                  body_scale: float = 1.0) -> Bvh:
+    """A BVH of the universal rig: root position and every joint's rotation per frame.
+
+    ``unit`` is the BVH's length unit (``"m"`` or ``"cm"``); ``body_scale`` multiplies every
+    bone (a subject's height / :data:`UNIVERSAL_HEIGHT_M`).
+    """
+    scale = BVH_UNITS[unit]
+    names = [n if n not in END_SITES else f"{RIG_NODES[NODE_NAMES.index(n)][1]}_End" for n in NODE_NAMES]
+    channels = [([] if n in END_SITES else BVH_ROTATION_CHANNELS.copy()) for n in NODE_NAMES]
+    channels[0] = ["Xposition", "Yposition", "Zposition"] + BVH_ROTATION_CHANNELS
+    skeleton = Bvh(names, NODE_PARENTS.copy(), NODE_OFFSETS_M * (scale * body_scale), channels,
+                   np.array([n in END_SITES for n in NODE_NAMES]), 1.0 / fps,
+                   np.zeros((quats.shape[0], 0)))
+    local = np.broadcast_to(np.eye(3), (quats.shape[0], len(NODE_NAMES), 3, 3)).copy()
+    local[:, JOINT_NODE] = quat_to_matrix(quats)
+    skeleton.motion = motion_from_rotations(skeleton, local, pelvis_m * scale)
+    return skeleton
+
+
+class OutputFolderError(MocapdbError, ValueError):
     """An output folder that cannot be (re)placed; the message says why."""
 
 

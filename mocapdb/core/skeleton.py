@@ -9,8 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from mocapdb.core.formats.bvh import Bvh, motion_from_rotations
-from mocapdb.core.geometry import frame_from_axes, matrix_to_quat, quat_to_matrix
+from mocapdb.core.geometry import frame_from_axes, matrix_to_quat
 from mocapdb.core.kernels import mat3_mul_into, quat_to_matrix_into
 
 # The 14 keypoints in OpenPose COCO-18 order (its first 14), then the pelvis (mid-hip).
@@ -257,27 +256,3 @@ def resample(points: np.ndarray, source_fps: float, target_fps: float) -> np.nda
     i1 = np.minimum(i0 + 1, n_src - 1)
     w = (t - i0).reshape((-1,) + (1,) * (points.ndim - 1))
     return points[i0] * (1.0 - w) + points[i1] * w
-
-
-BVH_ROTATION_CHANNELS = ["Zrotation", "Yrotation", "Xrotation"]
-BVH_UNITS = {"m": 1.0, "cm": 100.0}
-
-
-def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str = "m",
-                  body_scale: float = 1.0) -> Bvh:
-    """A BVH of the universal rig: root position and every joint's rotation per frame.
-
-    ``unit`` is the BVH's length unit (``"m"`` or ``"cm"``); ``body_scale`` multiplies every
-    bone (a subject's height / :data:`UNIVERSAL_HEIGHT_M`).
-    """
-    scale = BVH_UNITS[unit]
-    names = [n if n not in END_SITES else f"{RIG_NODES[NODE_NAMES.index(n)][1]}_End" for n in NODE_NAMES]
-    channels = [([] if n in END_SITES else BVH_ROTATION_CHANNELS.copy()) for n in NODE_NAMES]
-    channels[0] = ["Xposition", "Yposition", "Zposition"] + BVH_ROTATION_CHANNELS
-    skeleton = Bvh(names, NODE_PARENTS.copy(), NODE_OFFSETS_M * (scale * body_scale), channels,
-                   np.array([n in END_SITES for n in NODE_NAMES]), 1.0 / fps,
-                   np.zeros((quats.shape[0], 0)))
-    local = np.broadcast_to(np.eye(3), (quats.shape[0], len(NODE_NAMES), 3, 3)).copy()
-    local[:, JOINT_NODE] = quat_to_matrix(quats)
-    skeleton.motion = motion_from_rotations(skeleton, local, pelvis_m * scale)
-    return skeleton

@@ -25,7 +25,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from mocapdb.core.formats.bvh import write_atomic
+from mocapdb.core.errors import MocapdbError
+from mocapdb.core.files import os_error_message, write_atomic
 from mocapdb.core.formats.keypoints import LAYOUTS
 
 DEFAULT_CONF = 0.25        # a person is kept when its model score is at least this
@@ -44,16 +45,8 @@ KNOWN_LAYOUTS = (f"YOLO-pose (input [1, 3, H, W]; output [1, {YOLO_CHANNELS}, an
 _INPUT_TYPES = {"tensor(float)": np.float32, "tensor(float16)": np.float16}
 
 
-class DetectError(RuntimeError):
+class DetectError(MocapdbError, RuntimeError):
     """A model, video or option that cannot be used; the message says which and why."""
-
-
-def os_error_message(exc: OSError, path: str | Path | None = None, doing: str | None = None) -> str:
-    """An OS error that names its file: ``<file>: cannot <doing> (<reason>)`` or ``<file>: <reason>``."""
-    name = exc.filename if exc.filename is not None else path
-    reason = exc.strerror or str(exc) or type(exc).__name__
-    what = f"cannot {doing} ({reason})" if doing else reason
-    return f"{name}: {what}" if name is not None else what
 
 
 def _check_readable(path: Path, what: str) -> None:
@@ -544,7 +537,7 @@ def run_detect(args: argparse.Namespace) -> int:
 
 
 def _detect(args: argparse.Namespace) -> int:
-    from mocapdb.runtime.streams import install_stop_handlers
+    from mocapdb.core.signals import install_stop_handlers
 
     if not args.model:
         raise DetectError(NO_MODEL)

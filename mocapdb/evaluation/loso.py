@@ -7,7 +7,7 @@ given) into a temporary folder that is removed afterwards, and a bounded sample 
 own clips is evaluated against it (:mod:`mocapdb.evaluation.reconstruction`: both engine variants on the same
 rendered frames, the database floor of that fold's database):
 
-* per clip the longest continuous run (:func:`~mocapdb.builder.pipeline.process_clip`), at most
+* per clip the longest continuous run (:func:`~mocapdb.core.clips.process_clip`), at most
   ``max_frames`` frames from its middle; at most ``max_clips`` clips per subject, evenly spaced in
   sorted order;
 * ``yaws_per_clip`` yaws per clip off the database's 12° grid, taken in turn from
@@ -31,12 +31,19 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapdb.builder.pipeline import BuildConfig, build, find_sources, process_clip
-from mocapdb.core.formats.database import load_database
+from mocapdb.builder.pipeline import BuildConfig, build, find_sources
+from mocapdb.core.clips import process_clip
 from mocapdb.core.errors import UsageError
-
-from mocapdb.evaluation.reconstruction import (EvalConfig, Scenario, ScenarioResult, Truth, compute_floors, engine_summary,
-                       evaluate_scenario)
+from mocapdb.core.formats.database import load_database
+from mocapdb.evaluation.reconstruction import (
+    EvalConfig,
+    Scenario,
+    ScenarioResult,
+    Truth,
+    compute_floors,
+    engine_summary,
+    evaluate_scenario,
+)
 
 LOSO_YAWS = (6.0, 51.0, 99.0, 141.0, 186.0, 231.0, 279.0, 321.0)  # 3° or 6° off the 12° grid
 LOSO_SCENARIOS = (
@@ -119,7 +126,7 @@ def evenly_spaced(items: list, n: int) -> list:
 def sample_truths(files: list[Path], config: LosoConfig) -> list[Truth]:
     """The bounded evaluation sample of one subject's files (see the module docstring)."""
     truths = []
-    clip_config = replace(config.build, fps=config.eval.fps, workers=1)
+    clip_config = replace(config.build.clip_options(), fps=config.eval.fps)
     for i, path in enumerate(evenly_spaced(sorted(files), config.max_clips)):
         clip = process_clip(path, path.parent, clip_config)
         n = len(clip.positions)

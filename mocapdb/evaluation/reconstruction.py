@@ -33,15 +33,14 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from mocapdb.builder.pipeline import BuildConfig, process_clip
+from mocapdb.core.clips import ClipOptions, process_clip
 from mocapdb.core.formats.database import MotionDatabase
-from mocapdb.core.geometry import normalize_pose_2d, yaw_matrix
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
-from mocapdb.evaluation.metrics import acceleration_error, mpjpe, pa_mpjpe
+from mocapdb.core.geometry import normalize_pose_2d, yaw_matrix
 from mocapdb.core.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS, pose_from_rotations
-
-from mocapdb.runtime.engine import Engine, EngineConfig
 from mocapdb.evaluation.floor import FloorIndex, database_floor
+from mocapdb.evaluation.metrics import acceleration_error, mpjpe, pa_mpjpe
+from mocapdb.runtime.engine import Engine, EngineConfig
 from mocapdb.runtime.search import search_clustered, search_exact
 
 SWAP_PAIRS = [(KP[r], KP[l]) for r, l in MIRROR_PAIRS]  # right/left keypoint pairs
@@ -100,7 +99,7 @@ class Truth:
 
 def load_heldout(paths: list[Path], fps: float) -> list[Truth]:
     """Retarget held-out BVH files exactly as the builder does."""
-    config = BuildConfig(fps=fps)
+    config = ClipOptions(fps=fps)
     return [Truth(c.name, c.quaternions.astype(np.float64), c.positions.astype(np.float64))
             for c in (process_clip(p, p.parent, config) for p in paths)]
 

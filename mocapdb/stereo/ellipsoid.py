@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from mocapdb.core.cameras import CameraModel
+from mocapdb.core.errors import MocapdbError
 
 # Rigid bones over the 14 keypoints (i, j, type). The neck (mid-shoulder) and pelvis (mid-hip)
 # are derived points, so only the hip and shoulder lines stand for the torso; the nose moves
@@ -32,7 +33,7 @@ RIGID_BONES: tuple[tuple[int, int, int], ...] = (
 )
 
 
-class StereoError(ValueError):
+class StereoError(MocapdbError, ValueError):
     """Input the stereo reconstruction cannot use; the message says why."""
 
 

@@ -22,19 +22,36 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapdb.runtime.engine import PersonPose
-from mocapdb.core.outputs import frame_line, header_line
-
-from mocapdb.builder.pipeline import _leg_scale
-from mocapdb.core.formats.bvh import write_atomic, write_bvh
-from mocapdb.core.cameras import CameraModel, camera_from_intrinsics, os_error_message, read_calibration_toml
-from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
+from mocapdb.core.cameras import CameraModel, camera_from_intrinsics, read_calibration_toml
+from mocapdb.core.clips import leg_scale
+from mocapdb.core.files import os_error_message, write_atomic
+from mocapdb.core.formats.bvh import write_bvh
 from mocapdb.core.formats.keypoints import LAYOUTS, KeypointFrame, read_openpose_folder
-from mocapdb.core.skeleton import KP, PELVIS, head_from_torso, retarget, swing_matrices, universal_bvh
-from mocapdb.stereo.ellipsoid import (BEHIND_REFUSED, BEHIND_WARNED, RIGID_BONES, StereoConfig, StereoError, StereoResult,
-                     behind_cameras, behind_message, reconstruct, refine_bone_lengths, triangulate)
-from mocapdb.stereo.people import (MAX_EPIPOLAR_PX, MIN_PERSON_FRAMES, MIN_SHARED_JOINTS, People,  # noqa: F401
-                            Selection, match_people, sampson_distance)
+from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
+from mocapdb.core.outputs import PersonPose, frame_line, header_line, universal_bvh
+from mocapdb.core.skeleton import KP, PELVIS, head_from_torso, retarget, swing_matrices
+from mocapdb.stereo.ellipsoid import (
+    BEHIND_REFUSED,
+    BEHIND_WARNED,
+    RIGID_BONES,
+    StereoConfig,
+    StereoError,
+    StereoResult,
+    behind_cameras,
+    behind_message,
+    reconstruct,
+    refine_bone_lengths,
+    triangulate,
+)
+from mocapdb.stereo.people import (  # noqa: F401
+    MAX_EPIPOLAR_PX,
+    MIN_PERSON_FRAMES,
+    MIN_SHARED_JOINTS,
+    People,
+    Selection,
+    match_people,
+    sampson_distance,
+)
 
 MAX_GAP_S = 0.5  # the BVH interpolates gaps up to this long linearly; longer ones hold the last pose
 
@@ -315,7 +332,7 @@ def make_world(points: np.ndarray, valid: np.ndarray, filled: np.ndarray, scaled
     """Scale and levelling from the main person's 15 points (``filled``: gap-filled)."""
     scale, source = 1.0, "scaled to the given camera distance"
     if not scaled:
-        scale = _leg_scale(filled)
+        scale = leg_scale(filled)
         source = "no camera distance given: metres assume the universal leg length (of track 0)"
     return World(level_rotation(points @ VIEW_FRAME, valid) @ VIEW_FRAME, scale, source)
 

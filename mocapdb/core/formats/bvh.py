@@ -24,6 +24,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from mocapdb.core.errors import MocapdbError
+from mocapdb.core.files import write_atomic
 from mocapdb.core.geometry import euler_to_matrix, matrix_to_euler
 
 VALID_CHANNELS = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
@@ -41,7 +43,7 @@ POSITION_MATCH_REL = 0.01
 POSITION_MATCH_ABS = 1e-3
 
 
-class BvhError(ValueError):
+class BvhError(MocapdbError, ValueError):
     """A BVH file that cannot be read; the message names the file and the problem."""
 
 
@@ -366,14 +368,6 @@ def format_bvh(bvh: Bvh, decimals: int = 6) -> str:
     body = np.char.mod(f"%.{decimals}f", np.round(bvh.motion, decimals) + 0.0)
     out.extend(" ".join(row) for row in body)
     return "\n".join(out) + "\n"
-
-
-def write_atomic(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename (never a half file)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def write_bvh(path: str | os.PathLike, bvh: Bvh, decimals: int = 6) -> None:

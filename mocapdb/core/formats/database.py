@@ -24,6 +24,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from mocapdb.core.errors import MocapdbError
+
 SCHEMA_VERSION = 2  # 2: clips.mirrored
 FORMAT = "mocapdb"
 MANIFEST = "manifest.json"
@@ -31,7 +33,7 @@ N_KEYPOINTS = 15
 N_KEYPOINTS_2D = 14
 
 
-class DatabaseError(RuntimeError):
+class DatabaseError(MocapdbError, RuntimeError):
     """A database that cannot be written or loaded; the message names the path and the problem."""
 
 

@@ -23,6 +23,7 @@ from typing import BinaryIO, NamedTuple
 
 import numpy as np
 
+from mocapdb.core.errors import MocapdbError
 from mocapdb.core.formats.keypoint_layouts import LAYOUT_OF_COUNT, LAYOUTS, SOURCE_INDEX
 from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D
 
@@ -38,7 +39,7 @@ NORMALISED_EXTENT = 2.0  # a MediaPipe person whose points all lie within this o
 DETECT_FRAMES = 10     # a folder's or file's layout is detected from its first frames holding people
 
 
-class KeypointError(ValueError):
+class KeypointError(MocapdbError, ValueError):
     """Keypoint input that cannot be read; the message names the source and the problem."""
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mocapdb.core.errors import MocapdbError
 from mocapdb.core.skeleton import KP, N_POINTS
 
 TRC_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}  # metres per file unit
@@ -26,7 +27,7 @@ _MARKER_OF = {
 _MIDPOINTS = {"neck": ("r_shoulder", "l_shoulder"), "pelvis": ("r_hip", "l_hip")}
 
 
-class TrcError(ValueError):
+class TrcError(MocapdbError, ValueError):
     """A TRC file that cannot be read; the message names the file, the line and the problem."""
 
 

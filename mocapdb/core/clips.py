@@ -1,0 +1,135 @@
+"""BVH files → clips on the universal skeleton (what the builder stores and evaluations take as truth).
+
+A file is read, mapped onto the universal skeleton (:mod:`mocapdb.core.joint_map`), split at jumps
+in the data, resampled to the database frame rate and retargeted; optionally followed by its
+left-right mirror image.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from mocapdb.core.formats.bvh import BvhError, read_bvh
+from mocapdb.core.joint_map import detect_mapping, extract_keypoints, load_joint_map_file
+from mocapdb.core.skeleton import ANKLE_HEIGHT_M, BONE_LENGTHS_M, KP, mirror_keypoints, resample, retarget
+
+CREDIT_FILE = "CREDIT.txt"
+MIRROR_SUFFIX = "~mirror"  # added to the name of a clip's left-right mirror image
+
+
+@dataclass(frozen=True)
+class ClipOptions:
+    """How BVH files become clips: the database frame rate and how to read the source rig."""
+
+    fps: float = 24.0
+    joint_map: Path | None = None  # TOML file mapping skeleton roles to source joint names
+    unit: str | None = None        # source length unit (None: detected)
+    up_axis: str | None = None     # source up axis (None: detected)
+    credit: str | None = None      # credit text (None: nearest CREDIT.txt)
+    mirror: bool = True            # each clip followed by its left-right mirror image
+
+
+@dataclass
+class Clip:
+    """One source clip on the universal skeleton at the database frame rate."""
+
+    name: str
+    source: str
+    source_fps: float
+    convention: str
+    credit: str
+    quaternions: np.ndarray  # [F, R, 4]
+    positions: np.ndarray    # [F, 15, 3] metres, y up, floor at y = 0
+    mirrored: bool = False   # the left-right mirror image of the captured motion
+
+
+def credit_for(path: Path, root: Path, given: str | None) -> str:
+    """``given``, else the nearest CREDIT.txt from the file's folder up to its source root."""
+    if given is not None:
+        return given
+    folder = path.parent
+    while True:
+        candidate = folder / CREDIT_FILE
+        if candidate.is_file():
+            return candidate.read_text(encoding="utf-8").strip()
+        if folder == root or folder == folder.parent or root not in folder.parents:
+            return ""
+        folder = folder.parent
+
+
+def clips_from_bvh(path: Path, root: Path, options: ClipOptions) -> list[Clip]:
+    """Read, map, split at data jumps, resample and retarget one BVH file.
+
+    Each continuous run (:func:`continuous_runs`) becomes a clip, named after the file, with
+    ``@first-end`` (source frames) added when the file was split. With ``options.mirror`` each
+    clip is followed by its left-right mirror image (:data:`MIRROR_SUFFIX` added to the name),
+    retargeted from the mirrored source keypoints. Raises BvhError or JointMapError when the
+    file cannot be used, also when a clip would hold a NaN or infinite value.
+    """
+    bvh = read_bvh(path)
+    overrides = load_joint_map_file(options.joint_map) if options.joint_map else None
+    mapping = detect_mapping(bvh, overrides.joints if overrides else None)
+    unit = options.unit or (overrides.unit if overrides else None)
+    up_axis = options.up_axis or (overrides.up_axis if overrides else None)
+    points = extract_keypoints(bvh, mapping, unit=unit, up_axis=up_axis)
+    runs = continuous_runs(points, bvh.fps)
+    if not runs:
+        raise BvhError(f"{path}: no stretch of {MIN_RUN_S} s without a jump in the data")
+    credit = credit_for(path, root, options.credit)
+    whole = len(runs) == 1 and runs[0] == slice(0, len(points))
+    origin = dict(source=str(path), source_fps=bvh.fps, convention=mapping.convention, credit=credit)
+    clips = []
+    for run in runs:
+        name = path.stem if whole else f"{path.stem}@{run.start}-{run.stop}"
+        resampled = resample(points[run], bvh.fps, options.fps)
+        clips.append(_clip(name, resampled, **origin))
+        if options.mirror:
+            clips.append(_clip(name + MIRROR_SUFFIX, mirror_keypoints(resampled), mirrored=True, **origin))
+    if not all(np.isfinite(c.positions).all() and np.isfinite(c.quaternions).all() for c in clips):
+        raise BvhError(f"{path}: NaN or infinite joint positions after retargeting "
+                       "(absurdly large values in the file, or a degenerate skeleton)")
+    return clips
+
+
+def process_clip(path: Path, root: Path, options: ClipOptions) -> Clip:
+    """The longest continuous clip of a BVH file as captured, never a mirror image (what
+    evaluations use as ground truth)."""
+    return max(clips_from_bvh(path, root, replace(options, mirror=False)), key=lambda c: len(c.positions))
+
+
+def _clip(name: str, points: np.ndarray, *, source: str, source_fps: float, convention: str, credit: str,
+          mirrored: bool = False) -> Clip:
+    """Retarget resampled source keypoints (metres, y up) and put the floor at y = 0."""
+    quats, positions = retarget(points * leg_scale(points))
+    ankles = positions[:, [KP["r_ankle"], KP["l_ankle"]], 1]
+    positions[..., 1] -= ankles.min() - ANKLE_HEIGHT_M
+    return Clip(name, source, source_fps, convention, credit, quats.astype(np.float32),
+                positions.astype(np.float32), mirrored)
+
+
+MAX_JOINT_SPEED_MPS = 15.0  # faster than any human joint: a jump in the data, not motion
+MIN_RUN_S = 0.5             # shorter continuous stretches are dropped
+
+
+def continuous_runs(points_m: np.ndarray, fps: float) -> list[slice]:
+    """The runs of frames (at least :data:`MIN_RUN_S` long) with no joint faster than
+    :data:`MAX_JOINT_SPEED_MPS` between consecutive frames.
+
+    Converted BVH files often start with a bind pose (T-pose) and then jump to the motion, and
+    some hold glitches (a knee flipping 30 cm in 1/60 s); splitting there keeps the database free
+    of teleports that the temporal match would otherwise learn. ``points_m [F, J, 3]`` at ``fps``.
+    """
+    step = np.linalg.norm(np.diff(points_m, axis=0), axis=-1).max(axis=-1)
+    cuts = np.concatenate([[0], np.flatnonzero(step * fps > MAX_JOINT_SPEED_MPS) + 1, [len(points_m)]])
+    return [slice(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:]) if b - a >= MIN_RUN_S * fps]
+
+
+def leg_scale(points: np.ndarray) -> float:
+    """Universal over source leg length (hip→knee→ankle, median over the clip), for root motion."""
+    legs = []
+    for side in ("r", "l"):
+        hip, knee, ankle = (points[:, KP[f"{side}_{j}"]] for j in ("hip", "knee", "ankle"))
+        legs.append(np.linalg.norm(knee - hip, axis=-1) + np.linalg.norm(ankle - knee, axis=-1))
+    return (BONE_LENGTHS_M["thigh"] + BONE_LENGTHS_M["shin"]) / float(np.median(np.concatenate(legs)))
