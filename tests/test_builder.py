@@ -433,6 +433,7 @@ def test_build_through_a_symlink_writes_its_target(sources, tmp_path, capsys):
 
 def test_engine_commands_verify_checksums_unless_no_verify(small_db_path, tmp_path):
     from mocapdb.cli import main as cli
+    from mocapdb.cli.reconstruct import _engine
     from mocapdb.core.formats.database import DatabaseError
 
     db = tmp_path / "db"
@@ -444,6 +445,6 @@ def test_engine_commands_verify_checksums_unless_no_verify(small_db_path, tmp_pa
     for command in (["reconstruct", "in", "--out", "out"], ["live", "--source", "-"]):
         args = cli.parser().parse_args([*command, "--db", str(db)])
         with pytest.raises(DatabaseError, match=r"checksum mismatch: .*frames.parquet .*--no-verify to load it"):
-            cli._engine(args)
+            _engine(args)
         args = cli.parser().parse_args([*command, "--db", str(db), "--no-verify"])
-        assert cli._engine(args).db.n_frames == load_database(small_db_path).n_frames
+        assert _engine(args).db.n_frames == load_database(small_db_path).n_frames

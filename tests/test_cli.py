@@ -32,7 +32,7 @@ def test_stereo_without_intrinsics_is_a_clear_error(tmp_path, capsys):
 def test_eval_reports_are_strict_json():
     import json
 
-    from mocapdb.cli.main import _report_json
+    from mocapdb.cli.evaluate import _report_json
 
     text = _report_json({"mpjpe_cm": float("nan"), "rows": [1.5, float("inf")], "nested": {"x": -float("inf")}})
     assert json.loads(text) == {"mpjpe_cm": None, "rows": [1.5, None], "nested": {"x": None}}

@@ -3,7 +3,6 @@
 The ONNX models are built here: graphs whose outputs are fixed tensors (Constant nodes, plus a
 term computed from the input so the input is used), holding people at known model-input pixels.
 """
-import argparse
 import json
 import os
 import threading
@@ -16,12 +15,12 @@ import onnx
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
+from mocapdb.cli.main import main
 from mocapdb.core.formats.keypoints import read_openpose_folder, to_universal
 from mocapdb.detect.model import (
     DetectError,
     PoseModel,
     VideoReader,
-    add_detect_parser,
     box_iou,
     coco17_to_coco18,
     letterbox,
@@ -121,10 +120,9 @@ def yolo_to_frame(xy: np.ndarray) -> np.ndarray:
     return (xy - [0, 70]) * 2
 
 
-def parse_detect(*argv: str) -> argparse.Namespace:
-    top = argparse.ArgumentParser(prog="mocapdb")
-    add_detect_parser(top.add_subparsers(dest="command", required=True))
-    return top.parse_args(["detect", *argv])
+def detect(*argv: str) -> int:
+    """``mocapdb detect ARGV`` through the command line's one error path; its exit code."""
+    return main(["detect", *argv])
 
 
 # --- pre- and post-processing ----------------------------------------------------------------
@@ -235,8 +233,7 @@ def test_missing_and_corrupt_videos(tmp_path):
 
 def test_detect_writes_coco18_openpose_files(video, yolo_model, tmp_path, capsys):
     out = tmp_path / "keypoints"
-    args = parse_detect(str(video), "--model", str(yolo_model), "--out", str(out))
-    assert args.run(args) == 0
+    assert detect(str(video), "--model", str(yolo_model), "--out", str(out)) == 0
     files = sorted(out.iterdir())
     assert [f.name for f in files][:2] == ["clip_000000000000_keypoints.json", "clip_000000000001_keypoints.json"]
     assert len(files) == VIDEO_FRAMES
@@ -257,8 +254,7 @@ def test_detect_writes_coco18_openpose_files(video, yolo_model, tmp_path, capsys
 
 def test_detect_every_and_conf_options(video, rtmo_model, tmp_path):
     out = tmp_path / "sparse"
-    args = parse_detect(str(video), "--model", str(rtmo_model), "--out", str(out), "--every", "3", "--conf", "0.1")
-    assert args.run(args) == 0
+    assert detect(str(video), "--model", str(rtmo_model), "--out", str(out), "--every", "3", "--conf", "0.1") == 0
     frames = list(read_openpose_folder(out))
     assert [f.name.split("_")[1] for f in sorted(out.iterdir())] == ["000000000000", "000000000003",
                                                                        "000000000006", "000000000009"]
@@ -276,8 +272,7 @@ def test_detect_user_errors_exit_2_with_clear_messages(video, yolo_model, tmp_pa
              ((str(bad_video), "--model", str(yolo_model), "--out", str(tmp_path / "o")), "no frame OpenCV can decode"),
              (("--model", str(yolo_model), "--out", str(tmp_path / "o")), "give either a VIDEO file or --camera N")]
     for argv, message in cases:
-        args = parse_detect(*argv)
-        assert args.run(args) == 2
+        assert detect(*argv) == 2
         err = capsys.readouterr().err
         assert err.startswith("mocapdb detect: error: ") and message in err and "Traceback" not in err
     assert not (tmp_path / "o").exists()
@@ -399,8 +394,7 @@ def test_a_truncated_video_is_an_error_that_keeps_the_frames_read(truncated_vide
                                         "(an interrupted copy or download, or a recording that was not closed)")
     reader.close()
     out = tmp_path / "kp"
-    args = parse_detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out))
-    assert args.run(args) == 2
+    assert detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out)) == 2
     captured = capsys.readouterr()
     assert "frames read 1, frames written 1 (the video ended early: truncated?)" in captured.out
     assert captured.err.startswith(f"mocapdb detect: error: {truncated_video}: video ended after 1 of 20 frames: "
@@ -408,8 +402,8 @@ def test_a_truncated_video_is_an_error_that_keeps_the_frames_read(truncated_vide
     assert f"the 1 file(s) written in {out} are kept" in captured.err
     assert [f.name for f in out.iterdir()] == ["cut_000000000000_keypoints.json"]
     assert len(list(read_openpose_folder(out))[0].people) == 2
-    args = parse_detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out), "--every", "3")
-    assert args.run(args) == 2 and "video ended after 1 of 20 frames" in capsys.readouterr().err
+    assert detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out), "--every", "3") == 2
+    assert "video ended after 1 of 20 frames" in capsys.readouterr().err
 
 
 def test_a_video_read_to_its_declared_end_or_without_a_count_is_fine(video, truncated_video):
@@ -451,8 +445,7 @@ def test_detect_os_errors_name_the_path(video, yolo_model, tmp_path, capsys, mon
              ((str(tmp_path / "absent.avi"), "--model", str(yolo_model), "--out", str(tmp_path / "o")),
               f"video not found: {tmp_path / 'absent.avi'}")]
     for argv, message in cases:
-        args = parse_detect(*argv)
-        assert args.run(args) == 2
+        assert detect(*argv) == 2
         err = capsys.readouterr().err
         assert err.startswith("mocapdb detect: error: ") and message in err and "Traceback" not in err, err
 
@@ -460,8 +453,7 @@ def test_detect_os_errors_name_the_path(video, yolo_model, tmp_path, capsys, mon
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr("mocapdb.detect.model.write_atomic", full)
-    args = parse_detect(str(video), "--model", str(yolo_model), "--out", str(tmp_path / "kp"))
-    assert args.run(args) == 2
+    assert detect(str(video), "--model", str(yolo_model), "--out", str(tmp_path / "kp")) == 2
     err = capsys.readouterr().err
     assert (f"{tmp_path / 'kp' / 'clip_000000000000_keypoints.json'}: cannot write the keypoints "
             "(No space left on device)") in err and "[Errno" not in err

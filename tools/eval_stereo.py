@@ -25,14 +25,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mocapdb.core.cameras import CameraModel, read_calibration_toml  # noqa: E402
+from mocapdb.core.cameras import CameraModel, intrinsics_only, read_calibration_toml  # noqa: E402
 from mocapdb.core.clips import ClipOptions, process_clip  # noqa: E402
 from mocapdb.core.formats.keypoints import read_openpose_folder  # noqa: E402
 from mocapdb.core.formats.trc import read_trc, trc_keypoints  # noqa: E402
 from mocapdb.core.skeleton import N_KEYPOINTS_2D  # noqa: E402
 from mocapdb.evaluation.metrics import mpjpe, pa_mpjpe, pck  # noqa: E402
 from mocapdb.stereo.ellipsoid import StereoConfig, reconstruct, triangulate  # noqa: E402
-from mocapdb.stereo.pipeline import intrinsics_only, rotation_angle_deg, select_people  # noqa: E402
+from mocapdb.stereo.pipeline import rotation_angle_deg, select_people  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 HELD_OUT = SHARED / "cmu_bvh"

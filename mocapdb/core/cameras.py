@@ -166,3 +166,8 @@ def _toml_message(path: Path, message: str) -> str:
     if end:
         return f"{path}, at its end: not valid TOML ({message[:end.start()]})"
     return f"{path}: not valid TOML ({message})"
+
+
+def intrinsics_only(cam: CameraModel) -> CameraModel:
+    """``cam`` with its extrinsics dropped (identity pose): the stereo fit estimates them."""
+    return CameraModel(np.asarray(cam.K), np.asarray(cam.dist), np.eye(3), np.zeros(3), tuple(cam.size), cam.name)

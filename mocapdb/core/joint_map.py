@@ -22,6 +22,7 @@ import numpy as np
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.formats.bvh import POSITION_MODE_TEXT, Bvh, forward_kinematics
 from mocapdb.core.skeleton import KEYPOINTS, N_POINTS
+from mocapdb.core.units import UNITS, UP_AXES
 
 ROLES: tuple[str, ...] = (
     "head", "r_upperarm", "r_forearm", "r_hand", "l_upperarm", "l_forearm", "l_hand",
@@ -38,8 +39,6 @@ KEYPOINT_ROLES = {
     "l_hip": "l_thigh", "l_knee": "l_shin", "l_ankle": "l_foot"}
 
 # Metres per file unit. "cmu" is the CMU ASF unit (1/0.45 inch) that cgspeed-style CMU BVH files keep.
-UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "cmu": 0.0254 / 0.45}
-UP_AXES = ("x", "-x", "y", "-y", "z", "-z")
 # Plausible leg length (hip → knee → ankle), metres. The window spans a factor 2, less than the
 # smallest ratio between two units (cmu/in = 2.22), so at most one unit fits.
 LEG_LENGTH_RANGE_M = (0.6, 1.2)

@@ -9,7 +9,6 @@ the user points ``--model`` at an export of their own.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -28,17 +27,13 @@ from tqdm import tqdm
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.files import os_error_message, write_atomic
 from mocapdb.core.formats.keypoints import LAYOUTS
+from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU
 
-DEFAULT_CONF = 0.25        # a person is kept when its model score is at least this
-DEFAULT_IOU = 0.65         # NMS drops a person whose box overlaps a better one's by more than this IoU
-DEFAULT_INPUT_SIZE = 640   # model input side in pixels when the export leaves it dynamic
 PAD_VALUE = 114            # letterbox padding grey level (both layouts were trained with it)
 MAX_CANDIDATES = 1000      # best-scoring people passed to NMS, bounding its cost
 
 N_COCO = len(LAYOUTS["coco17"])
 YOLO_CHANNELS = 4 + 1 + 3 * N_COCO
-NO_MODEL = ("no pose model given: pass --model POSE.onnx (a YOLO-pose or RTMO ONNX export; "
-            "see data_specs/pose_models.md)")
 KNOWN_LAYOUTS = (f"YOLO-pose (input [1, 3, H, W]; output [1, {YOLO_CHANNELS}, anchors] or "
                  f"[1, anchors, {YOLO_CHANNELS}]) and RTMO (input [1, 3, H, W]; outputs [1, N, 5] "
                  f"and [1, N, {N_COCO}, 3])")
@@ -499,66 +494,3 @@ def detect_video(reader: VideoReader, model: PoseModel, out_dir: Path, every: in
     return summary
 
 
-def add_detect_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """Adds the ``detect`` subcommand; its ``run`` returns the exit code (2 for a user error)."""
-    p = sub.add_parser("detect", help="video or camera → 2D keypoints (OpenPose JSON per frame), ONNX pose model",
-                       description="Decode a video (or a camera) with OpenCV, run a YOLO-pose or RTMO ONNX export "
-                                   "on each frame with onnxruntime (CPU) and write OUT/<video>_<frame>_keypoints.json "
-                                   "in OpenPose's COCO-18 layout, ready for `mocapdb reconstruct` or `live`. "
-                                   "Model layouts: data_specs/pose_models.md.")
-    p.add_argument("video", nargs="?", help="video file (any format OpenCV's FFmpeg decodes)")
-    p.add_argument("--camera", type=int, metavar="N", help="read camera N instead of a file (Ctrl-C ends)")
-    p.add_argument("--model", metavar="POSE.onnx",
-                   help="pose model: a YOLO-pose or RTMO ONNX export (see data_specs/pose_models.md)")
-    p.add_argument("--out", required=True, metavar="DIR", help="folder for the JSON files (created if missing)")
-    p.add_argument("--every", type=int, default=1, metavar="N", help="detect every N-th frame only (default 1)")
-    p.add_argument("--max-people", type=int, metavar="N", help="keep the N best-scoring people per frame (default all)")
-    p.add_argument("--conf", type=float, default=DEFAULT_CONF,
-                   help=f"least person score kept (default {DEFAULT_CONF})")
-    p.add_argument("--iou", type=float, default=DEFAULT_IOU, help=f"NMS IoU threshold (default {DEFAULT_IOU})")
-    p.add_argument("--input-size", type=int, default=DEFAULT_INPUT_SIZE, metavar="PX",
-                   help=f"input side in pixels for models with a dynamic input size (default {DEFAULT_INPUT_SIZE})")
-    p.set_defaults(run=run_detect)
-    return p
-
-
-def run_detect(args: argparse.Namespace) -> int:
-    """``mocapdb detect``: 0 on success, 2 on a user error (message on stderr; also a video file
-    that ends before its declared frame count, whose frames read are kept), 130 if a video file
-    was interrupted before its end."""
-    try:
-        return _detect(args)
-    except DetectError as exc:
-        print(f"mocapdb detect: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"mocapdb detect: error: {os_error_message(exc)}", file=sys.stderr)
-        return 2
-
-
-def _detect(args: argparse.Namespace) -> int:
-    from mocapdb.core.signals import install_stop_handlers
-
-    if not args.model:
-        raise DetectError(NO_MODEL)
-    if (args.video is None) == (args.camera is None):
-        raise DetectError("give either a VIDEO file or --camera N")
-    if args.every < 1:
-        raise DetectError("--every must be at least 1")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise DetectError(f"{out}: the output (--out) exists and is not a folder")
-    model = PoseModel(args.model, conf=args.conf, iou=args.iou, max_people=args.max_people,
-                      input_size=args.input_size)
-    reader = VideoReader(args.camera if args.camera is not None else args.video)
-    stop = threading.Event()
-    try:
-        with install_stop_handlers(stop):
-            summary = detect_video(reader, model, Path(args.out), args.every, stop)
-    finally:
-        reader.close()
-    print(f"wrote {len(summary.people)} file(s) in {args.out} (model {model.describe()})")
-    print(summary.report())
-    if summary.truncated:
-        raise DetectError(f"{summary.truncated}; the {len(summary.people)} file(s) written in {args.out} are kept")
-    return 130 if summary.interrupted and not reader.is_camera else 0

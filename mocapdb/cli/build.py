@@ -1,0 +1,86 @@
+"""`mocapdb build` and `mocapdb inspect`: BVH files → database; how a BVH maps onto the skeleton."""
+from __future__ import annotations
+
+import argparse
+import os
+
+from mocapdb.core.units import UNITS, UP_AXES
+
+
+def add_build_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("build", help="build a motion database from BVH files",
+                       description="Read BVH clips (files or folders, recursively), retarget them to the "
+                                   "universal 14-joint skeleton (each also as its left-right mirror image), "
+                                   "project every frame from every yaw, embed with landmark MDS, cluster with "
+                                   "k-means and write a Parquet database.")
+    p.add_argument("sources", nargs="+", help="BVH files or folders")
+    p.add_argument("--out", required=True,
+                   help="database directory to write (replaced atomically; a symlink is followed and kept)")
+    p.add_argument("--fps", type=float, default=24.0, help="database frame rate in Hz (default 24)")
+    p.add_argument("--yaw-step", type=float, default=12.0, help="yaw step in degrees; must divide 360 (default 12)")
+    p.add_argument("--camera-height", type=float, default=1.5, help="camera height above the floor, metres (default 1.5)")
+    p.add_argument("--camera-distance", type=float, default=4.0, help="camera to pelvis, metres (default 4)")
+    p.add_argument("--focal", type=float, default=1000.0, help="focal length in pixels (default 1000)")
+    p.add_argument("--clusters", type=int, default=500, help="k-means clusters K (default 500)")
+    p.add_argument("--dims", type=int, default=5, help="MDS embedding dimensions (default 5)")
+    p.add_argument("--landmarks", type=int, default=2000, help="landmark-MDS landmarks (default 2000)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (the build is deterministic for a seed)")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="processes reading BVH files (default: one per CPU)")
+    p.add_argument("--exclude", action="append", default=[], metavar="PATTERN",
+                   help="skip files whose name or path matches this glob (repeatable)")
+    p.add_argument("--strict", action="store_true",
+                   help="fail the build when any file is skipped (by default a file that cannot be read, "
+                        "mapped or retargeted is skipped and named with the reason)")
+    p.add_argument("--joint-map", help="TOML file mapping skeleton roles to source joint names")
+    p.add_argument("--unit", choices=UNITS, help="length unit of the BVH files (default: detected)")
+    p.add_argument("--up-axis", choices=UP_AXES, help="up axis of the BVH files (default: detected)")
+    p.add_argument("--credit", help="credit/licence text stored with every clip (default: nearest CREDIT.txt)")
+    p.add_argument("--no-mirror", action="store_true",
+                   help="store only the clips as captured, not also their left-right mirror images")
+    p.set_defaults(run=run_build)
+
+
+def run_build(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from mocapdb.builder.pipeline import BuildConfig, build
+    from mocapdb.core.formats.database import output_target
+    from mocapdb.core.geometry import Camera
+
+    config = BuildConfig(
+        fps=args.fps, yaw_step_deg=args.yaw_step,
+        camera=Camera(height_m=args.camera_height, distance_m=args.camera_distance, focal_px=args.focal),
+        clusters=args.clusters, dims=args.dims, seed=args.seed, landmarks=args.landmarks,
+        workers=args.workers, strict=args.strict,
+        joint_map=Path(args.joint_map) if args.joint_map else None,
+        unit=args.unit, up_axis=args.up_axis, credit=args.credit, mirror=not args.no_mirror)
+    summary = build(args.sources, args.out, config, exclude=args.exclude)
+    target = output_target(args.out)
+    print(f"wrote {args.out}" + (f" (symlink to {target})" if os.path.islink(args.out) else ""))
+    print(summary.report())
+    return 0
+
+
+def add_inspect_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("inspect", help="show how a BVH file maps onto the universal skeleton",
+                       description="Print a BVH file's detected rig convention, unit, up axis and the "
+                                   "source joint used for each skeleton role.")
+    p.add_argument("bvh", help="BVH file")
+    p.add_argument("--joint-map", help="TOML file mapping skeleton roles to source joint names")
+    p.add_argument("--unit", choices=UNITS, help="length unit (default: detected)")
+    p.add_argument("--up-axis", choices=UP_AXES, help="up axis (default: detected)")
+    p.set_defaults(run=run_inspect)
+
+
+def run_inspect(args: argparse.Namespace) -> int:
+    from mocapdb.core.formats.bvh import read_bvh
+    from mocapdb.core.joint_map import describe, detect_mapping, load_joint_map_file
+
+    bvh = read_bvh(args.bvh)
+    overrides = load_joint_map_file(args.joint_map) if args.joint_map else None
+    mapping = detect_mapping(bvh, overrides.joints if overrides else None)
+    unit = args.unit or (overrides.unit if overrides else None)
+    up_axis = args.up_axis or (overrides.up_axis if overrides else None)
+    print(describe(bvh, mapping, unit, up_axis))
+    return 0

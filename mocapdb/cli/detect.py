@@ -1,0 +1,63 @@
+"""`mocapdb detect`: video or camera → OpenPose JSON keypoints with an ONNX pose model."""
+from __future__ import annotations
+
+import argparse
+import threading
+from pathlib import Path
+
+from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU, NO_MODEL
+
+
+def add_detect_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Adds the ``detect`` subcommand; its ``run`` returns the exit code (2 for a user error)."""
+    p = sub.add_parser("detect", help="video or camera → 2D keypoints (OpenPose JSON per frame), ONNX pose model",
+                       description="Decode a video (or a camera) with OpenCV, run a YOLO-pose or RTMO ONNX export "
+                                   "on each frame with onnxruntime (CPU) and write OUT/<video>_<frame>_keypoints.json "
+                                   "in OpenPose's COCO-18 layout, ready for `mocapdb reconstruct` or `live`. "
+                                   "Model layouts: data_specs/pose_models.md.")
+    p.add_argument("video", nargs="?", help="video file (any format OpenCV's FFmpeg decodes)")
+    p.add_argument("--camera", type=int, metavar="N", help="read camera N instead of a file (Ctrl-C ends)")
+    p.add_argument("--model", metavar="POSE.onnx",
+                   help="pose model: a YOLO-pose or RTMO ONNX export (see data_specs/pose_models.md)")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for the JSON files (created if missing)")
+    p.add_argument("--every", type=int, default=1, metavar="N", help="detect every N-th frame only (default 1)")
+    p.add_argument("--max-people", type=int, metavar="N", help="keep the N best-scoring people per frame (default all)")
+    p.add_argument("--conf", type=float, default=DEFAULT_CONF,
+                   help=f"least person score kept (default {DEFAULT_CONF})")
+    p.add_argument("--iou", type=float, default=DEFAULT_IOU, help=f"NMS IoU threshold (default {DEFAULT_IOU})")
+    p.add_argument("--input-size", type=int, default=DEFAULT_INPUT_SIZE, metavar="PX",
+                   help=f"input side in pixels for models with a dynamic input size (default {DEFAULT_INPUT_SIZE})")
+    p.set_defaults(run=run_detect)
+    return p
+
+
+def run_detect(args: argparse.Namespace) -> int:
+    """``mocapdb detect``: 0 on success; DetectError (exit 2) for a user error, also a video file
+    that ends before its declared frame count (its frames read are kept); 130 if a video file was
+    interrupted before its end."""
+    from mocapdb.core.signals import install_stop_handlers
+    from mocapdb.detect.model import DetectError, PoseModel, VideoReader, detect_video
+
+    if not args.model:
+        raise DetectError(NO_MODEL)
+    if (args.video is None) == (args.camera is None):
+        raise DetectError("give either a VIDEO file or --camera N")
+    if args.every < 1:
+        raise DetectError("--every must be at least 1")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise DetectError(f"{out}: the output (--out) exists and is not a folder")
+    model = PoseModel(args.model, conf=args.conf, iou=args.iou, max_people=args.max_people,
+                      input_size=args.input_size)
+    reader = VideoReader(args.camera if args.camera is not None else args.video)
+    stop = threading.Event()
+    try:
+        with install_stop_handlers(stop):
+            summary = detect_video(reader, model, Path(args.out), args.every, stop)
+    finally:
+        reader.close()
+    print(f"wrote {len(summary.people)} file(s) in {args.out} (model {model.describe()})")
+    print(summary.report())
+    if summary.truncated:
+        raise DetectError(f"{summary.truncated}; the {len(summary.people)} file(s) written in {args.out} are kept")
+    return 130 if summary.interrupted and not reader.is_camera else 0

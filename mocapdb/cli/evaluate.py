@@ -1,0 +1,99 @@
+"""`mocapdb eval`: held-out accuracy of the engine against the database floor."""
+from __future__ import annotations
+
+import argparse
+import math
+
+
+def add_eval_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("eval", help="accuracy and speed on held-out BVH clips (JSON report)",
+                       description="Render held-out clips (not in the database) to 2D from yaws off the "
+                                   "database grid, several camera heights, pitches and noise models, "
+                                   "reconstruct them with the engine refined and as published, and report "
+                                   "accuracy against the truth and against the database's own floor. Either "
+                                   "one database (--db, --bvh: JSON report on stdout) or "
+                                   "--leave-one-subject-out (a database per subject; table on stdout).")
+    p.add_argument("--db", help="database built WITHOUT the held-out clips")
+    p.add_argument("--bvh", nargs="+", help="held-out BVH files or folders")
+    p.add_argument("--leave-one-subject-out", nargs="+", metavar="SOURCE", dest="loso",
+                   help="BVH files or folders named SUBJECT_TRIAL.bvh: build a database without each "
+                        "subject in turn (in a temporary folder) and evaluate that subject on it")
+    p.add_argument("--subjects", help="with --leave-one-subject-out: subjects to hold out, e.g. 1,2 (default all)")
+    p.add_argument("--max-clips", type=int, default=8,
+                   help="with --leave-one-subject-out: clips per subject, evenly spaced (default 8)")
+    p.add_argument("--max-frames", type=int, default=240,
+                   help="with --leave-one-subject-out: frames per clip from its middle, at 24 fps (default 240)")
+    p.add_argument("--clusters", type=int, default=500, help="with --leave-one-subject-out: k-means K (default 500)")
+    p.add_argument("--landmarks", type=int, default=2000,
+                   help="with --leave-one-subject-out: landmark-MDS landmarks (default 2000)")
+    p.add_argument("--workers", type=int, default=2,
+                   help="with --leave-one-subject-out: processes reading BVH files per build (default 2)")
+    p.add_argument("--out", help="also write the JSON report to this file")
+    p.add_argument("--quick", action="store_true",
+                   help="one database: two yaws and two scenarios; leave-one-subject-out: 2 clips per "
+                        "subject, 120 frames, two scenarios")
+    p.add_argument("--weight-2d", type=float, default=0.5, help="as in reconstruct")
+    p.add_argument("--search", choices=("clustered", "exact"), default="clustered")
+    p.set_defaults(run=run_eval)
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+    from pathlib import Path
+
+    from mocapdb.builder.pipeline import BuildConfig, find_sources
+    from mocapdb.core.errors import UsageError
+    from mocapdb.core.formats.database import load_database
+    from mocapdb.evaluation.reconstruction import EvalConfig, evaluate
+    from mocapdb.runtime.engine import EngineConfig
+
+    engine = EngineConfig(weight_2d=args.weight_2d, search=args.search)
+    if args.loso:
+        from mocapdb.evaluation.loso import LosoConfig, format_table, leave_one_subject_out
+
+        if args.db or args.bvh:
+            raise UsageError("--leave-one-subject-out builds its own databases: leave out --db and --bvh")
+        try:
+            subjects = tuple(int(s) for s in args.subjects.split(",")) if args.subjects else None
+        except ValueError:
+            raise UsageError("--subjects takes subject numbers separated by commas, e.g. 1,2") from None
+        if min(args.max_clips, args.max_frames, args.clusters, args.landmarks, args.workers) < 1:
+            raise UsageError("--max-clips, --max-frames, --clusters, --landmarks and --workers must be positive")
+        build = BuildConfig(clusters=args.clusters, landmarks=args.landmarks, workers=args.workers)
+        loso = LosoConfig.quick() if args.quick else LosoConfig(max_clips=args.max_clips, max_frames=args.max_frames)
+        loso = replace(loso, subjects=subjects, build=build, eval=replace(loso.eval, engine=engine))
+        report = leave_one_subject_out(args.loso, loso)
+        print(format_table(report))
+        text = _report_json(report)
+    else:
+        if not args.db or not args.bvh:
+            raise UsageError("give --db and --bvh, or --leave-one-subject-out SOURCES")
+        config = EvalConfig(engine=engine)
+        if args.quick:
+            config = replace(config, yaws_deg=config.yaws_deg[:2], scenarios=config.scenarios[:2])
+        files = [f for f, _ in find_sources(args.bvh)]
+        if not files:
+            raise UsageError(f"no .bvh file in {', '.join(args.bvh)}")
+        text = _report_json(evaluate(load_database(args.db), files, config))
+        print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+    return 0
+
+
+def _finite(value):
+    """``value`` with every NaN or infinite float (nested in dicts and lists) replaced by None."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _report_json(report: dict) -> str:
+    """Strict JSON (undefined figures are null, never a bare NaN)."""
+    import json
+
+    return json.dumps(_finite(report), indent=2, allow_nan=False)

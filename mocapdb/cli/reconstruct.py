@@ -1,0 +1,242 @@
+"""`mocapdb reconstruct` (files) and `mocapdb live` (streams, video, camera): the engine's options and runs."""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+DEFAULT_FPS = 30.0  # input frame rate assumed when neither --fps nor the frames give one
+
+
+def _add_engine_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--db", required=True, help="database directory written by `mocapdb build`")
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip checking the database files' sha256 checksums on load (sizes, row counts and "
+                        "finite values are still checked)")
+    p.add_argument("--keypoints",
+                   choices=("body25", "body25b", "coco18", "coco17", "halpe26", "wholebody133", "mediapipe33"),
+                   help="keypoint layout of the input (default: detected from the keypoint count; 25 keypoints: "
+                        "BODY_25 or BODY_25B by geometry); data_specs/keypoint_formats.md")
+    p.add_argument("--fps", type=float,
+                   help="input frame rate in Hz when frames carry no time (default 30, with a warning)")
+    p.add_argument("--focal", type=float, default=1000.0, help="input camera focal length in pixels (default 1000)")
+    p.add_argument("--image-size", default="1920x1080", help="input image WIDTHxHEIGHT in pixels (default 1920x1080)")
+    p.add_argument("--search", choices=("clustered", "exact"), default="clustered",
+                   help="two-level search (the method) or brute force over every projection")
+    p.add_argument("--clusters-searched", type=int, default=5, help="i: nearest clusters searched (default 5)")
+    p.add_argument("--per-cluster", type=int, default=10, help="j: projections taken per cluster (default 10)")
+    p.add_argument("--window-weights", default="0.4,0.3,0.2,0.1",
+                   help="weights of the last w reconstructed frames, most recent first (default 0.4,0.3,0.2,0.1)")
+    p.add_argument("--weight-2d", type=float, default=0.5,
+                   help="weight of the 2D (Eq. 1) distance added to the temporal cost (default 0.5; 0 is the method)")
+    p.add_argument("--min-cutoff", type=float,
+                   help="1€ filter min cutoff for rotations, Hz (default 8; 1 with --no-refine)")
+    p.add_argument("--beta", type=float, help="1€ filter beta for rotations (default 2; 0.3 with --no-refine)")
+    p.add_argument("--no-refine", action="store_true",
+                   help="output the retrieved database pose as it is (the method as published) instead of "
+                        "fitting it to the keypoints")
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--subject-height", type=float, metavar="METRES",
+                      help="the person's standing height in metres: sets the skeleton's size and so the depth "
+                           "(default 1.75, the universal skeleton)")
+    size.add_argument("--camera-height", type=float, metavar="METRES",
+                      help="the camera's height above a flat floor the people stand on: each person's size and "
+                           "depth are measured from their feet (data_specs/stream_output.md)")
+    p.add_argument("--no-smoothing", action="store_true", help="turn the 1€ filters off")
+    p.add_argument("--no-translation", action="store_true", help="keep the pelvis at the origin")
+    p.add_argument("--no-yaw-refinement", action="store_true", help="keep the database's yaw grid (12° steps)")
+    p.add_argument("--bvh-unit", choices=("m", "cm"), default="m", help="length unit of the BVH files (default m)")
+    p.add_argument("--keep-static", action="store_true",
+                   help="also write BVH files for tracks whose keypoints never moved (posters, false detections)")
+    limits = p.add_argument_group("limits (0: no limit; data_specs/stream_output.md)")
+    limits.add_argument("--max-tracks", type=int, default=32,
+                        help="tracks alive at once; further detections are not tracked, counted (default 32)")
+    limits.add_argument("--max-new-tracks-per-min", type=int, default=120,
+                        help="tracks started per minute (live: of arrival time; reconstruct: of the input's time); "
+                             "further detections wait untracked, counted (default 120)")
+    limits.add_argument("--max-bvh-files", type=int, default=1000,
+                        help="BVH files per run; further tracks stay in the stream only, counted (default 1000)")
+    limits.add_argument("--min-track-s", type=float, default=0.5,
+                        help="a track with fewer seconds of BVH frames gets no BVH file, counted (default 0.5)")
+    limits.add_argument("--bvh-part-min", type=float, default=10.0,
+                        help="a longer track is written as track_<id>_part<k>.bvh parts of this many minutes, "
+                             "each as soon as it is complete (default 10)")
+
+
+def _engine(args: argparse.Namespace):
+    from mocapdb.core.errors import UsageError
+    from mocapdb.core.formats.database import load_database
+    from mocapdb.runtime.engine import Engine, EngineConfig
+    from mocapdb.runtime.filters import REFINED_ROTATION_DEFAULTS, OneEuroParams
+
+    try:
+        width, height = (int(v) for v in args.image_size.lower().split("x"))
+    except ValueError:
+        raise UsageError(f"--image-size takes WIDTHxHEIGHT in pixels, e.g. 1920x1080, not {args.image_size!r}") from None
+    try:
+        weights = tuple(float(w) for w in args.window_weights.split(","))
+    except ValueError:
+        raise UsageError(f"--window-weights takes numbers separated by commas, not {args.window_weights!r}") from None
+    default = OneEuroParams() if args.no_refine else REFINED_ROTATION_DEFAULTS
+    try:
+        rotation_filter = OneEuroParams(
+            min_cutoff_hz=default.min_cutoff_hz if args.min_cutoff is None else args.min_cutoff,
+            beta=default.beta if args.beta is None else args.beta)
+        config = EngineConfig(search=args.search, n_clusters=args.clusters_searched, per_cluster=args.per_cluster,
+                              window_weights=weights, weight_2d=args.weight_2d, focal_px=args.focal,
+                              image_size=(width, height), fps=args.fps or DEFAULT_FPS,
+                              translation=not args.no_translation,
+                              refine_yaw=not args.no_yaw_refinement, refine=not args.no_refine,
+                              subject_height_m=args.subject_height, camera_height_m=args.camera_height,
+                              smoothing=not args.no_smoothing,
+                              rotation_filter=rotation_filter)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    return Engine(load_database(args.db, verify_checksums=not args.no_verify), config)
+
+
+def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=None):
+    from pathlib import Path
+
+    from mocapdb.core.errors import UsageError
+    from mocapdb.runtime.engine import TrackLimits
+    from mocapdb.runtime.session import FrameParser, Session, SessionOptions, SessionSummary
+    from mocapdb.runtime.streams import StreamStats, open_sink
+
+    summary = SessionSummary(stream=StreamStats())
+    if bvh_dir is None and getattr(args, "bvh_dir", None):  # live --bvh-dir
+        bvh_dir = Path(args.bvh_dir)
+    try:  # checked before the database is loaded
+        limits = TrackLimits(args.max_tracks, args.max_new_tracks_per_min)
+        options = SessionOptions(strict=strict, fps_given=args.fps is not None, keep_static=args.keep_static,
+                                 bvh_dir=bvh_dir, bvh_unit=args.bvh_unit, max_bvh_files=args.max_bvh_files,
+                                 min_track_s=args.min_track_s, bvh_part_min=args.bvh_part_min,
+                                 rate_by_arrival=not strict)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    engine = _engine(args)
+    engine.config.limits = limits
+    return Session(engine, open_sink(sink_spec, summary.stream), FrameParser(args.keypoints), summary, options)
+
+
+def add_reconstruct_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("reconstruct", help="2D keypoint files → 3D skeletons (JSON lines) and BVH per person",
+                       description="Reconstruct every frame of a folder of OpenPose JSON files or a JSON-lines "
+                                   "keypoint file; writes OUT/result.jsonl and OUT/track_<id>.bvh.")
+    p.add_argument("input", help="folder of OpenPose JSON frames, a .jsonl/.ndjson file, an MMPose prediction "
+                                 ".json, or a .npy/.npz keypoint array [T, K, 3] or [T, P, K, 3] (x, y, confidence) "
+                                 "or RTMLib keypoints + scores (layout detected from the keypoint count)")
+    p.add_argument("--out", required=True, help="output folder")
+    _add_engine_options(p)
+    p.set_defaults(run=run_reconstruct)
+
+
+def run_reconstruct(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from mocapdb.core.formats.keypoints import KEYPOINT_FILE_SUFFIXES, read_keypoint_file
+    from mocapdb.core.outputs import output_folder
+
+    frames = None  # a keypoint file (.npy, .npz, MMPose .json) is read and checked before any output
+    if Path(args.input).suffix.lower() in KEYPOINT_FILE_SUFFIXES and not Path(args.input).is_dir():
+        frames = read_keypoint_file(args.input, args.keypoints, args.fps)
+    with output_folder(args.out) as tmp:
+        summary, interrupted = _reconstruct_into(args, tmp, frames)
+    print(f"wrote {Path(args.out) / 'result.jsonl'} and {len(summary.bvh_files)} BVH file(s) in {args.out}")
+    print(summary.report())
+    if interrupted:
+        print(f"mocapdb reconstruct: interrupted after {summary.frames} frames; wrote what was done", file=sys.stderr)
+        return 130
+    return 0
+
+
+def _reconstruct_into(args: argparse.Namespace, out_dir, frames):
+    """Run the session into ``out_dir``; returns its summary and whether Ctrl-C stopped it early."""
+    from mocapdb.core.errors import UsageError
+    from mocapdb.runtime.session import run_arrays, run_offline
+    from mocapdb.runtime.streams import open_source
+
+    session = _session(args, str(out_dir / "result.jsonl"), strict=True, bvh_dir=out_dir)
+    interrupted = False
+    try:
+        if frames is not None:
+            run_arrays(session, frames)
+        else:
+            run_offline(session, open_source(args.input, stats=session.summary.stream))
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        summary = session.finish()
+    if not summary.frames:
+        raise UsageError(f"no keypoint frame in {args.input}")
+    return summary, interrupted
+
+
+def add_live_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("live", help="reconstruct a live keypoint stream",
+                       description="Read keypoints as they arrive (a folder being written by a detector, "
+                                   "'-' for stdin, tcp://HOST:PORT or udp://HOST:PORT to listen on), write one "
+                                   "JSON line per frame to the sink, and a BVH per track on exit (Ctrl-C).")
+    p.add_argument("--source", required=True,
+                   help="folder, '-', tcp://HOST:PORT or udp://HOST:PORT; with --model: a video file or a camera index")
+    p.add_argument("--model", help="YOLO-pose or RTMO ONNX export: detect people in the --source video/camera "
+                                   "(data_specs/pose_models.md)")
+    p.add_argument("--sink", default="-", help="'-' (stdout), a file, tcp://HOST:PORT or udp://HOST:PORT")
+    p.add_argument("--bvh-dir", help="folder for the tracks' BVH files, written when the stream ends")
+    p.add_argument("--idle-timeout", type=float,
+                   help="stop after this many seconds without a message (any source; default: never)")
+    p.add_argument("--client-timeout", type=float, default=30.0,
+                   help="tcp:// source: close a client that sends no complete line for this many seconds "
+                        "(default 30)")
+    p.add_argument("--max-clients", type=int, default=16,
+                   help="tcp:// source: simultaneous clients; further connections are refused (default 16)")
+    p.add_argument("--max-rate", type=float, default=1000.0,
+                   help="tcp:// and udp:// sources: messages per second per sender address, the excess "
+                        "dropped and counted; 0: no limit (default 1000)")
+    p.add_argument("--buffer", type=int, default=2, help="messages buffered before the oldest is dropped (default 2)")
+    _add_engine_options(p)
+    p.set_defaults(run=run_live)
+
+
+def run_live(args: argparse.Namespace) -> int:
+    """Stream until the source ends, a signal or a sink failure (exit 1); the BVH files are written
+    in every case, with the signal handlers kept (further signals ignored) until they are."""
+    import threading
+    from pathlib import Path
+
+    from mocapdb.core.signals import install_stop_handlers
+    from mocapdb.runtime.session import SinkError, run_live
+    from mocapdb.runtime.streams import NetworkLimits, open_source
+    from mocapdb.runtime.video_input import open_video_source, run_video
+
+    limits = NetworkLimits(args.max_clients, args.client_timeout, args.max_rate)   # checked before any work
+    session = _session(args, args.sink, strict=False)
+    stop, video = threading.Event(), None
+    with install_stop_handlers(stop, force_quit=False):
+        try:
+            if args.model:
+                video = open_video_source(args.source, args.model, capacity=args.buffer, stats=session.summary.stream)
+                run_video(session, video, stop)
+            else:
+                source = open_source(args.source, stats=session.summary.stream, follow=True,
+                                     idle_timeout_s=args.idle_timeout, limits=limits)
+                run_live(session, source, stop, args.buffer)
+        except SinkError:
+            pass  # recorded in the summary; reported below
+        finally:
+            summary = session.finish(Path(args.bvh_dir) if args.bvh_dir else None, args.bvh_unit)
+        print(summary.report(), file=sys.stderr)
+        if source_line := summary.stream.source_report():
+            print(source_line, file=sys.stderr)
+        if video is not None:
+            print(video.report(), file=sys.stderr)
+    if summary.sink_error is None:
+        return 0
+    if args.sink == "-":  # a closed pipe: nothing more can reach it, not even Python's flush at exit
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError):  # stdout is not a file descriptor (tests capture it)
+            pass
+    print(f"mocapdb live: error: the sink {args.sink} failed ({summary.sink_error}): the stream stopped there; "
+          f"wrote {len(summary.bvh_files)} BVH file(s)", file=sys.stderr)
+    return 1

@@ -1,0 +1,7 @@
+"""Defaults of the pose detector (light: the command-line parser reads them)."""
+
+DEFAULT_CONF = 0.25        # a person is kept when its model score is at least this
+DEFAULT_IOU = 0.65         # NMS drops a person whose box overlaps a better one's by more than this IoU
+DEFAULT_INPUT_SIZE = 640   # model input side in pixels when the export leaves it dynamic
+NO_MODEL = ("no pose model given: pass --model POSE.onnx (a YOLO-pose or RTMO ONNX export; "
+            "see data_specs/pose_models.md)")
