@@ -110,7 +110,7 @@ class OutputFolderError(MocapdbError, ValueError):
 
 
 STREAM_FORMAT = "mocapdb-stream"
-STREAM_VERSION = 1
+STREAM_VERSION = 2  # 2: the header's coordinate frame is "coordinate_frame" (was "frame")
 
 
 def _rounded(values: np.ndarray, decimals: int) -> list:
@@ -147,7 +147,7 @@ def header_line(fps: float) -> str:
     """The first line of a result stream: format, version, joint and rotation orders, units."""
     return json.dumps({"format": STREAM_FORMAT, "version": STREAM_VERSION, "fps": fps,
                        "joints": list(KEYPOINTS), "rotations": list(RIG_JOINTS), "units": "m",
-                       "frame": "camera-aligned: x right, y up, z away from the camera"},
+                       "coordinate_frame": "camera-aligned: x right, y up, z away from the camera"},
                       separators=(",", ":"))
 
 

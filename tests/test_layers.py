@@ -1,0 +1,88 @@
+"""The architecture holds: layers import downwards only, errors is a leaf, the CLI starts light.
+
+Layers (README "Architecture", data_specs/architecture.md):
+core → applications (builder, detect, runtime, stereo, render) → evaluation → cli / the public API.
+Within the applications only runtime may use another application (detect: video input).
+"""
+import ast
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# package (second component of the module name) → the packages it may import
+APPLICATIONS = {"builder": set(), "detect": set(), "runtime": {"detect"}, "stereo": set(), "render": set()}
+ALLOWED = {"core": {"core"}}
+ALLOWED |= {app: {"core", app} | uses for app, uses in APPLICATIONS.items()}
+ALLOWED["evaluation"] = {"core", "evaluation", *APPLICATIONS}
+ALLOWED["cli"] = {"core", "evaluation", "cli", *APPLICATIONS}
+ALLOWED["__init__"] = ALLOWED["cli"] - {"cli"}  # the public API (mocapdb/__init__.py)
+ALLOWED["__main__"] = {"cli"}
+
+
+def _modules() -> dict[str, Path]:
+    """Every module of the installed package ``mocapdb`` (runtime/ is installed as mocapdb.runtime)."""
+    found = {}
+    for folder, package in ((ROOT / "mocapdb", "mocapdb"), (ROOT / "runtime", "mocapdb.runtime")):
+        for path in folder.rglob("*.py"):
+            parts = path.relative_to(folder).with_suffix("").parts
+            found[".".join((package, *parts))] = path
+    return found
+
+
+def _imports(path: Path, module: str) -> list[tuple[int, str]]:
+    """(line, absolute module name) of every import in the file, including those inside functions."""
+    names = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: resolve against the module's package
+                base = module.split(".")[:-node.level]  # "a.b.c" or "a.b.__init__", level 1 → "a.b"
+                names.append((node.lineno, ".".join(base + ([node.module] if node.module else []))))
+            else:
+                names.append((node.lineno, node.module))
+    return names
+
+
+def _layer(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def test_layers_import_downwards_only():
+    wrong = []
+    for module, path in _modules().items():
+        layer = _layer(module)
+        for line, name in _imports(path, module):
+            if name == "runtime" or name.startswith("runtime."):
+                wrong.append(f"{path.relative_to(ROOT)}:{line} imports top-level {name}: use mocapdb.runtime")
+            elif name.startswith("mocapdb.") and _layer(name) not in ALLOWED[layer]:
+                wrong.append(f"{path.relative_to(ROOT)}:{line} ({layer}) imports {name} ({_layer(name)})")
+    assert not wrong, "\n".join(wrong)
+
+
+def test_every_module_belongs_to_a_layer():
+    assert {_layer(m) for m in _modules()} <= set(ALLOWED)
+
+
+def test_errors_is_a_leaf():
+    path = ROOT / "mocapdb" / "core" / "errors.py"
+    assert not [name for _, name in _imports(path, "mocapdb.core.errors") if name.startswith("mocapdb")]
+
+
+def test_runtime_is_installed_inside_the_mocapdb_namespace():
+    setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert setuptools["package-dir"] == {"mocapdb.runtime": "runtime"}
+    assert not [p for p in setuptools["packages"] if not p.startswith("mocapdb")]
+    assert set(setuptools["packages"]) == {m.removesuffix(".__init__") for m in _modules() if m.endswith(".__init__")}
+
+
+def test_help_loads_no_heavy_library():
+    code = ("import sys\nfrom mocapdb.cli.main import parser\nparser()\n"
+            "print(sorted({m.split('.')[0] for m in sys.modules} & "
+            "{'numba', 'cv2', 'scipy', 'pyarrow', 'onnxruntime', 'sklearn', 'tqdm', 'matplotlib'}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    assert out.stdout.strip() == "[]"
