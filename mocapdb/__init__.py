@@ -1,3 +1,52 @@
-"""mocapdb: motion capture from ordinary cameras by retrieval in a database of real motion."""
+"""mocapdb: motion capture from ordinary cameras by retrieval in a database of real motion.
+
+The Python API (README "Python API"); each name is imported on first use, so ``import mocapdb``
+stays light:
+
+* building: :func:`build`, :class:`BuildConfig`, :func:`load_database`;
+* reconstructing: :class:`Engine` (``step(frame)`` → one :class:`PersonPose` per tracked person,
+  ``finish()`` → the tracks' recordings), :class:`EngineConfig`, :func:`frames_from_arrays`,
+  :func:`read_keypoint_file`, :func:`read_openpose_folder`, :class:`KeypointFrame`, :class:`Person`;
+* outputs: :func:`write_track_bvhs`, :func:`universal_bvh`, :func:`read_bvh`, :func:`write_bvh`,
+  :func:`frame_line`, :func:`header_line`;
+* errors: :class:`MocapdbError`, the base of every error about inputs.
+"""
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.1.0"
+
+_API = {
+    "build": "mocapdb.builder.pipeline",
+    "BuildConfig": "mocapdb.builder.pipeline",
+    "load_database": "mocapdb.core.formats.database",
+    "Engine": "mocapdb.runtime.engine",
+    "EngineConfig": "mocapdb.runtime.engine",
+    "frames_from_arrays": "mocapdb.core.formats.keypoints",
+    "read_keypoint_file": "mocapdb.core.formats.keypoints",
+    "read_openpose_folder": "mocapdb.core.formats.keypoints",
+    "KeypointFrame": "mocapdb.core.formats.keypoints",
+    "Person": "mocapdb.core.formats.keypoints",
+    "PersonPose": "mocapdb.core.outputs",
+    "write_track_bvhs": "mocapdb.core.outputs",
+    "universal_bvh": "mocapdb.core.outputs",
+    "frame_line": "mocapdb.core.outputs",
+    "header_line": "mocapdb.core.outputs",
+    "read_bvh": "mocapdb.core.formats.bvh",
+    "write_bvh": "mocapdb.core.formats.bvh",
+    "MocapdbError": "mocapdb.core.errors",
+}
+__all__ = ["__version__", *_API]
+
+
+def __getattr__(name: str) -> object:
+    if name not in _API:
+        raise AttributeError(f"module 'mocapdb' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_API[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
