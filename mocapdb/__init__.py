@@ -7,7 +7,7 @@ stays light:
 * reconstructing: :class:`Engine` (``step(frame)`` → one :class:`PersonPose` per tracked person,
   ``finish()`` → the tracks' recordings), :class:`EngineConfig`, :func:`frames_from_arrays`,
   :func:`read_keypoint_file`, :func:`read_openpose_folder`, :class:`KeypointFrame`, :class:`Person`;
-* outputs: :func:`write_track_bvhs`, :func:`universal_bvh`, :func:`read_bvh`, :func:`write_bvh`,
+* outputs: :func:`write_tracks` (:class:`TrackExport`: BVH, TRC, CSV, rig, floor), :func:`universal_bvh`, :func:`read_bvh`, :func:`write_bvh`,
   :func:`frame_line`, :func:`header_line`;
 * errors: :class:`MocapdbError`, the base of every error about inputs.
 """
@@ -29,7 +29,8 @@ _API = {
     "KeypointFrame": "mocapdb.core.formats.keypoints",
     "Person": "mocapdb.core.formats.keypoints",
     "PersonPose": "mocapdb.core.outputs",
-    "write_track_bvhs": "mocapdb.core.outputs",
+    "write_tracks": "mocapdb.core.exports",
+    "TrackExport": "mocapdb.core.exports",
     "universal_bvh": "mocapdb.core.outputs",
     "frame_line": "mocapdb.core.outputs",
     "header_line": "mocapdb.core.outputs",

@@ -18,7 +18,7 @@ def test_readme_api_example_runs(tmp_path):
     code = code.replace('out = Path("demo")', f"out = Path({str(tmp_path)!r})")
     run = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-3000:]
-    assert (tmp_path / "api.db").is_dir() and list((tmp_path / "api_bvh").glob("track_*.bvh"))
+    assert (tmp_path / "api.db").is_dir() and list((tmp_path / "api_tracks").glob("track_*.trc"))
     lines = [line.split() for line in run.stdout.splitlines() if re.match(r"\d+ \d+ \[", line)]
     assert len({line[0] for line in lines}) > 50  # a pose in most of the 100 frames
 

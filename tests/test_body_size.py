@@ -3,10 +3,10 @@ the right depth; BVH output keeps one skeleton of that size."""
 import numpy as np
 import pytest
 
+from mocapdb.core.exports import write_tracks
 from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import axis_rotation_matrices, yaw_matrix
-from mocapdb.core.outputs import write_track_bvhs
 from mocapdb.core.skeleton import PELVIS, UNIVERSAL_HEIGHT_M
 from mocapdb.runtime.engine import Engine, EngineConfig
 
@@ -59,7 +59,7 @@ def test_camera_height_measures_the_person_from_the_feet(small_db, pitch, tmp_pa
     depth = truth[1:, PELVIS, 2][late]
     assert np.median(np.linalg.norm(roots - truth[1:, PELVIS][late], axis=-1) / depth) < 0.05
     # The BVH holds one skeleton of the final size, its roots moved to that size.
-    (path,) = write_track_bvhs(engine.finish(), tmp_path, 24.0)
+    (path,) = write_tracks(engine.finish(), tmp_path, 24.0)
     bvh = read_bvh(path)
     fk, _ = forward_kinematics(bvh)
     thigh = np.linalg.norm(fk[:, bvh.index("r_knee")] - fk[:, bvh.index("r_hip")], axis=-1)

@@ -9,11 +9,12 @@ import argparse
 import sys
 
 from mocapdb import __version__
-from mocapdb.cli import build, detect, evaluate, reconstruct, stereo
+from mocapdb.cli import build, detect, evaluate, reconstruct, render, stereo
 from mocapdb.core.errors import MocapdbError
 
 COMMANDS = (build.add_build_parser, build.add_inspect_parser, reconstruct.add_reconstruct_parser,
-            reconstruct.add_live_parser, evaluate.add_eval_parser, detect.add_detect_parser, stereo.add_stereo_parser)
+            reconstruct.add_live_parser, evaluate.add_eval_parser, detect.add_detect_parser, stereo.add_stereo_parser,
+            render.add_render_parser)
 
 
 def parser() -> argparse.ArgumentParser:

@@ -5,6 +5,8 @@ import argparse
 import os
 import sys
 
+from mocapdb.core.formats.keypoint_layouts import LAYOUTS
+
 DEFAULT_FPS = 30.0  # input frame rate assumed when neither --fps nor the frames give one
 
 
@@ -14,7 +16,7 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                    help="skip checking the database files' sha256 checksums on load (sizes, row counts and "
                         "finite values are still checked)")
     p.add_argument("--keypoints",
-                   choices=("body25", "body25b", "coco18", "coco17", "halpe26", "wholebody133", "mediapipe33"),
+                   choices=tuple(LAYOUTS),
                    help="keypoint layout of the input (default: detected from the keypoint count; 25 keypoints: "
                         "BODY_25 or BODY_25B by geometry); data_specs/keypoint_formats.md")
     p.add_argument("--fps", type=float,

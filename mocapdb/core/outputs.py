@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.errors import MocapdbError
-from mocapdb.core.formats.bvh import Bvh, motion_from_rotations, write_bvh
+from mocapdb.core.formats.bvh import Bvh, motion_from_rotations
 from mocapdb.core.geometry import quat_to_matrix
 from mocapdb.core.skeleton import (
     END_SITES,
-    JOINT_NODE,
+    HUMANOID_NODES,
     KEYPOINTS,
     NODE_NAMES,
     NODE_OFFSETS_M,
@@ -85,22 +85,44 @@ BVH_ROTATION_CHANNELS = ["Zrotation", "Yrotation", "Xrotation"]
 BVH_UNITS = {"m": 1.0, "cm": 100.0}
 
 
-def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str = "m",
-                  body_scale: float = 1.0) -> Bvh:
-    """A BVH of the universal rig: root position and every joint's rotation per frame.
+RIGS = ("universal", "humanoid")  # BVH rigs: mocapdb's 11 joints, or with the bones character set-ups expect
 
-    ``unit`` is the BVH's length unit (``"m"`` or ``"cm"``); ``body_scale`` multiplies every
-    bone (a subject's height / :data:`UNIVERSAL_HEIGHT_M`).
+
+def _rig_table(rig: str) -> tuple[list[str], np.ndarray, np.ndarray, list[str | None], np.ndarray]:
+    """Names, parents, rest offsets (metres), the universal joint each node turns with (None:
+    identity) and the End Site mask of a BVH rig (:data:`RIGS`)."""
+    if rig == "universal":
+        names = [n if n not in END_SITES else f"{RIG_NODES[NODE_NAMES.index(n)][1]}_End" for n in NODE_NAMES]
+        sources = [n if n in RIG_JOINTS else None for n in NODE_NAMES]
+        end_site = np.array([n in END_SITES for n in NODE_NAMES])
+        return names, NODE_PARENTS.copy(), NODE_OFFSETS_M.copy(), sources, end_site
+    if rig == "humanoid":
+        names = [n[0] for n in HUMANOID_NODES]
+        parents = np.array([-1 if n[1] is None else names.index(n[1]) for n in HUMANOID_NODES])
+        offsets = np.array([n[2] for n in HUMANOID_NODES])
+        return names, parents, offsets, [n[3] for n in HUMANOID_NODES], np.array([n.endswith("_End") for n in names])
+    raise ValueError(f"unknown rig {rig!r}: one of {', '.join(RIGS)}")
+
+
+def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str = "m",
+                  body_scale: float = 1.0, rig: str = "universal") -> Bvh:
+    """A BVH of the universal skeleton: root position and every joint's rotation per frame.
+
+    ``quats [F, 11, 4]`` are the rig joints' local rotations (:data:`RIG_JOINTS` order) and
+    ``pelvis_m [F, 3]`` the root; ``unit`` is the BVH's length unit (``"m"`` or ``"cm"``);
+    ``body_scale`` multiplies every bone (a subject's height / :data:`UNIVERSAL_HEIGHT_M`).
+    ``rig="humanoid"`` adds head, clavicle, hand, foot and toe bones (which do not turn) under
+    Mixamo's names (:data:`HUMANOID_NODES`); the joints of both rigs are at the same places.
     """
     scale = BVH_UNITS[unit]
-    names = [n if n not in END_SITES else f"{RIG_NODES[NODE_NAMES.index(n)][1]}_End" for n in NODE_NAMES]
-    channels = [([] if n in END_SITES else BVH_ROTATION_CHANNELS.copy()) for n in NODE_NAMES]
+    names, parents, offsets_m, sources, end_site = _rig_table(rig)
+    channels = [([] if end else BVH_ROTATION_CHANNELS.copy()) for end in end_site]
     channels[0] = ["Xposition", "Yposition", "Zposition"] + BVH_ROTATION_CHANNELS
-    skeleton = Bvh(names, NODE_PARENTS.copy(), NODE_OFFSETS_M * (scale * body_scale), channels,
-                   np.array([n in END_SITES for n in NODE_NAMES]), 1.0 / fps,
+    skeleton = Bvh(names, parents, offsets_m * (scale * body_scale), channels, end_site, 1.0 / fps,
                    np.zeros((quats.shape[0], 0)))
-    local = np.broadcast_to(np.eye(3), (quats.shape[0], len(NODE_NAMES), 3, 3)).copy()
-    local[:, JOINT_NODE] = quat_to_matrix(quats)
+    local = np.broadcast_to(np.eye(3), (quats.shape[0], len(names), 3, 3)).copy()
+    turning = [i for i, source in enumerate(sources) if source is not None]
+    local[:, turning] = quat_to_matrix(quats[:, [RIG_JOINTS.index(sources[i]) for i in turning]])
     skeleton.motion = motion_from_rotations(skeleton, local, pelvis_m * scale)
     return skeleton
 
@@ -149,21 +171,6 @@ def header_line(fps: float) -> str:
                        "joints": list(KEYPOINTS), "rotations": list(RIG_JOINTS), "units": "m",
                        "coordinate_frame": "camera-aligned: x right, y up, z away from the camera"},
                       separators=(",", ":"))
-
-
-def write_track_bvhs(recordings: list[TrackRecording], out_dir: str | Path, fps: float,
-                     unit: str = "m") -> list[Path]:
-    """Write ``track_<id>.bvh`` for each recording (universal rig, view frame); returns the paths."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for rec in recordings:
-        quats, root_view_m, body_scale = rec.motion()
-        bvh = universal_bvh(quats, root_view_m, fps, unit, body_scale)
-        path = out_dir / f"track_{rec.track}.bvh"
-        write_bvh(path, bvh)
-        paths.append(path)
-    return paths
 
 
 def _is_output_folder(path: Path) -> bool:

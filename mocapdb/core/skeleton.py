@@ -79,6 +79,69 @@ NODE_OF_POINT = np.array([NODE_NAMES.index(next(n[0] for n in RIG_NODES if n[3] 
 JOINT_NODE = np.array([NODE_NAMES.index(j) for j in RIG_JOINTS])
 NODE_JOINT = np.array([RIG_JOINTS.index(n) if n in RIG_JOINTS else -1 for n in NODE_NAMES])
 
+# The humanoid rig of BVH export (``--rig humanoid``): the universal rig with the bones character
+# set-ups expect (head, clavicles, hands, feet, toes) under the names auto-mappers recognise
+# (Unity Humanoid, HumanIK, Blender: Mixamo's). Rows: (name, parent, rest offset from the parent in
+# metres, universal rig joint whose rotation it carries, or None: identity). The added joints turn
+# nothing, so every universal joint stays exactly where the universal rig puts it; names ending in
+# "_End" are End Sites (named as mocapdb reads them back: parent + "_End"). Hand, foot and
+# head-base lengths are not measured: fixed proportions.
+HAND_LENGTH_M = 0.08      # wrist → end of the hand bone, along the forearm
+FOOT_FORWARD_M = 0.14     # ankle → ball of the foot, forwards (+z at rest)
+TOE_LENGTH_M = 0.05
+HEAD_BASE_M = 0.10        # neck → head joint (skull base), up; the head bone ends at the nose
+CLAVICLE_M = 0.04         # spine-top → clavicle joint, outwards of the shoulder line
+_HALF_TORSO = _B["torso"] / 2
+_ANKLE_TO_BALL = (0.0, -ANKLE_HEIGHT_M + 0.02, FOOT_FORWARD_M)
+
+
+def _humanoid_leg(x: float) -> tuple:
+    """One leg's rows (``x`` = -1 right, +1 left: the side's sign of x in the universal rig)."""
+    name, short = ("Right", "r") if x < 0 else ("Left", "l")
+    b = _B
+    return (
+        (f"{name}UpLeg", "Hips", (x * b["half_hip_width"], 0.0, 0.0), f"{short}_hip"),
+        (f"{name}Leg", f"{name}UpLeg", (0.0, -b["thigh"], 0.0), f"{short}_knee"),
+        (f"{name}Foot", f"{name}Leg", (0.0, -b["shin"], 0.0), None),
+        (f"{name}ToeBase", f"{name}Foot", _ANKLE_TO_BALL, None),
+        (f"{name}ToeBase_End", f"{name}ToeBase", (0.0, 0.0, TOE_LENGTH_M), None),
+    )
+
+
+def _humanoid_arm(x: float) -> tuple:
+    """One arm's rows, clavicle to hand (``x`` as in :func:`_humanoid_leg`)."""
+    name, short = ("Right", "r") if x < 0 else ("Left", "l")
+    b = _B
+    return (
+        (f"{name}Shoulder", "Spine1", (x * CLAVICLE_M, _HALF_TORSO, 0.0), None),
+        (f"{name}Arm", f"{name}Shoulder", (x * (b["half_shoulder_width"] - CLAVICLE_M), 0.0, 0.0), f"{short}_shoulder"),
+        (f"{name}ForeArm", f"{name}Arm", (x * b["upper_arm"], 0.0, 0.0), f"{short}_elbow"),
+        (f"{name}Hand", f"{name}ForeArm", (x * b["forearm"], 0.0, 0.0), None),
+        (f"{name}Hand_End", f"{name}Hand", (x * HAND_LENGTH_M, 0.0, 0.0), None),
+    )
+
+
+# Rows in depth-first order (as a BVH file lists them), legs first like the universal rig.
+HUMANOID_NODES: tuple[tuple[str, str | None, tuple[float, float, float], str | None], ...] = (
+    ("Hips", None, (0.0, 0.0, 0.0), "pelvis"),
+    *_humanoid_leg(-1.0),
+    *_humanoid_leg(1.0),
+    ("Spine", "Hips", (0.0, 0.0, 0.0), "spine"),
+    ("Spine1", "Spine", (0.0, _HALF_TORSO, 0.0), None),
+    ("Neck", "Spine1", (0.0, _HALF_TORSO, 0.0), "neck"),
+    ("Head", "Neck", (0.0, HEAD_BASE_M, 0.0), None),
+    ("Head_End", "Head", (0.0, float(NOSE_OFFSET_M[1]) - HEAD_BASE_M, float(NOSE_OFFSET_M[2])), None),
+    *_humanoid_arm(-1.0),
+    *_humanoid_arm(1.0),
+)
+# The humanoid node at each universal keypoint (the nose is the head bone's end).
+HUMANOID_NODE_OF_KEYPOINT = {
+    "pelvis": "Hips", "neck": "Neck", "head": "Head_End",
+    **{f"{s}_{part}": f"{n}{bone}" for s, n in (("r", "Right"), ("l", "Left")) for part, bone in (
+        ("hip", "UpLeg"), ("knee", "Leg"), ("ankle", "Foot"), ("shoulder", "Arm"), ("elbow", "ForeArm"),
+        ("wrist", "Hand"))},
+}
+
 # How each rotation joint's global frame is found from keypoints: the bone it drives (primary,
 # from→to keypoints) and a secondary direction fixing the twist, with their rest directions.
 # Secondary "bend": the next bone's direction (limb plane), falling back on the parent frame.

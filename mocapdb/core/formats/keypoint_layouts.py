@@ -4,8 +4,6 @@ Orders, index tables and the mapping rules: ``data_specs/keypoint_formats.md``.
 """
 from __future__ import annotations
 
-import numpy as np
-
 _COCO17 = (
     "nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
     "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip",
@@ -44,9 +42,10 @@ _SOURCES: dict[str, tuple[str | None, ...]] = {
     "body25": _OPENPOSE_SOURCES, "body25b": _COCO_SOURCES, "coco18": _OPENPOSE_SOURCES,
     "coco17": _COCO_SOURCES, "halpe26": ("nose", "neck") + _COCO_SOURCES[2:],
     "wholebody133": _COCO_SOURCES, "mediapipe33": _COCO_SOURCES}
-# Per layout, the index of the source of each universal keypoint; -1: none.
-SOURCE_INDEX: dict[str, np.ndarray] = {
-    name: np.array([LAYOUTS[name].index(s) if s else -1 for s in sources]) for name, sources in _SOURCES.items()}
+# Per layout, the index of the source of each universal keypoint; -1: none. Plain tuples: the
+# command-line parsers read this module, which therefore imports nothing heavy.
+SOURCE_INDEX: dict[str, tuple[int, ...]] = {
+    name: tuple(LAYOUTS[name].index(s) if s else -1 for s in sources) for name, sources in _SOURCES.items()}
 # The layout of each keypoint count that only one layout has (25 is BODY_25 or BODY_25B).
 LAYOUT_OF_COUNT: dict[int, str] = {
     len(LAYOUTS[name]): name for name in ("coco17", "coco18", "halpe26", "mediapipe33", "wholebody133")}

@@ -1,4 +1,4 @@
-"""TRC marker files (OpenSim / Pose2Sim 3D trajectories): reading, and the universal keypoints in them.
+"""TRC marker files (OpenSim / Pose2Sim 3D trajectories): reading, writing, and the universal keypoints in them.
 
 A TRC file is tab-separated text: ``PathFileType`` line, a line of header keys (``DataRate``,
 ``NumFrames``, ``NumMarkers``, ``Units``, ...) and one of their values, a line ``Frame# Time
@@ -133,3 +133,27 @@ def trc_keypoints(trc: Trc) -> np.ndarray:
     for keypoint, (a, b) in _MIDPOINTS.items():
         out[:, KP[keypoint]] = 0.5 * (out[:, KP[a]] + out[:, KP[b]])
     return out
+
+
+def format_trc(markers: list[str], positions_m: np.ndarray, rate_hz: float, frame_numbers: np.ndarray | None = None,
+               times_s: np.ndarray | None = None, name: str = "markers.trc", decimals: int = 5) -> str:
+    """TRC text (OpenSim's layout, metres) of ``positions_m [F, M, 3]``; NaN becomes an empty cell.
+
+    ``frame_numbers`` default 1..F, ``times_s`` default ``(frame_numbers - first) / rate_hz``.
+    """
+    positions = np.asarray(positions_m, dtype=np.float64)
+    n_frames, n_markers = positions.shape[:2]
+    if len(markers) != n_markers:
+        raise ValueError(f"{len(markers)} marker names for {n_markers} markers")
+    frames = np.arange(1, n_frames + 1) if frame_numbers is None else np.asarray(frame_numbers, dtype=np.int64)
+    times = (frames - frames[0]) / rate_hz if times_s is None else np.asarray(times_s, dtype=np.float64)
+    header = [f"PathFileType\t4\t(X/Y/Z)\t{name}",
+              "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
+              f"{rate_hz:g}\t{rate_hz:g}\t{n_frames}\t{n_markers}\tm\t{rate_hz:g}\t{int(frames[0])}\t{n_frames}",
+              "Frame#\tTime\t" + "\t".join(f"{m}\t\t" for m in markers).rstrip("\t"),
+              "\t\t" + "\t".join(f"X{i}\tY{i}\tZ{i}" for i in range(1, n_markers + 1)),
+              ""]
+    values = np.char.mod(f"%.{decimals}f", np.round(positions.reshape(n_frames, -1), decimals) + 0.0)
+    values[np.isnan(positions.reshape(n_frames, -1))] = ""
+    rows = [f"{f}\t{t:.6f}\t" + "\t".join(v) for f, t, v in zip(frames, times, values)]
+    return "\n".join(header + rows) + "\n"

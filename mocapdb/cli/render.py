@@ -1,0 +1,104 @@
+"""`mocapdb render`: look at a result: skeletons over the input frames, a 3D view, the stereo cameras."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def add_render_parser(sub: argparse._SubParsersAction) -> None:
+    """Add the ``render`` subcommand (``run`` returns the exit code)."""
+    p = sub.add_parser(
+        "render", help="draw a result: skeletons over the input keypoints/video, a 3D view, stereo cameras",
+        description="Draw the output of `mocapdb reconstruct` frame by frame: each track's 3D skeleton "
+                    "re-projected through the pinhole camera (--focal, --image-size as given to reconstruct) in "
+                    "its own colour with its id, over the input keypoints (thin grey) and the video frame (or a "
+                    "dark background), beside an orthographic 3D view with a floor grid. Writes OUT/frame_NNNNNN.png "
+                    "or, with --mp4, one video. For the output of `mocapdb stereo` (a folder holding cameras.json) "
+                    "without --keypoints: one picture of the two cameras and the motion (top and oblique views).")
+    p.add_argument("result", help="the --out folder of `mocapdb reconstruct` or `mocapdb stereo` (or its result.jsonl)")
+    p.add_argument("--out", required=True,
+                   help="folder for PNG frames; with --mp4 a .mp4 file (or a folder: OUT/render.mp4); for the "
+                        "stereo plot a .png file")
+    p.add_argument("--keypoints", metavar="INPUT",
+                   help="the 2D input given to reconstruct (OpenPose folder, .jsonl, MMPose .json, .npy/.npz)")
+    p.add_argument("--video", help="the input video, drawn under the skeletons (OpenCV reads it)")
+    p.add_argument("--mp4", action="store_true", help="write one MP4 video (mp4v) instead of PNG frames")
+    p.add_argument("--focal", type=float,
+                   help="focal length in pixels as given to reconstruct (default 1000; stereo: camera 1's)")
+    p.add_argument("--image-size", metavar="WxH",
+                   help="input image WIDTHxHEIGHT in pixels as given to reconstruct (default: the video's, else "
+                        "1920x1080; stereo: camera 1's)")
+    p.add_argument("--view", choices=("both", "image", "3d"), default="both",
+                   help="image panel, 3D panel, or both side by side (default both)")
+    p.add_argument("--scale", type=float, default=0.5,
+                   help="output pixels per input pixel (default 0.5)")
+    p.add_argument("--contact-sheet", type=int, metavar="N",
+                   help="write one PNG (--out) holding N evenly spaced frames instead of every frame")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(run=run_render)
+
+
+def _image_size(text: str) -> tuple[int, int]:
+    from mocapdb.core.errors import UsageError
+
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise UsageError(f"--image-size takes WIDTHxHEIGHT in pixels, e.g. 1920x1080, not {text!r}") from None
+    if width <= 0 or height <= 0:
+        raise UsageError(f"--image-size {text}: width and height must be positive")
+    return width, height
+
+
+def run_render(args: argparse.Namespace) -> int:
+    """``mocapdb render``: frames, an MP4, a contact sheet or the stereo plot; prints a summary line."""
+    from pathlib import Path
+
+    from mocapdb.core.errors import UsageError
+    from mocapdb.render.results import read_cameras, result_path
+    from mocapdb.render.video import (
+        DEFAULT_FOCAL,
+        DEFAULT_IMAGE_SIZE,
+        Camera,
+        contact_sheet,
+        render_result,
+        render_stereo_plot,
+    )
+
+    def warn(text: str) -> None:
+        print(f"mocapdb render: warning: {text}", file=sys.stderr)
+
+    folder = result_path(args.result).parent
+    stereo = read_cameras(folder) is not None
+    if stereo and args.keypoints is None and args.video is None and args.contact_sheet is None:
+        if args.mp4 or Path(args.out).suffix.lower() != ".png":
+            raise UsageError(f"{args.result} is a stereo result: its plot is one picture, give --out NAME.png "
+                             "(or --keypoints to draw camera 1's frames)")
+        print(f"wrote {render_stereo_plot(folder, args.out)} (cameras and motion of {folder})")
+        return 0
+    camera = None
+    if args.focal is not None or args.image_size is not None or not stereo:
+        size = _image_size(args.image_size) if args.image_size else None
+        if size is None and args.video is not None:
+            from mocapdb.render.video import VideoFrames
+
+            v = VideoFrames(args.video)
+            size = v.size
+            v.close()
+        camera = Camera(args.focal if args.focal is not None else DEFAULT_FOCAL, size or DEFAULT_IMAGE_SIZE)
+        if args.focal is None and args.keypoints is not None:
+            warn(f"no --focal: assuming {DEFAULT_FOCAL:g} px (reconstruct's default); give the value used there")
+    if args.contact_sheet is not None:
+        if camera is None:
+            from mocapdb.render.results import read_cameras as _rc
+
+            c = _rc(folder).cameras[0]
+            camera = Camera(float(c.K[0, 0]), c.size)
+        out = contact_sheet(args.result, args.keypoints, args.out, args.contact_sheet, focal=camera.focal,
+                            image_size=camera.size, video=args.video, view=args.view, warn=warn)
+        print(f"wrote {out} ({args.contact_sheet} frames of {args.result})")
+        return 0
+    summary = render_result(args.result, args.out, args.keypoints, args.video, args.mp4, camera, args.view,
+                            args.scale, progress=not args.no_progress, warn=warn)
+    print(summary.report())
+    return 0

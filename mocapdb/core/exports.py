@@ -1,0 +1,131 @@
+"""A track's files: BVH (universal or humanoid rig), TRC (OpenSim / Pose2Sim markers) and CSV.
+
+Coordinates are the view frame (metres, x to the image's right, y up, z towards the camera),
+whose origin is the camera. With ``floor`` the motion is put on a floor estimated from the feet:
+the camera's pitch is taken out (the line the lowest ankle traces over depth is made level), the
+floor is at y = 0 and the pelvis starts above the origin; a person who hardly moves in depth
+(< :data:`MIN_DEPTH_SPREAD_M`) is only shifted, not levelled. Decisions: the roll of the camera is
+not estimated; the floor height is the 5th percentile of the lowest ankle minus the ankle height.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mocapdb.core.files import write_atomic
+from mocapdb.core.formats.bvh import format_bvh
+from mocapdb.core.formats.trc import format_trc
+from mocapdb.core.geometry import axis_rotation_matrices, matrix_to_quat, quat_mul
+from mocapdb.core.outputs import RIGS, TrackRecording, universal_bvh
+from mocapdb.core.skeleton import ANKLE_HEIGHT_M, KEYPOINTS, KP, pose_from_rotations
+
+FORMATS = ("bvh", "trc", "csv")
+MIN_DEPTH_SPREAD_M = 0.5   # the feet must cover this much depth for the camera pitch to be measured
+FLOOR_PERCENTILE = 5.0     # of the lowest ankle's height, for the floor
+LEVEL_INLIER_M = 0.05      # ankle points this close to the first line fit the second
+
+
+@dataclass(frozen=True)
+class TrackExport:
+    """Which files a track gets and how: ``formats`` (of :data:`FORMATS`), the BVH ``unit``
+    ("m" or "cm") and ``rig`` (:data:`~mocapdb.core.outputs.RIGS`), and ``floor``."""
+
+    formats: tuple[str, ...] = ("bvh",)
+    unit: str = "m"
+    rig: str = "universal"
+    floor: bool = False
+
+    def __post_init__(self) -> None:
+        unknown = [f for f in self.formats if f not in FORMATS]
+        if unknown or not self.formats:
+            raise ValueError(f"unknown output format {', '.join(unknown) or '(none)'}: "
+                             f"choose from {', '.join(FORMATS)}")
+        if self.rig not in RIGS:
+            raise ValueError(f"unknown rig {self.rig!r}: choose from {', '.join(RIGS)}")
+        if self.unit not in ("m", "cm"):
+            raise ValueError(f"unknown BVH unit {self.unit!r}: m or cm")
+
+
+def on_floor(quats: np.ndarray, root_m: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """``quats [F, R, 4]`` and ``root_m [F, 3]`` turned level and moved onto a floor at y = 0, the
+    first frame's pelvis above the origin (see the module's docstring)."""
+    lowest = _lowest_ankle(quats, root_m, scale)
+    pitch_rad = _floor_pitch(lowest)
+    level = axis_rotation_matrices("X", np.float64(pitch_rad))
+    quats = quats.copy()
+    quats[:, 0] = quat_mul(matrix_to_quat(level), quats[:, 0])
+    root = root_m @ level.T
+    floor_y = np.percentile((lowest @ level.T)[:, 1], FLOOR_PERCENTILE) - ANKLE_HEIGHT_M * scale
+    return quats, root - [root[0, 0], floor_y, root[0, 2]]
+
+
+def _lowest_ankle(quats: np.ndarray, root_m: np.ndarray, scale: float) -> np.ndarray:
+    """Per frame, the position of the lower ankle ``[F, 3]``."""
+    ankles = pose_from_rotations(quats, root_m, scale)[:, [KP["r_ankle"], KP["l_ankle"]]]
+    return ankles[np.arange(len(ankles)), np.argmin(ankles[..., 1], axis=1)]
+
+
+def _floor_pitch(lowest: np.ndarray) -> float:
+    """The rotation about x (radians) that makes the line of ``lowest`` over depth level; 0 when
+    the depth spread is under :data:`MIN_DEPTH_SPREAD_M`. Two fits: all points, then those within
+    :data:`LEVEL_INLIER_M` of the first line (steps and jumps lift the foot off the floor)."""
+    depth, height = lowest[:, 2], lowest[:, 1]
+    if np.ptp(depth) < MIN_DEPTH_SPREAD_M:
+        return 0.0
+    slope, offset = np.polyfit(depth, height, 1)
+    near = np.abs(height - (slope * depth + offset)) < LEVEL_INLIER_M
+    if np.ptp(depth[near]) >= MIN_DEPTH_SPREAD_M:
+        slope, offset = np.polyfit(depth[near], height[near], 1)
+    return float(np.arctan(slope))
+
+
+def track_motion(rec: TrackRecording, floor: bool) -> tuple[np.ndarray, np.ndarray, float]:
+    """Rotations ``[F, R, 4]``, root ``[F, 3]`` (metres) and body scale of a track, on the floor if asked."""
+    quats, root_m, scale = rec.motion()
+    if floor:
+        quats, root_m = on_floor(quats, root_m, scale)
+    return quats, root_m, scale
+
+
+def csv_text(joints_m: np.ndarray, frames: np.ndarray, times_s: np.ndarray) -> str:
+    """CSV with a header row: ``frame,time_s,<joint>_x,<joint>_y,<joint>_z,...`` (metres)."""
+    columns = ["frame", "time_s"] + [f"{name}_{axis}" for name in KEYPOINTS for axis in "xyz"]
+    values = np.char.mod("%.5f", np.round(joints_m.reshape(len(joints_m), -1), 5) + 0.0)
+    rows = [f"{f},{t:.6f}," + ",".join(v) for f, t, v in zip(frames, times_s, values)]
+    return "\n".join([",".join(columns), *rows]) + "\n"
+
+
+def write_track_files(rec: TrackRecording, folder: str | Path, stem: str, fps: float,
+                      export: TrackExport = TrackExport()) -> list[Path]:
+    """Write ``<stem>.<format>`` for each of ``export.formats`` (atomically); returns the paths.
+
+    Frame numbers are the input's (the track's first frame onwards) and times the input's seconds.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    quats, root_m, scale = track_motion(rec, export.floor)
+    frames = rec.first_frame + np.arange(len(quats))
+    times_s = rec.first_s + np.arange(len(quats)) / fps
+    texts = {}
+    if "bvh" in export.formats:
+        texts["bvh"] = format_bvh(universal_bvh(quats, root_m, fps, export.unit, scale, export.rig))
+    if "trc" in export.formats or "csv" in export.formats:
+        joints_m = pose_from_rotations(quats, root_m, scale)
+        if "trc" in export.formats:
+            texts["trc"] = format_trc(list(KEYPOINTS), joints_m, fps, frames, times_s, f"{stem}.trc")
+        if "csv" in export.formats:
+            texts["csv"] = csv_text(joints_m, frames, times_s)
+    paths = []
+    for suffix in export.formats:
+        path = folder / f"{stem}.{suffix}"
+        write_atomic(path, texts[suffix])
+        paths.append(path)
+    return paths
+
+
+def write_tracks(recordings: list[TrackRecording], out_dir: str | Path, fps: float,
+                 export: TrackExport = TrackExport()) -> list[Path]:
+    """Write ``track_<id>.<format>`` files for each recording; returns the paths."""
+    return [path for rec in recordings for path in write_track_files(rec, out_dir, f"track_{rec.track}", fps, export)]

@@ -1,0 +1,456 @@
+"""Pictures of results: per-frame overlays (PNG frames or one MP4), a contact sheet, a stereo camera plot.
+
+Every file is written atomically (a temporary name in the same folder, then ``os.replace``).
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from mocapdb.core.skeleton import PELVIS
+from mocapdb.render import draw
+from mocapdb.render.results import RenderError, ResultFrame, overlap, read_cameras, read_result
+
+VIEWS = ("both", "image", "3d")
+DEFAULT_FOCAL = 1000.0           # the defaults of `mocapdb reconstruct`
+DEFAULT_IMAGE_SIZE = (1920, 1080)
+MP4_NAME = "render.mp4"
+
+
+@dataclass
+class Camera:
+    """The pinhole camera the result was made with: focal (px), principal point (px), image size (w, h)."""
+    focal: float
+    size: tuple[int, int]
+    principal: tuple[float, float] | None = None
+
+    def __post_init__(self):
+        if not (math.isfinite(self.focal) and self.focal > 0):
+            raise RenderError(f"focal length {self.focal:g} px is not a positive number (--focal)")
+        if len(self.size) != 2 or min(self.size) <= 0:
+            raise RenderError(f"image size {self.size} is not a positive width and height (--image-size WxH)")
+        self.size = (int(self.size[0]), int(self.size[1]))
+        if self.principal is None:
+            self.principal = (self.size[0] / 2, self.size[1] / 2)
+
+
+@dataclass
+class Layout:
+    """Where things go in an output frame: the image panel (input image scaled, with a margin
+    showing what falls outside it) and/or the square 3D panel to its right."""
+    camera: Camera
+    view: str
+    view3d: draw.View3D
+    scale: float = 1.0
+    margin: float = 0.06
+
+    def __post_init__(self):
+        if self.view not in VIEWS:
+            raise RenderError(f"view {self.view!r}: choose one of {', '.join(VIEWS)}")
+        w, h = self.camera.size
+        self.margin_px = int(round(self.margin * max(w, h) * self.scale))
+        self.image_panel = (int(round(w * self.scale)) + 2 * self.margin_px,
+                            int(round(h * self.scale)) + 2 * self.margin_px)
+        side = self.image_panel[1]
+        # the 3D panel: square, but no wider than 1.3 image panels beside a portrait image
+        wide = side if self.view == "3d" or w >= h else min(side, int(1.3 * self.image_panel[0]))
+        self.panel_3d = (wide, side)
+        width = (self.image_panel[0] if self.view != "3d" else 0) + (wide if self.view != "image" else 0)
+        self.size = (width + width % 2, side + side % 2)   # even: what video codecs want
+
+
+def _fresh_background(layout: Layout, video_frame: np.ndarray | None) -> np.ndarray:
+    pw, ph = layout.image_panel
+    img = np.full((ph, pw, 3), 16, np.uint8)
+    m = layout.margin_px
+    w, h = pw - 2 * m, ph - 2 * m
+    if video_frame is not None:
+        img[m:m + h, m:m + w] = cv2.resize(video_frame, (w, h), interpolation=cv2.INTER_AREA)
+    else:
+        img[m:m + h, m:m + w] = draw.BACKGROUND
+    if m:
+        cv2.rectangle(img, (m - 1, m - 1), (m + w, m + h), draw.BORDER_COLOUR, 1)
+    return img
+
+
+def compose_frame(layout: Layout, frame: ResultFrame, keypoints=None, video_frame: np.ndarray | None = None,
+                  trails: dict[int, deque] | None = None, caption: str | None = None) -> np.ndarray:
+    """One output image (BGR) of a result frame: the re-projected skeletons over the input keypoints
+    (grey) and the video frame, and/or the 3D panel. ``trails``: per track the recent pelvis
+    positions, drawn in the 3D panel."""
+    cam = layout.camera
+    people = sorted(frame.people, key=lambda p: -float(np.nan_to_num(p.joints[PELVIS, 2], nan=0.0)))
+    out = np.zeros((layout.size[1], layout.size[0], 3), np.uint8)
+    x0 = 0
+    text_scale = 0.35 + layout.size[1] / 1800
+    if layout.view != "3d":
+        img = _fresh_background(layout, video_frame)
+        m = layout.margin_px
+        if keypoints is not None:
+            for person in keypoints.people:
+                draw.draw_keypoints_2d(img, person.points_px, person.confidence, (m, m), layout.scale)
+        for p in people:
+            px = draw.project_pinhole(p.joints, cam.focal, cam.principal)
+            edge = draw.at_image_edge(px, cam.size)
+            draw.draw_skeleton_px(img, px * layout.scale + m, draw.track_colour(p.track),
+                                  draw.track_label(p.track, p.distance_2d, edge))
+        out[:img.shape[0], :img.shape[1]] = img
+        x0 = img.shape[1]
+    if layout.view != "image":
+        pw, side = layout.panel_3d
+        panel = np.full((side, pw, 3), 24, np.uint8)
+        draw.draw_floor(panel, layout.view3d)
+        if trails is not None:
+            for track, trail in trails.items():
+                if len(trail) > 1:
+                    flat = layout.view3d.scene(np.array(trail))
+                    flat[:, 1] = layout.view3d.floor
+                    px, _ = layout.view3d.project(flat, (pw, side), scene=True)
+                    colour = tuple(int(c * 0.55) for c in draw.track_colour(track))
+                    cv2.polylines(panel, [np.round(px).astype(np.int32)], False, colour, 1, cv2.LINE_AA)
+        ordered = sorted(people, key=lambda p: -float(np.nanmean(layout.view3d.project(p.joints, (pw, side))[1])))
+        for p in ordered:
+            draw.draw_skeleton_3d(panel, layout.view3d, p.joints, draw.track_colour(p.track), f"#{p.track}")
+        draw.put_text(panel, "3D, orthographic", (8, int(28 * text_scale) + 8), text_scale, (170, 170, 170))
+        out[:side, x0:x0 + pw] = panel
+    t = "" if math.isnan(frame.time_s) else f"  {frame.time_s:.2f} s"
+    draw.put_text(out, caption or f"frame {frame.index}{t}  people {len(frame.people)}",
+                  (8, int(28 * text_scale) + 8 + (int(40 * text_scale) if layout.view == "3d" else 0)),
+                  text_scale, draw.TEXT_COLOUR, 1 if text_scale < 1 else 2)
+    return out
+
+
+class VideoFrames:
+    """Frames of a video file by index (sequential reads, a seek when going back or far ahead)."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise RenderError(f"{path}: no such video file (--video)")
+        self.cap = cv2.VideoCapture(str(self.path))
+        if not self.cap.isOpened():
+            raise RenderError(f"{path}: OpenCV cannot open this video (--video)")
+        count = int(self.cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        self.count = count if count > 0 else None
+        self.size = (int(self.cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(self.cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+        self.next = 0
+
+    def get(self, index: int) -> np.ndarray | None:
+        if index < self.next or index > self.next + 60:
+            self.cap.set(cv2.CAP_PROP_POS_FRAMES, index)
+            self.next = index
+        frame = None
+        while self.next <= index:
+            ok, frame = self.cap.read()
+            self.next += 1
+            if not ok:
+                return None
+        return frame
+
+    def close(self) -> None:
+        self.cap.release()
+
+
+def _tmp_name(path: Path) -> Path:
+    return path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+
+
+def write_png(path: str | Path, img: np.ndarray) -> Path:
+    """Write ``img`` as a PNG atomically (temporary name, then rename)."""
+    path = Path(path)
+    ok, data = cv2.imencode(".png", img)
+    if not ok:
+        raise RenderError(f"{path}: OpenCV cannot encode the picture as PNG")
+    tmp = _tmp_name(path)
+    try:
+        tmp.write_bytes(data.tobytes())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+class _PngFrames:
+    def __init__(self, folder: Path):
+        if folder.exists() and not folder.is_dir():
+            raise RenderError(f"{folder}: --out exists and is not a folder (PNG frames go in a folder; "
+                              "add --mp4 for one video file)")
+        folder.mkdir(parents=True, exist_ok=True)
+        self.folder, self.written = folder, set()
+
+    def write(self, index: int, img: np.ndarray) -> None:
+        self.written.add(write_png(self.folder / f"frame_{index:06d}.png", img).name)
+
+    def finish(self) -> Path:
+        for old in self.folder.glob("frame_*.png"):   # an earlier render's frames this one has not
+            if old.name not in self.written:
+                old.unlink()
+        return self.folder
+
+    def abort(self) -> None:
+        pass
+
+
+class _Mp4:
+    def __init__(self, path: Path, fps: float, size: tuple[int, int]):
+        if path.is_dir():
+            raise RenderError(f"{path}: is a folder; give --out a file name ending .mp4")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.path, self.tmp = path, _tmp_name(path.with_suffix(".mp4"))
+        self.writer = cv2.VideoWriter(str(self.tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+        if not self.writer.isOpened():
+            raise RenderError(f"{path}: OpenCV cannot write an MP4 (mp4v) video here")
+
+    def write(self, index: int, img: np.ndarray) -> None:
+        self.writer.write(img)
+
+    def finish(self) -> Path:
+        self.writer.release()
+        os.replace(self.tmp, self.path)
+        return self.path
+
+    def abort(self) -> None:
+        self.writer.release()
+        self.tmp.unlink(missing_ok=True)
+
+
+@dataclass
+class RenderSummary:
+    frames: int
+    tracks: list[int]
+    out: Path
+    seconds: float
+    warnings: list[str] = field(default_factory=list)
+
+    def report(self) -> str:
+        tracks = ", ".join(f"#{t}" for t in self.tracks) or "none"
+        warn = f"; {len(self.warnings)} warning(s)" if self.warnings else ""
+        return f"rendered {self.frames} frame(s), tracks {tracks}, to {self.out} in {self.seconds:.1f} s{warn}"
+
+
+def _check_keypoint_extent(keypoints: list, camera: Camera, warn: Callable[[str], None]) -> None:
+    pts = [p.points_px[p.confidence > 0] for k in keypoints for p in k.people]
+    pts = np.concatenate(pts) if pts else np.zeros((0, 2))
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts):
+        hi = np.percentile(pts, 99, axis=0)
+        w, h = camera.size
+        if hi[0] > 1.1 * w or hi[1] > 1.1 * h:
+            warn(f"keypoints reach x = {hi[0]:.0f} px, y = {hi[1]:.0f} px, beyond the image of {w}×{h} px: "
+                 "give --image-size (and --focal) as given to reconstruct")
+
+
+def prepare(result: str | Path, keypoints: str | Path | list | None, camera: Camera | None, video: VideoFrames | None,
+            view: str, scale: float, margin: float, warn: Callable[[str], None]):
+    """Read and check the inputs: (stream, frame pairs, layout)."""
+    stream = read_result(result)
+    if camera is None:
+        cams = read_cameras(stream.path.parent)
+        if cams is not None:   # a stereo result: camera 1's own intrinsics
+            c = cams.cameras[0]
+            camera = Camera(float(c.K[0, 0]), c.size, (float(c.K[0, 2]), float(c.K[1, 2])))
+        else:
+            camera = Camera(DEFAULT_FOCAL, video.size if video is not None else DEFAULT_IMAGE_SIZE)
+    if video is not None and tuple(video.size) != tuple(camera.size):
+        warn(f"the video is {video.size[0]}×{video.size[1]} px, the image size {camera.size[0]}×{camera.size[1]} px: "
+             "the video is stretched to the image size")
+    if keypoints is not None and not isinstance(keypoints, list):
+        from mocapdb.render.results import load_keypoints
+
+        keypoints = load_keypoints(keypoints)
+    if keypoints is not None:
+        _check_keypoint_extent(keypoints, camera, warn)
+    pairs = overlap(stream, keypoints, video.count if video is not None else None, warn)
+    view3d = draw.fit_view(stream.all_joints())
+    return stream, pairs, Layout(camera, view, view3d, scale, margin)
+
+
+def render_result(result: str | Path, out: str | Path, keypoints: str | Path | None = None,
+                  video: str | Path | None = None, mp4: bool = False, camera: Camera | None = None,
+                  view: str = "both", scale: float = 1.0, margin: float = 0.06, progress: bool = True,
+                  warn: Callable[[str], None] | None = None) -> RenderSummary:
+    """Draw every frame of a result (folder or ``result.jsonl``): PNG frames ``out/frame_NNNNNN.png``
+    (NNNNNN: the frame number), or with ``mp4`` one video (``out`` if it ends ``.mp4``, else
+    ``out/render.mp4``) at the stream's frame rate.
+
+    ``keypoints``: the 2D input (drawn thin grey; only frames both have are drawn, with a warning);
+    ``video``: drawn under the skeletons (else a dark background); ``camera``: focal and image size
+    as given to reconstruct (None: a stereo result's camera 1, else reconstruct's defaults);
+    ``view``: ``both`` (image and 3D panels), ``image`` or ``3d``; ``scale``: output pixels per
+    input pixel. ``warn`` receives each warning (they are also in the summary).
+    """
+    start = time.perf_counter()
+    warnings: list[str] = []
+
+    def _warn(text: str) -> None:
+        warnings.append(text)
+        if warn is not None:
+            warn(text)
+
+    if not (math.isfinite(scale) and 0.05 <= scale <= 4):
+        raise RenderError(f"scale {scale:g} is outside 0.05–4")
+    frames_in = VideoFrames(video) if video is not None else None
+    try:
+        stream, pairs, layout = prepare(result, keypoints, camera, frames_in, view, scale, margin, _warn)
+        out = Path(out)
+        if mp4:
+            sink = _Mp4(out if out.suffix.lower() == ".mp4" else out / MP4_NAME, stream.fps, layout.size)
+        else:
+            sink = _PngFrames(out)
+        trails: dict[int, deque] = {}
+        try:
+            from tqdm import tqdm
+
+            for rframe, kframe in tqdm(pairs, desc="render", unit="frame", disable=not progress, file=sys.stderr):
+                seen = set()
+                for p in rframe.people:
+                    trails.setdefault(p.track, deque(maxlen=max(2, int(stream.fps)))).append(p.joints[PELVIS])
+                    seen.add(p.track)
+                for gone in [t for t in trails if t not in seen]:
+                    del trails[gone]
+                background = frames_in.get(rframe.index) if frames_in is not None else None
+                sink.write(rframe.index, compose_frame(layout, rframe, kframe, background, trails))
+            written = sink.finish()
+        except BaseException:
+            sink.abort()
+            raise
+    finally:
+        if frames_in is not None:
+            frames_in.close()
+    tracks = sorted({p.track for f, _ in pairs for p in f.people})
+    return RenderSummary(len(pairs), tracks, written, time.perf_counter() - start, warnings)
+
+
+def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, out_png: str | Path, n: int = 12, *,
+                  focal: float = DEFAULT_FOCAL, image_size: tuple[int, int] = DEFAULT_IMAGE_SIZE,
+                  video: str | Path | None = None, view: str = "both", tile_height: int = 520,
+                  columns: int | None = None, warn: Callable[[str], None] | None = None) -> Path:
+    """One PNG: a grid of ``n`` evenly spaced frames of a result with their overlays (the
+    re-projected skeletons over the input keypoints, and the 3D view with ``view="both"``).
+
+    ``result_dir``: the ``--out`` folder of ``mocapdb reconstruct`` (or its ``result.jsonl``);
+    ``keypoints``: its input (folder, file, or frames already read; None: skeletons only);
+    ``focal`` (px) and ``image_size`` (width, height px): as given to reconstruct; ``video``:
+    optional frames underneath; ``tile_height``: pixels per tile. Frames are chosen evenly among
+    those the result and keypoints share. Written atomically; returns ``out_png``. Raises
+    :class:`~mocapdb.render.results.RenderError` on unusable inputs (``reconstruct --preview``).
+    """
+    if n < 1:
+        raise RenderError(f"a contact sheet needs at least 1 frame, not {n}")
+    camera = Camera(float(focal), tuple(image_size))
+    frames_in = VideoFrames(video) if video is not None else None
+    try:
+        full_h = camera.size[1] * (1 + 2 * 0.06)
+        scale = max(0.05, tile_height / full_h)
+        stream, pairs, layout = prepare(result_dir, keypoints, camera, frames_in, view, scale, 0.06,
+                                        warn or (lambda text: None))
+        picks = sorted(set(np.round(np.linspace(0, len(pairs) - 1, min(n, len(pairs)))).astype(int).tolist()))
+        tiles = []
+        for i in picks:
+            rframe, kframe = pairs[i]
+            background = frames_in.get(rframe.index) if frames_in is not None else None
+            tiles.append(compose_frame(layout, rframe, kframe, background))
+    finally:
+        if frames_in is not None:
+            frames_in.close()
+    th, tw = tiles[0].shape[:2]
+    cols = columns or max(1, min(len(tiles), round(math.sqrt(len(tiles) * 1.5 * th / tw))))
+    rows = math.ceil(len(tiles) / cols)
+    gap, title_h = 4, max(30, th // 12)
+    sheet = np.full((title_h + rows * (th + gap), cols * (tw + gap) - gap, 3), 8, np.uint8)
+    for k, tile in enumerate(tiles):
+        r, c = divmod(k, cols)
+        y, x = title_h + r * (th + gap), c * (tw + gap)
+        sheet[y:y + th, x:x + tw] = tile
+    tracks = stream.tracks
+    title = (f"{stream.path.parent.name}/{stream.path.name}: {len(tiles)} of {len(pairs)} frames, "
+             f"{len(tracks)} track(s), focal {camera.focal:g} px, image {camera.size[0]}x{camera.size[1]}")
+    tscale = title_h / 45
+    draw.put_text(sheet, title, (8, int(title_h * 0.72)), tscale, draw.TEXT_COLOUR, 1)
+    (tw_text, _), _ = cv2.getTextSize(title, draw.FONT, tscale, 1)
+    x = 8 + tw_text + 20
+    for t in tracks[:10]:
+        draw.put_text(sheet, f"#{t}", (x, int(title_h * 0.72)), tscale, draw.track_colour(t), 2)
+        x += int(60 * tscale) + 10
+    out_png = Path(out_png)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    return write_png(out_png, sheet)
+
+
+def _stereo_basis(cams) -> np.ndarray | None:
+    """Camera-aligned (camera 1) → scene axes (x right, y up, z forward) from ``bvh_from_camera1``."""
+    if cams.bvh_from_camera1 is None:
+        return None
+    b = np.diag([1.0, 1.0, -1.0]) @ cams.bvh_from_camera1 @ np.diag([1.0, -1.0, 1.0])
+    u, _, vt = np.linalg.svd(b)   # keep it a rotation
+    return u @ vt
+
+
+def render_stereo_plot(stereo_dir: str | Path, out_png: str | Path, panel: int = 900, snapshots: int = 6) -> Path:
+    """One PNG of a ``mocapdb stereo`` output: a top view and an oblique view of the two cameras
+    (frusta with their names) and the people's motion (pelvis path over time, skeletons at
+    ``snapshots`` evenly spaced frames, older ones darker). OpenCV only (no matplotlib)."""
+    cams = read_cameras(stereo_dir)
+    if cams is None:
+        raise RenderError(f"{stereo_dir}: no cameras.json (not the --out folder of `mocapdb stereo`; for a "
+                          "reconstruction give --keypoints and draw its frames)")
+    stream = read_result(stereo_dir)
+    flip = np.diag([1.0, -1.0, 1.0])   # OpenCV camera-1 axes ↔ camera-aligned axes
+    centres = np.array([flip @ c.center_cam1 for c in cams.cameras])
+    joints = stream.all_joints()
+    basis = _stereo_basis(cams)
+    top = draw.fit_view(joints, basis, centres, azimuth_deg=0.0, elevation_deg=90.0)
+    oblique = draw.fit_view(joints, basis, centres, azimuth_deg=-35.0, elevation_deg=25.0)
+    spread = top.half_extent
+    panels = []
+    for view, title in ((top, "top view"), (oblique, "oblique view")):
+        img = np.full((panel, panel, 3), 24, np.uint8)
+        draw.draw_floor(img, view)
+        for k, c in enumerate(cams.cameras):
+            axes = np.array([flip @ c.R[i] for i in range(3)])
+            fov = (c.size[0] / 2 / c.K[0, 0], c.size[1] / 2 / c.K[1, 1])
+            draw.draw_camera_3d(img, view, centres[k], axes, fov, 0.2 * spread, (235, 235, 235) if k == 0
+                                else (120, 220, 255), c.name)
+        for track in stream.tracks:
+            colour = np.array(draw.track_colour(track), dtype=np.float64)
+            frames = [(f, p) for f in stream.frames for p in f.people if p.track == track]
+            pelvis = np.array([p.joints[PELVIS] for _, p in frames])
+            px, _ = view.project(pelvis, (panel, panel))
+            ok = np.all(np.isfinite(px), axis=1)
+            for a in range(len(px) - 1):
+                if ok[a] and ok[a + 1]:
+                    shade = 0.35 + 0.65 * a / max(1, len(px) - 1)
+                    cv2.line(img, draw._pt(px[a]), draw._pt(px[a + 1]), tuple(int(v) for v in colour * shade), 2,
+                             cv2.LINE_AA)
+            picks = sorted(set(np.round(np.linspace(0, len(frames) - 1, min(snapshots, len(frames)))).astype(int)))
+            for j, i in enumerate(picks):
+                shade = 0.35 + 0.65 * (j + 1) / len(picks)
+                f, p = frames[i]
+                last = j == len(picks) - 1
+                draw.draw_skeleton_3d(img, view, p.joints, tuple(int(v) for v in colour * shade),
+                                      f"#{track} frames {frames[0][0].index}-{f.index}" if last else None,
+                                      shadow=last)
+        draw.put_text(img, title, (10, 30), 0.8, (200, 200, 200), 2)
+        panels.append(img)
+    sheet = np.concatenate([panels[0], np.full((panel, 4, 3), 8, np.uint8), panels[1]], axis=1)
+    header = np.full((50, sheet.shape[1], 3), 8, np.uint8)
+    names = " and ".join(c.name for c in cams.cameras)
+    text = f"{Path(stereo_dir).name}: cameras {names}"
+    if cams.baseline_m is not None:
+        text += f", baseline {cams.baseline_m:.2f} m"
+    if cams.rotation_deg is not None:
+        text += f", rotation {cams.rotation_deg:.0f} deg"
+    text += f"; {len(stream.frames)} frames, {len(stream.tracks)} track(s); pelvis path darker = earlier"
+    draw.put_text(header, text, (10, 34), 0.75, draw.TEXT_COLOUR, 1)
+    out_png = Path(out_png)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    return write_png(out_png, np.concatenate([header, sheet], axis=0))

@@ -1,0 +1,136 @@
+"""Track files: TRC read back by mocapdb and by OpenSim, CSV by pandas, the humanoid rig, the floor."""
+import os
+import subprocess
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from mocapdb.core.clips import ClipOptions, process_clip
+from mocapdb.core.exports import TrackExport, on_floor, write_track_files
+from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
+from mocapdb.core.formats.trc import format_trc, read_trc
+from mocapdb.core.geometry import axis_rotation_matrices, matrix_to_quat, quat_mul
+from mocapdb.core.joint_map import detect_mapping
+from mocapdb.core.outputs import TrackRecording, universal_bvh
+from mocapdb.core.skeleton import (
+    ANKLE_HEIGHT_M,
+    HUMANOID_NODE_OF_KEYPOINT,
+    KEYPOINTS,
+    KP,
+    NODE_OF_POINT,
+    PELVIS,
+    pose_from_rotations,
+)
+
+from .conftest import SAMPLE_BVH
+
+OPENSIM_PYTHON_ENV = "MOCAPDB_OPENSIM_PYTHON"  # a Python with `pip install opensim` (CI sets it)
+# Bones Unity's Humanoid avatar requires, and HumanIK's characterisation needs, by Mixamo name.
+REQUIRED_BONES = ("Hips", "Spine", "Neck", "Head", "LeftUpLeg", "LeftLeg", "LeftFoot", "RightUpLeg", "RightLeg",
+                  "RightFoot", "LeftArm", "LeftForeArm", "LeftHand", "RightArm", "RightForeArm", "RightHand",
+                  "LeftShoulder", "RightShoulder", "LeftToeBase", "RightToeBase")
+
+
+@pytest.fixture(scope="module")
+def walk():
+    """A captured walk on the universal skeleton: rotations, pelvis (floor at y = 0), positions."""
+    from mocapdb.core.skeleton import retarget
+
+    clip = process_clip(SAMPLE_BVH / "002_01.bvh", SAMPLE_BVH, ClipOptions(fps=30.0))
+    positions = clip.positions.astype(np.float64)
+    quats, fitted = retarget(positions)
+    return quats, fitted[:, PELVIS], fitted
+
+
+def _recording(quats, root_m, first_frame=10, scale=1.0):
+    return TrackRecording(3, first_frame, list(quats), list(root_m), [scale] * len(quats), first_s=first_frame / 30.0,
+                          last_s=(first_frame + len(quats) - 1) / 30.0)
+
+
+def _seen_from_a_pitched_camera(quats, root_m, pitch_deg, shift):
+    """The motion as a camera pitched down by ``pitch_deg`` sees it, moved by ``shift`` metres."""
+    turn = axis_rotation_matrices("X", np.radians(-pitch_deg))
+    quats = quats.copy()
+    quats[:, 0] = quat_mul(matrix_to_quat(turn), quats[:, 0])
+    return quats, root_m @ turn.T + shift
+
+
+def test_floor_levels_a_pitched_camera_and_puts_the_feet_on_y0(walk):
+    quats, root, truth = walk
+    seen_q, seen_root = _seen_from_a_pitched_camera(quats, root, 12.0, [0.4, -1.3, -5.0])
+    assert np.ptp(pose_from_rotations(seen_q, seen_root)[:, KP["r_ankle"], 1]) > 0.3  # tilted: feet not level
+    level_q, level_root = on_floor(seen_q, seen_root, 1.0)
+    joints = pose_from_rotations(level_q, level_root)
+    lowest = joints[:, [KP["r_ankle"], KP["l_ankle"]], 1].min(axis=1)
+    assert abs(np.percentile(lowest, 5) - ANKLE_HEIGHT_M) < 1e-9
+    np.testing.assert_allclose(joints[..., 1], truth[..., 1] - np.percentile(truth[:, [KP["r_ankle"], KP["l_ankle"]], 1]
+                                                                          .min(axis=1), 5) + ANKLE_HEIGHT_M, atol=0.02)
+    np.testing.assert_allclose(level_root[0, [0, 2]], 0.0, atol=1e-9)
+
+
+def test_floor_without_depth_motion_only_shifts(walk):
+    quats, root, _ = walk
+    still_q = np.repeat(quats[:1], 5, axis=0)  # one pose held: no depth to measure a pitch on
+    still_root = np.repeat(root[:1], 5, axis=0) + [0.0, -1.2, -4.0]
+    level_q, level_root = on_floor(still_q, still_root, 1.0)
+    np.testing.assert_allclose(level_q, still_q)
+    np.testing.assert_allclose(np.diff(level_root, axis=0), np.diff(still_root, axis=0))
+
+
+def test_trc_and_csv_carry_the_joints(walk, tmp_path):
+    quats, root, _ = walk
+    rec = _recording(quats[:40], root[:40] + [0.0, 0.0, -4.0], scale=1.1)
+    paths = write_track_files(rec, tmp_path, "track_3", 30.0, TrackExport(formats=("bvh", "trc", "csv")))
+    assert [p.name for p in paths] == ["track_3.bvh", "track_3.trc", "track_3.csv"]
+    joints = pose_from_rotations(quats[:40], root[:40] + [0.0, 0.0, -4.0], 1.1)
+    trc = read_trc(tmp_path / "track_3.trc")
+    assert trc.markers == list(KEYPOINTS) and trc.rate_hz == 30.0 and trc.frame_numbers[0] == 10
+    np.testing.assert_allclose(trc.positions, joints, atol=1e-5)
+    np.testing.assert_allclose(trc.times_s, (10 + np.arange(40)) / 30.0, atol=1e-6)
+    table = pd.read_csv(tmp_path / "track_3.csv")
+    assert table["frame"].dtype == np.int64 and list(table.columns[:5]) == ["frame", "time_s", "head_x", "head_y",
+                                                                            "head_z"]
+    np.testing.assert_allclose(table[["l_ankle_x", "l_ankle_y", "l_ankle_z"]].to_numpy(), joints[:, KP["l_ankle"]],
+                               atol=1e-5)
+
+
+@pytest.mark.skipif(not os.environ.get(OPENSIM_PYTHON_ENV), reason=f"no OpenSim: set ${OPENSIM_PYTHON_ENV}")
+def test_opensim_reads_the_trc(tmp_path):
+    positions = np.random.default_rng(1).normal(size=(12, len(KEYPOINTS), 3))
+    (tmp_path / "m.trc").write_text(format_trc(list(KEYPOINTS), positions, 60.0, np.arange(5, 17)))
+    script = ("import sys, opensim\nt = opensim.TimeSeriesTableVec3(sys.argv[1])  # OpenSim's TRC reader\n"
+              "meta = t.getTableMetaDataAsString\n"
+              "print(t.getNumRows(), t.getNumColumns(), meta('DataRate'), meta('Units'))\n"
+              "print(' '.join(t.getColumnLabels()))\n"
+              "r = t.getRowAtIndex(3)\n"
+              "print(' '.join(f'{r[j][i]:.5f}' for j in range(t.getNumColumns()) for i in range(3)))\n"
+              "print(' '.join(f'{x:.6f}' for x in t.getIndependentColumn()))")
+    run = subprocess.run([os.environ[OPENSIM_PYTHON_ENV], "-c", script, str(tmp_path / "m.trc")],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    shape, labels, row, times = run.stdout.strip().splitlines()[-4:]
+    assert shape.split() == ["12", str(len(KEYPOINTS)), "60", "m"] and labels.split() == list(KEYPOINTS)
+    np.testing.assert_allclose(np.array(row.split(), dtype=float), positions[3].ravel(), atol=1e-5)
+    np.testing.assert_allclose(np.array(times.split(), dtype=float), np.arange(12) / 60.0, atol=1e-6)
+
+
+def test_humanoid_rig_has_the_bones_auto_mappers_need_at_the_same_places(walk, tmp_path):
+    quats, root, _ = walk
+    universal = forward_kinematics(universal_bvh(quats[:20], root[:20], 30.0, "cm", 1.1))[0]
+    write_track_files(_recording(quats[:20], root[:20], scale=1.1), tmp_path, "h", 30.0,
+                      TrackExport(unit="cm", rig="humanoid"))
+    humanoid = read_bvh(tmp_path / "h.bvh")
+    assert set(REQUIRED_BONES) <= set(humanoid.names)
+    positions = forward_kinematics(humanoid)[0]
+    for k, name in enumerate(KEYPOINTS):
+        np.testing.assert_allclose(positions[:, humanoid.index(HUMANOID_NODE_OF_KEYPOINT[name])],
+                                   universal[:, NODE_OF_POINT[k]], atol=1e-3, err_msg=name)  # cm
+    assert detect_mapping(humanoid).convention == "motionbuilder_mixamo"  # mocapdb build reads it back
+
+
+def test_export_options_are_checked():
+    with pytest.raises(ValueError, match="unknown output format fbx"):
+        TrackExport(formats=("bvh", "fbx"))
+    with pytest.raises(ValueError, match="unknown rig"):
+        TrackExport(rig="mixamo")

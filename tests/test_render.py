@@ -1,0 +1,231 @@
+"""mocapdb render: projection, drawing, frames/MP4/contact sheet of a small reconstruction, the stereo plot, errors."""
+import argparse
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from mocapdb.core.errors import MocapdbError
+from mocapdb.core.skeleton import DRAWING_LINES, KEYPOINTS, N_POINTS
+from mocapdb.render import draw
+from mocapdb.render.results import RenderError, read_result
+from mocapdb.render.video import Camera, Layout, contact_sheet, render_result, render_stereo_plot
+from tests.conftest import SAMPLE_KEYPOINTS
+
+FOCAL, SIZE = 1681.0, (1088, 1920)
+N_FRAMES = 8
+
+
+def run_cli(argv: list[str]) -> int:
+    """``mocapdb render ARGV`` through its own parser (as cli/main.py would run it)."""
+    from mocapdb.cli.render import add_render_parser
+
+    top = argparse.ArgumentParser(prog="mocapdb")
+    sub = top.add_subparsers(dest="command", required=True)
+    add_render_parser(sub)
+    args = top.parse_args(["render", *argv])
+    return args.run(args)
+
+
+def standing_pose(root=(0.0, 0.0, 4.0)) -> np.ndarray:
+    """A rough upright skeleton [15, 3], camera-aligned frame, pelvis at ``root``."""
+    offsets = {"head": (0, 0.7, 0.05), "neck": (0, 0.52, 0), "r_shoulder": (-0.19, 0.52, 0),
+               "r_elbow": (-0.22, 0.24, 0), "r_wrist": (-0.24, -0.02, 0), "l_shoulder": (0.19, 0.52, 0),
+               "l_elbow": (0.22, 0.24, 0), "l_wrist": (0.24, -0.02, 0), "r_hip": (-0.1, 0, 0),
+               "r_knee": (-0.1, -0.43, 0), "r_ankle": (-0.1, -0.85, 0), "l_hip": (0.1, 0, 0),
+               "l_knee": (0.1, -0.43, 0), "l_ankle": (0.1, -0.85, 0), "pelvis": (0, 0, 0)}
+    return np.array([offsets[k] for k in KEYPOINTS], dtype=np.float64) + np.asarray(root)
+
+
+def write_stream(folder, frames: int, poses=None) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    header = {"format": "mocapdb-stream", "version": 2, "fps": 60.0, "joints": list(KEYPOINTS), "units": "m"}
+    lines = [json.dumps(header)]
+    for t in range(frames):
+        people = [{"track": k, "joints": p.tolist(), "root": p[-1].tolist(), "height": 1.75}
+                  for k, p in enumerate(poses if poses is not None else [standing_pose()])]
+        lines.append(json.dumps({"frame": t, "time": t / 60, "people": people}))
+    (folder / "result.jsonl").write_text("\n".join(lines) + "\n")
+
+
+# --------------------------------------------------------------------------- projection and drawing
+
+
+def test_projection_by_hand():
+    px = draw.project_pinhole(np.array([[0.5, 0.2, 2.0], [0.0, 0.0, -1.0]]), 1000.0, (960.0, 540.0))
+    assert px[0] == pytest.approx([960 + 1000 * 0.5 / 2, 540 - 1000 * 0.2 / 2])   # 1210, 440: y up → v smaller
+    assert np.all(np.isnan(px[1]))                                                 # behind the camera
+
+
+def test_drawing_puts_the_track_colour_at_the_joints():
+    img = np.zeros((1200, 900, 3), np.uint8)   # lines 3 px wide: their middle is the exact colour
+    px = draw.project_pinhole(standing_pose(), 900.0, (450.0, 600.0))
+    colour = draw.track_colour(3)
+    draw.draw_skeleton_px(img, px, colour, "#3")
+    for i in range(N_POINTS):
+        u, v = np.round(px[i]).astype(int)
+        assert tuple(img[v, u]) == colour, KEYPOINTS[i]
+    a, b = DRAWING_LINES[2]
+    mid = np.round((px[a] + px[b]) / 2).astype(int)
+    assert tuple(img[mid[1], mid[0]]) == colour   # bones are drawn too
+    assert draw.track_colour(0) != draw.track_colour(1)
+
+
+def test_label_flags_the_image_edge_and_poor_matches():
+    assert draw.track_label(2) == "#2"
+    assert "poor match" in draw.track_label(2, distance_2d=2.5)
+    assert draw.at_image_edge(np.array([[3.0, 500.0]]), (1088, 1920))
+    assert not draw.at_image_edge(np.array([[500.0, 500.0], [np.nan, np.nan]]), (1088, 1920))
+
+
+def test_3d_view_keeps_the_floor_below_the_feet():
+    poses = np.stack([standing_pose((x, 0.0, 4.0 + x)) for x in np.linspace(-1, 1, 5)])
+    view = draw.fit_view(poses)
+    assert view.floor == pytest.approx(-0.85 - 0.08, abs=1e-6)
+    px, depth = view.project(poses[0], (400, 400))
+    assert np.all((px >= 0) & (px <= 400))
+    img = np.zeros((400, 400, 3), np.uint8)
+    draw.draw_floor(img, view)
+    draw.draw_skeleton_3d(img, view, poses[0], draw.track_colour(1), "#1")
+    u, v = np.round(px[-1]).astype(int)
+    assert tuple(img[v, u]) == draw.track_colour(1)
+
+
+# --------------------------------------------------------------------------- a small reconstruction
+
+
+@pytest.fixture(scope="module")
+def sample_run(tmp_path_factory, small_db_path):
+    """The first frames of the bundled sample, reconstructed with `mocapdb reconstruct`."""
+    from mocapdb.cli.main import main
+
+    root = tmp_path_factory.mktemp("render")
+    keypoints = root / "keypoints"
+    keypoints.mkdir()
+    for path in sorted(SAMPLE_KEYPOINTS.glob("*.json"))[:N_FRAMES]:
+        shutil.copy(path, keypoints / path.name)
+    code = main(["reconstruct", str(keypoints), "--db", str(small_db_path), "--out", str(root / "recon"),
+                 "--fps", "60", "--image-size", "1088x1920", "--focal", "1681"])
+    assert code == 0
+    return root, keypoints, root / "recon"
+
+
+def test_png_frames(sample_run, capsys):
+    root, keypoints, recon = sample_run
+    out = root / "frames"
+    (out).mkdir()
+    (out / "frame_000999.png").write_bytes(b"stale")   # an earlier render's frame is removed
+    code = run_cli([str(recon), "--keypoints", str(keypoints), "--out", str(out), "--focal", "1681",
+                    "--image-size", "1088x1920", "--scale", "0.25", "--no-progress"])
+    assert code == 0
+    names = sorted(p.name for p in out.glob("*.png"))
+    assert names == [f"frame_{i:06d}.png" for i in range(N_FRAMES)]
+    assert not list(out.glob(".*"))   # no temporary file left
+    img = cv2.imread(str(out / names[-1]))
+    layout = Layout(Camera(FOCAL, SIZE), "both", draw.fit_view(read_result(recon).all_joints()), 0.25)
+    assert img.shape[1::-1] == layout.size
+    tracks = read_result(recon).frames[-1].people
+    assert tracks, "the sample has people by its last frames"
+    for colour in {draw.track_colour(p.track) for p in tracks}:
+        assert np.any(np.all(img == colour, axis=2)), colour
+    assert f"rendered {N_FRAMES} frame(s)" in capsys.readouterr().out
+
+
+def test_mp4(sample_run):
+    root, keypoints, recon = sample_run
+    summary = render_result(recon, root / "out.mp4", keypoints, mp4=True, camera=Camera(FOCAL, SIZE), scale=0.25,
+                            view="image", progress=False)
+    assert summary.out == root / "out.mp4" and summary.frames == N_FRAMES
+    cap = cv2.VideoCapture(str(summary.out))
+    count = 0
+    while cap.read()[0]:
+        count += 1
+    cap.release()
+    assert count == N_FRAMES
+
+
+def test_contact_sheet(sample_run):
+    root, keypoints, recon = sample_run
+    out = contact_sheet(recon, keypoints, root / "sheet.png", n=4, focal=FOCAL, image_size=SIZE, tile_height=300)
+    img = cv2.imread(str(out))
+    scale = 300 / (SIZE[1] * 1.12)
+    tile = Layout(Camera(FOCAL, SIZE), "both", draw.fit_view(read_result(recon).all_joints()), scale).size
+    cols = img.shape[1] // tile[0]
+    assert cols * tile[0] + (cols - 1) * 4 == img.shape[1]
+    rows = -(-4 // cols)
+    assert img.shape[0] == max(30, tile[1] // 12) + rows * (tile[1] + 4)
+    with pytest.raises(RenderError, match="at least 1 frame"):
+        contact_sheet(recon, keypoints, root / "none.png", n=0)
+
+
+def test_frame_count_mismatch_renders_the_overlap(tmp_path, sample_run):
+    _, keypoints, _ = sample_run
+    write_stream(tmp_path / "res", N_FRAMES + 5)
+    warnings = []
+    summary = render_result(tmp_path / "res", tmp_path / "frames", keypoints, camera=Camera(FOCAL, SIZE),
+                            scale=0.1, progress=False, warn=warnings.append)
+    assert summary.frames == N_FRAMES
+    assert len(list((tmp_path / "frames").glob("frame_*.png"))) == N_FRAMES
+    assert any("drawing the 8 frame(s) in both" in w for w in warnings)
+
+
+# --------------------------------------------------------------------------- stereo
+
+
+def test_stereo_camera_plot(tmp_path):
+    folder = tmp_path / "stereo"
+    write_stream(folder, 5, [standing_pose((0.0, 0.0, 4.0))])
+    k = [[1000.0, 0, 640], [0, 1000.0, 360], [0, 0, 1]]
+    turn = np.array([[0.0, 0, -1], [0, 1, 0], [1, 0, 0]])   # camera 2 on camera 1's right, looking at the person
+    centre2 = np.array([4.0, 0.0, 4.0])
+    cameras = {"frame": "camera 1 (OpenCV)", "baseline_m": float(np.linalg.norm(centre2)), "rotation_deg": 90.0,
+               "cameras": [{"name": "left", "size": [1280, 720], "K": k, "dist": [0, 0, 0, 0],
+                            "R": np.eye(3).tolist(), "t": [0, 0, 0]},
+                           {"name": "right", "size": [1280, 720], "K": k, "dist": [0, 0, 0, 0],
+                            "R": turn.tolist(), "t": (-turn @ centre2).tolist()}],
+               "bvh_from_camera1": np.diag([1.0, -1.0, -1.0]).tolist()}
+    (folder / "cameras.json").write_text(json.dumps(cameras))
+    out = render_stereo_plot(folder, tmp_path / "plot.png", panel=400)
+    img = cv2.imread(str(out))
+    assert img.shape == (450, 804, 3)
+    assert np.any(np.all(img == draw.track_colour(0), axis=2))
+    assert run_cli([str(folder), "--out", str(tmp_path / "cli.png")]) == 0
+    assert (tmp_path / "cli.png").is_file()
+    with pytest.raises(MocapdbError, match="give --out NAME.png"):
+        run_cli([str(folder), "--out", str(tmp_path / "frames")])
+
+
+# --------------------------------------------------------------------------- errors
+
+
+def test_error_messages(tmp_path):
+    with pytest.raises(RenderError, match="no result.jsonl in this folder"):
+        read_result(tmp_path)
+    with pytest.raises(RenderError, match="no such result folder"):
+        read_result(tmp_path / "missing")
+    (tmp_path / "result.jsonl").write_text('{"frame": 0, "people": []}\n')
+    with pytest.raises(RenderError, match="not a mocapdb stream header"):
+        read_result(tmp_path)
+    (tmp_path / "result.jsonl").write_text('{"format": "mocapdb-stream", "version": 99}\n')
+    with pytest.raises(RenderError, match="stream version 99"):
+        read_result(tmp_path)
+    (tmp_path / "result.jsonl").write_text('{"format": "mocapdb-stream", "version": 1}\n{"frame": 0, "peo\n')
+    with pytest.raises(RenderError, match="line 2: not JSON"):
+        read_result(tmp_path)
+    (tmp_path / "result.jsonl").write_text('{"format": "mocapdb-stream", "version": 1}\n'
+                                           '{"frame": 0, "people": [{"track": 0, "joints": [[0, 0, 1]]}]}\n')
+    with pytest.raises(RenderError, match=r"shape \[1, 3\], not \[15, 3\]"):
+        read_result(tmp_path)
+    write_stream(tmp_path / "ok", 3)
+    with pytest.raises(RenderError, match="no such keypoint folder or file"):
+        render_result(tmp_path / "ok", tmp_path / "f", tmp_path / "nokeypoints", progress=False)
+    with pytest.raises(RenderError, match="no such video file"):
+        render_result(tmp_path / "ok", tmp_path / "f", video=tmp_path / "none.mp4", progress=False)
+    with pytest.raises(RenderError, match="focal length"):
+        Camera(-5.0, (100, 100))
+    with pytest.raises(MocapdbError, match="WIDTHxHEIGHT"):
+        run_cli([str(tmp_path / "ok"), "--out", str(tmp_path / "f"), "--image-size", "big"])
+    with pytest.raises(RenderError, match="no cameras.json"):
+        render_stereo_plot(tmp_path / "ok", tmp_path / "p.png")
