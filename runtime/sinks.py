@@ -1,5 +1,16 @@
 """Output sinks for ``mocapdb live`` and ``mocapdb reconstruct`` (see :mod:`mocapdb.runtime.streams`): one
-line per :meth:`Sink.write`; an unreachable consumer is counted, never raised and never waited for."""
+line per :meth:`Sink.write`; an unreachable consumer is counted, never raised and never waited for.
+
+Choices:
+
+- File sink: truncated at open, then written through line by line. A live user can watch it
+  (``tail -f``, another program) and a crash keeps every frame written so far, with at most a final
+  partial line; a temporary file renamed at close would show nothing until the end and lose the
+  whole session on a crash.
+- TCP sink: a sender thread owns the connection, so ``write`` only appends to a bounded queue. Lines
+  written while the consumer is unreachable (after a failed connection attempt, until the next
+  attempt) are dropped and counted; the sender retries with exponential backoff.
+"""
 from __future__ import annotations
 
 import socket
@@ -10,9 +21,9 @@ from collections import deque
 from pathlib import Path
 from typing import Self
 
-from mocapdb.runtime.sources import StreamStats, parse_host_port, resolve_address
+from mocapdb.runtime.stream_types import StreamStats, resolve_address
 
-__all__ = ["MAX_DATAGRAM_BYTES", "FileSink", "Sink", "StdoutSink", "TcpSink", "UdpSink", "open_sink"]
+__all__ = ["MAX_DATAGRAM_BYTES", "FileSink", "Sink", "StdoutSink", "TcpSink", "UdpSink"]
 
 MAX_DATAGRAM_BYTES = 60_000   # longest UDP sink datagram; longer lines are dropped
 
@@ -177,15 +188,3 @@ class UdpSink(Sink):
 
     def close(self) -> None:
         self._sock.close()
-
-
-def open_sink(spec: str, stats: StreamStats | None = None) -> Sink:
-    """The sink named by ``spec``: ``-`` (stdout), ``tcp://HOST:PORT`` (connect to a listening
-    consumer), ``udp://HOST:PORT`` or a file path."""
-    if spec == "-":
-        return StdoutSink(stats)
-    if spec.startswith("tcp://"):
-        return TcpSink(*parse_host_port(spec), stats)
-    if spec.startswith("udp://"):
-        return UdpSink(*parse_host_port(spec), stats)
-    return FileSink(Path(spec), stats)

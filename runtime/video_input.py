@@ -4,7 +4,7 @@
 on each frame in a background thread, so detection of the next frame overlaps the engine's
 retrieval of this one. Frames (universal 14 keypoints) wait in a small buffer; when the consumer
 falls behind, the oldest is dropped and counted (``StreamStats.dropped_stale``), as
-:class:`~mocapdb.runtime.streams.LiveInput` does for messages. Every frame carries the moment it was
+:class:`~mocapdb.runtime.buffering.LiveInput` does for messages. Every frame carries the moment it was
 decoded, so the session's latency is end to end: capture → output line. A file is read as fast as
 detection goes (not paced to its frame rate); a camera paces itself.
 """
@@ -15,16 +15,12 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING, NamedTuple
 
 from mocapdb.core.formats.keypoints import KeypointFrame, Person, to_universal
-from mocapdb.detect.model import (
-    DEFAULT_CONF,
-    DEFAULT_INPUT_SIZE,
-    DEFAULT_IOU,
-    DetectError,
-    PoseModel,
-    VideoFrame,
-    VideoReader,
-)
-from mocapdb.runtime.streams import BufferedThread, StreamStats
+from mocapdb.detect.errors import DetectError
+from mocapdb.detect.model import PoseModel
+from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU
+from mocapdb.detect.video import VideoFrame, VideoReader
+from mocapdb.runtime.buffering import BufferedThread
+from mocapdb.runtime.stream_types import StreamStats
 
 if TYPE_CHECKING:
     from mocapdb.runtime.session import Session
@@ -43,7 +39,7 @@ class VideoDetections(BufferedThread[CapturedFrame]):
     """Frames of ``source`` (a video file path, or a camera index) with the people ``model`` finds.
 
     ``every``: detect every N-th frame only; ``capacity``: frames buffered before the oldest is
-    dropped (see :class:`~mocapdb.runtime.streams.BufferedThread`). Opening the video happens here
+    dropped (see :class:`~mocapdb.runtime.buffering.BufferedThread`). Opening the video happens here
     (DetectError if it fails); the thread starts at once.
     """
 
@@ -80,7 +76,8 @@ class VideoDetections(BufferedThread[CapturedFrame]):
 
     def report(self) -> str:
         """One summary line: frames read, detected, dropped, detection rate; a warning line after it
-        when the video file ended before its declared frame count (:meth:`VideoReader.truncation`)."""
+        when the video file ended before its declared frame count
+        (:meth:`~mocapdb.detect.video.VideoReader.truncation`)."""
         truncated = self.reader.truncation()
         return (f"video {self.reader.label}: frames read {self.reader.frames_read}, detected {self.frames_detected}, "
                 f"dropped {self.dropped}; detection {self.detection_fps:.1f} frames/s ({self.model.describe()})"

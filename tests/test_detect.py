@@ -17,15 +17,10 @@ from onnx import TensorProto, helper, numpy_helper
 
 from mocapdb.cli.main import main
 from mocapdb.core.formats.keypoints import read_openpose_folder, to_universal
-from mocapdb.detect.model import (
-    DetectError,
-    PoseModel,
-    VideoReader,
-    box_iou,
-    coco17_to_coco18,
-    letterbox,
-    nms,
-)
+from mocapdb.detect.errors import DetectError
+from mocapdb.detect.model import PoseModel, box_iou, letterbox, nms
+from mocapdb.detect.openpose_out import coco17_to_coco18
+from mocapdb.detect.video import VideoReader
 from mocapdb.runtime.streams import StreamStats
 from mocapdb.runtime.video_input import VideoDetections, open_video_source, run_video
 
@@ -452,7 +447,7 @@ def test_detect_os_errors_name_the_path(video, yolo_model, tmp_path, capsys, mon
     def full(*args, **kwargs):  # an OS error without a file name
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr("mocapdb.detect.model.write_atomic", full)
+    monkeypatch.setattr("mocapdb.detect.openpose_out.write_atomic", full)
     assert detect(str(video), "--model", str(yolo_model), "--out", str(tmp_path / "kp")) == 2
     err = capsys.readouterr().err
     assert (f"{tmp_path / 'kp' / 'clip_000000000000_keypoints.json'}: cannot write the keypoints "

@@ -15,6 +15,7 @@ from mocapdb.core.formats.keypoints import (
     KeypointError,
     Person,
     detect_layout,
+    frame_order_key,
     frames_from_arrays,
     parse_openpose_json,
     parse_stream_line,
@@ -303,6 +304,26 @@ def test_folder_natural_order_and_errors(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(KeypointError, match="no .json"):
         read_openpose_folder(tmp_path / "empty")
+
+
+def test_frame_order_key_openpose_names_first_by_number_then_natural_order():
+    names = ["f10.json", "b_000000000002_keypoints.json", "F2.json", "a_000000000010_keypoints.json",
+             "f1.json", "x_7_keypoints.json", "f01.json", "n\u0663.json", "f\u00b2.json", "1\u00b23.json"]
+    assert sorted(names, key=frame_order_key) == [
+        "b_000000000002_keypoints.json", "x_7_keypoints.json", "a_000000000010_keypoints.json",  # frames 2, 7, 10
+        "1\u00b23.json",                       # natural: a number before text; only ASCII digits are numbers
+        "f01.json", "f1.json",                 # equal natural keys: the exact name decides
+        "F2.json", "f10.json", "f\u00b2.json", "n\u0663.json"]
+    # Deterministic whatever order the folder lists them in.
+    assert sorted(names[::-1], key=frame_order_key) == sorted(names, key=frame_order_key)
+
+
+def test_folder_reader_uses_frame_order_key(tmp_path):
+    names = ["z_000000000001_keypoints.json", "a_000000000000_keypoints.json", "f10.json", "F2.json", "f01.json"]
+    for count, name in enumerate(names):
+        (tmp_path / name).write_text(openpose_json([raw_person("coco18")] * count))
+    expected = [names.index(n) for n in sorted(names, key=frame_order_key)]
+    assert [len(f.people) for f in read_openpose_folder(tmp_path)] == expected == [1, 0, 4, 3, 2]
 
 
 def _line(**fields) -> str:

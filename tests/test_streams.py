@@ -1,5 +1,6 @@
 """Sources, sinks, the drop-oldest live buffer and the stop signals, over real loopback sockets."""
 import io
+import json
 import os
 import signal
 import socket
@@ -100,6 +101,19 @@ def test_folder_source_offline_reads_existing_files_in_natural_order(tmp_path):
         names = [m.origin.rsplit(os.sep, 1)[1] for m in source]
     assert names == ["f1.json", "f2.json", "f10.json"]
     assert source.stats.decode_errors == 1
+
+
+def test_folder_source_and_offline_reader_share_the_frame_order(tmp_path):
+    from mocapdb.core.formats.keypoints import read_openpose_folder
+
+    names = ["z_000000000001_keypoints.json", "a_000000000000_keypoints.json", "f10.json", "F2.json", "f01.json"]
+    for count, name in enumerate(names):
+        (tmp_path / name).write_text(json.dumps({"people": [{"pose_keypoints_2d": [1.0, 2.0, 0.9] * 18}] * count}))
+    with open_source(str(tmp_path)) as source:
+        live_order = [m.origin.rsplit(os.sep, 1)[1] for m in source]
+    assert live_order == ["a_000000000000_keypoints.json", "z_000000000001_keypoints.json",
+                          "f01.json", "F2.json", "f10.json"]
+    assert [len(f.people) for f in read_openpose_folder(tmp_path)] == [names.index(n) for n in live_order]
 
 
 def test_folder_source_ends_after_idle_timeout(tmp_path):
@@ -389,7 +403,7 @@ def test_folder_source_lists_again_only_when_the_folder_changes(tmp_path):
 
 
 def test_folder_source_rescans_a_folder_whose_time_stamp_hides_a_new_file(tmp_path):
-    from mocapdb.runtime.sources import FolderSource
+    from mocapdb.runtime.streams import FolderSource
 
     old_ns = time.time_ns() - 3600 * 10**9
     os.utime(tmp_path, ns=(old_ns, old_ns))

@@ -36,7 +36,10 @@ def run_detect(args: argparse.Namespace) -> int:
     that ends before its declared frame count (its frames read are kept); 130 if a video file was
     interrupted before its end."""
     from mocapdb.core.signals import install_stop_handlers
-    from mocapdb.detect.model import DetectError, PoseModel, VideoReader, detect_video
+    from mocapdb.detect.errors import DetectError
+    from mocapdb.detect.model import PoseModel
+    from mocapdb.detect.openpose_out import detect_video
+    from mocapdb.detect.video import VideoReader
 
     if not args.model:
         raise DetectError(NO_MODEL)

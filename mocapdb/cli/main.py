@@ -6,6 +6,7 @@ never loads numba, OpenCV, SciPy or pyarrow.
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 
 from mocapdb import __version__
@@ -22,6 +23,8 @@ def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="mocapdb", description="Motion capture from ordinary cameras by "
                                   "retrieval in a database of real motion.")
     top.add_argument("--version", action="version", version=f"mocapdb {__version__}")
+    top.add_argument("-v", "--verbose", action="count", default=0, help="more diagnostics (-vv: debug)")
+    top.add_argument("-q", "--quiet", action="store_true", help="errors only: no warnings, no progress bars")
     sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in COMMANDS:
         add(sub)
@@ -37,10 +40,34 @@ def error_text(exc: BaseException) -> str:
     return str(exc)
 
 
+class _LowerCaseLevel(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        record.levelname = record.levelname.lower()
+        return super().format(record)
+
+
+def configure_logging(verbose: int, quiet: bool) -> None:
+    """Diagnostics of every module (``logging.getLogger("mocapdb...")``) to stderr as
+    ``mocapdb: warning: ...``: warnings by default, info with -v, debug with -vv, errors with -q
+    (which also hides the progress bars)."""
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_LowerCaseLevel("mocapdb: %(levelname)s: %(message)s"))
+    logger = logging.getLogger("mocapdb")
+    logger.handlers[:] = [handler]
+    logger.setLevel(level)
+    logger.propagate = False
+    if quiet:
+        from mocapdb.core.progress import set_quiet
+
+        set_quiet(True)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code: 0 on success, 2 on a user error (one line on
     stderr, no traceback), 130 when interrupted; a command may return its own code."""
     args = parser().parse_args(argv)
+    configure_logging(args.verbose, args.quiet)
     try:
         return args.run(args)
     except (MocapdbError, OSError) as exc:

@@ -1,32 +1,26 @@
-"""From video to 2D keypoints: an ONNX pose model (YOLO-pose or RTMO export) on decoded frames.
+"""The ONNX pose model of `mocapdb detect`: a YOLO-pose or RTMO export run by onnxruntime (CPU).
 
-`mocapdb detect` decodes a video file or a camera with OpenCV, runs the model with onnxruntime
-(CPU) on each frame and writes one OpenPose ``--write_json`` file per frame in the COCO-18 layout.
-:class:`PoseModel` tells the export layouts apart by their tensor shapes, letterboxes each frame,
-thresholds and suppresses overlapping people (NMS) and maps keypoints back to the frame's pixels.
-Layouts, pre-processing and the files written: ``data_specs/pose_models.md``. Nothing is downloaded:
-the user points ``--model`` at an export of their own.
+:class:`PoseModel` tells the export layouts apart by their tensor shapes (:func:`identify_layout`),
+letterboxes each frame (:func:`letterbox`), thresholds and suppresses overlapping people
+(:func:`nms`) and maps keypoints back to the frame's pixels. Layouts and pre-processing:
+``data_specs/pose_models.md``. Nothing is downloaded: the user points ``--model`` at an export of
+their own. Frames come from :mod:`mocapdb.detect.video`; the files written, from
+:mod:`mocapdb.detect.openpose_out`.
 """
 from __future__ import annotations
 
-import json
-import math
-import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
-from mocapdb.core.errors import MocapdbError
-from mocapdb.core.files import os_error_message, write_atomic
 from mocapdb.core.formats.keypoints import LAYOUTS
+from mocapdb.detect.errors import DetectError, check_readable
 from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU
 
 PAD_VALUE = 114            # letterbox padding grey level (both layouts were trained with it)
@@ -38,21 +32,6 @@ KNOWN_LAYOUTS = (f"YOLO-pose (input [1, 3, H, W]; output [1, {YOLO_CHANNELS}, an
                  f"[1, anchors, {YOLO_CHANNELS}]) and RTMO (input [1, 3, H, W]; outputs [1, N, 5] "
                  f"and [1, N, {N_COCO}, 3])")
 _INPUT_TYPES = {"tensor(float)": np.float32, "tensor(float16)": np.float16}
-
-
-class DetectError(MocapdbError, RuntimeError):
-    """A model, video or option that cannot be used; the message says which and why."""
-
-
-def _check_readable(path: Path, what: str) -> None:
-    """DetectError naming ``path`` when it is a folder or cannot be opened for reading."""
-    if path.is_dir():
-        raise DetectError(f"{path}: is a folder, not a {what} file")
-    try:
-        with open(path, "rb"):
-            pass
-    except OSError as exc:
-        raise DetectError(os_error_message(exc, path, f"read the {what}")) from None
 
 
 # --- letterbox -------------------------------------------------------------------------------
@@ -193,7 +172,7 @@ def _load_session(path: Path) -> Any:
     """An onnxruntime CPU session for ``path``; DetectError when missing or not loadable."""
     if not path.exists():
         raise DetectError(f"pose model not found: {path}")
-    _check_readable(path, "pose model")
+    check_readable(path, "pose model")
     import onnxruntime as ort
 
     options = ort.SessionOptions()
@@ -291,206 +270,3 @@ class PoseModel:
         ok = np.flatnonzero(np.isfinite(scores) & (scores >= self.conf) & np.isfinite(boxes).all(axis=1))
         ok = ok[np.argsort(-scores[ok], kind="stable")][:MAX_CANDIDATES]
         return ok[nms(boxes[ok], scores[ok], self.iou)][:self.max_people]
-
-
-# --- video -----------------------------------------------------------------------------------
-
-class VideoFrame(NamedTuple):
-    """One decoded frame."""
-
-    index: int             # frame number in the video (camera: since opening), from 0
-    time_s: float | None   # seconds since the first frame (video timestamps, else index / fps)
-    capture_s: float       # time.monotonic() when it was decoded
-    image: np.ndarray      # [H, W, 3] uint8 BGR
-
-
-# A video file that ends more than max(TRUNCATION_SLACK_FRAMES, TRUNCATION_SLACK_SHARE × count)
-# frames before the frame count its container declares looks truncated. The slack: containers
-# that give no count of their own have one estimated from the duration, which can be a frame or
-# two off (and a few per cent for a variable frame rate).
-TRUNCATION_SLACK_FRAMES = 2
-TRUNCATION_SLACK_SHARE = 0.01
-
-
-class VideoReader:
-    """The frames of a video file (``str``) or a camera (``int`` index), decoded by OpenCV.
-
-    The first frame is decoded when opening, so a missing, corrupt or unsupported video fails here
-    with DetectError. ``frames_read`` counts frames decoded or skipped; ``ended`` is set once
-    :meth:`frames` has run to the end of the video (see :meth:`truncation`).
-    """
-
-    def __init__(self, source: str | int) -> None:
-        self.is_camera = isinstance(source, int)
-        self.name = f"camera{source}" if self.is_camera else Path(source).stem
-        self.label = f"camera {source}" if self.is_camera else str(source)
-        self.ended = False
-        if not self.is_camera:
-            if not Path(source).exists():
-                raise DetectError(f"video not found: {source}")
-            _check_readable(Path(source), "video")
-        self._cap = cv2.VideoCapture(source)
-        if self.is_camera:
-            self._cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)   # the newest frame, not a stale queue
-        fps, count = self._cap.get(cv2.CAP_PROP_FPS), self._cap.get(cv2.CAP_PROP_FRAME_COUNT)
-        self.fps = fps if math.isfinite(fps) and fps > 0 else None
-        self.frame_count = int(count) if not self.is_camera and math.isfinite(count) and count > 0 else None
-        self.frames_read, self._last_ms = 0, -math.inf
-        self._first_capture_s: float | None = None
-        self._pending = self._decode() if self._cap.isOpened() else None
-        if self._pending is None:
-            self.close()
-            what = "cannot be opened" if self.is_camera else "has no frame OpenCV can decode (corrupt or unsupported)"
-            raise DetectError(f"{self.label}: {what}")
-
-    def frames(self, every: int = 1) -> Iterator[VideoFrame]:
-        """Frames 0, ``every``, 2 × ``every``, ... until the video ends (the others are skipped undecoded)."""
-        frame, self._pending = self._pending, None
-        while frame is not None:
-            yield frame
-            frame = self._decode() if self._skip(every - 1) else None
-        self.ended = True
-
-    def truncation(self) -> str | None:
-        """Why the video file looks truncated, once :meth:`frames` has reached its end: it ended
-        more than the slack (:data:`TRUNCATION_SLACK_FRAMES`) before the frame count its container
-        declares. None otherwise, and for a camera or a container without a frame count."""
-        if self.is_camera or not self.ended or self.frame_count is None:
-            return None
-        slack = max(TRUNCATION_SLACK_FRAMES, math.ceil(TRUNCATION_SLACK_SHARE * self.frame_count))
-        if self.frames_read >= self.frame_count - slack:
-            return None
-        return (f"{self.label}: video ended after {self.frames_read} of {self.frame_count} frames: "
-                "the file looks truncated (an interrupted copy or download, or a recording that was not closed)")
-
-    def _skip(self, count: int) -> bool:
-        for _ in range(count):
-            if not self._cap.grab():
-                return False
-            self.frames_read += 1
-        return True
-
-    def _decode(self) -> VideoFrame | None:
-        ok, image = self._cap.read()
-        if not ok or image is None:
-            return None
-        capture_s = time.monotonic()
-        frame = VideoFrame(self.frames_read, self._time_s(self.frames_read, capture_s), capture_s, image)
-        self.frames_read += 1
-        return frame
-
-    def _time_s(self, index: int, capture_s: float) -> float | None:
-        """Camera: seconds since its first frame. File: the frame's timestamp when the backend gives
-        increasing ones, else ``index / fps`` (None without a frame rate)."""
-        if self.is_camera:
-            if self._first_capture_s is None:
-                self._first_capture_s = capture_s
-            return capture_s - self._first_capture_s
-        position_ms = self._cap.get(cv2.CAP_PROP_POS_MSEC)
-        if math.isfinite(position_ms) and position_ms > self._last_ms:
-            self._last_ms = position_ms
-            return position_ms / 1000.0
-        return index / self.fps if self.fps else None
-
-    def close(self) -> None:
-        """Releases the video or camera; idempotent."""
-        self._cap.release()
-
-
-# --- OpenPose JSON ---------------------------------------------------------------------------
-
-def _coco17_name(openpose_name: str) -> str:
-    """An OpenPose COCO-18 name in the COCO-17 spelling: ``RShoulder`` → ``right_shoulder``."""
-    sides = {"R": "right_", "L": "left_"}
-    if openpose_name[0] in sides and openpose_name[1:2].isupper():
-        return sides[openpose_name[0]] + openpose_name[1:].lower()
-    return openpose_name.lower()
-
-
-_COCO18_SOURCE = np.array([LAYOUTS["coco17"].index(n) if n in LAYOUTS["coco17"] else -1
-                           for n in map(_coco17_name, LAYOUTS["coco18"])])
-_NECK = LAYOUTS["coco18"].index("Neck")
-_SHOULDERS = [LAYOUTS["coco17"].index("left_shoulder"), LAYOUTS["coco17"].index("right_shoulder")]
-
-
-def coco17_to_coco18(keypoints: np.ndarray) -> np.ndarray:
-    """``[P, 17, 3]`` (x px, y px, confidence) → ``[P, 18, 3]`` in the OpenPose COCO-18 order.
-
-    The neck is the mid-shoulder point with the smaller shoulder confidence; (0, 0, 0), OpenPose's
-    "not found", when either shoulder has confidence 0. Non-finite entries become (0, 0, 0) too.
-    """
-    out = keypoints[:, np.maximum(_COCO18_SOURCE, 0)].copy()
-    shoulders = keypoints[:, _SHOULDERS]
-    neck_conf = shoulders[..., 2].min(axis=1)
-    neck = np.concatenate([shoulders[..., :2].mean(axis=1), neck_conf[:, None]], axis=-1)
-    out[:, _NECK] = np.where(neck_conf[:, None] > 0, neck, 0.0)
-    return np.where(np.isfinite(out).all(axis=-1, keepdims=True), out, 0.0)
-
-
-def openpose_json(keypoints: np.ndarray) -> str:
-    """One OpenPose ``--write_json`` frame (version 1.3, COCO-18) for people ``[P, 17, 3]`` in COCO-17."""
-    rows = coco17_to_coco18(np.asarray(keypoints, dtype=np.float64).reshape(-1, N_COCO, 3))
-    rows = np.concatenate([np.round(rows[..., :2], 2), np.round(rows[..., 2:], 4)], axis=-1)
-    people = [{"person_id": [-1], "pose_keypoints_2d": person.ravel().tolist(), "face_keypoints_2d": [],
-               "hand_left_keypoints_2d": [], "hand_right_keypoints_2d": []} for person in rows]
-    return json.dumps({"version": 1.3, "people": people})
-
-
-def frame_file_name(stem: str, index: int) -> str:
-    """OpenPose's per-frame file name: ``<stem>_<frame:012d>_keypoints.json``."""
-    return f"{stem}_{index:012d}_keypoints.json"
-
-
-# --- the detect command ----------------------------------------------------------------------
-
-@dataclass
-class DetectSummary:
-    """What a detect run did; :meth:`report` renders it."""
-
-    frames_read: int = 0
-    people: list[int] = field(default_factory=list)   # people in each frame written
-    detection_fps: float = 0.0
-    interrupted: bool = False
-    truncated: str | None = None   # why the video looks truncated (VideoReader.truncation), else None
-
-    def report(self) -> str:
-        counts = np.array(self.people, dtype=np.int64)
-        mean, most = (counts.mean(), counts.max()) if counts.size else (0.0, 0)
-        return "\n".join([
-            f"frames read {self.frames_read}, frames written {counts.size}"
-            + (" (interrupted)" if self.interrupted else "")
-            + (" (the video ended early: truncated?)" if self.truncated else ""),
-            f"people per frame: mean {mean:.2f}, max {most}, frames with nobody {int(np.sum(counts == 0))}",
-            f"detection {self.detection_fps:.1f} frames/s"])
-
-
-def detect_video(reader: VideoReader, model: PoseModel, out_dir: Path, every: int = 1,
-                 stop: threading.Event | None = None) -> DetectSummary:
-    """Detect people in every ``every``-th frame and write one OpenPose JSON file per frame
-    (atomically) into ``out_dir``; ends with the video or once ``stop`` is set. ``truncated`` of
-    the summary says when the video file ended before its declared frame count (the files written
-    are complete); DetectError naming the path when the folder or a file cannot be written."""
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DetectError(os_error_message(exc, out_dir, "create the output folder")) from None
-    summary = DetectSummary()
-    total = -(-reader.frame_count // every) if reader.frame_count else None
-    with tqdm(total=total, desc=f"detect {reader.name}", unit="frame", disable=None, file=sys.stderr) as bar:
-        for frame in reader.frames(every):
-            found = model(frame.image)
-            path = out_dir / frame_file_name(reader.name, frame.index)
-            try:
-                write_atomic(path, openpose_json(found.keypoints))
-            except OSError as exc:
-                raise DetectError(os_error_message(exc, path, "write the keypoints")) from None
-            summary.people.append(len(found.scores))
-            bar.update()
-            if stop is not None and stop.is_set():
-                summary.interrupted = True
-                break
-    summary.frames_read, summary.detection_fps = reader.frames_read, model.fps
-    summary.truncated = None if summary.interrupted else reader.truncation()
-    return summary
-
-

@@ -113,7 +113,7 @@ def to_universal(raw: np.ndarray, layout: str) -> tuple[np.ndarray, np.ndarray]:
                             f"which needs [P, {len(names)}, 3]")
     if layout == "mediapipe33":
         _refuse_normalised(raw)
-    source = SOURCE_INDEX[layout]
+    source = np.array(SOURCE_INDEX[layout])
     picked = raw[:, np.maximum(source, 0)]
     ok = np.isfinite(picked).all(axis=-1) & (picked[..., 2] > 0) & (source >= 0)
     conf = np.where(ok, np.clip(picked[..., 2], 0.0, 1.0), 0.0)
@@ -306,25 +306,40 @@ def parse_openpose_json(text: str, index: int, layout: str | None = None, source
         return _build_frame(index, None, _raw_people(_load_json(text)), _optional_layout(layout))
 
 
-_OPENPOSE_NAME = re.compile(r"_(\d+)_keypoints\.json$")
+_OPENPOSE_FRAME = re.compile(r"_([0-9]+)_keypoints\.json$")   # <stem>_<frame>_keypoints.json
+_DIGIT_RUNS = re.compile(r"([0-9]+)")
 
 
-def _frame_key(path: Path) -> tuple[int, int, list[object]]:
-    """OpenPose-named files (``<name>_<frame>_keypoints.json``) by frame number first, then the
-    others; ties and the others in natural order (case-insensitive, ``f2`` before ``f10``)."""
-    natural = [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", path.name)]
-    match = _OPENPOSE_NAME.search(path.name)
-    return (0, int(match[1]), natural) if match else (1, 0, natural)
+def frame_order_key(name: str) -> tuple[int, int, tuple[str | int, ...], str]:
+    """Sort key putting keypoint file names (no folder part) in frame order; used by every folder
+    reader (:func:`read_openpose_folder`, the live folder source of ``mocapdb.runtime.sources``).
+
+    1. OpenPose names ``<stem>_<frame>_keypoints.json`` (OpenPose writes 12 digits; any count is
+       read) come first, by frame number: the number decides, not the stem, so ``b_…2`` is before
+       ``a_…10`` (a stem is one video or camera; a folder normally holds one).
+    2. Any other name after them, in natural order: case-insensitive text, runs of ASCII digits
+       compared as numbers (``f2.json`` before ``f10.json``). Natural order also breaks ties
+       between OpenPose names with the same frame number.
+    3. The name itself last, so names equal so far (``F1.json``, ``f01.json``) still come in one
+       fixed order whatever the directory listing gives.
+
+    Only ASCII digits count as digits (Unicode digits such as ``٣`` or ``²`` are text), so every
+    name has a key and no comparison mixes a number with text.
+    """
+    parts = _DIGIT_RUNS.split(name)   # text, digits, text, ...: odd positions are digit runs
+    natural = tuple(int(part) if i % 2 else part.lower() for i, part in enumerate(parts))
+    match = _OPENPOSE_FRAME.search(name)
+    return (0, int(match[1]), natural, name) if match else (1, 0, natural, name)
 
 
 def _frame_files(folder: Path) -> list[Path]:
-    """The folder's .json files in frame order (:func:`_frame_key`)."""
+    """The folder's .json files in frame order (:func:`frame_order_key`)."""
     if not folder.is_dir():
         raise KeypointError(f"{folder}: not a folder")
     files = [p for p in folder.iterdir() if p.suffix.lower() == ".json" and p.is_file()]
     if not files:
         raise KeypointError(f"{folder}: no .json keypoint files")
-    return sorted(files, key=_frame_key)
+    return sorted(files, key=lambda p: frame_order_key(p.name))
 
 
 def _check_fps(fps: float | None) -> None:

@@ -1,0 +1,122 @@
+"""What `mocapdb detect` writes: one OpenPose ``--write_json`` file per frame, and the loop that
+runs the model over a video to write them.
+
+Detections come in COCO-17 (the models' order) and are written in OpenPose's COCO-18 layout
+(:func:`coco17_to_coco18`) as ``<video stem>_<frame:012d>_keypoints.json``, each file atomically,
+so `mocapdb reconstruct` and `live` read them like OpenPose's own output. File format:
+``data_specs/pose_models.md``.
+"""
+from __future__ import annotations
+
+import json
+import sys
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from tqdm import tqdm
+
+from mocapdb.core.files import os_error_message, write_atomic
+from mocapdb.core.formats.keypoints import LAYOUTS
+from mocapdb.detect.errors import DetectError
+
+if TYPE_CHECKING:
+    from mocapdb.detect.model import PoseModel
+    from mocapdb.detect.video import VideoReader
+
+N_COCO = len(LAYOUTS["coco17"])
+
+
+def _coco17_name(openpose_name: str) -> str:
+    """An OpenPose COCO-18 name in the COCO-17 spelling: ``RShoulder`` → ``right_shoulder``."""
+    sides = {"R": "right_", "L": "left_"}
+    if openpose_name[0] in sides and openpose_name[1:2].isupper():
+        return sides[openpose_name[0]] + openpose_name[1:].lower()
+    return openpose_name.lower()
+
+
+_COCO18_SOURCE = np.array([LAYOUTS["coco17"].index(n) if n in LAYOUTS["coco17"] else -1
+                           for n in map(_coco17_name, LAYOUTS["coco18"])])
+_NECK = LAYOUTS["coco18"].index("Neck")
+_SHOULDERS = [LAYOUTS["coco17"].index("left_shoulder"), LAYOUTS["coco17"].index("right_shoulder")]
+
+
+def coco17_to_coco18(keypoints: np.ndarray) -> np.ndarray:
+    """``[P, 17, 3]`` (x px, y px, confidence) → ``[P, 18, 3]`` in the OpenPose COCO-18 order.
+
+    The neck is the mid-shoulder point with the smaller shoulder confidence; (0, 0, 0), OpenPose's
+    "not found", when either shoulder has confidence 0. Non-finite entries become (0, 0, 0) too.
+    """
+    out = keypoints[:, np.maximum(_COCO18_SOURCE, 0)].copy()
+    shoulders = keypoints[:, _SHOULDERS]
+    neck_conf = shoulders[..., 2].min(axis=1)
+    neck = np.concatenate([shoulders[..., :2].mean(axis=1), neck_conf[:, None]], axis=-1)
+    out[:, _NECK] = np.where(neck_conf[:, None] > 0, neck, 0.0)
+    return np.where(np.isfinite(out).all(axis=-1, keepdims=True), out, 0.0)
+
+
+def openpose_json(keypoints: np.ndarray) -> str:
+    """One OpenPose ``--write_json`` frame (version 1.3, COCO-18) for people ``[P, 17, 3]`` in COCO-17."""
+    rows = coco17_to_coco18(np.asarray(keypoints, dtype=np.float64).reshape(-1, N_COCO, 3))
+    rows = np.concatenate([np.round(rows[..., :2], 2), np.round(rows[..., 2:], 4)], axis=-1)
+    people = [{"person_id": [-1], "pose_keypoints_2d": person.ravel().tolist(), "face_keypoints_2d": [],
+               "hand_left_keypoints_2d": [], "hand_right_keypoints_2d": []} for person in rows]
+    return json.dumps({"version": 1.3, "people": people})
+
+
+def frame_file_name(stem: str, index: int) -> str:
+    """OpenPose's per-frame file name: ``<stem>_<frame:012d>_keypoints.json``."""
+    return f"{stem}_{index:012d}_keypoints.json"
+
+
+@dataclass
+class DetectSummary:
+    """What a detect run did; :meth:`report` renders it."""
+
+    frames_read: int = 0
+    people: list[int] = field(default_factory=list)   # people in each frame written
+    detection_fps: float = 0.0
+    interrupted: bool = False
+    truncated: str | None = None   # why the video looks truncated (VideoReader.truncation), else None
+
+    def report(self) -> str:
+        counts = np.array(self.people, dtype=np.int64)
+        mean, most = (counts.mean(), counts.max()) if counts.size else (0.0, 0)
+        return "\n".join([
+            f"frames read {self.frames_read}, frames written {counts.size}"
+            + (" (interrupted)" if self.interrupted else "")
+            + (" (the video ended early: truncated?)" if self.truncated else ""),
+            f"people per frame: mean {mean:.2f}, max {most}, frames with nobody {int(np.sum(counts == 0))}",
+            f"detection {self.detection_fps:.1f} frames/s"])
+
+
+def detect_video(reader: VideoReader, model: PoseModel, out_dir: Path, every: int = 1,
+                 stop: threading.Event | None = None) -> DetectSummary:
+    """Detect people in every ``every``-th frame and write one OpenPose JSON file per frame
+    (atomically) into ``out_dir``; ends with the video or once ``stop`` is set. ``truncated`` of
+    the summary says when the video file ended before its declared frame count (the files written
+    are complete); DetectError naming the path when the folder or a file cannot be written."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DetectError(os_error_message(exc, out_dir, "create the output folder")) from None
+    summary = DetectSummary()
+    total = -(-reader.frame_count // every) if reader.frame_count else None
+    with tqdm(total=total, desc=f"detect {reader.name}", unit="frame", disable=None, file=sys.stderr) as bar:
+        for frame in reader.frames(every):
+            found = model(frame.image)
+            path = out_dir / frame_file_name(reader.name, frame.index)
+            try:
+                write_atomic(path, openpose_json(found.keypoints))
+            except OSError as exc:
+                raise DetectError(os_error_message(exc, path, "write the keypoints")) from None
+            summary.people.append(len(found.scores))
+            bar.update()
+            if stop is not None and stop.is_set():
+                summary.interrupted = True
+                break
+    summary.frames_read, summary.detection_fps = reader.frames_read, model.fps
+    summary.truncated = None if summary.interrupted else reader.truncation()
+    return summary
