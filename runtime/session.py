@@ -11,22 +11,26 @@ every BVH file.
 """
 from __future__ import annotations
 
-import sys
+import logging
 import threading
 import time
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from mocapdb.core.errors import MocapdbError
-from mocapdb.core.formats.bvh import write_bvh
+from mocapdb.core.exports import TrackExport, write_track_files
 from mocapdb.core.formats.keypoints import KeypointError, KeypointFrame, parse_stream_line
-from mocapdb.core.outputs import TrackRecording, frame_line, header_line, universal_bvh
+from mocapdb.core.outputs import TrackRecording, frame_line, header_line
+from mocapdb.core.progress import compile_notice, kernels_cached
+from mocapdb.runtime import refine
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source, StreamStats
+
+LOG = logging.getLogger(__name__)
 
 MAX_LATENCIES = 100_000  # latency percentiles cover at most the last 2 × this many frames
 MAX_REASONS = 50         # distinct malformed-message reasons counted; further ones as "other"
@@ -151,8 +155,9 @@ class SessionOptions:
     """What a session does beyond the engine: ``strict`` stops at input that contradicts the
     parameters (reconstruct) instead of skipping and counting it (live); ``fps_given`` says
     whether ``--fps`` was given (else frames without time warn once). With ``bvh_dir`` each
-    track's BVH is written (atomically) when the track ends, and every ``checkpoint_s`` seconds
-    the open tracks' BVH so far, so a killed process loses at most that much of them.
+    track's files (``export``: BVH, TRC, CSV; :mod:`mocapdb.core.exports`) are written
+    (atomically) when the track ends, and every ``checkpoint_s`` seconds the open tracks' files so
+    far, so a killed process loses at most that much of them.
 
     Limits (0: none): at most ``max_bvh_files`` files; a track shorter than ``min_track_s`` gets
     none; a track longer than ``bvh_part_min`` minutes is written in parts of that length.
@@ -164,7 +169,7 @@ class SessionOptions:
     fps_given: bool = True
     keep_static: bool = False
     bvh_dir: Path | None = None
-    bvh_unit: str = "m"
+    export: TrackExport = field(default_factory=TrackExport)
     checkpoint_s: float = 30.0
     max_bvh_files: int = 1000
     min_track_s: float = 0.5
@@ -178,9 +183,10 @@ class SessionOptions:
             raise ValueError("--bvh-part-min must be positive")
 
 
-def bvh_name(track: int, part: int | None) -> str:
-    """``track_<id>.bvh``, or ``track_<id>_part<k>.bvh`` for part k (from 1) of a split track."""
-    return f"track_{track}.bvh" if part is None else f"track_{track}_part{part}.bvh"
+def track_stem(track: int, part: int | None) -> str:
+    """``track_<id>``, or ``track_<id>_part<k>`` for part k (from 1) of a split track: the name of
+    its files without the format's suffix."""
+    return f"track_{track}" if part is None else f"track_{track}_part{part}"
 
 
 class TrackFiles:
@@ -196,7 +202,7 @@ class TrackFiles:
 
     def ended(self, rec: TrackRecording) -> None:
         """A track ended: its file (or last part), unless static or too short."""
-        name = bvh_name(rec.track, rec.part + 1 if rec.part else None)
+        name = track_stem(rec.track, rec.part + 1 if rec.part else None)
         if rec.static:
             self.summary.add_static(rec.track)
         if rec.static and not self.options.keep_static:
@@ -209,15 +215,15 @@ class TrackFiles:
     def cut(self, rec: TrackRecording) -> None:
         """A full part of an open track (``Engine.cut_recordings``); part 1 replaces its checkpoint."""
         if not rec.part:
-            self._remove(bvh_name(rec.track, None))
+            self._remove(track_stem(rec.track, None))
         if self.options.keep_static or not rec.static:
-            self._write(rec, bvh_name(rec.track, rec.part + 1), final=True)
+            self._write(rec, track_stem(rec.track, rec.part + 1), final=True)
 
     def checkpoint(self, recordings: list[TrackRecording]) -> None:
         """The open tracks' files so far (long enough, not static, within the file limit)."""
         for rec in recordings:
             if (rec.part or not self._short(rec)) and not rec.static:
-                self._write(rec, bvh_name(rec.track, rec.part + 1 if rec.part else None), final=False)
+                self._write(rec, track_stem(rec.track, rec.part + 1 if rec.part else None), final=False)
 
     def _short(self, rec: TrackRecording) -> bool:
         return rec.duration_s(self.fps) < self.options.min_track_s - 1e-9
@@ -240,28 +246,29 @@ class TrackFiles:
             self._save(rec, name)
 
     def _save(self, rec: TrackRecording, name: str) -> None:
-        quats, root_view_m, body_scale = rec.motion()
-        path = self.options.bvh_dir / name
-        path.parent.mkdir(parents=True, exist_ok=True)
-        write_bvh(path, universal_bvh(quats, root_view_m, self.fps, self.options.bvh_unit, body_scale))
+        paths = write_track_files(rec, self.options.bvh_dir, name, self.fps, self.options.export)
         self._names.add(name)
-        if path not in self._paths:
-            self._paths.add(path)
-            self.summary.bvh_files.append(path)
+        for path in paths:
+            if path not in self._paths:
+                self._paths.add(path)
+                self.summary.bvh_files.append(path)
 
     def _remove(self, name: str) -> None:
-        path = None if self.options.bvh_dir is None else self.options.bvh_dir / name
-        if path in self._paths:
-            path.unlink(missing_ok=True)
-            self._paths.discard(path)
-            self._names.discard(name)
-            self.summary.bvh_files.remove(path)
+        if self.options.bvh_dir is None:
+            return
+        for suffix in self.options.export.formats:
+            path = self.options.bvh_dir / f"{name}.{suffix}"
+            if path in self._paths:
+                path.unlink(missing_ok=True)
+                self._paths.discard(path)
+                self.summary.bvh_files.remove(path)
+        self._names.discard(name)
 
     def _refuse(self) -> None:
         self.summary.limits.over_max_files += 1
         if self.summary.limits.over_max_files == 1:
-            print(f"warning: --max-bvh-files {self.options.max_bvh_files} reached: further tracks get no BVH file "
-                  f"(their frames stay in the stream)", file=sys.stderr, flush=True)
+            LOG.warning("--max-bvh-files %d reached: further tracks get no file (their frames stay in the stream)",
+                        self.options.max_bvh_files)
 
 
 class Session:
@@ -276,6 +283,7 @@ class Session:
         summary.limits = LimitReport(limits.max_tracks, limits.max_new_per_min, self.options.max_bvh_files,
                                      self.options.min_track_s)
         self._fps_warned = self.options.fps_given
+        self._first_frame = True
         self.started = self._checkpointed = time.perf_counter()
         try:
             self._emit(header_line(engine.config.fps))
@@ -301,7 +309,9 @@ class Session:
                 raise InputError(problem)
             self.summary.add_malformed("keypoints outside --image-size")
             return
-        poses = self.engine.step(frame, arrival_s if self.options.rate_by_arrival else None)
+        with compile_notice(self._first_frame and not kernels_cached(refine)):
+            poses = self.engine.step(frame, arrival_s if self.options.rate_by_arrival else None)
+        self._first_frame = False
         t_s = frame.time_s if frame.time_s is not None else frame.index / self.engine.config.fps
         self._emit(frame_line(frame.index, t_s, poses))
         self.summary.frames += 1
@@ -330,8 +340,8 @@ class Session:
         """Why ``frame`` contradicts the parameters, or None; warns once about an assumed rate."""
         if frame.time_s is None and not self._fps_warned:
             self._fps_warned = True
-            print(f"warning: the input carries no timestamps and no --fps was given: assuming "
-                  f"{self.engine.config.fps:g} fps (BVH frame time 1/{self.engine.config.fps:g} s)", file=sys.stderr)
+            LOG.warning("the input carries no timestamps and no --fps was given: assuming %g fps "
+                        "(BVH frame time 1/%g s)", self.engine.config.fps, self.engine.config.fps)
         width, height = self.engine.config.image_size
         for person in frame.people:
             seen = person.points_px[person.confidence >= self.engine.config.confidence_threshold]
@@ -348,15 +358,13 @@ class Session:
                     f"said to be {width}x{height} by --image-size{hint}")
         return None
 
-    def finish(self, bvh_dir: Path | None = None, bvh_unit: str | None = None) -> SessionSummary:
-        """End all tracks, write the BVH files not yet written (into ``bvh_dir`` if given, else the
+    def finish(self, bvh_dir: Path | None = None) -> SessionSummary:
+        """End all tracks, write the track files not yet written (into ``bvh_dir`` if given, else the
         options'), close the sink (even if writing fails). A sink that failed earlier is only
         recorded (``summary.sink_error``); one first failing at close raises SinkError, files written."""
         self.summary.wall_s = time.perf_counter() - self.started
         if bvh_dir is not None:
             self.options.bvh_dir = Path(bvh_dir)
-        if bvh_unit is not None:
-            self.options.bvh_unit = bvh_unit
         try:
             self.engine.finish()
             for rec in sorted(self.engine.pop_finished(), key=lambda r: r.track):
@@ -384,10 +392,11 @@ class Session:
                 raise SinkError(f"the sink failed: {self.summary.sink_error}") from exc
 
 
-def run_offline(session: Session, source: Source) -> None:
-    """Every message of a finite source, in order."""
+def run_offline(session: Session, source: Source,
+                wrap: Callable[[Iterable[RawMessage]], Iterable[RawMessage]] | None = None) -> None:
+    """Every message of a finite source, in order (through ``wrap``, e.g. a progress bar)."""
     with source:
-        for message in source:
+        for message in (wrap(source) if wrap else source):
             session.handle(message)
 
 

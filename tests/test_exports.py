@@ -134,3 +134,26 @@ def test_export_options_are_checked():
         TrackExport(formats=("bvh", "fbx"))
     with pytest.raises(ValueError, match="unknown rig"):
         TrackExport(rig="mixamo")
+
+
+def test_reconstruct_writes_every_format_on_the_floor_and_a_preview(small_db_path, tmp_path, capsys):
+    from mocapdb.cli.main import main
+
+    from .conftest import SAMPLE_KEYPOINTS
+
+    out = tmp_path / "out"
+    code = main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(out), "--fps", "60",
+                 "--image-size", "1088x1920", "--focal", "1681", "--format", "bvh,trc,csv", "--rig", "humanoid",
+                 "--floor", "--preview"])
+    assert code == 0, capsys.readouterr().err
+    tracks = sorted(p.stem for p in out.glob("track_*.bvh"))
+    assert tracks and all((out / f"{t}.trc").is_file() and (out / f"{t}.csv").is_file() for t in tracks)
+    assert (out / "preview.png").stat().st_size > 10_000
+    for stem in tracks:
+        bvh = read_bvh(out / f"{stem}.bvh")
+        assert "LeftToeBase" in bvh.names
+        feet = read_trc(out / f"{stem}.trc").positions[:, [KP["r_ankle"], KP["l_ankle"]], 1].min(axis=1)
+        assert abs(np.percentile(feet, 5) - ANKLE_HEIGHT_M * 1.0) < 0.05  # on the floor (body scale 1)
+    assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(tmp_path / "x"),
+                 "--format", "bvh,fbx"]) == 2
+    assert "unknown output format fbx" in capsys.readouterr().err

@@ -56,7 +56,6 @@ def configure_logging(verbose: int, quiet: bool) -> None:
     logger = logging.getLogger("mocapdb")
     logger.handlers[:] = [handler]
     logger.setLevel(level)
-    logger.propagate = False
     if quiet:
         from mocapdb.core.progress import set_quiet
 

@@ -47,7 +47,18 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-smoothing", action="store_true", help="turn the 1€ filters off")
     p.add_argument("--no-translation", action="store_true", help="keep the pelvis at the origin")
     p.add_argument("--no-yaw-refinement", action="store_true", help="keep the database's yaw grid (12° steps)")
-    p.add_argument("--bvh-unit", choices=("m", "cm"), default="m", help="length unit of the BVH files (default m)")
+    files = p.add_argument_group("track files (data_specs/stream_output.md)")
+    files.add_argument("--format", default="bvh", metavar="LIST",
+                       help="files per track, comma-separated: bvh (animation), trc (OpenSim/Pose2Sim markers, "
+                            "metres), csv (joint positions, metres); default bvh")
+    files.add_argument("--rig", choices=("universal", "humanoid"), default="universal",
+                       help="BVH rig: mocapdb's 11 joints (what `mocapdb build` reads back exactly), or humanoid: "
+                            "with head, clavicle, hand, foot and toe bones under Mixamo names for Unity Humanoid, "
+                            "HumanIK and Blender (default universal)")
+    files.add_argument("--floor", action="store_true",
+                       help="put each track on a floor estimated from its feet: camera pitch levelled, feet on "
+                            "y = 0, the pelvis starting above the origin (default: the camera is the origin)")
+    files.add_argument("--bvh-unit", choices=("m", "cm"), default="m", help="length unit of the BVH files (default m)")
     p.add_argument("--keep-static", action="store_true",
                    help="also write BVH files for tracks whose keypoints never moved (posters, false detections)")
     limits = p.add_argument_group("limits (0: no limit; data_specs/stream_output.md)")
@@ -101,6 +112,7 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
     from pathlib import Path
 
     from mocapdb.core.errors import UsageError
+    from mocapdb.core.exports import TrackExport
     from mocapdb.runtime.engine import TrackLimits
     from mocapdb.runtime.session import FrameParser, Session, SessionOptions, SessionSummary
     from mocapdb.runtime.streams import StreamStats, open_sink
@@ -110,8 +122,10 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
         bvh_dir = Path(args.bvh_dir)
     try:  # checked before the database is loaded
         limits = TrackLimits(args.max_tracks, args.max_new_tracks_per_min)
+        export = TrackExport(tuple(f.strip().lower() for f in args.format.split(",") if f.strip()), args.bvh_unit,
+                             args.rig, args.floor)
         options = SessionOptions(strict=strict, fps_given=args.fps is not None, keep_static=args.keep_static,
-                                 bvh_dir=bvh_dir, bvh_unit=args.bvh_unit, max_bvh_files=args.max_bvh_files,
+                                 bvh_dir=bvh_dir, export=export, max_bvh_files=args.max_bvh_files,
                                  min_track_s=args.min_track_s, bvh_part_min=args.bvh_part_min,
                                  rate_by_arrival=not strict)
     except ValueError as exc:
@@ -129,6 +143,9 @@ def add_reconstruct_parser(sub: argparse._SubParsersAction) -> None:
                                  ".json, or a .npy/.npz keypoint array [T, K, 3] or [T, P, K, 3] (x, y, confidence) "
                                  "or RTMLib keypoints + scores (layout detected from the keypoint count)")
     p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--preview", action="store_true",
+                   help="also write OUT/preview.png: a contact sheet of 12 frames, the re-projected tracks over the "
+                        "input keypoints beside a 3D view (`mocapdb render` draws every frame)")
     _add_engine_options(p)
     p.set_defaults(run=run_reconstruct)
 
@@ -144,7 +161,10 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         frames = read_keypoint_file(args.input, args.keypoints, args.fps)
     with output_folder(args.out) as tmp:
         summary, interrupted = _reconstruct_into(args, tmp, frames)
-    print(f"wrote {Path(args.out) / 'result.jsonl'} and {len(summary.bvh_files)} BVH file(s) in {args.out}")
+        if args.preview and summary.frames:
+            _preview(args, tmp)
+    print(f"wrote {Path(args.out) / 'result.jsonl'} and {len(summary.bvh_files)} track file(s) in {args.out}"
+          + (f"; preview {Path(args.out) / 'preview.png'}" if args.preview else ""))
     print(summary.report())
     if interrupted:
         print(f"mocapdb reconstruct: interrupted after {summary.frames} frames; wrote what was done", file=sys.stderr)
@@ -152,9 +172,31 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     return 0
 
 
+def _preview(args: argparse.Namespace, out_dir) -> None:
+    """OUT/preview.png: a contact sheet of the run (:func:`mocapdb.render.video.contact_sheet`)."""
+    from mocapdb.render.video import contact_sheet
+
+    width, height = (int(v) for v in args.image_size.lower().split("x"))
+    contact_sheet(out_dir, args.input, out_dir / "preview.png", focal=args.focal, image_size=(width, height))
+
+
+def _input_size(path: str) -> int | None:
+    """Frames in a keypoint folder (its .json files) or lines in a keypoint file, for the progress bar."""
+    from pathlib import Path
+
+    source = Path(path)
+    if source.is_dir():
+        return sum(1 for f in source.iterdir() if f.suffix.lower() == ".json")
+    if source.is_file():
+        with open(source, "rb") as f:
+            return sum(chunk.count(b"\n") for chunk in iter(lambda: f.read(1 << 20), b""))
+    return None
+
+
 def _reconstruct_into(args: argparse.Namespace, out_dir, frames):
     """Run the session into ``out_dir``; returns its summary and whether Ctrl-C stopped it early."""
     from mocapdb.core.errors import UsageError
+    from mocapdb.core.progress import progress
     from mocapdb.runtime.session import run_arrays, run_offline
     from mocapdb.runtime.streams import open_source
 
@@ -162,9 +204,11 @@ def _reconstruct_into(args: argparse.Namespace, out_dir, frames):
     interrupted = False
     try:
         if frames is not None:
-            run_arrays(session, frames)
+            run_arrays(session, progress(frames, desc="reconstruct", unit="frame"))
         else:
-            run_offline(session, open_source(args.input, stats=session.summary.stream))
+            total = _input_size(args.input)
+            run_offline(session, open_source(args.input, stats=session.summary.stream),
+                        lambda messages: progress(messages, total=total, desc="reconstruct", unit="frame"))
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -226,7 +270,7 @@ def run_live(args: argparse.Namespace) -> int:
         except SinkError:
             pass  # recorded in the summary; reported below
         finally:
-            summary = session.finish(Path(args.bvh_dir) if args.bvh_dir else None, args.bvh_unit)
+            summary = session.finish(Path(args.bvh_dir) if args.bvh_dir else None)
         print(summary.report(), file=sys.stderr)
         if source_line := summary.stream.source_report():
             print(source_line, file=sys.stderr)

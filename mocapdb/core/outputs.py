@@ -26,7 +26,7 @@ from mocapdb.core.skeleton import (
     UNIVERSAL_HEIGHT_M,
 )
 
-OUTPUT_FILES = ("result.jsonl", "track_*.bvh")  # what a reconstruct output folder holds
+OUTPUT_FILES = ("result.jsonl", "track_*.bvh", "track_*.trc", "track_*.csv", "preview.png")  # reconstruct writes
 
 
 @dataclass
@@ -190,8 +190,8 @@ def output_folder(out: str | Path) -> Iterator[Path]:
     """
     out = Path(out)
     if out.exists() and not _is_output_folder(out):
-        raise OutputFolderError(f"{out} exists and is not an output folder of mocapdb (only result.jsonl and "
-                                f"track_*.bvh): choose another --out")
+        raise OutputFolderError(f"{out} exists and is not an output folder of mocapdb (only result.jsonl, "
+                                f"track files and preview.png): choose another --out")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
