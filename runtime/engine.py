@@ -22,7 +22,7 @@ from mocapdb.core.formats.database import DatabaseError, MotionDatabase
 from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
 from mocapdb.core.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
 from mocapdb.core.outputs import Match, PersonPose, TrackRecording
-from mocapdb.core.skeleton import N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, UNIVERSAL_HEIGHT_M, pose_from_rotations
+from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, UNIVERSAL_HEIGHT_M, pose_from_rotations
 from mocapdb.runtime.body_size import CameraTilt, FloorScale
 from mocapdb.runtime.filters import (
     REFINED_ROOT_DEFAULTS,
@@ -39,7 +39,7 @@ from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact, 
 from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotations
 from mocapdb.runtime.tracker import Tracker, TrackerConfig, TrackUpdate
 
-R_HIP, L_HIP = 8, 11
+R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]  # numba freezes them as constants
 CAMERA_FROM_VIEW = np.array([1.0, 1.0, -1.0])  # view frame → camera-aligned frame (z negated)
 
 

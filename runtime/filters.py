@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from mocapdb.core.kernels import quat_relative_log_into
 from mocapdb.core.skeleton import KP
 
 
@@ -154,20 +155,14 @@ def _vector_step(value, speed, x, rate, min_cutoff, beta, d_cutoff):
 def _quaternion_step(value, speed, q, rate, min_cutoff, beta, d_cutoff):
     """One 1€ update of unit quaternions ``value [J, 4]`` and angular velocities ``speed [J, 3]``."""
     a_d = _alpha(rate, d_cutoff)
+    r = np.empty(3)
     for j in range(q.shape[0]):
         v = value[j]
         qj = q[j] / np.sqrt(np.sum(q[j] ** 2))
         if v[0] * qj[0] + v[1] * qj[1] + v[2] * qj[2] + v[3] * qj[3] < 0:
             qj = -qj
-        # v⁻¹ q: its vector part is the axis × sin(angle / 2), its scalar part cos(angle / 2) >= 0.
-        r0 = v[0] * qj[0] + v[1] * qj[1] + v[2] * qj[2] + v[3] * qj[3]
-        r = np.array([v[0] * qj[1] - v[1] * qj[0] - v[2] * qj[3] + v[3] * qj[2],
-                      v[0] * qj[2] + v[1] * qj[3] - v[2] * qj[0] - v[3] * qj[1],
-                      v[0] * qj[3] - v[1] * qj[2] + v[2] * qj[1] - v[3] * qj[0]])
-        sin_half = np.sqrt(r[0] ** 2 + r[1] ** 2 + r[2] ** 2)
-        if sin_half > 0:
-            r *= 2.0 * np.arctan2(sin_half, r0) * rate / sin_half
-        speed[j] += a_d * (r - speed[j])
+        quat_relative_log_into(v, qj, r)  # log(v⁻¹ q): the rotation vector from v to q (radians)
+        speed[j] += a_d * (r * rate - speed[j])
         a = _alpha(rate, min_cutoff + beta * np.sqrt(np.sum(speed[j] ** 2)))
         blend = v + a * (qj - v)
         value[j] = blend / np.sqrt(np.sum(blend ** 2))

@@ -16,8 +16,10 @@ import numpy as np
 from numba import njit
 
 from mocapdb.core.formats.database import MotionDatabase
+from mocapdb.core.kernels import pose_distances_into, pose_normalisation_into, renormalised_pose_distances_into
+from mocapdb.core.skeleton import KP
 
-R_HIP, L_HIP = 8, 11
+R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]  # numba freezes them as constants
 
 
 @dataclass
@@ -50,53 +52,19 @@ class SearchIndex:
                    np.ascontiguousarray(reps[..., 1].T), nonempty.astype(np.int64), np.argsort(order))
 
 
-@njit(cache=True, fastmath=True)
-def _renormalisation(x, y, lo, hi, vis_idx):
-    """Per pose in columns lo:hi, the origin and scale over the visible joints ``vis_idx``."""
-    n = hi - lo
-    top = np.full(n, np.inf, dtype=np.float32)
-    bottom = np.full(n, -np.inf, dtype=np.float32)
-    for k in vis_idx:
-        for i in range(n):
-            top[i] = min(top[i], y[k, lo + i])
-            bottom[i] = max(bottom[i], y[k, lo + i])
-    scale = np.where(bottom - top > 1e-9, 1.0 / (bottom - top), 0.0).astype(np.float32)
-    has_r, has_l = False, False
-    for k in vis_idx:
-        has_r |= k == R_HIP
-        has_l |= k == L_HIP
-    r = R_HIP if has_r else L_HIP
-    l = L_HIP if has_l else R_HIP
-    half = np.float32(0.5)
-    ox = half * (x[r, lo:hi] + x[l, lo:hi])
-    oy = half * (y[r, lo:hi] + y[l, lo:hi])
-    return ox, oy, scale
-
-
-@njit(cache=True, fastmath=True)
+@njit(cache=True)
 def range_distances(x, y, lo, hi, query, vis_idx, renormalise):
-    """Eq. 1 distances ``[hi - lo]`` from ``query [14, 2]`` to poses lo:hi, over joints ``vis_idx``.
-
-    With ``renormalise`` each pose is first renormalised over the visible joints.
-    """
+    """Eq. 1 distances ``[hi - lo]`` (float32) from ``query [14, 2]`` (the poses' dtype) to poses lo:hi, over
+    joints ``vis_idx``. With ``renormalise`` each pose is first renormalised over those joints."""
     n = hi - lo
     out = np.zeros(n, dtype=np.float32)
     if renormalise:
-        ox, oy, s = _renormalisation(x, y, lo, hi, vis_idx)
-        for k in vis_idx:
-            qx, qy = np.float32(query[k, 0]), np.float32(query[k, 1])
-            for i in range(n):
-                dx = (x[k, lo + i] - ox[i]) * s[i] - qx
-                dy = (y[k, lo + i] - oy[i]) * s[i] - qy
-                out[i] += np.sqrt(dx * dx + dy * dy)
-        return out
-    for k in vis_idx:
-        qx, qy = np.float32(query[k, 0]), np.float32(query[k, 1])
-        xk, yk = x[k, lo:hi], y[k, lo:hi]
-        for i in range(n):
-            dx = xk[i] - qx
-            dy = yk[i] - qy
-            out[i] += np.sqrt(dx * dx + dy * dy)
+        top, bottom = np.empty(n, dtype=np.float32), np.empty(n, dtype=np.float32)
+        ox, oy, s = np.empty(n, dtype=np.float32), np.empty(n, dtype=np.float32), np.empty(n, dtype=np.float32)
+        pose_normalisation_into(x, y, lo, hi, vis_idx, R_HIP, L_HIP, top, bottom, ox, oy, s)
+        renormalised_pose_distances_into(x, y, lo, hi, query, vis_idx, ox, oy, s, out)
+    else:
+        pose_distances_into(x, y, lo, hi, query, vis_idx, out)
     return out
 
 
@@ -151,6 +119,11 @@ def _visible_joints(visible: np.ndarray):
     return vis_idx, vis_idx.shape[0] < visible.shape[0]
 
 
+def _query_like(query: np.ndarray, index: SearchIndex) -> np.ndarray:
+    """``query`` in the index's dtype (float32): the distance kernels difference in the poses' dtype."""
+    return np.ascontiguousarray(query, dtype=index.x.dtype)
+
+
 def search_clustered(index: SearchIndex, query: np.ndarray, visible: np.ndarray,
                      n_clusters: int = 5, per_cluster: int = 10) -> tuple[np.ndarray, np.ndarray]:
     """Candidates of the two-level search: database projection rows and their Eq. 1 distances.
@@ -158,13 +131,13 @@ def search_clustered(index: SearchIndex, query: np.ndarray, visible: np.ndarray,
     ``query [14, 2]`` is normalised over ``visible [14]`` (see ``normalize_pose_2d``).
     """
     return _clustered(index.x, index.y, index.cluster_start, index.rep_x, index.rep_y, index.rep_cluster,
-                      index.rows, query, visible, n_clusters, per_cluster)
+                      index.rows, _query_like(query, index), visible, n_clusters, per_cluster)
 
 
 def search_exact(index: SearchIndex, query: np.ndarray, visible: np.ndarray,
                  k: int = 50) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` nearest projections over the whole database (brute force), nearest first."""
-    return _exact(index.x, index.y, index.rows, query, visible, k)
+    return _exact(index.x, index.y, index.rows, _query_like(query, index), visible, k)
 
 
 @njit(cache=True)
@@ -189,4 +162,4 @@ def yaw_offset(index: SearchIndex, frame: int, yaw: int, yaws_deg: np.ndarray, q
     them; the offset is kept within half a yaw step.
     """
     return _yaw_offset(index.x, index.y, index.column_of_row, frame, yaw, len(yaws_deg),
-                       float(yaws_deg[1] - yaws_deg[0]), query, visible)
+                       float(yaws_deg[1] - yaws_deg[0]), _query_like(query, index), visible)

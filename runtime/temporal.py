@@ -14,15 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-
-@njit(cache=True, fastmath=True)
-def _yawed_dot(yaw, q, h) -> float:
-    """``|h · (yaw * q)|`` for quaternions (w, x, y, z), without building the product."""
-    w = yaw[0] * q[0] - yaw[1] * q[1] - yaw[2] * q[2] - yaw[3] * q[3]
-    x = yaw[0] * q[1] + yaw[1] * q[0] + yaw[2] * q[3] - yaw[3] * q[2]
-    y = yaw[0] * q[2] - yaw[1] * q[3] + yaw[2] * q[0] + yaw[3] * q[1]
-    z = yaw[0] * q[3] + yaw[1] * q[2] - yaw[2] * q[1] + yaw[3] * q[0]
-    return abs(h[0] * w + h[1] * x + h[2] * y + h[3] * z)
+from mocapdb.core.kernels import quat_abs_dot, quat_mul_into
 
 
 @njit(cache=True, fastmath=True)
@@ -44,15 +36,16 @@ def temporal_costs(db_quats: np.ndarray, clip_first: np.ndarray, yaw_quats: np.n
     """
     n_joints = db_quats.shape[1]
     costs = np.zeros(cand_frames.shape[0])
+    root = np.empty(4)  # the candidate's root turned by its yaw
     for c in range(cand_frames.shape[0]):
         f, v = cand_frames[c], cand_yaws[c]
         total, weight = 0.0, 0.0
         for i in range(n_hist):
             g = max(f - 1 - i, clip_first[f])
-            term = joint_weights[0] * _angle_sq(_yawed_dot(yaw_quats[v], db_quats[g, 0], history[i, 0]))
+            quat_mul_into(yaw_quats[v], db_quats[g, 0], root)
+            term = joint_weights[0] * _angle_sq(quat_abs_dot(root, history[i, 0]))
             for k in range(1, n_joints):
-                q, h = db_quats[g, k], history[i, k]
-                term += joint_weights[k] * _angle_sq(abs(q[0] * h[0] + q[1] * h[1] + q[2] * h[2] + q[3] * h[3]))
+                term += joint_weights[k] * _angle_sq(quat_abs_dot(db_quats[g, k], history[i, k]))
             total += window_weights[i] * term
             weight += window_weights[i]
         costs[c] = total / weight if weight > 0 else 0.0
@@ -63,11 +56,7 @@ def temporal_costs(db_quats: np.ndarray, clip_first: np.ndarray, yaw_quats: np.n
 def yawed_rotations(db_quats: np.ndarray, frame: int, yaw_quat: np.ndarray) -> np.ndarray:
     """Rotations ``[R, 4]`` (float64) of database ``frame`` with the root turned by ``yaw_quat``."""
     out = db_quats[frame].astype(np.float64)
-    a, q = yaw_quat, out[0].copy()
-    out[0, 0] = a[0] * q[0] - a[1] * q[1] - a[2] * q[2] - a[3] * q[3]
-    out[0, 1] = a[0] * q[1] + a[1] * q[0] + a[2] * q[3] - a[3] * q[2]
-    out[0, 2] = a[0] * q[2] - a[1] * q[3] + a[2] * q[0] + a[3] * q[1]
-    out[0, 3] = a[0] * q[3] + a[1] * q[2] - a[2] * q[1] + a[3] * q[0]
+    quat_mul_into(yaw_quat, out[0].copy(), out[0])
     return out
 
 

@@ -78,8 +78,8 @@ def test_projections_are_normalised_views_of_the_frames(built):
     yaws = np.array(db.meta["yaws_deg"])[db.proj_yaw[rows]]
     for r, f, yaw in zip(rows, frames, yaws):
         pos = db.positions[f:f + 1].astype(np.float64)
-        from mocapdb.core.geometry import Camera
-        uv = project_views(pos, pos[:, PELVIS], np.array([yaw]), 0.0, Camera(**db.meta["camera"]))
+        from mocapdb.core.cameras import DatabaseCamera
+        uv = project_views(pos, pos[:, PELVIS], np.array([yaw]), 0.0, DatabaseCamera(**db.meta["camera"]))
         expected, _, _ = normalize_pose_2d(uv[0, 0, :14])
         np.testing.assert_allclose(db.keypoints_2d[r], expected, atol=1e-5)
 
@@ -388,10 +388,10 @@ def test_bad_build_option_fails_before_any_work(sources, tmp_path, monkeypatch, 
 
 
 def test_bad_config_is_refused_by_the_library_too(sources, tmp_path):
-    from mocapdb.core.geometry import Camera
+    from mocapdb.core.cameras import DatabaseCamera
 
     for config in [_config(clusters=0), _config(dims=2.5), _config(landmarks=True), _config(fps=float("nan")),
-                   _config(camera=Camera(focal_px=0.0)), _config(camera=Camera(width_px=0)),
+                   _config(camera=DatabaseCamera(focal_px=0.0)), _config(camera=DatabaseCamera(width_px=0)),
                    _config(workers=0), _config(unit="furlong")]:
         with pytest.raises(BuildError):
             build([str(sources)], tmp_path / "db", config)

@@ -2,14 +2,15 @@
 import numpy as np
 import pytest
 
+from mocapdb.core.cameras import DatabaseCamera
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
-from mocapdb.core.geometry import Camera, project_views, quat_geodesic, yaw_matrix
+from mocapdb.core.geometry import project_views, quat_geodesic, yaw_matrix
 from mocapdb.core.skeleton import KP, PELVIS
 from mocapdb.runtime.engine import Engine, EngineConfig
 from mocapdb.runtime.temporal import temporal_costs
 
 
-def _db_views(db, clip: int, yaw_index: int, camera: Camera, turn_deg: float = 0.0):
+def _db_views(db, clip: int, yaw_index: int, camera: DatabaseCamera, turn_deg: float = 0.0):
     """Keypoint frames of one database clip seen as the database saw it (turned ``turn_deg`` more)."""
     first, n = db.clip_first_frame[clip], db.clip_n_frames[clip]
     pos = db.positions[first:first + n].astype(np.float64)
@@ -22,7 +23,7 @@ def _db_views(db, clip: int, yaw_index: int, camera: Camera, turn_deg: float = 0
 
 @pytest.mark.parametrize("search", ["clustered", "exact"])
 def test_database_views_are_found_exactly(small_db, search):
-    camera = Camera(**small_db.meta["camera"])
+    camera = DatabaseCamera(**small_db.meta["camera"])
     frames, truth, first = _db_views(small_db, clip=1, yaw_index=7, camera=camera)
     engine = Engine(small_db, EngineConfig(search=search, smoothing=False, refine_yaw=False, refine=False, fps=24.0,
                                            focal_px=camera.focal_px,
@@ -42,7 +43,7 @@ def test_database_views_are_found_exactly(small_db, search):
 
 @pytest.mark.parametrize("turn", [-4.0, 3.0])
 def test_yaw_between_database_yaws_is_refined(small_db, turn):
-    camera = Camera(**small_db.meta["camera"])
+    camera = DatabaseCamera(**small_db.meta["camera"])
     frames, _, _ = _db_views(small_db, clip=1, yaw_index=7, camera=camera, turn_deg=turn)
     yaw = small_db.meta["yaws_deg"][7] + turn
     for refine, tolerance in ((True, 1.5), (False, abs(turn) + 0.01)):
@@ -54,7 +55,7 @@ def test_yaw_between_database_yaws_is_refined(small_db, turn):
 
 
 def test_left_side_of_a_subject_facing_the_camera_is_on_image_right(small_db):
-    camera = Camera(**small_db.meta["camera"])
+    camera = DatabaseCamera(**small_db.meta["camera"])
     frames, truth, _ = _db_views(small_db, clip=0, yaw_index=0, camera=camera)
     engine = Engine(small_db, EngineConfig(smoothing=False, fps=24.0))
     poses = [p for f in frames for p in engine.step(f)]

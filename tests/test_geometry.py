@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from mocapdb.core.cameras import CameraModel, DatabaseCamera
 from mocapdb.core.geometry import (
-    Camera,
     camera_axes_world,
     euler_to_matrix,
     matrix_to_euler,
@@ -17,6 +17,7 @@ from mocapdb.core.geometry import (
     quat_to_matrix,
     yaw_matrix,
 )
+from mocapdb.core.skeleton import KP, PELVIS
 
 RNG = np.random.default_rng(7)
 
@@ -54,9 +55,9 @@ def test_geodesic_is_half_angle_and_sign_blind():
 
 
 def test_projection_matches_opencv():
-    cam = Camera(height_m=1.5, distance_m=4.0, focal_px=1000.0)
+    cam = DatabaseCamera(height_m=1.5, distance_m=4.0, focal_px=1000.0)
     pts = RNG.normal(scale=0.5, size=(3, 15, 3)) + np.array([0.2, 1.0, -0.3])
-    pelvis = pts[:, 14]
+    pelvis = pts[:, PELVIS]
     yaws = np.array([0.0, 12.0, 200.0])
     ours = project_views(pts, pelvis, yaws, floor_y_m=0.1, camera=cam)
     k = np.array([[1000.0, 0, 960], [0, 1000.0, 540], [0, 0, 1]])
@@ -73,28 +74,60 @@ def test_projection_matches_opencv():
 def test_front_view_mirrors_left_to_image_right():
     # Subject facing +z (toward the camera at yaw 0): its left (+x) shows on the image's right.
     pts = np.zeros((1, 15, 3))
-    pts[0, 5] = [0.2, 1.7, 0]   # left shoulder
-    pts[0, 2] = [-0.2, 1.7, 0]  # right shoulder
-    uv = project_views(pts, pts[:, 14], np.array([0.0]), 0.0, Camera())
-    assert uv[0, 0, 5, 0] > 960 > uv[0, 0, 2, 0]
-    assert uv[0, 0, 5, 1] < 540  # above the camera → upper half of the image
+    left, right = KP["l_shoulder"], KP["r_shoulder"]
+    pts[0, left] = [0.2, 1.7, 0]
+    pts[0, right] = [-0.2, 1.7, 0]
+    uv = project_views(pts, pts[:, PELVIS], np.array([0.0]), 0.0, DatabaseCamera())
+    assert uv[0, 0, left, 0] > 960 > uv[0, 0, right, 0]
+    assert uv[0, 0, left, 1] < 540  # above the camera → upper half of the image
+
+
+def test_database_camera_model_is_its_pinhole():
+    cam = DatabaseCamera(height_m=1.2, distance_m=3.0, focal_px=800.0, width_px=1280, height_px=720)
+    model = cam.model()
+    assert isinstance(model, CameraModel)
+    np.testing.assert_array_equal(model.K, [[800.0, 0.0, 640.0], [0.0, 800.0, 360.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_array_equal(model.dist, np.zeros(4))
+    np.testing.assert_array_equal(model.R, np.eye(3))
+    np.testing.assert_array_equal(model.t, np.zeros(3))
+    assert model.size == (1280, 720)
+    # project_views is that model looking from the camera's place (OpenCV axes, pose removed).
+    pts = RNG.normal(scale=0.4, size=(2, 15, 3)) + np.array([0.1, 1.0, 0.2])
+    pelvis = pts[:, PELVIS]
+    ours = project_views(pts, pelvis, np.array([0.0]), floor_y_m=0.05, camera=cam)
+    for f in range(2):
+        center = np.array([pelvis[f, 0], 0.05 + 1.2, pelvis[f, 2] + 3.0])
+        in_camera = (pts[f] - center) @ camera_axes_world().T
+        np.testing.assert_allclose(ours[f, 0], model.project(in_camera), atol=1e-6)
 
 
 def test_normalisation_hand_computed():
     pts = np.zeros((14, 2))
     pts[:, 1] = np.linspace(100, 300, 14)  # 200 px high
     pts[:, 0] = 50
-    pts[8] = [40, 250]
-    pts[11] = [60, 250]
+    pts[KP["r_hip"]] = [40, 250]
+    pts[KP["l_hip"]] = [60, 250]
     norm, origin, scale = normalize_pose_2d(pts)
     np.testing.assert_allclose(origin, [50, 250])
     assert scale == pytest.approx(1 / 200)
-    np.testing.assert_allclose(norm[0], [0, -0.75])
+    np.testing.assert_allclose(norm[KP["head"]], [0, -0.75])
     vis = np.ones(14, bool)
-    vis[0] = False  # the top joint hidden: the box shrinks, the joint reads as 0
+    vis[KP["head"]] = False  # the top joint hidden: the box shrinks, the joint reads as 0
     norm2, _, scale2 = normalize_pose_2d(pts, vis)
-    assert scale2 == pytest.approx(1 / (300 - pts[1, 1]))
-    np.testing.assert_allclose(norm2[0], 0)
+    assert scale2 == pytest.approx(1 / (300 - pts[KP["neck"], 1]))
+    np.testing.assert_allclose(norm2[KP["head"]], 0)
+
+
+def test_normalisation_one_hip_or_none():
+    pts = RNG.normal(scale=50.0, size=(14, 2)) + 300.0
+    vis = np.ones(14, bool)
+    vis[KP["l_hip"]] = False  # the visible hip is the origin
+    _, origin, scale = normalize_pose_2d(pts, vis)
+    np.testing.assert_allclose(origin, pts[KP["r_hip"]])
+    assert scale == pytest.approx(1 / np.ptp(pts[vis, 1]))
+    vis[KP["r_hip"]] = False  # no hip: no origin to scale about
+    norm, _, scale = normalize_pose_2d(pts, vis)
+    assert scale == 0 and not norm.any()
 
 
 def test_normalisation_is_scale_and_shift_invariant():

@@ -11,7 +11,7 @@ from mocapdb.core.errors import MocapdbError
 from mocapdb.core.skeleton import DRAWING_LINES, KEYPOINTS, N_POINTS
 from mocapdb.render import draw
 from mocapdb.render.results import RenderError, read_result
-from mocapdb.render.video import Camera, Layout, contact_sheet, render_result, render_stereo_plot
+from mocapdb.render.video import Layout, contact_sheet, image_camera, render_result, render_stereo_plot
 from tests.conftest import SAMPLE_KEYPOINTS
 
 FOCAL, SIZE = 1681.0, (1088, 1920)
@@ -124,7 +124,7 @@ def test_png_frames(sample_run, capsys):
     assert names == [f"frame_{i:06d}.png" for i in range(N_FRAMES)]
     assert not list(out.glob(".*"))   # no temporary file left
     img = cv2.imread(str(out / names[-1]))
-    layout = Layout(Camera(FOCAL, SIZE), "both", draw.fit_view(read_result(recon).all_joints()), 0.25)
+    layout = Layout(image_camera(FOCAL, SIZE), "both", draw.fit_view(read_result(recon).all_joints()), 0.25)
     assert img.shape[1::-1] == layout.size
     tracks = read_result(recon).frames[-1].people
     assert tracks, "the sample has people by its last frames"
@@ -135,7 +135,7 @@ def test_png_frames(sample_run, capsys):
 
 def test_mp4(sample_run):
     root, keypoints, recon = sample_run
-    summary = render_result(recon, root / "out.mp4", keypoints, mp4=True, camera=Camera(FOCAL, SIZE), scale=0.25,
+    summary = render_result(recon, root / "out.mp4", keypoints, mp4=True, camera=image_camera(FOCAL, SIZE), scale=0.25,
                             view="image", progress=False)
     assert summary.out == root / "out.mp4" and summary.frames == N_FRAMES
     cap = cv2.VideoCapture(str(summary.out))
@@ -151,7 +151,7 @@ def test_contact_sheet(sample_run):
     out = contact_sheet(recon, keypoints, root / "sheet.png", n=4, focal=FOCAL, image_size=SIZE, tile_height=300)
     img = cv2.imread(str(out))
     scale = 300 / (SIZE[1] * 1.12)
-    tile = Layout(Camera(FOCAL, SIZE), "both", draw.fit_view(read_result(recon).all_joints()), scale).size
+    tile = Layout(image_camera(FOCAL, SIZE), "both", draw.fit_view(read_result(recon).all_joints()), scale).size
     cols = img.shape[1] // tile[0]
     assert cols * tile[0] + (cols - 1) * 4 == img.shape[1]
     rows = -(-4 // cols)
@@ -164,7 +164,7 @@ def test_frame_count_mismatch_renders_the_overlap(tmp_path, sample_run):
     _, keypoints, _ = sample_run
     write_stream(tmp_path / "res", N_FRAMES + 5)
     warnings = []
-    summary = render_result(tmp_path / "res", tmp_path / "frames", keypoints, camera=Camera(FOCAL, SIZE),
+    summary = render_result(tmp_path / "res", tmp_path / "frames", keypoints, camera=image_camera(FOCAL, SIZE),
                             scale=0.1, progress=False, warn=warnings.append)
     assert summary.frames == N_FRAMES
     assert len(list((tmp_path / "frames").glob("frame_*.png"))) == N_FRAMES
@@ -224,7 +224,7 @@ def test_error_messages(tmp_path):
     with pytest.raises(RenderError, match="no such video file"):
         render_result(tmp_path / "ok", tmp_path / "f", video=tmp_path / "none.mp4", progress=False)
     with pytest.raises(RenderError, match="focal length"):
-        Camera(-5.0, (100, 100))
+        image_camera(-5.0, (100, 100))
     with pytest.raises(MocapdbError, match="WIDTHxHEIGHT"):
         run_cli([str(tmp_path / "ok"), "--out", str(tmp_path / "f"), "--image-size", "big"])
     with pytest.raises(RenderError, match="no cameras.json"):

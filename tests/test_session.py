@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from mocapdb.cli.main import main
+from mocapdb.core.cameras import DatabaseCamera
 from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
-from mocapdb.core.geometry import Camera, project_views
+from mocapdb.core.geometry import project_views
 from mocapdb.core.skeleton import PELVIS
 from mocapdb.runtime.engine import Engine, EngineConfig
 from mocapdb.runtime.session import FrameParser, Session, SessionSummary, run_live, run_offline
@@ -23,7 +24,7 @@ BVH_NODE_OF_JOINT = {"r_knee_End": 10, "l_elbow_End": 7, "neck_End": 0, "pelvis"
 def _stream_lines(db, n_frames: int = 30) -> list[str]:
     """JSON-lines input (COCO-17 layout) of a database clip seen from the database camera."""
     pos = db.positions[:n_frames].astype(np.float64)
-    px = project_views(pos, pos[:, PELVIS], np.array([36.0]), 0.0, Camera(**db.meta["camera"]))[:, 0, :14]
+    px = project_views(pos, pos[:, PELVIS], np.array([36.0]), 0.0, DatabaseCamera(**db.meta["camera"]))[:, 0, :14]
     coco_of_universal = {0: 0, 2: 6, 3: 8, 4: 10, 5: 5, 6: 7, 7: 9, 8: 12, 9: 14, 10: 16, 11: 11, 12: 13, 13: 15}
     lines = []
     for i in range(n_frames):

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from mocapdb.cli.main import main
+from mocapdb.core.cameras import DatabaseCamera
 from mocapdb.core.formats.database import load_database
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
-from mocapdb.core.geometry import Camera, project_views
+from mocapdb.core.geometry import project_views
 from mocapdb.core.skeleton import PELVIS
 from mocapdb.runtime.engine import Engine, EngineConfig, TrackLimits
 from mocapdb.runtime.session import FrameParser, InputError, Session, SessionOptions, SessionSummary, SinkError
@@ -21,7 +22,7 @@ from .test_session import _stream_lines
 
 def _walking_px(db, n: int, offset=(0.0, 0.0)) -> np.ndarray:
     pos = db.positions[:n].astype(np.float64)
-    camera = Camera(**db.meta["camera"])
+    camera = DatabaseCamera(**db.meta["camera"])
     return project_views(pos, pos[:, PELVIS], np.array([36.0]), 0.0, camera)[:, 0, :14] + offset
 
 

@@ -1,34 +1,20 @@
-"""ElliPose core (mocapdb.stereo.ellipsoid): ellipsoid fit, undistortion, stage 3, camera recovery, bad inputs."""
-import sys
-
+"""ElliPose core (mocapdb.stereo: ellipose, ellipsoid, bone_lengths, relative_pose, checks): ellipsoid fit,
+undistortion, stage 3, camera recovery, bad inputs."""
 import cv2
 import numpy as np
 import pytest
 
+from mocapdb.core.cameras import CameraModel
 from mocapdb.core.clips import ClipOptions, process_clip
-from mocapdb.stereo.ellipsoid import (
-    RIGID_BONES,
-    StereoConfig,
-    StereoError,
-    _stage2,
-    _triangulate_all,
-    check_geometry,
-    check_parallax,
-    fit_ellipsoid,
-    ransac_ellipsoid,
-    reconstruct,
-    refine_bone_lengths,
-    sphericity,
-    triangulate,
-    triangulation_covariance,
-    undistort,
-)
-from mocapdb.stereo.pipeline import rotation_angle_deg
+from mocapdb.evaluation import stereo as eval_stereo
+from mocapdb.stereo.bone_lengths import RIGID_BONES, refine_bone_lengths
+from mocapdb.stereo.checks import check_geometry, check_parallax
+from mocapdb.stereo.config import StereoConfig, StereoError
+from mocapdb.stereo.ellipose import _stage2, reconstruct
+from mocapdb.stereo.ellipsoid import fit_ellipsoid, ransac_ellipsoid, sphericity, undistort
+from mocapdb.stereo.relative_pose import rotation_angle_deg, triangulate, triangulate_all, triangulation_covariance
 
-from .conftest import ROOT, SAMPLE_BVH
-
-sys.path.insert(0, str(ROOT / "tools"))
-import eval_stereo  # noqa: E402
+from .conftest import SAMPLE_BVH
 
 N_TYPES = 6
 
@@ -173,7 +159,7 @@ def test_stage3_makes_bone_lengths_constant():
     n1, n2 = np.zeros(x1.shape), np.zeros(x2.shape)
     n1[valid], n2[valid] = cam1.undistort_normalized(x1[valid]), cam2.undistort_normalized(x2[valid])
     R, t = cam2.R @ cam1.R.T, cam2.t - cam2.R @ cam1.R.T @ cam1.t
-    raw = _triangulate_all(R, t, n1, n2, valid)
+    raw = triangulate_all(R, t, n1, n2, valid)
     P1, P2 = np.hstack([np.eye(3), np.zeros((3, 1))]), np.hstack([R, t[:, None]])
     fixed = refine_bone_lengths(np.nan_to_num(raw), P1, P2, n1, n2, valid)
     pairs = np.array([(i, j) for i, j, _ in RIGID_BONES])
@@ -221,7 +207,7 @@ def test_ellipsoid_rounds_undo_a_wrong_camera(dance):
     wrong = cv2.Rodrigues(np.array([0.0, np.radians(8.0), 0.0]))[0] @ rel_R
     t = rel_t / np.linalg.norm(rel_t)
     config = StereoConfig(epsilon=0.001)
-    start = _triangulate_all(wrong, t, n1, n2, valid)
+    start = triangulate_all(wrong, t, n1, n2, valid)
     _, R, _, epsilons, kept = _stage2(start, n1, n2, valid, wrong, t, config, RIGID_BONES, [])
     assert kept > 0 and epsilons[kept] < epsilons[0]
     assert rotation_angle_deg(R @ rel_R.T) < 0.3 * 8.0
@@ -296,7 +282,7 @@ def test_cameras_at_one_place_are_refused(dance):
     """Camera 2 where camera 1 is, turned 10°: a homography maps the views, depth is undetermined."""
     cam1, _ = eval_stereo.pair_cameras("side", dance.mean(axis=(0, 1)))
     turn = cv2.Rodrigues(np.array([0.0, np.radians(10.0), 0.0]))[0]
-    cam2 = eval_stereo.CameraModel(cam1.K, cam1.dist, turn @ cam1.R, turn @ cam1.t, cam1.size)
+    cam2 = CameraModel(cam1.K, cam1.dist, turn @ cam1.R, turn @ cam1.t, cam1.size)
     rng = np.random.default_rng(0)
     (x1, c1), (x2, c2) = (eval_stereo.render(dance, c, rng, 1.0, 0.0) for c in (cam1, cam2))
     with pytest.raises(StereoError, match="no parallax"):

@@ -1,11 +1,9 @@
 """`mocapdb stereo`: person selection, several people, loading checks, outputs (JSON lines, cameras, BVH),
 real data, TRC."""
-import importlib.util
 import json
 import os
 import re
 import shutil
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -21,17 +19,19 @@ from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.formats.trc import TrcError, parse_trc, read_trc, trc_keypoints
 from mocapdb.core.joint_map import detect_mapping, extract_keypoints
 from mocapdb.core.skeleton import KEYPOINTS, N_KEYPOINTS_2D, RIG_JOINTS
-from mocapdb.stereo import pipeline as stereo_pipeline
-from mocapdb.stereo.ellipsoid import StereoConfig, StereoError
+from mocapdb.evaluation import stereo as eval_stereo
+from mocapdb.stereo import StereoConfig, StereoError
+from mocapdb.stereo import outputs as stereo_outputs
+from mocapdb.stereo import views as stereo_views
+from mocapdb.stereo.motion import CAMERA_ALIGNED, in_front_check
 from mocapdb.stereo.people import match_people
-from mocapdb.stereo.pipeline import CAMERA_ALIGNED, in_front_check, load_views, rotation_angle_deg, select_people
+from mocapdb.stereo.pipeline import select_people
+from mocapdb.stereo.relative_pose import rotation_angle_deg
+from mocapdb.stereo.views import load_views
 
-from .conftest import ROOT, SAMPLE_BVH, SAMPLE_KEYPOINTS, SHARED_DATA
+from .conftest import SAMPLE_BVH, SAMPLE_KEYPOINTS, SHARED_DATA
 
 POSE2SIM = SHARED_DATA / "pose2sim_balancing"
-_spec = importlib.util.spec_from_file_location("eval_stereo", ROOT / "tools" / "eval_stereo.py")
-eval_stereo = sys.modules.setdefault("eval_stereo", importlib.util.module_from_spec(_spec))
-_spec.loader.exec_module(eval_stereo)
 
 
 @pytest.fixture(scope="module")
@@ -538,7 +538,7 @@ def test_os_errors_name_the_path(tmp_path, capsys, monkeypatch):
                                                          "(Permission denied)")):
         read_calibration_toml(CALIBRATION)
     monkeypatch.undo()
-    monkeypatch.setattr(stereo_pipeline, "read_openpose_folder", denied)
+    monkeypatch.setattr(stereo_views, "read_openpose_folder", denied)
     _refused([*views, *BUNDLED_ARGS], capsys, tmp_path / "out",
              f"{views[0]}: cannot read the keypoint folder (Permission denied)")
     monkeypatch.undo()
@@ -546,7 +546,7 @@ def test_os_errors_name_the_path(tmp_path, capsys, monkeypatch):
     def full(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(stereo_pipeline, "write_atomic", full)
+    monkeypatch.setattr(stereo_outputs, "write_atomic", full)
     assert _stereo([*views, *BUNDLED_ARGS, "--out", str(tmp_path / "full")]) == 2
     err = capsys.readouterr().err
     assert f"{tmp_path / 'full'}: cannot write the output (No space left on device)" in err and "[Errno" not in err

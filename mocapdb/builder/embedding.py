@@ -14,32 +14,22 @@ from numba import njit, prange
 from scipy.linalg import eigh
 from scipy.spatial.distance import cdist
 
+from mocapdb.core.kernels import pose_distances_into
+
 TRIANGULATE_CHUNK = 50_000     # landmark MDS: poses per kernel call (and per progress report)
 MAXMIN_POOL_PER_LANDMARK = 3  # landmark MDS: MaxMin picks from a random pool of this many × L poses
 KMEANS_INIT_PER_CLUSTER = 20   # k-means++ runs on a random subsample of this many × k points
 KMEANS_BLOCKS = 256            # fixed partition of the points for order-stable partial sums
 
 
-@njit(cache=True, fastmath=True)
-def _distance_row(pose: np.ndarray, bt: np.ndarray, row: np.ndarray) -> None:
-    """``row [M]`` ← Eq. 1 distances of ``pose [J, 2]`` to the poses stored joint-major in
-    ``bt [J, 2, M]`` (vectorised over the ``M`` poses). Per-joint differences and square roots
-    run in the inputs' precision, the sums in float64."""
-    row[:] = 0.0
-    for k in range(pose.shape[0]):
-        x, y = pose[k, 0], pose[k, 1]
-        bx, by = bt[k, 0], bt[k, 1]
-        for j in range(row.shape[0]):
-            dx, dy = x - bx[j], y - by[j]
-            row[j] += np.sqrt(dx * dx + dy * dy)
-
-
-@njit(parallel=True, cache=True, fastmath=True)
+@njit(parallel=True, cache=True)
 def _distances_soa(a: np.ndarray, bt: np.ndarray) -> np.ndarray:
-    """Eq. 1 distances ``[N, M]`` float64 of poses ``a [N, J, 2]`` to joint-major ``bt [J, 2, M]``."""
-    out = np.empty((a.shape[0], bt.shape[2]))
+    """Eq. 1 distances ``[N, M]`` float64 of poses ``a [N, J, 2]`` to joint-major ``bt [2, J, M]``.
+    Per-joint differences and square roots run in the inputs' precision, the sums in float64."""
+    joints = np.arange(a.shape[1])
+    out = np.zeros((a.shape[0], bt.shape[2]))
     for i in prange(a.shape[0]):
-        _distance_row(a[i], bt, out[i])
+        pose_distances_into(bt[0], bt[1], 0, bt.shape[2], a[i], joints, out[i])
     return out
 
 
@@ -47,10 +37,11 @@ def _distances_soa(a: np.ndarray, bt: np.ndarray) -> np.ndarray:
 def _triangulate_kernel(poses: np.ndarray, bt: np.ndarray, mean_sq: np.ndarray, projection_t: np.ndarray,
                         out: np.ndarray) -> None:
     """``out[i] = projection_t @ (δ_i − mean_sq)``, ``δ_i`` the squared Eq. 1 distances of
-    ``poses[i]`` to the landmarks ``bt [J, 2, L]``; one ``[L]`` row in cache per pose."""
+    ``poses[i]`` to the landmarks ``bt [2, J, L]``; one ``[L]`` row in cache per pose."""
+    joints = np.arange(poses.shape[1])
     for i in prange(poses.shape[0]):
-        row = np.empty(bt.shape[2])
-        _distance_row(poses[i], bt, row)
+        row = np.zeros(bt.shape[2])
+        pose_distances_into(bt[0], bt[1], 0, bt.shape[2], poses[i], joints, row)
         for j in range(row.shape[0]):
             row[j] = row[j] * row[j] - mean_sq[j]
         for d in range(projection_t.shape[0]):
@@ -66,8 +57,8 @@ def _as_poses(poses: np.ndarray, dtype) -> np.ndarray:
 
 
 def _joint_major(poses: np.ndarray) -> np.ndarray:
-    """``[M, J, 2]`` → contiguous ``[J, 2, M]`` (the kernel's vectorised layout)."""
-    return np.ascontiguousarray(poses.transpose(1, 2, 0))
+    """``[M, J, 2]`` → contiguous ``[2, J, M]``: x then y, joint-major (the kernels' vectorised layout)."""
+    return np.ascontiguousarray(poses.transpose(2, 1, 0))
 
 
 def _work_dtype(*arrays: np.ndarray) -> type:

@@ -22,11 +22,12 @@ from tqdm import tqdm
 
 from mocapdb import __version__
 from mocapdb.builder.embedding import kmeans, landmark_mds, pose_distances, representatives
+from mocapdb.core.cameras import DatabaseCamera
 from mocapdb.core.clips import Clip, ClipOptions, clips_from_bvh
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.formats.bvh import BvhError
 from mocapdb.core.formats.database import MotionDatabase, check_output_path, recover_interrupted, write_database
-from mocapdb.core.geometry import Camera, normalize_pose_2d, project_views
+from mocapdb.core.geometry import normalize_pose_2d, project_views
 from mocapdb.core.joint_map import UNITS, UP_AXES, JointMapError, load_joint_map_file
 from mocapdb.core.skeleton import (
     BONE_LENGTHS_M,
@@ -50,7 +51,7 @@ class BuildConfig:
 
     fps: float = 24.0
     yaw_step_deg: float = 12.0
-    camera: Camera = field(default_factory=Camera)
+    camera: DatabaseCamera = field(default_factory=DatabaseCamera)
     clusters: int = 500
     dims: int = 5
     seed: int = 0

@@ -45,12 +45,12 @@ def run_build(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from mocapdb.builder.pipeline import BuildConfig, build
+    from mocapdb.core.cameras import DatabaseCamera
     from mocapdb.core.formats.database import output_target
-    from mocapdb.core.geometry import Camera
 
     config = BuildConfig(
         fps=args.fps, yaw_step_deg=args.yaw_step,
-        camera=Camera(height_m=args.camera_height, distance_m=args.camera_distance, focal_px=args.focal),
+        camera=DatabaseCamera(height_m=args.camera_height, distance_m=args.camera_distance, focal_px=args.focal),
         clusters=args.clusters, dims=args.dims, seed=args.seed, landmarks=args.landmarks,
         workers=args.workers, strict=args.strict,
         joint_map=Path(args.joint_map) if args.joint_map else None,

@@ -59,8 +59,8 @@ def run_render(args: argparse.Namespace) -> int:
     from mocapdb.render.video import (
         DEFAULT_FOCAL,
         DEFAULT_IMAGE_SIZE,
-        Camera,
         contact_sheet,
+        image_camera,
         render_result,
         render_stereo_plot,
     )
@@ -85,7 +85,7 @@ def run_render(args: argparse.Namespace) -> int:
             v = VideoFrames(args.video)
             size = v.size
             v.close()
-        camera = Camera(args.focal if args.focal is not None else DEFAULT_FOCAL, size or DEFAULT_IMAGE_SIZE)
+        camera = image_camera(args.focal if args.focal is not None else DEFAULT_FOCAL, size or DEFAULT_IMAGE_SIZE)
         if args.focal is None and args.keypoints is not None:
             warn(f"no --focal: assuming {DEFAULT_FOCAL:g} px (reconstruct's default); give the value used there")
     if args.contact_sheet is not None:
@@ -93,8 +93,8 @@ def run_render(args: argparse.Namespace) -> int:
             from mocapdb.render.results import read_cameras as _rc
 
             c = _rc(folder).cameras[0]
-            camera = Camera(float(c.K[0, 0]), c.size)
-        out = contact_sheet(args.result, args.keypoints, args.out, args.contact_sheet, focal=camera.focal,
+            camera = image_camera(float(c.K[0, 0]), c.size)
+        out = contact_sheet(args.result, args.keypoints, args.out, args.contact_sheet, focal=float(camera.K[0, 0]),
                             image_size=camera.size, video=args.video, view=args.view, warn=warn)
         print(f"wrote {out} ({args.contact_sheet} frames of {args.result})")
         return 0

@@ -15,7 +15,7 @@ def cameras_from_args(args: argparse.Namespace) -> tuple[CameraModel, CameraMode
     """The two cameras' intrinsics from ``--calibration``/``--cameras`` or ``--focal``/``--size``;
     StereoError or CalibrationError naming the option or the file when they cannot be cameras."""
     from mocapdb.core.cameras import camera_from_intrinsics, intrinsics_only, read_calibration_toml
-    from mocapdb.stereo.ellipsoid import StereoError
+    from mocapdb.stereo import StereoError
 
     manual = [flag for flag, value in (("--focal", args.focal), ("--size", args.size), ("--center", args.center))
               if value is not None]
@@ -82,8 +82,7 @@ def add_stereo_parser(sub: argparse._SubParsersAction) -> None:
 
 def run_stereo_command(args: argparse.Namespace) -> int:
     """``mocapdb stereo``: run and print the summary (user errors are reported by the CLI, exit 2)."""
-    from mocapdb.stereo.ellipsoid import StereoConfig
-    from mocapdb.stereo.pipeline import run_stereo
+    from mocapdb.stereo import StereoConfig, run_stereo
 
     cam1, cam2 = cameras_from_args(args)
     config = StereoConfig(camera_distance_m=args.camera_distance)

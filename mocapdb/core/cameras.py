@@ -1,4 +1,5 @@
-"""Pinhole cameras with OpenCV lens distortion, and the Pose2Sim/OpenCV calibration TOML."""
+"""Cameras: pinhole models with OpenCV lens distortion (:class:`CameraModel`, the Pose2Sim/OpenCV
+calibration TOML) and the database's virtual camera (:class:`DatabaseCamera`)."""
 from __future__ import annotations
 
 import math
@@ -54,6 +55,36 @@ class CameraModel:
         pts = np.asarray(px, dtype=np.float64)
         out = cv2.undistortPoints(pts.reshape(-1, 1, 2), self.K, self.dist)
         return out.reshape(pts.shape)
+
+
+@dataclass(frozen=True)
+class DatabaseCamera:
+    """Where the database's virtual camera stands relative to the subject, and its pinhole image.
+
+    The camera stands ``distance_m`` in front of the subject's pelvis, ``height_m`` above the
+    floor, with a horizontal optical axis looking along the world's ``-z`` (so at yaw 0 it sees
+    a subject whose facing is ``+z`` from the front); no lens distortion. ``focal_px`` and the
+    image size ``width_px`` × ``height_px`` are pixels. ``geometry.project_views`` projects with it.
+    """
+
+    height_m: float = 1.5
+    distance_m: float = 4.0
+    focal_px: float = 1000.0
+    width_px: int = 1920
+    height_px: int = 1080
+
+    @property
+    def center_px(self) -> tuple[float, float]:
+        """The principal point (pixels): the image centre."""
+        return (self.width_px / 2.0, self.height_px / 2.0)
+
+    def model(self) -> CameraModel:
+        """Its pinhole intrinsics as a :class:`CameraModel`: ``K`` with ``focal_px`` and the principal
+        point at the image centre, no distortion, identity pose, size ``(width_px, height_px)``."""
+        cx, cy = self.center_px
+        k = np.array([[self.focal_px, 0.0, cx], [0.0, self.focal_px, cy], [0.0, 0.0, 1.0]], dtype=np.float64)
+        return CameraModel(k, np.zeros(4), np.eye(3), np.zeros(3), (int(self.width_px), int(self.height_px)),
+                           "database")
 
 
 # The principal point may lie outside the image (a crop), but not by more than this share of the

@@ -1,4 +1,4 @@
-"""Rotations, quaternions, cameras and 2D pose normalisation, shared by builder, runtime and stereo.
+"""Rotations, quaternions, projection and 2D pose normalisation, shared by builder, runtime and stereo.
 
 Conventions (see ``data_specs/skeleton.md``):
 
@@ -11,10 +11,18 @@ Every function is vectorised over leading axes.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from functools import cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
+
+from mocapdb.core.kernels import NORMALISED_HEIGHT as NORMALISED_HEIGHT
+from mocapdb.core.kernels import pose_normalisation_into
+
+if TYPE_CHECKING:  # cameras imports cv2 (slow); geometry only needs the camera's fields
+    from mocapdb.core.cameras import DatabaseCamera
+
 
 AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
 
@@ -149,28 +157,8 @@ def frame_from_axes(primary: np.ndarray, secondary: np.ndarray) -> np.ndarray:
     return np.stack([p, s, np.cross(p, s)], axis=-1)
 
 
-@dataclass(frozen=True)
-class Camera:
-    """Pinhole camera of the database projections (no lens distortion).
-
-    The camera stands ``distance_m`` in front of the subject's pelvis, ``height_m`` above the
-    floor, with a horizontal optical axis looking along the world's ``-z`` (so at yaw 0 it sees
-    a subject whose facing is ``+z`` from the front).
-    """
-
-    height_m: float = 1.5
-    distance_m: float = 4.0
-    focal_px: float = 1000.0
-    width_px: int = 1920
-    height_px: int = 1080
-
-    @property
-    def center_px(self) -> tuple[float, float]:
-        return (self.width_px / 2.0, self.height_px / 2.0)
-
-
 def camera_axes_world() -> np.ndarray:
-    """World→camera rotation of :class:`Camera` in OpenCV axes (x right, y down, z forward)."""
+    """World→camera rotation of ``cameras.DatabaseCamera`` in OpenCV axes (x right, y down, z forward)."""
     return np.diag([1.0, -1.0, -1.0])
 
 
@@ -181,7 +169,7 @@ def project_pinhole(points_cam: np.ndarray, focal_px: float, center_px: tuple[fl
 
 
 def project_views(positions_m: np.ndarray, pelvis_m: np.ndarray, yaws_deg: np.ndarray,
-                  floor_y_m: float, camera: Camera) -> np.ndarray:
+                  floor_y_m: float, camera: DatabaseCamera) -> np.ndarray:
     """Turn each frame's skeleton about the vertical axis through its pelvis and project it.
 
     ``positions_m [F, J, 3]`` in the mocap world, ``pelvis_m [F, 3]``; returns pixels
@@ -197,16 +185,20 @@ def project_views(positions_m: np.ndarray, pelvis_m: np.ndarray, yaws_deg: np.nd
     return project_pinhole(cam, camera.focal_px, camera.center_px)
 
 
-NORMALISED_HEIGHT = 1.0  # bounding-box height of every normalised 2D pose (unitless)
-HIP_R, HIP_L = 8, 11     # the hips among the 14 keypoints: their mid-point is the origin
+@cache
+def _hips() -> tuple[int, int]:
+    """The right and left hip among the 14 keypoints (their mid-point is a pose's origin)."""
+    from mocapdb.core.skeleton import KP  # not at the top: skeleton imports this module
+
+    return KP["r_hip"], KP["l_hip"]
 
 
 def normalize_pose_2d(points_px: np.ndarray, visible: np.ndarray | None = None
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The method's scaling step, shared by builder and runtime (one numba kernel).
+    """The method's scaling step, shared by builder and runtime (``kernels.pose_normalisation_into``).
 
-    Moves the mid-hip point (joints 8 and 11; the visible one if only one is) to the origin and
-    scales so the bounding box of the visible joints is :data:`NORMALISED_HEIGHT` high.
+    Moves the mid-hip point (``r_hip`` and ``l_hip``; the visible one if only one is) to the
+    origin and scales so the bounding box of the visible joints is :data:`NORMALISED_HEIGHT` high.
     ``points_px [..., 14, 2]``; ``visible [..., 14]`` (default all). Returns
     ``(normalised, origin_px [..., 2], scale [...])`` with ``normalised = (p - origin) * scale``.
     Invisible joints are set to 0; a pose with no height or no visible hip gets scale 0.
@@ -214,38 +206,39 @@ def normalize_pose_2d(points_px: np.ndarray, visible: np.ndarray | None = None
     pts = np.asarray(points_px, dtype=np.float64)
     if visible is None:
         visible = np.ones(pts.shape[:-1], dtype=np.bool_)
+    r_hip, l_hip = _hips()
     if pts.ndim == 2:  # one pose: the runtime's per-frame call, kept lean
-        out, origin, scale = _normalize_kernel(pts[None], np.asarray(visible, dtype=np.bool_)[None])
+        out, origin, scale = _normalize_kernel(pts[None], np.asarray(visible, dtype=np.bool_)[None], r_hip, l_hip)
         return out[0], origin[0], scale[0]
     lead = pts.shape[:-2]
     vis = np.broadcast_to(np.asarray(visible, dtype=np.bool_), pts.shape[:-1])
     flat_pts = np.ascontiguousarray(pts.reshape(-1, pts.shape[-2], 2))
     flat_vis = np.ascontiguousarray(vis.reshape(-1, pts.shape[-2]))
-    out, origin, scale = _normalize_kernel(flat_pts, flat_vis)
+    out, origin, scale = _normalize_kernel(flat_pts, flat_vis, r_hip, l_hip)
     return out.reshape(pts.shape), origin.reshape(lead + (2,)), scale.reshape(lead)
 
 
 @njit(cache=True)
-def _normalize_kernel(pts: np.ndarray, vis: np.ndarray):
+def _normalize_kernel(pts: np.ndarray, vis: np.ndarray, r_hip: int, l_hip: int):
+    """Normalise poses ``pts [n, J, 2]`` over their own visible joints ``vis [n, J]``."""
     n, n_joints = pts.shape[0], pts.shape[1]
+    xs, ys = pts[:, :, 0].T, pts[:, :, 1].T  # joint-major views [J, n]
     out = np.zeros_like(pts)
     origin = np.zeros((n, 2))
     scale = np.zeros(n)
+    joints = np.empty(n_joints, dtype=np.int64)
+    top, bottom, ox, oy = np.empty(1), np.empty(1), np.empty(1), np.empty(1)
     for i in range(n):
-        top, bottom = np.inf, -np.inf
+        m = 0
         for k in range(n_joints):
             if vis[i, k]:
-                top = min(top, pts[i, k, 1])
-                bottom = max(bottom, pts[i, k, 1])
-        r, l = vis[i, HIP_R], vis[i, HIP_L]
-        a = HIP_R if r else HIP_L
-        b = HIP_L if l else HIP_R
-        origin[i, 0] = 0.5 * (pts[i, a, 0] + pts[i, b, 0])
-        origin[i, 1] = 0.5 * (pts[i, a, 1] + pts[i, b, 1])
-        height = bottom - top
-        if not (r or l) or not height > 1e-9 or not np.isfinite(height):
+                joints[m] = k
+                m += 1
+        pose_normalisation_into(xs, ys, i, i + 1, joints[:m], r_hip, l_hip, top, bottom, ox, oy, scale[i:i + 1])
+        origin[i, 0], origin[i, 1] = ox[0], oy[0]
+        if scale[i] == 0.0 or not (vis[i, r_hip] or vis[i, l_hip]):
+            scale[i] = 0.0
             continue
-        scale[i] = NORMALISED_HEIGHT / height
         for k in range(n_joints):
             if vis[i, k]:
                 out[i, k, 0] = (pts[i, k, 0] - origin[i, 0]) * scale[i]

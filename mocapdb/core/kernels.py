@@ -126,3 +126,83 @@ def cholesky_solve_into(a: np.ndarray, b: np.ndarray, n: int, out: np.ndarray) -
             s -= a[k, i] * out[k]
         out[i] = s / a[i, i]
     return True
+
+
+@njit(cache=True)
+def quat_abs_dot(a: np.ndarray, b: np.ndarray) -> float:
+    """``|a · b|`` of quaternions ``a, b [4]``: the cosine of half the angle between them."""
+    return abs(a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3])
+
+
+# Poses in the joint-major layout: ``xs [J, P]`` and ``ys [J, P]`` hold the x and y of joint ``k``
+# of pose ``i`` at ``[k, i]``, so loops over poses are contiguous (SIMD). 2D pose units: pixels or
+# normalised box heights, whatever the caller stores.
+
+@njit(cache=True, fastmath=True)
+def pose_distances_into(xs: np.ndarray, ys: np.ndarray, lo: int, hi: int, query: np.ndarray,
+                        joints: np.ndarray, out: np.ndarray) -> None:
+    """The method's Eq. 1 pose distance: ``out[i] += Σ_{k ∈ joints} ‖p_{lo+i, k} − query[k]‖``.
+
+    ``xs, ys [J, P]`` joint-major poses (columns ``lo:hi`` used), ``query [J, 2]`` of the poses'
+    dtype (a float64 query against float32 poses would difference in float64), ``joints [n]``
+    int indices, ``out [hi - lo]`` accumulated in its own dtype (zero it first). Euclidean
+    distances per joint, not squared.
+    """
+    for k in joints:
+        qx, qy = query[k, 0], query[k, 1]
+        xk, yk = xs[k, lo:hi], ys[k, lo:hi]
+        for i in range(hi - lo):
+            dx = xk[i] - qx
+            dy = yk[i] - qy
+            out[i] += np.sqrt(dx * dx + dy * dy)
+
+
+@njit(cache=True, fastmath=True)
+def renormalised_pose_distances_into(xs: np.ndarray, ys: np.ndarray, lo: int, hi: int, query: np.ndarray,
+                                     joints: np.ndarray, origin_x: np.ndarray, origin_y: np.ndarray,
+                                     scale: np.ndarray, out: np.ndarray) -> None:
+    """Eq. 1 as :func:`pose_distances_into` with pose ``i`` first mapped to
+    ``(p − origin[i]) · scale[i]`` (``origin_x, origin_y, scale [hi - lo]``, see
+    :func:`pose_normalisation_into`)."""
+    for k in joints:
+        qx, qy = query[k, 0], query[k, 1]
+        for i in range(hi - lo):
+            dx = (xs[k, lo + i] - origin_x[i]) * scale[i] - qx
+            dy = (ys[k, lo + i] - origin_y[i]) * scale[i] - qy
+            out[i] += np.sqrt(dx * dx + dy * dy)
+
+
+NORMALISED_HEIGHT = 1.0  # bounding-box height of every normalised 2D pose (unitless)
+
+
+@njit(cache=True)
+def pose_normalisation_into(xs: np.ndarray, ys: np.ndarray, lo: int, hi: int, joints: np.ndarray,
+                            r_hip: int, l_hip: int, top: np.ndarray, bottom: np.ndarray,
+                            origin_x: np.ndarray, origin_y: np.ndarray, scale: np.ndarray) -> None:
+    """The method's 2D scaling step for poses ``lo:hi`` of joint-major ``xs, ys [J, P]`` over the
+    visible joints ``joints [n]`` (int indices, the same for every pose).
+
+    ``origin [hi - lo]`` = the mid-point of joints ``r_hip`` and ``l_hip`` (the one in ``joints``
+    if only one is; both anyway if neither is); ``scale [hi - lo]`` = :data:`NORMALISED_HEIGHT` /
+    the height of the box of the visible joints, 0 when that height is ≤ 1e-9 or not finite.
+    A normalised pose is ``(p − origin) · scale``. ``top, bottom [hi - lo]`` are scratch; every
+    output is stored in its array's dtype (so float32 arrays give float32 results).
+    """
+    n = hi - lo
+    top[:n] = np.inf
+    bottom[:n] = -np.inf
+    has_r, has_l = False, False
+    for k in joints:
+        has_r |= k == r_hip
+        has_l |= k == l_hip
+        yk = ys[k, lo:hi]
+        for i in range(n):
+            top[i] = min(top[i], yk[i])
+            bottom[i] = max(bottom[i], yk[i])
+    r = r_hip if has_r else l_hip
+    l_ = l_hip if has_l else r_hip
+    for i in range(n):
+        height = bottom[i] - top[i]
+        scale[i] = NORMALISED_HEIGHT / height if height > 1e-9 and np.isfinite(height) else 0.0
+        origin_x[i] = 0.5 * (xs[r, lo + i] + xs[l_, lo + i])
+        origin_y[i] = 0.5 * (ys[r, lo + i] + ys[l_, lo + i])

@@ -42,13 +42,13 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from mocapdb.core.skeleton import PELVIS
+from mocapdb.core.skeleton import N_POINTS, PELVIS
 
 TOP_K = 128          # database frames kept per truth frame by squared error
 CHUNK = 1024         # database frames scored together (kept in cache while a block of truth frames runs)
 TURN_ITERATIONS = 10  # reweighting steps from the squared-optimal turn towards the MPJPE-optimal one
 TRUTH_BLOCK = 16     # truth frames per parallel task
-N_JOINTS = 15
+N_JOINTS = N_POINTS  # the 14 keypoints and the pelvis
 _PAD = np.float32(1e30)   # squared norm of the padding frames after the last chunk: never among the best
 _WORST = np.float32(3e38)
 

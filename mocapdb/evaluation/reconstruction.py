@@ -37,7 +37,7 @@ from mocapdb.core.clips import ClipOptions, process_clip
 from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import normalize_pose_2d, yaw_matrix
-from mocapdb.core.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS, pose_from_rotations
+from mocapdb.core.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, N_POINTS, PELVIS, pose_from_rotations
 from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.metrics import acceleration_error, mpjpe, pa_mpjpe
 from mocapdb.runtime.engine import Engine, EngineConfig
@@ -178,12 +178,12 @@ class EngineRun:
 
     @property
     def ok(self) -> np.ndarray:
-        return ~np.isnan(self.joints[:, 0, 0])
+        return ~np.isnan(self.joints[:, PELVIS, 0])
 
 
 def run_sequence(engine: Engine, frames: list[KeypointFrame]) -> EngineRun:
     """Every frame through ``engine`` (one person per frame), then :meth:`Engine.finish`."""
-    joints = np.full((len(frames), 15, 3), np.nan)
+    joints = np.full((len(frames), N_POINTS, 3), np.nan)
     root = np.full((len(frames), 3), np.nan)
     local = np.full_like(joints, np.nan)
     t0 = time.perf_counter()
@@ -428,7 +428,7 @@ def two_view(db: MotionDatabase, truths: list[Truth], config: EvalConfig, separa
                 cam = view_of(truth, turn, scenario.camera_height_m, camera_distance(truth.positions, turn, config))
                 frames = render(cam, scenario, config.focal_px, config.image_size, rng)
                 views.append(run_sequence(_new_engine(db, config), frames).local)
-            ok = ~np.isnan(views[0][:, 0, 0]) & ~np.isnan(views[1][:, 0, 0])
+            ok = ~np.isnan(views[0][:, PELVIS, 0]) & ~np.isnan(views[1][:, PELVIS, 0])
             dists.append(mpjpe(views[0][ok], views[1][ok]))
     return {"separation_deg": separation_deg, "variant": "refined" if config.engine.refine else "published",
             "mean_distance_cm": round(100 * float(np.concatenate(dists).mean()), 2)}

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mocapdb.core.cameras import CameraModel
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.outputs import STREAM_FORMAT, STREAM_VERSION
 from mocapdb.core.skeleton import KEYPOINTS, N_POINTS
@@ -67,23 +68,8 @@ class ResultStream:
 
 
 @dataclass
-class StereoCamera:
-    """A camera of ``cameras.json``: ``x_cam = R x_cam1 + t`` in camera 1's OpenCV frame (metres)."""
-    name: str
-    size: tuple[int, int]
-    K: np.ndarray
-    R: np.ndarray
-    t: np.ndarray
-
-    @property
-    def center_cam1(self) -> np.ndarray:
-        """The camera centre in camera 1's OpenCV frame (x right, y down, z forward), metres."""
-        return -self.R.T @ self.t
-
-
-@dataclass
 class StereoCameras:
-    cameras: list[StereoCamera]
+    cameras: list[CameraModel]  # x_cam = R x_cam1 + t: camera 1's OpenCV frame (metres)
     bvh_from_camera1: np.ndarray | None   # [3, 3] camera-1 OpenCV axes → y-up world (BVH) axes
     baseline_m: float | None = None
     rotation_deg: float | None = None
@@ -177,7 +163,7 @@ def read_cameras(folder: str | Path) -> StereoCameras | None:
                                                              and np.all(np.isfinite(t))):
                 raise ValueError("K, R must be 3×3 and t 3 finite numbers")
             size = (int(c["size"][0]), int(c["size"][1]))
-            cams.append(StereoCamera(str(c.get("name") or f"camera {len(cams) + 1}"), size, K, R, t))
+            cams.append(CameraModel(K, np.zeros(5), R, t, size, str(c.get("name") or f"camera {len(cams) + 1}")))
         if not cams:
             raise ValueError("no camera")
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, ValueError, IndexError) as exc:

@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mocapdb.core.cameras import CameraModel, camera_from_intrinsics
 from mocapdb.core.skeleton import PELVIS
 from mocapdb.render import draw
 from mocapdb.render.results import RenderError, ResultFrame, overlap, read_cameras, read_result
@@ -26,28 +27,23 @@ DEFAULT_IMAGE_SIZE = (1920, 1080)
 MP4_NAME = "render.mp4"
 
 
-@dataclass
-class Camera:
-    """The pinhole camera the result was made with: focal (px), principal point (px), image size (w, h)."""
-    focal: float
-    size: tuple[int, int]
-    principal: tuple[float, float] | None = None
-
-    def __post_init__(self):
-        if not (math.isfinite(self.focal) and self.focal > 0):
-            raise RenderError(f"focal length {self.focal:g} px is not a positive number (--focal)")
-        if len(self.size) != 2 or min(self.size) <= 0:
-            raise RenderError(f"image size {self.size} is not a positive width and height (--image-size WxH)")
-        self.size = (int(self.size[0]), int(self.size[1]))
-        if self.principal is None:
-            self.principal = (self.size[0] / 2, self.size[1] / 2)
+def image_camera(focal_px: float, size: tuple[int, int], principal_px: tuple[float, float] | None = None
+                 ) -> CameraModel:
+    """The pinhole camera a result was made with (``--focal``, ``--image-size``; principal point at
+    the image centre unless given); RenderError naming the option when it cannot be one."""
+    if not (math.isfinite(focal_px) and focal_px > 0):
+        raise RenderError(f"focal length {focal_px:g} px is not a positive number (--focal)")
+    if len(size) != 2 or min(size) <= 0:
+        raise RenderError(f"image size {size} is not a positive width and height (--image-size WxH)")
+    size = (int(size[0]), int(size[1]))
+    return camera_from_intrinsics(focal_px, principal_px or (size[0] / 2, size[1] / 2), size)
 
 
 @dataclass
 class Layout:
     """Where things go in an output frame: the image panel (input image scaled, with a margin
     showing what falls outside it) and/or the square 3D panel to its right."""
-    camera: Camera
+    camera: CameraModel
     view: str
     view3d: draw.View3D
     scale: float = 1.0
@@ -99,7 +95,7 @@ def compose_frame(layout: Layout, frame: ResultFrame, keypoints=None, video_fram
             for person in keypoints.people:
                 draw.draw_keypoints_2d(img, person.points_px, person.confidence, (m, m), layout.scale)
         for p in people:
-            px = draw.project_pinhole(p.joints, cam.focal, cam.principal)
+            px = draw.project_pinhole(p.joints, cam.K[0, 0], (cam.K[0, 2], cam.K[1, 2]))
             edge = draw.at_image_edge(px, cam.size)
             draw.draw_skeleton_px(img, px * layout.scale + m, draw.track_colour(p.track),
                                   draw.track_label(p.track, p.distance_2d, edge))
@@ -237,7 +233,7 @@ class RenderSummary:
         return f"rendered {self.frames} frame(s), tracks {tracks}, to {self.out} in {self.seconds:.1f} s{warn}"
 
 
-def _check_keypoint_extent(keypoints: list, camera: Camera, warn: Callable[[str], None]) -> None:
+def _check_keypoint_extent(keypoints: list, camera: CameraModel, warn: Callable[[str], None]) -> None:
     pts = [p.points_px[p.confidence > 0] for k in keypoints for p in k.people]
     pts = np.concatenate(pts) if pts else np.zeros((0, 2))
     pts = pts[np.all(np.isfinite(pts), axis=1)]
@@ -249,7 +245,7 @@ def _check_keypoint_extent(keypoints: list, camera: Camera, warn: Callable[[str]
                  "give --image-size (and --focal) as given to reconstruct")
 
 
-def prepare(result: str | Path, keypoints: str | Path | list | None, camera: Camera | None, video: VideoFrames | None,
+def prepare(result: str | Path, keypoints: str | Path | list | None, camera: CameraModel | None, video: VideoFrames | None,
             view: str, scale: float, margin: float, warn: Callable[[str], None]):
     """Read and check the inputs: (stream, frame pairs, layout)."""
     stream = read_result(result)
@@ -257,9 +253,9 @@ def prepare(result: str | Path, keypoints: str | Path | list | None, camera: Cam
         cams = read_cameras(stream.path.parent)
         if cams is not None:   # a stereo result: camera 1's own intrinsics
             c = cams.cameras[0]
-            camera = Camera(float(c.K[0, 0]), c.size, (float(c.K[0, 2]), float(c.K[1, 2])))
+            camera = image_camera(float(c.K[0, 0]), c.size, (float(c.K[0, 2]), float(c.K[1, 2])))
         else:
-            camera = Camera(DEFAULT_FOCAL, video.size if video is not None else DEFAULT_IMAGE_SIZE)
+            camera = image_camera(DEFAULT_FOCAL, video.size if video is not None else DEFAULT_IMAGE_SIZE)
     if video is not None and tuple(video.size) != tuple(camera.size):
         warn(f"the video is {video.size[0]}×{video.size[1]} px, the image size {camera.size[0]}×{camera.size[1]} px: "
              "the video is stretched to the image size")
@@ -275,7 +271,7 @@ def prepare(result: str | Path, keypoints: str | Path | list | None, camera: Cam
 
 
 def render_result(result: str | Path, out: str | Path, keypoints: str | Path | None = None,
-                  video: str | Path | None = None, mp4: bool = False, camera: Camera | None = None,
+                  video: str | Path | None = None, mp4: bool = False, camera: CameraModel | None = None,
                   view: str = "both", scale: float = 1.0, margin: float = 0.06, progress: bool = True,
                   warn: Callable[[str], None] | None = None) -> RenderSummary:
     """Draw every frame of a result (folder or ``result.jsonl``): PNG frames ``out/frame_NNNNNN.png``
@@ -346,7 +342,7 @@ def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, o
     """
     if n < 1:
         raise RenderError(f"a contact sheet needs at least 1 frame, not {n}")
-    camera = Camera(float(focal), tuple(image_size))
+    camera = image_camera(float(focal), tuple(image_size))
     frames_in = VideoFrames(video) if video is not None else None
     try:
         full_h = camera.size[1] * (1 + 2 * 0.06)
@@ -373,7 +369,7 @@ def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, o
         sheet[y:y + th, x:x + tw] = tile
     tracks = stream.tracks
     title = (f"{stream.path.parent.name}/{stream.path.name}: {len(tiles)} of {len(pairs)} frames, "
-             f"{len(tracks)} track(s), focal {camera.focal:g} px, image {camera.size[0]}x{camera.size[1]}")
+             f"{len(tracks)} track(s), focal {camera.K[0, 0]:g} px, image {camera.size[0]}x{camera.size[1]}")
     tscale = title_h / 45
     draw.put_text(sheet, title, (8, int(title_h * 0.72)), tscale, draw.TEXT_COLOUR, 1)
     (tw_text, _), _ = cv2.getTextSize(title, draw.FONT, tscale, 1)
@@ -405,7 +401,7 @@ def render_stereo_plot(stereo_dir: str | Path, out_png: str | Path, panel: int =
                           "reconstruction give --keypoints and draw its frames)")
     stream = read_result(stereo_dir)
     flip = np.diag([1.0, -1.0, 1.0])   # OpenCV camera-1 axes ↔ camera-aligned axes
-    centres = np.array([flip @ c.center_cam1 for c in cams.cameras])
+    centres = np.array([flip @ c.center_m for c in cams.cameras])
     joints = stream.all_joints()
     basis = _stereo_basis(cams)
     top = draw.fit_view(joints, basis, centres, azimuth_deg=0.0, elevation_deg=90.0)

@@ -18,7 +18,8 @@ import numpy as np
 from mocapdb.core.cameras import CameraModel
 from mocapdb.core.formats.keypoints import KeypointFrame
 from mocapdb.core.skeleton import N_KEYPOINTS_2D
-from mocapdb.stereo.ellipsoid import ESSENTIAL_METHOD, StereoConfig, StereoError, sampson_distance
+from mocapdb.stereo.config import StereoConfig, StereoError
+from mocapdb.stereo.relative_pose import ESSENTIAL_METHOD, sampson_distance
 
 # A pair (person in view 1, person in view 2) of one frame is consistent when at least
 # MIN_SHARED_JOINTS joints are confident in both and the median of their first-order epipolar
@@ -424,10 +425,11 @@ def unmatched_lines(views: tuple[Detections, Detections], used: tuple[np.ndarray
         if spare.any():
             frames = np.unique(d.frame[spare]).tolist()
             lines.append(f"view {view}: {len(np.unique(d.track[spare]))} 2D track(s), {int(spare.sum())} detections "
-                         f"in {len(frames)} frames (frames {_listed(frames)}) match no one in view {3 - view}: "
+                         f"in {len(frames)} frames (frames {listed_frames(frames)}) match no one in view {3 - view}: "
                          "seen by one camera only or not epipolar-consistent, not reconstructed")
     return lines
 
 
-def _listed(frames: list[int], most: int = 10) -> str:
+def listed_frames(frames: list[int], most: int = 10) -> str:
+    """The first ``most`` frame numbers, comma-separated, with ``...`` when there are more."""
     return ", ".join(map(str, frames[:most])) + (", ..." if len(frames) > most else "")

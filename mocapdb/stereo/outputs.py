@@ -1,0 +1,135 @@
+"""`mocapdb stereo`'s outputs: ``result.jsonl``, ``cameras.json``, one BVH per person, the summary.
+
+``result.jsonl``: the runtime schema (``data_specs/stream_output.md``), camera-aligned frame of
+camera 1, one track per person; ``cameras.json``: both cameras, the estimated relative pose, the
+people; BVHs: the universal rig in the levelled y-up world (:mod:`mocapdb.stereo.motion`).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mocapdb.core.cameras import CameraModel
+from mocapdb.core.files import os_error_message, write_atomic
+from mocapdb.core.formats.bvh import write_bvh
+from mocapdb.core.outputs import PersonPose, frame_line, header_line, universal_bvh
+from mocapdb.stereo.config import CAMERAS_FILE, RESULT_FILE, StereoError, StereoResult, bvh_name
+from mocapdb.stereo.motion import Motion, World
+from mocapdb.stereo.people import People, listed_frames
+from mocapdb.stereo.relative_pose import rotation_angle_deg
+
+
+@dataclass
+class StereoSummary:
+    """What `mocapdb stereo` did: frames, people, dropped frames and why, the camera fit, times (s)."""
+
+    frames: int
+    dropped: dict[str, list[int]]  # frames where nobody is reconstructed, by reason
+    epsilons: list[float]
+    kept_round: int
+    rotation_deg: float
+    baseline: float
+    scaled: bool
+    scale_source: str
+    warnings: list[str]
+    seconds: dict[str, float]
+    outputs: list[Path]
+    tracks: list[dict]             # per person: track, frames, first, last, correspondences, bvh
+    unmatched: list[str]           # detections that are no person, per view
+
+    def report(self) -> str:
+        """Human-readable lines for the command line."""
+        n_dropped = sum(len(v) for v in self.dropped.values())
+        lines = [(f"frames {self.frames}, with a person {self.frames - n_dropped}, without {n_dropped}; "
+                  f"people {len(self.tracks)}")]
+        lines += [f"  track {t['track']}: {t['frames']} frames ({t['first_frame']}–{t['last_frame']}), "
+                  f"{t['correspondences']} joints seen by both views, BVH {t['bvh'] or 'none'}" for t in self.tracks]
+        lines += [f"  no person in {len(frames)}: {why} (frames {listed_frames(frames)})"
+                  for why, frames in self.dropped.items()]
+        lines += [f"  not a person: {line}" for line in self.unmatched]
+        eps = ", ".join(f"{e:.4f}" for e in self.epsilons) or "none"
+        lines.append(f"ellipsoid ε per round: {eps}; kept round {self.kept_round}")
+        lines.append(f"camera 2 relative to camera 1: rotation {self.rotation_deg:.2f}°, "
+                     f"baseline {self.baseline:.3f} m ({self.scale_source})")
+        lines += [f"warning: {w}" for w in self.warnings]
+        lines += [f"  {stage:<12} {sec:8.3f} s" for stage, sec in self.seconds.items()]
+        lines.append(f"  {'total':<12} {sum(self.seconds.values()):8.3f} s")
+        lines.append("wrote " + ", ".join(str(p) for p in self.outputs))
+        return "\n".join(lines)
+
+
+def result_text(motions: list[Motion], fps: float) -> str:
+    """``result.jsonl``: the header line, then one line per frame with every person present."""
+    lines = [header_line(fps)]
+    for t in range(len(motions[0].present)):
+        poses = [PersonPose(m.track, m.joints_aligned[t], m.quats_view[t], m.pelvis_aligned[t], None)
+                 for m in motions if m.present[t]]
+        lines.append(frame_line(t, t / fps, poses))
+    return "\n".join(lines) + "\n"
+
+
+def _camera_record(cam: CameraModel, rotation: np.ndarray, translation: np.ndarray) -> dict:
+    """One camera of ``cameras.json``: intrinsics, distortion and pose ``x_cam = R x1 + t``."""
+    return {"name": cam.name, "size": list(cam.size), "K": np.asarray(cam.K).tolist(),
+            "dist": np.asarray(cam.dist).ravel().tolist(), "R": rotation.tolist(), "t": translation.tolist()}
+
+
+def track_records(people: People, motions: list[Motion]) -> list[dict]:
+    """Per person: track id, frames written, first and last, joints seen by both views, BVH file."""
+    records = []
+    for person, m in zip(people.persons, motions):
+        frames = np.flatnonzero(m.present)
+        first, last = (int(frames[0]), int(frames[-1])) if len(frames) else (None, None)
+        records.append({"track": m.track, "frames": len(frames), "first_frame": first, "last_frame": last,
+                        "correspondences": person.correspondences,
+                        "bvh": bvh_name(m.track) if m.fitted else None})
+    return records
+
+
+def cameras_text(cam1: CameraModel, cam2: CameraModel, result: StereoResult, world: World, people: People,
+                 tracks: list[dict], warnings: list[str]) -> str:
+    """``cameras.json``: both cameras in camera 1's frame (metres), the camera fit, the people, the warnings."""
+    t = np.asarray(result.t, dtype=np.float64) * world.scale
+    record = {
+        "frame": "camera 1 (OpenCV: x right, y down, z forward), metres; x2 = R x1 + t",
+        "cameras": [_camera_record(cam1, np.eye(3), np.zeros(3)), _camera_record(cam2, np.asarray(result.R), t)],
+        "baseline_m": float(np.linalg.norm(t)), "scaled": bool(result.scaled), "scale_source": world.scale_source,
+        "rotation_deg": rotation_angle_deg(np.asarray(result.R)),
+        "camera_source": "all people's correspondences (tracks stacked along time)",
+        "epsilons": [float(e) for e in result.epsilons], "kept_round": int(result.kept_round),
+        "warnings": warnings, "dropped_frames": people.dropped, "tracks": tracks, "not_people": people.unmatched,
+        "bvh_from_camera1": world.bvh_from_camera.tolist(),
+    }
+    return "{\n" + ",\n".join(f"  {json.dumps(k)}: {json.dumps(v)}" for k, v in record.items()) + "\n}\n"
+
+
+def check_out_dir(out_dir: str | Path) -> None:
+    """StereoError before any work when ``out_dir`` exists and is no folder."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise StereoError(f"{out}: the output (--out) exists and is not a folder")
+
+
+def write_outputs(out_dir: str | Path, motions: list[Motion], world: World, cameras_json: str,
+                  fps: float) -> list[Path]:
+    """Write ``result.jsonl``, ``cameras.json`` (the text ``cameras_json``) and the BVH of every fitted
+    person into ``out_dir`` (created); the paths written. StereoError naming the folder on an OS error."""
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StereoError(os_error_message(exc, out, "create the output folder")) from None
+    paths = [out / RESULT_FILE, out / CAMERAS_FILE]
+    try:
+        write_atomic(paths[0], result_text(motions, fps))
+        write_atomic(paths[1], cameras_json)
+        for m in motions:
+            if m.fitted:
+                paths.append(out / bvh_name(m.track))
+                write_bvh(paths[-1], universal_bvh(m.quats_world, m.pelvis_world, fps))
+    except OSError as exc:
+        raise StereoError(os_error_message(exc, out, "write the output")) from None
+    return paths
