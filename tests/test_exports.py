@@ -157,3 +157,24 @@ def test_reconstruct_writes_every_format_on_the_floor_and_a_preview(small_db_pat
     assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(tmp_path / "x"),
                  "--format", "bvh,fbx"]) == 2
     assert "unknown output format fbx" in capsys.readouterr().err
+
+
+def test_calibration_toml_round_trip(tmp_path):
+    import tomllib
+
+    from mocapdb.core.cameras import format_calibration_toml, read_calibration_toml
+
+    from .conftest import ROOT
+
+    path = ROOT / "data" / "sample_keypoints" / "calibration.toml"
+    cameras = read_calibration_toml(path)
+    text = format_calibration_toml(list(cameras.values()), "note")
+    parsed = tomllib.loads(text)
+    assert list(parsed) == [*cameras, "metadata"] and parsed["cam_01"]["fisheye"] is False
+    (tmp_path / "calibration.toml").write_text(text)
+    again = read_calibration_toml(tmp_path / "calibration.toml")
+    for name, cam in cameras.items():
+        np.testing.assert_allclose(again[name].K, cam.K)
+        np.testing.assert_allclose(again[name].R, cam.R, atol=1e-12)
+        np.testing.assert_allclose(again[name].t, cam.t)
+        assert again[name].size == cam.size

@@ -147,6 +147,15 @@ def test_run_stereo_writes_stream_cameras_and_bvh(tmp_path, motion, capsys):
     rel = cam2.R @ cam1.R.T
     assert np.degrees(np.arccos((np.trace(np.array(cameras["cameras"][1]["R"]) @ rel.T) - 1) / 2)) < 1.0
 
+    # The same two cameras for Pose2Sim: calibration.toml in a z-up world, origin at camera 1.
+    calibration = list(read_calibration_toml(out / "calibration.toml").values())
+    assert len(calibration) == 2 and np.allclose(calibration[0].t, 0.0)
+    np.testing.assert_allclose(calibration[1].R @ calibration[0].R.T, cameras["cameras"][1]["R"], atol=1e-9)
+    assert np.linalg.norm(calibration[1].center_m) == pytest.approx(distance, rel=1e-6)
+    in_world = (joints @ CAMERA_ALIGNED) @ calibration[0].R  # camera 1 → world (x_w = R1ᵀ x_1)
+    up_world = in_world[:, KEYPOINTS.index("neck")] - in_world[:, KEYPOINTS.index("pelvis")]
+    assert np.median(up_world[:, 2] / np.linalg.norm(up_world, axis=1)) > 0.99
+
     # The BVH (universal rig, levelled y-up world) maps back onto the JSON joints.
     bvh = read_bvh(out / "stereo.bvh")
     assert bvh.n_frames == 120 and bvh.fps == pytest.approx(30.0)

@@ -158,6 +158,32 @@ def _camera(key: str, section: dict, where: str) -> CameraModel:
     return CameraModel(k, dist, rot, t, (int(size[0]), int(size[1])), str(section.get("name", key)))
 
 
+def _toml_array(values: np.ndarray) -> str:
+    """A TOML array (nested for 2D) of full-precision floats."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.ndim > 1:
+        return "[ " + ", ".join(_toml_array(row) for row in values) + "]"
+    return "[ " + ", ".join(repr(float(v)) for v in values) + "]"
+
+
+def format_calibration_toml(cameras: list[CameraModel], note: str = "") -> str:
+    """Pose2Sim's calibration TOML of ``cameras`` (what :func:`read_calibration_toml` reads): one
+    section per camera named after it (``matrix``, ``distortions`` (4), ``rotation`` (Rodrigues,
+    world → camera), ``translation`` (metres), ``size``, ``fisheye``), then ``[metadata]``."""
+    sections = []
+    for i, cam in enumerate(cameras):
+        name = cam.name or f"cam_{i + 1:02d}"
+        rvec, _ = cv2.Rodrigues(np.asarray(cam.R, dtype=np.float64))
+        dist = np.zeros(4) if cam.dist is None else np.resize(np.asarray(cam.dist, dtype=np.float64).ravel(), 4)
+        sections.append("\n".join([
+            f"[{name}]", f'name = "{name}"', f"size = {_toml_array(np.asarray(cam.size, dtype=np.float64))}",
+            f"matrix = {_toml_array(cam.K)}", f"distortions = {_toml_array(dist)}",
+            f"rotation = {_toml_array(rvec.ravel())}", f"translation = {_toml_array(np.ravel(cam.t))}",
+            "fisheye = false"]))
+    comment = "".join(f"# {line}\n" for line in note.splitlines())
+    return comment + "\n\n".join(sections) + "\n\n[metadata]\nadjusted = false\nerror = 0.0\n"
+
+
 def read_calibration_toml(path: str | Path) -> dict[str, CameraModel]:
     """Cameras of a Pose2Sim/OpenCV calibration TOML, by section name (``[metadata]`` is skipped).
 

@@ -14,6 +14,7 @@ from mocapdb.core.errors import MocapdbError
 
 # The files `mocapdb stereo` writes (``data_specs/stream_output.md``); one BVH per person (``bvh_name``).
 RESULT_FILE, CAMERAS_FILE, BVH_FILE = "result.jsonl", "cameras.json", "stereo.bvh"
+CALIBRATION_FILE = "calibration.toml"  # the two cameras for Pose2Sim
 
 
 def bvh_name(track: int) -> str:

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapdb.core.cameras import CameraModel
+from mocapdb.core.cameras import CameraModel, format_calibration_toml
 from mocapdb.core.files import os_error_message, write_atomic
 from mocapdb.core.formats.bvh import write_bvh
 from mocapdb.core.outputs import PersonPose, frame_line, header_line, universal_bvh
-from mocapdb.stereo.config import CAMERAS_FILE, RESULT_FILE, StereoError, StereoResult, bvh_name
+from mocapdb.stereo.config import CALIBRATION_FILE, CAMERAS_FILE, RESULT_FILE, StereoError, StereoResult, bvh_name
 from mocapdb.stereo.motion import Motion, World
 from mocapdb.stereo.people import People, listed_frames
 from mocapdb.stereo.relative_pose import rotation_angle_deg
@@ -106,6 +106,22 @@ def cameras_text(cam1: CameraModel, cam2: CameraModel, result: StereoResult, wor
     return "{\n" + ",\n".join(f"  {json.dumps(k)}: {json.dumps(v)}" for k, v in record.items()) + "\n}\n"
 
 
+ZUP_FROM_YUP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # y-up → Pose2Sim's z-up world
+
+
+def calibration_text(cam1: CameraModel, cam2: CameraModel, result: StereoResult, world: World) -> str:
+    """``calibration.toml``: both cameras as Pose2Sim reads them, in a z-up world (metres when
+    scaled) whose origin is camera 1 and whose up is the levelled BVH world's."""
+    world_from_cam1 = ZUP_FROM_YUP @ world.bvh_from_camera
+    t2 = np.asarray(result.t, dtype=np.float64) * world.scale
+    cameras = [CameraModel(cam1.K, cam1.dist, world_from_cam1.T, np.zeros(3), cam1.size, cam1.name or "cam_01"),
+               CameraModel(cam2.K, cam2.dist, np.asarray(result.R) @ world_from_cam1.T, t2, cam2.size,
+                           cam2.name or "cam_02")]
+    return format_calibration_toml(cameras, "Estimated by mocapdb stereo (ElliPose) from the people seen by both "
+                                            "cameras.\nWorld: z up, origin at the first camera, metres "
+                                            f"({world.scale_source}).")
+
+
 def check_out_dir(out_dir: str | Path) -> None:
     """StereoError before any work when ``out_dir`` exists and is no folder."""
     out = Path(out_dir)
@@ -114,18 +130,20 @@ def check_out_dir(out_dir: str | Path) -> None:
 
 
 def write_outputs(out_dir: str | Path, motions: list[Motion], world: World, cameras_json: str,
-                  fps: float) -> list[Path]:
-    """Write ``result.jsonl``, ``cameras.json`` (the text ``cameras_json``) and the BVH of every fitted
-    person into ``out_dir`` (created); the paths written. StereoError naming the folder on an OS error."""
+                  fps: float, calibration_toml: str) -> list[Path]:
+    """Write ``result.jsonl``, ``cameras.json`` (the text ``cameras_json``), ``calibration.toml`` (the
+    text ``calibration_toml``) and the BVH of every fitted person into ``out_dir`` (created); the
+    paths written. StereoError naming the folder on an OS error."""
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise StereoError(os_error_message(exc, out, "create the output folder")) from None
-    paths = [out / RESULT_FILE, out / CAMERAS_FILE]
+    paths = [out / RESULT_FILE, out / CAMERAS_FILE, out / CALIBRATION_FILE]
     try:
         write_atomic(paths[0], result_text(motions, fps))
         write_atomic(paths[1], cameras_json)
+        write_atomic(paths[2], calibration_toml)
         for m in motions:
             if m.fitted:
                 paths.append(out / bvh_name(m.track))

@@ -21,7 +21,14 @@ from mocapdb.core.formats.keypoints import KeypointFrame
 from mocapdb.stereo.config import StereoConfig, StereoError, StereoResult
 from mocapdb.stereo.ellipose import reconstruct
 from mocapdb.stereo.motion import people_motions
-from mocapdb.stereo.outputs import StereoSummary, cameras_text, check_out_dir, track_records, write_outputs
+from mocapdb.stereo.outputs import (
+    StereoSummary,
+    calibration_text,
+    cameras_text,
+    check_out_dir,
+    track_records,
+    write_outputs,
+)
 from mocapdb.stereo.people import MIN_PERSON_FRAMES, People, Selection, match_people
 from mocapdb.stereo.relative_pose import rotation_angle_deg
 from mocapdb.stereo.views import load_views
@@ -83,7 +90,7 @@ def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, 
     lap("ik")
     tracks = track_records(people, motions)
     paths = write_outputs(out_dir, motions, world, cameras_text(cam1, cam2, result, world, people, tracks, warnings),
-                          fps)
+                          fps, calibration_text(cam1, cam2, result, world))
     lap("write")
     return StereoSummary(len(frames1), people.dropped, [float(e) for e in result.epsilons],
                          int(result.kept_round), rotation_angle_deg(np.asarray(result.R)),
