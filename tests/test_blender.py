@@ -27,6 +27,21 @@ def test_blender_imports_universal_bvh_with_the_same_joint_positions(tmp_path):
     assert compare(tmp_path / "track.bvh", [0, 7, 19]) < 1e-5  # metres
 
 
+def test_blender_imports_the_humanoid_rig_on_its_floor(tmp_path):
+    from blender_check import blender_pose, compare
+
+    from mocapdb.core.exports import on_floor
+
+    rng = np.random.default_rng(1)
+    points = rest_positions_m() + rng.normal(scale=0.05, size=(12, 15, 3)) + [0.3, 1.0, -3.0]
+    quats, pos = retarget(points)
+    quats, root = on_floor(quats, pos[:, PELVIS], 1.0)
+    write_bvh(tmp_path / "humanoid.bvh", universal_bvh(quats, root, 30.0, "cm", 1.1, rig="humanoid"))
+    assert compare(tmp_path / "humanoid.bvh", [0, 5, 11]) < 1e-3  # centimetres
+    bones = blender_pose(tmp_path / "humanoid.bvh", [0])["bones"]
+    assert {"Hips", "Spine", "Neck", "Head", "LeftHand", "RightFoot", "LeftToeBase", "RightShoulder"} <= set(bones)
+
+
 def test_a_blender_export_builds_the_same_database_clip(tmp_path):
     # Blender's exporter writes position channels on every joint (they replace the OFFSET).
     from blender_roundtrip import compare, round_trip
