@@ -7,8 +7,8 @@ stays light:
 * reconstructing: :class:`Engine` (``step(frame)`` → one :class:`PersonPose` per tracked person,
   ``finish()`` → the tracks' recordings), :class:`EngineConfig`, :func:`frames_from_arrays`,
   :func:`read_keypoint_file`, :func:`read_openpose_folder`, :class:`KeypointFrame`, :class:`Person`;
-* outputs: :func:`write_tracks` (:class:`TrackExport`: BVH, TRC, CSV, rig, floor), :func:`universal_bvh`, :func:`read_bvh`, :func:`write_bvh`,
-  :func:`frame_line`, :func:`header_line`;
+* outputs: :func:`write_tracks` (:class:`TrackExport`: BVH, TRC, CSV, rig, floor), :func:`universal_bvh`,
+  :func:`read_bvh`, :func:`write_bvh`, :func:`frame_line`, :func:`header_line`;
 * errors: :class:`MocapdbError`, the base of every error about inputs.
 """
 from __future__ import annotations
@@ -23,9 +23,9 @@ _API = {
     "load_database": "mocapdb.core.formats.database",
     "Engine": "mocapdb.runtime.engine",
     "EngineConfig": "mocapdb.runtime.engine",
-    "frames_from_arrays": "mocapdb.core.formats.keypoints",
-    "read_keypoint_file": "mocapdb.core.formats.keypoints",
-    "read_openpose_folder": "mocapdb.core.formats.keypoints",
+    "frames_from_arrays": "mocapdb.core.formats.keypoint_arrays",
+    "read_keypoint_file": "mocapdb.core.formats.keypoint_arrays",
+    "read_openpose_folder": "mocapdb.core.formats.openpose",
     "KeypointFrame": "mocapdb.core.formats.keypoints",
     "Person": "mocapdb.core.formats.keypoints",
     "PersonPose": "mocapdb.core.outputs",

@@ -23,7 +23,8 @@ import numpy as np
 
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.exports import TrackExport, write_track_files
-from mocapdb.core.formats.keypoints import KeypointError, KeypointFrame, parse_stream_line
+from mocapdb.core.formats.keypoints import KeypointError, KeypointFrame
+from mocapdb.core.formats.openpose import parse_stream_line
 from mocapdb.core.outputs import TrackRecording, frame_line, header_line
 from mocapdb.core.progress import compile_notice, kernels_cached
 from mocapdb.runtime import refine

@@ -8,7 +8,7 @@ Choices:
   size-stability rule would add a poll per frame and still pass on the file of a writer that paused).
   A file that still does not parse once it has not changed for ``settle_s`` is passed on anyway,
   for the parser to report rather than have it vanish. Files go out in frame order
-  (:func:`~mocapdb.core.formats.keypoints.frame_order_key`, the order the offline folder reader
+  (:func:`~mocapdb.core.formats.openpose.frame_order_key`, the order the offline folder reader
   uses): a file not yet taken holds back the later ones. Offline (``follow=False``) the folder is
   complete and every file is read at once.
 - Folder, live: the folder is listed again only when its modification time changed (plus once
@@ -29,7 +29,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from mocapdb.core.formats.keypoints import frame_order_key
+from mocapdb.core.formats.openpose import frame_order_key
 from mocapdb.runtime.source_base import READ_BYTES, LineSplitter, Source
 from mocapdb.runtime.stream_types import RawMessage
 

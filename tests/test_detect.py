@@ -16,7 +16,8 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from mocapdb.cli.main import main
-from mocapdb.core.formats.keypoints import read_openpose_folder, to_universal
+from mocapdb.core.formats.keypoints import to_universal
+from mocapdb.core.formats.openpose import read_openpose_folder
 from mocapdb.detect.errors import DetectError
 from mocapdb.detect.model import PoseModel, box_iou, letterbox, nms
 from mocapdb.detect.openpose_out import coco17_to_coco18

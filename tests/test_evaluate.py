@@ -14,6 +14,7 @@ from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import yaw_matrix
 from mocapdb.core.skeleton import PELVIS
 from mocapdb.evaluation.floor import FloorIndex, database_floor
+from mocapdb.evaluation.heldout import Scenario, Truth, camera_distance, camera_view, project, render, scaled_positions
 from mocapdb.evaluation.loso import (
     LosoConfig,
     format_table,
@@ -25,17 +26,10 @@ from mocapdb.evaluation.loso import (
 from mocapdb.evaluation.reconstruction import (
     EngineRun,
     EvalConfig,
-    Scenario,
-    Truth,
     VariantStats,
-    camera_distance,
-    camera_view,
     compute_floors,
     evaluate,
-    project,
-    render,
     reprojection_pct,
-    scaled_positions,
 )
 
 from .conftest import SAMPLE_BVH

@@ -9,22 +9,22 @@ import numpy as np
 import pytest
 
 from mocapdb.cli.main import main
+from mocapdb.core.formats.keypoint_arrays import frames_from_arrays, read_keypoint_array, read_keypoint_file
 from mocapdb.core.formats.keypoints import (
     CONFIDENCE_THRESHOLD,
     LAYOUTS,
     KeypointError,
     Person,
     detect_layout,
-    frame_order_key,
-    frames_from_arrays,
-    parse_openpose_json,
-    parse_stream_line,
-    read_keypoint_array,
-    read_keypoint_file,
-    read_mmpose_json,
-    read_openpose_folder,
     to_universal,
     visible,
+)
+from mocapdb.core.formats.openpose import (
+    frame_order_key,
+    parse_openpose_json,
+    parse_stream_line,
+    read_mmpose_json,
+    read_openpose_folder,
 )
 from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D
 
@@ -517,7 +517,8 @@ def _check_mmpose_frames(frames, n_frames: int, fps: float | None = None) -> Non
 def test_mmpose_video_forms(tmp_path, layout):
     frames = [{"frame_id": i, "instances": [mmpose_instance(layout)] * (1 + i % 2)} for i in range(3)]
     (tmp_path / "inferencer.json").write_text(json.dumps(frames, indent="  "))  # --pred-out-dir, a video
-    demo = {"meta_info": {"dataset_name": "coco"}, "instance_info": [dict(f, frame_id=f["frame_id"] + 1) for f in frames]}
+    demo = {"meta_info": {"dataset_name": "coco"},
+            "instance_info": [dict(f, frame_id=f["frame_id"] + 1) for f in frames]}
     (tmp_path / "demo.json").write_text(json.dumps(demo, indent="\t"))  # topdown_demo_with_mmdet --save-predictions
     for name in ("inferencer.json", "demo.json"):
         read = read_mmpose_json(tmp_path / name, fps=25.0)

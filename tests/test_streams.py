@@ -104,7 +104,7 @@ def test_folder_source_offline_reads_existing_files_in_natural_order(tmp_path):
 
 
 def test_folder_source_and_offline_reader_share_the_frame_order(tmp_path):
-    from mocapdb.core.formats.keypoints import read_openpose_folder
+    from mocapdb.core.formats.openpose import read_openpose_folder
 
     names = ["z_000000000001_keypoints.json", "a_000000000000_keypoints.json", "f10.json", "F2.json", "f01.json"]
     for count, name in enumerate(names):

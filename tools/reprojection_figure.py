@@ -24,9 +24,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, read_openpose_folder  # noqa: E402
+from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD  # noqa: E402
+from mocapdb.core.formats.openpose import read_openpose_folder  # noqa: E402
 from mocapdb.core.skeleton import DRAWING_LINES, N_KEYPOINTS_2D  # noqa: E402
-from mocapdb.evaluation.reconstruction import project  # noqa: E402
+from mocapdb.evaluation.heldout import project  # noqa: E402
 
 COLOURS = ("tab:red", "tab:blue", "tab:green", "tab:orange", "tab:purple")
 

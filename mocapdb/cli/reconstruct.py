@@ -85,7 +85,8 @@ def _engine(args: argparse.Namespace):
     try:
         width, height = (int(v) for v in args.image_size.lower().split("x"))
     except ValueError:
-        raise UsageError(f"--image-size takes WIDTHxHEIGHT in pixels, e.g. 1920x1080, not {args.image_size!r}") from None
+        raise UsageError(f"--image-size takes WIDTHxHEIGHT in pixels, e.g. 1920x1080, "
+                         f"not {args.image_size!r}") from None
     try:
         weights = tuple(float(w) for w in args.window_weights.split(","))
     except ValueError:
@@ -153,7 +154,7 @@ def add_reconstruct_parser(sub: argparse._SubParsersAction) -> None:
 def run_reconstruct(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from mocapdb.core.formats.keypoints import KEYPOINT_FILE_SUFFIXES, read_keypoint_file
+    from mocapdb.core.formats.keypoint_arrays import KEYPOINT_FILE_SUFFIXES, read_keypoint_file
     from mocapdb.core.outputs import output_folder
 
     frames = None  # a keypoint file (.npy, .npz, MMPose .json) is read and checked before any output

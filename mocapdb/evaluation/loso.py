@@ -35,11 +35,10 @@ from mocapdb.builder.pipeline import BuildConfig, build, find_sources
 from mocapdb.core.clips import process_clip
 from mocapdb.core.errors import UsageError
 from mocapdb.core.formats.database import load_database
+from mocapdb.evaluation.heldout import Scenario, Truth
 from mocapdb.evaluation.reconstruction import (
     EvalConfig,
-    Scenario,
     ScenarioResult,
-    Truth,
     compute_floors,
     engine_summary,
     evaluate_scenario,

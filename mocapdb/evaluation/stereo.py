@@ -22,7 +22,7 @@ import numpy as np
 
 from mocapdb.core.cameras import CameraModel, intrinsics_only, read_calibration_toml
 from mocapdb.core.clips import ClipOptions, process_clip
-from mocapdb.core.formats.keypoints import read_openpose_folder
+from mocapdb.core.formats.openpose import read_openpose_folder
 from mocapdb.core.formats.trc import read_trc, trc_keypoints
 from mocapdb.core.skeleton import N_KEYPOINTS_2D
 from mocapdb.evaluation.metrics import mpjpe, pa_mpjpe, pck

@@ -184,12 +184,8 @@ def load_keypoints(source: str | Path, layout: str | None = None) -> list:
     """The 2D input frames (:class:`~mocapdb.core.formats.keypoints.KeypointFrame`) of a folder of
     OpenPose JSON, a JSON-lines file, an MMPose ``.json`` or a ``.npy``/``.npz`` array, numbered as
     ``mocapdb reconstruct`` numbers them (folder: position; JSON lines: their ``frame``, else counted)."""
-    from mocapdb.core.formats.keypoints import (
-        KEYPOINT_FILE_SUFFIXES,
-        parse_stream_line,
-        read_keypoint_file,
-        read_openpose_folder,
-    )
+    from mocapdb.core.formats.keypoint_arrays import KEYPOINT_FILE_SUFFIXES, read_keypoint_file
+    from mocapdb.core.formats.openpose import parse_stream_line, read_openpose_folder
 
     path = Path(source)
     if path.is_dir():

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from mocapdb.core.cameras import CameraModel
+from mocapdb.core.progress import progress
 from mocapdb.stereo.bone_lengths import RIGID_BONES, refine_bone_lengths
 from mocapdb.stereo.checks import check_geometry, check_parallax
 from mocapdb.stereo.config import StereoConfig, StereoError, StereoResult
@@ -51,7 +52,7 @@ def _stage2(points, n1, n2, valid, R, t, config, bones, warnings):
     n_types = max(b for _, _, b in bones) + 1
     best = (np.inf, points, R, t, 0)
     epsilons = []
-    for round_ in range(config.max_rounds):
+    for round_ in progress(range(config.max_rounds), desc="ellipsoid rounds", unit="round", leave=False):
         cov = None
         if config.noise_correction:
             cov = np.zeros(valid.shape + (3, 3))

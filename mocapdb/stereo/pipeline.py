@@ -18,6 +18,7 @@ import numpy as np
 
 from mocapdb.core.cameras import CameraModel
 from mocapdb.core.formats.keypoints import KeypointFrame
+from mocapdb.core.progress import progress
 from mocapdb.stereo.config import StereoConfig, StereoError, StereoResult
 from mocapdb.stereo.ellipose import reconstruct
 from mocapdb.stereo.motion import people_motions
@@ -73,10 +74,16 @@ def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, 
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
 
+    stages = progress(total=5, desc="stereo", unit="stage")  # load, select, reconstruct, ik, write
+
     def lap(stage: str) -> None:
         nonlocal clock
         now = time.perf_counter()
         seconds[stage], clock = now - clock, now
+        stages.set_postfix_str(stage, refresh=False)
+        stages.update()
+        if stages.n == stages.total:
+            stages.close()
 
     frames1, frames2, warnings = load_views(view1_dir, view2_dir, layout, trim)
     lap("load")

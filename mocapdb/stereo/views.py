@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.files import os_error_message
-from mocapdb.core.formats.keypoints import KeypointFrame, read_openpose_folder
+from mocapdb.core.formats.keypoints import KeypointFrame
+from mocapdb.core.formats.openpose import read_openpose_folder
 from mocapdb.stereo.config import StereoError
 
 # Two views are the same when, in at least SAME_VIEW_FRAMES of the frames where both have people,

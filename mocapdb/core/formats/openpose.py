@@ -1,0 +1,248 @@
+"""Keypoints in JSON: OpenPose ``--write_json`` frames and folders (MMPose per-image JSON too), their
+frame order, MMPose prediction files and the JSON-lines stream messages; every person is mapped onto
+the universal 14 (:mod:`mocapdb.core.formats.keypoints`). Schema: ``data_specs/keypoint_formats.md``.
+"""
+from __future__ import annotations
+
+import itertools
+import json
+import re
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from mocapdb.core.formats.keypoints import (
+    KeypointError,
+    KeypointFrame,
+    RawPerson,
+    build_frame,
+    check_fps,
+    detect_layout,
+    error_source,
+    frame_time,
+    numeric,
+    optional_layout,
+    shown,
+    with_scores,
+)
+
+DETECT_FRAMES = 10     # a folder's or file's layout is detected from its first frames holding people
+
+
+def _load_json(text: str) -> dict | list:
+    """A JSON object or list (the reasons avoid ": ", which stream reports take as a source prefix)."""
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise KeypointError(f"not JSON ({err.msg} at line {err.lineno} column {err.colno})") from None
+    except (ValueError, RecursionError):
+        raise KeypointError("not JSON (a number too long or nesting too deep)") from None
+    if not isinstance(obj, (dict, list)):
+        raise KeypointError("not a JSON object or list")
+    return obj
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise KeypointError("not UTF-8 text") from None
+
+
+def _person_id(value: object) -> int | None:
+    """``id`` or OpenPose ``person_id`` (an int, or a list holding one); -1 means none."""
+    if isinstance(value, list) and len(value) == 1:
+        value = value[0]
+    if value is None:
+        return None
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise KeypointError(f"person id {shown(value)} is not an integer")
+    return None if value == -1 else value
+
+
+def _raw_person(obj: object, i: int) -> RawPerson:
+    """A person entry: ``keypoints`` [[x, y, c], ...] (or MMPose's [[x, y], ...] with ``keypoint_scores``)
+    or OpenPose ``pose_keypoints_2d`` [x, y, c, ...]."""
+    if not isinstance(obj, dict):
+        raise KeypointError(f"person {i} is not a JSON object")
+    if "keypoints" in obj:
+        raw = numeric(obj["keypoints"], f"person {i} keypoints")
+        if "keypoint_scores" in obj:
+            scores = numeric(obj["keypoint_scores"], f"person {i} keypoint_scores")
+            raw = with_scores(raw, scores, f"person {i} keypoint_scores")
+        if raw.ndim != 2 or raw.shape[1] != 3:
+            raise KeypointError(f"person {i} keypoints must be [[x, y, confidence], ...] "
+                                f"or [[x, y], ...] with keypoint_scores")
+    elif "pose_keypoints_2d" in obj:
+        flat = numeric(obj["pose_keypoints_2d"], f"person {i} pose_keypoints_2d")
+        if flat.ndim != 1 or flat.size % 3:
+            raise KeypointError(f"person {i} pose_keypoints_2d holds {flat.size} values, not a multiple of 3")
+        raw = flat.reshape(-1, 3)
+    else:
+        raise KeypointError(f"person {i} has neither 'keypoints' nor 'pose_keypoints_2d'")
+    return RawPerson(raw, _person_id(obj.get("id", obj.get("person_id"))), optional_layout(obj.get("layout")))
+
+
+def _raw_people(obj: dict | list) -> list[RawPerson]:
+    """The people of an OpenPose-style object (its ``people``) or of an MMPose list of instances.
+
+    An entry without keypoints (``"pose_keypoints_2d": []``, as Pose2Sim writes) is an absent person."""
+    people = obj if isinstance(obj, list) else obj.get("people")
+    if not isinstance(people, list):
+        raise KeypointError("no 'people' list")
+    if people and isinstance(people[0], dict) and "instances" in people[0]:
+        raise KeypointError("an MMPose video file (a list of frames), to be read as a file of its own")
+    return [p for p in (_raw_person(p, i) for i, p in enumerate(people)) if len(p.raw)]
+
+
+def parse_openpose_json(text: str, index: int, layout: str | None = None, source: str = "") -> KeypointFrame:
+    """One OpenPose ``--write_json`` frame (``{"people": [{"pose_keypoints_2d": [x, y, c, ...]}]}``)
+    or MMPose per-image prediction (``[{"keypoints": [[x, y], ...], "keypoint_scores": [...]}, ...]``).
+
+    ``layout`` None: detected from this frame's people. Errors: KeypointError naming ``source``.
+    """
+    with error_source(source or "<OpenPose JSON>"):
+        return build_frame(index, None, _raw_people(_load_json(text)), optional_layout(layout))
+
+
+_OPENPOSE_FRAME = re.compile(r"_([0-9]+)_keypoints\.json$")   # <stem>_<frame>_keypoints.json
+_DIGIT_RUNS = re.compile(r"([0-9]+)")
+
+
+def frame_order_key(name: str) -> tuple[int, int, tuple[str | int, ...], str]:
+    """Sort key putting keypoint file names (no folder part) in frame order; used by every folder
+    reader (:func:`read_openpose_folder`, the live folder source of ``mocapdb.runtime.sources``).
+
+    1. OpenPose names ``<stem>_<frame>_keypoints.json`` (OpenPose writes 12 digits; any count is
+       read) come first, by frame number: the number decides, not the stem, so ``b_…2`` is before
+       ``a_…10`` (a stem is one video or camera; a folder normally holds one).
+    2. Any other name after them, in natural order: case-insensitive text, runs of ASCII digits
+       compared as numbers (``f2.json`` before ``f10.json``). Natural order also breaks ties
+       between OpenPose names with the same frame number.
+    3. The name itself last, so names equal so far (``F1.json``, ``f01.json``) still come in one
+       fixed order whatever the directory listing gives.
+
+    Only ASCII digits count as digits (Unicode digits such as ``٣`` or ``²`` are text), so every
+    name has a key and no comparison mixes a number with text.
+    """
+    parts = _DIGIT_RUNS.split(name)   # text, digits, text, ...: odd positions are digit runs
+    natural = tuple(int(part) if i % 2 else part.lower() for i, part in enumerate(parts))
+    match = _OPENPOSE_FRAME.search(name)
+    return (0, int(match[1]), natural, name) if match else (1, 0, natural, name)
+
+
+def _frame_files(folder: Path) -> list[Path]:
+    """The folder's .json files in frame order (:func:`frame_order_key`)."""
+    if not folder.is_dir():
+        raise KeypointError(f"{folder}: not a folder")
+    files = [p for p in folder.iterdir() if p.suffix.lower() == ".json" and p.is_file()]
+    if not files:
+        raise KeypointError(f"{folder}: no .json keypoint files")
+    return sorted(files, key=lambda p: frame_order_key(p.name))
+
+
+def _read_people(path: Path) -> list[RawPerson]:
+    with error_source(path):
+        return _raw_people(_load_json(_read_text(path)))
+
+
+def read_openpose_folder(folder: str | Path, layout: str | None = None,
+                         fps: float | None = None) -> Iterator[KeypointFrame]:
+    """The frames of an OpenPose ``--write_json`` folder (or of MMPose per-image files), in frame-number order.
+
+    ``index`` is the position in that order; ``time_s = index / fps`` (seconds) when ``fps`` (Hz)
+    is given. ``layout`` None: detected once from the first :data:`DETECT_FRAMES` frames holding
+    people, then fixed. Folder errors are raised at once, file errors when the file is reached.
+    """
+    files = _frame_files(Path(folder))
+    check_fps(fps)
+    return _detected_frames((_read_people(p) for p in files), files, optional_layout(layout), fps, files[0].parent)
+
+
+def _detected_frames(parsed: Iterator[list[RawPerson]], names: Sequence[object], layout: str | None,
+                     fps: float | None, pool_name: object) -> Iterator[KeypointFrame]:
+    """Frames of the people lists ``parsed`` (frame i is ``names[i]`` in errors); ``layout`` None:
+    detected once from the first :data:`DETECT_FRAMES` frames holding people (``pool_name`` in errors)."""
+    buffered: list[list[RawPerson]] = []
+    if layout is None:
+        with_people = 0
+        for people in parsed:
+            buffered.append(people)
+            with_people += bool(people)
+            if with_people >= DETECT_FRAMES:
+                break
+        pool = [p.raw for b in buffered for p in b]
+        if pool:
+            with error_source(pool_name):
+                if len({len(r) for r in pool}) > 1:
+                    raise KeypointError("the first frames mix people with different keypoint counts")
+                layout = detect_layout(np.stack(pool))
+    for index, people in enumerate(itertools.chain(buffered, parsed)):
+        with error_source(names[index]):
+            frame = build_frame(index, frame_time(index, fps), people, layout)
+        yield frame
+
+
+def _mmpose_frame(frame: object, i: int) -> list[RawPerson]:
+    with error_source(f"frame {i}"):
+        instances = frame.get("instances") if isinstance(frame, dict) else None
+        if not isinstance(instances, list):
+            raise KeypointError("no 'instances' list")
+        return _raw_people(instances)
+
+
+def _mmpose_people(obj: dict | list) -> list[list[RawPerson]]:
+    """Each frame's people in a parsed MMPose prediction file."""
+    if isinstance(obj, dict):
+        obj = obj.get("instance_info")
+        if not isinstance(obj, list):
+            raise KeypointError("not an MMPose prediction file (no 'instance_info' list)")
+    if obj and isinstance(obj[0], dict) and "instances" in obj[0]:
+        return [_mmpose_frame(frame, i) for i, frame in enumerate(obj)]
+    return [_raw_people(obj)]  # one image's instances
+
+
+def read_mmpose_json(path: str | Path, layout: str | None = None, fps: float | None = None) -> list[KeypointFrame]:
+    """The frames of an MMPose prediction file, read and checked at once (errors name the file).
+
+    A list of instances ``{"keypoints": [[x, y], ...], "keypoint_scores": [...]}`` (one image), a list
+    of frames ``{"frame_id": n, "instances": [...]}`` (a video), or either under ``"instance_info"``
+    (the demo scripts). ``index`` is the frame's position, ``time_s = index / fps`` when ``fps`` is
+    given; ``layout`` None: detected as for a folder.
+    """
+    path = Path(path)
+    check_fps(fps)
+    with error_source(path):
+        people = _mmpose_people(_load_json(_read_text(path)))
+        names = [f"frame {i}" for i in range(len(people))]
+        return list(_detected_frames(iter(people), names, optional_layout(layout), fps, None))
+
+
+def _field(obj: dict, key: str, kinds: tuple[type, ...], what: str) -> object:
+    value = obj.get(key)
+    if value is not None and (not isinstance(value, kinds) or isinstance(value, bool)):
+        raise KeypointError(f"'{key}' must be {what}")
+    return value
+
+
+def parse_stream_line(line: str, default_layout: str | None = None) -> KeypointFrame:
+    """One JSON-lines input frame (schema: ``data_specs/keypoint_formats.md``).
+
+    ``{"frame": 12, "time": 0.4, "layout": "coco17", "people": [{"id": 3, "keypoints": [[x, y, c], ...]}]}``,
+    an OpenPose-style object or an MMPose per-image list of instances. A missing ``frame`` gives
+    index -1 (the caller numbers the frame); ``time`` is in seconds. Any bad input raises
+    KeypointError with a short reason, nothing else.
+    """
+    obj = _load_json(line)
+    if isinstance(obj, list):
+        return build_frame(-1, None, _raw_people(obj), optional_layout(default_layout))
+    index = _field(obj, "frame", (int,), "a non-negative integer")
+    if index is not None and index < 0:
+        raise KeypointError("'frame' must be a non-negative integer")
+    time_s = _field(obj, "time", (int, float), "a number of seconds")
+    if time_s is not None and not abs(time_s) < 1e300:  # NaN, infinite, or an int too big for a float
+        raise KeypointError("'time' must be a finite number of seconds")
+    layout = optional_layout(obj.get("layout", default_layout))
+    return build_frame(-1 if index is None else index, None if time_s is None else float(time_s),
+                       _raw_people(obj), layout)

@@ -1,0 +1,123 @@
+"""Held-out motion rendered to 2D keypoint frames, with the truth it came from.
+
+Held-out BVH clips (``data_specs/evaluation_split.md``; the database must be built without them)
+are retargeted like database clips (:class:`Truth`), optionally scaled to another subject height,
+turned by yaws off the database's grid, seen by a pinhole camera at several heights and pitches,
+and perturbed by detector-like noise, dropout and left/right swaps (:class:`Scenario`,
+:func:`render`). Scoring the engine on these frames: :mod:`mocapdb.evaluation.reconstruction`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from mocapdb.core.clips import ClipOptions, process_clip
+from mocapdb.core.formats.keypoints import KeypointFrame, Person
+from mocapdb.core.geometry import yaw_matrix
+from mocapdb.core.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS
+
+if TYPE_CHECKING:
+    from mocapdb.evaluation.reconstruction import EvalConfig
+
+SWAP_PAIRS = [(KP[r], KP[l]) for r, l in MIRROR_PAIRS]  # right/left keypoint pairs
+IMAGE_HEIGHT_PX = 1080
+UNIVERSAL_HEIGHT_M = 1.75   # the database skeleton's height (data_specs/skeleton.md)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One rendering condition."""
+
+    name: str
+    camera_height_m: float = 1.5
+    noise_px: float = 0.0       # Gaussian σ, pixels of a 1080-pixel-high image
+    dropout: float = 0.0        # probability that a keypoint is missing
+    swap: float = 0.0           # probability per frame that left and right are swapped
+    pitch_deg: float = 0.0      # camera tilted down by this angle about its x axis
+    subject_height_m: float = UNIVERSAL_HEIGHT_M  # truth scaled by this / 1.75 before rendering
+    height_given: bool = False  # the engine is told subject_height_m (EngineConfig.subject_height_m)
+
+
+DEFAULT_SCENARIOS = (
+    Scenario("clean, camera 1.5 m"),
+    Scenario("sigma 5 px, camera 1.5 m", noise_px=5.0),
+    Scenario("clean, camera 1.0 m", camera_height_m=1.0),
+    Scenario("clean, camera 2.2 m", camera_height_m=2.2),
+    Scenario("sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05),
+    Scenario("clean, camera 1.5 m pitched 15 deg", pitch_deg=15.0),
+    Scenario("clean, subject 1.55 m, height given", subject_height_m=1.55, height_given=True),
+)
+
+
+@dataclass
+class Truth:
+    """A held-out clip on the universal skeleton."""
+
+    name: str
+    quaternions: np.ndarray  # [F, R, 4]
+    positions: np.ndarray    # [F, 15, 3] world, floor at 0
+    yaws_deg: tuple[float, ...] | None = None  # this clip's yaws; None: EvalConfig.yaws_deg
+
+
+def load_heldout(paths: list[Path], fps: float) -> list[Truth]:
+    """Retarget held-out BVH files exactly as the builder does."""
+    config = ClipOptions(fps=fps)
+    return [Truth(c.name, c.quaternions.astype(np.float64), c.positions.astype(np.float64))
+            for c in (process_clip(p, p.parent, config) for p in paths)]
+
+
+def scaled_positions(positions: np.ndarray, subject_height_m: float) -> np.ndarray:
+    """``positions [F, 15, 3]`` (skeleton and root path) scaled by ``subject_height_m`` / 1.75 about
+    the floor point under the clip's mean pelvis."""
+    s = subject_height_m / UNIVERSAL_HEIGHT_M
+    if s == 1.0:
+        return positions
+    centre = positions[:, PELVIS].mean(axis=0) * [1.0, 0.0, 1.0]
+    return centre + s * (positions - centre)
+
+
+def camera_distance(positions: np.ndarray, yaw_deg: float, config: EvalConfig) -> float:
+    """Horizontal camera distance from the clip's mean pelvis for one view: ``camera_distance_m``,
+    or more so every pelvis of the turned clip stays ``min_clearance_m`` in front of the camera."""
+    centre = positions[:, PELVIS].mean(axis=0) * [1.0, 0.0, 1.0]
+    towards = ((positions[:, PELVIS] - centre) @ yaw_matrix(yaw_deg).T)[:, 2]  # the camera is at +z
+    return max(config.camera_distance_m, config.min_clearance_m + max(float(towards.max()), 0.0))
+
+
+def camera_view(positions: np.ndarray, yaw_deg: float, height_m: float, distance_m: float,
+                pitch_deg: float = 0.0) -> np.ndarray:
+    """World points ``[F, J, 3]`` in the camera-aligned frame (x right, y up, z away from the camera):
+    turned by ``yaw_deg`` about the clip's mean pelvis, seen by a camera ``distance_m`` in front of
+    it (along +z) at ``height_m`` above the floor, looking along −z and tilted down by ``pitch_deg``."""
+    centre = positions[:, PELVIS].mean(axis=0) * [1, 0, 1]
+    rel = (positions - centre) @ yaw_matrix(yaw_deg).T - [0.0, height_m, distance_m]
+    c, s = np.cos(np.radians(pitch_deg)), np.sin(np.radians(pitch_deg))
+    return np.stack([rel[..., 0], c * rel[..., 1] - s * rel[..., 2], -s * rel[..., 1] - c * rel[..., 2]], axis=-1)
+
+
+def view_of(truth: Truth, yaw_deg: float, height_m: float, distance_m: float, pitch_deg: float = 0.0) -> np.ndarray:
+    """:func:`camera_view` of a truth clip ``[F, 15, 3]``."""
+    return camera_view(truth.positions, yaw_deg, height_m, distance_m, pitch_deg)
+
+
+def project(cam_points: np.ndarray, focal_px: float, image_size: tuple[int, int]) -> np.ndarray:
+    """Pixels ``[..., 2]`` of camera-aligned points: u = cx + f·x/z, v = cy − f·y/z."""
+    z = cam_points[..., 2]
+    return np.stack([image_size[0] / 2 + focal_px * cam_points[..., 0] / z,
+                     image_size[1] / 2 - focal_px * cam_points[..., 1] / z], axis=-1)
+
+
+def render(cam_points: np.ndarray, scenario: Scenario, focal_px: float, image_size: tuple[int, int],
+           rng: np.random.Generator) -> list[KeypointFrame]:
+    """Detector-like keypoint frames of camera-aligned points ``[F, 15, 3]``."""
+    px = project(cam_points[:, :N_KEYPOINTS_2D], focal_px, image_size)
+    px = px + rng.normal(scale=scenario.noise_px * image_size[1] / IMAGE_HEIGHT_PX, size=px.shape)
+    conf = np.where(rng.random(px.shape[:2]) < scenario.dropout, 0.0, 0.9)
+    swapped = rng.random(len(px)) < scenario.swap
+    for r, l in SWAP_PAIRS:
+        px[swapped, r], px[swapped, l] = px[swapped, l].copy(), px[swapped, r].copy()
+    return [KeypointFrame(i, None, [Person(px[i], conf[i])]) for i in range(len(px))]
+
