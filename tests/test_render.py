@@ -146,6 +146,24 @@ def test_mp4(sample_run):
     assert count == N_FRAMES
 
 
+def test_video_frames_are_drawn_under_the_skeletons(sample_run):
+    root, keypoints, recon = sample_run
+    video = root / "input.mp4"   # the input video: a flat green picture per frame, 1088×1920 like the take's
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 60.0, SIZE)
+    for _ in range(N_FRAMES):
+        writer.write(np.full((SIZE[1], SIZE[0], 3), (40, 160, 40), np.uint8))
+    writer.release()
+    out = root / "over_video"
+    summary = render_result(recon, out, keypoints, video=video, camera=image_camera(FOCAL, SIZE), scale=0.25,
+                            view="image", progress=False)
+    assert summary.frames == N_FRAMES
+    img = cv2.imread(str(out / f"frame_{N_FRAMES - 1:06d}.png")).astype(int)
+    green = np.abs(img - [40, 160, 40]).max(axis=2) <= 12   # mp4v is lossy
+    assert green.mean() > 0.3   # the video fills the image panel
+    tracks = read_result(recon).frames[-1].people
+    assert any(np.any(np.all(img == draw.track_colour(p.track), axis=2)) for p in tracks)  # skeletons on top
+
+
 def test_contact_sheet(sample_run):
     root, keypoints, recon = sample_run
     out = contact_sheet(recon, keypoints, root / "sheet.png", n=4, focal=FOCAL, image_size=SIZE, tile_height=300)
