@@ -14,9 +14,9 @@ built so that one sender cannot take them down:
 from __future__ import annotations
 
 import ipaddress
+import logging
 import selectors
 import socket
-import sys
 import time
 from collections import OrderedDict
 from collections.abc import Iterator
@@ -35,9 +35,13 @@ MAX_SENDERS = 4096            # rate limiter: addresses remembered (least recent
 LOG_EVERY_S = 1.0             # at most one stderr line per kind of event per second
 
 
+LOG = logging.getLogger(__name__)
+
+
 def log(text: str) -> None:
-    """One line on stderr (the live loop's own output goes to the sink, often stdout)."""
-    print(text, file=sys.stderr, flush=True)
+    """One warning through logging: stderr under the CLI (the live loop's own output goes to the
+    sink, often stdout)."""
+    LOG.warning(text)
 
 
 class _ThrottledLog:
@@ -88,7 +92,7 @@ def _warn_if_public(host: str, address: tuple[Any, ...]) -> None:
     except ValueError:
         loopback = False
     if not loopback:
-        log(f"warning: listening on {host}: anyone on the network can send poses (there is no authentication)")
+        log(f"listening on {host}: anyone on the network can send poses (there is no authentication)")
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ bash tools/setup.sh
 mkdir -p demo
 .venv/bin/mocapdb build data/sample_bvh --out demo/sample.db
 .venv/bin/mocapdb reconstruct data/sample_keypoints/pose2sim_cam01 --db demo/sample.db \
-    --out demo/reconstruction --fps 60 --image-size 1088x1920 --focal 1681
+    --out demo/reconstruction --fps 60 --image-size 1088x1920 --focal 1681 --preview
 # Two of the same take's cameras, no extrinsics used: 3D motion, both cameras and a BVH.
 .venv/bin/mocapdb stereo data/sample_keypoints/pose2sim_cam01 data/sample_keypoints/pose2sim_cam04 \
     --calibration data/sample_keypoints/calibration.toml --cameras cam_01 cam_04 --fps 60 \

@@ -38,6 +38,7 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run_eval(args: argparse.Namespace) -> int:
+    import logging
     from dataclasses import replace
     from pathlib import Path
 
@@ -46,6 +47,9 @@ def run_eval(args: argparse.Namespace) -> int:
     from mocapdb.core.formats.database import load_database
     from mocapdb.evaluation.reconstruction import EvalConfig, evaluate
     from mocapdb.runtime.engine import EngineConfig
+
+    if not getattr(args, "quiet", False):  # the evaluation's progress lines (info level) are worth seeing on a long run
+        logging.getLogger("mocapdb.evaluation").setLevel(min(logging.INFO, logging.getLogger("mocapdb").level))
 
     engine = EngineConfig(weight_2d=args.weight_2d, search=args.search)
     if args.loso:

@@ -22,8 +22,8 @@ Figures are per fold and overall (all folds' frames pooled).
 from __future__ import annotations
 
 import csv
+import logging
 import re
-import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -51,6 +51,8 @@ LOSO_SCENARIOS = (
     Scenario("sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05),
     Scenario("clean, subject 1.55 m, height given", subject_height_m=1.55, height_given=True),
 )
+
+LOG = logging.getLogger(__name__)
 DESCRIPTIONS_FILE = "cmu_motion_descriptions.csv"
 
 
@@ -139,7 +141,8 @@ def sample_truths(files: list[Path], config: LosoConfig) -> list[Truth]:
 
 
 def _stderr(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
+    """Progress of a long evaluation, logged at info level (``mocapdb eval`` shows it; ``-q`` hides it)."""
+    LOG.info(message)
 
 
 def leave_one_subject_out(sources: list[str], config: LosoConfig, log=_stderr) -> dict:

@@ -14,6 +14,7 @@ Leave-one-subject-out evaluation (databases built per fold): :mod:`mocapdb.evalu
 """
 from __future__ import annotations
 
+import logging
 import sys
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -43,6 +44,8 @@ from mocapdb.evaluation.heldout import (
 from mocapdb.evaluation.metrics import acceleration_error, mpjpe, pa_mpjpe
 from mocapdb.runtime.engine import Engine, EngineConfig
 from mocapdb.runtime.search import search_clustered, search_exact
+
+LOG = logging.getLogger(__name__)
 
 VARIANTS = (("published", False), ("refined", True))  # report name, EngineConfig.refine
 
@@ -344,7 +347,8 @@ def engine_summary(engine: EngineConfig) -> dict:
 
 
 def _stderr(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
+    """Progress of a long evaluation, logged at info level (``mocapdb eval`` shows it; ``-q`` hides it)."""
+    LOG.info(message)
 
 
 def evaluate(db: MotionDatabase, heldout: list[Path], config: EvalConfig) -> dict:
