@@ -62,8 +62,8 @@ def estimate_cameras(people: People, cam1: CameraModel, cam2: CameraModel, confi
 def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, cam2: CameraModel,
                config: StereoConfig, fps: float, out_dir: str | Path, layout: str | None = None,
                trim: bool = False) -> StereoSummary:
-    """Reconstruct everyone two cameras see; writes ``result.jsonl``, ``cameras.json`` and one BVH
-    per person (:func:`mocapdb.stereo.config.bvh_name`).
+    """Reconstruct everyone two cameras see; writes ``result.jsonl``, ``cameras.json``,
+    ``calibration.toml`` and one BVH per person (:func:`mocapdb.stereo.config.bvh_name`).
 
     ``cam1``, ``cam2``: intrinsics and distortion (their extrinsics are not used). ``fps`` (Hz)
     times the frames. Raises StereoError, CalibrationError or KeypointError with a clear message.
