@@ -10,7 +10,6 @@ import fnmatch
 import math
 import numbers
 import os
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
@@ -18,7 +17,6 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from mocapdb import __version__
 from mocapdb.builder.embedding import kmeans, landmark_mds, pose_distances, representatives
@@ -29,6 +27,7 @@ from mocapdb.core.formats.bvh import BvhError
 from mocapdb.core.formats.database import MotionDatabase, check_output_path, recover_interrupted, write_database
 from mocapdb.core.geometry import normalize_pose_2d, project_views
 from mocapdb.core.joint_map import UNITS, UP_AXES, JointMapError, load_joint_map_file
+from mocapdb.core.progress import progress
 from mocapdb.core.skeleton import (
     BONE_LENGTHS_M,
     KEYPOINTS,
@@ -168,7 +167,7 @@ def load_clips(files: list[tuple[Path, Path]], config: BuildConfig,
     """Process every file (in ``config.workers`` processes); files that fail go to ``summary.skipped``
     with the reason (``config.strict``: :class:`BuildError` naming them all)."""
     jobs = [(path, root, config) for path, root in files]
-    bar = tqdm(total=len(jobs), desc="read+retarget", unit="clip", disable=None, file=sys.stderr)
+    bar = progress(total=len(jobs), desc="read+retarget", unit="clip")
     results = []
     if config.workers > 1 and len(jobs) > 1:
         with ProcessPoolExecutor(max_workers=config.workers) as pool:
@@ -193,7 +192,7 @@ def project_all(positions: np.ndarray, config: BuildConfig) -> np.ndarray:
     """Normalised 2D poses ``[F·V, 14, 2]`` (frame-major) of every frame from every yaw."""
     yaws = config.yaws_deg
     out = np.empty((len(positions) * len(yaws), N_KEYPOINTS_2D, 2), dtype=np.float32)
-    bar = tqdm(total=len(positions), desc="project", unit="frame", disable=None, file=sys.stderr)
+    bar = progress(total=len(positions), desc="project", unit="frame")
     for start in range(0, len(positions), PROJECTION_CHUNK_FRAMES):
         chunk = positions[start:start + PROJECTION_CHUNK_FRAMES].astype(np.float64)
         pixels = project_views(chunk, chunk[:, PELVIS], yaws, 0.0, config.camera)
@@ -206,12 +205,12 @@ def project_all(positions: np.ndarray, config: BuildConfig) -> np.ndarray:
 
 def _embed_and_cluster(keypoints_2d: np.ndarray, config: BuildConfig, summary: BuildSummary):
     t0 = time.perf_counter()
-    bar = tqdm(total=len(keypoints_2d), desc="embed (MDS)", unit="pose", disable=None, file=sys.stderr)
+    bar = progress(total=len(keypoints_2d), desc="embed (MDS)", unit="pose")
     embedding = landmark_mds(keypoints_2d, dims=config.dims, n_landmarks=config.landmarks,
                              seed=config.seed, progress=bar.update)
     bar.close()
     t1 = time.perf_counter()
-    bar = tqdm(total=None, desc="k-means", unit="iter", disable=None, file=sys.stderr)
+    bar = progress(total=None, desc="k-means", unit="iter")
     centroids, labels = kmeans(embedding, config.clusters, seed=config.seed, progress=lambda it, shift: bar.update())
     bar.close()
     reps = representatives(embedding, labels, centroids)
@@ -236,7 +235,7 @@ def assign_to_representatives(keypoints_2d: np.ndarray, reps: np.ndarray) -> np.
     valid = np.flatnonzero(reps >= 0)
     rep_poses = keypoints_2d[reps[valid]]
     labels = np.empty(len(keypoints_2d), dtype=np.int32)
-    bar = tqdm(total=len(keypoints_2d), desc="assign", unit="pose", disable=None, file=sys.stderr)
+    bar = progress(total=len(keypoints_2d), desc="assign", unit="pose")
     for start in range(0, len(keypoints_2d), ASSIGN_CHUNK):
         chunk = keypoints_2d[start:start + ASSIGN_CHUNK]
         labels[start:start + len(chunk)] = valid[pose_distances(chunk, rep_poses).argmin(axis=1)]

@@ -10,6 +10,19 @@ from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 DEFAULT_FPS = 30.0  # input frame rate assumed when neither --fps nor the frames give one
 
 
+def image_size(text: str) -> tuple[int, int]:
+    """``--image-size WIDTHxHEIGHT`` (pixels) as (width, height); UsageError naming the option."""
+    from mocapdb.core.errors import UsageError
+
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise UsageError(f"--image-size takes WIDTHxHEIGHT in pixels, e.g. 1920x1080, not {text!r}") from None
+    if width <= 0 or height <= 0:
+        raise UsageError(f"--image-size {text}: width and height must be positive")
+    return width, height
+
+
 def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", required=True, help="database directory written by `mocapdb build`")
     p.add_argument("--no-verify", action="store_true",
@@ -82,11 +95,7 @@ def _engine(args: argparse.Namespace):
     from mocapdb.runtime.engine import Engine, EngineConfig
     from mocapdb.runtime.filters import REFINED_ROTATION_DEFAULTS, OneEuroParams
 
-    try:
-        width, height = (int(v) for v in args.image_size.lower().split("x"))
-    except ValueError:
-        raise UsageError(f"--image-size takes WIDTHxHEIGHT in pixels, e.g. 1920x1080, "
-                         f"not {args.image_size!r}") from None
+    width, height = image_size(args.image_size)
     try:
         weights = tuple(float(w) for w in args.window_weights.split(","))
     except ValueError:
@@ -177,8 +186,8 @@ def _preview(args: argparse.Namespace, out_dir) -> None:
     """OUT/preview.png: a contact sheet of the run (:func:`mocapdb.render.video.contact_sheet`)."""
     from mocapdb.render.video import contact_sheet
 
-    width, height = (int(v) for v in args.image_size.lower().split("x"))
-    contact_sheet(out_dir, args.input, out_dir / "preview.png", focal=args.focal, image_size=(width, height))
+    contact_sheet(out_dir, args.input, out_dir / "preview.png", focal=args.focal,
+                  image_size=image_size(args.image_size))
 
 
 def _input_size(path: str) -> int | None:

@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from mocapdb.cli.reconstruct import image_size
+
 
 def add_render_parser(sub: argparse._SubParsersAction) -> None:
     """Add the ``render`` subcommand (``run`` returns the exit code)."""
@@ -38,18 +40,6 @@ def add_render_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run_render)
 
 
-def _image_size(text: str) -> tuple[int, int]:
-    from mocapdb.core.errors import UsageError
-
-    try:
-        width, height = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise UsageError(f"--image-size takes WIDTHxHEIGHT in pixels, e.g. 1920x1080, not {text!r}") from None
-    if width <= 0 or height <= 0:
-        raise UsageError(f"--image-size {text}: width and height must be positive")
-    return width, height
-
-
 def run_render(args: argparse.Namespace) -> int:
     """``mocapdb render``: frames, an MP4, a contact sheet or the stereo plot; prints a summary line."""
     from pathlib import Path
@@ -78,7 +68,7 @@ def run_render(args: argparse.Namespace) -> int:
         return 0
     camera = None
     if args.focal is not None or args.image_size is not None or not stereo:
-        size = _image_size(args.image_size) if args.image_size else None
+        size = image_size(args.image_size) if args.image_size else None
         if size is None and args.video is not None:
             from mocapdb.render.video import VideoFrames
 

@@ -9,17 +9,16 @@ so `mocapdb reconstruct` and `live` read them like OpenPose's own output. File f
 from __future__ import annotations
 
 import json
-import sys
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from tqdm import tqdm
 
 from mocapdb.core.files import os_error_message, write_atomic
 from mocapdb.core.formats.keypoints import LAYOUTS
+from mocapdb.core.progress import progress
 from mocapdb.detect.errors import DetectError
 
 if TYPE_CHECKING:
@@ -104,7 +103,7 @@ def detect_video(reader: VideoReader, model: PoseModel, out_dir: Path, every: in
         raise DetectError(os_error_message(exc, out_dir, "create the output folder")) from None
     summary = DetectSummary()
     total = -(-reader.frame_count // every) if reader.frame_count else None
-    with tqdm(total=total, desc=f"detect {reader.name}", unit="frame", disable=None, file=sys.stderr) as bar:
+    with progress(total=total, desc=f"detect {reader.name}", unit="frame") as bar:
         for frame in reader.frames(every):
             found = model(frame.image)
             path = out_dir / frame_file_name(reader.name, frame.index)

@@ -15,17 +15,17 @@ Leave-one-subject-out evaluation (databases built per fold): :mod:`mocapdb.evalu
 from __future__ import annotations
 
 import logging
-import sys
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from tqdm import tqdm
 
 from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import normalize_pose_2d
+from mocapdb.core.progress import progress
 from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D, N_POINTS, PELVIS, pose_from_rotations
 from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.heldout import (
@@ -44,6 +44,9 @@ from mocapdb.evaluation.heldout import (
 from mocapdb.evaluation.metrics import acceleration_error, mpjpe, pa_mpjpe
 from mocapdb.runtime.engine import Engine, EngineConfig
 from mocapdb.runtime.search import search_clustered, search_exact
+
+if TYPE_CHECKING:
+    from tqdm import tqdm
 
 LOG = logging.getLogger(__name__)
 
@@ -359,7 +362,7 @@ def evaluate(db: MotionDatabase, heldout: list[Path], config: EvalConfig) -> dic
     floor_seconds = time.perf_counter() - t0
     rng = np.random.default_rng(config.seed)
     total = sum(len(t.positions) for t in truths) * len(config.yaws_deg) * len(config.scenarios)
-    bar = tqdm(total=total, desc="eval", unit="frame", disable=None, file=sys.stderr)
+    bar = progress(total=total, desc="eval", unit="frame")
     results = [evaluate_scenario(db, truths, scenario, config, rng, floors, bar) for scenario in config.scenarios]
     bar.close()
     engine = _new_engine(db, config)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from mocapdb.core import geometry
 from mocapdb.core.skeleton import DRAWING_LINES, KP, PELVIS
 
 # One colour per track (BGR), bright enough on a dark background and on video; track id modulo 10.
@@ -36,13 +37,10 @@ def project_pinhole(joints: np.ndarray, focal: float, principal: tuple[float, fl
     """Pixels ``[..., 2]`` of camera-aligned points ``[..., 3]`` (metres) through a pinhole camera:
     ``u = cx + f·x/z``, ``v = cy − f·y/z`` (y is up in the camera-aligned frame, down in pixels).
     Points at or behind the camera (z ≤ 1 mm) and unknown points give NaN."""
-    p = np.asarray(joints, dtype=np.float64)
-    z = p[..., 2]
-    ok = z > 1e-3
+    opencv = np.asarray(joints, dtype=np.float64) * [1.0, -1.0, 1.0]  # camera-aligned → OpenCV axes (y down)
     with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.where(ok, principal[0] + focal * p[..., 0] / z, np.nan)
-        v = np.where(ok, principal[1] - focal * p[..., 1] / z, np.nan)
-    return np.stack([u, v], axis=-1)
+        px = geometry.project_pinhole(opencv, focal, principal)
+    return np.where((opencv[..., 2] > 1e-3)[..., None], px, np.nan)
 
 
 def line_width(size: tuple[int, int], base: float = 1.0) -> int:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 import time
 from collections import deque
 from collections.abc import Callable
@@ -17,6 +16,7 @@ import cv2
 import numpy as np
 
 from mocapdb.core.cameras import CameraModel, camera_from_intrinsics
+from mocapdb.core.progress import progress as progress_bar
 from mocapdb.core.skeleton import PELVIS
 from mocapdb.render import draw
 from mocapdb.render.results import RenderError, ResultFrame, overlap, read_cameras, read_result
@@ -304,9 +304,8 @@ def render_result(result: str | Path, out: str | Path, keypoints: str | Path | N
             sink = _PngFrames(out)
         trails: dict[int, deque] = {}
         try:
-            from tqdm import tqdm
 
-            for rframe, kframe in tqdm(pairs, desc="render", unit="frame", disable=not progress, file=sys.stderr):
+            for rframe, kframe in (progress_bar(pairs, desc="render", unit="frame") if progress else pairs):
                 seen = set()
                 for p in rframe.people:
                     trails.setdefault(p.track, deque(maxlen=max(2, int(stream.fps)))).append(p.joints[PELVIS])
