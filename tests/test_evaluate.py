@@ -27,7 +27,9 @@ from mocapdb.evaluation.reconstruction import (
     EngineRun,
     EvalConfig,
     VariantStats,
+    View,
     compute_floors,
+    floor_key,
     evaluate,
     reprojection_pct,
 )
@@ -102,14 +104,15 @@ def test_floor_of_a_given_height_is_against_the_database_at_that_size(walk_and_d
               Truth("from the database", np.zeros((0, 1, 4)), small_db.positions[::25].astype(np.float64))]
     tall, given, unknown = (Scenario("a"), Scenario("b", subject_height_m=1.55, height_given=True),
                             Scenario("c", subject_height_m=1.55))
-    floors = compute_floors(small_db, truths, (tall, given, unknown))
-    base = floors[(0, 1.75, 1.0)]
-    np.testing.assert_allclose(floors[(0, 1.55, 1.55 / 1.75)], base * 1.55 / 1.75, rtol=1e-9)
+    floors = compute_floors(small_db, truths, (tall, given, unknown), EvalConfig(yaws_deg=(6.0,)))
+    key = {s.name: (lambda i, s=s: floor_key(i, 0, s)) for s in (tall, given, unknown)}
+    base = floors[key["a"](0)]
+    np.testing.assert_allclose(floors[key["b"](0)], base * 1.55 / 1.75, rtol=1e-9)
     # database poses: at their size and at a given size they are in the database; a smaller body
     # against the 1.75 m database is not
-    np.testing.assert_allclose(floors[(1, 1.75, 1.0)], 0.0, atol=1e-6)
-    np.testing.assert_allclose(floors[(1, 1.55, 1.55 / 1.75)], 0.0, atol=1e-6)
-    assert floors[(1, 1.55, 1.0)].min() > 0.01
+    np.testing.assert_allclose(floors[key["a"](1)], 0.0, atol=1e-6)
+    np.testing.assert_allclose(floors[key["b"](1)], 0.0, atol=1e-6)
+    assert floors[key["c"](1)].min() > 0.01
 
 
 def test_floor_speed_is_seconds_not_minutes():
@@ -183,15 +186,19 @@ def test_reprojection_and_root_errors_are_zero_when_the_output_is_the_truth(walk
     clean = project(cam[:, :14], config.focal_px, config.image_size)
     stats = VariantStats()
     run = EngineRun(cam.copy(), cam[:, PELVIS].copy(), cam.copy(), 1.0)
-    stats.add(run, cam, np.full(30, 0.05), _frames(clean), config)
+    view = View(cam, 1.5, 5.0, 15.0)
+    stats.add(run, view, np.full(30, 0.05), _frames(clean), config)
     s = stats.summary()
-    for key in ("mpjpe_cm", "pa_mpjpe_cm", "reprojection_error_pct", "reprojection_error_input_pct",
-                "root_error_m", "root_error_pct_distance", "engine_minus_floor_cm"):
+    for key in ("mpjpe_cm", "mpjpe13_cm", "pa_mpjpe_cm", "pa_mpjpe13_cm", "bone_error_cm", "reprojection_error_pct",
+                "reprojection_error_input_pct", "root_error_m", "root_error_pct_distance", "engine_minus_floor_cm"):
         assert s[key] == pytest.approx(-5.0 if key == "engine_minus_floor_cm" else 0.0, abs=1e-6), key
     assert s["frames_below_floor"] == 1.0 and s["floor_mpjpe_cm"] == 5.0
+    # the truth's own feet neither slide nor leave the floor where they are planted, and nothing pops
+    assert s["foot_skating_cm_per_s"]["mean"] < 5.0 and s["planted_foot_height_cm"]["mean"] == 0.0
+    assert s["frames_with_pop"] == 0.0
     # a 10-pixel offset of the input shows in the input error only, as 10 px over the box height
     shifted = VariantStats()
-    shifted.add(run, cam, np.zeros(30), _frames(clean + [10.0, 0.0]), config)
+    shifted.add(run, view, np.zeros(30), _frames(clean + [10.0, 0.0]), config)
     box = np.ptp(clean[..., 1], axis=1)
     assert shifted.summary()["reprojection_error_pct"] == pytest.approx(0.0, abs=1e-6)
     assert shifted.summary()["reprojection_error_input_pct"] == pytest.approx(np.mean(1000.0 / box), rel=1e-3)
@@ -202,7 +209,7 @@ def test_root_error_and_reprojection_of_a_displaced_output(walk_and_dance):
     cam = camera_view(walk_and_dance[0][:10], 0.0, 1.5, 5.0)
     moved = cam + [0.0, 0.0, 0.5]   # the whole body 0.5 m too far: same pose, smaller image
     stats = VariantStats()
-    stats.add(EngineRun(moved, moved[:, PELVIS], moved, 1.0), cam, np.zeros(10), _frames(np.zeros((10, 14, 2))), config)
+    stats.add(EngineRun(moved, moved[:, PELVIS], moved, 1.0), View(cam, 1.5, 5.0, 0.0), np.zeros(10), _frames(np.zeros((10, 14, 2))), config)
     s = stats.summary()
     assert s["mpjpe_cm"] == pytest.approx(0.0, abs=1e-9)
     assert s["root_error_m"] == pytest.approx(0.5)
@@ -222,12 +229,12 @@ def test_single_database_report_has_both_variants_and_the_new_fields(small_db):
         for variant in ("published", "refined"):
             _check_variant(sc[variant])
         assert sc["published"]["floor_mpjpe_cm"] == sc["refined"]["floor_mpjpe_cm"]
-        assert math.isfinite(sc["mpjpe_change_pct"])
+        assert math.isfinite(sc["mpjpe13_change_pct"])
     floors = [sc["published"]["floor_mpjpe_cm"] for sc in report["scenarios"]]
     assert floors[0] == floors[1]   # the floor does not depend on the camera's pitch
 
 
-VARIANT_FIELDS = ("mpjpe_cm", "pa_mpjpe_cm", "accel_error_mm_per_frame2", "floor_mpjpe_cm", "engine_minus_floor_cm",
+VARIANT_FIELDS = ("mpjpe_cm", "mpjpe13_cm", "pa_mpjpe_cm", "pa_mpjpe13_cm", "bone_error_cm", "frames_with_pop", "accel_error_mm_per_frame2", "floor_mpjpe_cm", "engine_minus_floor_cm",
                   "frames_below_floor", "reprojection_error_pct", "reprojection_error_input_pct", "root_error_m",
                   "root_error_pct_distance", "engine_person_frames_per_s")
 

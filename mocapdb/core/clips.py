@@ -43,6 +43,8 @@ class Clip:
     quaternions: np.ndarray  # [F, R, 4]
     positions: np.ndarray    # [F, 15, 3] metres, y up, floor at y = 0
     mirrored: bool = False   # the left-right mirror image of the captured motion
+    source_m: np.ndarray | None = None  # [F, 15, 3] the source's own joints (its bone lengths), metres,
+    #                                     y up, the lowest ankle ANKLE_HEIGHT_M × its leg / universal leg
 
 
 def credit_for(path: Path, root: Path, given: str | None) -> str:
@@ -102,11 +104,18 @@ def process_clip(path: Path, root: Path, options: ClipOptions) -> Clip:
 def _clip(name: str, points: np.ndarray, *, source: str, source_fps: float, convention: str, credit: str,
           mirrored: bool = False) -> Clip:
     """Retarget resampled source keypoints (metres, y up) and put the floor at y = 0."""
-    quats, positions = retarget(points * leg_scale(points))
-    ankles = positions[:, [KP["r_ankle"], KP["l_ankle"]], 1]
-    positions[..., 1] -= ankles.min() - ANKLE_HEIGHT_M
+    scale = leg_scale(points)
+    quats, positions = retarget(points * scale)
+    positions[..., 1] -= _lowest_ankle(positions) - ANKLE_HEIGHT_M
+    source_m = points.copy()
+    source_m[..., 1] -= _lowest_ankle(points) - ANKLE_HEIGHT_M / scale
     return Clip(name, source, source_fps, convention, credit, quats.astype(np.float32),
-                positions.astype(np.float32), mirrored)
+                positions.astype(np.float32), mirrored, source_m.astype(np.float32))
+
+
+def _lowest_ankle(points: np.ndarray) -> float:
+    """The lowest ankle height (y) over a clip's keypoints ``[F, 15, 3]``."""
+    return float(points[:, [KP["r_ankle"], KP["l_ankle"]], 1].min())
 
 
 MAX_JOINT_SPEED_MPS = 15.0  # faster than any human joint: a jump in the data, not motion

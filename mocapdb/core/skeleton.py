@@ -47,6 +47,21 @@ UNIVERSAL_HEIGHT_M = 1.75  # standing height of the universal skeleton (its bone
 NOSE_OFFSET_M = np.array([0.0, 0.19, 0.08])  # neck → nose in the rest pose
 ANKLE_HEIGHT_M = 0.08                         # ankle joint above the floor when standing
 
+# The body's measurable bones (what a person's own skeleton is made of), each the mean over the
+# keypoint pairs listed (left and right sides as one bone). Metres, universal lengths in
+# :func:`universal_bone_lengths_m`.
+MEASURED_BONES: dict[str, tuple[tuple[str, str], ...]] = {
+    "thigh": (("r_hip", "r_knee"), ("l_hip", "l_knee")),
+    "shank": (("r_knee", "r_ankle"), ("l_knee", "l_ankle")),
+    "upper_arm": (("r_shoulder", "r_elbow"), ("l_shoulder", "l_elbow")),
+    "forearm": (("r_elbow", "r_wrist"), ("l_elbow", "l_wrist")),
+    "hip_width": (("r_hip", "l_hip"),),
+    "shoulder_width": (("r_shoulder", "l_shoulder"),),
+    "torso": (("pelvis", "neck"),),
+    "neck_nose": (("neck", "head"),),
+}
+MEASURED_BONE_NAMES: tuple[str, ...] = tuple(MEASURED_BONES)
+
 _B = BONE_LENGTHS_M
 # Rig nodes in BVH order: (name, parent, rest offset from parent in metres, keypoint or None).
 # Nodes whose name is not a rotation joint are End Sites (the leaves nose, wrists, ankles).
@@ -319,3 +334,19 @@ def resample(points: np.ndarray, source_fps: float, target_fps: float) -> np.nda
     i1 = np.minimum(i0 + 1, n_src - 1)
     w = (t - i0).reshape((-1,) + (1,) * (points.ndim - 1))
     return points[i0] * (1.0 - w) + points[i1] * w
+
+
+_BONE_PAIRS = [[(KP[a], KP[b]) for a, b in pairs] for pairs in MEASURED_BONES.values()]
+
+
+def bone_lengths_m(points_m: np.ndarray) -> np.ndarray:
+    """Lengths ``[..., 8]`` (:data:`MEASURED_BONE_NAMES` order, metres) of keypoints ``[..., 15, 3]``;
+    two-sided bones are the mean of left and right."""
+    points_m = np.asarray(points_m, dtype=np.float64)
+    return np.stack([np.mean([np.linalg.norm(points_m[..., b, :] - points_m[..., a, :], axis=-1)
+                              for a, b in pairs], axis=0) for pairs in _BONE_PAIRS], axis=-1)
+
+
+def universal_bone_lengths_m() -> np.ndarray:
+    """The universal skeleton's :data:`MEASURED_BONE_NAMES` lengths ``[8]`` (metres, 1.75 m body)."""
+    return bone_lengths_m(rest_positions_m())

@@ -17,11 +17,13 @@ import numpy as np
 from mocapdb.core.clips import ClipOptions, process_clip
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import yaw_matrix
-from mocapdb.core.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS
+from mocapdb.core.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS, bone_lengths_m
+from mocapdb.evaluation.bodies import reshape_body, sample_body
 
 if TYPE_CHECKING:
     from mocapdb.evaluation.reconstruction import EvalConfig
 
+BODIES = ("universal", "varied")
 SWAP_PAIRS = [(KP[r], KP[l]) for r, l in MIRROR_PAIRS]  # right/left keypoint pairs
 IMAGE_HEIGHT_PX = 1080
 UNIVERSAL_HEIGHT_M = 1.75   # the database skeleton's height (data_specs/skeleton.md)
@@ -39,6 +41,14 @@ class Scenario:
     pitch_deg: float = 0.0      # camera tilted down by this angle about its x axis
     subject_height_m: float = UNIVERSAL_HEIGHT_M  # truth scaled by this / 1.75 before rendering
     height_given: bool = False  # the engine is told subject_height_m (EngineConfig.subject_height_m)
+    body: str = "universal"     # "universal": the retargeted clip; "varied": its source joints on a
+    #                             sampled body per clip and yaw (mocapdb.evaluation.bodies)
+
+    def __post_init__(self) -> None:
+        if self.body not in BODIES:
+            raise ValueError(f"body must be one of {BODIES}, not {self.body!r}")
+        if self.body == "varied" and (self.height_given or self.subject_height_m != UNIVERSAL_HEIGHT_M):
+            raise ValueError("a varied body samples its own height: leave subject_height_m and height_given")
 
 
 DEFAULT_SCENARIOS = (
@@ -49,6 +59,10 @@ DEFAULT_SCENARIOS = (
     Scenario("sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05),
     Scenario("clean, camera 1.5 m pitched 15 deg", pitch_deg=15.0),
     Scenario("clean, subject 1.55 m, height given", subject_height_m=1.55, height_given=True),
+    Scenario("varied bodies, clean, camera 1.5 m", body="varied"),
+    Scenario("varied bodies, clean, pitched 15 deg", pitch_deg=15.0, body="varied"),
+    Scenario("varied bodies, sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05,
+             body="varied"),
 )
 
 
@@ -60,13 +74,30 @@ class Truth:
     quaternions: np.ndarray  # [F, R, 4]
     positions: np.ndarray    # [F, 15, 3] world, floor at 0
     yaws_deg: tuple[float, ...] | None = None  # this clip's yaws; None: EvalConfig.yaws_deg
+    source_m: np.ndarray | None = None  # [F, 15, 3] the source skeleton's own joints (Clip.source_m)
 
 
 def load_heldout(paths: list[Path], fps: float) -> list[Truth]:
     """Retarget held-out BVH files exactly as the builder does."""
     config = ClipOptions(fps=fps)
-    return [Truth(c.name, c.quaternions.astype(np.float64), c.positions.astype(np.float64))
+    return [Truth(c.name, c.quaternions.astype(np.float64), c.positions.astype(np.float64),
+                  source_m=c.source_m.astype(np.float64))
             for c in (process_clip(p, p.parent, config) for p in paths)]
+
+
+def scenario_positions(truth: Truth, scenario: Scenario, clip_index: int, yaw_index: int,
+                       seed: int) -> tuple[np.ndarray, float]:
+    """The truth joints ``[F, 15, 3]`` (world, floor at 0) a scenario renders for one clip and yaw,
+    and the body's stature (metres). Universal body: the retargeted clip scaled to the scenario's
+    subject height. Varied: the source joints on a body drawn for (seed, clip, yaw), the same in
+    every scenario."""
+    if scenario.body == "universal":
+        return scaled_positions(truth.positions, scenario.subject_height_m), scenario.subject_height_m
+    if truth.source_m is None:
+        raise ValueError(f"{truth.name}: a varied-body scenario needs the clip's source joints")
+    body = sample_body(np.random.default_rng((seed, clip_index, yaw_index)))
+    lengths = body.bone_lengths_m(bone_lengths_m(truth.source_m).mean(axis=0))
+    return reshape_body(truth.source_m, lengths), body.height_m
 
 
 def scaled_positions(positions: np.ndarray, subject_height_m: float) -> np.ndarray:
@@ -93,9 +124,22 @@ def camera_view(positions: np.ndarray, yaw_deg: float, height_m: float, distance
     turned by ``yaw_deg`` about the clip's mean pelvis, seen by a camera ``distance_m`` in front of
     it (along +z) at ``height_m`` above the floor, looking along −z and tilted down by ``pitch_deg``."""
     centre = positions[:, PELVIS].mean(axis=0) * [1, 0, 1]
-    rel = (positions - centre) @ yaw_matrix(yaw_deg).T - [0.0, height_m, distance_m]
+    return _pitched((positions - centre) @ yaw_matrix(yaw_deg).T - [0.0, height_m, distance_m], pitch_deg)
+
+
+def _pitched(points: np.ndarray, pitch_deg: float) -> np.ndarray:
+    """Points relative to the camera centre (y up, camera looking along −z) → camera-aligned (z away
+    from the camera) for a camera tilted down by ``pitch_deg``; the map is its own inverse."""
     c, s = np.cos(np.radians(pitch_deg)), np.sin(np.radians(pitch_deg))
-    return np.stack([rel[..., 0], c * rel[..., 1] - s * rel[..., 2], -s * rel[..., 1] - c * rel[..., 2]], axis=-1)
+    x, y, z = points[..., 0], points[..., 1], points[..., 2]
+    return np.stack([x, c * y - s * z, -s * y - c * z], axis=-1)
+
+
+def camera_to_world(cam_points: np.ndarray, height_m: float, distance_m: float, pitch_deg: float = 0.0) -> np.ndarray:
+    """The inverse of :func:`camera_view` up to the clip's turn and centre: camera-aligned points →
+    the turned world (y up, metres above the floor; x-z horizontal, about the floor point under the
+    clip's mean pelvis)."""
+    return _pitched(cam_points, pitch_deg) + [0.0, height_m, distance_m]
 
 
 def view_of(truth: Truth, yaw_deg: float, height_m: float, distance_m: float, pitch_deg: float = 0.0) -> np.ndarray:
@@ -116,6 +160,8 @@ def render(cam_points: np.ndarray, scenario: Scenario, focal_px: float, image_si
     px = project(cam_points[:, :N_KEYPOINTS_2D], focal_px, image_size)
     px = px + rng.normal(scale=scenario.noise_px * image_size[1] / IMAGE_HEIGHT_PX, size=px.shape)
     conf = np.where(rng.random(px.shape[:2]) < scenario.dropout, 0.0, 0.9)
+    inside = (px >= 0).all(axis=-1) & (px[..., 0] < image_size[0]) & (px[..., 1] < image_size[1])
+    conf[~inside] = 0.0  # outside the image: unseen, as a detector leaves it
     swapped = rng.random(len(px)) < scenario.swap
     for r, l in SWAP_PAIRS:
         px[swapped, r], px[swapped, l] = px[swapped, l].copy(), px[swapped, r].copy()

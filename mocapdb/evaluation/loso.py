@@ -46,10 +46,11 @@ from mocapdb.evaluation.reconstruction import (
 
 LOSO_YAWS = (6.0, 51.0, 99.0, 141.0, 186.0, 231.0, 279.0, 321.0)  # 3° or 6° off the 12° grid
 LOSO_SCENARIOS = (
-    Scenario("clean, camera 1.5 m"),
-    Scenario("clean, camera 1.5 m pitched 15 deg", pitch_deg=15.0),
-    Scenario("sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05),
-    Scenario("clean, subject 1.55 m, height given", subject_height_m=1.55, height_given=True),
+    Scenario("varied bodies, clean, camera 1.5 m", body="varied"),
+    Scenario("varied bodies, clean, pitched 15 deg", pitch_deg=15.0, body="varied"),
+    Scenario("varied bodies, sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05,
+             body="varied"),
+    Scenario("universal body, clean, camera 1.5 m"),
 )
 
 LOG = logging.getLogger(__name__)
@@ -136,7 +137,8 @@ def sample_truths(files: list[Path], config: LosoConfig) -> list[Truth]:
         yaws = tuple(config.yaws_deg[(config.yaws_per_clip * i + j) % len(config.yaws_deg)]
                      for j in range(config.yaws_per_clip))
         truths.append(Truth(clip.name, clip.quaternions[start:stop].astype(np.float64),
-                            clip.positions[start:stop].astype(np.float64), yaws))
+                            clip.positions[start:stop].astype(np.float64), yaws,
+                            clip.source_m[start:stop].astype(np.float64)))
     return truths
 
 
@@ -169,7 +171,7 @@ def leave_one_subject_out(sources: list[str], config: LosoConfig, log=_stderr) -
             summary = build(train, Path(tmp) / "db", config.build)
             t1 = time.perf_counter()
             db = load_database(Path(tmp) / "db")
-            floors = compute_floors(db, truths, scenarios)
+            floors = compute_floors(db, truths, scenarios, config.eval)
             t2 = time.perf_counter()
             rng = np.random.default_rng(config.eval.seed + subject)
             results = [evaluate_scenario(db, truths, s, config.eval, rng, floors) for s in scenarios]
@@ -208,30 +210,28 @@ def _fmt(value, spec: str, missing: str = "-") -> str:
     return missing if value is None else format(value, spec)
 
 
-def format_table(report: dict, motion_width: int = 28) -> str:
-    """Per subject and overall, one row per scenario: frames, floor and both engine variants (cm),
-    change of MPJPE (refined vs published), and for the refined engine PA-MPJPE, reprojection error
-    (% of box height), root error (% of distance) and whether its mean MPJPE is below the floor
-    (with the share of frames below it)."""
-    head = (f"{'subject':<8} {'motion':<{motion_width}} {'scenario':<36} {'frames':>6} {'floor':>6} "
-            f"{'MPJPE pub':>9} {'MPJPE ref':>9} {'change':>7} {'PA-MPJPE':>8} {'reproj %':>8} {'root %':>7} "
-            f"{'below floor':>13}")
+def format_table(report: dict, motion_width: int = 24) -> str:
+    """Per subject and overall, one row per scenario: frames, the database floor (15 joints) and
+    both engine variants' MPJPE over the 13 joints below the head (cm), its change (refined vs
+    published), and for the refined engine PA-MPJPE (13 joints), bone-length error (cm),
+    acceleration error (mm/frame²; published in brackets), planted-foot skating (cm/s) and root
+    error (% of distance)."""
+    head = (f"{'subject':<8} {'motion':<{motion_width}} {'scenario':<40} {'frames':>6} {'floor':>6} "
+            f"{'MPJPE pub':>9} {'MPJPE ref':>9} {'change':>7} {'PA ref':>6} {'bone':>5} {'accel ref (pub)':>15} "
+            f"{'skate':>6} {'root %':>7}")
     lines = [head, "-" * len(head)]
 
     def rows(subject: str, motion: str, scenarios: list[dict]) -> None:
         for sc in scenarios:
             pub, ref = sc["published"], sc["refined"]
-            below = None
-            if ref["mpjpe_cm"] is not None and ref["floor_mpjpe_cm"] is not None:
-                verdict = "yes" if ref["mpjpe_cm"] < ref["floor_mpjpe_cm"] else "no"
-                below = f"{verdict} ({_fmt(ref['frames_below_floor'], '.0%')})"
+            accel = f"{_fmt(ref['accel_error_mm_per_frame2'], '.1f')} ({_fmt(pub['accel_error_mm_per_frame2'], '.1f')})"
             lines.append(
-                f"{subject:<8} {motion[:motion_width]:<{motion_width}} {sc['scenario']['name'][:36]:<36} "
+                f"{subject:<8} {motion[:motion_width]:<{motion_width}} {sc['scenario']['name'][:40]:<40} "
                 f"{ref['frames_with_output']:>6} {_fmt(ref['floor_mpjpe_cm'], '.2f'):>6} "
-                f"{_fmt(pub['mpjpe_cm'], '.2f'):>9} {_fmt(ref['mpjpe_cm'], '.2f'):>9} "
-                f"{_fmt(sc['mpjpe_change_pct'], '+.1f'):>6}% {_fmt(ref['pa_mpjpe_cm'], '.2f'):>8} "
-                f"{_fmt(ref['reprojection_error_pct'], '.2f'):>8} {_fmt(ref['root_error_pct_distance'], '.2f'):>7} "
-                f"{below or '-':>13}")
+                f"{_fmt(pub['mpjpe13_cm'], '.2f'):>9} {_fmt(ref['mpjpe13_cm'], '.2f'):>9} "
+                f"{_fmt(sc['mpjpe13_change_pct'], '+.1f'):>6}% {_fmt(ref['pa_mpjpe13_cm'], '.2f'):>6} "
+                f"{_fmt(ref['bone_error_cm'], '.2f'):>5} {accel:>15} "
+                f"{_fmt(ref['foot_skating_cm_per_s']['mean'], '.1f'):>6} {_fmt(ref['root_error_pct_distance'], '.2f'):>7}")
             subject, motion = "", ""
 
     for fold in report["folds"]:

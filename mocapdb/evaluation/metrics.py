@@ -37,3 +37,43 @@ def acceleration_error(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
 def pck(pred: np.ndarray, true: np.ndarray, threshold_m: float) -> float:
     """Fraction of joints within ``threshold_m`` of the truth."""
     return float(np.mean(np.linalg.norm(pred - true, axis=-1) <= threshold_m))
+
+
+def speeds_mps(points_m: np.ndarray, fps: float, horizontal: bool = False) -> np.ndarray:
+    """Speed ``[F, ...]`` (m/s) of points ``[F, ..., 3]`` (y up) by central differences (one-sided at
+    the ends); NaN where the point or a neighbour is NaN (no output). ``horizontal``: x-z only."""
+    p = np.asarray(points_m, dtype=np.float64)
+    if horizontal:
+        p = p[..., [0, 2]]
+    if len(p) < 2:
+        return np.full(p.shape[:-1], np.nan)
+    step = np.empty_like(p)
+    step[1:-1] = (p[2:] - p[:-2]) / 2.0
+    step[0], step[-1] = p[1] - p[0], p[-1] - p[-2]
+    step[np.isnan(p)] = np.nan  # a frame without output has no speed either
+    return np.linalg.norm(step, axis=-1) * fps
+
+
+PLANTED_SPEED_MPS = 0.25   # a foot slower than this …
+PLANTED_HEIGHT_M = 0.05    # … and within this of its lowest height over the clip is planted
+
+
+def planted_feet(ankles_m: np.ndarray, fps: float) -> np.ndarray:
+    """Which ankles ``[F, 2, 3]`` (world, y up, metres) are planted ``[F, 2]``: slower than
+    :data:`PLANTED_SPEED_MPS` and within :data:`PLANTED_HEIGHT_M` of that ankle's lowest height."""
+    speed = speeds_mps(ankles_m, fps)
+    low = ankles_m[..., 1] <= np.nanmin(ankles_m[..., 1], axis=0) + PLANTED_HEIGHT_M
+    return (speed < PLANTED_SPEED_MPS) & low
+
+
+def foot_skating_mps(pred_ankles_m: np.ndarray, planted: np.ndarray, fps: float) -> np.ndarray:
+    """Horizontal speeds (m/s) of the predicted ankles ``[F, 2, 3]`` (world) where the truth's are
+    ``planted [F, 2]`` (1-D, NaN-free: frames without output left out)."""
+    speed = speeds_mps(pred_ankles_m, fps, horizontal=True)[planted]
+    return speed[np.isfinite(speed)]
+
+
+def foot_height_error_m(pred_ankles_m: np.ndarray, true_ankles_m: np.ndarray, planted: np.ndarray) -> np.ndarray:
+    """Predicted minus true ankle height (m; negative: into the floor) where the truth is planted (1-D)."""
+    diff = (pred_ankles_m[..., 1] - true_ankles_m[..., 1])[planted]
+    return diff[np.isfinite(diff)]

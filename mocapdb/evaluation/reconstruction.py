@@ -26,7 +26,15 @@ from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import normalize_pose_2d
 from mocapdb.core.progress import progress
-from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D, N_POINTS, PELVIS, pose_from_rotations
+from mocapdb.core.skeleton import (
+    KP,
+    MEASURED_BONE_NAMES,
+    N_KEYPOINTS_2D,
+    N_POINTS,
+    PELVIS,
+    bone_lengths_m,
+    pose_from_rotations,
+)
 from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.heldout import (
     DEFAULT_SCENARIOS,
@@ -34,14 +42,23 @@ from mocapdb.evaluation.heldout import (
     Scenario,
     Truth,
     camera_distance,
+    camera_to_world,
     camera_view,
     load_heldout,
     project,
     render,
-    scaled_positions,
+    scenario_positions,
     view_of,
 )
-from mocapdb.evaluation.metrics import acceleration_error, mpjpe, pa_mpjpe
+from mocapdb.evaluation.metrics import (
+    acceleration_error,
+    foot_height_error_m,
+    foot_skating_mps,
+    mpjpe,
+    pa_mpjpe,
+    planted_feet,
+    speeds_mps,
+)
 from mocapdb.runtime.engine import Engine, EngineConfig
 from mocapdb.runtime.search import search_clustered, search_exact
 
@@ -126,11 +143,34 @@ def reprojection_pct(joints: np.ndarray, target_px: np.ndarray, box_height_px: n
 
 
 @dataclass
+class View:
+    """One rendered sequence: the truth in the camera-aligned frame ``cam [F, 15, 3]`` and the camera
+    that saw it (to take any camera-aligned points back to the world: :meth:`world`)."""
+
+    cam: np.ndarray
+    camera_height_m: float
+    distance_m: float
+    pitch_deg: float
+
+    def world(self, cam_points: np.ndarray) -> np.ndarray:
+        return camera_to_world(cam_points, self.camera_height_m, self.distance_m, self.pitch_deg)
+
+
+BELOW_HEAD = np.array([k for k in range(N_POINTS) if k not in (KP["head"], PELVIS)])  # the 13 joints scored
+BODY_BONES = np.array([i for i, name in enumerate(MEASURED_BONE_NAMES) if name != "neck_nose"])
+ANKLES = [KP["r_ankle"], KP["l_ankle"]]
+MAX_HUMAN_SPEED_MPS = 12.0  # a joint faster than this where the truth is slower is a pop
+
+
+@dataclass
 class VariantStats:
     """Per-frame results of one engine variant in one scenario (frames with an output)."""
 
     mpjpe: list[np.ndarray] = field(default_factory=list)
+    mpjpe13: list[np.ndarray] = field(default_factory=list)
     pa: list[np.ndarray] = field(default_factory=list)
+    pa13: list[np.ndarray] = field(default_factory=list)
+    bones: list[np.ndarray] = field(default_factory=list)      # [F, 8] |bone − true bone|
     yaw: list[np.ndarray] = field(default_factory=list)
     accel: list[np.ndarray] = field(default_factory=list)
     floor: list[np.ndarray] = field(default_factory=list)
@@ -138,19 +178,25 @@ class VariantStats:
     reproj_input: list[np.ndarray] = field(default_factory=list)
     root: list[np.ndarray] = field(default_factory=list)
     root_pct: list[np.ndarray] = field(default_factory=list)
+    skate: list[np.ndarray] = field(default_factory=list)      # planted-foot horizontal speeds, m/s
+    foot_height: list[np.ndarray] = field(default_factory=list)  # planted-foot height error, m
+    pops: list[np.ndarray] = field(default_factory=list)       # per frame: a joint over MAX_HUMAN_SPEED_MPS
     seconds: float = 0.0
     person_frames: int = 0
 
-    def add(self, run: EngineRun, cam: np.ndarray, floor: np.ndarray, frames: list[KeypointFrame],
+    def add(self, run: EngineRun, view: View, floor: np.ndarray, frames: list[KeypointFrame],
             config: EvalConfig) -> None:
         ok = run.ok
         self.seconds += run.seconds
         self.person_frames += len(ok)
-        joints, root, truth = run.joints[ok], run.root[ok], cam[ok]
+        joints, root, truth = run.joints[ok], run.root[ok], view.cam[ok]
         gt = truth - truth[:, PELVIS:PELVIS + 1]
         rel = joints - root[:, None]
         self.mpjpe.append(mpjpe(rel, gt))
+        self.mpjpe13.append(mpjpe(rel[:, BELOW_HEAD], gt[:, BELOW_HEAD]))
         self.pa.append(pa_mpjpe(rel, gt))
+        self.pa13.append(pa_mpjpe(rel[:, BELOW_HEAD], gt[:, BELOW_HEAD]))
+        self.bones.append(np.abs(bone_lengths_m(rel) - bone_lengths_m(gt)))
         self.yaw.append(_angle_diff(facing_deg(rel), facing_deg(gt)))
         run_idx = np.flatnonzero(ok)
         if len(run_idx) > 2 and np.all(np.diff(run_idx) == 1):
@@ -167,9 +213,20 @@ class VariantStats:
         err = np.linalg.norm(root - truth[:, PELVIS], axis=-1)
         self.root.append(err)
         self.root_pct.append(100.0 * err / truth[:, PELVIS, 2])
+        self._add_world(view.world(run.joints), view.world(view.cam), ok, config.fps)
+
+    def _add_world(self, pred_w: np.ndarray, true_w: np.ndarray, ok: np.ndarray, fps: float) -> None:
+        """Feet and speeds in the world (NaN rows: frames without output)."""
+        planted = planted_feet(true_w[:, ANKLES], fps)
+        self.skate.append(foot_skating_mps(pred_w[:, ANKLES], planted, fps))
+        self.foot_height.append(foot_height_error_m(pred_w[:, ANKLES], true_w[:, ANKLES], planted))
+        pred_speed, true_speed = speeds_mps(pred_w, fps), speeds_mps(true_w, fps)
+        pop = ((pred_speed > MAX_HUMAN_SPEED_MPS) & (true_speed <= MAX_HUMAN_SPEED_MPS)).any(axis=1)
+        self.pops.append(pop[ok])
 
     def extend(self, other: VariantStats) -> None:
-        for name in ("mpjpe", "pa", "yaw", "accel", "floor", "reproj", "reproj_input", "root", "root_pct"):
+        for name in ("mpjpe", "mpjpe13", "pa", "pa13", "bones", "yaw", "accel", "floor", "reproj", "reproj_input",
+                     "root", "root_pct", "skate", "foot_height", "pops"):
             getattr(self, name).extend(getattr(other, name))
         self.seconds += other.seconds
         self.person_frames += other.person_frames
@@ -177,10 +234,16 @@ class VariantStats:
     def summary(self) -> dict:
         cat = _cat
         err, floor, yaw, acc = cat(self.mpjpe), cat(self.floor), cat(self.yaw), cat(self.accel)
+        bones = np.concatenate(self.bones) if self.bones else np.zeros((0, len(MEASURED_BONE_NAMES)))
+        skate, height = cat(self.skate), cat(self.foot_height)
         return {
             "frames_with_output": int(len(err)),
             "mpjpe_cm": _r(100 * _mean(err)),
+            "mpjpe13_cm": _r(100 * _mean(cat(self.mpjpe13))),
             "pa_mpjpe_cm": _r(100 * _mean(cat(self.pa))),
+            "pa_mpjpe13_cm": _r(100 * _mean(cat(self.pa13))),
+            "bone_error_cm": _r(100 * _mean(bones[:, BODY_BONES].ravel())),
+            "bone_error_by_bone_cm": {name: _r(100 * _mean(bones[:, b])) for b, name in enumerate(MEASURED_BONE_NAMES)},
             "yaw_error_deg": {"mean": _r(_mean(yaw), 1), "median": _r(float(np.median(yaw)) if len(yaw) else None, 1)},
             "accel_error_mm_per_frame2": _r(1000 * _mean(acc)) if len(acc) else None,
             "floor_mpjpe_cm": _r(100 * _mean(floor)),
@@ -190,6 +253,13 @@ class VariantStats:
             "reprojection_error_input_pct": _r(_mean(cat(self.reproj_input))),
             "root_error_m": _r(_mean(cat(self.root)), 3),
             "root_error_pct_distance": _r(_mean(cat(self.root_pct))),
+            "foot_skating_cm_per_s": {"mean": _r(100 * _mean(skate), 1),
+                                      "median": _r(100 * float(np.median(skate)) if len(skate) else None, 1)},
+            "planted_foot_height_cm": {"mean": _r(100 * _mean(height), 1),
+                                       "penetration_mean": _r(100 * _mean(np.maximum(-height, 0.0)), 1),
+                                       "frames_below_2cm": _r(float(np.mean(height < -0.02)) if len(height) else None, 4),
+                                       "float_mean": _r(100 * _mean(np.maximum(height, 0.0)), 1)},
+            "frames_with_pop": _r(float(np.mean(cat(self.pops))) if self.pops else None, 4),
             "engine_person_frames_per_s": _r(self.person_frames / self.seconds if self.seconds else None, 1),
         }
 
@@ -215,6 +285,7 @@ class ScenarioResult:
     variants: dict[str, VariantStats] = field(default_factory=lambda: {name: VariantStats() for name, _ in VARIANTS})
     person_frames: int = 0
     camera_distances_m: list[float] = field(default_factory=list)
+    heights_m: list[float] = field(default_factory=list)  # the rendered bodies' statures
     queries: list[Person] = field(default_factory=list)
 
     def extend(self, other: ScenarioResult) -> None:
@@ -222,14 +293,17 @@ class ScenarioResult:
             stats.extend(other.variants[name])
         self.person_frames += other.person_frames
         self.camera_distances_m.extend(other.camera_distances_m)
+        self.heights_m.extend(other.heights_m)
 
     def report(self) -> dict:
         out = {"scenario": asdict(self.scenario), "person_frames": self.person_frames,
                "camera_distance_m": {"min": _r(min(self.camera_distances_m, default=np.nan)),
-                                     "max": _r(max(self.camera_distances_m, default=np.nan))}}
+                                     "max": _r(max(self.camera_distances_m, default=np.nan))},
+               "body_height_m": {"min": _r(min(self.heights_m, default=np.nan)),
+                                 "max": _r(max(self.heights_m, default=np.nan))}}
         out.update({name: stats.summary() for name, stats in self.variants.items()})
-        pub, ref = (_mean(_cat(self.variants[name].mpjpe)) for name in ("published", "refined"))
-        out["mpjpe_change_pct"] = _r(100 * (ref - pub) / pub, 1) if pub > 0 else None
+        pub, ref = (_mean(_cat(self.variants[name].mpjpe13)) for name in ("published", "refined"))
+        out["mpjpe13_change_pct"] = _r(100 * (ref - pub) / pub, 1) if pub > 0 else None
         return out
 
 
@@ -238,26 +312,41 @@ def engine_scale(scenario: Scenario) -> float:
     return scenario.subject_height_m / UNIVERSAL_HEIGHT_M if scenario.height_given else 1.0
 
 
+def floor_key(clip_index: int, yaw_index: int, scenario: Scenario) -> tuple:
+    """The key of :func:`compute_floors`' result for one rendered clip, yaw and scenario: renderings
+    of the same truth at the same engine scale share it."""
+    if scenario.body == "universal":
+        return (clip_index, -1, scenario.body, scenario.subject_height_m, engine_scale(scenario))
+    return (clip_index, yaw_index, scenario.body, 0.0, engine_scale(scenario))
+
+
 def compute_floors(db: MotionDatabase, truths: list[Truth], scenarios: tuple[Scenario, ...],
-                   log=None) -> dict[tuple[int, float, float], np.ndarray]:
-    """Per-frame database floors (metres) of every truth clip for every scenario's sizes, keyed
-    ``(clip index, subject_height_m, engine scale)``.
+                   config: EvalConfig, log=None) -> dict[tuple, np.ndarray]:
+    """Per-frame database floors (metres) of every truth each scenario renders, keyed by
+    :func:`floor_key`.
 
     The floor is against the database at the size the engine is told (1.75 m unless the scenario
     gives the subject's height): min over frames of MPJPE(truth, s·db) = s · floor(truth / s).
     """
     index = FloorIndex.from_positions(db.positions)
+    poses: dict[tuple, np.ndarray] = {}
+    for scenario in scenarios:
+        for i, truth in enumerate(truths):
+            for j, _ in enumerate(truth.yaws_deg or config.yaws_deg):
+                key = floor_key(i, j, scenario)
+                if key not in poses:
+                    positions, _ = scenario_positions(truth, scenario, i, j, config.seed)
+                    poses[key] = positions / key[-1]
     floors = {}
-    for height, scale in sorted({(s.subject_height_m, engine_scale(s)) for s in scenarios}):
+    for scale in sorted({key[-1] for key in poses}):
+        keys = [key for key in poses if key[-1] == scale]
         t0 = time.perf_counter()
-        poses = [scaled_positions(t.positions, height) / scale for t in truths]
-        result = scale * database_floor(index, np.concatenate(poses)).mpjpe_m
-        bounds = np.cumsum([0] + [len(p) for p in poses])
-        for i in range(len(truths)):
-            floors[(i, height, scale)] = result[bounds[i]:bounds[i + 1]]
+        result = scale * database_floor(index, np.concatenate([poses[k] for k in keys])).mpjpe_m
+        bounds = np.cumsum([0] + [len(poses[k]) for k in keys])
+        floors.update({k: result[a:b] for k, a, b in zip(keys, bounds[:-1], bounds[1:])})
         if log:
             log(f"floor: {bounds[-1]} truth frames x {index.n_frames} database frames in "
-                f"{time.perf_counter() - t0:.2f} s (subject {height:.2f} m, engine scale {scale:.3f})")
+                f"{time.perf_counter() - t0:.2f} s (engine scale {scale:.3f})")
     return floors
 
 
@@ -285,17 +374,18 @@ def evaluate_scenario(db: MotionDatabase, truths: list[Truth], scenario: Scenari
     """Every clip and yaw of one scenario, rendered once and run through each engine variant."""
     result = ScenarioResult(scenario)
     for i, truth in enumerate(truths):
-        positions = scaled_positions(truth.positions, scenario.subject_height_m)
-        floor = floors[(i, scenario.subject_height_m, engine_scale(scenario))]
-        for yaw in truth.yaws_deg or config.yaws_deg:
+        for j, yaw in enumerate(truth.yaws_deg or config.yaws_deg):
+            positions, height = scenario_positions(truth, scenario, i, j, config.seed)
             distance = camera_distance(positions, yaw, config)
-            cam = camera_view(positions, yaw, scenario.camera_height_m, distance, scenario.pitch_deg)
-            frames = render(cam, scenario, config.focal_px, config.image_size, rng)
+            view = View(camera_view(positions, yaw, scenario.camera_height_m, distance, scenario.pitch_deg),
+                        scenario.camera_height_m, distance, scenario.pitch_deg)
+            frames = render(view.cam, scenario, config.focal_px, config.image_size, rng)
             for name, refine in VARIANTS:
                 run = run_sequence(_new_engine(db, config, scenario, refine), frames)
-                result.variants[name].add(run, cam, floor, frames, config)
+                result.variants[name].add(run, view, floors[floor_key(i, j, scenario)], frames, config)
             result.person_frames += len(frames)
             result.camera_distances_m.append(distance)
+            result.heights_m.append(height)
             result.queries.extend(f.people[0] for f in frames[::4])
             if bar is not None:
                 bar.update(len(frames))
@@ -358,7 +448,7 @@ def evaluate(db: MotionDatabase, heldout: list[Path], config: EvalConfig) -> dic
     """The full report of one database against held-out clips (see the module docstring)."""
     truths = load_heldout(heldout, config.fps)
     t0 = time.perf_counter()
-    floors = compute_floors(db, truths, config.scenarios, log=_stderr)
+    floors = compute_floors(db, truths, config.scenarios, config, log=_stderr)
     floor_seconds = time.perf_counter() - t0
     rng = np.random.default_rng(config.seed)
     total = sum(len(t.positions) for t in truths) * len(config.yaws_deg) * len(config.scenarios)
