@@ -1,4 +1,5 @@
-"""A person's size from the floor: metric scale of a track seen by a camera at a known height.
+"""A person's body: its size from the floor (a camera at a known height) and its own bone proportions
+(:class:`BoneLengths`).
 
 One camera cannot tell a small person near it from a tall one further away: the image fixes
 the body only up to a scale ``k`` about the camera centre. A flat floor at a known distance
@@ -22,13 +23,23 @@ from collections import deque
 import numpy as np
 from numba import njit
 
+from mocapdb.core.anthropometry import PROPORTION_COVARIANCE
 from mocapdb.core.kernels import quat_mul_into
-from mocapdb.core.skeleton import ANKLE_HEIGHT_M, KP, UNIVERSAL_HEIGHT_M
+from mocapdb.core.skeleton import (
+    ANKLE_HEIGHT_M,
+    KP,
+    MEASURED_BONE_NAMES,
+    MEASURED_BONES,
+    UNIVERSAL_HEIGHT_M,
+    stature_m,
+    universal_bone_lengths_m,
+)
 
 MIN_SAMPLES = 6        # frames before the floor's estimate replaces the starting scale
 WINDOW = 240           # the median runs over the last this many frames
 SCALE_RANGE = (0.5 / UNIVERSAL_HEIGHT_M, 2.5 / UNIVERSAL_HEIGHT_M)
 _ANKLES = (KP["r_ankle"], KP["l_ankle"])
+R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]
 
 
 class CameraTilt:
@@ -106,3 +117,75 @@ class FloorScale:
         if len(self.samples) < MIN_SAMPLES:
             return scale
         return float(np.clip(np.median(self.samples), *SCALE_RANGE))
+
+
+# 2D samples of each measured bone: (keypoint a, keypoint b, bone) over the 15 keypoints (the pelvis
+# is the midpoint of the hips, seen when both are).
+_SAMPLE_PAIRS = [(KP[a], KP[b], i) for i, pairs in enumerate(MEASURED_BONES.values()) for a, b in pairs]
+_PAIR_A = np.array([a for a, _, _ in _SAMPLE_PAIRS])
+_PAIR_B = np.array([b for _, b, _ in _SAMPLE_PAIRS])
+_PAIR_BONE = np.array([i for _, _, i in _SAMPLE_PAIRS])
+_UNIVERSAL_BONES = universal_bone_lengths_m()
+_PRIOR_PRECISION = np.linalg.inv(PROPORTION_COVARIANCE)
+
+
+class BoneLengths:
+    """One track's own bone proportions, from its 2D keypoints over the take (causal, running).
+
+    A bone seen nearly parallel to the image plane shows its length: where the retrieved pose (the
+    database's 3D, independent of the bones being fitted) puts a bone's direction within
+    :data:`IN_PLANE` of the image plane (``c`` = the share of its unit direction across the
+    viewing ray), the sample is ``L = |x_b − x_a| · Z / (f · c)`` (pixels, depth ``Z`` of the fitted
+    pose, metres), in the track's body scale. Per bone the log of L over the universal bone is kept
+    (the last :data:`CAPACITY` samples); the estimate combines each bone's median with the
+    anthropometric prior (:mod:`mocapdb.core.anthropometry`, correlated bones) as a Gaussian in log
+    space, each median weighted as ``min(n, CAPACITY) / DECORRELATION`` independent samples of SD
+    :data:`SAMPLE_SD`, and is rescaled to 1.75 m stature: the body's size stays what the track
+    assumes (a given height, the floor, or 1.75 m); only its proportions are measured.
+    """
+
+    IN_PLANE = 0.9
+    CAPACITY = 600
+    DECORRELATION = 4.0   # consecutive frames are far from independent
+    SAMPLE_SD = 0.10      # one sample's error in log length (detector noise, retrieval direction)
+    UPDATE_EVERY = 8      # frames between estimates
+
+    def __init__(self) -> None:
+        self.samples = np.zeros((len(MEASURED_BONE_NAMES), self.CAPACITY))
+        self.counts = np.zeros(len(MEASURED_BONE_NAMES), dtype=np.int64)
+        self.proportions_m = _UNIVERSAL_BONES.copy()  # the estimate, at 1.75 m stature
+        self._frames = 0
+
+    def add(self, points_px: np.ndarray, confidence: np.ndarray, retrieved_view_m: np.ndarray,
+            fitted_view_m: np.ndarray, focal_px: float, scale: float) -> bool:
+        """Add one frame; returns whether the estimate changed. ``points_px [14, 2]``, ``confidence
+        [14]`` (0: unseen), the retrieved and fitted poses' keypoints ``[15, 3]`` (view frame)."""
+        pts = np.vstack([points_px, points_px[[R_HIP, L_HIP]].mean(axis=0)])
+        conf = np.append(confidence, min(confidence[R_HIP], confidence[L_HIP]))
+        seen = (conf[_PAIR_A] > 0) & (conf[_PAIR_B] > 0)
+        direction = retrieved_view_m[_PAIR_B] - retrieved_view_m[_PAIR_A]
+        direction /= np.maximum(np.linalg.norm(direction, axis=-1, keepdims=True), 1e-9)
+        mid = (fitted_view_m[_PAIR_A] + fitted_view_m[_PAIR_B]) / 2.0
+        ray = mid / np.maximum(np.linalg.norm(mid, axis=-1, keepdims=True), 1e-9)
+        across = np.linalg.norm(direction - np.sum(direction * ray, axis=-1, keepdims=True) * ray, axis=-1)
+        depth = -mid[:, 2]
+        use = seen & (across >= self.IN_PLANE) & (depth > 0.1)
+        length = np.linalg.norm(pts[_PAIR_B] - pts[_PAIR_A], axis=-1) * depth / (focal_px * np.maximum(across, 1e-9))
+        for bone, value in zip(_PAIR_BONE[use], length[use]):
+            if value > 0:
+                self.samples[bone, self.counts[bone] % self.CAPACITY] = np.log(value / (scale * _UNIVERSAL_BONES[bone]))
+                self.counts[bone] += 1
+        self._frames += 1
+        if self._frames % self.UPDATE_EVERY:
+            return False
+        self.proportions_m = self.estimate()
+        return True
+
+    def estimate(self) -> np.ndarray:
+        """Bone lengths ``[8]`` (metres at 1.75 m stature) from the samples so far and the prior."""
+        n = np.minimum(self.counts, self.CAPACITY)
+        medians = np.array([np.median(self.samples[b, :k]) if k else 0.0 for b, k in enumerate(n)])
+        weight = np.diag(n / self.DECORRELATION / self.SAMPLE_SD ** 2)
+        log_factor = np.linalg.solve(_PRIOR_PRECISION + weight, weight @ medians)
+        lengths = _UNIVERSAL_BONES * np.exp(log_factor)
+        return lengths * (UNIVERSAL_HEIGHT_M / stature_m(lengths))

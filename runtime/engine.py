@@ -22,8 +22,18 @@ from mocapdb.core.formats.database import DatabaseError, MotionDatabase
 from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
 from mocapdb.core.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
 from mocapdb.core.outputs import Match, PersonPose, TrackRecording
-from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, UNIVERSAL_HEIGHT_M, pose_from_rotations
-from mocapdb.runtime.body_size import CameraTilt, FloorScale
+from mocapdb.core.skeleton import (
+    KP,
+    N_KEYPOINTS_2D,
+    N_RIG_JOINTS,
+    NODE_OFFSETS_M,
+    PELVIS,
+    UNIVERSAL_HEIGHT_M,
+    body_offsets_m,
+    pose_from_rotations,
+    universal_bone_lengths_m,
+)
+from mocapdb.runtime.body_size import BoneLengths, CameraTilt, FloorScale
 from mocapdb.runtime.filters import (
     REFINED_ROOT_DEFAULTS,
     REFINED_ROTATION_DEFAULTS,
@@ -81,6 +91,7 @@ class EngineConfig:
     refine_yaw: bool = True              # refine the matched yaw between the database's yaws
     refine: bool = True                  # 2D refinement after retrieval (False: the method as published)
     refinement: RefineParams = field(default_factory=RefineParams)
+    own_body: bool = True                # estimate each track's bone proportions from its 2D (needs refine)
     subject_height_m: float | None = None  # the person's height; None: the universal 1.75 m (or from the floor)
     camera_height_m: float | None = None   # camera above a flat floor: metric depth and size from the feet
     smoothing: bool = True
@@ -114,6 +125,9 @@ class _TrackState:
         self.history = np.zeros((window, N_RIG_JOINTS, 4))  # last reconstructed rotations, newest first
         self.n_history = 0
         self.scale = (config.subject_height_m or UNIVERSAL_HEIGHT_M) / UNIVERSAL_HEIGHT_M  # body size
+        self.bones = BoneLengths() if config.refine and config.own_body else None  # own proportions
+        self.proportions_m = universal_bone_lengths_m()  # bone lengths at 1.75 m stature
+        self.offsets_m = NODE_OFFSETS_M                  # the rig's rest offsets for them
         self.tilt = CameraTilt()
         self.keypoints = KeypointFilter(config.keypoint_filter, N_KEYPOINTS_2D) if config.keypoint_filter else None
         self.stillness = StillnessCheck()
@@ -150,7 +164,19 @@ class _TrackState:
         rec.quaternions.append(quats)
         rec.root_view_m.append(root_view)
         rec.scales.append(self.scale)
+        rec.proportions_m = self.proportions_m
         self.last_frame = frame
+
+    def measure_bones(self, points_px: np.ndarray, confidence: np.ndarray, retrieved: np.ndarray,
+                      fitted: np.ndarray, root_view: np.ndarray, focal_px: float) -> None:
+        """Add one fitted frame to the bone estimate (rotations ``[R, 4]`` as retrieved and fitted)."""
+        if self.bones is None:
+            return
+        poses = pose_from_rotations(np.stack([retrieved, fitted]), np.stack([root_view, root_view]),
+                                    self.scale, self.offsets_m)
+        if self.bones.add(points_px, confidence, poses[0], poses[1], focal_px, self.scale):
+            self.proportions_m = self.bones.proportions_m
+            self.offsets_m = body_offsets_m(self.proportions_m)
 
 
 MIN_EXTENT_PX = 4.0  # a person whose confident keypoints span less is skipped (degenerate)
@@ -349,9 +375,10 @@ class Engine:
             quats = state.rotations(quats, t_s)
             root_view = state.root(root_view, t_s)
         state.record(frame_index, t_s, quats, root_view)
-        joints_view = pose_from_rotations(quats[None], root_view[None], state.scale)[0]
+        joints_view = pose_from_rotations(quats[None], root_view[None], state.scale, state.offsets_m)[0]
         return PersonPose(state.recording.track, joints_view * CAMERA_FROM_VIEW, quats,
-                          root_view * CAMERA_FROM_VIEW, match, state.scale * UNIVERSAL_HEIGHT_M)
+                          root_view * CAMERA_FROM_VIEW, match, state.scale * UNIVERSAL_HEIGHT_M,
+                          state.proportions_m * state.scale)
 
     def _retrieve(self, state: _TrackState, points_px: np.ndarray,
                   visible: np.ndarray) -> tuple[np.ndarray, np.ndarray, Match]:
@@ -375,11 +402,13 @@ class Engine:
         track's body scale. Returns the root (view frame, metres)."""
         upright_root = quats[0].copy()
         state.tilt.tilt_root(upright_root, quats[0])
-        self.refiner(quats, root_view, state.scale, points_px, confidence, quats.copy(),
-                     state.previous(frame_index), self.config.focal_px, self.center_px)
+        retrieved = quats.copy()
+        self.refiner(quats, root_view, state.scale, points_px, confidence, retrieved,
+                     state.previous(frame_index), self.config.focal_px, self.center_px, state.offsets_m)
         state.tilt.update(quats[0], upright_root)
+        state.measure_bones(points_px, confidence, retrieved, quats, root_view, self.config.focal_px)
         if state.floor is not None:
-            joints = pose_from_rotations(quats[None], root_view[None], state.scale)[0]
+            joints = pose_from_rotations(quats[None], root_view[None], state.scale, state.offsets_m)[0]
             scale = state.floor.update(state.tilt.up, joints, state.scale)
             root_view = root_view * (scale / state.scale)
             state.scale = scale

@@ -2,8 +2,9 @@
 
 Unknowns (36): the root position ``t`` (metres, view frame) and, for each of the 11 rig joints
 (the root included: a tilted camera shows the body tilted on all three axes), a rotation
-increment ``δ_j`` in the joint's own frame, ``q_j ← q_j ⊗ exp(δ_j)``. Bones are the universal
-skeleton's times the track's scale, so their lengths stay constant.
+increment ``δ_j`` in the joint's own frame, ``q_j ← q_j ⊗ exp(δ_j)``. Bones are the track's own
+body (its estimated proportions, :class:`~mocapdb.runtime.body_size.BoneLengths`) times its scale,
+fixed during the fit.
 
 Cost, with re-projection residuals in units of the person's box height ``h`` (pixels) and
 rotations in radians::
@@ -143,14 +144,17 @@ class Refiner:
 
     def __call__(self, quats: np.ndarray, root_m: np.ndarray, scale: float, points_px: np.ndarray,
                  confidence: np.ndarray, prior: np.ndarray, previous: np.ndarray | None,
-                 focal_px: float, center_px: tuple[float, float]) -> float:
+                 focal_px: float, center_px: tuple[float, float], offsets_m: np.ndarray | None = None) -> float:
         """Refine ``quats [R, 4]`` and ``root_m [3]`` (view frame) in place against ``points_px
-        [14, 2]`` weighted by ``confidence [14]`` (0: not seen). Returns the final cost."""
+        [14, 2]`` weighted by ``confidence [14]`` (0: not seen), on the body of rest offsets
+        ``offsets_m`` (``skeleton.body_offsets_m``; default the universal body) times ``scale``.
+        Returns the final cost."""
         has_previous = previous is not None
+        rig = _RIG if offsets_m is None else (_RIG[0], offsets_m) + _RIG[2:]
         return _refine(quats, root_m, float(scale), points_px, confidence, _box_height(points_px, confidence),
                        prior, previous if has_previous else prior, has_previous, float(focal_px),
                        float(center_px[0]), float(center_px[1]), self._params, self.params.iterations,
-                       self.limits.lo, self.limits.hi, _RIG, self._ws)
+                       self.limits.lo, self.limits.hi, rig, self._ws)
 
 
 def _box_height(points_px: np.ndarray, confidence: np.ndarray) -> float:

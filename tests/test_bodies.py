@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from mocapdb.core.anthropometry import PROPORTION_CORRELATION, PROPORTION_SD
 from mocapdb.core.clips import ClipOptions, process_clip
 from mocapdb.core.skeleton import (
     ANKLE_HEIGHT_M,
@@ -14,8 +15,6 @@ from mocapdb.core.skeleton import (
 )
 from mocapdb.evaluation.bodies import (
     HEIGHT_RANGE_M,
-    PROPORTION_CORRELATION,
-    PROPORTION_SD,
     reshape_body,
     sample_body,
     source_height_m,

@@ -63,7 +63,8 @@ def test_camera_height_measures_the_person_from_the_feet(small_db, pitch, tmp_pa
     bvh = read_bvh(path)
     fk, _ = forward_kinematics(bvh)
     thigh = np.linalg.norm(fk[:, bvh.index("r_knee")] - fk[:, bvh.index("r_hip")], axis=-1)
-    np.testing.assert_allclose(thigh, 0.43 * poses[-1].height_m / UNIVERSAL_HEIGHT_M, rtol=1e-4)
+    np.testing.assert_allclose(thigh, poses[-1].bones_m[0], rtol=1e-4)  # the track's own thigh …
+    assert thigh[0] == pytest.approx(0.43 * poses[-1].height_m / UNIVERSAL_HEIGHT_M, rel=0.05)  # … near this body's
     final_root = bvh.motion[-1, :3]
     np.testing.assert_allclose(final_root * [1, 1, -1], poses[-1].root_m, atol=0.05)
 
@@ -71,3 +72,32 @@ def test_camera_height_measures_the_person_from_the_feet(small_db, pitch, tmp_pa
 def test_camera_height_needs_the_refinement(small_db):
     with pytest.raises(ValueError, match="refinement"):
         EngineConfig(camera_height_m=1.5, refine=False)
+
+
+def test_own_bone_proportions_are_recovered_from_the_2d(small_db):
+    """A body of known, non-universal proportions (long shanks, short upper arms, broad shoulders)
+    walking in front of the camera: the track's bones come out within 5 % (height given), and the
+    universal body stays universal."""
+    from mocapdb.core.skeleton import MEASURED_BONE_NAMES, bone_lengths_m, universal_bone_lengths_m
+    from mocapdb.evaluation.bodies import reshape_body
+
+    first, n = small_db.clip_first_frame[0], small_db.clip_n_frames[0]
+    source = small_db.positions[first:first + n].astype(np.float64)
+    factors = np.array([1.0, 1.12, 0.88, 1.0, 1.0, 1.1, 0.95, 1.0])
+    target = universal_bone_lengths_m() * factors
+    for bones, expected in ((target, target), (universal_bone_lengths_m(), universal_bone_lengths_m())):
+        world = reshape_body(source, bones)
+        height = 1.75 * (bones[[0, 1, 6, 7]].sum() / universal_bone_lengths_m()[[0, 1, 6, 7]].sum())
+        world = (world - world[:, PELVIS].mean(axis=0) * [1, 0, 1]) @ yaw_matrix(40.0).T
+        view = world - [0.0, 1.4, 4.0]
+        px = np.stack([SIZE[0] / 2 + FOCAL * view[..., 0] / -view[..., 2],
+                       SIZE[1] / 2 - FOCAL * view[..., 1] / -view[..., 2]], axis=-1)[:, :14]
+        frames = [KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9))]) for i in range(n)]
+        _, poses = _run(small_db, frames, subject_height_m=height)
+        error = poses[-1].bones_m / expected - 1.0
+        body = [MEASURED_BONE_NAMES.index(b) for b in ("thigh", "shank", "upper_arm", "forearm", "torso")]
+        assert np.abs(error[body]).max() < 0.05, dict(zip(MEASURED_BONE_NAMES, error.round(3)))
+        # the output skeleton has those bones
+        np.testing.assert_allclose(bone_lengths_m(poses[-1].joints_m), poses[-1].bones_m, rtol=1e-9)
+    with pytest.raises(AssertionError):  # the universal body would have missed the first
+        np.testing.assert_allclose(universal_bone_lengths_m()[body], target[body], rtol=0.05)

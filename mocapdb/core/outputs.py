@@ -16,14 +16,18 @@ from mocapdb.core.formats.bvh import Bvh, motion_from_rotations
 from mocapdb.core.geometry import quat_to_matrix
 from mocapdb.core.skeleton import (
     END_SITES,
+    HUMANOID_BONE_AXES,
     HUMANOID_NODES,
     KEYPOINTS,
+    MEASURED_BONE_NAMES,
     NODE_NAMES,
-    NODE_OFFSETS_M,
     NODE_PARENTS,
     RIG_JOINTS,
     RIG_NODES,
     UNIVERSAL_HEIGHT_M,
+    body_offsets_m,
+    rig_offsets_m,
+    universal_bone_lengths_m,
 )
 
 OUTPUT_FILES = ("result.jsonl", "track_*.bvh", "track_*.trc", "track_*.csv", "preview.png")  # reconstruct writes
@@ -49,6 +53,7 @@ class PersonPose:
     root_m: np.ndarray       # [3] pelvis, camera-aligned frame, metres
     match: Match
     height_m: float = UNIVERSAL_HEIGHT_M  # the body's standing height (the skeleton's scale)
+    bones_m: np.ndarray | None = None     # [8] its MEASURED_BONE_NAMES lengths (None: the universal body's)
 
 
 @dataclass
@@ -60,6 +65,7 @@ class TrackRecording:
     quaternions: list[np.ndarray] = field(default_factory=list)  # [R, 4] view frame
     root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] view frame
     scales: list[float] = field(default_factory=list)            # body scale (height / 1.75 m)
+    proportions_m: np.ndarray | None = None  # [8] its bone lengths at 1.75 m stature (None: universal)
     static: bool = False  # its keypoints never moved (see StillnessCheck): a poster, not a person
     part: int = 0         # earlier parts of the track cut off (Engine.cut_recordings)
     first_s: float = 0.0  # input time of the first and the last recorded frame
@@ -80,6 +86,10 @@ class TrackRecording:
         final = float(scales[-1])
         return np.array(self.quaternions), np.array(self.root_view_m) * (final / scales)[:, None], final
 
+    def offsets_m(self) -> np.ndarray | None:
+        """The rig's rest offsets for the track's own body (``skeleton.body_offsets_m``; None: universal)."""
+        return None if self.proportions_m is None else body_offsets_m(self.proportions_m)
+
 
 BVH_ROTATION_CHANNELS = ["Zrotation", "Yrotation", "Xrotation"]
 BVH_UNITS = {"m": 1.0, "cm": 100.0}
@@ -88,34 +98,38 @@ BVH_UNITS = {"m": 1.0, "cm": 100.0}
 RIGS = ("universal", "humanoid")  # BVH rigs: mocapdb's 11 joints, or with the bones character set-ups expect
 
 
-def _rig_table(rig: str) -> tuple[list[str], np.ndarray, np.ndarray, list[str | None], np.ndarray]:
-    """Names, parents, rest offsets (metres), the universal joint each node turns with (None:
-    identity) and the End Site mask of a BVH rig (:data:`RIGS`)."""
+def _rig_table(rig: str, proportions_m: np.ndarray | None = None
+               ) -> tuple[list[str], np.ndarray, np.ndarray, list[str | None], np.ndarray]:
+    """Names, parents, rest offsets (metres, for a body of bone lengths ``proportions_m`` at 1.75 m;
+    None: the universal body), the universal joint each node turns with (None: identity) and the
+    End Site mask of a BVH rig (:data:`RIGS`)."""
+    proportions = universal_bone_lengths_m() if proportions_m is None else proportions_m
     if rig == "universal":
         names = [n if n not in END_SITES else f"{RIG_NODES[NODE_NAMES.index(n)][1]}_End" for n in NODE_NAMES]
         sources = [n if n in RIG_JOINTS else None for n in NODE_NAMES]
         end_site = np.array([n in END_SITES for n in NODE_NAMES])
-        return names, NODE_PARENTS.copy(), NODE_OFFSETS_M.copy(), sources, end_site
+        return names, NODE_PARENTS.copy(), body_offsets_m(proportions), sources, end_site
     if rig == "humanoid":
         names = [n[0] for n in HUMANOID_NODES]
         parents = np.array([-1 if n[1] is None else names.index(n[1]) for n in HUMANOID_NODES])
-        offsets = np.array([n[2] for n in HUMANOID_NODES])
+        offsets = rig_offsets_m(np.array([n[2] for n in HUMANOID_NODES]), names, HUMANOID_BONE_AXES, proportions)
         return names, parents, offsets, [n[3] for n in HUMANOID_NODES], np.array([n.endswith("_End") for n in names])
     raise ValueError(f"unknown rig {rig!r}: one of {', '.join(RIGS)}")
 
 
 def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str = "m",
-                  body_scale: float = 1.0, rig: str = "universal") -> Bvh:
+                  body_scale: float = 1.0, rig: str = "universal", proportions_m: np.ndarray | None = None) -> Bvh:
     """A BVH of the universal skeleton: root position and every joint's rotation per frame.
 
     ``quats [F, 11, 4]`` are the rig joints' local rotations (:data:`RIG_JOINTS` order) and
     ``pelvis_m [F, 3]`` the root; ``unit`` is the BVH's length unit (``"m"`` or ``"cm"``);
-    ``body_scale`` multiplies every bone (a subject's height / :data:`UNIVERSAL_HEIGHT_M`).
+    ``body_scale`` multiplies every bone (a subject's height / :data:`UNIVERSAL_HEIGHT_M`) of the
+    body whose bone lengths at 1.75 m are ``proportions_m [8]`` (None: the universal body).
     ``rig="humanoid"`` adds head, clavicle, hand, foot and toe bones (which do not turn) under
     Mixamo's names (:data:`HUMANOID_NODES`); the joints of both rigs are at the same places.
     """
     scale = BVH_UNITS[unit]
-    names, parents, offsets_m, sources, end_site = _rig_table(rig)
+    names, parents, offsets_m, sources, end_site = _rig_table(rig, proportions_m)
     channels = [([] if end else BVH_ROTATION_CHANNELS.copy()) for end in end_site]
     channels[0] = ["Xposition", "Yposition", "Zposition"] + BVH_ROTATION_CHANNELS
     skeleton = Bvh(names, parents, offsets_m * (scale * body_scale), channels, end_site, 1.0 / fps,
@@ -155,8 +169,16 @@ def person_record(pose: PersonPose) -> dict:
         "quaternions": _rounded(pose.quaternions, 5),
         "root": _rounded(pose.root_m, 4),
         "height": round(pose.height_m, 3),
+        "bones": dict(zip(MEASURED_BONE_NAMES, _rounded(_bones_m(pose), 4))),
         "match": match,
     }
+
+
+def _bones_m(pose: PersonPose) -> np.ndarray:
+    """The pose's bone lengths (metres), the universal body's at its height when not estimated."""
+    if pose.bones_m is not None:
+        return pose.bones_m
+    return universal_bone_lengths_m() * (pose.height_m / UNIVERSAL_HEIGHT_M)
 
 
 def frame_line(frame_index: int, time_s: float, poses: list[PersonPose]) -> str:

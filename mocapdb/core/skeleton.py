@@ -93,6 +93,18 @@ N_RIG_JOINTS = len(RIG_JOINTS)
 NODE_OF_POINT = np.array([NODE_NAMES.index(next(n[0] for n in RIG_NODES if n[3] == kp)) for kp in KEYPOINTS])
 JOINT_NODE = np.array([NODE_NAMES.index(j) for j in RIG_JOINTS])
 NODE_JOINT = np.array([RIG_JOINTS.index(n) if n in RIG_JOINTS else -1 for n in NODE_NAMES])
+# The measured bone (MEASURED_BONES) whose length sets each rig node's rest offset, per axis (x, y, z);
+# None: a length no camera measures, kept in proportion to the body. Offsets of a person's own body:
+# :func:`body_offsets_m`.
+NODE_BONE_AXES: dict[str, tuple[str | None, str | None, str | None]] = {
+    **{f"{s}_hip": ("hip_width", None, None) for s in "rl"},
+    **{f"{s}_knee": (None, "thigh", None) for s in "rl"},
+    **{f"{s}_ankle": (None, "shank", None) for s in "rl"},
+    "neck": (None, "torso", None), "head": (None, "neck_nose", "neck_nose"),
+    **{f"{s}_shoulder": ("shoulder_width", "torso", None) for s in "rl"},
+    **{f"{s}_elbow": ("upper_arm", None, None) for s in "rl"},
+    **{f"{s}_wrist": ("forearm", None, None) for s in "rl"},
+}
 
 # The humanoid rig of BVH export (``--rig humanoid``): the universal rig with the bones character
 # set-ups expect (head, clavicles, hands, feet, toes) under the names auto-mappers recognise
@@ -155,6 +167,18 @@ HUMANOID_NODE_OF_KEYPOINT = {
     **{f"{s}_{part}": f"{n}{bone}" for s, n in (("r", "Right"), ("l", "Left")) for part, bone in (
         ("hip", "UpLeg"), ("knee", "Leg"), ("ankle", "Foot"), ("shoulder", "Arm"), ("elbow", "ForeArm"),
         ("wrist", "Hand"))},
+}
+
+HUMANOID_BONE_AXES: dict[str, tuple[str | None, str | None, str | None]] = {
+    **{f"{n}UpLeg": ("hip_width", None, None) for n in ("Right", "Left")},
+    **{f"{n}Leg": (None, "thigh", None) for n in ("Right", "Left")},
+    **{f"{n}Foot": (None, "shank", None) for n in ("Right", "Left")},
+    "Spine1": (None, "torso", None), "Neck": (None, "torso", None),
+    "Head": (None, "neck_nose", None), "Head_End": (None, "neck_nose", "neck_nose"),
+    **{f"{n}Shoulder": ("shoulder_width", "torso", None) for n in ("Right", "Left")},
+    **{f"{n}Arm": ("shoulder_width", None, None) for n in ("Right", "Left")},
+    **{f"{n}ForeArm": ("upper_arm", None, None) for n in ("Right", "Left")},
+    **{f"{n}Hand": ("forearm", None, None) for n in ("Right", "Left")},
 }
 
 # How each rotation joint's global frame is found from keypoints: the bone it drives (primary,
@@ -267,12 +291,15 @@ def retarget(points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return quats, pose_from_rotations(quats, _point(points_m, "pelvis"))
 
 
-def pose_from_rotations(quats: np.ndarray, pelvis_m: np.ndarray, scale: float = 1.0) -> np.ndarray:
+def pose_from_rotations(quats: np.ndarray, pelvis_m: np.ndarray, scale: float = 1.0,
+                        offsets_m: np.ndarray | None = None) -> np.ndarray:
     """Universal keypoints ``[F, 15, 3]`` from local rotations ``[F, R, 4]`` and pelvis ``[F, 3]``;
-    ``scale`` multiplies every bone (a subject's height / :data:`UNIVERSAL_HEIGHT_M`)."""
+    ``scale`` multiplies every bone (a subject's height / :data:`UNIVERSAL_HEIGHT_M`), ``offsets_m``
+    (:func:`body_offsets_m`, default the universal body's) are the rest offsets at 1.75 m."""
     quats = np.ascontiguousarray(quats, dtype=np.float64).reshape(-1, N_RIG_JOINTS, 4)
     pelvis = np.ascontiguousarray(pelvis_m, dtype=np.float64).reshape(-1, 3)
-    return _rig_fk(quats, pelvis, float(scale), NODE_PARENTS, NODE_OFFSETS_M, NODE_JOINT, NODE_OF_POINT)
+    offsets = NODE_OFFSETS_M if offsets_m is None else np.ascontiguousarray(offsets_m, dtype=np.float64)
+    return _rig_fk(quats, pelvis, float(scale), NODE_PARENTS, offsets, NODE_JOINT, NODE_OF_POINT)
 
 
 @njit(cache=True)
@@ -350,3 +377,36 @@ def bone_lengths_m(points_m: np.ndarray) -> np.ndarray:
 def universal_bone_lengths_m() -> np.ndarray:
     """The universal skeleton's :data:`MEASURED_BONE_NAMES` lengths ``[8]`` (metres, 1.75 m body)."""
     return bone_lengths_m(rest_positions_m())
+
+
+def stature_m(lengths_m: np.ndarray) -> np.ndarray:
+    """The standing height (metres) of bodies with bone lengths ``lengths_m [..., 8]``: 1.75 m × their
+    ankle-to-nose chain (thigh + shank + torso + neck→nose) over the universal skeleton's."""
+    return UNIVERSAL_HEIGHT_M * np.asarray(lengths_m)[..., _STATURE_CHAIN].sum(axis=-1) / _UNIVERSAL_CHAIN_M
+
+
+def rig_offsets_m(offsets_m: np.ndarray, names: tuple[str, ...] | list[str],
+                  bone_axes: dict[str, tuple[str | None, str | None, str | None]],
+                  proportions_m: np.ndarray) -> np.ndarray:
+    """Rest offsets ``[N, 3]`` of a rig (``offsets_m`` of the universal body, node ``names``) for a
+    body with bone lengths ``proportions_m [8]`` at 1.75 m stature: each axis of a node's offset
+    scaled by its bone (``bone_axes``) over the universal bone."""
+    ratio = np.asarray(proportions_m, dtype=np.float64) / _UNIVERSAL_BONES_M
+    factors = np.ones((len(names), 3))
+    for i, name in enumerate(names):
+        for axis, bone in enumerate(bone_axes.get(name, (None, None, None))):
+            if bone is not None:
+                factors[i, axis] = ratio[MEASURED_BONE_NAMES.index(bone)]
+    return np.ascontiguousarray(offsets_m * factors)
+
+
+def body_offsets_m(proportions_m: np.ndarray) -> np.ndarray:
+    """The universal rig's rest offsets ``[N, 3]`` for a body with bone lengths ``proportions_m [8]``
+    (:data:`MEASURED_BONE_NAMES` order, at 1.75 m stature); the universal lengths give
+    :data:`NODE_OFFSETS_M`."""
+    return rig_offsets_m(NODE_OFFSETS_M, NODE_NAMES, NODE_BONE_AXES, proportions_m)
+
+
+_UNIVERSAL_BONES_M = universal_bone_lengths_m()
+_STATURE_CHAIN = [MEASURED_BONE_NAMES.index(b) for b in ("thigh", "shank", "torso", "neck_nose")]
+_UNIVERSAL_CHAIN_M = float(_UNIVERSAL_BONES_M[_STATURE_CHAIN].sum())

@@ -9,10 +9,9 @@ written down in ``data_specs/evaluation_bodies.md``:
 
 * stature uniform in [1.50, 1.95] m;
 * at a given stature, each :data:`~mocapdb.core.skeleton.MEASURED_BONE_NAMES` length varies by a
-  log-normal factor around the source's own proportion (:data:`PROPORTION_SD`), the factors
-  correlated as in people (:data:`PROPORTION_CORRELATION`: thigh and shank, upper arm and forearm
-  go together, arms with legs, hip with shoulder breadth; the torso against the legs, because at
-  one stature a longer trunk leaves shorter legs).
+  log-normal factor around the source's own proportion, correlated as in people
+  (:mod:`mocapdb.core.anthropometry`, the same distribution the runtime's body estimate takes as
+  its prior).
 """
 from __future__ import annotations
 
@@ -20,43 +19,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocapdb.core.anthropometry import PROPORTION_COVARIANCE
 from mocapdb.core.skeleton import (
     ANKLE_HEIGHT_M,
     KP,
     MEASURED_BONE_NAMES,
     PELVIS,
-    UNIVERSAL_HEIGHT_M,
     bone_lengths_m,
+    stature_m,
     universal_bone_lengths_m,
 )
 
 HEIGHT_RANGE_M = (1.50, 1.95)
-# SD of log(bone / stature-scaled source bone), at fixed stature (data_specs/evaluation_bodies.md).
-PROPORTION_SD = {"thigh": 0.045, "shank": 0.045, "upper_arm": 0.045, "forearm": 0.05,
-                 "hip_width": 0.07, "shoulder_width": 0.06, "torso": 0.04, "neck_nose": 0.07}
-_PAIRS = {("thigh", "shank"): 0.6, ("upper_arm", "forearm"): 0.6,
-          ("thigh", "upper_arm"): 0.4, ("thigh", "forearm"): 0.3, ("shank", "upper_arm"): 0.3,
-          ("shank", "forearm"): 0.4, ("hip_width", "shoulder_width"): 0.5,
-          ("torso", "thigh"): -0.5, ("torso", "shank"): -0.5}
-
-
-def _correlation() -> np.ndarray:
-    n = len(MEASURED_BONE_NAMES)
-    corr = np.eye(n)
-    for (a, b), rho in _PAIRS.items():
-        i, j = MEASURED_BONE_NAMES.index(a), MEASURED_BONE_NAMES.index(b)
-        corr[i, j] = corr[j, i] = rho
-    return corr
-
-
-PROPORTION_CORRELATION = _correlation()
-_SD = np.array([PROPORTION_SD[name] for name in MEASURED_BONE_NAMES])
-_COVARIANCE = PROPORTION_CORRELATION * np.outer(_SD, _SD)
 _LEGS = [MEASURED_BONE_NAMES.index("thigh"), MEASURED_BONE_NAMES.index("shank")]
-# The bones stacked from ankle to nose in an upright stance: their sum is a fixed share of stature.
-_STATURE_CHAIN = [MEASURED_BONE_NAMES.index(b) for b in ("thigh", "shank", "torso", "neck_nose")]
-_UNIVERSAL = universal_bone_lengths_m()
-UNIVERSAL_LEG_M = float(_UNIVERSAL[_LEGS].sum())
+UNIVERSAL_LEG_M = float(universal_bone_lengths_m()[_LEGS].sum())
 
 
 @dataclass(frozen=True)
@@ -72,15 +48,14 @@ class Body:
 
 
 def source_height_m(lengths_m: np.ndarray) -> float:
-    """The stature (metres) of a skeleton with bone lengths ``lengths_m [8]``: 1.75 m × its ankle-to-nose
-    chain (thigh + shank + torso + neck→nose) over the universal skeleton's."""
-    return UNIVERSAL_HEIGHT_M * float(lengths_m[_STATURE_CHAIN].sum() / _UNIVERSAL[_STATURE_CHAIN].sum())
+    """The stature (metres) of a skeleton with bone lengths ``lengths_m [8]`` (:func:`stature_m`)."""
+    return float(stature_m(lengths_m))
 
 
 def sample_body(rng: np.random.Generator) -> Body:
     """One body from the documented distribution (module docstring)."""
     height = float(rng.uniform(*HEIGHT_RANGE_M))
-    return Body(height, np.exp(rng.multivariate_normal(np.zeros(len(_SD)), _COVARIANCE)))
+    return Body(height, np.exp(rng.multivariate_normal(np.zeros(len(MEASURED_BONE_NAMES)), PROPORTION_COVARIANCE)))
 
 
 # Bones from the pelvis outwards: (parent keypoint, child keypoint, MEASURED_BONE_NAMES entry, share of it).
