@@ -11,13 +11,19 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
                                    "database grid, several camera heights, pitches and noise models, "
                                    "reconstruct them with the engine refined and as published, and report "
                                    "accuracy against the truth and against the database's own floor. Either "
-                                   "one database (--db, --bvh: JSON report on stdout) or "
-                                   "--leave-one-subject-out (a database per subject; table on stdout).")
+                                   "one database (--db, --bvh: JSON report on stdout), "
+                                   "--leave-one-subject-out (a database per subject; table on stdout) or "
+                                   "--db with --real-take (each camera of a calibrated Pose2Sim take alone, "
+                                   "against its multi-camera triangulation; table on stdout).")
     p.add_argument("--db", help="database built WITHOUT the held-out clips")
     p.add_argument("--bvh", nargs="+", help="held-out BVH files or folders")
     p.add_argument("--leave-one-subject-out", nargs="+", metavar="SOURCE", dest="loso",
                    help="BVH files or folders named SUBJECT_TRIAL.bvh: build a database without each "
                         "subject in turn (in a temporary folder) and evaluate that subject on it")
+    p.add_argument("--real-take", metavar="FOLDER",
+                   help="a Pose2Sim take (calibration.toml, triangulated_4cam.trc, openpose_body25b/camNN_json): "
+                        "run each camera alone through the engine (needs --db) and score it against the TRC")
+    p.add_argument("--cameras", help="with --real-take: camera names, e.g. cam_01,cam_03 (default all)")
     p.add_argument("--subjects", help="with --leave-one-subject-out: subjects to hold out, e.g. 1,2 (default all)")
     p.add_argument("--max-clips", type=int, default=8,
                    help="with --leave-one-subject-out: clips per subject, evenly spaced (default 8)")
@@ -52,7 +58,19 @@ def run_eval(args: argparse.Namespace) -> int:
         logging.getLogger("mocapdb.evaluation").setLevel(min(logging.INFO, logging.getLogger("mocapdb").level))
 
     engine = EngineConfig(weight_2d=args.weight_2d, search=args.search)
-    if args.loso:
+    if args.cameras and not args.real_take:
+        raise UsageError("--cameras goes with --real-take")
+    if args.real_take:
+        from mocapdb.evaluation.real_take import check_lines, evaluate_real_take, format_table
+
+        if args.bvh or args.loso or not args.db:
+            raise UsageError("--real-take needs --db and goes without --bvh and --leave-one-subject-out")
+        cameras = [c.strip() for c in args.cameras.split(",") if c.strip()] if args.cameras else None
+        report = evaluate_real_take(load_database(args.db), args.real_take, engine, cameras)
+        report["checks"] = check_lines(report)
+        print(format_table(report) + "\n\n" + "\n".join(report["checks"]))
+        text = _report_json(report)
+    elif args.loso:
         from mocapdb.evaluation.loso import LosoConfig, format_table, leave_one_subject_out
 
         if args.db or args.bvh:
