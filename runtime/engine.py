@@ -92,6 +92,7 @@ class EngineConfig:
     refine: bool = True                  # 2D refinement after retrieval (False: the method as published)
     refinement: RefineParams = field(default_factory=RefineParams)
     own_body: bool = True                # estimate each track's bone proportions from its 2D (needs refine)
+    keep_take: bool = False              # recordings keep the per-frame fits and keypoints (whole-take fit)
     subject_height_m: float | None = None  # the person's height; None: the universal 1.75 m (or from the floor)
     camera_height_m: float | None = None   # camera above a flat floor: metric depth and size from the feet
     smoothing: bool = True
@@ -150,8 +151,11 @@ class _TrackState:
         """The last reconstructed rotations if they belong to the frame just before ``frame``."""
         return self.history[0] if self.n_history and self.last_frame == frame - 1 else None
 
-    def record(self, frame: int, t_s: float, quats: np.ndarray, root_view: np.ndarray) -> None:
-        """Append this frame, holding the last pose over any frames the track missed."""
+    def record(self, frame: int, t_s: float, quats: np.ndarray, root_view: np.ndarray,
+               fit: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
+        """Append this frame, holding the last pose over any frames the track missed; ``fit``: the
+        unfiltered rotations and root and the keypoints ``[14, 3]`` (x, y px, confidence), kept for the
+        whole-take fit (missed frames get the last fit and no keypoint)."""
         rec = self.recording
         if not rec.quaternions:
             rec.first_frame, rec.first_s = frame, t_s
@@ -161,9 +165,18 @@ class _TrackState:
                 rec.quaternions.append(rec.quaternions[-1])
                 rec.root_view_m.append(rec.root_view_m[-1])
                 rec.scales.append(rec.scales[-1])
+                if fit is not None and rec.keypoints:
+                    rec.fit_quaternions.append(rec.fit_quaternions[-1])
+                    rec.fit_root_view_m.append(rec.fit_root_view_m[-1])
+                    rec.keypoints.append(np.zeros_like(rec.keypoints[-1]))
         rec.quaternions.append(quats)
         rec.root_view_m.append(root_view)
         rec.scales.append(self.scale)
+        if fit is not None:
+            rec.fit_quaternions.append(fit[0])
+            rec.fit_root_view_m.append(fit[1])
+            rec.keypoints.append(fit[2])
+            rec.up_view = self.tilt.up
         rec.proportions_m = self.proportions_m
         self.last_frame = frame
 
@@ -371,10 +384,13 @@ class Engine:
         if not self.config.translation:
             root_view = np.zeros(3)
         state.remember(quats)
+        fit = None
+        if self.config.keep_take:
+            fit = (quats.copy(), root_view.copy(), np.column_stack([points_px, confidence]))
         if self.config.smoothing:
             quats = state.rotations(quats, t_s)
             root_view = state.root(root_view, t_s)
-        state.record(frame_index, t_s, quats, root_view)
+        state.record(frame_index, t_s, quats, root_view, fit)
         joints_view = pose_from_rotations(quats[None], root_view[None], state.scale, state.offsets_m)[0]
         return PersonPose(state.recording.track, joints_view * CAMERA_FROM_VIEW, quats,
                           root_view * CAMERA_FROM_VIEW, match, state.scale * UNIVERSAL_HEIGHT_M,

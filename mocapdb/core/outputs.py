@@ -66,6 +66,11 @@ class TrackRecording:
     root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] view frame
     scales: list[float] = field(default_factory=list)            # body scale (height / 1.75 m)
     proportions_m: np.ndarray | None = None  # [8] its bone lengths at 1.75 m stature (None: universal)
+    # What the whole-take fit needs (EngineConfig.keep_take; empty otherwise), one entry per frame:
+    fit_quaternions: list[np.ndarray] = field(default_factory=list)  # [R, 4] the per-frame fit, unfiltered
+    fit_root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] its root (view frame)
+    keypoints: list[np.ndarray] = field(default_factory=list)        # [14, 3] the input: x, y px, confidence
+    up_view: np.ndarray | None = None  # the world's up in the view frame (the camera's tilt estimate)
     static: bool = False  # its keypoints never moved (see StillnessCheck): a poster, not a person
     part: int = 0         # earlier parts of the track cut off (Engine.cut_recordings)
     first_s: float = 0.0  # input time of the first and the last recorded frame

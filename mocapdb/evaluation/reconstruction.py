@@ -59,7 +59,9 @@ from mocapdb.evaluation.metrics import (
     planted_feet,
     speeds_mps,
 )
-from mocapdb.runtime.engine import Engine, EngineConfig
+from mocapdb.core.outputs import TrackRecording
+from mocapdb.runtime.engine import CAMERA_FROM_VIEW, Engine, EngineConfig
+from mocapdb.runtime.take import fit_take
 from mocapdb.runtime.search import search_clustered, search_exact
 
 if TYPE_CHECKING:
@@ -68,6 +70,8 @@ if TYPE_CHECKING:
 LOG = logging.getLogger(__name__)
 
 VARIANTS = (("published", False), ("refined", True))  # report name, EngineConfig.refine
+TAKE_VARIANT = "whole take"  # the refined run's tracks through runtime.take.fit_take
+REPORTED = ("published", "refined", TAKE_VARIANT)
 
 
 @dataclass
@@ -101,6 +105,7 @@ class EngineRun:
     root: np.ndarray    # [F, 3] camera-aligned frame
     local: np.ndarray   # [F, 15, 3] root rotation and translation removed
     seconds: float
+    recordings: list[TrackRecording] = field(default_factory=list)  # the engine's tracks (Engine.finish)
 
     @property
     def ok(self) -> np.ndarray:
@@ -118,8 +123,27 @@ def run_sequence(engine: Engine, frames: list[KeypointFrame]) -> EngineRun:
             joints[i], root[i] = pose.joints_m, pose.root_m
             local[i] = _root_frame(pose.quaternions)
     elapsed = time.perf_counter() - t0
-    engine.finish()
-    return EngineRun(joints, root, local, elapsed)
+    return EngineRun(joints, root, local, elapsed, engine.finish())
+
+
+def whole_take_run(run: EngineRun, n_frames: int, fps: float) -> EngineRun:
+    """The tracks of a refined run (made with ``keep_take``) through the whole-take fit, as a run of
+    ``n_frames`` frames (frame index = position); ``seconds``: the fit's time."""
+    joints = np.full((n_frames, N_POINTS, 3), np.nan)
+    root = np.full((n_frames, 3), np.nan)
+    local = np.full_like(joints, np.nan)
+    t0 = time.perf_counter()
+    for rec in run.recordings:
+        fitted, _ = fit_take(rec, fps)
+        quats, root_view, scale = fitted.motion()
+        frames = rec.first_frame + np.arange(len(quats))
+        keep = (frames >= 0) & (frames < n_frames)
+        view = pose_from_rotations(quats, root_view, scale, fitted.offsets_m())
+        joints[frames[keep]] = (view * CAMERA_FROM_VIEW)[keep]
+        root[frames[keep]] = (root_view * CAMERA_FROM_VIEW)[keep]
+        local[frames[keep]] = np.array([_root_frame(q) for q in quats[keep]])
+    seconds = time.perf_counter() - t0
+    return EngineRun(joints, root, local, seconds, run.recordings)
 
 
 def _root_frame(quats: np.ndarray) -> np.ndarray:
@@ -185,10 +209,10 @@ class VariantStats:
     person_frames: int = 0
 
     def add(self, run: EngineRun, view: View, floor: np.ndarray, frames: list[KeypointFrame],
-            config: EvalConfig) -> None:
+            config: EvalConfig, person_frames: int | None = None) -> None:
         ok = run.ok
         self.seconds += run.seconds
-        self.person_frames += len(ok)
+        self.person_frames += len(ok) if person_frames is None else person_frames
         joints, root, truth = run.joints[ok], run.root[ok], view.cam[ok]
         gt = truth - truth[:, PELVIS:PELVIS + 1]
         rel = joints - root[:, None]
@@ -282,7 +306,7 @@ class ScenarioResult:
     """One scenario's results, per engine variant; :meth:`report` is its JSON entry."""
 
     scenario: Scenario
-    variants: dict[str, VariantStats] = field(default_factory=lambda: {name: VariantStats() for name, _ in VARIANTS})
+    variants: dict[str, VariantStats] = field(default_factory=lambda: {name: VariantStats() for name in REPORTED})
     person_frames: int = 0
     camera_distances_m: list[float] = field(default_factory=list)
     heights_m: list[float] = field(default_factory=list)  # the rendered bodies' statures
@@ -302,8 +326,9 @@ class ScenarioResult:
                "body_height_m": {"min": _r(min(self.heights_m, default=np.nan)),
                                  "max": _r(max(self.heights_m, default=np.nan))}}
         out.update({name: stats.summary() for name, stats in self.variants.items()})
-        pub, ref = (_mean(_cat(self.variants[name].mpjpe13)) for name in ("published", "refined"))
+        pub, ref, take = (_mean(_cat(self.variants[name].mpjpe13)) for name in REPORTED)
         out["mpjpe13_change_pct"] = _r(100 * (ref - pub) / pub, 1) if pub > 0 else None
+        out["whole_take_mpjpe13_change_pct"] = _r(100 * (take - pub) / pub, 1) if pub > 0 else None
         return out
 
 
@@ -353,9 +378,9 @@ def compute_floors(db: MotionDatabase, truths: list[Truth], scenarios: tuple[Sce
 def variant_config(base: EngineConfig, refine: bool) -> EngineConfig:
     """``base`` with ``refine`` set. 1€ filters left at their defaults follow the variant (the engine
     picks different defaults for refined and retrieved poses); filters set explicitly are kept."""
-    if EngineConfig.__dataclass_fields__["rotation_filter"].default is None:  # defaults chosen per variant
-        if base == replace(base, rotation_filter=None, root_filter=None):
-            return replace(base, refine=refine, rotation_filter=None, root_filter=None)
+    defaults = dict(rotation_filter=None, root_filter=None, keypoint_filter=None)  # chosen per variant
+    if base == replace(base, **defaults):
+        return replace(base, refine=refine, **defaults)
     return replace(base, refine=refine)
 
 
@@ -363,7 +388,7 @@ def _new_engine(db: MotionDatabase, config: EvalConfig, scenario: Scenario | Non
                 refine: bool | None = None) -> Engine:
     cfg = replace(config.engine, fps=config.fps, focal_px=config.focal_px, image_size=config.image_size)
     if refine is not None:
-        cfg = variant_config(cfg, refine)
+        cfg = replace(variant_config(cfg, refine), keep_take=refine)
     if scenario is not None and scenario.height_given:
         cfg = replace(cfg, subject_height_m=scenario.subject_height_m)
     return Engine(db, cfg)
@@ -380,9 +405,13 @@ def evaluate_scenario(db: MotionDatabase, truths: list[Truth], scenario: Scenari
             view = View(camera_view(positions, yaw, scenario.camera_height_m, distance, scenario.pitch_deg),
                         scenario.camera_height_m, distance, scenario.pitch_deg)
             frames = render(view.cam, scenario, config.focal_px, config.image_size, rng)
+            floor = floors[floor_key(i, j, scenario)]
             for name, refine in VARIANTS:
                 run = run_sequence(_new_engine(db, config, scenario, refine), frames)
-                result.variants[name].add(run, view, floors[floor_key(i, j, scenario)], frames, config)
+                result.variants[name].add(run, view, floor, frames, config)
+                if refine:
+                    take = whole_take_run(run, len(frames), config.fps)
+                    result.variants[TAKE_VARIANT].add(take, view, floor, frames, config, person_frames=len(frames))
             result.person_frames += len(frames)
             result.camera_distances_m.append(distance)
             result.heights_m.append(height)

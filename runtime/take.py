@@ -1,0 +1,319 @@
+"""The whole take: one track's per-frame fits turned into animation once the take is over.
+
+The per-frame engine is causal: each frame is fitted from the past alone, so detector noise shows
+as jitter, a wrong retrieval as a pop, and the depth (read from the body's image size) wanders,
+which makes planted feet slide. With the whole track at hand (`mocapdb reconstruct`, and the BVH
+`mocapdb live` writes when a track ends), :func:`fit_take` works on the unfiltered per-frame fits
+(``EngineConfig.keep_take``):
+
+1. **Rotations**: made sign-continuous, single-frame pops removed by a running median over
+   :attr:`TakeParams.pop_frames` frames, then smoothed without lag by a zero-phase Gaussian whose
+   cut-off is :attr:`TakeParams.smoothing_hz` (the one smoothing control, in hertz: motion slower
+   than it passes, jitter faster than it goes).
+2. **Contacts**: an ankle is planted where its keypoint stands still in the image (speed under
+   :attr:`TakeParams.planted_box_per_s` box heights per second, after smoothing) and it is within
+   :attr:`TakeParams.planted_height_m` of the other ankle's height or below it (along the estimated
+   up; comparing the two feet of one frame cancels the depth's error, which moves both alike).
+3. **Root path**: one sparse linear least-squares problem over all frames: near the per-frame root
+   across the viewing ray (the image fixes it: SD :attr:`TakeParams.root_across_m`) and, much more
+   loosely, along it (the depth from the body's size: :attr:`TakeParams.root_depth_m`), smooth
+   (root acceleration SD :attr:`TakeParams.root_accel_mps2`), and each planted ankle at one place
+   (its anchor) for its whole contact (SD :attr:`TakeParams.contact_m`).
+   **Planted feet**: each leg's hip and knee are then turned (two-bone IK, the knee kept in its
+   bending plane) so that a planted ankle is exactly at its anchor, eased in and out of the contact.
+4. **Floor**: the plane through the planted ankles (normal the camera's estimated up unless the
+   contacts span enough ground to fit it), lowered by the ankle height; no ankle goes below it
+   (the root is lifted where one would).
+
+Costs O(F) per track (the least-squares system is banded): thousands of frames per second.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+from scipy.ndimage import gaussian_filter1d, median_filter
+from scipy.sparse.linalg import spsolve
+
+from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
+from mocapdb.core.outputs import TrackRecording
+from mocapdb.core.skeleton import (
+    ANKLE_HEIGHT_M,
+    KP,
+    NODE_NAMES,
+    NODE_OFFSETS_M,
+    RIG_JOINTS,
+    body_offsets_m,
+    pose_from_rotations,
+    swing_matrices,
+)
+
+ANKLES = (KP["r_ankle"], KP["l_ankle"])
+MIN_CONTACT_FRAMES = 3
+
+
+@dataclass(frozen=True)
+class TakeParams:
+    """Whole-take fit settings (see the module docstring); lengths in metres, times in seconds."""
+
+    smoothing_hz: float = 4.0          # zero-phase cut-off of the rotations; 0: not smoothed
+    pop_frames: int = 5                # running-median window (frames; 1: no pop removal)
+    planted_box_per_s: float = 0.25    # image speed of a planted ankle keypoint, box heights per second
+    planted_height_m: float = 0.05     # a planted ankle is at most this much above the other
+    root_across_m: float = 0.01        # root across the viewing ray: the image's precision
+    root_depth_m: float = 0.15         # root along the viewing ray: the depth's
+    root_accel_mps2: float = 4.0       # root acceleration SD
+    contact_m: float = 0.005           # a planted ankle's spread over its contact
+    floor: bool = True                 # keep ankles above the floor found from the contacts
+
+    def __post_init__(self) -> None:
+        if not (self.smoothing_hz >= 0 and self.pop_frames >= 1 and self.planted_box_per_s > 0
+                and self.planted_height_m > 0 and min(self.root_across_m, self.root_depth_m,
+                                                      self.root_accel_mps2, self.contact_m) > 0):
+            raise ValueError(f"whole-take settings out of range: {self}")
+
+
+@dataclass
+class TakeResult:
+    """What :func:`fit_take` found besides the motion: contacts ``[F, 2]`` (right, left ankle) and
+    the floor plane ``normal · p = offset`` (view frame, metres; None without contacts)."""
+
+    planted: np.ndarray
+    floor_normal: np.ndarray | None
+    floor_offset_m: float | None
+
+
+def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams()) -> tuple[TrackRecording, TakeResult]:
+    """The whole-take fit of a recording made with ``EngineConfig.keep_take``; returns a recording
+    whose rotations and root are the fitted motion (one body scale, the track's last) and what was
+    found. ``fps``: the take's frame rate (Hz)."""
+    if len(rec.fit_quaternions) != len(rec.quaternions) or not rec.keypoints:
+        raise ValueError(f"track {rec.track}: no per-frame fits kept (EngineConfig.keep_take)")
+    scales = np.array(rec.scales)
+    scale = float(scales[-1])
+    quats = smooth_rotations(np.array(rec.fit_quaternions), fps, params)
+    root = np.array(rec.fit_root_view_m) * (scale / scales)[:, None]
+    keypoints = np.array(rec.keypoints)
+    offsets = None if rec.proportions_m is None else body_offsets_m(rec.proportions_m)
+    up = np.array([0.0, 1.0, 0.0]) if rec.up_view is None else np.asarray(rec.up_view, dtype=np.float64)
+    relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]  # ankles − root
+    planted = planted_ankles(keypoints, root[:, None] + relative, up, fps, params)
+    root, anchors = fit_root_path(root, relative, planted, fps, params)
+    quats = plant_feet(quats, root, scale, offsets, planted, anchors)
+    relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]
+    normal, offset = None, None
+    if params.floor and planted.any():
+        normal, offset = floor_plane(root[:, None] + relative, planted, up, ANKLE_HEIGHT_M * scale)
+        root = _above_floor(root, relative, normal, offset, ANKLE_HEIGHT_M * scale)
+    out = TrackRecording(rec.track, rec.first_frame, list(quats), list(root), [scale] * len(root),
+                         proportions_m=rec.proportions_m, static=rec.static, part=rec.part,
+                         first_s=rec.first_s, last_s=rec.last_s)
+    out.up_view = up if normal is None else normal
+    return out, TakeResult(planted, normal, offset)
+
+
+def smooth_rotations(quats: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:
+    """``quats [F, R, 4]`` sign-continuous, de-popped (running median) and smoothed without lag."""
+    q = quats.copy()
+    flips = np.sum(q[1:] * q[:-1], axis=-1) < 0
+    sign = np.concatenate([np.ones((1,) + flips.shape[1:]), np.cumprod(np.where(flips, -1.0, 1.0), axis=0)])
+    q *= sign[..., None]
+    if params.pop_frames > 1 and len(q) >= params.pop_frames:
+        q = median_filter(q, size=(params.pop_frames, 1, 1), mode="nearest")
+    if params.smoothing_hz > 0:
+        q = gaussian_filter1d(q, fps / (2.0 * np.pi * params.smoothing_hz), axis=0, mode="nearest")
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def planted_ankles(keypoints: np.ndarray, ankles_view_m: np.ndarray, up: np.ndarray, fps: float,
+                   params: TakeParams) -> np.ndarray:
+    """Which ankles ``[F, 2]`` are planted: still in the image and near the lowest (module docstring).
+    ``keypoints [F, 14, 3]`` (x, y px, confidence), ``ankles_view_m [F, 2, 3]``."""
+    px, seen = keypoints[:, ANKLES, :2], keypoints[:, ANKLES, 2] > 0
+    visible = keypoints[..., 2] > 0
+    ys = np.where(visible, keypoints[..., 1], np.nan)
+    box = float(np.nanmedian(np.nanmax(ys, axis=1) - np.nanmin(ys, axis=1))) if visible.any() else 1.0
+    sigma = max(fps / (2.0 * np.pi * 6.0), 0.5)  # the keypoints' own jitter smoothed (6 Hz)
+    smooth = gaussian_filter1d(px, sigma, axis=0, mode="nearest")
+    speed = np.zeros(seen.shape)
+    if len(px) > 1:
+        step = np.gradient(smooth, axis=0)
+        speed = np.linalg.norm(step, axis=-1) * fps / max(box, 1.0)
+    height = ankles_view_m @ up
+    low = height <= height.min(axis=1, keepdims=True) + params.planted_height_m  # the lower foot (or both)
+    planted = seen & low & (speed < params.planted_box_per_s)
+    return _drop_short_runs(planted, MIN_CONTACT_FRAMES)
+
+
+def _drop_short_runs(mask: np.ndarray, min_length: int) -> np.ndarray:
+    """``mask [F, K]`` with runs of True shorter than ``min_length`` frames cleared."""
+    out = mask.copy()
+    for k in range(mask.shape[1]):
+        for start, stop in _runs(mask[:, k]):
+            if stop - start < min_length:
+                out[start:stop, k] = False
+    return out
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, stop)`` of each run of True in a 1-D mask."""
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
+
+
+def fit_root_path(root_m: np.ndarray, ankle_offsets_m: np.ndarray, planted: np.ndarray, fps: float,
+                  params: TakeParams) -> tuple[np.ndarray, np.ndarray]:
+    """The root path ``[F, 3]`` (view frame) of the least-squares problem in the module docstring,
+    and each planted frame's ankle anchor ``[F, 2, 3]`` (NaN where not planted). ``root_m [F, 3]``
+    the per-frame roots, ``ankle_offsets_m [F, 2, 3]`` the ankles relative to the root,
+    ``planted [F, 2]``."""
+    n = len(root_m)
+    contacts = [(k, start, stop) for k in range(planted.shape[1]) for start, stop in _runs(planted[:, k])]
+    n_unknowns = 3 * n + 3 * len(contacts)
+    rows, cols, vals, rhs = [], [], [], []
+
+    def add(r_cols: np.ndarray, r_vals: np.ndarray, target: np.ndarray) -> None:
+        """Rows ``Σ vals · x[cols] = target`` (``r_cols``, ``r_vals``: [m, terms])."""
+        first = sum(len(t) for t in rhs)
+        rows.append(np.repeat(first + np.arange(len(target)), r_cols.shape[1]))
+        cols.append(r_cols.ravel())
+        vals.append(r_vals.ravel())
+        rhs.append(target)
+
+    # data: per frame, three rows along an orthonormal basis (ray, two across), weighted
+    ray = root_m / np.maximum(np.linalg.norm(root_m, axis=-1, keepdims=True), 1e-9)
+    basis = np.stack([ray, *_perpendiculars(ray)], axis=1)                           # [F, 3 (rows), 3]
+    weight = np.array([1.0 / params.root_depth_m, 1.0 / params.root_across_m, 1.0 / params.root_across_m])
+    w_basis = basis * weight[None, :, None]
+    frame_cols = 3 * np.arange(n)[:, None, None] + np.arange(3)[None, None, :]       # [F, 1, 3]
+    add(np.broadcast_to(frame_cols, (n, 3, 3)).reshape(-1, 3), w_basis.reshape(-1, 3),
+        np.einsum("fij,fj->fi", w_basis, root_m).ravel())
+    # smoothness: second differences of each axis
+    if n >= 3:
+        w = 1.0 / (params.root_accel_mps2 / fps ** 2)
+        t = np.arange(1, n - 1)
+        for a in range(3):
+            add(np.stack([3 * (t - 1) + a, 3 * t + a, 3 * (t + 1) + a], axis=1),
+                np.tile([w, -2.0 * w, w], (len(t), 1)), np.zeros(len(t)))
+    # contacts: root + ankle offset − anchor = 0 over each contact, per axis
+    w = 1.0 / params.contact_m
+    for c, (k, start, stop) in enumerate(contacts):
+        t = np.arange(start, stop)
+        for a in range(3):
+            anchor = 3 * n + 3 * c + a
+            add(np.stack([3 * t + a, np.full(len(t), anchor)], axis=1), np.tile([w, -w], (len(t), 1)),
+                -w * ankle_offsets_m[t, k, a])
+    a_matrix = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                 shape=(sum(len(t) for t in rhs), n_unknowns))
+    b = np.concatenate(rhs)
+    solution = spsolve((a_matrix.T @ a_matrix).tocsc(), a_matrix.T @ b)
+    anchors = np.full((n, planted.shape[1], 3), np.nan)
+    for c, (k, start, stop) in enumerate(contacts):
+        anchors[start:stop, k] = solution[3 * n + 3 * c:3 * n + 3 * c + 3]
+    return solution[:3 * n].reshape(n, 3), anchors
+
+
+BLEND_FRAMES = 3  # frames over which a foot eases into and out of its contact
+
+
+def plant_feet(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
+               planted: np.ndarray, anchors_m: np.ndarray) -> np.ndarray:
+    """``quats [F, R, 4]`` with each leg's hip and knee turned (two-bone IK, the knee kept in its
+    bending plane) so that a planted ankle reaches its anchor ``anchors_m [F, 2, 3]`` (view frame),
+    eased in and out over :data:`BLEND_FRAMES` frames around each contact."""
+    quats = quats.copy()
+    offsets = NODE_OFFSETS_M if offsets_m is None else offsets_m
+    pelvis_rot = quat_to_matrix(quats[:, 0])
+    for k, side in enumerate(("r", "l")):
+        weight, target = _contact_targets(planted[:, k], anchors_m[:, k])
+        active = weight > 0
+        if not active.any():
+            continue
+        hip_j, knee_j = RIG_JOINTS.index(f"{side}_hip"), RIG_JOINTS.index(f"{side}_knee")
+        hip_off, knee_off, ankle_off = (scale * offsets[NODE_NAMES.index(f"{side}_{n}")] for n in ("hip", "knee", "ankle"))
+        g_hip = pelvis_rot @ quat_to_matrix(quats[:, hip_j])
+        g_knee = g_hip @ quat_to_matrix(quats[:, knee_j])
+        hip = root_m + pelvis_rot @ hip_off
+        knee = hip + g_hip @ knee_off
+        ankle = knee + g_knee @ ankle_off
+        goal = ankle + weight[:, None] * (np.nan_to_num(target) - ankle)
+        new_knee, new_ankle = _two_bone(hip, knee, ankle, goal)
+        turn_hip = swing_matrices(_unit(knee - hip), _unit(new_knee - hip))
+        g_hip_new = turn_hip @ g_hip
+        turned_shank = np.einsum("fij,fj->fi", turn_hip, ankle - knee)
+        g_knee_new = swing_matrices(_unit(turned_shank), _unit(new_ankle - new_knee)) @ turn_hip @ g_knee
+        local_hip = np.swapaxes(pelvis_rot, -1, -2) @ g_hip_new
+        local_knee = np.swapaxes(g_hip_new, -1, -2) @ g_knee_new
+        quats[active, hip_j] = matrix_to_quat(local_hip[active])
+        quats[active, knee_j] = matrix_to_quat(local_knee[active])
+    return quats
+
+
+def _contact_targets(planted: np.ndarray, anchors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame the IK weight (1 in a contact, easing to 0 over :data:`BLEND_FRAMES` frames around
+    it) and the target (the contact's anchor, or the nearest contact's)."""
+    n = len(planted)
+    weight, target = np.zeros(n), np.full((n, 3), np.nan)
+    for start, stop in _runs(planted):
+        anchor = anchors[start]
+        for t in range(max(start - BLEND_FRAMES, 0), min(stop + BLEND_FRAMES, n)):
+            gap = max(start - t, t - (stop - 1), 0)
+            w = 1.0 - gap / (BLEND_FRAMES + 1)
+            if w > weight[t]:
+                weight[t], target[t] = w, anchor
+    return weight, target
+
+
+def _two_bone(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, goal: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Knee and ankle ``[F, 3]`` with the ankle at ``goal`` (or as near as the leg reaches), bone
+    lengths kept, the knee on the side it bends to now."""
+    thigh = np.linalg.norm(knee - hip, axis=-1)
+    shank = np.linalg.norm(ankle - knee, axis=-1)
+    reach = goal - hip
+    dist = np.clip(np.linalg.norm(reach, axis=-1), np.abs(thigh - shank) + 1e-6, thigh + shank - 1e-6)
+    u = _unit(reach)
+    bend = (knee - hip) - np.sum((knee - hip) * u, axis=-1, keepdims=True) * u
+    fallback = _unit(np.cross(u, np.cross(_unit(ankle - hip), u) + [1e-6, 0.0, 0.0]))
+    bend = np.where(np.linalg.norm(bend, axis=-1, keepdims=True) > 1e-6, bend, fallback)
+    along = (thigh ** 2 - shank ** 2 + dist ** 2) / (2.0 * dist)
+    across = np.sqrt(np.maximum(thigh ** 2 - along ** 2, 0.0))
+    new_knee = hip + along[:, None] * u + across[:, None] * _unit(bend)
+    return new_knee, hip + dist[:, None] * u
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+
+
+def _perpendiculars(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors ``[F, 3]`` perpendicular to unit ``u [F, 3]`` and to each other."""
+    helper = np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    a = np.cross(u, helper)
+    a /= np.linalg.norm(a, axis=-1, keepdims=True)
+    return a, np.cross(u, a)
+
+
+def floor_plane(ankles_view_m: np.ndarray, planted: np.ndarray, up: np.ndarray,
+                ankle_height_m: float) -> tuple[np.ndarray, float]:
+    """The floor ``normal · p = offset`` (view frame) under the planted ankles ``[F, 2, 3]``: a plane
+    fitted to them when they span at least 1 m in two directions (its normal on the ``up`` side),
+    else the plane of normal ``up`` through their median, lowered by ``ankle_height_m``."""
+    points = ankles_view_m[planted]
+    normal = up / np.linalg.norm(up)
+    if len(points) >= 10:
+        centred = points - points.mean(axis=0)
+        _, spread, vt = np.linalg.svd(centred, full_matrices=False)
+        if spread[1] / np.sqrt(len(points)) >= 0.3 and abs(vt[2] @ normal) > 0.8:
+            normal = vt[2] * np.sign(vt[2] @ normal)
+    offset = float(np.median(points @ normal)) - ankle_height_m
+    return normal, offset
+
+
+def _above_floor(root_m: np.ndarray, ankle_offsets_m: np.ndarray, normal: np.ndarray, offset: float,
+                 ankle_height_m: float) -> np.ndarray:
+    """Roots lifted along ``normal`` where the lower ankle would sink below the ankle height."""
+    heights = (root_m[:, None] + ankle_offsets_m) @ normal - offset
+    deficit = np.maximum(ankle_height_m - heights.min(axis=1), 0.0)
+    return root_m + deficit[:, None] * normal

@@ -1,0 +1,111 @@
+"""The whole-take fit: zero-phase smoothing against a known trajectory, pops, contact locking, leg IK,
+the floor plane (hand-made cases with known answers)."""
+import numpy as np
+import pytest
+
+from mocapdb.core.geometry import quat_geodesic
+from mocapdb.core.skeleton import KP, N_RIG_JOINTS, bone_lengths_m, pose_from_rotations
+from mocapdb.runtime.take import (
+    TakeParams,
+    fit_root_path,
+    floor_plane,
+    plant_feet,
+    smooth_rotations,
+)
+
+FPS = 30.0
+
+
+def _turns(angles_rad: np.ndarray, axis=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Quaternions ``[F, 4]`` of rotations by ``angles_rad`` about ``axis``."""
+    axis = np.asarray(axis) / np.linalg.norm(axis)
+    return np.column_stack([np.cos(angles_rad / 2), np.outer(np.sin(angles_rad / 2), axis)])
+
+
+def test_zero_phase_smoothing_removes_jitter_without_lag_and_pops_without_trace():
+    t = np.arange(240) / FPS
+    truth_angle = 0.8 * np.sin(2 * np.pi * 0.5 * t)          # a 0.5 Hz swing of one joint
+    rng = np.random.default_rng(0)
+    noisy_angle = truth_angle + rng.normal(scale=0.05, size=len(t))
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), N_RIG_JOINTS, 1))
+    quats[:, 3] = _turns(noisy_angle)
+    quats[100, 3] = _turns(np.array([truth_angle[100] + 1.5]))[0]  # a one-frame pop of 86°
+    quats[50:, 3] *= -1.0                                          # the same rotations, other sign
+    out = smooth_rotations(quats, FPS, TakeParams(smoothing_hz=3.0))
+    truth = _turns(truth_angle)
+    err_in = quat_geodesic(np.delete(quats[:, 3], 100, axis=0), np.delete(truth, 100, axis=0))
+    err_out = quat_geodesic(out[:, 3], truth)
+    assert np.mean(err_out[10:-10]) < 0.6 * np.mean(err_in[10:-10])
+    assert err_out[100] < 0.05                                     # the pop is gone
+    # no lag: the smoothed angle's best match with the truth is at zero shift
+    angle = 2 * np.arctan2(out[:, 3, 3] * np.sign(out[:, 3, 0]), np.abs(out[:, 3, 0]))
+    shifts = range(-5, 6)
+    best = min(shifts, key=lambda s: np.mean((np.roll(angle, s) - truth_angle)[10:-10] ** 2))
+    assert best == 0
+    np.testing.assert_allclose(np.linalg.norm(out, axis=-1), 1.0)
+
+
+def test_root_path_locks_planted_ankles_and_keeps_the_image_across_the_ray():
+    n = 90
+    rng = np.random.default_rng(1)
+    true_root = np.column_stack([np.linspace(-0.5, 0.5, n), np.full(n, -0.5), np.full(n, -5.0)])
+    # ankle relative to the root: the planted foot's offset moves back as the body passes over it
+    offsets = np.zeros((n, 2, 3))
+    offsets[:, 0] = np.column_stack([-0.2 - true_root[:, 0], np.full(n, -0.85), np.zeros(n)])
+    offsets[:, 1] = offsets[:, 0] + [0.0, 0.1, 0.0]
+    planted = np.zeros((n, 2), dtype=bool)
+    planted[:, 0] = True
+    # per-frame roots: depth (along the ray, ~z) off by 15 cm of noise, the image direction exact
+    ray = true_root / np.linalg.norm(true_root, axis=-1, keepdims=True)
+    noisy = true_root + ray * rng.normal(scale=0.15, size=(n, 1))
+    before = noisy[:, None] + offsets
+    root, anchors = fit_root_path(noisy, offsets, planted, FPS, TakeParams())
+    ankle = root + offsets[:, 0]
+    assert np.ptp(ankle, axis=0).max() < 0.01                 # the planted ankle stays put …
+    assert np.ptp(before[:, 0], axis=0).max() > 0.2            # … where the per-frame roots slid
+    np.testing.assert_allclose(anchors[:, 0], np.broadcast_to(ankle.mean(axis=0), (n, 3)), atol=0.01)
+    assert np.isnan(anchors[:, 1]).all()
+    # the root stays on the per-frame roots' viewing rays (the image) within a centimetre
+    across = root - np.sum(root * ray, axis=-1, keepdims=True) * ray
+    assert np.linalg.norm(across, axis=-1).max() < 0.01 + 1e-3
+    assert np.abs(root[:, 2] - true_root[:, 2]).mean() < np.abs(noisy[:, 2] - true_root[:, 2]).mean()
+
+
+def test_leg_ik_puts_a_planted_ankle_on_its_anchor_and_keeps_the_bones():
+    n = 16
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, N_RIG_JOINTS, 1))
+    quats[:, 0] = _turns(np.linspace(0.0, 0.3, n), axis=(0, 1, 0))  # the body turning
+    root = np.column_stack([np.linspace(0, 0.2, n), np.full(n, 0.9), np.full(n, -4.0)])
+    joints = pose_from_rotations(quats, root)
+    anchor = joints[0, KP["r_ankle"]] + [0.05, 0.08, 0.1]      # within reach: the knee must bend
+    planted = np.zeros((n, 2), dtype=bool)
+    planted[2:9, 0] = True
+    anchors = np.full((n, 2, 3), np.nan)
+    anchors[planted[:, 0], 0] = anchor
+    out = plant_feet(quats, root, 1.0, None, planted, anchors)
+    fixed = pose_from_rotations(out, root)
+    np.testing.assert_allclose(fixed[2:9, KP["r_ankle"]], np.broadcast_to(anchor, (7, 3)), atol=1e-6)
+    np.testing.assert_allclose(bone_lengths_m(fixed), bone_lengths_m(joints), atol=1e-9)
+    np.testing.assert_allclose(fixed[:, KP["l_ankle"]], joints[:, KP["l_ankle"]], atol=1e-9)  # other leg untouched
+    assert np.abs(fixed[12:] - joints[12:]).max() < 1e-9       # beyond the easing frames: unchanged
+    moved = np.linalg.norm(fixed[:, KP["r_ankle"]] - joints[:, KP["r_ankle"]], axis=-1)
+    assert 0 < moved[10] < moved[8]                              # eased out
+
+
+def test_floor_plane_from_planted_ankles_on_a_tilted_floor():
+    rng = np.random.default_rng(2)
+    tilt = np.radians(10.0)
+    normal_true = np.array([0.0, np.cos(tilt), np.sin(tilt)])
+    xz = rng.uniform(-2, 2, size=(200, 2))
+    # points p with normal_true · p = -1.4 + 0.08 (ankles 8 cm above a floor 1.4 m below the camera)
+    base = np.column_stack([xz[:, 0], np.zeros(200), xz[:, 1] - 5])
+    base[:, 1] = (-1.32 - base[:, 2] * normal_true[2]) / normal_true[1]
+    ankles = np.stack([base, base + [0.0, 0.5, 0.0]], axis=1)
+    planted = np.zeros((200, 2), dtype=bool)
+    planted[:, 0] = True
+    normal, offset = floor_plane(ankles, planted, np.array([0.0, 1.0, 0.0]), 0.08)
+    assert np.degrees(np.arccos(normal @ normal_true)) < 0.5
+    assert offset == pytest.approx(-1.40, abs=0.005)
+    # few contacts in one spot: the camera's up is kept
+    normal, offset = floor_plane(ankles[:5], planted[:5], np.array([0.0, 1.0, 0.0]), 0.08)
+    np.testing.assert_allclose(normal, [0.0, 1.0, 0.0])
