@@ -231,7 +231,8 @@ def plant_feet(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: n
         if not active.any():
             continue
         hip_j, knee_j = RIG_JOINTS.index(f"{side}_hip"), RIG_JOINTS.index(f"{side}_knee")
-        hip_off, knee_off, ankle_off = (scale * offsets[NODE_NAMES.index(f"{side}_{n}")] for n in ("hip", "knee", "ankle"))
+        hip_off, knee_off, ankle_off = (scale * offsets[NODE_NAMES.index(f"{side}_{part}")]
+                                        for part in ("hip", "knee", "ankle"))
         g_hip = pelvis_rot @ quat_to_matrix(quats[:, hip_j])
         g_knee = g_hip @ quat_to_matrix(quats[:, knee_j])
         hip = root_m + pelvis_rot @ hip_off

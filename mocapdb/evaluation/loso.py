@@ -224,12 +224,14 @@ def format_table(report: dict, motion_width: int = 24) -> str:
     def rows(subject: str, motion: str, scenarios: list[dict]) -> None:
         for sc in scenarios:
             pub, ref, take = sc["published"], sc["refined"], sc["whole take"]
-            accel = f"{_fmt(take['accel_error_mm_per_frame2'], '.1f')} ({_fmt(pub['accel_error_mm_per_frame2'], '.1f')})"
-            skate = f"{_fmt(take['foot_skating_cm_per_s']['mean'], '.1f')} ({_fmt(ref['foot_skating_cm_per_s']['mean'], '.0f')})"
+            accel_take, accel_pub = take["accel_error_mm_per_frame2"], pub["accel_error_mm_per_frame2"]
+            accel = f"{_fmt(accel_take, '.1f')} ({_fmt(accel_pub, '.1f')})"
+            skate_take, skate_ref = take["foot_skating_cm_per_s"]["mean"], ref["foot_skating_cm_per_s"]["mean"]
+            skate = f"{_fmt(skate_take, '.1f')} ({_fmt(skate_ref, '.0f')})"
+            mpjpe = " ".join(f"{_fmt(v['mpjpe13_cm'], '.2f'):>6}" for v in (pub, ref, take))
             lines.append(
                 f"{subject:<8} {motion[:motion_width]:<{motion_width}} {sc['scenario']['name'][:40]:<40} "
-                f"{take['frames_with_output']:>6} {_fmt(take['floor_mpjpe_cm'], '.2f'):>6} "
-                f"{_fmt(pub['mpjpe13_cm'], '.2f'):>6} {_fmt(ref['mpjpe13_cm'], '.2f'):>6} {_fmt(take['mpjpe13_cm'], '.2f'):>6} "
+                f"{take['frames_with_output']:>6} {_fmt(take['floor_mpjpe_cm'], '.2f'):>6} {mpjpe} "
                 f"{_fmt(take['pa_mpjpe13_cm'], '.2f'):>6} {_fmt(take['bone_error_cm'], '.2f'):>5} {accel:>12} "
                 f"{skate:>12} {_fmt(take['root_error_pct_distance'], '.2f'):>7}")
             subject, motion = "", ""

@@ -25,6 +25,7 @@ import numpy as np
 from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import normalize_pose_2d
+from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.progress import progress
 from mocapdb.core.skeleton import (
     KP,
@@ -59,10 +60,9 @@ from mocapdb.evaluation.metrics import (
     planted_feet,
     speeds_mps,
 )
-from mocapdb.core.outputs import TrackRecording
 from mocapdb.runtime.engine import CAMERA_FROM_VIEW, Engine, EngineConfig
-from mocapdb.runtime.take import fit_take
 from mocapdb.runtime.search import search_clustered, search_exact
+from mocapdb.runtime.take import fit_take
 
 if TYPE_CHECKING:
     from tqdm import tqdm
@@ -281,11 +281,16 @@ class VariantStats:
                                       "median": _r(100 * float(np.median(skate)) if len(skate) else None, 1)},
             "planted_foot_height_cm": {"mean": _r(100 * _mean(height), 1),
                                        "penetration_mean": _r(100 * _mean(np.maximum(-height, 0.0)), 1),
-                                       "frames_below_2cm": _r(float(np.mean(height < -0.02)) if len(height) else None, 4),
+                                       "frames_below_2cm": _r(_share(height < -0.02), 4),
                                        "float_mean": _r(100 * _mean(np.maximum(height, 0.0)), 1)},
             "frames_with_pop": _r(float(np.mean(cat(self.pops))) if self.pops else None, 4),
             "engine_person_frames_per_s": _r(self.person_frames / self.seconds if self.seconds else None, 1),
         }
+
+
+def _share(flags: np.ndarray) -> float | None:
+    """The fraction of True in ``flags`` (None when empty)."""
+    return float(np.mean(flags)) if len(flags) else None
 
 
 def _cat(parts: list[np.ndarray]) -> np.ndarray:
