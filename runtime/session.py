@@ -30,6 +30,7 @@ from mocapdb.core.progress import compile_notice, kernels_cached
 from mocapdb.runtime import refine
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source, StreamStats
+from mocapdb.runtime.take import TakeParams, fit_take
 
 LOG = logging.getLogger(__name__)
 
@@ -176,6 +177,7 @@ class SessionOptions:
     min_track_s: float = 0.5
     bvh_part_min: float = 10.0
     rate_by_arrival: bool = False
+    take: TakeParams | None = None  # track files from the whole-take fit (runtime.take); None: per frame
 
     def __post_init__(self) -> None:
         if self.max_bvh_files < 0 or self.min_track_s < 0:
@@ -247,6 +249,8 @@ class TrackFiles:
             self._save(rec, name)
 
     def _save(self, rec: TrackRecording, name: str) -> None:
+        if self.options.take is not None and rec.keypoints:
+            rec, _ = fit_take(rec, self.fps, self.options.take)
         paths = write_track_files(rec, self.options.bvh_dir, name, self.fps, self.options.export)
         self._names.add(name)
         for path in paths:

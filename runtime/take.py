@@ -110,7 +110,21 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
                          proportions_m=rec.proportions_m, static=rec.static, part=rec.part,
                          first_s=rec.first_s, last_s=rec.last_s)
     out.up_view = up if normal is None else normal
+    out.floor_offset_m = offset
     return out, TakeResult(planted, normal, offset)
+
+
+def take_joints(rec: TrackRecording, fps: float, params: TakeParams = TakeParams()
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The whole-take fit of ``rec`` as frame indices ``[F]`` and keypoints ``[F, 15, 3]`` and roots
+    ``[F, 3]`` in the camera-aligned frame (metres; as ``PersonPose.joints_m``/``root_m``)."""
+    fitted, _ = fit_take(rec, fps, params)
+    quats, root_view, scale = fitted.motion()
+    joints_view = pose_from_rotations(quats, root_view, scale, fitted.offsets_m())
+    return rec.first_frame + np.arange(len(quats)), joints_view * _CAMERA_FROM_VIEW, root_view * _CAMERA_FROM_VIEW
+
+
+_CAMERA_FROM_VIEW = np.array([1.0, 1.0, -1.0])  # view frame → camera-aligned frame (as runtime.engine)
 
 
 def smooth_rotations(quats: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:

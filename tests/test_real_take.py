@@ -105,10 +105,14 @@ def test_real_take_command_on_one_camera(small_db_path, tmp_path, capsys):
     assert main(args) == 0
     printed = capsys.readouterr().out
     assert "| cam_01 | refined |" in printed and "| cam_01 | published |" in printed and "PA-MPJPE" in printed
+    assert "| cam_01 | whole take |" in printed
     report = json.loads(out.read_text())
     assert list(report["cameras"]) == ["cam_01"] and 1.5 < report["cameras"]["cam_01"]["camera_height_m"] < 2.2
     runs = [r for modes in report["cameras"]["cam_01"]["runs"].values() for r in modes.values()]
-    assert len(runs) == 3
+    assert len(runs) == 5  # refined and whole take in both size modes, published with nothing given
+    whole = report["cameras"]["cam_01"]["runs"]["whole take"]["nothing_given"]
+    assert whole["foot_skating_cm_per_s"]["mean"] < report["cameras"]["cam_01"]["runs"]["refined"]["nothing_given"][
+        "foot_skating_cm_per_s"]["mean"]  # the whole take holds planted feet still
     for r in runs:
         assert r["frames_with_output"] > 50
         assert all(np.isfinite([r["mpjpe_cm"], r["pa_mpjpe_cm"], r["root_error_m"], r["root_error_pct_distance"],

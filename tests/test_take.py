@@ -109,3 +109,25 @@ def test_floor_plane_from_planted_ankles_on_a_tilted_floor():
     # few contacts in one spot: the camera's up is kept
     normal, offset = floor_plane(ankles[:5], planted[:5], np.array([0.0, 1.0, 0.0]), 0.08)
     np.testing.assert_allclose(normal, [0.0, 1.0, 0.0])
+
+
+def test_reconstruct_writes_the_whole_take_unless_per_frame(small_db_path, tmp_path):
+    """The bundled real take: the whole-take BVH moves more smoothly than the per-frame one, on the
+    same body; ``--per-frame`` writes the stream's motion."""
+    from mocapdb.cli.main import main
+    from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
+
+    from .conftest import SAMPLE_KEYPOINTS
+
+    common = [str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--fps", "60", "--image-size", "1088x1920",
+              "--focal", "1681"]
+    assert main(["reconstruct", *common, "--out", str(tmp_path / "take")]) == 0
+    assert main(["reconstruct", *common, "--out", str(tmp_path / "frame"), "--per-frame"]) == 0
+    motion = {}
+    for name in ("take", "frame"):
+        bvh = read_bvh(tmp_path / name / "track_1.bvh")
+        joints, _ = forward_kinematics(bvh)
+        motion[name] = (bvh, np.linalg.norm(np.diff(joints, 2, axis=0), axis=-1).mean())
+    assert motion["take"][1] < 0.5 * motion["frame"][1]              # mean joint acceleration
+    np.testing.assert_allclose(motion["take"][0].offsets, motion["frame"][0].offsets)  # one body
+    assert motion["take"][0].n_frames == motion["frame"][0].n_frames

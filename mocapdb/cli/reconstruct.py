@@ -72,6 +72,12 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                        help="put each track on a floor estimated from its feet: camera pitch levelled, feet on "
                             "y = 0, the pelvis starting above the origin (default: the camera is the origin)")
     files.add_argument("--bvh-unit", choices=("m", "cm"), default="m", help="length unit of the BVH files (default m)")
+    files.add_argument("--smoothing-hz", type=float, default=4.0, metavar="HZ",
+                       help="the track files are each track fitted over the whole take: motion slower than HZ "
+                            "kept, jitter faster removed, without lag; planted feet held still, no foot below the "
+                            "floor (default 4; 0: no smoothing)")
+    files.add_argument("--per-frame", action="store_true",
+                       help="write the track files from the per-frame output (as the stream), not the whole take")
     p.add_argument("--keep-static", action="store_true",
                    help="also write BVH files for tracks whose keypoints never moved (posters, false detections)")
     limits = p.add_argument_group("limits (0: no limit; data_specs/stream_output.md)")
@@ -112,7 +118,7 @@ def _engine(args: argparse.Namespace):
                               refine_yaw=not args.no_yaw_refinement, refine=not args.no_refine,
                               subject_height_m=args.subject_height, camera_height_m=args.camera_height,
                               smoothing=not args.no_smoothing,
-                              rotation_filter=rotation_filter)
+                              rotation_filter=rotation_filter, keep_take=not args.per_frame)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     return Engine(load_database(args.db, verify_checksums=not args.no_verify), config)
@@ -126,6 +132,7 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
     from mocapdb.runtime.engine import TrackLimits
     from mocapdb.runtime.session import FrameParser, Session, SessionOptions, SessionSummary
     from mocapdb.runtime.streams import StreamStats, open_sink
+    from mocapdb.runtime.take import TakeParams
 
     summary = SessionSummary(stream=StreamStats())
     if bvh_dir is None and getattr(args, "bvh_dir", None):  # live --bvh-dir
@@ -137,7 +144,8 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
         options = SessionOptions(strict=strict, fps_given=args.fps is not None, keep_static=args.keep_static,
                                  bvh_dir=bvh_dir, export=export, max_bvh_files=args.max_bvh_files,
                                  min_track_s=args.min_track_s, bvh_part_min=args.bvh_part_min,
-                                 rate_by_arrival=not strict)
+                                 rate_by_arrival=not strict,
+                                 take=None if args.per_frame else TakeParams(smoothing_hz=args.smoothing_hz))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     engine = _engine(args)

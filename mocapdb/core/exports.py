@@ -1,11 +1,13 @@
 """A track's files: BVH (universal or humanoid rig), TRC (OpenSim / Pose2Sim markers) and CSV.
 
 Coordinates are the view frame (metres, x to the image's right, y up, z towards the camera),
-whose origin is the camera. With ``floor`` the motion is put on a floor estimated from the feet:
-the camera's pitch is taken out (the line the lowest ankle traces over depth is made level), the
-floor is at y = 0 and the pelvis starts above the origin; a person who hardly moves in depth
-(< :data:`MIN_DEPTH_SPREAD_M`) is only shifted, not levelled. Decisions: the roll of the camera is
-not estimated; the floor height is the 5th percentile of the lowest ankle minus the ankle height.
+whose origin is the camera. With ``floor`` the motion is put on a floor at y = 0, the pelvis
+starting above the origin: the floor the whole-take fit found under the planted feet
+(``TrackRecording.floor_offset_m``; pitch and roll taken out), or, for a per-frame recording, one
+estimated here from the feet: the camera's pitch is taken out (the line the lowest ankle traces over
+depth is made level); a person who hardly moves in depth (< :data:`MIN_DEPTH_SPREAD_M`) is only
+shifted, not levelled; the roll is not estimated; the floor height is the 5th percentile of the
+lowest ankle minus the ankle height.
 """
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ from mocapdb.core.formats.bvh import format_bvh
 from mocapdb.core.formats.trc import format_trc
 from mocapdb.core.geometry import axis_rotation_matrices, matrix_to_quat, quat_mul
 from mocapdb.core.outputs import RIGS, TrackRecording, universal_bvh
-from mocapdb.core.skeleton import ANKLE_HEIGHT_M, KEYPOINTS, KP, pose_from_rotations
+from mocapdb.core.skeleton import ANKLE_HEIGHT_M, KEYPOINTS, KP, pose_from_rotations, swing_matrices
 
 FORMATS = ("bvh", "trc", "csv")
 MIN_DEPTH_SPREAD_M = 0.5   # the feet must cover this much depth for the camera pitch to be measured
@@ -48,18 +50,22 @@ class TrackExport:
             raise ValueError(f"unknown BVH unit {self.unit!r}: m or cm")
 
 
-def on_floor(quats: np.ndarray, root_m: np.ndarray, scale: float,
-             offsets_m: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def on_floor(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None = None,
+             floor: tuple[np.ndarray, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``quats [F, R, 4]`` and ``root_m [F, 3]`` of a body (rest ``offsets_m``, default universal,
     times ``scale``) turned level and moved onto a floor at y = 0, the first frame's pelvis above
-    the origin (see the module's docstring)."""
-    lowest = _lowest_ankle(quats, root_m, scale, offsets_m)
-    pitch_rad = _floor_pitch(lowest)
-    level = axis_rotation_matrices("X", np.float64(pitch_rad))
+    the origin. ``floor``: the plane ``normal · p = offset`` (view frame) found by the whole-take
+    fit, turned to y = 0 (pitch and roll); else estimated here (see the module's docstring)."""
+    if floor is not None:
+        normal, floor_y = np.asarray(floor[0], dtype=np.float64), float(floor[1])
+        level = swing_matrices(normal / np.linalg.norm(normal), np.array([0.0, 1.0, 0.0]))
+    else:
+        lowest = _lowest_ankle(quats, root_m, scale, offsets_m)
+        level = axis_rotation_matrices("X", np.float64(_floor_pitch(lowest)))
+        floor_y = np.percentile((lowest @ level.T)[:, 1], FLOOR_PERCENTILE) - ANKLE_HEIGHT_M * scale
     quats = quats.copy()
     quats[:, 0] = quat_mul(matrix_to_quat(level), quats[:, 0])
     root = root_m @ level.T
-    floor_y = np.percentile((lowest @ level.T)[:, 1], FLOOR_PERCENTILE) - ANKLE_HEIGHT_M * scale
     return quats, root - [root[0, 0], floor_y, root[0, 2]]
 
 
@@ -87,7 +93,8 @@ def track_motion(rec: TrackRecording, floor: bool) -> tuple[np.ndarray, np.ndarr
     """Rotations ``[F, R, 4]``, root ``[F, 3]`` (metres) and body scale of a track, on the floor if asked."""
     quats, root_m, scale = rec.motion()
     if floor:
-        quats, root_m = on_floor(quats, root_m, scale, rec.offsets_m())
+        floor = None if rec.floor_offset_m is None else (rec.up_view, rec.floor_offset_m)
+        quats, root_m = on_floor(quats, root_m, scale, rec.offsets_m(), floor)
     return quats, root_m, scale
 
 

@@ -43,7 +43,9 @@ from mocapdb.core.formats.openpose import read_openpose_folder
 from mocapdb.core.formats.trc import Trc, read_trc, trc_keypoints
 from mocapdb.core.skeleton import KP, MEASURED_BONE_NAMES, N_KEYPOINTS_2D, N_POINTS, PELVIS, bone_lengths_m
 from mocapdb.evaluation.metrics import foot_height_error_m, foot_skating_mps, pa_mpjpe, planted_feet
+from mocapdb.evaluation.reconstruction import TAKE_VARIANT, variant_config
 from mocapdb.runtime.engine import Engine, EngineConfig
+from mocapdb.runtime.take import take_joints
 
 TRC_FROM_WORLD = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # trc = TRC_FROM_WORLD @ world
 Y_DOWN = np.array([1.0, -1.0, 1.0])  # camera-aligned (y up) ↔ OpenCV camera (y down), either way
@@ -138,20 +140,19 @@ def load_take(folder: str | Path, names: Sequence[str] | None = None) -> Take:
 
 def engine_config(base: EngineConfig, cam: CameraModel, fps: float, refine: bool,
                   camera_height: float | None = None) -> EngineConfig:
-    """``base`` for ``cam`` (its focal length and image size, ``fps`` Hz) as variant ``refine``, with
-    ``camera_height`` (metres) or not. Filters left at their defaults follow the variant, as in
-    :func:`mocapdb.evaluation.reconstruction.variant_config`, and so does the 2D keypoint clean-up
-    (which ``--no-refine`` leaves off: the published method has none)."""
+    """``base`` for ``cam`` (its focal length and image size, ``fps`` Hz) as variant ``refine``
+    (:func:`~mocapdb.evaluation.reconstruction.variant_config`), with ``camera_height`` (metres) or
+    not; the refined variant keeps its per-frame fits for the whole take."""
     cfg = replace(base, fps=fps, focal_px=focal_px(cam), image_size=tuple(cam.size), camera_height_m=None)
-    defaults = {"rotation_filter": None, "root_filter": None, "keypoint_filter": None}
-    cfg = replace(cfg, refine=refine, **defaults) if cfg == replace(cfg, **defaults) else replace(cfg, refine=refine)
-    return replace(cfg, camera_height_m=camera_height)
+    return replace(variant_config(cfg, refine), camera_height_m=camera_height, keep_take=refine)
 
 
-def run_camera(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The person's joints ``[F, 15, 3]`` (camera-aligned, metres; NaN where it has no output) and
-    body heights ``[F]`` (metres): the longest track that is not static (a false detection that
-    never moves is); all NaN when there is none."""
+def run_camera(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The person's joints ``[F, 15, 3]`` (camera-aligned, metres; NaN where it has no output), body
+    heights ``[F]`` (metres) and, when ``config.keep_take``, the whole-take fit's joints ``[F, 15, 3]``
+    (else None): the longest track that is not static (a false detection that never moves is); all
+    NaN when there is none."""
     engine = Engine(db, config)
     joints: dict[int, np.ndarray] = {}
     heights: dict[int, np.ndarray] = {}
@@ -161,12 +162,19 @@ def run_camera(db: MotionDatabase, frames: list[KeypointFrame], config: EngineCo
                 joints[pose.track] = np.full((len(frames), N_POINTS, 3), np.nan)
                 heights[pose.track] = np.full(len(frames), np.nan)
             joints[pose.track][i], heights[pose.track][i] = pose.joints_m, pose.height_m
-    static = {r.track for r in engine.finish() if r.static}
-    moving = [t for t in joints if t not in static]
+    recordings = {r.track: r for r in engine.finish()}
+    moving = [t for t in joints if not recordings[t].static]
+    empty = np.full((len(frames), N_POINTS, 3), np.nan)
     if not moving:
-        return np.full((len(frames), N_POINTS, 3), np.nan), np.full(len(frames), np.nan)
+        return empty, np.full(len(frames), np.nan), empty if config.keep_take else None
     track = max(moving, key=lambda t: np.isfinite(heights[t]).sum())
-    return joints[track], heights[track]
+    whole = None
+    if config.keep_take:
+        index, take_joints_m, _ = take_joints(recordings[track], config.fps)
+        keep = (index >= 0) & (index < len(frames))
+        whole = empty.copy()
+        whole[index[keep]] = take_joints_m[keep]
+    return joints[track], heights[track], whole
 
 
 def score(pred: np.ndarray, truth: np.ndarray, camera_centre: np.ndarray, fps: float) -> dict:
@@ -241,10 +249,13 @@ def evaluate_real_take(db: MotionDatabase, folder: str | Path, base: EngineConfi
         centre = world_to_trc(cam.center_m)
         for variant, mode, refine, given in RUNS:
             config = engine_config(base, cam, take.fps, refine, height if given else None)
-            joints, heights = run_camera(db, take.frames[name], config)
-            result = score(camera_to_trc(joints, cam), take.truth, centre, take.fps)
-            result["body_height_m"] = _median(heights[np.isfinite(heights)])
-            entry["runs"].setdefault(variant, {})[mode] = result
+            joints, heights, whole = run_camera(db, take.frames[name], config)
+            body_height = _median(heights[np.isfinite(heights)])
+            outputs = [(variant, joints)] + ([(TAKE_VARIANT, whole)] if whole is not None else [])
+            for label, points in outputs:
+                result = score(camera_to_trc(points, cam), take.truth, centre, take.fps)
+                result["body_height_m"] = body_height
+                entry["runs"].setdefault(label, {})[mode] = result
     return report
 
 
@@ -293,7 +304,8 @@ def check_lines(report: dict) -> list[str]:
                ("root error", "% of the distance", TARGET_ROOT_PCT, lambda r: r["root_error_pct_distance"],
                 "nothing_given")]
     lines = []
-    for variant, mode, _, _ in RUNS:
+    variants = [(v, m) for v, m, _, _ in RUNS] + [(TAKE_VARIANT, m) for v, m, refine, _ in RUNS if refine]
+    for variant, mode in variants:
         runs = [(c, r) for c, v, m, r in _runs(report) if (v, m) == (variant, mode)]
         for label, unit, target, value, only in targets:
             if only not in (None, mode) or not runs:

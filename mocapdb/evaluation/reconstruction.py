@@ -60,9 +60,9 @@ from mocapdb.evaluation.metrics import (
     planted_feet,
     speeds_mps,
 )
-from mocapdb.runtime.engine import CAMERA_FROM_VIEW, Engine, EngineConfig
+from mocapdb.runtime.engine import Engine, EngineConfig
 from mocapdb.runtime.search import search_clustered, search_exact
-from mocapdb.runtime.take import fit_take
+from mocapdb.runtime.take import take_joints
 
 if TYPE_CHECKING:
     from tqdm import tqdm
@@ -128,22 +128,16 @@ def run_sequence(engine: Engine, frames: list[KeypointFrame]) -> EngineRun:
 
 def whole_take_run(run: EngineRun, n_frames: int, fps: float) -> EngineRun:
     """The tracks of a refined run (made with ``keep_take``) through the whole-take fit, as a run of
-    ``n_frames`` frames (frame index = position); ``seconds``: the fit's time."""
+    ``n_frames`` frames (frame index = position; ``local`` left NaN: the two-view test uses the
+    per-frame engine); ``seconds``: the fit's time."""
     joints = np.full((n_frames, N_POINTS, 3), np.nan)
     root = np.full((n_frames, 3), np.nan)
-    local = np.full_like(joints, np.nan)
     t0 = time.perf_counter()
     for rec in run.recordings:
-        fitted, _ = fit_take(rec, fps)
-        quats, root_view, scale = fitted.motion()
-        frames = rec.first_frame + np.arange(len(quats))
+        frames, rec_joints, rec_root = take_joints(rec, fps)
         keep = (frames >= 0) & (frames < n_frames)
-        view = pose_from_rotations(quats, root_view, scale, fitted.offsets_m())
-        joints[frames[keep]] = (view * CAMERA_FROM_VIEW)[keep]
-        root[frames[keep]] = (root_view * CAMERA_FROM_VIEW)[keep]
-        local[frames[keep]] = np.array([_root_frame(q) for q in quats[keep]])
-    seconds = time.perf_counter() - t0
-    return EngineRun(joints, root, local, seconds, run.recordings)
+        joints[frames[keep]], root[frames[keep]] = rec_joints[keep], rec_root[keep]
+    return EngineRun(joints, root, np.full_like(joints, np.nan), time.perf_counter() - t0, run.recordings)
 
 
 def _root_frame(quats: np.ndarray) -> np.ndarray:
