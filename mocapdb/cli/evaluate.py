@@ -40,6 +40,8 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
                         "subject, 120 frames, two scenarios")
     p.add_argument("--weight-2d", type=float, default=0.5, help="as in reconstruct")
     p.add_argument("--search", choices=("clustered", "exact"), default="clustered")
+    p.add_argument("--universal-body", action="store_true",
+                   help="the engine keeps the universal skeleton's proportions (as before own bodies: for comparison)")
     p.set_defaults(run=run_eval)
 
 
@@ -57,7 +59,7 @@ def run_eval(args: argparse.Namespace) -> int:
     if not getattr(args, "quiet", False):  # the evaluation's progress lines (info level) are worth seeing on a long run
         logging.getLogger("mocapdb.evaluation").setLevel(min(logging.INFO, logging.getLogger("mocapdb").level))
 
-    engine = EngineConfig(weight_2d=args.weight_2d, search=args.search)
+    engine = EngineConfig(weight_2d=args.weight_2d, search=args.search, own_body=not args.universal_body)
     if args.cameras and not args.real_take:
         raise UsageError("--cameras goes with --real-take")
     if args.real_take:

@@ -57,6 +57,9 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     size.add_argument("--camera-height", type=float, metavar="METRES",
                       help="the camera's height above a flat floor the people stand on: each person's size and "
                            "depth are measured from their feet (data_specs/stream_output.md)")
+    p.add_argument("--universal-body", action="store_true",
+                   help="keep the universal skeleton's proportions (default: each track's own bone proportions "
+                        "measured from its 2D)")
     p.add_argument("--no-smoothing", action="store_true", help="turn the 1€ filters off")
     p.add_argument("--no-translation", action="store_true", help="keep the pelvis at the origin")
     p.add_argument("--no-yaw-refinement", action="store_true", help="keep the database's yaw grid (12° steps)")
@@ -117,7 +120,7 @@ def _engine(args: argparse.Namespace):
                               translation=not args.no_translation,
                               refine_yaw=not args.no_yaw_refinement, refine=not args.no_refine,
                               subject_height_m=args.subject_height, camera_height_m=args.camera_height,
-                              smoothing=not args.no_smoothing,
+                              smoothing=not args.no_smoothing, own_body=not args.universal_body,
                               rotation_filter=rotation_filter, keep_take=not args.per_frame)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
