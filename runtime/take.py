@@ -146,8 +146,9 @@ def planted_ankles(keypoints: np.ndarray, ankles_view_m: np.ndarray, up: np.ndar
     ``keypoints [F, 14, 3]`` (x, y px, confidence), ``ankles_view_m [F, 2, 3]``."""
     px, seen = keypoints[:, ANKLES, :2], keypoints[:, ANKLES, 2] > 0
     visible = keypoints[..., 2] > 0
-    ys = np.where(visible, keypoints[..., 1], np.nan)
-    box = float(np.nanmedian(np.nanmax(ys, axis=1) - np.nanmin(ys, axis=1))) if visible.any() else 1.0
+    seen_frames = visible.any(axis=1)  # frames the track missed hold no keypoint
+    ys = np.where(visible, keypoints[..., 1], np.nan)[seen_frames]
+    box = float(np.median(np.nanmax(ys, axis=1) - np.nanmin(ys, axis=1))) if len(ys) else 1.0
     sigma = max(fps / (2.0 * np.pi * 6.0), 0.5)  # the keypoints' own jitter smoothed (6 Hz)
     smooth = gaussian_filter1d(px, sigma, axis=0, mode="nearest")
     speed = np.zeros(seen.shape)
