@@ -30,7 +30,7 @@ from mocapdb.core.progress import compile_notice, kernels_cached
 from mocapdb.runtime import refine
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source, StreamStats
-from mocapdb.runtime.take import TakeParams, fit_take
+from mocapdb.runtime.take import TakeParams, fit_take, shared_floor
 
 LOG = logging.getLogger(__name__)
 
@@ -178,6 +178,8 @@ class SessionOptions:
     bvh_part_min: float = 10.0
     rate_by_arrival: bool = False
     take: TakeParams | None = None  # track files from the whole-take fit (runtime.take); None: per frame
+    shared_floor: bool = False      # files written at the end, every track on one floor (runtime.take.shared_floor)
+    camera_height_m: float | None = None  # the shared floor's distance below the camera, when known
 
     def __post_init__(self) -> None:
         if self.max_bvh_files < 0 or self.min_track_s < 0:
@@ -202,6 +204,7 @@ class TrackFiles:
         self._names: set[str] = set()  # written or waiting
         self._paths: set[Path] = set()  # written
         self._waiting: list[tuple[TrackRecording, str]] = []
+        self._held: list[tuple[TrackRecording, str]] = []  # final files held for the shared floor
 
     def ended(self, rec: TrackRecording) -> None:
         """A track ended: its file (or last part), unless static or too short."""
@@ -232,25 +235,39 @@ class TrackFiles:
         return rec.duration_s(self.fps) < self.options.min_track_s - 1e-9
 
     def flush(self) -> None:
-        """Write the recordings that waited for a folder."""
+        """Write the recordings that waited for a folder, then those held for the shared floor (all
+        on one floor)."""
         waiting, self._waiting = self._waiting, []
         for rec, name in waiting:
             self._save(rec, name)
+        held, self._held = self._held, []
+        fits = [fit_take(rec, self.fps, self.options.take) for rec, _ in held]
+        for rec, (_, name) in zip(shared_floor(fits, self.options.camera_height_m), held):
+            self._write_files(rec, name)
 
     def _write(self, rec: TrackRecording, name: str, final: bool) -> None:
         limit = self.options.max_bvh_files
         if name not in self._names and limit and len(self._names) >= limit:
             if final:
                 self._refuse()
+        elif final and self._sharing_floor(rec):
+            self._names.add(name)
+            self._held.append((rec, name))
         elif self.options.bvh_dir is None:
             self._names.add(name)
             self._waiting.append((rec, name))
         else:
             self._save(rec, name)
 
+    def _sharing_floor(self, rec: TrackRecording) -> bool:
+        return self.options.shared_floor and self.options.take is not None and bool(rec.keypoints)
+
     def _save(self, rec: TrackRecording, name: str) -> None:
         if self.options.take is not None and rec.keypoints:
             rec, _ = fit_take(rec, self.fps, self.options.take)
+        self._write_files(rec, name)
+
+    def _write_files(self, rec: TrackRecording, name: str) -> None:
         paths = write_track_files(rec, self.options.bvh_dir, name, self.fps, self.options.export)
         self._names.add(name)
         for path in paths:

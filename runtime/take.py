@@ -76,10 +76,12 @@ class TakeParams:
 
 @dataclass
 class TakeResult:
-    """What :func:`fit_take` found besides the motion: contacts ``[F, 2]`` (right, left ankle) and
-    the floor plane ``normal · p = offset`` (view frame, metres; None without contacts)."""
+    """What :func:`fit_take` found besides the motion: contacts ``[F, 2]`` (right, left ankle), the
+    planted ankles ``[N, 3]`` (view frame, metres) and the floor plane ``normal · p = offset`` (view
+    frame, metres; None without contacts)."""
 
     planted: np.ndarray
+    planted_ankles_m: np.ndarray
     floor_normal: np.ndarray | None
     floor_offset_m: float | None
 
@@ -111,7 +113,7 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
                          first_s=rec.first_s, last_s=rec.last_s)
     out.up_view = up if normal is None else normal
     out.floor_offset_m = offset
-    return out, TakeResult(planted, normal, offset)
+    return out, TakeResult(planted, (root[:, None] + relative)[planted], normal, offset)
 
 
 def take_joints(rec: TrackRecording, fps: float, params: TakeParams = TakeParams()
@@ -333,3 +335,57 @@ def _above_floor(root_m: np.ndarray, ankle_offsets_m: np.ndarray, normal: np.nda
     heights = (root_m[:, None] + ankle_offsets_m) @ normal - offset
     deficit = np.maximum(ankle_height_m - heights.min(axis=1), 0.0)
     return root_m + deficit[:, None] * normal
+
+
+def shared_floor(fits: list[tuple[TrackRecording, TakeResult]], camera_height_m: float | None = None
+                 ) -> list[TrackRecording]:
+    """One floor for every track of a take (one camera, one world): the whole-take fits
+    (:func:`fit_take`) with one floor plane and each track scaled about the camera (its image
+    unchanged) so that its planted ankles stand on it.
+
+    The plane's normal starts as the tracks' normals averaged (weighted by their contacts) and its
+    distance below the camera as their weighted geometric mean (the people's sizes stay what they
+    assumed on average), or ``camera_height_m``; each track's scale
+    ``k = distance / its own floor's distance`` follows; then the plane is fitted to all tracks'
+    scaled contacts when they span at least 1 m in two directions, twice. Tracks without contacts
+    keep their scale and take the shared floor. Returns new recordings, in order."""
+    with_floor = [i for i, (_, r) in enumerate(fits) if r.floor_normal is not None]
+    if not with_floor:
+        return [rec for rec, _ in fits]
+    weights = np.array([len(fits[i][1].planted_ankles_m) for i in with_floor], dtype=np.float64)
+    normal = sum(w * fits[i][1].floor_normal for w, i in zip(weights, with_floor))
+    normal /= np.linalg.norm(normal)
+    scales = np.ones(len(fits))
+    for _ in range(3):
+        own = np.array([_floor_distance(fits[i], normal) for i in with_floor])  # negative: below
+        distance = -camera_height_m if camera_height_m is not None else _geometric_mean(own, weights)
+        scales[with_floor] = distance / own
+        points = np.concatenate([scales[i] * fits[i][1].planted_ankles_m for i in with_floor])
+        normal = floor_plane(points[:, None], np.ones((len(points), 1), dtype=bool), normal, 0.0)[0]
+    distance = float(np.median(np.concatenate([scales[i] * fits[i][1].planted_ankles_m @ normal
+                                                - ANKLE_HEIGHT_M * scales[i] * fits[i][0].scales[-1]
+                                                for i in with_floor])))
+    if camera_height_m is not None:
+        distance = -camera_height_m
+    return [_rescaled(rec, k, normal, distance) for (rec, _), k in zip(fits, scales)]
+
+
+def _floor_distance(fit: tuple[TrackRecording, TakeResult], normal: np.ndarray) -> float:
+    """The floor's signed distance from the camera along ``normal`` under one track's contacts."""
+    rec, result = fit
+    return float(np.median(result.planted_ankles_m @ normal)) - ANKLE_HEIGHT_M * rec.scales[-1]
+
+
+def _geometric_mean(distances: np.ndarray, weights: np.ndarray) -> float:
+    """The weighted geometric mean of negative ``distances``: the tracks' sizes stay what they assumed
+    on average (their scales' weighted geometric mean is 1)."""
+    return -float(np.exp(np.sum(weights * np.log(-np.minimum(distances, -1e-3))) / np.sum(weights)))
+
+
+def _rescaled(rec: TrackRecording, k: float, normal: np.ndarray, offset: float) -> TrackRecording:
+    """``rec`` scaled by ``k`` about the camera (root and body), on the floor ``normal · p = offset``."""
+    out = TrackRecording(rec.track, rec.first_frame, rec.quaternions, [r * k for r in rec.root_view_m],
+                         [s * k for s in rec.scales], proportions_m=rec.proportions_m, static=rec.static,
+                         part=rec.part, first_s=rec.first_s, last_s=rec.last_s)
+    out.up_view, out.floor_offset_m = normal, offset
+    return out

@@ -131,3 +131,46 @@ def test_reconstruct_writes_the_whole_take_unless_per_frame(small_db_path, tmp_p
     assert motion["take"][1] < 0.5 * motion["frame"][1]              # mean joint acceleration
     np.testing.assert_allclose(motion["take"][0].offsets, motion["frame"][0].offsets)  # one body
     assert motion["take"][0].n_frames == motion["frame"][0].n_frames
+
+
+def test_two_people_share_one_floor_and_their_sizes_follow(small_db):
+    """Two people of 1.55 m and 1.85 m walking in front of one camera (1.5 m high, pitched 10°): each
+    track alone assumes 1.75 m, so their floors disagree; on the shared floor both stand on one
+    plane and their sizes come out in the true ratio."""
+    from mocapdb.core.formats.keypoints import KeypointFrame, Person
+    from mocapdb.core.geometry import axis_rotation_matrices, yaw_matrix
+    from mocapdb.core.skeleton import PELVIS
+    from mocapdb.runtime.engine import Engine, EngineConfig
+    from mocapdb.runtime.take import fit_take, shared_floor
+
+    focal, size, pitch = 1000.0, (1920, 1080), np.radians(10.0)
+    first, n = small_db.clip_first_frame[0], small_db.clip_n_frames[0]
+    people = []
+    for height, x, yaw in ((1.55, -1.2, 30.0), (1.85, 1.0, 200.0)):
+        world = small_db.positions[first:first + n].astype(np.float64) * (height / 1.75)
+        world = (world - world[:, PELVIS].mean(axis=0) * [1, 0, 1]) @ yaw_matrix(yaw).T + [x, 0.0, 0.0]
+        view = (world - [0.0, 1.5, 5.0]) @ axis_rotation_matrices("X", pitch).T
+        people.append(np.stack([size[0] / 2 + focal * view[..., 0] / -view[..., 2],
+                                size[1] / 2 - focal * view[..., 1] / -view[..., 2]], axis=-1)[:, :14])
+    frames = [KeypointFrame(i, i / 24.0, [Person(p[i], np.full(14, 0.9)) for p in people]) for i in range(n)]
+    engine = Engine(small_db, EngineConfig(fps=24.0, focal_px=focal, image_size=size, keep_take=True))
+    for frame in frames:
+        engine.step(frame)
+    recordings = [r for r in engine.finish() if len(r.quaternions) > n // 2]
+    assert len(recordings) == 2
+    fits = [fit_take(rec, 24.0) for rec in recordings]
+    own = [result.floor_offset_m for _, result in fits]
+    assert abs(own[0] - own[1]) > 0.1                    # alone, each stands on a floor of its own
+    shared = shared_floor(fits)
+    assert shared[0].floor_offset_m == shared[1].floor_offset_m
+    np.testing.assert_allclose(shared[0].up_view, shared[1].up_view)
+    heights = {}
+    for rec, (_, result) in zip(shared, fits):
+        k = rec.scales[-1] / fits[[r.track for r, _ in fits].index(rec.track)][0].scales[-1]
+        feet = k * result.planted_ankles_m @ rec.up_view - rec.floor_offset_m
+        assert abs(np.median(feet) - 0.08 * rec.scales[-1]) < 0.03     # both on the one floor
+        x = np.median(np.array(rec.root_view_m)[:, 0])
+        heights["left" if x < 0 else "right"] = 1.75 * rec.scales[-1]
+    assert heights["right"] / heights["left"] == pytest.approx(1.85 / 1.55, rel=0.06)
+    # the camera's height above the shared floor is the true 1.5 m within 10 %
+    assert -shared[0].floor_offset_m == pytest.approx(1.5, rel=0.10)

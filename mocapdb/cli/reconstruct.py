@@ -148,7 +148,8 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
                                  bvh_dir=bvh_dir, export=export, max_bvh_files=args.max_bvh_files,
                                  min_track_s=args.min_track_s, bvh_part_min=args.bvh_part_min,
                                  rate_by_arrival=not strict,
-                                 take=None if args.per_frame else TakeParams(smoothing_hz=args.smoothing_hz))
+                                 take=None if args.per_frame else TakeParams(smoothing_hz=args.smoothing_hz),
+                                 shared_floor=strict, camera_height_m=args.camera_height)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     engine = _engine(args)

@@ -1,10 +1,10 @@
 """A track's files: BVH (universal or humanoid rig), TRC (OpenSim / Pose2Sim markers) and CSV.
 
 Coordinates are the view frame (metres, x to the image's right, y up, z towards the camera),
-whose origin is the camera. With ``floor`` the motion is put on a floor at y = 0, the pelvis
-starting above the origin: the floor the whole-take fit found under the planted feet
-(``TrackRecording.floor_offset_m``; pitch and roll taken out), or, for a per-frame recording, one
-estimated here from the feet: the camera's pitch is taken out (the line the lowest ankle traces over
+whose origin is the camera. With ``floor`` the motion is put on a floor at y = 0: the floor the
+whole-take fit found under the planted feet (``TrackRecording.floor_offset_m``; pitch and roll
+taken out; the origin under the camera, so every track on that floor shares one world), or, for a
+per-frame recording, one estimated here from the feet, the pelvis starting above the origin: the camera's pitch is taken out (the line the lowest ankle traces over
 depth is made level); a person who hardly moves in depth (< :data:`MIN_DEPTH_SPREAD_M`) is only
 shifted, not levelled; the roll is not estimated; the floor height is the 5th percentile of the
 lowest ankle minus the ankle height.
@@ -53,9 +53,10 @@ class TrackExport:
 def on_floor(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None = None,
              floor: tuple[np.ndarray, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``quats [F, R, 4]`` and ``root_m [F, 3]`` of a body (rest ``offsets_m``, default universal,
-    times ``scale``) turned level and moved onto a floor at y = 0, the first frame's pelvis above
-    the origin. ``floor``: the plane ``normal · p = offset`` (view frame) found by the whole-take
-    fit, turned to y = 0 (pitch and roll); else estimated here (see the module's docstring)."""
+    times ``scale``) turned level and moved onto a floor at y = 0. ``floor``: the plane ``normal · p
+    = offset`` (view frame) found by the whole-take fit, turned to y = 0 (pitch and roll), the origin
+    on it under the camera (so tracks on one floor share one world); else a floor estimated here,
+    the first frame's pelvis above the origin (see the module's docstring)."""
     if floor is not None:
         normal, floor_y = np.asarray(floor[0], dtype=np.float64), float(floor[1])
         level = swing_matrices(normal / np.linalg.norm(normal), np.array([0.0, 1.0, 0.0]))
@@ -66,6 +67,8 @@ def on_floor(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.
     quats = quats.copy()
     quats[:, 0] = quat_mul(matrix_to_quat(level), quats[:, 0])
     root = root_m @ level.T
+    if floor is not None:  # one world for every track on that floor: the origin under the camera
+        return quats, root - [0.0, floor_y, 0.0]
     return quats, root - [root[0, 0], floor_y, root[0, 2]]
 
 
