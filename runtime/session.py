@@ -30,7 +30,7 @@ from mocapdb.core.progress import compile_notice, kernels_cached
 from mocapdb.runtime import refine
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source, StreamStats
-from mocapdb.runtime.take import TakeParams, fit_take, shared_floor
+from mocapdb.runtime.take import TakeParams, fit_take, fit_takes
 
 LOG = logging.getLogger(__name__)
 
@@ -241,8 +241,8 @@ class TrackFiles:
         for rec, name in waiting:
             self._save(rec, name)
         held, self._held = self._held, []
-        fits = [fit_take(rec, self.fps, self.options.take) for rec, _ in held]
-        for rec, (_, name) in zip(shared_floor(fits, self.options.camera_height_m), held):
+        fitted = fit_takes([rec for rec, _ in held], self.fps, self.options.take, self.options.camera_height_m)
+        for rec, (_, name) in zip(fitted, held):
             self._write_files(rec, name)
 
     def _write(self, rec: TrackRecording, name: str, final: bool) -> None:

@@ -51,6 +51,7 @@ from mocapdb.core.skeleton import (
 
 ANKLES = (KP["r_ankle"], KP["l_ankle"])
 MIN_CONTACT_FRAMES = 3
+MIN_FLOOR_SPREAD_M = 0.3  # RMS extent of the contacts (≈ 1 m end to end) along a direction they fix
 
 
 @dataclass(frozen=True)
@@ -116,14 +117,19 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     return out, TakeResult(planted, (root[:, None] + relative)[planted], normal, offset)
 
 
-def take_joints(rec: TrackRecording, fps: float, params: TakeParams = TakeParams()
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The whole-take fit of ``rec`` as frame indices ``[F]`` and keypoints ``[F, 15, 3]`` and roots
+def fit_takes(recordings: list[TrackRecording], fps: float, params: TakeParams = TakeParams(),
+              camera_height_m: float | None = None) -> list[TrackRecording]:
+    """Every track of a take through :func:`fit_take`, then onto one floor (:func:`shared_floor`,
+    ``camera_height_m`` below the camera when known): what ``reconstruct`` writes."""
+    return shared_floor([fit_take(rec, fps, params) for rec in recordings], camera_height_m)
+
+
+def take_joints(fitted: TrackRecording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A fitted track (:func:`fit_takes`) as frame indices ``[F]``, keypoints ``[F, 15, 3]`` and roots
     ``[F, 3]`` in the camera-aligned frame (metres; as ``PersonPose.joints_m``/``root_m``)."""
-    fitted, _ = fit_take(rec, fps, params)
     quats, root_view, scale = fitted.motion()
     joints_view = pose_from_rotations(quats, root_view, scale, fitted.offsets_m())
-    return rec.first_frame + np.arange(len(quats)), joints_view * _CAMERA_FROM_VIEW, root_view * _CAMERA_FROM_VIEW
+    return fitted.first_frame + np.arange(len(quats)), joints_view * _CAMERA_FROM_VIEW, root_view * _CAMERA_FROM_VIEW
 
 
 _CAMERA_FROM_VIEW = np.array([1.0, 1.0, -1.0])  # view frame → camera-aligned frame (as runtime.engine)
@@ -315,16 +321,23 @@ def _perpendiculars(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def floor_plane(ankles_view_m: np.ndarray, planted: np.ndarray, up: np.ndarray,
                 ankle_height_m: float) -> tuple[np.ndarray, float]:
-    """The floor ``normal · p = offset`` (view frame) under the planted ankles ``[F, 2, 3]``: a plane
-    fitted to them when they span at least 1 m in two directions (its normal on the ``up`` side),
-    else the plane of normal ``up`` through their median, lowered by ``ankle_height_m``."""
+    """The floor ``normal · p = offset`` (view frame) under the planted ankles ``[F, 2, 3]``, lowered by
+    ``ankle_height_m``: a plane fitted to them when they span about 1 m in two directions (its normal
+    on the ``up`` side); when they span one direction only (a straight walk), ``up`` made
+    perpendicular to it; else ``up``. The offset: the median over the contacts."""
     points = ankles_view_m[planted]
     normal = up / np.linalg.norm(up)
     if len(points) >= 10:
         centred = points - points.mean(axis=0)
         _, spread, vt = np.linalg.svd(centred, full_matrices=False)
-        if spread[1] / np.sqrt(len(points)) >= 0.3 and abs(vt[2] @ normal) > 0.8:
+        spread = spread / np.sqrt(len(points))  # RMS extent along each principal direction
+        if spread[1] >= MIN_FLOOR_SPREAD_M and abs(vt[2] @ normal) > 0.8:
             normal = vt[2] * np.sign(vt[2] @ normal)
+        elif spread[0] >= MIN_FLOOR_SPREAD_M and abs(vt[0] @ normal) < 0.5:
+            # contacts along one line (a straight walk): the floor contains it; the up estimate keeps
+            # only its tilt about the line
+            normal = normal - (normal @ vt[0]) * vt[0]
+            normal /= np.linalg.norm(normal)
     offset = float(np.median(points @ normal)) - ankle_height_m
     return normal, offset
 

@@ -3,8 +3,10 @@
     python tools/bench_runtime.py --db eval.db [--heldout ../shared/data/cmu_bvh/007_*.bvh]
 
 * throughput: person-frames/s of ``Engine.step`` (parsed keypoints to smoothed skeleton, one
-  thread) with the 2D refinement (default) and without (``--no-refine``: the method as
-  published), and exact search without refinement, on held-out clips rendered from off-grid yaws;
+  thread) with the 2D refinement (default; also without the own-body estimate, and keeping the
+  per-frame fits for the whole take) and without (``--no-refine``: the method as published), and
+  exact search without refinement, on held-out clips rendered from off-grid yaws; and the
+  whole-take fit's person-frames/s over the tracks recorded;
 * search: recall@1 of the clustered search against exact search and the time of each;
 * live: 4 people per frame streamed at 30 fps over TCP on loopback into the live loop;
   latency p50/p99 from a message's arrival to its output line;
@@ -33,6 +35,7 @@ from mocapdb.evaluation.reconstruction import search_benchmark  # noqa: E402
 from mocapdb.runtime.engine import Engine, EngineConfig  # noqa: E402
 from mocapdb.runtime.session import FrameParser, Session, SessionSummary, run_live  # noqa: E402
 from mocapdb.runtime.streams import StreamStats, open_sink, open_source  # noqa: E402
+from mocapdb.runtime.take import fit_take  # noqa: E402
 
 DEFAULT_HELDOUT = sorted((ROOT.parent / "shared" / "data" / "cmu_bvh").glob("007_*.bvh"))
 COCO17_OF_UNIVERSAL = {0: 0, 2: 6, 3: 8, 4: 10, 5: 5, 6: 7, 7: 9, 8: 12, 9: 14, 10: 16, 11: 11, 12: 13, 13: 15}
@@ -44,20 +47,31 @@ def rendered_sequences(truths, yaws=(6.0, 96.0, 186.0, 276.0), noise_px: float =
     return [render(view_of(t, yaw, 1.5, 5.0), scenario, 1000.0, (1920, 1080), rng) for t in truths for yaw in yaws]
 
 
-def throughput(db, sequences, search: str, refine: bool) -> float:
-    config = EngineConfig(search=search, fps=24.0, refine=refine)
+def throughput(db, sequences, **options) -> tuple[float, list]:
+    """Person-frames/s of ``Engine.step`` under ``EngineConfig(**options)`` and the tracks recorded."""
+    config = EngineConfig(fps=24.0, **options)
     engine = Engine(db, config)
     for frame in sequences[0][:5]:
         engine.step(frame)  # compile / warm up
     engine.finish()
-    n, seconds = 0, 0.0
+    n, seconds, recordings = 0, 0.0, []
     for frames in sequences:
         engine = Engine(db, config)
         start = time.perf_counter()
         for frame in frames:
             n += len(engine.step(frame))
         seconds += time.perf_counter() - start
-    return n / seconds
+        recordings += engine.finish()
+    return n / seconds, recordings
+
+
+def whole_take_speed(recordings) -> float:
+    """Person-frames/s of the whole-take fit (``runtime.take.fit_take``) over recorded tracks."""
+    fit_take(recordings[0], 24.0)  # warm up
+    start = time.perf_counter()
+    for rec in recordings:
+        fit_take(rec, 24.0)
+    return sum(len(r.quaternions) for r in recordings) / (time.perf_counter() - start)
 
 
 def _coco_line(index: int, people_px: list[np.ndarray]) -> str:
@@ -131,10 +145,14 @@ def main() -> int:
     truths = load_heldout(args.heldout, 24.0)
     sequences = rendered_sequences(truths)
     report = {"database_projections": db.n_projections}
-    report["throughput_person_frames_per_s"] = {
-        name: round(throughput(db, sequences, search, refine), 1)
-        for name, search, refine in (("refined", "clustered", True), ("published (--no-refine)", "clustered", False),
-                                     ("published, exact search", "exact", False))}
+    runs = {"refined": dict(), "refined, universal body (--universal-body)": dict(own_body=False),
+            "refined, keeping the per-frame fits (reconstruct)": dict(keep_take=True),
+            "published (--no-refine)": dict(refine=False),
+            "published, exact search": dict(refine=False, search="exact")}
+    measured = {name: throughput(db, sequences, **options) for name, options in runs.items()}
+    report["throughput_person_frames_per_s"] = {name: round(rate, 1) for name, (rate, _) in measured.items()}
+    report["whole_take_fit_person_frames_per_s"] = round(
+        whole_take_speed(measured["refined, keeping the per-frame fits (reconstruct)"][1]), 1)
     queries = [f.people[0] for seq in sequences for f in seq[::3]]
     report["search"] = search_benchmark(Engine(db), queries, 0.3)
     report["live_4_people_30fps"] = live_latency(db, sequences)

@@ -43,6 +43,7 @@ class Scenario:
     height_given: bool = False  # the engine is told subject_height_m (EngineConfig.subject_height_m)
     body: str = "universal"     # "universal": the retargeted clip; "varied": its source joints on a
     #                             sampled body per clip and yaw (mocapdb.evaluation.bodies)
+    camera_height_given: bool = False  # the engine is told camera_height_m (EngineConfig.camera_height_m)
 
     def __post_init__(self) -> None:
         if self.body not in BODIES:

@@ -45,7 +45,7 @@ from mocapdb.core.skeleton import KP, MEASURED_BONE_NAMES, N_KEYPOINTS_2D, N_POI
 from mocapdb.evaluation.metrics import foot_height_error_m, foot_skating_mps, pa_mpjpe, planted_feet
 from mocapdb.evaluation.reconstruction import TAKE_VARIANT, variant_config
 from mocapdb.runtime.engine import Engine, EngineConfig
-from mocapdb.runtime.take import take_joints
+from mocapdb.runtime.take import fit_takes, take_joints
 
 TRC_FROM_WORLD = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # trc = TRC_FROM_WORLD @ world
 Y_DOWN = np.array([1.0, -1.0, 1.0])  # camera-aligned (y up) ↔ OpenCV camera (y down), either way
@@ -170,7 +170,8 @@ def run_camera(db: MotionDatabase, frames: list[KeypointFrame], config: EngineCo
     track = max(moving, key=lambda t: np.isfinite(heights[t]).sum())
     whole = None
     if config.keep_take:
-        index, take_joints_m, _ = take_joints(recordings[track], config.fps)
+        fitted = fit_takes([recordings[track]], config.fps, camera_height_m=config.camera_height_m)[0]
+        index, take_joints_m, _ = take_joints(fitted)
         keep = (index >= 0) & (index < len(frames))
         whole = empty.copy()
         whole[index[keep]] = take_joints_m[keep]

@@ -62,7 +62,7 @@ from mocapdb.evaluation.metrics import (
 )
 from mocapdb.runtime.engine import Engine, EngineConfig
 from mocapdb.runtime.search import search_clustered, search_exact
-from mocapdb.runtime.take import take_joints
+from mocapdb.runtime.take import fit_takes, take_joints
 
 if TYPE_CHECKING:
     from tqdm import tqdm
@@ -126,15 +126,16 @@ def run_sequence(engine: Engine, frames: list[KeypointFrame]) -> EngineRun:
     return EngineRun(joints, root, local, elapsed, engine.finish())
 
 
-def whole_take_run(run: EngineRun, n_frames: int, fps: float) -> EngineRun:
-    """The tracks of a refined run (made with ``keep_take``) through the whole-take fit, as a run of
+def whole_take_run(run: EngineRun, n_frames: int, fps: float, camera_height_m: float | None = None) -> EngineRun:
+    """The tracks of a refined run (made with ``keep_take``) through the whole-take fit on one floor
+    (``camera_height_m`` below the camera when known), as a run of
     ``n_frames`` frames (frame index = position; ``local`` left NaN: the two-view test uses the
     per-frame engine); ``seconds``: the fit's time."""
     joints = np.full((n_frames, N_POINTS, 3), np.nan)
     root = np.full((n_frames, 3), np.nan)
     t0 = time.perf_counter()
-    for rec in run.recordings:
-        frames, rec_joints, rec_root = take_joints(rec, fps)
+    for rec in fit_takes(run.recordings, fps, camera_height_m=camera_height_m):
+        frames, rec_joints, rec_root = take_joints(rec)
         keep = (frames >= 0) & (frames < n_frames)
         joints[frames[keep]], root[frames[keep]] = rec_joints[keep], rec_root[keep]
     return EngineRun(joints, root, np.full_like(joints, np.nan), time.perf_counter() - t0, run.recordings)
@@ -390,6 +391,8 @@ def _new_engine(db: MotionDatabase, config: EvalConfig, scenario: Scenario | Non
         cfg = replace(variant_config(cfg, refine), keep_take=refine)
     if scenario is not None and scenario.height_given:
         cfg = replace(cfg, subject_height_m=scenario.subject_height_m)
+    if scenario is not None and scenario.camera_height_given and cfg.refine:
+        cfg = replace(cfg, camera_height_m=scenario.camera_height_m)
     return Engine(db, cfg)
 
 
@@ -409,7 +412,8 @@ def evaluate_scenario(db: MotionDatabase, truths: list[Truth], scenario: Scenari
                 run = run_sequence(_new_engine(db, config, scenario, refine), frames)
                 result.variants[name].add(run, view, floor, frames, config)
                 if refine:
-                    take = whole_take_run(run, len(frames), config.fps)
+                    given = scenario.camera_height_m if scenario.camera_height_given else None
+                    take = whole_take_run(run, len(frames), config.fps, given)
                     result.variants[TAKE_VARIANT].add(take, view, floor, frames, config, person_frames=len(frames))
             result.person_frames += len(frames)
             result.camera_distances_m.append(distance)
