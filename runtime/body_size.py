@@ -133,10 +133,10 @@ class BoneLengths:
     """One track's own bone proportions, from its 2D keypoints over the take (causal, running).
 
     A bone seen nearly parallel to the image plane shows its length: where the retrieved pose (the
-    database's 3D, independent of the bones being fitted) puts a bone's direction within
-    :data:`IN_PLANE` of the image plane (``c`` = the share of its unit direction across the
-    viewing ray), the sample is ``L = |x_b − x_a| · Z / (f · c)`` (pixels, depth ``Z`` of the fitted
-    pose, metres), in the track's body scale. Per bone the log of L over the universal bone is kept
+    database's 3D, independent of the bones being fitted; placed at the fitted root) puts a bone's
+    direction within :data:`IN_PLANE` of the image plane (``c`` = the share of its unit direction
+    across the viewing ray), the sample is ``L = |x_b − x_a| · Z / (f · c)`` (pixels, the bone's
+    depth ``Z``, metres), in the track's body scale. Per bone the log of L over the universal bone is kept
     (the last :data:`CAPACITY` samples); the estimate combines each bone's median with the
     anthropometric prior (:mod:`mocapdb.core.anthropometry`, correlated bones) as a Gaussian in log
     space, each median weighted as ``min(n, CAPACITY) / DECORRELATION`` independent samples of SD
@@ -148,7 +148,9 @@ class BoneLengths:
     CAPACITY = 600
     DECORRELATION = 4.0   # consecutive frames are far from independent
     SAMPLE_SD = 0.10      # one sample's error in log length (detector noise, retrieval direction)
-    UPDATE_EVERY = 8      # frames between estimates
+    UPDATE_EVERY = 8      # frames between estimates while the body settles (the first SETTLING_FRAMES) …
+    SETTLING_FRAMES = 48
+    UPDATE_EVERY_SETTLED = 24  # … and after
 
     def __init__(self) -> None:
         self.samples = np.zeros((len(MEASURED_BONE_NAMES), self.CAPACITY))
@@ -157,26 +159,14 @@ class BoneLengths:
         self._frames = 0
 
     def add(self, points_px: np.ndarray, confidence: np.ndarray, retrieved_view_m: np.ndarray,
-            fitted_view_m: np.ndarray, focal_px: float, scale: float) -> bool:
+            focal_px: float, scale: float) -> bool:
         """Add one frame; returns whether the estimate changed. ``points_px [14, 2]``, ``confidence
-        [14]`` (0: unseen), the retrieved and fitted poses' keypoints ``[15, 3]`` (view frame)."""
-        pts = np.vstack([points_px, points_px[[R_HIP, L_HIP]].mean(axis=0)])
-        conf = np.append(confidence, min(confidence[R_HIP], confidence[L_HIP]))
-        seen = (conf[_PAIR_A] > 0) & (conf[_PAIR_B] > 0)
-        direction = retrieved_view_m[_PAIR_B] - retrieved_view_m[_PAIR_A]
-        direction /= np.maximum(np.linalg.norm(direction, axis=-1, keepdims=True), 1e-9)
-        mid = (fitted_view_m[_PAIR_A] + fitted_view_m[_PAIR_B]) / 2.0
-        ray = mid / np.maximum(np.linalg.norm(mid, axis=-1, keepdims=True), 1e-9)
-        across = np.linalg.norm(direction - np.sum(direction * ray, axis=-1, keepdims=True) * ray, axis=-1)
-        depth = -mid[:, 2]
-        use = seen & (across >= self.IN_PLANE) & (depth > 0.1)
-        length = np.linalg.norm(pts[_PAIR_B] - pts[_PAIR_A], axis=-1) * depth / (focal_px * np.maximum(across, 1e-9))
-        for bone, value in zip(_PAIR_BONE[use], length[use]):
-            if value > 0:
-                self.samples[bone, self.counts[bone] % self.CAPACITY] = np.log(value / (scale * _UNIVERSAL_BONES[bone]))
-                self.counts[bone] += 1
+        [14]`` (0: unseen), the retrieved pose's keypoints at the fitted root ``[15, 3]`` (view frame)."""
+        _add_samples(points_px, confidence, retrieved_view_m, float(focal_px), float(scale),
+                     self.IN_PLANE, _PAIR_A, _PAIR_B, _PAIR_BONE, _UNIVERSAL_BONES, self.samples, self.counts)
         self._frames += 1
-        if self._frames % self.UPDATE_EVERY:
+        every = self.UPDATE_EVERY if self._frames <= self.SETTLING_FRAMES else self.UPDATE_EVERY_SETTLED
+        if self._frames % every:
             return False
         self.proportions_m = self.estimate()
         return True
@@ -184,8 +174,58 @@ class BoneLengths:
     def estimate(self) -> np.ndarray:
         """Bone lengths ``[8]`` (metres at 1.75 m stature) from the samples so far and the prior."""
         n = np.minimum(self.counts, self.CAPACITY)
-        medians = np.array([np.median(self.samples[b, :k]) if k else 0.0 for b, k in enumerate(n)])
+        medians = _medians(self.samples, n)
         weight = np.diag(n / self.DECORRELATION / self.SAMPLE_SD ** 2)
         log_factor = np.linalg.solve(_PRIOR_PRECISION + weight, weight @ medians)
         lengths = _UNIVERSAL_BONES * np.exp(log_factor)
         return lengths * (UNIVERSAL_HEIGHT_M / stature_m(lengths))
+
+
+@njit(cache=True)
+def _add_samples(points_px, confidence, retrieved, focal_px, scale, in_plane, pair_a, pair_b, pair_bone,
+                 universal, samples, counts) -> None:
+    """One frame's bone-length samples into ``samples [8, CAPACITY]`` (ring buffers, ``counts``):
+    see :class:`BoneLengths`. Keypoint index 14 (the pelvis) is the hips' midpoint in 2D."""
+    capacity = samples.shape[1]
+    for i in range(pair_a.shape[0]):
+        a, b = pair_a[i], pair_b[i]
+        xa, ya, ca = _keypoint_2d(points_px, confidence, a)
+        xb, yb, cb = _keypoint_2d(points_px, confidence, b)
+        if ca <= 0.0 or cb <= 0.0:
+            continue
+        d = retrieved[b] - retrieved[a]
+        d_norm = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        mid = (retrieved[a] + retrieved[b]) / 2.0
+        mid_norm = np.sqrt(mid[0] * mid[0] + mid[1] * mid[1] + mid[2] * mid[2])
+        depth = -mid[2]
+        if d_norm < 1e-9 or mid_norm < 1e-9 or depth <= 0.1:
+            continue
+        along = (d[0] * mid[0] + d[1] * mid[1] + d[2] * mid[2]) / (d_norm * mid_norm)
+        across = np.sqrt(max(1.0 - along * along, 0.0))
+        if across < in_plane:
+            continue
+        length = np.sqrt((xb - xa) ** 2 + (yb - ya) ** 2) * depth / (focal_px * across)
+        if length <= 0.0:
+            continue
+        bone = pair_bone[i]
+        samples[bone, counts[bone] % capacity] = np.log(length / (scale * universal[bone]))
+        counts[bone] += 1
+
+
+@njit(cache=True)
+def _keypoint_2d(points_px, confidence, k):
+    """Pixel x, y and confidence of keypoint ``k`` (14: the hips' midpoint, seen if both are)."""
+    if k < points_px.shape[0]:
+        return points_px[k, 0], points_px[k, 1], confidence[k]
+    c = min(confidence[R_HIP], confidence[L_HIP])
+    return (points_px[R_HIP, 0] + points_px[L_HIP, 0]) / 2.0, (points_px[R_HIP, 1] + points_px[L_HIP, 1]) / 2.0, c
+
+
+@njit(cache=True)
+def _medians(samples, n):
+    """Per row of ``samples [B, C]``, the median of its first ``n[b]`` values (0 when none)."""
+    out = np.zeros(samples.shape[0])
+    for b in range(samples.shape[0]):
+        if n[b] > 0:
+            out[b] = np.median(samples[b, :n[b]])
+    return out

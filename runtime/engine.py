@@ -181,13 +181,12 @@ class _TrackState:
         self.last_frame = frame
 
     def measure_bones(self, points_px: np.ndarray, confidence: np.ndarray, retrieved: np.ndarray,
-                      fitted: np.ndarray, root_view: np.ndarray, focal_px: float) -> None:
-        """Add one fitted frame to the bone estimate (rotations ``[R, 4]`` as retrieved and fitted)."""
+                      root_view: np.ndarray, focal_px: float) -> None:
+        """Add one frame to the bone estimate: the retrieved rotations ``[R, 4]`` at the fitted root."""
         if self.bones is None:
             return
-        poses = pose_from_rotations(np.stack([retrieved, fitted]), np.stack([root_view, root_view]),
-                                    self.scale, self.offsets_m)
-        if self.bones.add(points_px, confidence, poses[0], poses[1], focal_px, self.scale):
+        pose = pose_from_rotations(retrieved, root_view, self.scale, self.offsets_m)[0]
+        if self.bones.add(points_px, confidence, pose, focal_px, self.scale):
             self.proportions_m = self.bones.proportions_m
             self.offsets_m = body_offsets_m(self.proportions_m)
 
@@ -422,7 +421,7 @@ class Engine:
         self.refiner(quats, root_view, state.scale, points_px, confidence, retrieved,
                      state.previous(frame_index), self.config.focal_px, self.center_px, state.offsets_m)
         state.tilt.update(quats[0], upright_root)
-        state.measure_bones(points_px, confidence, retrieved, quats, root_view, self.config.focal_px)
+        state.measure_bones(points_px, confidence, retrieved, root_view, self.config.focal_px)
         if state.floor is not None:
             joints = pose_from_rotations(quats[None], root_view[None], state.scale, state.offsets_m)[0]
             scale = state.floor.update(state.tilt.up, joints, state.scale)

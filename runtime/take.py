@@ -11,7 +11,8 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    cut-off is :attr:`TakeParams.smoothing_hz` (the one smoothing control, in hertz: motion slower
    than it passes, jitter faster than it goes).
 2. **Contacts**: an ankle is planted where its keypoint stands still in the image (speed under
-   :attr:`TakeParams.planted_box_per_s` box heights per second, after smoothing) and it is within
+   :attr:`TakeParams.planted_box_per_s` box heights per second: the slope of a line fitted to it
+   over :data:`CONTACT_WINDOW_S`) and it is within
    :attr:`TakeParams.planted_height_m` of the other ankle's height or below it (along the estimated
    up; comparing the two feet of one frame cancels the depth's error, which moves both alike).
 3. **Root path**: one sparse linear least-squares problem over all frames: near the per-frame root
@@ -33,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
-from scipy.ndimage import gaussian_filter1d, median_filter
+from scipy.ndimage import convolve1d, gaussian_filter1d, median_filter
 from scipy.sparse.linalg import spsolve
 
 from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
@@ -51,6 +52,7 @@ from mocapdb.core.skeleton import (
 
 ANKLES = (KP["r_ankle"], KP["l_ankle"])
 MIN_CONTACT_FRAMES = 3
+CONTACT_WINDOW_S = 0.25   # an ankle keypoint's image speed: the slope of a line fitted over this long
 MIN_FLOOR_SPREAD_M = 0.3  # RMS extent of the contacts (≈ 1 m end to end) along a direction they fix
 
 
@@ -157,16 +159,18 @@ def planted_ankles(keypoints: np.ndarray, ankles_view_m: np.ndarray, up: np.ndar
     seen_frames = visible.any(axis=1)  # frames the track missed hold no keypoint
     ys = np.where(visible, keypoints[..., 1], np.nan)[seen_frames]
     box = float(np.median(np.nanmax(ys, axis=1) - np.nanmin(ys, axis=1))) if len(ys) else 1.0
-    sigma = max(fps / (2.0 * np.pi * 6.0), 0.5)  # the keypoints' own jitter smoothed (6 Hz)
-    smooth = gaussian_filter1d(px, sigma, axis=0, mode="nearest")
-    speed = np.zeros(seen.shape)
-    if len(px) > 1:
-        step = np.gradient(smooth, axis=0)
-        speed = np.linalg.norm(step, axis=-1) * fps / max(box, 1.0)
+    speed = np.linalg.norm(_slope(px, max(int(round(CONTACT_WINDOW_S * fps / 2)), 1)), axis=-1) * fps / max(box, 1.0)
     height = ankles_view_m @ up
     low = height <= height.min(axis=1, keepdims=True) + params.planted_height_m  # the lower foot (or both)
     planted = seen & low & (speed < params.planted_box_per_s)
     return _drop_short_runs(planted, MIN_CONTACT_FRAMES)
+
+
+def _slope(values: np.ndarray, half: int) -> np.ndarray:
+    """Per frame, the slope (per frame) of the least-squares line through ``values [F, ...]`` over
+    the ``2 half + 1`` frames around it (edges repeated): a derivative that averages out jitter."""
+    offsets = np.arange(-half, half + 1, dtype=np.float64)
+    return convolve1d(values, offsets[::-1] / np.sum(offsets ** 2), axis=0, mode="nearest")
 
 
 def _drop_short_runs(mask: np.ndarray, min_length: int) -> np.ndarray:
