@@ -360,7 +360,8 @@ def shared_floor(fits: list[tuple[TrackRecording, TakeResult]], camera_height_m:
     (:func:`fit_take`) with one floor plane and each track scaled about the camera (its image
     unchanged) so that its planted ankles stand on it.
 
-    The plane's normal starts as the tracks' normals averaged (weighted by their contacts) and its
+    The plane's normal starts as the tracks' normals averaged (weighted by their contacts), its pitch
+    corrected with ``camera_height_m`` when given (:func:`_pitch_from_camera_height`), and its
     distance below the camera as their weighted geometric mean (the people's sizes stay what they
     assumed on average), or ``camera_height_m``; each track's scale
     ``k = distance / its own floor's distance`` follows; then the plane is fitted to all tracks'
@@ -373,6 +374,8 @@ def shared_floor(fits: list[tuple[TrackRecording, TakeResult]], camera_height_m:
     normal = sum(w * fits[i][1].floor_normal for w, i in zip(weights, with_floor))
     normal /= np.linalg.norm(normal)
     scales = np.ones(len(fits))
+    if camera_height_m is not None:
+        normal = _pitch_from_camera_height([fits[i] for i in with_floor], normal, camera_height_m)
     for _ in range(3):
         own = np.array([_floor_distance(fits[i], normal) for i in with_floor])  # negative: below
         distance = -camera_height_m if camera_height_m is not None else _geometric_mean(own, weights)
@@ -385,6 +388,48 @@ def shared_floor(fits: list[tuple[TrackRecording, TakeResult]], camera_height_m:
     if camera_height_m is not None:
         distance = -camera_height_m
     return [_rescaled(rec, k, normal, distance) for (rec, _), k in zip(fits, scales)]
+
+
+STATURE_SD = 0.054        # of log(stature / 1.75 m): people's heights, SD about 9.5 cm
+PITCH_SD_DEG = 3.0        # the camera-tilt estimate's pitch error when nothing else fixes it …
+PITCH_SD_FIXED_DEG = 0.5  # … and when the contacts span the depth (a walk towards or away)
+
+
+def _pitch_from_camera_height(fits: list[tuple[TrackRecording, TakeResult]], normal: np.ndarray,
+                              camera_height_m: float) -> np.ndarray:
+    """``normal`` turned about the camera's x axis by the pitch that best reconciles a floor
+    ``camera_height_m`` below the camera with the people's sizes.
+
+    For a pitch θ, each track's scale k follows from its contacts (its floor must lie
+    ``camera_height_m`` down); the cost is Σ (log(stature · k / 1.75 m) / :data:`STATURE_SD`)² over
+    the tracks plus (θ / σ)², σ :data:`PITCH_SD_FIXED_DEG` when the contacts fix the pitch themselves
+    (:func:`_contacts_fix_pitch`), else :data:`PITCH_SD_DEG` (the tilt estimate's). The
+    camera height alone cannot tell a tall person from a camera pitched down more: the people's
+    heights decide between them."""
+    thetas = np.radians(np.arange(-20.0, 20.0 + 1e-9, 0.1))
+    c, s = np.cos(thetas), np.sin(thetas)
+    normals = np.stack([np.full_like(c, normal[0]), c * normal[1] - s * normal[2], s * normal[1] + c * normal[2]], axis=1)
+    cost = np.zeros(len(thetas))
+    fixed = False
+    for rec, result in fits:
+        points = result.planted_ankles_m
+        own = np.median(points @ normals.T, axis=0) - ANKLE_HEIGHT_M * rec.scales[-1]       # [T]
+        k = camera_height_m / np.maximum(-own, 1e-3)
+        cost += (np.log(rec.scales[-1] * k) / STATURE_SD) ** 2
+        fixed = fixed or _contacts_fix_pitch(points)
+    sd = np.radians(PITCH_SD_FIXED_DEG if fixed else PITCH_SD_DEG)
+    cost += (thetas / sd) ** 2
+    return normals[int(np.argmin(cost))]
+
+
+def _contacts_fix_pitch(points: np.ndarray) -> bool:
+    """Whether contacts ``[N, 3]`` (view frame) fix the floor's pitch: they span about 1 m in two
+    directions, or along one that runs mostly in depth (a walk towards or away from the camera)."""
+    if len(points) < 10:
+        return False
+    _, spread, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
+    spread = spread / np.sqrt(len(points))
+    return bool(spread[1] >= MIN_FLOOR_SPREAD_M or (spread[0] >= MIN_FLOOR_SPREAD_M and abs(vt[0, 2]) >= 0.7))
 
 
 def _floor_distance(fit: tuple[TrackRecording, TakeResult], normal: np.ndarray) -> float:
