@@ -50,6 +50,7 @@ LOSO_SCENARIOS = (
     Scenario("varied bodies, clean, pitched 15 deg", pitch_deg=15.0, body="varied"),
     Scenario("varied bodies, sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05,
              body="varied"),
+    Scenario("varied bodies, clean, camera height 1.5 m given", body="varied", camera_height_given=True),
     Scenario("universal body, clean, camera 1.5 m"),
 )
 

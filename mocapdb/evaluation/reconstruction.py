@@ -35,6 +35,7 @@ from mocapdb.core.skeleton import (
     PELVIS,
     bone_lengths_m,
     pose_from_rotations,
+    stature_m,
 )
 from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.heldout import (
@@ -190,6 +191,7 @@ class VariantStats:
     pa: list[np.ndarray] = field(default_factory=list)
     pa13: list[np.ndarray] = field(default_factory=list)
     bones: list[np.ndarray] = field(default_factory=list)      # [F, 8] |bone − true bone|
+    proportions: list[np.ndarray] = field(default_factory=list)  # [F, 8] the same at the true stature
     yaw: list[np.ndarray] = field(default_factory=list)
     accel: list[np.ndarray] = field(default_factory=list)
     floor: list[np.ndarray] = field(default_factory=list)
@@ -215,7 +217,10 @@ class VariantStats:
         self.mpjpe13.append(mpjpe(rel[:, BELOW_HEAD], gt[:, BELOW_HEAD]))
         self.pa.append(pa_mpjpe(rel, gt))
         self.pa13.append(pa_mpjpe(rel[:, BELOW_HEAD], gt[:, BELOW_HEAD]))
-        self.bones.append(np.abs(bone_lengths_m(rel) - bone_lengths_m(gt)))
+        out_bones, true_bones = bone_lengths_m(rel), bone_lengths_m(gt)
+        self.bones.append(np.abs(out_bones - true_bones))
+        at_true_size = out_bones * (stature_m(true_bones) / stature_m(out_bones))[:, None]
+        self.proportions.append(np.abs(at_true_size - true_bones))
         self.yaw.append(_angle_diff(facing_deg(rel), facing_deg(gt)))
         run_idx = np.flatnonzero(ok)
         if len(run_idx) > 2 and np.all(np.diff(run_idx) == 1):
@@ -244,7 +249,7 @@ class VariantStats:
         self.pops.append(pop[ok])
 
     def extend(self, other: VariantStats) -> None:
-        for name in ("mpjpe", "mpjpe13", "pa", "pa13", "bones", "yaw", "accel", "floor", "reproj", "reproj_input",
+        for name in ("mpjpe", "mpjpe13", "pa", "pa13", "bones", "proportions", "yaw", "accel", "floor", "reproj", "reproj_input",
                      "root", "root_pct", "skate", "foot_height", "pops"):
             getattr(self, name).extend(getattr(other, name))
         self.seconds += other.seconds
@@ -254,6 +259,7 @@ class VariantStats:
         cat = _cat
         err, floor, yaw, acc = cat(self.mpjpe), cat(self.floor), cat(self.yaw), cat(self.accel)
         bones = np.concatenate(self.bones) if self.bones else np.zeros((0, len(MEASURED_BONE_NAMES)))
+        proportions = np.concatenate(self.proportions) if self.proportions else bones
         skate, height = cat(self.skate), cat(self.foot_height)
         return {
             "frames_with_output": int(len(err)),
@@ -263,6 +269,7 @@ class VariantStats:
             "pa_mpjpe13_cm": _r(100 * _mean(cat(self.pa13))),
             "bone_error_cm": _r(100 * _mean(bones[:, BODY_BONES].ravel())),
             "bone_error_by_bone_cm": {name: _r(100 * _mean(bones[:, b])) for b, name in enumerate(MEASURED_BONE_NAMES)},
+            "proportion_error_cm": _r(100 * _mean(proportions[:, BODY_BONES].ravel())),
             "yaw_error_deg": {"mean": _r(_mean(yaw), 1), "median": _r(float(np.median(yaw)) if len(yaw) else None, 1)},
             "accel_error_mm_per_frame2": _r(1000 * _mean(acc)) if len(acc) else None,
             "floor_mpjpe_cm": _r(100 * _mean(floor)),
