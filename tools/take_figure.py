@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 from mocapdb.cli.reconstruct import image_size  # noqa: E402
 from mocapdb.core.formats.database import load_database  # noqa: E402
 from mocapdb.core.formats.openpose import read_openpose_folder  # noqa: E402
-from mocapdb.core.skeleton import DRAWING_LINES, KP, N_KEYPOINTS_2D, N_POINTS, swing_matrices  # noqa: E402
+from mocapdb.core.skeleton import DRAWING_LINES, KP, N_POINTS, swing_matrices  # noqa: E402
 from mocapdb.runtime.engine import Engine, EngineConfig  # noqa: E402
 from mocapdb.runtime.take import fit_take, take_joints  # noqa: E402
 
