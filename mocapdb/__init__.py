@@ -7,6 +7,8 @@ stays light:
 * reconstructing: :class:`Engine` (``step(frame)`` → one :class:`PersonPose` per tracked person,
   ``finish()`` → the tracks' recordings), :class:`EngineConfig`, :func:`frames_from_arrays`,
   :func:`read_keypoint_file`, :func:`read_openpose_folder`, :class:`KeypointFrame`, :class:`Person`;
+* the whole take: :func:`fit_takes` (:class:`TakeParams`): a take's recordings (``EngineConfig(keep_take=True)``)
+  smoothed, feet planted, on one floor: what ``reconstruct`` writes;
 * outputs: :func:`write_tracks` (:class:`TrackExport`: BVH, TRC, CSV, rig, floor), :func:`universal_bvh`,
   :func:`read_bvh`, :func:`write_bvh`, :func:`frame_line`, :func:`header_line`;
 * errors: :class:`MocapdbError`, the base of every error about inputs.
@@ -29,6 +31,8 @@ _API = {
     "KeypointFrame": "mocapdb.core.formats.keypoints",
     "Person": "mocapdb.core.formats.keypoints",
     "PersonPose": "mocapdb.core.outputs",
+    "fit_takes": "mocapdb.runtime.take",
+    "TakeParams": "mocapdb.runtime.take",
     "write_tracks": "mocapdb.core.exports",
     "TrackExport": "mocapdb.core.exports",
     "universal_bvh": "mocapdb.core.outputs",
