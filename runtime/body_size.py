@@ -12,8 +12,9 @@ the lower ankle (view frame, metres, body scale ``s``)::
     k (u·a) + H = ANKLE_HEIGHT_M · s · k    ⇒    k = H / (ANKLE_HEIGHT_M · s − u·a)
 
 and ``s·k`` is that frame's estimate of the body scale. The track's scale is the median of its
-estimates so far (jumps and frames with both feet off the floor are a minority), clipped to
-bodies 0.5–2.5 m tall. Assumes a level floor, at least one foot on it most of the time, and a
+estimates so far (jumps and frames with both feet off the floor are a minority), weighed against
+the people's heights by how far the camera's tilt error can move it (:class:`FloorScale`), and
+clipped to bodies 0.5–2.5 m tall. Assumes a level floor, at least one foot on it most of the time, and a
 camera roll/pitch that does not change during the track.
 """
 from __future__ import annotations
@@ -23,7 +24,7 @@ from collections import deque
 import numpy as np
 from numba import njit
 
-from mocapdb.core.anthropometry import PROPORTION_COVARIANCE
+from mocapdb.core.anthropometry import PROPORTION_COVARIANCE, STATURE_SD
 from mocapdb.core.kernels import quat_mul_into
 from mocapdb.core.skeleton import (
     ANKLE_HEIGHT_M,
@@ -95,14 +96,26 @@ def _add_up_observation(refined, upright, scratch, up_sum):
     up_sum[2] += 2 * (y * z + w * x)
 
 
+TILT_SD_DEG = 3.0  # error of CameraTilt's estimate on rendered walks (pitch and roll, degrees)
+
+
 class FloorScale:
-    """Running estimate of one track's body scale from its feet (see the module docstring)."""
+    """Running estimate of one track's body scale from its feet (see the module docstring), with
+    the people's heights as a prior.
+
+    A frame's estimate is only as good as the camera's tilt: an error δ moves the floor under a
+    person ``Z`` metres away by ``δ Z``, a share ``δ Z / C`` of the camera height ``C``. The track's
+    estimate (the median of its frames) is therefore combined in log space with the stature prior
+    (:data:`~mocapdb.core.anthropometry.STATURE_SD` about 1.75 m), its own SD taken as
+    :data:`TILT_SD_DEG` × the median ``Z / C`` of its frames.
+    """
 
     def __init__(self, camera_height_m: float):
         if not 0.1 <= camera_height_m <= 50.0:
             raise ValueError(f"camera height must be between 0.1 and 50 m, not {camera_height_m}")
         self.camera_height_m = camera_height_m
         self.samples: deque[float] = deque(maxlen=WINDOW)
+        self.leverage: deque[float] = deque(maxlen=WINDOW)  # depth over the floor's distance
 
     def update(self, up: np.ndarray, joints_view_m: np.ndarray, scale: float) -> float:
         """Add one frame; returns the track's scale (``scale`` until enough frames were seen).
@@ -110,13 +123,16 @@ class FloorScale:
         ``up``: the world's up in the view frame (:class:`CameraTilt`); ``joints_view_m [15, 3]``:
         the refined keypoints at body scale ``scale``.
         """
-        ankle_height = min(float(up @ joints_view_m[k]) for k in _ANKLES)
-        denominator = ANKLE_HEIGHT_M * scale - ankle_height
+        lower = min(_ANKLES, key=lambda k: float(up @ joints_view_m[k]))
+        denominator = ANKLE_HEIGHT_M * scale - float(up @ joints_view_m[lower])
         if denominator > 0.1:
             self.samples.append(scale * self.camera_height_m / denominator)
+            self.leverage.append(-float(joints_view_m[lower, 2]) / denominator)
         if len(self.samples) < MIN_SAMPLES:
             return scale
-        return float(np.clip(np.median(self.samples), *SCALE_RANGE))
+        floor_sd = np.radians(TILT_SD_DEG) * float(np.median(self.leverage))
+        weight = STATURE_SD ** 2 / (STATURE_SD ** 2 + floor_sd ** 2)  # of the floor's estimate against the prior
+        return float(np.clip(np.exp(weight * np.log(np.median(self.samples))), *SCALE_RANGE))
 
 
 # 2D samples of each measured bone: (keypoint a, keypoint b, bone) over the 15 keypoints (the pelvis

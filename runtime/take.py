@@ -37,6 +37,7 @@ from scipy import sparse
 from scipy.ndimage import convolve1d, gaussian_filter1d, median_filter
 from scipy.sparse.linalg import spsolve
 
+from mocapdb.core.anthropometry import STATURE_SD
 from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import (
@@ -49,6 +50,7 @@ from mocapdb.core.skeleton import (
     pose_from_rotations,
     swing_matrices,
 )
+from mocapdb.runtime.body_size import TILT_SD_DEG
 
 ANKLES = (KP["r_ankle"], KP["l_ankle"])
 MIN_CONTACT_FRAMES = 3
@@ -390,9 +392,7 @@ def shared_floor(fits: list[tuple[TrackRecording, TakeResult]], camera_height_m:
     return [_rescaled(rec, k, normal, distance) for (rec, _), k in zip(fits, scales)]
 
 
-STATURE_SD = 0.054        # of log(stature / 1.75 m): people's heights, SD about 9.5 cm
-PITCH_SD_DEG = 3.0        # the camera-tilt estimate's pitch error when nothing else fixes it …
-PITCH_SD_FIXED_DEG = 0.5  # … and when the contacts span the depth (a walk towards or away)
+PITCH_SD_FIXED_DEG = 0.5  # the floor's pitch error when the contacts span the depth (a walk towards or away)
 
 
 def _pitch_from_camera_height(fits: list[tuple[TrackRecording, TakeResult]], normal: np.ndarray,
@@ -401,9 +401,9 @@ def _pitch_from_camera_height(fits: list[tuple[TrackRecording, TakeResult]], nor
     ``camera_height_m`` below the camera with the people's sizes.
 
     For a pitch θ, each track's scale k follows from its contacts (its floor must lie
-    ``camera_height_m`` down); the cost is Σ (log(stature · k / 1.75 m) / :data:`STATURE_SD`)² over
+    ``camera_height_m`` down); the cost is Σ (log(stature · k / 1.75 m) / ``STATURE_SD``)² over
     the tracks plus (θ / σ)², σ :data:`PITCH_SD_FIXED_DEG` when the contacts fix the pitch themselves
-    (:func:`_contacts_fix_pitch`), else :data:`PITCH_SD_DEG` (the tilt estimate's). The
+    (:func:`_contacts_fix_pitch`), else the tilt estimate's (``body_size.TILT_SD_DEG``). The
     camera height alone cannot tell a tall person from a camera pitched down more: the people's
     heights decide between them."""
     thetas = np.radians(np.arange(-20.0, 20.0 + 1e-9, 0.1))
@@ -417,7 +417,7 @@ def _pitch_from_camera_height(fits: list[tuple[TrackRecording, TakeResult]], nor
         k = camera_height_m / np.maximum(-own, 1e-3)
         cost += (np.log(rec.scales[-1] * k) / STATURE_SD) ** 2
         fixed = fixed or _contacts_fix_pitch(points)
-    sd = np.radians(PITCH_SD_FIXED_DEG if fixed else PITCH_SD_DEG)
+    sd = np.radians(PITCH_SD_FIXED_DEG if fixed else TILT_SD_DEG)
     cost += (thetas / sd) ** 2
     return normals[int(np.argmin(cost))]
 

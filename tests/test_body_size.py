@@ -51,22 +51,29 @@ def test_subject_height_puts_a_small_person_at_the_right_depth(small_db, pitch):
 
 @pytest.mark.parametrize("pitch", [0.0, 12.0])
 def test_camera_height_measures_the_person_from_the_feet(small_db, pitch, tmp_path):
+    """A 1.5 m person, the camera 1.4 m above the floor: per frame the floor's estimate pulls the size
+    from the assumed 1.75 m towards 1.5 m, weighed against people's heights by the tilt's error; the
+    whole take, whose contacts span the depth, measures it (5 %) and puts the root there."""
+    from mocapdb.runtime.take import fit_takes, take_joints
+
     frames, truth = _seen(small_db, clip=0, height_m=1.5, camera_height_m=1.4, pitch_deg=pitch)
-    engine, poses = _run(small_db, frames, camera_height_m=1.4)
-    assert poses[-1].height_m == pytest.approx(1.5, rel=0.05)
-    late = slice(len(poses) // 2, None)
-    roots = np.array([p.root_m for p in poses])[late]
-    depth = truth[1:, PELVIS, 2][late]
-    assert np.median(np.linalg.norm(roots - truth[1:, PELVIS][late], axis=-1) / depth) < 0.05
+    engine, poses = _run(small_db, frames, camera_height_m=1.4, keep_take=True)
+    assert 1.5 < poses[-1].height_m < 1.74
+    (take,) = fit_takes(engine.finish(), 24.0, camera_height_m=1.4)
+    assert 1.75 * take.scales[-1] == pytest.approx(1.5, rel=0.05)
+    index, _, roots = take_joints(take)
+    late = index[len(index) // 2:]
+    depth = truth[late, PELVIS, 2]
+    assert np.median(np.linalg.norm(roots[len(index) // 2:] - truth[late, PELVIS], axis=-1) / depth) < 0.05
     # The BVH holds one skeleton of the final size, its roots moved to that size.
-    (path,) = write_tracks(engine.finish(), tmp_path, 24.0)
+    (path,) = write_tracks([take], tmp_path, 24.0)
     bvh = read_bvh(path)
     fk, _ = forward_kinematics(bvh)
     thigh = np.linalg.norm(fk[:, bvh.index("r_knee")] - fk[:, bvh.index("r_hip")], axis=-1)
-    np.testing.assert_allclose(thigh, poses[-1].bones_m[0], rtol=1e-4)  # the track's own thigh …
-    assert thigh[0] == pytest.approx(0.43 * poses[-1].height_m / UNIVERSAL_HEIGHT_M, rel=0.05)  # … near this body's
-    final_root = bvh.motion[-1, :3]
-    np.testing.assert_allclose(final_root * [1, 1, -1], poses[-1].root_m, atol=0.05)
+    height = 1.75 * take.scales[-1]
+    np.testing.assert_allclose(thigh, take.proportions_m[0] * height / UNIVERSAL_HEIGHT_M, rtol=1e-4)  # own thigh …
+    assert thigh[0] == pytest.approx(0.43 * height / UNIVERSAL_HEIGHT_M, rel=0.05)  # … near this body's
+    np.testing.assert_allclose(bvh.motion[-1, :3] * [1, 1, -1], roots[-1], atol=1e-4)
 
 
 def test_camera_height_needs_the_refinement(small_db):

@@ -13,6 +13,7 @@ import numpy as np
 
 from mocapdb.core.skeleton import MEASURED_BONE_NAMES
 
+STATURE_SD = 0.054  # of log(stature / 1.75 m): adults' heights vary by about 9.5 cm (1 SD)
 PROPORTION_SD = {"thigh": 0.045, "shank": 0.045, "upper_arm": 0.045, "forearm": 0.05,
                  "hip_width": 0.07, "shoulder_width": 0.06, "torso": 0.04, "neck_nose": 0.07}
 _PAIRS = {("thigh", "shank"): 0.6, ("upper_arm", "forearm"): 0.6,
