@@ -21,7 +21,7 @@ from numba import njit
 from mocapdb.core.formats.database import DatabaseError, MotionDatabase
 from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
 from mocapdb.core.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
-from mocapdb.core.outputs import Match, PersonPose, TrackRecording
+from mocapdb.core.outputs import CAMERA_FROM_VIEW, Match, PersonPose, TrackRecording
 from mocapdb.core.skeleton import (
     KP,
     N_KEYPOINTS_2D,
@@ -50,7 +50,6 @@ from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotat
 from mocapdb.runtime.tracker import Tracker, TrackerConfig, TrackUpdate
 
 R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]  # numba freezes them as constants
-CAMERA_FROM_VIEW = np.array([1.0, 1.0, -1.0])  # view frame → camera-aligned frame (z negated)
 
 
 @dataclass(frozen=True)

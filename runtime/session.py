@@ -29,6 +29,7 @@ from mocapdb.core.outputs import TrackRecording, frame_line, header_line
 from mocapdb.core.progress import compile_notice, kernels_cached
 from mocapdb.runtime import refine
 from mocapdb.runtime.engine import Engine
+from mocapdb.runtime.lag import FixedLag
 from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source, StreamStats
 from mocapdb.runtime.take import TakeParams, fit_take, fit_takes
 
@@ -149,6 +150,7 @@ class SinkError(OSError):
     """The sink could not take a line (disk full, closed pipe): the session stops there."""
 
 
+MAX_LAG_FRAMES = 600  # 10 s at 60 fps: beyond it the stream is no longer live
 IMAGE_MARGIN = 0.1  # keypoints may lie this fraction of the image size outside it (detectors extrapolate)
 
 
@@ -179,6 +181,7 @@ class SessionOptions:
     rate_by_arrival: bool = False
     take: TakeParams | None = None  # track files from the whole-take fit (runtime.take); None: per frame
     shared_floor: bool = False      # files written at the end, every track on one floor (runtime.take.shared_floor)
+    lag_frames: int = 0             # stream lines written this many frames late, smoothed (runtime.lag)
     camera_height_m: float | None = None  # the shared floor's distance below the camera, when known
 
     def __post_init__(self) -> None:
@@ -186,6 +189,8 @@ class SessionOptions:
             raise ValueError("--max-bvh-files and --min-track-s must be 0 or positive")
         if not self.bvh_part_min > 0:
             raise ValueError("--bvh-part-min must be positive")
+        if not 0 <= self.lag_frames <= MAX_LAG_FRAMES:
+            raise ValueError(f"--lag-frames must be between 0 and {MAX_LAG_FRAMES}")
 
 
 def track_stem(track: int, part: int | None) -> str:
@@ -306,6 +311,11 @@ class Session:
                                      self.options.min_track_s)
         self._fps_warned = self.options.fps_given
         self._first_frame = True
+        self.lag = None
+        if self.options.lag_frames:
+            take = self.options.take
+            self.lag = FixedLag(self.options.lag_frames, engine.config.fps, take.smoothing_hz if take else 4.0)
+        # (the stream with a lag smooths as the track files do: their --smoothing-hz, 4 Hz without them)
         self.started = self._checkpointed = time.perf_counter()
         try:
             self._emit(header_line(engine.config.fps))
@@ -335,11 +345,17 @@ class Session:
             poses = self.engine.step(frame, arrival_s if self.options.rate_by_arrival else None)
         self._first_frame = False
         t_s = frame.time_s if frame.time_s is not None else frame.index / self.engine.config.fps
-        self._emit(frame_line(frame.index, t_s, poses))
+        self._write_frame(frame.index, t_s, poses)
         self.summary.frames += 1
         self.summary.person_frames += len(poses)
         self.summary.add_latency(time.monotonic() - arrival_s)
         self._bvhs()
+
+    def _write_frame(self, index: int, time_s: float, poses: list) -> None:
+        """The frame's line, or, with a lag, the lines now due (:class:`~mocapdb.runtime.lag.FixedLag`)."""
+        due = [(index, time_s, poses)] if self.lag is None else self.lag.push(index, time_s, poses)
+        for frame_index, frame_s, people in due:
+            self._emit(frame_line(frame_index, frame_s, people))
 
     def _emit(self, line: str) -> None:
         try:
@@ -388,6 +404,9 @@ class Session:
         if bvh_dir is not None:
             self.options.bvh_dir = Path(bvh_dir)
         try:
+            if self.lag is not None and self.summary.sink_error is None:
+                for frame_index, frame_s, people in self.lag.flush():
+                    self._emit(frame_line(frame_index, frame_s, people))
             self.engine.finish()
             for rec in sorted(self.engine.pop_finished(), key=lambda r: r.track):
                 self.files.ended(rec)

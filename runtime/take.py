@@ -39,7 +39,7 @@ from scipy.sparse.linalg import spsolve
 
 from mocapdb.core.anthropometry import STATURE_SD
 from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
-from mocapdb.core.outputs import TrackRecording
+from mocapdb.core.outputs import CAMERA_FROM_VIEW, TrackRecording
 from mocapdb.core.skeleton import (
     ANKLE_HEIGHT_M,
     KP,
@@ -133,10 +133,7 @@ def take_joints(fitted: TrackRecording) -> tuple[np.ndarray, np.ndarray, np.ndar
     ``[F, 3]`` in the camera-aligned frame (metres; as ``PersonPose.joints_m``/``root_m``)."""
     quats, root_view, scale = fitted.motion()
     joints_view = pose_from_rotations(quats, root_view, scale, fitted.offsets_m())
-    return fitted.first_frame + np.arange(len(quats)), joints_view * _CAMERA_FROM_VIEW, root_view * _CAMERA_FROM_VIEW
-
-
-_CAMERA_FROM_VIEW = np.array([1.0, 1.0, -1.0])  # view frame → camera-aligned frame (as runtime.engine)
+    return fitted.first_frame + np.arange(len(quats)), joints_view * CAMERA_FROM_VIEW, root_view * CAMERA_FROM_VIEW
 
 
 def smooth_rotations(quats: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:
@@ -408,7 +405,8 @@ def _pitch_from_camera_height(fits: list[tuple[TrackRecording, TakeResult]], nor
     heights decide between them."""
     thetas = np.radians(np.arange(-20.0, 20.0 + 1e-9, 0.1))
     c, s = np.cos(thetas), np.sin(thetas)
-    normals = np.stack([np.full_like(c, normal[0]), c * normal[1] - s * normal[2], s * normal[1] + c * normal[2]], axis=1)
+    normals = np.stack([np.full_like(c, normal[0]), c * normal[1] - s * normal[2], s * normal[1] + c * normal[2]],
+                       axis=1)  # turned about the camera's x axis by each θ
     cost = np.zeros(len(thetas))
     fixed = False
     for rec, result in fits:

@@ -61,6 +61,10 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                    help="keep the universal skeleton's proportions (default: each track's own bone proportions "
                         "measured from its 2D)")
     p.add_argument("--no-smoothing", action="store_true", help="turn the 1€ filters off")
+    p.add_argument("--lag-frames", type=int, default=0, metavar="N",
+                   help="write each frame's line N frames late, every person smoothed over the N frames before "
+                        "and after it (--smoothing-hz) instead of by the causal 1€ filters: a latency of N / fps "
+                        "for steadier motion (default 0: causal)")
     p.add_argument("--no-translation", action="store_true", help="keep the pelvis at the origin")
     p.add_argument("--no-yaw-refinement", action="store_true", help="keep the database's yaw grid (12° steps)")
     files = p.add_argument_group("track files (data_specs/stream_output.md)")
@@ -120,7 +124,8 @@ def _engine(args: argparse.Namespace):
                               translation=not args.no_translation,
                               refine_yaw=not args.no_yaw_refinement, refine=not args.no_refine,
                               subject_height_m=args.subject_height, camera_height_m=args.camera_height,
-                              smoothing=not args.no_smoothing, own_body=not args.universal_body,
+                              smoothing=not args.no_smoothing and not args.lag_frames,
+                              own_body=not args.universal_body,
                               rotation_filter=rotation_filter, keep_take=not args.per_frame)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
@@ -149,7 +154,8 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
                                  min_track_s=args.min_track_s, bvh_part_min=args.bvh_part_min,
                                  rate_by_arrival=not strict,
                                  take=None if args.per_frame else TakeParams(smoothing_hz=args.smoothing_hz),
-                                 shared_floor=strict, camera_height_m=args.camera_height)
+                                 shared_floor=strict, camera_height_m=args.camera_height,
+                                 lag_frames=args.lag_frames)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     engine = _engine(args)

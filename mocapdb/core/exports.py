@@ -4,10 +4,11 @@ Coordinates are the view frame (metres, x to the image's right, y up, z towards 
 whose origin is the camera. With ``floor`` the motion is put on a floor at y = 0: the floor the
 whole-take fit found under the planted feet (``TrackRecording.floor_offset_m``; pitch and roll
 taken out; the origin under the camera, so every track on that floor shares one world), or, for a
-per-frame recording, one estimated here from the feet, the pelvis starting above the origin: the camera's pitch is taken out (the line the lowest ankle traces over
-depth is made level); a person who hardly moves in depth (< :data:`MIN_DEPTH_SPREAD_M`) is only
-shifted, not levelled; the roll is not estimated; the floor height is the 5th percentile of the
-lowest ankle minus the ankle height.
+per-frame recording, one estimated here from the feet, the pelvis starting above the origin:
+the camera's pitch is taken out (the line the lowest ankle traces over depth is made level); a
+person who hardly moves in depth (< :data:`MIN_DEPTH_SPREAD_M`) is only shifted, not levelled;
+the roll is not estimated; the floor height is the 5th percentile of the lowest ankle minus the
+ankle height.
 """
 from __future__ import annotations
 

@@ -30,6 +30,7 @@ from mocapdb.core.skeleton import (
     universal_bone_lengths_m,
 )
 
+CAMERA_FROM_VIEW = np.array([1.0, 1.0, -1.0])  # view frame ↔ camera-aligned frame (z negated), either way
 OUTPUT_FILES = ("result.jsonl", "track_*.bvh", "track_*.trc", "track_*.csv", "preview.png")  # reconstruct writes
 
 

@@ -249,8 +249,8 @@ class VariantStats:
         self.pops.append(pop[ok])
 
     def extend(self, other: VariantStats) -> None:
-        for name in ("mpjpe", "mpjpe13", "pa", "pa13", "bones", "proportions", "yaw", "accel", "floor", "reproj", "reproj_input",
-                     "root", "root_pct", "skate", "foot_height", "pops"):
+        for name in ("mpjpe", "mpjpe13", "pa", "pa13", "bones", "proportions", "yaw", "accel", "floor", "reproj",
+                     "reproj_input", "root", "root_pct", "skate", "foot_height", "pops"):
             getattr(self, name).extend(getattr(other, name))
         self.seconds += other.seconds
         self.person_frames += other.person_frames
