@@ -22,9 +22,13 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    (its anchor) for its whole contact (SD :attr:`TakeParams.contact_m`).
    **Planted feet**: each leg's hip and knee are then turned (two-bone IK, the knee kept in its
    bending plane) so that a planted ankle is exactly at its anchor, eased in and out of the contact.
-4. **Floor**: the plane through the planted ankles (normal the camera's estimated up unless the
-   contacts span enough ground to fit it), lowered by the ankle height; no ankle goes below it
-   (the root is lifted where one would).
+4. **Floor**: the plane through the planted ankles, lowered by the ankle height (:func:`floor_plane`:
+   fitted to the contacts when they span about 1 m both ways; along a straight walk, the camera's
+   estimated up made perpendicular to it; else that up); no ankle goes below it (the root is
+   lifted where one would).
+5. **One floor** (:func:`fit_takes`, what `reconstruct` writes): every track of the take on one
+   plane, each scaled about the camera onto it (:func:`shared_floor`; ``--camera-height`` sets its
+   distance and, with the people's heights, its pitch).
 
 Costs O(F) per track (the least-squares system is banded): thousands of frames per second.
 """
