@@ -174,3 +174,20 @@ def test_two_people_share_one_floor_and_their_sizes_follow(small_db):
     assert heights["right"] / heights["left"] == pytest.approx(1.85 / 1.55, rel=0.06)
     # the camera's height above the shared floor is the true 1.5 m within 10 %
     assert -shared[0].floor_offset_m == pytest.approx(1.5, rel=0.10)
+
+
+def test_a_straight_walk_fixes_the_floors_tilt_about_its_line():
+    """Contacts along one line in depth (a walk towards the camera) on a floor pitched 8°: the
+    camera's level guess keeps only its tilt about that line, so the pitch comes out right; a walk
+    across the view fixes the roll and leaves the pitch to the guess."""
+    from mocapdb.core.geometry import axis_rotation_matrices
+
+    tilt = axis_rotation_matrices("X", np.radians(8.0))
+    depth = np.linspace(-8.0, -3.0, 60)
+    line = np.column_stack([np.zeros(60), np.full(60, -1.4), depth]) @ tilt.T   # on the pitched floor
+    ankles, planted = line[:, None], np.ones((60, 1), dtype=bool)
+    normal, _ = floor_plane(ankles, planted, np.array([0.0, 1.0, 0.0]), 0.08)
+    np.testing.assert_allclose(normal, tilt @ [0.0, 1.0, 0.0], atol=1e-9)
+    across = np.column_stack([np.linspace(-2, 2, 60), np.full(60, -1.4), np.full(60, -5.0)]) @ tilt.T
+    normal, _ = floor_plane(across[:, None], planted, np.array([0.0, 1.0, 0.0]), 0.08)
+    assert abs(normal[0]) < 1e-9 and abs(normal[2]) < 1e-9        # the level guess kept: pitch not fixed
