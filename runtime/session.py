@@ -182,6 +182,7 @@ class SessionOptions:
     take: TakeParams | None = None  # track files from the whole-take fit (runtime.take); None: per frame
     shared_floor: bool = False      # files written at the end, every track on one floor (runtime.take.shared_floor)
     lag_frames: int = 0             # stream lines written this many frames late, smoothed (runtime.lag)
+    camera_sources: dict[str, str] = field(default_factory=dict)  # where fps, image size, focal came from
     camera_height_m: float | None = None  # the shared floor's distance below the camera, when known
 
     def __post_init__(self) -> None:
@@ -318,7 +319,8 @@ class Session:
         # (the stream with a lag smooths as the track files do: their --smoothing-hz, 4 Hz without them)
         self.started = self._checkpointed = time.perf_counter()
         try:
-            self._emit(header_line(engine.config.fps))
+            config = engine.config
+            self._emit(header_line(config.fps, config.image_size, config.focal_px, self.options.camera_sources))
         except SinkError:
             self._close_sink()
             raise

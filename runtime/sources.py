@@ -29,7 +29,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from mocapdb.core.formats.openpose import frame_order_key
+from mocapdb.core.formats.openpose import frame_order_key, is_frame_file
 from mocapdb.runtime.source_base import READ_BYTES, LineSplitter, Source
 from mocapdb.runtime.stream_types import RawMessage
 
@@ -97,7 +97,7 @@ class FolderSource(Source):
         try:
             with os.scandir(self.folder) as entries:
                 new = [e.name for e in entries
-                       if e.name.endswith(".json") and e.name not in self._known and e.is_file()]
+                       if is_frame_file(e.name) and e.name not in self._known and e.is_file()]
         except OSError:
             return
         if new:

@@ -230,9 +230,13 @@ def test_missing_and_corrupt_videos(tmp_path):
 def test_detect_writes_coco18_openpose_files(video, yolo_model, tmp_path, capsys):
     out = tmp_path / "keypoints"
     assert detect(str(video), "--model", str(yolo_model), "--out", str(out)) == 0
-    files = sorted(out.iterdir())
+    files = sorted(f for f in out.iterdir() if f.name != "take.json")
     assert [f.name for f in files][:2] == ["clip_000000000000_keypoints.json", "clip_000000000001_keypoints.json"]
     assert len(files) == VIDEO_FRAMES
+    take = json.loads((out / "take.json").read_text())   # what detect knows of the take, for reconstruct
+    assert take["format"] == "mocapdb-take" and take["fps"] == pytest.approx(VIDEO_FPS)
+    assert take["image_size"] == [VIDEO_W, VIDEO_H] and take["frames"] == VIDEO_FRAMES
+    assert take["model"] == yolo_model.name and take["source"] == str(video) and take["focal_px"] is None
     first = json.loads(files[0].read_text())
     assert first["version"] == 1.3 and first["people"][0]["person_id"] == [-1]
     assert len(first["people"][0]["pose_keypoints_2d"]) == 18 * 3
@@ -252,9 +256,10 @@ def test_detect_every_and_conf_options(video, rtmo_model, tmp_path):
     out = tmp_path / "sparse"
     assert detect(str(video), "--model", str(rtmo_model), "--out", str(out), "--every", "3", "--conf", "0.1") == 0
     frames = list(read_openpose_folder(out))
-    assert [f.name.split("_")[1] for f in sorted(out.iterdir())] == ["000000000000", "000000000003",
-                                                                       "000000000006", "000000000009"]
+    assert [f.name.split("_")[1] for f in sorted(out.iterdir()) if f.name != "take.json"] == [
+        "000000000000", "000000000003", "000000000006", "000000000009"]
     assert all(len(f.people) == 3 for f in frames)
+    assert json.loads((out / "take.json").read_text())["fps"] == pytest.approx(VIDEO_FPS / 3)  # the keypoints' rate
 
 
 def test_detect_user_errors_exit_2_with_clear_messages(video, yolo_model, tmp_path, capsys):
@@ -347,11 +352,14 @@ def test_live_video_source_to_bvh(video, human_model, small_db_path, tmp_path, c
     from mocapdb.cli.main import main
 
     assert main(["live", "--source", str(video), "--model", str(human_model), "--db", str(small_db_path),
-                 "--sink", str(tmp_path / "live.jsonl"), "--bvh-dir", str(tmp_path), "--buffer", "20",
-                 "--image-size", f"{VIDEO_W}x{VIDEO_H}"]) == 0
+                 "--sink", str(tmp_path / "live.jsonl"), "--bvh-dir", str(tmp_path), "--buffer", "20"]) == 0
     err = capsys.readouterr().err
     assert f"frames {VIDEO_FRAMES}" in err and "detection" in err
-    frames = [json.loads(line) for line in (tmp_path / "live.jsonl").read_text().splitlines()[1:]]
+    lines = (tmp_path / "live.jsonl").read_text().splitlines()
+    header = json.loads(lines[0])   # frame rate and size taken from the video itself
+    assert header["fps"] == pytest.approx(VIDEO_FPS) and header["image_size"] == [VIDEO_W, VIDEO_H]
+    assert header["camera_sources"]["fps"] == header["camera_sources"]["image_size"] == "read"
+    frames = [json.loads(line) for line in lines[1:]]
     assert sum(len(f["people"]) for f in frames) == VIDEO_FRAMES - 1  # confirmed on the second frame
     assert (tmp_path / "track_0.bvh").exists()
 
@@ -396,7 +404,7 @@ def test_a_truncated_video_is_an_error_that_keeps_the_frames_read(truncated_vide
     assert captured.err.startswith(f"mocapdb detect: error: {truncated_video}: video ended after 1 of 20 frames: "
                                    "the file looks truncated") and "Traceback" not in captured.err
     assert f"the 1 file(s) written in {out} are kept" in captured.err
-    assert [f.name for f in out.iterdir()] == ["cut_000000000000_keypoints.json"]
+    assert sorted(f.name for f in out.iterdir()) == ["cut_000000000000_keypoints.json", "take.json"]
     assert len(list(read_openpose_folder(out))[0].people) == 2
     assert detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out), "--every", "3") == 2
     assert "video ended after 1 of 20 frames" in capsys.readouterr().err
@@ -460,3 +468,43 @@ def test_an_unreadable_video_names_it(video):
     video.chmod(0)
     with pytest.raises(DetectError, match=f"{video}: cannot read the video \\(Permission denied\\)"):
         VideoReader(str(video))
+
+
+def test_reconstruct_reads_the_take_description_detect_wrote(video, human_model, small_db_path, tmp_path, capsys):
+    """detect → reconstruct with nothing typed again gives exactly the result of the right options;
+    an option that contradicts take.json is refused naming both; the header says what was used."""
+    from mocapdb.cli.main import main
+
+    kp = tmp_path / "kp"
+    assert main(["detect", str(video), "--model", str(human_model), "--out", str(kp)]) == 0
+    base = ["reconstruct", str(kp), "--db", str(small_db_path)]
+    assert main([*base, "--out", str(tmp_path / "read")]) == 0
+    assert main([*base, "--out", str(tmp_path / "given"), "--fps", str(VIDEO_FPS),
+                 "--image-size", f"{VIDEO_W}x{VIDEO_H}", "--focal", "1000"]) == 0
+    read = (tmp_path / "read" / "result.jsonl").read_text().splitlines()
+    given = (tmp_path / "given" / "result.jsonl").read_text().splitlines()
+    assert read[1:] == given[1:] and len(read) == VIDEO_FRAMES + 1
+    header = json.loads(read[0])
+    assert header["fps"] == pytest.approx(VIDEO_FPS) and header["image_size"] == [VIDEO_W, VIDEO_H]
+    assert header["focal_px"] == 1000.0
+    assert header["camera_sources"] == {"fps": "read", "image_size": "read", "focal_px": "default"}
+    assert json.loads(given[0])["camera_sources"] == {"fps": "given", "image_size": "given", "focal_px": "given"}
+    assert "no --fps was given" not in capsys.readouterr().err   # the frame rate is known: no warning
+    assert main([*base, "--out", str(tmp_path / "bad"), "--image-size", f"{VIDEO_H}x{VIDEO_W}"]) == 2
+    err = capsys.readouterr().err
+    assert f"--image-size {VIDEO_H}x{VIDEO_W} contradicts" in err and f"{VIDEO_W}x{VIDEO_H}" in err
+    assert "take.json" in err and not (tmp_path / "bad").exists()
+
+
+def test_a_broken_take_description_is_named(tmp_path):
+    from mocapdb.core.formats.take import TakeError, TakeInfo, read_take, write_take
+
+    assert read_take(tmp_path) is None
+    write_take(tmp_path, TakeInfo(fps=60.0, image_size=(1080, 1920), frames=3, source="v.mp4"))
+    assert read_take(tmp_path).image_size == (1080, 1920)
+    for body, words in (("{", "not a take description"), ('{"format": "x"}', "format"),
+                        ('{"format": "mocapdb-take", "version": 1, "fps": -1}', "fps"),
+                        ('{"format": "mocapdb-take", "version": 1, "image_size": [1e20, 2]}', "image_size")):
+        (tmp_path / "take.json").write_text(body)
+        with pytest.raises(TakeError, match=words):
+            read_take(tmp_path)

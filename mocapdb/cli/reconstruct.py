@@ -7,8 +7,6 @@ import sys
 
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 
-DEFAULT_FPS = 30.0  # input frame rate assumed when neither --fps nor the frames give one
-
 
 def image_size(text: str) -> tuple[int, int]:
     """``--image-size WIDTHxHEIGHT`` (pixels) as (width, height); UsageError naming the option."""
@@ -34,8 +32,10 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                         "BODY_25 or BODY_25B by geometry); data_specs/keypoint_formats.md")
     p.add_argument("--fps", type=float,
                    help="input frame rate in Hz when frames carry no time (default 30, with a warning)")
-    p.add_argument("--focal", type=float, default=1000.0, help="input camera focal length in pixels (default 1000)")
-    p.add_argument("--image-size", default="1920x1080", help="input image WIDTHxHEIGHT in pixels (default 1920x1080)")
+    p.add_argument("--focal", type=float,
+                   help="input camera focal length in pixels (default: the input folder's take.json, else 1000)")
+    p.add_argument("--image-size",
+                   help="input image WIDTHxHEIGHT in pixels (default: the input folder's take.json, else 1920x1080)")
     p.add_argument("--search", choices=("clustered", "exact"), default="clustered",
                    help="two-level search (the method) or brute force over every projection")
     p.add_argument("--clusters-searched", type=int, default=5, help="i: nearest clusters searched (default 5)")
@@ -102,13 +102,53 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                              "each as soon as it is complete (default 10)")
 
 
+def resolve_take(args: argparse.Namespace, source: str) -> None:
+    """Fill ``args.fps``, ``args.image_size`` and ``args.focal`` from what the input says where they
+    were not given: ``source/take.json`` (what `mocapdb detect` wrote) for a folder, the video itself
+    for ``live --source VIDEO --model``; the defaults where nothing says. An option that contradicts
+    it is an error naming both. ``args.camera_sources`` says where each came from (given, read,
+    default); ``args.fps`` stays None when neither gave it (the warning stays)."""
+    from pathlib import Path
+
+    from mocapdb.core.formats.take import TAKE_FILE, read_take, resolve_camera
+
+    if getattr(args, "model", None) and Path(source).is_file():
+        take, where = _video_take(source), source
+    else:
+        take = read_take(source) if source and Path(source).is_dir() else None
+        where = str(Path(source) / TAKE_FILE)
+    given_size = image_size(args.image_size) if args.image_size else None
+    settings = resolve_camera(take, where, args.fps, given_size, args.focal)
+    if settings.sources["fps"] != "default":
+        args.fps = settings.fps
+    args.image_size = f"{settings.image_size[0]}x{settings.image_size[1]}"
+    args.focal = settings.focal_px
+    args.camera_sources = settings.sources
+
+
+def _video_take(path: str):
+    """A video file's frame rate and image size, as a take description (the first frame decoded)."""
+    from mocapdb.core.formats.take import TakeInfo
+    from mocapdb.detect.video import VideoReader
+
+    reader = VideoReader(path)
+    try:
+        first = next(reader.frames())
+        size = (int(first.image.shape[1]), int(first.image.shape[0]))
+        return TakeInfo(fps=reader.fps, image_size=size, frames=reader.frame_count, source=path)
+    finally:
+        reader.close()
+
+
 def _engine(args: argparse.Namespace):
     from mocapdb.core.errors import UsageError
     from mocapdb.core.formats.database import load_database
+    from mocapdb.core.formats.take import DEFAULTS
     from mocapdb.runtime.engine import Engine, EngineConfig
     from mocapdb.runtime.filters import REFINED_ROTATION_DEFAULTS, OneEuroParams
 
-    width, height = image_size(args.image_size)
+    width, height = image_size(args.image_size) if args.image_size else DEFAULTS["image_size"]
+    focal = args.focal if args.focal is not None else DEFAULTS["focal_px"]
     try:
         weights = tuple(float(w) for w in args.window_weights.split(","))
     except ValueError:
@@ -119,8 +159,8 @@ def _engine(args: argparse.Namespace):
             min_cutoff_hz=default.min_cutoff_hz if args.min_cutoff is None else args.min_cutoff,
             beta=default.beta if args.beta is None else args.beta)
         config = EngineConfig(search=args.search, n_clusters=args.clusters_searched, per_cluster=args.per_cluster,
-                              window_weights=weights, weight_2d=args.weight_2d, focal_px=args.focal,
-                              image_size=(width, height), fps=args.fps or DEFAULT_FPS,
+                              window_weights=weights, weight_2d=args.weight_2d, focal_px=focal,
+                              image_size=(width, height), fps=args.fps or DEFAULTS["fps"],
                               translation=not args.no_translation,
                               refine_yaw=not args.no_yaw_refinement, refine=not args.no_refine,
                               subject_height_m=args.subject_height, camera_height_m=args.camera_height,
@@ -155,7 +195,7 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
                                  rate_by_arrival=not strict,
                                  take=None if args.per_frame else TakeParams(smoothing_hz=args.smoothing_hz),
                                  shared_floor=strict, camera_height_m=args.camera_height,
-                                 lag_frames=args.lag_frames)
+                                 lag_frames=args.lag_frames, camera_sources=getattr(args, "camera_sources", {}))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     engine = _engine(args)
@@ -184,6 +224,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     from mocapdb.core.formats.keypoint_arrays import KEYPOINT_FILE_SUFFIXES, read_keypoint_file
     from mocapdb.core.outputs import output_folder
 
+    resolve_take(args, args.input)
     frames = None  # a keypoint file (.npy, .npz, MMPose .json) is read and checked before any output
     if Path(args.input).suffix.lower() in KEYPOINT_FILE_SUFFIXES and not Path(args.input).is_dir():
         frames = read_keypoint_file(args.input, args.keypoints, args.fps)
@@ -284,6 +325,7 @@ def run_live(args: argparse.Namespace) -> int:
     from mocapdb.runtime.video_input import open_video_source, run_video
 
     limits = NetworkLimits(args.max_clients, args.client_timeout, args.max_rate)   # checked before any work
+    resolve_take(args, args.source)
     session = _session(args, args.sink, strict=False)
     stop, video = threading.Event(), None
     with install_stop_handlers(stop, force_quit=False):

@@ -194,12 +194,21 @@ def frame_line(frame_index: int, time_s: float, poses: list[PersonPose]) -> str:
                        "people": [person_record(p) for p in poses]}, separators=(",", ":"))
 
 
-def header_line(fps: float) -> str:
-    """The first line of a result stream: format, version, joint and rotation orders, units."""
-    return json.dumps({"format": STREAM_FORMAT, "version": STREAM_VERSION, "fps": fps,
-                       "joints": list(KEYPOINTS), "rotations": list(RIG_JOINTS), "units": "m",
-                       "coordinate_frame": "camera-aligned: x right, y up, z away from the camera"},
-                      separators=(",", ":"))
+def header_line(fps: float, image_size: tuple[int, int] | None = None, focal_px: float | None = None,
+                sources: dict[str, str] | None = None) -> str:
+    """The first line of a result stream: format, version, joint and rotation orders, units, and the
+    camera the run assumed (fps, image size, focal length in pixels, and where each came from:
+    given, read from the take description, or default)."""
+    body = {"format": STREAM_FORMAT, "version": STREAM_VERSION, "fps": fps,
+            "joints": list(KEYPOINTS), "rotations": list(RIG_JOINTS), "units": "m",
+            "coordinate_frame": "camera-aligned: x right, y up, z away from the camera"}
+    if image_size is not None:
+        body["image_size"] = [int(image_size[0]), int(image_size[1])]
+    if focal_px is not None:
+        body["focal_px"] = float(focal_px)
+    if sources:
+        body["camera_sources"] = dict(sources)
+    return json.dumps(body, separators=(",", ":"))
 
 
 def _is_output_folder(path: Path) -> bool:

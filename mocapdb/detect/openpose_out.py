@@ -18,6 +18,7 @@ import numpy as np
 
 from mocapdb.core.files import os_error_message, write_atomic
 from mocapdb.core.formats.keypoints import LAYOUTS
+from mocapdb.core.formats.take import TAKE_FILE, TakeInfo, write_take
 from mocapdb.core.progress import progress
 from mocapdb.detect.errors import DetectError
 
@@ -94,17 +95,21 @@ class DetectSummary:
 def detect_video(reader: VideoReader, model: PoseModel, out_dir: Path, every: int = 1,
                  stop: threading.Event | None = None) -> DetectSummary:
     """Detect people in every ``every``-th frame and write one OpenPose JSON file per frame
-    (atomically) into ``out_dir``; ends with the video or once ``stop`` is set. ``truncated`` of
-    the summary says when the video file ended before its declared frame count (the files written
-    are complete); DetectError naming the path when the folder or a file cannot be written."""
+    (atomically) into ``out_dir``, then the take description (``take.json``: the keypoints' frame
+    rate, the image size, the frames written, source and model; :mod:`mocapdb.core.formats.take`);
+    ends with the video or once ``stop`` is set. ``truncated`` of the summary says when the video
+    file ended before its declared frame count (the files written are complete); DetectError naming
+    the path when the folder or a file cannot be written."""
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise DetectError(os_error_message(exc, out_dir, "create the output folder")) from None
     summary = DetectSummary()
     total = -(-reader.frame_count // every) if reader.frame_count else None
+    size = None
     with progress(total=total, desc=f"detect {reader.name}", unit="frame") as bar:
         for frame in reader.frames(every):
+            size = size or (int(frame.image.shape[1]), int(frame.image.shape[0]))
             found = model(frame.image)
             path = out_dir / frame_file_name(reader.name, frame.index)
             try:
@@ -118,4 +123,10 @@ def detect_video(reader: VideoReader, model: PoseModel, out_dir: Path, every: in
                 break
     summary.frames_read, summary.detection_fps = reader.frames_read, model.fps
     summary.truncated = None if summary.interrupted else reader.truncation()
+    take = TakeInfo(fps=reader.fps / every if reader.fps else None, image_size=size, frames=len(summary.people),
+                    source=reader.label, model=model.path.name)
+    try:
+        write_take(out_dir, take)
+    except OSError as exc:
+        raise DetectError(os_error_message(exc, out_dir / TAKE_FILE, "write the take description")) from None
     return summary

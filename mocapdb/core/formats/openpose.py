@@ -26,6 +26,7 @@ from mocapdb.core.formats.keypoints import (
     shown,
     with_scores,
 )
+from mocapdb.core.formats.take import TAKE_FILE
 
 DETECT_FRAMES = 10     # a folder's or file's layout is detected from its first frames holding people
 
@@ -132,11 +133,17 @@ def frame_order_key(name: str) -> tuple[int, int, tuple[str | int, ...], str]:
     return (0, int(match[1]), natural, name) if match else (1, 0, natural, name)
 
 
+def is_frame_file(name: str) -> bool:
+    """Whether a file in a keypoint folder is a frame: a ``.json`` file other than the take
+    description (``take.json``, :mod:`mocapdb.core.formats.take`)."""
+    return name.lower().endswith(".json") and name != TAKE_FILE
+
+
 def _frame_files(folder: Path) -> list[Path]:
-    """The folder's .json files in frame order (:func:`frame_order_key`)."""
+    """The folder's frame files (:func:`is_frame_file`) in frame order (:func:`frame_order_key`)."""
     if not folder.is_dir():
         raise KeypointError(f"{folder}: not a folder")
-    files = [p for p in folder.iterdir() if p.suffix.lower() == ".json" and p.is_file()]
+    files = [p for p in folder.iterdir() if is_frame_file(p.name) and p.is_file()]
     if not files:
         raise KeypointError(f"{folder}: no .json keypoint files")
     return sorted(files, key=lambda p: frame_order_key(p.name))

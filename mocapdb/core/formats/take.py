@@ -1,0 +1,144 @@
+"""The take description: what `mocapdb detect` knows of a take, written beside its keypoints.
+
+``take.json`` (``data_specs/take_description.md``) holds the keypoints' frame rate, the image size,
+the frame count, the source and the model, and the camera's focal length when it is known. Every
+command that reads such a folder (:func:`resolve_camera`) takes them from it, so nothing has to be
+typed again; an option given explicitly wins when it agrees, and one that contradicts the file is an
+error naming both.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from mocapdb.core.errors import MocapdbError, UsageError
+from mocapdb.core.files import write_atomic
+
+TAKE_FILE = "take.json"
+TAKE_FORMAT = "mocapdb-take"
+TAKE_VERSION = 1
+MAX_SIDE_PX = 65536          # no camera makes larger images
+MAX_FPS = 10000.0
+DEFAULTS = {"fps": 30.0, "image_size": (1920, 1080), "focal_px": 1000.0}  # when nothing says otherwise
+
+
+class TakeError(MocapdbError, ValueError):
+    """A take description that cannot be used (names the file and the field)."""
+
+
+@dataclass(frozen=True)
+class TakeInfo:
+    """One take: keypoints' frame rate (Hz), image (width, height) in pixels, frames written, the
+    source video or camera, the model, and the focal length in pixels (None: unknown)."""
+
+    fps: float | None
+    image_size: tuple[int, int] | None
+    frames: int | None
+    source: str
+    model: str | None = None
+    focal_px: float | None = None
+
+    def __post_init__(self) -> None:
+        _check_fps(self.fps, "fps")
+        _check_size(self.image_size, "image_size")
+        if self.focal_px is not None and not (math.isfinite(self.focal_px) and 0 < self.focal_px <= 1e6):
+            raise ValueError(f"focal_px must be a positive number of pixels, not {self.focal_px!r}")
+        if self.frames is not None and (isinstance(self.frames, bool) or not isinstance(self.frames, int)
+                                        or self.frames < 0):
+            raise ValueError(f"frames must be a count, not {self.frames!r}")
+
+
+def _check_fps(fps: object, name: str) -> None:
+    if fps is not None and (isinstance(fps, bool) or not isinstance(fps, (int, float))
+                            or not (math.isfinite(fps) and 0 < fps <= MAX_FPS)):
+        raise ValueError(f"{name} must be a frame rate in (0, {MAX_FPS:g}] Hz, not {fps!r}")
+
+
+def _check_size(size: object, name: str) -> None:
+    if size is None:
+        return
+    if (not isinstance(size, (tuple, list)) or len(size) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= MAX_SIDE_PX for v in size)):
+        raise ValueError(f"{name} must be [width, height] in pixels (1 to {MAX_SIDE_PX}), not {size!r}")
+
+
+def write_take(folder: str | Path, info: TakeInfo) -> Path:
+    """``folder/take.json`` (atomically); returns its path."""
+    path = Path(folder) / TAKE_FILE
+    body = {"format": TAKE_FORMAT, "version": TAKE_VERSION, **asdict(info)}
+    body["image_size"] = list(info.image_size) if info.image_size else None
+    write_atomic(path, json.dumps(body, indent=2) + "\n")
+    return path
+
+
+def read_take(folder: str | Path) -> TakeInfo | None:
+    """The take description in ``folder`` (None when there is none); TakeError when it is broken."""
+    path = Path(folder) / TAKE_FILE
+    if not Path(folder).is_dir() or not path.exists():
+        return None
+    if not path.is_file():
+        raise TakeError(f"{path}: not a regular file")
+    try:
+        text = path.read_bytes()[:1_000_000].decode("utf-8")
+        body = json.loads(text)
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise TakeError(f"{path}: not a take description ({exc})") from None
+    if not isinstance(body, dict) or body.get("format") != TAKE_FORMAT:
+        raise TakeError(f"{path}: not a take description (format {TAKE_FORMAT!r} expected)")
+    if body.get("version") != TAKE_VERSION:
+        raise TakeError(f"{path}: version {body.get('version')!r}; this mocapdb reads version {TAKE_VERSION}")
+    size = body.get("image_size")
+    try:
+        return TakeInfo(fps=body.get("fps"), image_size=tuple(size) if isinstance(size, list) else size,
+                        frames=body.get("frames"), source=str(body.get("source", "")), model=body.get("model"),
+                        focal_px=body.get("focal_px"))
+    except ValueError as exc:
+        raise TakeError(f"{path}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class CameraSettings:
+    """The frame rate (Hz), image size (px) and focal length (px) a run uses, and where each came
+    from: ``"given"`` (an option), ``"read"`` (the take description) or ``"default"``."""
+
+    fps: float
+    image_size: tuple[int, int]
+    focal_px: float
+    sources: dict[str, str]
+
+
+def resolve_camera(take: TakeInfo | None, take_path: str, fps: float | None = None,
+                   image_size: tuple[int, int] | None = None, focal_px: float | None = None) -> CameraSettings:
+    """Each of fps, image size and focal: the option when given, else the take description's, else
+    :data:`DEFAULTS`. An option that contradicts the description is a UsageError naming both."""
+    given = {"fps": fps, "image_size": image_size, "focal_px": focal_px}
+    read = {} if take is None else {"fps": take.fps, "image_size": take.image_size, "focal_px": take.focal_px}
+    values, sources = {}, {}
+    for name, value in given.items():
+        known = read.get(name)
+        if value is not None and known is not None and not _agree(value, known):
+            raise UsageError(f"{_option(name)} {_text(value)} contradicts {take_path}, which says {_text(known)}: "
+                             f"leave the option out or correct it")
+        if value is not None:
+            values[name], sources[name] = value, "given"
+        elif known is not None:
+            values[name], sources[name] = known, "read"
+        else:
+            values[name], sources[name] = DEFAULTS[name], "default"
+    return CameraSettings(float(values["fps"]), tuple(values["image_size"]), float(values["focal_px"]), sources)
+
+
+def _agree(a: object, b: object) -> bool:
+    if isinstance(a, tuple):
+        return tuple(a) == tuple(b)
+    return math.isclose(float(a), float(b), rel_tol=1e-3)
+
+
+def _option(name: str) -> str:
+    return {"fps": "--fps", "image_size": "--image-size", "focal_px": "--focal"}[name]
+
+
+def _text(value: object) -> str:
+    return f"{value[0]}x{value[1]}" if isinstance(value, tuple) else f"{float(value):g}"
