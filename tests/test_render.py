@@ -247,3 +247,20 @@ def test_error_messages(tmp_path):
         run_cli([str(tmp_path / "ok"), "--out", str(tmp_path / "f"), "--image-size", "big"])
     with pytest.raises(RenderError, match="no cameras.json"):
         render_stereo_plot(tmp_path / "ok", tmp_path / "p.png")
+
+
+def test_render_takes_the_camera_the_run_recorded(sample_run, capsys):
+    """reconstruct recorded focal and image size in its header: render needs neither again (the same
+    picture as with them given) and refuses a focal that contradicts it, naming both."""
+    root, keypoints, recon = sample_run
+    given, read = root / "given.png", root / "read.png"
+    common = [str(recon), "--keypoints", str(keypoints), "--contact-sheet", "2", "--no-progress"]
+    assert run_cli([*common, "--out", str(given), "--focal", "1681", "--image-size", "1088x1920"]) == 0
+    assert run_cli([*common, "--out", str(read)]) == 0
+    assert "no --focal" not in capsys.readouterr().err
+    assert np.array_equal(cv2.imread(str(given)), cv2.imread(str(read)))
+    from mocapdb.cli.main import main
+
+    assert main(["render", *common, "--out", str(root / "bad.png"), "--focal", "1000"]) == 2
+    err = capsys.readouterr().err
+    assert "--focal 1000 contradicts the header of" in err and "1681" in err

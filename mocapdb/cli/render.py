@@ -45,7 +45,8 @@ def run_render(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from mocapdb.core.errors import UsageError
-    from mocapdb.render.results import read_cameras, result_path
+    from mocapdb.core.formats.take import resolve_camera
+    from mocapdb.render.results import read_cameras, recorded_camera, result_path
     from mocapdb.render.video import (
         DEFAULT_FOCAL,
         DEFAULT_IMAGE_SIZE,
@@ -67,7 +68,12 @@ def run_render(args: argparse.Namespace) -> int:
         print(f"wrote {render_stereo_plot(folder, args.out)} (cameras and motion of {folder})")
         return 0
     camera = None
-    if args.focal is not None or args.image_size is not None or not stereo:
+    recorded = None if stereo else recorded_camera(args.result)
+    if recorded is not None:  # the run recorded its camera: nothing to type again, a contradiction named
+        settings = resolve_camera(recorded, f"the header of {result_path(args.result)}", None,
+                                  image_size(args.image_size) if args.image_size else None, args.focal)
+        camera = image_camera(settings.focal_px, settings.image_size)
+    elif args.focal is not None or args.image_size is not None or not stereo:
         size = image_size(args.image_size) if args.image_size else None
         if size is None and args.video is not None:
             from mocapdb.render.video import VideoFrames

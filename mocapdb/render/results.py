@@ -16,6 +16,7 @@ import numpy as np
 
 from mocapdb.core.cameras import CameraModel
 from mocapdb.core.errors import MocapdbError
+from mocapdb.core.formats.take import TakeInfo
 from mocapdb.core.outputs import STREAM_FORMAT, STREAM_VERSION
 from mocapdb.core.skeleton import KEYPOINTS, N_POINTS
 
@@ -87,6 +88,25 @@ def result_path(result: str | Path) -> Path:
     elif not path.exists():
         raise RenderError(f"{result}: no such result folder or file")
     return path
+
+
+def recorded_camera(result: str | Path) -> TakeInfo | None:
+    """The camera a result's run recorded in its header (image size, focal length, fps), as a take
+    description; None for a stream that records none (older runs, stereo)."""
+    path = result_path(result)
+    try:
+        with path.open(encoding="utf-8") as fh:
+            header = json.loads(fh.readline(1_000_000))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None  # read_result names the problem when the result is drawn
+    if not isinstance(header, dict) or "focal_px" not in header:
+        return None
+    size = header.get("image_size")
+    try:
+        return TakeInfo(fps=header.get("fps"), image_size=tuple(size) if isinstance(size, list) else None,
+                        frames=None, source=str(path), focal_px=header.get("focal_px"))
+    except ValueError as exc:
+        raise RenderError(f"{path}: the header's camera: {exc}") from None
 
 
 def _bad(path: Path, line_no: int, why: str) -> RenderError:
