@@ -98,11 +98,17 @@ class SessionSummary:
         if len(self.static_tracks) < MAX_LISTED:
             self.static_tracks.append(track)
 
+    def _files_by_format(self) -> str:
+        """``6 (2 BVH, 2 TRC, 2 CSV)``: the track files written, per format."""
+        kinds = Counter(path.suffix.lstrip(".").upper() for path in self.bvh_files)
+        per_format = ", ".join(f"{n} {kind}" for kind, n in kinds.items())
+        return f"{len(self.bvh_files)}" + (f" ({per_format})" if per_format else "")
+
     def report(self) -> str:
         lat = np.array(self.latencies_s) * 1000.0
         p50, p99 = (np.percentile(lat, 50), np.percentile(lat, 99)) if len(lat) else (float("nan"),) * 2
         lines = [f"frames {self.frames}, people {self.person_frames} person-frames, tracks {self.tracks}, "
-                 f"BVH files {len(self.bvh_files)}",
+                 f"track files {self._files_by_format()}",
                  f"latency p50 {p50:.2f} ms, p99 {p99:.2f} ms; throughput "
                  f"{self.frames / max(self.wall_s, 1e-9):.1f} frames/s over {self.wall_s:.2f} s",
                  f"skipped: stale {self.stream.dropped_stale}, oversized {self.stream.oversized}, "

@@ -37,3 +37,39 @@ def test_eval_reports_are_strict_json():
     text = _report_json({"mpjpe_cm": float("nan"), "rows": [1.5, float("inf")], "nested": {"x": -float("inf")}})
     assert json.loads(text) == {"mpjpe_cm": None, "rows": [1.5, None], "nested": {"x": None}}
     assert "NaN" not in text and "Infinity" not in text
+
+
+def test_quiet_and_verbose_work_before_and_after_the_command():
+    from mocapdb.cli.main import parser
+
+    for argv in (["-q", "inspect", "x.bvh"], ["inspect", "x.bvh", "-q"], ["inspect", "-q", "x.bvh"]):
+        args = parser().parse_args(argv)
+        assert args.quiet is True and args.verbose == 0, argv
+    assert parser().parse_args(["inspect", "x.bvh", "-vv"]).verbose == 2
+    assert parser().parse_args(["-v", "inspect", "x.bvh"]).verbose == 1
+    assert parser().parse_args(["inspect", "x.bvh"]).quiet is False
+
+
+def test_the_summary_counts_track_files_per_format(small_db_path, tmp_path, capsys):
+    from mocapdb.cli.main import main
+
+    from .conftest import SAMPLE_KEYPOINTS
+
+    assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(tmp_path / "o"),
+                 "--fps", "60", "--image-size", "1088x1920", "--focal", "1681", "--format", "bvh,trc,csv"]) == 0
+    assert "track files 3 (1 BVH, 1 TRC, 1 CSV)" in capsys.readouterr().out
+
+
+def test_write_tracks_leaves_static_tracks_out_as_reconstruct_does(tmp_path):
+    import numpy as np
+
+    from mocapdb.core.exports import write_tracks
+    from mocapdb.core.outputs import TrackRecording
+
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (11, 1))
+    recordings = []
+    for track, static in ((0, True), (1, False)):
+        rec = TrackRecording(track, 0, [quats] * 3, [np.array([0.0, 0.0, -4.0])] * 3, [1.0] * 3, static=static)
+        recordings.append(rec)
+    assert [p.name for p in write_tracks(recordings, tmp_path / "a", 30.0)] == ["track_1.bvh"]
+    assert len(write_tracks(recordings, tmp_path / "b", 30.0, keep_static=True)) == 2

@@ -28,6 +28,11 @@ def parser() -> argparse.ArgumentParser:
     sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in COMMANDS:
         add(sub)
+    for command in sub.choices.values():  # -v/-q also after the command name (given there, they win)
+        command.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                             help="more diagnostics (-vv: debug)")
+        command.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                             help="errors only: no warnings, no progress bars")
     return top
 
 

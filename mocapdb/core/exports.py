@@ -139,6 +139,9 @@ def write_track_files(rec: TrackRecording, folder: str | Path, stem: str, fps: f
 
 
 def write_tracks(recordings: list[TrackRecording], out_dir: str | Path, fps: float,
-                 export: TrackExport = TrackExport()) -> list[Path]:
-    """Write ``track_<id>.<format>`` files for each recording; returns the paths."""
-    return [path for rec in recordings for path in write_track_files(rec, out_dir, f"track_{rec.track}", fps, export)]
+                 export: TrackExport = TrackExport(), keep_static: bool = False) -> list[Path]:
+    """Write ``track_<id>.<format>`` files for each recording; returns the paths. Static tracks (a
+    poster, a false detection that never moves: ``TrackRecording.static``) get none unless
+    ``keep_static``, as in `reconstruct`."""
+    return [path for rec in recordings if keep_static or not rec.static
+            for path in write_track_files(rec, out_dir, f"track_{rec.track}", fps, export)]
