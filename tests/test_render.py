@@ -264,3 +264,18 @@ def test_render_takes_the_camera_the_run_recorded(sample_run, capsys):
     assert main(["render", *common, "--out", str(root / "bad.png"), "--focal", "1000"]) == 2
     err = capsys.readouterr().err
     assert "--focal 1000 contradicts the header of" in err and "1681" in err
+
+
+def test_the_preview_title_names_the_output_not_the_temporary_folder(small_db_path, tmp_path, monkeypatch):
+    from mocapdb.cli.main import main
+    from mocapdb.render import video as render_video
+
+    texts = []
+    real = render_video.draw.put_text
+    monkeypatch.setattr(render_video.draw, "put_text", lambda img, text, *a, **k: (texts.append(text),
+                                                                                    real(img, text, *a, **k)))
+    out = tmp_path / "rec"
+    assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(out), "--fps", "60",
+                 "--image-size", "1088x1920", "--focal", "1681", "--preview"]) == 0
+    title = next(t for t in texts if "frames" in t and "focal" in t)
+    assert title.startswith(f"{out / 'result.jsonl'}:") and ".tmp" not in title

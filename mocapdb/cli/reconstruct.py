@@ -243,10 +243,12 @@ def run_reconstruct(args: argparse.Namespace) -> int:
 
 def _preview(args: argparse.Namespace, out_dir) -> None:
     """OUT/preview.png: a contact sheet of the run (:func:`mocapdb.render.video.contact_sheet`)."""
+    from pathlib import Path
+
     from mocapdb.render.video import contact_sheet
 
     contact_sheet(out_dir, args.input, out_dir / "preview.png", focal=args.focal,
-                  image_size=image_size(args.image_size))
+                  image_size=image_size(args.image_size), name=str(Path(args.out) / "result.jsonl"))
 
 
 def _input_size(path: str) -> int | None:

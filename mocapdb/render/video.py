@@ -328,14 +328,16 @@ def render_result(result: str | Path, out: str | Path, keypoints: str | Path | N
 def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, out_png: str | Path, n: int = 12, *,
                   focal: float = DEFAULT_FOCAL, image_size: tuple[int, int] = DEFAULT_IMAGE_SIZE,
                   video: str | Path | None = None, view: str = "both", tile_height: int = 520,
-                  columns: int | None = None, warn: Callable[[str], None] | None = None) -> Path:
+                  columns: int | None = None, warn: Callable[[str], None] | None = None,
+                  name: str | None = None) -> Path:
     """One PNG: a grid of ``n`` evenly spaced frames of a result with their overlays (the
     re-projected skeletons over the input keypoints, and the 3D view with ``view="both"``).
 
     ``result_dir``: the ``--out`` folder of ``mocapdb reconstruct`` (or its ``result.jsonl``);
     ``keypoints``: its input (folder, file, or frames already read; None: skeletons only);
     ``focal`` (px) and ``image_size`` (width, height px): as given to reconstruct; ``video``:
-    optional frames underneath; ``tile_height``: pixels per tile. Frames are chosen evenly among
+    optional frames underneath; ``tile_height``: pixels per tile; ``name``: the result as the title
+    shows it (default its folder and file name). Frames are chosen evenly among
     those the result and keypoints share. Written atomically; returns ``out_png``. Raises
     :class:`~mocapdb.render.results.RenderError` on unusable inputs (``reconstruct --preview``).
     """
@@ -367,7 +369,8 @@ def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, o
         y, x = title_h + r * (th + gap), c * (tw + gap)
         sheet[y:y + th, x:x + tw] = tile
     tracks = stream.tracks
-    title = (f"{stream.path.parent.name}/{stream.path.name}: {len(tiles)} of {len(pairs)} frames, "
+    shown = name or f"{stream.path.parent.name}/{stream.path.name}"
+    title = (f"{shown}: {len(tiles)} of {len(pairs)} frames, "
              f"{len(tracks)} track(s), focal {camera.K[0, 0]:g} px, image {camera.size[0]}x{camera.size[1]}")
     tscale = title_h / 45
     draw.put_text(sheet, title, (8, int(title_h * 0.72)), tscale, draw.TEXT_COLOUR, 1)
