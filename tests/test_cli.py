@@ -73,3 +73,32 @@ def test_write_tracks_leaves_static_tracks_out_as_reconstruct_does(tmp_path):
         recordings.append(rec)
     assert [p.name for p in write_tracks(recordings, tmp_path / "a", 30.0)] == ["track_1.bvh"]
     assert len(write_tracks(recordings, tmp_path / "b", 30.0, keep_static=True)) == 2
+
+
+def test_the_camera_in_ordinary_terms(small_db_path, tmp_path, capsys):
+    """--fov (horizontal degrees) and --focal-35mm (35 mm equivalent) become pixels for the image;
+    the header records the focal used; out-of-range values and two at once are refused."""
+    import json
+
+    import pytest
+
+    import numpy as np
+
+    from mocapdb.cli.main import main
+    from mocapdb.core.formats.take import focal_from_35mm, focal_from_fov
+
+    from .conftest import SAMPLE_KEYPOINTS
+
+    assert focal_from_fov(90.0, (1920, 1080)) == pytest.approx(960.0)           # by hand: 960 / tan 45°
+    assert focal_from_35mm(26.0, (1920, 1080)) == pytest.approx(26 * 2202.907 / 43.27, rel=1e-5)
+    common = [str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--fps", "60", "--image-size", "1088x1920"]
+    for option, expected in ((["--fov", "90"], 544.0), (["--focal-35mm", "43.27"], float(np.hypot(1088, 1920)))):
+        out = tmp_path / option[0].strip("-")
+        assert main(["reconstruct", *common, "--out", str(out), *option]) == 0
+        header = json.loads((out / "result.jsonl").read_text().splitlines()[0])
+        assert header["focal_px"] == pytest.approx(expected) and header["camera_sources"]["focal_px"] == "given"
+    capsys.readouterr()
+    assert main(["reconstruct", *common, "--out", str(tmp_path / "x"), "--fov", "0"]) == 2
+    assert "--fov 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["reconstruct", *common, "--out", str(tmp_path / "y"), "--fov", "60", "--focal", "1000"])

@@ -480,16 +480,18 @@ def test_reconstruct_reads_the_take_description_detect_wrote(video, human_model,
     base = ["reconstruct", str(kp), "--db", str(small_db_path)]
     assert main([*base, "--out", str(tmp_path / "read")]) == 0
     assert main([*base, "--out", str(tmp_path / "given"), "--fps", str(VIDEO_FPS),
-                 "--image-size", f"{VIDEO_W}x{VIDEO_H}", "--focal", "1000"]) == 0
+                 "--image-size", f"{VIDEO_W}x{VIDEO_H}", "--focal-35mm", "26"]) == 0
     read = (tmp_path / "read" / "result.jsonl").read_text().splitlines()
     given = (tmp_path / "given" / "result.jsonl").read_text().splitlines()
     assert read[1:] == given[1:] and len(read) == VIDEO_FRAMES + 1
     header = json.loads(read[0])
     assert header["fps"] == pytest.approx(VIDEO_FPS) and header["image_size"] == [VIDEO_W, VIDEO_H]
-    assert header["focal_px"] == 1000.0
+    assert header["focal_px"] == pytest.approx(26 * np.hypot(VIDEO_W, VIDEO_H) / 43.27)  # a phone's main camera
     assert header["camera_sources"] == {"fps": "read", "image_size": "read", "focal_px": "default"}
     assert json.loads(given[0])["camera_sources"] == {"fps": "given", "image_size": "given", "focal_px": "given"}
-    assert "no --fps was given" not in capsys.readouterr().err   # the frame rate is known: no warning
+    err = capsys.readouterr().err
+    assert "no --fps was given" not in err           # the frame rate is known: no warning
+    assert "no focal length given: assuming a typical phone main camera, 26 mm equivalent" in err
     assert main([*base, "--out", str(tmp_path / "bad"), "--image-size", f"{VIDEO_H}x{VIDEO_W}"]) == 2
     err = capsys.readouterr().err
     assert f"--image-size {VIDEO_H}x{VIDEO_W} contradicts" in err and f"{VIDEO_W}x{VIDEO_H}" in err

@@ -2,10 +2,14 @@
 from __future__ import annotations
 
 import argparse
+import logging
+import math
 import os
 import sys
 
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
+
+LOG = logging.getLogger("mocapdb.cli")
 
 
 def image_size(text: str) -> tuple[int, int]:
@@ -32,8 +36,14 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                         "BODY_25 or BODY_25B by geometry); data_specs/keypoint_formats.md")
     p.add_argument("--fps", type=float,
                    help="input frame rate in Hz when frames carry no time (default 30, with a warning)")
-    p.add_argument("--focal", type=float,
-                   help="input camera focal length in pixels (default: the input folder's take.json, else 1000)")
+    focal = p.add_mutually_exclusive_group()
+    focal.add_argument("--focal", type=float, metavar="PX",
+                       help="input camera focal length in pixels (default: the input folder's take.json, else a "
+                            "typical phone main camera: 26 mm equivalent, with a warning)")
+    focal.add_argument("--fov", type=float, metavar="DEG",
+                       help="the camera's horizontal field of view in degrees, instead of --focal")
+    focal.add_argument("--focal-35mm", type=float, metavar="MM",
+                       help="the camera's 35 mm-equivalent focal length (as phone specs give it), instead of --focal")
     p.add_argument("--image-size",
                    help="input image WIDTHxHEIGHT in pixels (default: the input folder's take.json, else 1920x1080)")
     p.add_argument("--search", choices=("clustered", "exact"), default="clustered",
@@ -110,7 +120,7 @@ def resolve_take(args: argparse.Namespace, source: str) -> None:
     default); ``args.fps`` stays None when neither gave it (the warning stays)."""
     from pathlib import Path
 
-    from mocapdb.core.formats.take import TAKE_FILE, read_take, resolve_camera
+    from mocapdb.core.formats.take import DEFAULT_FOCAL_35MM, TAKE_FILE, read_take, resolve_camera
 
     if getattr(args, "model", None) and Path(source).is_file():
         take, where = _video_take(source), source
@@ -118,12 +128,37 @@ def resolve_take(args: argparse.Namespace, source: str) -> None:
         take = read_take(source) if source and Path(source).is_dir() else None
         where = str(Path(source) / TAKE_FILE)
     given_size = image_size(args.image_size) if args.image_size else None
-    settings = resolve_camera(take, where, args.fps, given_size, args.focal)
+    settings = resolve_camera(take, where, args.fps, given_size, _given_focal(args, given_size, take))
+    if settings.sources["focal_px"] == "default":
+        LOG.warning("no focal length given: assuming a typical phone main camera, %g mm equivalent (%.0f px for "
+                    "%dx%d); give --focal PX, --fov DEG or --focal-35mm MM", DEFAULT_FOCAL_35MM, settings.focal_px,
+                    *settings.image_size)
     if settings.sources["fps"] != "default":
         args.fps = settings.fps
     args.image_size = f"{settings.image_size[0]}x{settings.image_size[1]}"
     args.focal = settings.focal_px
     args.camera_sources = settings.sources
+
+
+def _given_focal(args: argparse.Namespace, size: tuple[int, int] | None, take) -> float | None:
+    """``--focal`` in pixels, or ``--fov``/``--focal-35mm`` converted for the image (the given size,
+    else the take's, else the default); None when none was given. UsageError for a value out of range."""
+    from mocapdb.core.errors import UsageError
+    from mocapdb.core.formats.take import DEFAULTS, focal_from_35mm, focal_from_fov
+
+    size = size or (take.image_size if take is not None and take.image_size else DEFAULTS["image_size"])
+    fov, focal_35mm = getattr(args, "fov", None), getattr(args, "focal_35mm", None)
+    if fov is not None:
+        if not 1.0 <= fov <= 179.0:
+            raise UsageError(f"--fov {fov:g}: a horizontal field of view between 1 and 179 degrees")
+        return focal_from_fov(fov, size)
+    if focal_35mm is not None:
+        if not 1.0 <= focal_35mm <= 2000.0:
+            raise UsageError(f"--focal-35mm {focal_35mm:g}: a 35 mm-equivalent focal length between 1 and 2000 mm")
+        return focal_from_35mm(focal_35mm, size)
+    if args.focal is not None and not (math.isfinite(args.focal) and 0 < args.focal <= 1e6):
+        raise UsageError(f"--focal {args.focal:g}: a focal length in pixels, positive and finite")
+    return args.focal
 
 
 def _video_take(path: str):
@@ -143,12 +178,12 @@ def _video_take(path: str):
 def _engine(args: argparse.Namespace):
     from mocapdb.core.errors import UsageError
     from mocapdb.core.formats.database import load_database
-    from mocapdb.core.formats.take import DEFAULTS
+    from mocapdb.core.formats.take import DEFAULTS, default_focal_px
     from mocapdb.runtime.engine import Engine, EngineConfig
     from mocapdb.runtime.filters import REFINED_ROTATION_DEFAULTS, OneEuroParams
 
     width, height = image_size(args.image_size) if args.image_size else DEFAULTS["image_size"]
-    focal = args.focal if args.focal is not None else DEFAULTS["focal_px"]
+    focal = args.focal if args.focal is not None else default_focal_px((width, height))
     try:
         weights = tuple(float(w) for w in args.window_weights.split(","))
     except ValueError:

@@ -21,7 +21,25 @@ TAKE_FORMAT = "mocapdb-take"
 TAKE_VERSION = 1
 MAX_SIDE_PX = 65536          # no camera makes larger images
 MAX_FPS = 10000.0
-DEFAULTS = {"fps": 30.0, "image_size": (1920, 1080), "focal_px": 1000.0}  # when nothing says otherwise
+DEFAULTS = {"fps": 30.0, "image_size": (1920, 1080)}  # when nothing says otherwise (the focal: below)
+FULL_FRAME_DIAGONAL_MM = 43.27  # a 36 × 24 mm frame: what "35 mm-equivalent" focal lengths refer to
+DEFAULT_FOCAL_35MM = 26.0       # a typical phone main camera (24–28 mm equivalent), when nothing is given
+
+
+def focal_from_35mm(focal_35mm: float, image_size: tuple[int, int]) -> float:
+    """Focal length in pixels of a 35 mm-equivalent focal length (mm) for an image (width, height) px:
+    the same angle across the diagonal as on a 36 × 24 mm frame."""
+    return focal_35mm * math.hypot(*image_size) / FULL_FRAME_DIAGONAL_MM
+
+
+def focal_from_fov(fov_deg: float, image_size: tuple[int, int]) -> float:
+    """Focal length in pixels of a horizontal field of view (degrees) across an image (width, height) px."""
+    return image_size[0] / 2.0 / math.tan(math.radians(fov_deg) / 2.0)
+
+
+def default_focal_px(image_size: tuple[int, int]) -> float:
+    """The focal length assumed when nothing gives one: :data:`DEFAULT_FOCAL_35MM` for the image."""
+    return focal_from_35mm(DEFAULT_FOCAL_35MM, image_size)
 
 
 class TakeError(MocapdbError, ValueError):
@@ -112,7 +130,8 @@ class CameraSettings:
 def resolve_camera(take: TakeInfo | None, take_path: str, fps: float | None = None,
                    image_size: tuple[int, int] | None = None, focal_px: float | None = None) -> CameraSettings:
     """Each of fps, image size and focal: the option when given, else the take description's, else
-    :data:`DEFAULTS`. An option that contradicts the description is a UsageError naming both."""
+    :data:`DEFAULTS` (the focal: :func:`default_focal_px` of the image). An option that contradicts
+    the description is a UsageError naming both."""
     given = {"fps": fps, "image_size": image_size, "focal_px": focal_px}
     read = {} if take is None else {"fps": take.fps, "image_size": take.image_size, "focal_px": take.focal_px}
     values, sources = {}, {}
@@ -125,8 +144,10 @@ def resolve_camera(take: TakeInfo | None, take_path: str, fps: float | None = No
             values[name], sources[name] = value, "given"
         elif known is not None:
             values[name], sources[name] = known, "read"
-        else:
+        elif name != "focal_px":
             values[name], sources[name] = DEFAULTS[name], "default"
+        else:
+            values[name], sources[name] = default_focal_px(tuple(values["image_size"])), "default"
     return CameraSettings(float(values["fps"]), tuple(values["image_size"]), float(values["focal_px"]), sources)
 
 
