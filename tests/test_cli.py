@@ -80,9 +80,8 @@ def test_the_camera_in_ordinary_terms(small_db_path, tmp_path, capsys):
     the header records the focal used; out-of-range values and two at once are refused."""
     import json
 
-    import pytest
-
     import numpy as np
+    import pytest
 
     from mocapdb.cli.main import main
     from mocapdb.core.formats.take import focal_from_35mm, focal_from_fov
