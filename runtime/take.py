@@ -34,7 +34,7 @@ Costs O(F) per track (the least-squares system is banded): thousands of frames p
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import sparse
@@ -117,11 +117,7 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     if params.floor and planted.any():
         normal, offset = floor_plane(root[:, None] + relative, planted, up, ANKLE_HEIGHT_M * scale)
         root = _above_floor(root, relative, normal, offset, ANKLE_HEIGHT_M * scale)
-    out = TrackRecording(rec.track, rec.first_frame, list(quats), list(root), [scale] * len(root),
-                         proportions_m=rec.proportions_m, static=rec.static, part=rec.part,
-                         first_s=rec.first_s, last_s=rec.last_s)
-    out.up_view = up if normal is None else normal
-    out.floor_offset_m = offset
+    out = _refitted(rec, list(quats), list(root), [scale] * len(root), up if normal is None else normal, offset)
     return out, TakeResult(planted, (root[:, None] + relative)[planted], normal, offset)
 
 
@@ -448,8 +444,12 @@ def _geometric_mean(distances: np.ndarray, weights: np.ndarray) -> float:
 
 def _rescaled(rec: TrackRecording, k: float, normal: np.ndarray, offset: float) -> TrackRecording:
     """``rec`` scaled by ``k`` about the camera (root and body), on the floor ``normal · p = offset``."""
-    out = TrackRecording(rec.track, rec.first_frame, rec.quaternions, [r * k for r in rec.root_view_m],
-                         [s * k for s in rec.scales], proportions_m=rec.proportions_m, static=rec.static,
-                         part=rec.part, first_s=rec.first_s, last_s=rec.last_s)
-    out.up_view, out.floor_offset_m = normal, offset
-    return out
+    return _refitted(rec, rec.quaternions, [r * k for r in rec.root_view_m], [s * k for s in rec.scales],
+                     normal, offset)
+
+
+def _refitted(rec: TrackRecording, quats: list, roots: list, scales: list, up: np.ndarray,
+              floor_offset_m: float | None) -> TrackRecording:
+    """``rec`` with new motion and floor; the per-frame fits (consumed) are not carried over."""
+    return replace(rec, quaternions=quats, root_view_m=roots, scales=scales, fit_quaternions=[],
+                   fit_root_view_m=[], keypoints=[], up_view=up, floor_offset_m=floor_offset_m)

@@ -11,13 +11,13 @@ from mocapdb.core.skeleton import (
     PELVIS,
     bone_lengths_m,
     rest_positions_m,
+    stature_m,
     universal_bone_lengths_m,
 )
 from mocapdb.evaluation.bodies import (
     HEIGHT_RANGE_M,
     reshape_body,
     sample_body,
-    source_height_m,
 )
 from mocapdb.evaluation.heldout import Scenario, Truth, camera_to_world, camera_view, scenario_positions
 from mocapdb.evaluation.metrics import foot_height_error_m, foot_skating_mps, planted_feet, speeds_mps
@@ -82,7 +82,7 @@ def test_sampled_bodies_follow_the_documented_distribution():
     src = universal_bone_lengths_m() * 1.1
     b = bodies[0]
     unit = type(b)(b.height_m, np.ones(8))
-    assert source_height_m(unit.bone_lengths_m(src)) == pytest.approx(b.height_m)
+    assert stature_m(unit.bone_lengths_m(src)) == pytest.approx(b.height_m)
 
 
 def test_varied_scenario_draws_one_body_per_clip_and_yaw(source_walk):

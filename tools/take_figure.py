@@ -29,11 +29,10 @@ sys.path.insert(0, str(ROOT))
 from mocapdb.cli.reconstruct import image_size  # noqa: E402
 from mocapdb.core.formats.database import load_database  # noqa: E402
 from mocapdb.core.formats.openpose import read_openpose_folder  # noqa: E402
-from mocapdb.core.skeleton import DRAWING_LINES, KP, N_POINTS, swing_matrices  # noqa: E402
+from mocapdb.core.skeleton import DRAWING_LINES, N_POINTS, swing_matrices  # noqa: E402
+from mocapdb.evaluation.heldout import project  # noqa: E402
 from mocapdb.runtime.engine import Engine, EngineConfig  # noqa: E402
-from mocapdb.runtime.take import fit_take, take_joints  # noqa: E402
-
-ANKLES = [KP["r_ankle"], KP["l_ankle"]]
+from mocapdb.runtime.take import ANKLES, fit_take, take_joints  # noqa: E402
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -58,11 +57,6 @@ def run(args: argparse.Namespace) -> dict:
             "first": recordings[track].first_frame}
 
 
-def _project(joints: np.ndarray, focal: float, size: tuple[int, int]) -> np.ndarray:
-    return np.stack([size[0] / 2 + focal * joints[..., 0] / joints[..., 2],
-                     size[1] / 2 - focal * joints[..., 1] / joints[..., 2]], axis=-1)
-
-
 def _on_floor(joints: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:
     """Camera-aligned joints → the floor's frame (y up from the floor, x across, z in depth)."""
     view = joints * [1.0, 1.0, -1.0]
@@ -85,7 +79,7 @@ def draw(data: dict, args: argparse.Namespace) -> None:
             seen = person.confidence > 0.3
             ax.scatter(*person.points_px[seen].T, s=10, c="0.6")
         for label, joints, colour in outputs:
-            px = _project(joints[i], args.focal, data["size"])
+            px = project(joints[i], args.focal, data["size"])
             for a, b in DRAWING_LINES:
                 ax.plot(*px[[a, b]].T, c=colour, lw=1.5, label=label if (a, b) == DRAWING_LINES[0] else None)
         ax.set_xlim(0, data["size"][0])

@@ -44,12 +44,7 @@ class Body:
 
     def bone_lengths_m(self, source_lengths_m: np.ndarray) -> np.ndarray:
         """This body's bone lengths ``[8]`` for a source whose mean lengths are ``source_lengths_m [8]``."""
-        return source_lengths_m * (self.height_m / source_height_m(source_lengths_m)) * self.factors
-
-
-def source_height_m(lengths_m: np.ndarray) -> float:
-    """The stature (metres) of a skeleton with bone lengths ``lengths_m [8]`` (:func:`stature_m`)."""
-    return float(stature_m(lengths_m))
+        return source_lengths_m * (self.height_m / stature_m(source_lengths_m)) * self.factors
 
 
 def sample_body(rng: np.random.Generator) -> Body:

@@ -41,18 +41,15 @@ from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame
 from mocapdb.core.formats.openpose import read_openpose_folder
 from mocapdb.core.formats.trc import Trc, read_trc, trc_keypoints
-from mocapdb.core.skeleton import KP, MEASURED_BONE_NAMES, N_KEYPOINTS_2D, N_POINTS, PELVIS, bone_lengths_m
+from mocapdb.core.skeleton import MEASURED_BONE_NAMES, N_KEYPOINTS_2D, N_POINTS, PELVIS, bone_lengths_m
 from mocapdb.evaluation.metrics import foot_height_error_m, foot_skating_mps, pa_mpjpe, planted_feet
-from mocapdb.evaluation.reconstruction import TAKE_VARIANT, variant_config
+from mocapdb.evaluation.reconstruction import ANKLES, BELOW_HEAD, BODY_BONES, TAKE_VARIANT, variant_config
 from mocapdb.runtime.engine import Engine, EngineConfig
 from mocapdb.runtime.take import fit_takes, take_joints
 
 TRC_FROM_WORLD = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # trc = TRC_FROM_WORLD @ world
 Y_DOWN = np.array([1.0, -1.0, 1.0])  # camera-aligned (y up) ↔ OpenCV camera (y down), either way
 FOOT_MARKERS = ("BigToe", "SmallToe", "Heel")  # Pose2Sim's foot markers, after "R" or "L"
-BELOW_HEAD = np.array([k for k in range(N_POINTS) if k not in (KP["head"], PELVIS)])  # the 13 joints scored
-ANKLES = [KP["r_ankle"], KP["l_ankle"]]
-BODY_BONES = [name for name in MEASURED_BONE_NAMES if name != "neck_nose"]
 # (variant, size mode, EngineConfig.refine, camera height given)
 RUNS = (("refined", "nothing_given", True, False), ("refined", "camera_height_given", True, True),
         ("published", "nothing_given", False, False))
@@ -203,7 +200,7 @@ def score(pred: np.ndarray, truth: np.ndarray, camera_centre: np.ndarray, fps: f
         "camera_to_pelvis_m": _mean(distance),
         "bone_length_cm": {"output": dict(zip(MEASURED_BONE_NAMES, 100 * bones_p)),
                            "truth": dict(zip(MEASURED_BONE_NAMES, 100 * bones_t)), "error": bone_err,
-                           "mean_error_7": float(np.mean([bone_err[b] for b in BODY_BONES]))},
+                           "mean_error_7": float(np.mean([bone_err[MEASURED_BONE_NAMES[b]] for b in BODY_BONES]))},
         "foot_skating_cm_per_s": {"mean": _mean(100 * skate), "median": _median(100 * skate)},
         "planted_foot_height_error_cm": {"mean": _mean(100 * height), "mean_abs": _mean(100 * np.abs(height))},
     }

@@ -21,6 +21,7 @@ TAKE_FORMAT = "mocapdb-take"
 TAKE_VERSION = 1
 MAX_SIDE_PX = 65536          # no camera makes larger images
 MAX_FPS = 10000.0
+MAX_TAKE_BYTES = 1_000_000   # a take description is a few hundred bytes: more is read as broken
 DEFAULTS = {"fps": 30.0, "image_size": (1920, 1080)}  # when nothing says otherwise (the focal: below)
 FULL_FRAME_DIAGONAL_MM = 43.27  # a 36 × 24 mm frame: what "35 mm-equivalent" focal lengths refer to
 DEFAULT_FOCAL_35MM = 26.0       # a typical phone main camera (24–28 mm equivalent), when nothing is given
@@ -99,8 +100,8 @@ def read_take(folder: str | Path) -> TakeInfo | None:
     if not path.is_file():
         raise TakeError(f"{path}: not a regular file")
     try:
-        text = path.read_bytes()[:1_000_000].decode("utf-8")
-        body = json.loads(text)
+        with path.open("rb") as fh:
+            body = json.loads(fh.read(MAX_TAKE_BYTES).decode("utf-8"))
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise TakeError(f"{path}: not a take description ({exc})") from None
     if not isinstance(body, dict) or body.get("format") != TAKE_FORMAT:
