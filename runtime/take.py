@@ -58,6 +58,7 @@ from mocapdb.runtime.body_size import TILT_SD_DEG
 
 ANKLES = (KP["r_ankle"], KP["l_ankle"])
 MIN_CONTACT_FRAMES = 3
+MIN_SIGMA_FRAMES = 0.05   # narrower Gaussians (cut-offs above ~3 × the frame rate) leave the rotations as they are
 CONTACT_WINDOW_S = 0.25   # an ankle keypoint's image speed: the slope of a line fitted over this long
 MIN_FLOOR_SPREAD_M = 0.3  # RMS extent of the contacts (≈ 1 m end to end) along a direction they fix
 
@@ -77,9 +78,11 @@ class TakeParams:
     floor: bool = True                 # keep ankles above the floor found from the contacts
 
     def __post_init__(self) -> None:
-        if not (self.smoothing_hz >= 0 and self.pop_frames >= 1 and self.planted_box_per_s > 0
-                and self.planted_height_m > 0 and min(self.root_across_m, self.root_depth_m,
-                                                      self.root_accel_mps2, self.contact_m) > 0):
+        if not (np.isfinite(self.smoothing_hz) and self.smoothing_hz >= 0):
+            raise ValueError(f"--smoothing-hz must be a finite number of hertz, 0 or more, not {self.smoothing_hz}")
+        positive = (self.planted_box_per_s, self.planted_height_m, self.root_across_m, self.root_depth_m,
+                    self.root_accel_mps2, self.contact_m)
+        if self.pop_frames < 1 or not all(np.isfinite(v) and v > 0 for v in positive):
             raise ValueError(f"whole-take settings out of range: {self}")
 
 
@@ -144,8 +147,9 @@ def smooth_rotations(quats: np.ndarray, fps: float, params: TakeParams) -> np.nd
     q *= sign[..., None]
     if params.pop_frames > 1 and len(q) >= params.pop_frames:
         q = median_filter(q, size=(params.pop_frames, 1, 1), mode="nearest")
-    if params.smoothing_hz > 0:
-        q = gaussian_filter1d(q, fps / (2.0 * np.pi * params.smoothing_hz), axis=0, mode="nearest")
+    sigma_frames = fps / (2.0 * np.pi * params.smoothing_hz) if params.smoothing_hz > 0 else 0.0
+    if sigma_frames >= MIN_SIGMA_FRAMES:  # a cut-off far above the frame rate smooths nothing
+        q = gaussian_filter1d(q, sigma_frames, axis=0, mode="nearest")
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
