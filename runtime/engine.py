@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from mocapdb.core import domains as D
 from mocapdb.core.formats.database import DatabaseError, MotionDatabase
 from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
 from mocapdb.core.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
@@ -66,8 +67,8 @@ class TrackLimits:
     max_new_per_min: int = 120
 
     def __post_init__(self) -> None:
-        if self.max_tracks < 0 or self.max_new_per_min < 0:
-            raise ValueError("--max-tracks and --max-new-tracks-per-min must be 0 (no limit) or positive")
+        D.MAX_TRACKS.check(self.max_tracks, "max_tracks")
+        D.MAX_NEW_TRACKS_PER_MIN.check(self.max_new_per_min, "max_new_per_min")
 
 
 @dataclass
@@ -110,12 +111,22 @@ class EngineConfig:
             self.root_filter = REFINED_ROOT_DEFAULTS if self.refine else ROOT_DEFAULTS
         if self.keypoint_filter is None and self.refine and self.smoothing:
             self.keypoint_filter = KeypointFilterParams()
-        if self.subject_height_m is not None and not 0.5 <= self.subject_height_m <= 2.5:
-            raise ValueError(f"subject height must be between 0.5 and 2.5 m, not {self.subject_height_m}")
+        self._check_domains()
         if self.camera_height_m is not None and not self.refine:
             raise ValueError("a camera height needs the refinement (it levels the floor): drop --no-refine")
-        if self.camera_height_m is not None and not 0.1 <= self.camera_height_m <= 50.0:
-            raise ValueError(f"camera height must be between 0.1 and 50 m, not {self.camera_height_m}")
+
+    def _check_domains(self) -> None:
+        """Every number given within its domain (:mod:`mocapdb.core.domains`), DomainError otherwise."""
+        D.CLUSTERS_SEARCHED.check(self.n_clusters, "n_clusters")
+        D.PER_CLUSTER.check(self.per_cluster, "per_cluster")
+        D.WINDOW_WEIGHTS.check(self.window_weights, "window_weights")
+        D.WEIGHT_2D.check(self.weight_2d, "weight_2d")
+        D.FOCAL_PX.check(self.focal_px, "focal_px")
+        for side in self.image_size:
+            D.IMAGE_SIDE_PX.check(side, "image_size")
+        D.FPS_HZ.check(self.fps, "fps")
+        D.SUBJECT_HEIGHT_M.check_optional(self.subject_height_m, "subject_height_m")
+        D.CAMERA_HEIGHT_M.check_optional(self.camera_height_m, "camera_height_m")
 
 
 class _TrackState:

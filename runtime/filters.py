@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from mocapdb.core import domains as D
 from mocapdb.core.kernels import quat_relative_log_into
 from mocapdb.core.skeleton import KP
 
@@ -42,8 +43,9 @@ class OneEuroParams:
     d_cutoff_hz: float = 1.0
 
     def __post_init__(self) -> None:
-        if self.min_cutoff_hz <= 0 or self.d_cutoff_hz <= 0 or self.beta < 0:
-            raise ValueError(f"cutoffs must be positive and beta non-negative: {self}")
+        D.CUTOFF_HZ.check(self.min_cutoff_hz, "min_cutoff_hz")
+        D.CUTOFF_HZ.check(self.d_cutoff_hz, "d_cutoff_hz")
+        D.BETA.check(self.beta, "beta")
 
 
 # Root (pelvis) translation in metres: the 0.5 Hz floor cuts a still subject's root jitter

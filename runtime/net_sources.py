@@ -23,8 +23,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
+from mocapdb.core import domains as D
 from mocapdb.runtime.source_base import READ_BYTES, LineSplitter, Source
-from mocapdb.runtime.stream_types import RawMessage, StreamSpecError, resolve_address
+from mocapdb.runtime.stream_types import RawMessage, resolve_address
 
 __all__ = ["CLIENT_TIMEOUT_S", "MAX_CLIENTS", "MAX_RATE", "NetworkLimits", "TcpSource", "UdpSource"]
 
@@ -104,9 +105,9 @@ class NetworkLimits:
     max_rate: float | None = MAX_RATE
 
     def __post_init__(self) -> None:
-        if self.max_clients < 1 or self.client_timeout_s <= 0 or (self.max_rate or 0) < 0:
-            raise StreamSpecError("max clients must be at least 1, the client timeout positive and the "
-                                  "maximum rate not negative")
+        D.MAX_CLIENTS.check(self.max_clients, "max_clients")
+        D.CLIENT_TIMEOUT_S.check(self.client_timeout_s, "client_timeout_s")
+        D.MAX_RATE_HZ.check_optional(self.max_rate, "max_rate")
 
 
 @dataclass

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mocapdb.core import domains as D
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.exports import TrackExport, write_track_files
 from mocapdb.core.formats.keypoints import KeypointError, KeypointFrame
@@ -156,7 +157,6 @@ class SinkError(OSError):
     """The sink could not take a line (disk full, closed pipe): the session stops there."""
 
 
-MAX_LAG_FRAMES = 600  # 10 s at 60 fps: beyond it the stream is no longer live
 IMAGE_MARGIN = 0.1  # keypoints may lie this fraction of the image size outside it (detectors extrapolate)
 
 
@@ -192,12 +192,11 @@ class SessionOptions:
     camera_height_m: float | None = None  # the shared floor's distance below the camera, when known
 
     def __post_init__(self) -> None:
-        if self.max_bvh_files < 0 or self.min_track_s < 0:
-            raise ValueError("--max-bvh-files and --min-track-s must be 0 or positive")
-        if not self.bvh_part_min > 0:
-            raise ValueError("--bvh-part-min must be positive")
-        if not 0 <= self.lag_frames <= MAX_LAG_FRAMES:
-            raise ValueError(f"--lag-frames must be between 0 and {MAX_LAG_FRAMES}")
+        D.MAX_BVH_FILES.check(self.max_bvh_files, "max_bvh_files")
+        D.MIN_TRACK_S.check(self.min_track_s, "min_track_s")
+        D.BVH_PART_MIN.check(self.bvh_part_min, "bvh_part_min")
+        D.LAG_FRAMES.check(self.lag_frames, "lag_frames")
+        D.CAMERA_HEIGHT_M.check_optional(self.camera_height_m, "camera_height_m")
 
 
 def track_stem(track: int, part: int | None) -> str:

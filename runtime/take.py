@@ -41,6 +41,7 @@ from scipy import sparse
 from scipy.ndimage import convolve1d, gaussian_filter1d, median_filter
 from scipy.sparse.linalg import spsolve
 
+from mocapdb.core import domains as D
 from mocapdb.core.anthropometry import STATURE_SD
 from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, TrackRecording
@@ -78,8 +79,7 @@ class TakeParams:
     floor: bool = True                 # keep ankles above the floor found from the contacts
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.smoothing_hz) and self.smoothing_hz >= 0):
-            raise ValueError(f"--smoothing-hz must be a finite number of hertz, 0 or more, not {self.smoothing_hz}")
+        D.SMOOTHING_HZ.check(self.smoothing_hz, "smoothing_hz")
         positive = (self.planted_box_per_s, self.planted_height_m, self.root_across_m, self.root_depth_m,
                     self.root_accel_mps2, self.contact_m)
         if self.pop_frames < 1 or not all(np.isfinite(v) and v > 0 for v in positive):

@@ -17,9 +17,7 @@ def test_every_product_command_is_there():
 
 @pytest.mark.parametrize("command", _subcommands())
 def test_help(command, capsys):
-    with pytest.raises(SystemExit) as exit_info:
-        main([command, "--help"])
-    assert exit_info.value.code == 0
+    assert main([command, "--help"]) == 0
     assert capsys.readouterr().out.startswith(f"usage: mocapdb {command}")
 
 
@@ -98,6 +96,5 @@ def test_the_camera_in_ordinary_terms(small_db_path, tmp_path, capsys):
         assert header["focal_px"] == pytest.approx(expected) and header["camera_sources"]["focal_px"] == "given"
     capsys.readouterr()
     assert main(["reconstruct", *common, "--out", str(tmp_path / "x"), "--fov", "0"]) == 2
-    assert "--fov 0" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        main(["reconstruct", *common, "--out", str(tmp_path / "y"), "--fov", "60", "--focal", "1000"])
+    assert "argument --fov: '0': must be" in capsys.readouterr().err
+    assert main(["reconstruct", *common, "--out", str(tmp_path / "y"), "--fov", "60", "--focal", "1000"]) == 2

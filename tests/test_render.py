@@ -218,7 +218,9 @@ def test_stereo_camera_plot(tmp_path):
 # --------------------------------------------------------------------------- errors
 
 
-def test_error_messages(tmp_path):
+def test_error_messages(tmp_path, capsys):
+    from mocapdb.cli.main import main
+
     with pytest.raises(RenderError, match="no result.jsonl in this folder"):
         read_result(tmp_path)
     with pytest.raises(RenderError, match="no such result folder"):
@@ -243,8 +245,8 @@ def test_error_messages(tmp_path):
         render_result(tmp_path / "ok", tmp_path / "f", video=tmp_path / "none.mp4", progress=False)
     with pytest.raises(RenderError, match="focal length"):
         image_camera(-5.0, (100, 100))
-    with pytest.raises(MocapdbError, match="WIDTHxHEIGHT"):
-        run_cli([str(tmp_path / "ok"), "--out", str(tmp_path / "f"), "--image-size", "big"])
+    assert main(["render", str(tmp_path / "ok"), "--out", str(tmp_path / "f"), "--image-size", "big"]) == 2
+    assert "argument --image-size: 'big': must be WIDTHxHEIGHT" in capsys.readouterr().err
     with pytest.raises(RenderError, match="no cameras.json"):
         render_stereo_plot(tmp_path / "ok", tmp_path / "p.png")
 

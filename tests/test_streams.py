@@ -365,7 +365,9 @@ def test_rate_limit_zero_means_no_limit():
 
 @pytest.mark.parametrize("limits", [dict(max_clients=0), dict(client_timeout_s=0), dict(max_rate=-1)])
 def test_network_limits_are_checked(limits):
-    with pytest.raises(StreamSpecError):
+    from mocapdb.core.domains import DomainError
+
+    with pytest.raises(DomainError, match=next(iter(limits))):
         NetworkLimits(**limits)
     with pytest.raises(StreamSpecError):
         open_source("-", idle_timeout_s=0)
@@ -444,7 +446,7 @@ def test_live_cli_rejects_bad_limits(small_db_path, capsys):
     from mocapdb.cli.main import main
 
     assert main(["live", "--source", f"tcp://{LOOPBACK}:0", "--db", str(small_db_path), "--max-clients", "0"]) == 2
-    assert "max clients" in capsys.readouterr().err
+    assert "argument --max-clients: '0': must be a number of clients" in capsys.readouterr().err
 
 
 # --- sinks ---------------------------------------------------------------------------------------

@@ -195,12 +195,12 @@ def test_a_straight_walk_fixes_the_floors_tilt_about_its_line():
 
 @pytest.mark.parametrize("hz", [float("nan"), -1.0, float("inf")])
 def test_smoothing_outside_its_domain_is_refused_naming_the_option(hz):
-    with pytest.raises(ValueError, match="--smoothing-hz"):
+    with pytest.raises(ValueError, match="smoothing_hz"):
         TakeParams(smoothing_hz=hz)
 
 
 def test_a_cut_off_far_above_the_frame_rate_leaves_the_rotations_as_they_are():
     quats = np.tile([1.0, 0.0, 0.0, 0.0], (20, N_RIG_JOINTS, 1))
     quats[:, 3] = _turns(np.linspace(0.0, 1.0, 20) ** 2)
-    out = smooth_rotations(quats, FPS, TakeParams(smoothing_hz=1e308, pop_frames=1))
+    out = smooth_rotations(quats, FPS, TakeParams(smoothing_hz=1000.0, pop_frames=1))
     np.testing.assert_allclose(out, quats, atol=1e-12)

@@ -7,8 +7,6 @@ k-means O(I·N·K·d); writing O(N). ``tools/bench_build.py`` prints how each gr
 from __future__ import annotations
 
 import fnmatch
-import math
-import numbers
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -20,6 +18,7 @@ import numpy as np
 
 from mocapdb import __version__
 from mocapdb.builder.embedding import kmeans, landmark_mds, pose_distances, representatives
+from mocapdb.core import domains as D
 from mocapdb.core.cameras import DatabaseCamera
 from mocapdb.core.clips import Clip, ClipOptions, clips_from_bvh
 from mocapdb.core.errors import MocapdbError
@@ -69,8 +68,7 @@ class BuildConfig:
 
     @property
     def yaws_deg(self) -> np.ndarray:
-        step = self.yaw_step_deg
-        _check_positive("--yaw-step", step)
+        step = D.YAW_STEP_DEG.check(self.yaw_step_deg, "--yaw-step")
         ratio = 360.0 / step
         n = round(ratio) if ratio < MAX_YAWS + 1 else 0
         if n < 1 or abs(n * step - 360.0) > 1e-6:
@@ -78,33 +76,24 @@ class BuildConfig:
         return np.arange(n) * step
 
     def check(self) -> None:
-        """Raise BuildError naming the first option (by its ``mocapdb build`` flag) that cannot work."""
-        for flag, value in [("--fps", self.fps), ("--camera-height", self.camera.height_m),
-                            ("--camera-distance", self.camera.distance_m), ("--focal", self.camera.focal_px)]:
-            _check_positive(flag, value)
+        """Raise DomainError or BuildError naming the first option (by its ``mocapdb build`` flag)
+        that cannot work."""
+        for flag, domain, value in [
+                ("--fps", D.FPS_HZ, self.fps), ("--camera-height", D.CAMERA_HEIGHT_M, self.camera.height_m),
+                ("--camera-distance", D.CAMERA_DISTANCE_M, self.camera.distance_m),
+                ("--focal", D.FOCAL_PX, self.camera.focal_px), ("--clusters", D.CLUSTERS, self.clusters),
+                ("--dims", D.DIMS, self.dims), ("--landmarks", D.LANDMARKS, self.landmarks),
+                ("--workers", D.WORKERS, self.workers), ("--seed", D.SEED, self.seed),
+                ("camera width_px", D.IMAGE_SIDE_PX, self.camera.width_px),
+                ("camera height_px", D.IMAGE_SIDE_PX, self.camera.height_px)]:
+            domain.check(value, flag)
         self.yaws_deg
-        for flag, value, least in [("--clusters", self.clusters, 1), ("--dims", self.dims, 1),
-                                   ("--landmarks", self.landmarks, 2), ("--workers", self.workers, 1),
-                                   ("--seed", self.seed, 0), ("camera width_px", self.camera.width_px, 1),
-                                   ("camera height_px", self.camera.height_px, 1)]:
-            _check_int(flag, value, least)
         if self.landmarks <= self.dims:
             raise BuildError(f"--landmarks {self.landmarks} is too few for --dims {self.dims}: "
                              "landmark MDS needs at least dims + 1 landmarks")
         if self.unit not in (None, *UNITS) or self.up_axis not in (None, *UP_AXES):
             raise BuildError(f"unknown --unit {self.unit!r} or --up-axis {self.up_axis!r}: "
                              f"units {', '.join(UNITS)}; up axes {', '.join(UP_AXES)}")
-
-
-def _check_positive(flag: str, value: object) -> None:
-    if not (isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
-            and value > 0):
-        raise BuildError(f"{flag} must be a positive finite number, got {value!r}")
-
-
-def _check_int(flag: str, value: object, least: int) -> None:
-    if not (isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= least):
-        raise BuildError(f"{flag} must be a whole number ≥ {least}, got {value!r}")
 
 
 @dataclass

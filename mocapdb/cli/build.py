@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import os
 
+from mocapdb.core import domains as D
 from mocapdb.core.units import UNITS, UP_AXES
 
 
@@ -16,16 +17,16 @@ def add_build_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("sources", nargs="+", help="BVH files or folders")
     p.add_argument("--out", required=True,
                    help="database directory to write (replaced atomically; a symlink is followed and kept)")
-    p.add_argument("--fps", type=float, default=24.0, help="database frame rate in Hz (default 24)")
-    p.add_argument("--yaw-step", type=float, default=12.0, help="yaw step in degrees; must divide 360 (default 12)")
-    p.add_argument("--camera-height", type=float, default=1.5, help="camera height above the floor, metres (default 1.5)")
-    p.add_argument("--camera-distance", type=float, default=4.0, help="camera to pelvis, metres (default 4)")
-    p.add_argument("--focal", type=float, default=1000.0, help="focal length in pixels (default 1000)")
-    p.add_argument("--clusters", type=int, default=500, help="k-means clusters K (default 500)")
-    p.add_argument("--dims", type=int, default=5, help="MDS embedding dimensions (default 5)")
-    p.add_argument("--landmarks", type=int, default=2000, help="landmark-MDS landmarks (default 2000)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (the build is deterministic for a seed)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+    p.add_argument("--fps", type=D.FPS_HZ, default=24.0, help="database frame rate in Hz (default 24)")
+    p.add_argument("--yaw-step", type=D.YAW_STEP_DEG, default=12.0, help="yaw step in degrees; must divide 360 (default 12)")
+    p.add_argument("--camera-height", type=D.CAMERA_HEIGHT_M, default=1.5, help="camera height above the floor, metres (default 1.5)")
+    p.add_argument("--camera-distance", type=D.CAMERA_DISTANCE_M, default=4.0, help="camera to pelvis, metres (default 4)")
+    p.add_argument("--focal", type=D.FOCAL_PX, default=1000.0, help="focal length in pixels (default 1000)")
+    p.add_argument("--clusters", type=D.CLUSTERS, default=500, help="k-means clusters K (default 500)")
+    p.add_argument("--dims", type=D.DIMS, default=5, help="MDS embedding dimensions (default 5)")
+    p.add_argument("--landmarks", type=D.LANDMARKS, default=2000, help="landmark-MDS landmarks (default 2000)")
+    p.add_argument("--seed", type=D.SEED, default=0, help="random seed (the build is deterministic for a seed)")
+    p.add_argument("--workers", type=D.WORKERS, default=os.cpu_count() or 1,
                    help="processes reading BVH files (default: one per CPU)")
     p.add_argument("--exclude", action="append", default=[], metavar="PATTERN",
                    help="skip files whose name or path matches this glob (repeatable)")

@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 import math
 
+from mocapdb.core import domains as D
+
 
 def add_eval_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="accuracy and speed on held-out BVH clips (JSON report)",
@@ -25,20 +27,20 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
                         "run each camera alone through the engine (needs --db) and score it against the TRC")
     p.add_argument("--cameras", help="with --real-take: camera names, e.g. cam_01,cam_03 (default all)")
     p.add_argument("--subjects", help="with --leave-one-subject-out: subjects to hold out, e.g. 1,2 (default all)")
-    p.add_argument("--max-clips", type=int, default=8,
+    p.add_argument("--max-clips", type=D.MAX_CLIPS, default=8,
                    help="with --leave-one-subject-out: clips per subject, evenly spaced (default 8)")
-    p.add_argument("--max-frames", type=int, default=240,
+    p.add_argument("--max-frames", type=D.MAX_FRAMES, default=240,
                    help="with --leave-one-subject-out: frames per clip from its middle, at 24 fps (default 240)")
-    p.add_argument("--clusters", type=int, default=500, help="with --leave-one-subject-out: k-means K (default 500)")
-    p.add_argument("--landmarks", type=int, default=2000,
+    p.add_argument("--clusters", type=D.CLUSTERS, default=500, help="with --leave-one-subject-out: k-means K (default 500)")
+    p.add_argument("--landmarks", type=D.LANDMARKS, default=2000,
                    help="with --leave-one-subject-out: landmark-MDS landmarks (default 2000)")
-    p.add_argument("--workers", type=int, default=2,
+    p.add_argument("--workers", type=D.WORKERS, default=2,
                    help="with --leave-one-subject-out: processes reading BVH files per build (default 2)")
     p.add_argument("--out", help="also write the JSON report to this file")
     p.add_argument("--quick", action="store_true",
                    help="one database: two yaws and two scenarios; leave-one-subject-out: 2 clips per "
                         "subject, 120 frames, two scenarios")
-    p.add_argument("--weight-2d", type=float, default=0.5, help="as in reconstruct")
+    p.add_argument("--weight-2d", type=D.WEIGHT_2D, default=0.5, help="as in reconstruct")
     p.add_argument("--search", choices=("clustered", "exact"), default="clustered")
     p.add_argument("--universal-body", action="store_true",
                    help="the engine keeps the universal skeleton's proportions (as before own bodies: for comparison)")

@@ -18,9 +18,17 @@ COMMANDS = (build.add_build_parser, build.add_inspect_parser, reconstruct.add_re
             render.add_render_parser)
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argparse parser whose usage errors are one line, ``mocapdb COMMAND: error: ...`` (as
+    every other user error), with a pointer to ``--help`` instead of the whole usage block."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def parser() -> argparse.ArgumentParser:
     """The top-level parser with every subcommand; ``args.run(args)`` runs the chosen one."""
-    top = argparse.ArgumentParser(prog="mocapdb", description="Motion capture from ordinary cameras by "
+    top = _Parser(prog="mocapdb", description="Motion capture from ordinary cameras by "
                                   "retrieval in a database of real motion.")
     top.add_argument("--version", action="version", version=f"mocapdb {__version__}")
     top.add_argument("-v", "--verbose", action="count", default=0, help="more diagnostics (-vv: debug)")
@@ -68,9 +76,12 @@ def configure_logging(verbose: int, quiet: bool) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit code: 0 on success, 2 on a user error (one line on
-    stderr, no traceback), 130 when interrupted; a command may return its own code."""
-    args = parser().parse_args(argv)
+    """Run the command line; returns the exit code: 0 on success (and for --help), 2 on a user error
+    (one line on stderr, no traceback), 130 when interrupted; a command may return its own code."""
+    try:
+        args = parser().parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or an option outside its domain (one line printed)
+        return exc.code if isinstance(exc.code, int) else 2
     configure_logging(args.verbose, args.quiet)
     try:
         return args.run(args)

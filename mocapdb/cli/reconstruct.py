@@ -3,26 +3,13 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import os
 import sys
 
+from mocapdb.core import domains as D
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 
 LOG = logging.getLogger("mocapdb.cli")
-
-
-def image_size(text: str) -> tuple[int, int]:
-    """``--image-size WIDTHxHEIGHT`` (pixels) as (width, height); UsageError naming the option."""
-    from mocapdb.core.errors import UsageError
-
-    try:
-        width, height = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise UsageError(f"--image-size takes WIDTHxHEIGHT in pixels, e.g. 1920x1080, not {text!r}") from None
-    if width <= 0 or height <= 0:
-        raise UsageError(f"--image-size {text}: width and height must be positive")
-    return width, height
 
 
 def _add_engine_options(p: argparse.ArgumentParser) -> None:
@@ -34,44 +21,44 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                    choices=tuple(LAYOUTS),
                    help="keypoint layout of the input (default: detected from the keypoint count; 25 keypoints: "
                         "BODY_25 or BODY_25B by geometry); data_specs/keypoint_formats.md")
-    p.add_argument("--fps", type=float,
+    p.add_argument("--fps", type=D.FPS_HZ,
                    help="input frame rate in Hz when frames carry no time (default 30, with a warning)")
     focal = p.add_mutually_exclusive_group()
-    focal.add_argument("--focal", type=float, metavar="PX",
+    focal.add_argument("--focal", type=D.FOCAL_PX, metavar="PX",
                        help="input camera focal length in pixels (default: the input folder's take.json, else a "
                             "typical phone main camera: 26 mm equivalent, with a warning)")
-    focal.add_argument("--fov", type=float, metavar="DEG",
+    focal.add_argument("--fov", type=D.FOV_DEG, metavar="DEG",
                        help="the camera's horizontal field of view in degrees, instead of --focal")
-    focal.add_argument("--focal-35mm", type=float, metavar="MM",
+    focal.add_argument("--focal-35mm", type=D.FOCAL_35MM, metavar="MM",
                        help="the camera's 35 mm-equivalent focal length (as phone specs give it), instead of --focal")
-    p.add_argument("--image-size",
+    p.add_argument("--image-size", type=D.IMAGE_SIZE, metavar="WxH",
                    help="input image WIDTHxHEIGHT in pixels (default: the input folder's take.json, else 1920x1080)")
     p.add_argument("--search", choices=("clustered", "exact"), default="clustered",
                    help="two-level search (the method) or brute force over every projection")
-    p.add_argument("--clusters-searched", type=int, default=5, help="i: nearest clusters searched (default 5)")
-    p.add_argument("--per-cluster", type=int, default=10, help="j: projections taken per cluster (default 10)")
-    p.add_argument("--window-weights", default="0.4,0.3,0.2,0.1",
+    p.add_argument("--clusters-searched", type=D.CLUSTERS_SEARCHED, default=5, help="i: nearest clusters searched (default 5)")
+    p.add_argument("--per-cluster", type=D.PER_CLUSTER, default=10, help="j: projections taken per cluster (default 10)")
+    p.add_argument("--window-weights", type=D.WINDOW_WEIGHTS, default=(0.4, 0.3, 0.2, 0.1), metavar="LIST",
                    help="weights of the last w reconstructed frames, most recent first (default 0.4,0.3,0.2,0.1)")
-    p.add_argument("--weight-2d", type=float, default=0.5,
+    p.add_argument("--weight-2d", type=D.WEIGHT_2D, default=0.5,
                    help="weight of the 2D (Eq. 1) distance added to the temporal cost (default 0.5; 0 is the method)")
-    p.add_argument("--min-cutoff", type=float,
+    p.add_argument("--min-cutoff", type=D.CUTOFF_HZ,
                    help="1€ filter min cutoff for rotations, Hz (default 8; 1 with --no-refine)")
-    p.add_argument("--beta", type=float, help="1€ filter beta for rotations (default 2; 0.3 with --no-refine)")
+    p.add_argument("--beta", type=D.BETA, help="1€ filter beta for rotations (default 2; 0.3 with --no-refine)")
     p.add_argument("--no-refine", action="store_true",
                    help="output the retrieved database pose as it is (the method as published) instead of "
                         "fitting it to the keypoints")
     size = p.add_mutually_exclusive_group()
-    size.add_argument("--subject-height", type=float, metavar="METRES",
+    size.add_argument("--subject-height", type=D.SUBJECT_HEIGHT_M, metavar="METRES",
                       help="the person's standing height in metres: sets the skeleton's size and so the depth "
                            "(default 1.75, the universal skeleton)")
-    size.add_argument("--camera-height", type=float, metavar="METRES",
+    size.add_argument("--camera-height", type=D.CAMERA_HEIGHT_M, metavar="METRES",
                       help="the camera's height above a flat floor the people stand on: each person's size and "
                            "depth are measured from their feet (data_specs/stream_output.md)")
     p.add_argument("--universal-body", action="store_true",
                    help="keep the universal skeleton's proportions (default: each track's own bone proportions "
                         "measured from its 2D)")
     p.add_argument("--no-smoothing", action="store_true", help="turn the 1€ filters off")
-    p.add_argument("--lag-frames", type=int, default=0, metavar="N",
+    p.add_argument("--lag-frames", type=D.LAG_FRAMES, default=0, metavar="N",
                    help="write each frame's line N frames late, every person smoothed over the N frames before "
                         "and after it (--smoothing-hz) instead of by the causal 1€ filters: a latency of N / fps "
                         "for steadier motion (default 0: causal)")
@@ -89,7 +76,7 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                        help="put each track on a floor estimated from its feet: camera pitch levelled, feet on "
                             "y = 0, the pelvis starting above the origin (default: the camera is the origin)")
     files.add_argument("--bvh-unit", choices=("m", "cm"), default="m", help="length unit of the BVH files (default m)")
-    files.add_argument("--smoothing-hz", type=float, default=4.0, metavar="HZ",
+    files.add_argument("--smoothing-hz", type=D.SMOOTHING_HZ, default=4.0, metavar="HZ",
                        help="the track files are each track fitted over the whole take: motion slower than HZ "
                             "kept, jitter faster removed, without lag; planted feet held still, no foot below the "
                             "floor (default 4; 0: no smoothing)")
@@ -98,16 +85,16 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--keep-static", action="store_true",
                    help="also write BVH files for tracks whose keypoints never moved (posters, false detections)")
     limits = p.add_argument_group("limits (0: no limit; data_specs/stream_output.md)")
-    limits.add_argument("--max-tracks", type=int, default=32,
+    limits.add_argument("--max-tracks", type=D.MAX_TRACKS, default=32,
                         help="tracks alive at once; further detections are not tracked, counted (default 32)")
-    limits.add_argument("--max-new-tracks-per-min", type=int, default=120,
+    limits.add_argument("--max-new-tracks-per-min", type=D.MAX_NEW_TRACKS_PER_MIN, default=120,
                         help="tracks started per minute (live: of arrival time; reconstruct: of the input's time); "
                              "further detections wait untracked, counted (default 120)")
-    limits.add_argument("--max-bvh-files", type=int, default=1000,
+    limits.add_argument("--max-bvh-files", type=D.MAX_BVH_FILES, default=1000,
                         help="BVH files per run; further tracks stay in the stream only, counted (default 1000)")
-    limits.add_argument("--min-track-s", type=float, default=0.5,
+    limits.add_argument("--min-track-s", type=D.MIN_TRACK_S, default=0.5,
                         help="a track with fewer seconds of BVH frames gets no BVH file, counted (default 0.5)")
-    limits.add_argument("--bvh-part-min", type=float, default=10.0,
+    limits.add_argument("--bvh-part-min", type=D.BVH_PART_MIN, default=10.0,
                         help="a longer track is written as track_<id>_part<k>.bvh parts of this many minutes, "
                              "each as soon as it is complete (default 10)")
 
@@ -127,7 +114,7 @@ def resolve_take(args: argparse.Namespace, source: str) -> None:
     else:
         take = read_take(source) if source and Path(source).is_dir() else None
         where = str(Path(source) / TAKE_FILE)
-    given_size = image_size(args.image_size) if args.image_size else None
+    given_size = args.image_size
     settings = resolve_camera(take, where, args.fps, given_size, _given_focal(args, given_size, take))
     if settings.sources["focal_px"] == "default":
         LOG.warning("no focal length given: assuming a typical phone main camera, %g mm equivalent (%.0f px for "
@@ -135,29 +122,22 @@ def resolve_take(args: argparse.Namespace, source: str) -> None:
                     *settings.image_size)
     if settings.sources["fps"] != "default":
         args.fps = settings.fps
-    args.image_size = f"{settings.image_size[0]}x{settings.image_size[1]}"
+    args.image_size = settings.image_size
     args.focal = settings.focal_px
     args.camera_sources = settings.sources
 
 
 def _given_focal(args: argparse.Namespace, size: tuple[int, int] | None, take) -> float | None:
     """``--focal`` in pixels, or ``--fov``/``--focal-35mm`` converted for the image (the given size,
-    else the take's, else the default); None when none was given. UsageError for a value out of range."""
-    from mocapdb.core.errors import UsageError
+    else the take's, else the default); None when none was given (each checked by its domain)."""
     from mocapdb.core.formats.take import DEFAULTS, focal_from_35mm, focal_from_fov
 
     size = size or (take.image_size if take is not None and take.image_size else DEFAULTS["image_size"])
     fov, focal_35mm = getattr(args, "fov", None), getattr(args, "focal_35mm", None)
     if fov is not None:
-        if not 1.0 <= fov <= 179.0:
-            raise UsageError(f"--fov {fov:g}: a horizontal field of view between 1 and 179 degrees")
         return focal_from_fov(fov, size)
     if focal_35mm is not None:
-        if not 1.0 <= focal_35mm <= 2000.0:
-            raise UsageError(f"--focal-35mm {focal_35mm:g}: a 35 mm-equivalent focal length between 1 and 2000 mm")
         return focal_from_35mm(focal_35mm, size)
-    if args.focal is not None and not (math.isfinite(args.focal) and 0 < args.focal <= 1e6):
-        raise UsageError(f"--focal {args.focal:g}: a focal length in pixels, positive and finite")
     return args.focal
 
 
@@ -182,19 +162,15 @@ def _engine(args: argparse.Namespace):
     from mocapdb.runtime.engine import Engine, EngineConfig
     from mocapdb.runtime.filters import REFINED_ROTATION_DEFAULTS, OneEuroParams
 
-    width, height = image_size(args.image_size) if args.image_size else DEFAULTS["image_size"]
+    width, height = args.image_size or DEFAULTS["image_size"]
     focal = args.focal if args.focal is not None else default_focal_px((width, height))
-    try:
-        weights = tuple(float(w) for w in args.window_weights.split(","))
-    except ValueError:
-        raise UsageError(f"--window-weights takes numbers separated by commas, not {args.window_weights!r}") from None
     default = OneEuroParams() if args.no_refine else REFINED_ROTATION_DEFAULTS
     try:
         rotation_filter = OneEuroParams(
             min_cutoff_hz=default.min_cutoff_hz if args.min_cutoff is None else args.min_cutoff,
             beta=default.beta if args.beta is None else args.beta)
         config = EngineConfig(search=args.search, n_clusters=args.clusters_searched, per_cluster=args.per_cluster,
-                              window_weights=weights, weight_2d=args.weight_2d, focal_px=focal,
+                              window_weights=tuple(args.window_weights), weight_2d=args.weight_2d, focal_px=focal,
                               image_size=(width, height), fps=args.fps or DEFAULTS["fps"],
                               translation=not args.no_translation,
                               refine_yaw=not args.no_yaw_refinement, refine=not args.no_refine,
@@ -283,7 +259,7 @@ def _preview(args: argparse.Namespace, out_dir) -> None:
     from mocapdb.render.video import contact_sheet
 
     contact_sheet(out_dir, args.input, out_dir / "preview.png", focal=args.focal,
-                  image_size=image_size(args.image_size), name=str(Path(args.out) / "result.jsonl"))
+                  image_size=args.image_size, name=str(Path(args.out) / "result.jsonl"))
 
 
 def _input_size(path: str) -> int | None:
@@ -335,17 +311,17 @@ def add_live_parser(sub: argparse._SubParsersAction) -> None:
                                    "(data_specs/pose_models.md)")
     p.add_argument("--sink", default="-", help="'-' (stdout), a file, tcp://HOST:PORT or udp://HOST:PORT")
     p.add_argument("--bvh-dir", help="folder for the tracks' BVH files, written when the stream ends")
-    p.add_argument("--idle-timeout", type=float,
+    p.add_argument("--idle-timeout", type=D.IDLE_TIMEOUT_S,
                    help="stop after this many seconds without a message (any source; default: never)")
-    p.add_argument("--client-timeout", type=float, default=30.0,
+    p.add_argument("--client-timeout", type=D.CLIENT_TIMEOUT_S, default=30.0,
                    help="tcp:// source: close a client that sends no complete line for this many seconds "
                         "(default 30)")
-    p.add_argument("--max-clients", type=int, default=16,
+    p.add_argument("--max-clients", type=D.MAX_CLIENTS, default=16,
                    help="tcp:// source: simultaneous clients; further connections are refused (default 16)")
-    p.add_argument("--max-rate", type=float, default=1000.0,
+    p.add_argument("--max-rate", type=D.MAX_RATE_HZ, default=1000.0,
                    help="tcp:// and udp:// sources: messages per second per sender address, the excess "
                         "dropped and counted; 0: no limit (default 1000)")
-    p.add_argument("--buffer", type=int, default=2, help="messages buffered before the oldest is dropped (default 2)")
+    p.add_argument("--buffer", type=D.BUFFER_MESSAGES, default=2, help="messages buffered before the oldest is dropped (default 2)")
     _add_engine_options(p)
     p.set_defaults(run=run_live)
 

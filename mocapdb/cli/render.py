@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mocapdb.cli.reconstruct import image_size
+from mocapdb.core import domains as D
 
 
 def add_render_parser(sub: argparse._SubParsersAction) -> None:
@@ -25,16 +25,16 @@ def add_render_parser(sub: argparse._SubParsersAction) -> None:
                    help="the 2D input given to reconstruct (OpenPose folder, .jsonl, MMPose .json, .npy/.npz)")
     p.add_argument("--video", help="the input video, drawn under the skeletons (OpenCV reads it)")
     p.add_argument("--mp4", action="store_true", help="write one MP4 video (mp4v) instead of PNG frames")
-    p.add_argument("--focal", type=float,
+    p.add_argument("--focal", type=D.FOCAL_PX,
                    help="focal length in pixels as given to reconstruct (default 1000; stereo: camera 1's)")
-    p.add_argument("--image-size", metavar="WxH",
+    p.add_argument("--image-size", type=D.IMAGE_SIZE, metavar="WxH",
                    help="input image WIDTHxHEIGHT in pixels as given to reconstruct (default: the video's, else "
                         "1920x1080; stereo: camera 1's)")
     p.add_argument("--view", choices=("both", "image", "3d"), default="both",
                    help="image panel, 3D panel, or both side by side (default both)")
-    p.add_argument("--scale", type=float, default=0.5,
+    p.add_argument("--scale", type=D.RENDER_SCALE, default=0.5,
                    help="output pixels per input pixel (default 0.5)")
-    p.add_argument("--contact-sheet", type=int, metavar="N",
+    p.add_argument("--contact-sheet", type=D.CONTACT_FRAMES, metavar="N",
                    help="write one PNG (--out) holding N evenly spaced frames instead of every frame")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(run=run_render)
@@ -71,10 +71,10 @@ def run_render(args: argparse.Namespace) -> int:
     recorded = None if stereo else recorded_camera(args.result)
     if recorded is not None:  # the run recorded its camera: nothing to type again, a contradiction named
         settings = resolve_camera(recorded, f"the header of {result_path(args.result)}", None,
-                                  image_size(args.image_size) if args.image_size else None, args.focal)
+                                  args.image_size, args.focal)
         camera = image_camera(settings.focal_px, settings.image_size)
     elif args.focal is not None or args.image_size is not None or not stereo:
-        size = image_size(args.image_size) if args.image_size else None
+        size = args.image_size
         if size is None and args.video is not None:
             from mocapdb.render.video import VideoFrames
 
