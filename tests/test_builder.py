@@ -125,7 +125,7 @@ def test_cli_exit_codes(sources, tmp_path, capsys):
     assert "clips 1 (files split at jumps in the data; 0 of them mirrored copies)" in capsys.readouterr().out
     assert load_database(tmp_path / "db").meta["mirror"] is False
     assert main(["build", str(tmp_path / "none"), "--out", str(tmp_path / "x")]) == 2
-    assert "neither a BVH file nor a folder" in capsys.readouterr().err
+    assert "argument sources: " in (err := capsys.readouterr().err) and "none: no such file or folder" in err
     assert main(["inspect", str(sources / "002_03.bvh")]) == 0
     assert "character_creator" in capsys.readouterr().out
 
@@ -443,7 +443,7 @@ def test_engine_commands_verify_checksums_unless_no_verify(small_db_path, tmp_pa
     data = bytearray(frames.read_bytes())
     data[data.index(b"parquet-cpp-arrow")] ^= 1  # a harmless bit: the file still decodes
     frames.write_bytes(bytes(data))
-    for command in (["reconstruct", "in", "--out", "out"], ["live", "--source", "-"]):
+    for command in (["reconstruct", str(tmp_path), "--out", str(tmp_path / "out")], ["live", "--source", "-"]):
         args = cli.parser().parse_args([*command, "--db", str(db)])
         with pytest.raises(DatabaseError, match=r"checksum mismatch: .*frames.parquet .*--no-verify to load it"):
             _engine(args)

@@ -22,7 +22,8 @@ def test_help(command, capsys):
 
 
 def test_stereo_without_intrinsics_is_a_clear_error(tmp_path, capsys):
-    assert main(["stereo", str(tmp_path), str(tmp_path), "--out", str(tmp_path / "out")]) == 2
+    (tmp_path / "view").mkdir()
+    assert main(["stereo", str(tmp_path / "view"), str(tmp_path / "view"), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert "--calibration" in err and "Traceback" not in err
 
@@ -40,12 +41,16 @@ def test_eval_reports_are_strict_json():
 def test_quiet_and_verbose_work_before_and_after_the_command():
     from mocapdb.cli.main import parser
 
-    for argv in (["-q", "inspect", "x.bvh"], ["inspect", "x.bvh", "-q"], ["inspect", "-q", "x.bvh"]):
+    from .conftest import SAMPLE_BVH
+
+    bvh = str(next(SAMPLE_BVH.glob("*.bvh")))
+
+    for argv in (["-q", "inspect", bvh], ["inspect", bvh, "-q"], ["inspect", "-q", bvh]):
         args = parser().parse_args(argv)
         assert args.quiet is True and args.verbose == 0, argv
-    assert parser().parse_args(["inspect", "x.bvh", "-vv"]).verbose == 2
-    assert parser().parse_args(["-v", "inspect", "x.bvh"]).verbose == 1
-    assert parser().parse_args(["inspect", "x.bvh"]).quiet is False
+    assert parser().parse_args(["inspect", bvh, "-vv"]).verbose == 2
+    assert parser().parse_args(["-v", "inspect", bvh]).verbose == 1
+    assert parser().parse_args(["inspect", bvh]).quiet is False
 
 
 def test_the_summary_counts_track_files_per_format(small_db_path, tmp_path, capsys):

@@ -269,7 +269,7 @@ def test_detect_user_errors_exit_2_with_clear_messages(video, yolo_model, tmp_pa
                 "see data_specs/pose_models.md)")
     cases = [((str(video), "--out", str(tmp_path / "o")), no_model),
              ((str(video), "--model", str(tmp_path / "absent.onnx"), "--out", str(tmp_path / "o")),
-              "pose model not found"),
+              "absent.onnx: no such file"),
              ((str(bad_video), "--model", str(yolo_model), "--out", str(tmp_path / "o")), "no frame OpenCV can decode"),
              (("--model", str(yolo_model), "--out", str(tmp_path / "o")), "give either a VIDEO file or --camera N")]
     for argv, message in cases:
@@ -443,11 +443,11 @@ def test_detect_os_errors_name_the_path(video, yolo_model, tmp_path, capsys, mon
              ((str(video), "--model", str(yolo_model), "--out", str(tmp_path / "a_file" / "sub")),
               f"{tmp_path / 'a_file' / 'sub'}: cannot create the output folder (Not a directory)"),
              ((str(tmp_path / "a_folder"), "--model", str(yolo_model), "--out", str(tmp_path / "o")),
-              f"{tmp_path / 'a_folder'}: is a folder, not a video file"),
+              f"{tmp_path / 'a_folder'}: is a folder, not a file"),
              ((str(video), "--model", str(tmp_path / "a_folder"), "--out", str(tmp_path / "o")),
-              f"{tmp_path / 'a_folder'}: is a folder, not a pose model file"),
+              f"{tmp_path / 'a_folder'}: is a folder, not a file"),
              ((str(tmp_path / "absent.avi"), "--model", str(yolo_model), "--out", str(tmp_path / "o")),
-              f"video not found: {tmp_path / 'absent.avi'}")]
+              f"{tmp_path / 'absent.avi'}: no such file")]
     for argv, message in cases:
         assert detect(*argv) == 2
         err = capsys.readouterr().err

@@ -106,8 +106,8 @@ def test_cli_reconstruct_real_openpose_folder(small_db_path, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["reconstruct", "nowhere", "--db", "{db}", "--out", "{tmp}"], "not a folder"),
-    (["reconstruct", "{keypoints}", "--db", "{tmp}/missing", "--out", "{tmp}"], "missing"),
+    (["reconstruct", "nowhere", "--db", "{db}", "--out", "{tmp}"], "argument input: nowhere: no such file or folder"),
+    (["reconstruct", "{keypoints}", "--db", "{tmp}/missing", "--out", "{tmp}"], "missing: no such folder"),
     (["reconstruct", "{keypoints}", "--db", "{db}", "--out", "{tmp}", "--image-size", "big"], "WIDTHxHEIGHT"),
     (["live", "--source", "tcp://nohostport", "--db", "{db}"], "HOST:PORT"),
 ])

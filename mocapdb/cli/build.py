@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import os
 
+from mocapdb.cli import paths as P
 from mocapdb.core import domains as D
 from mocapdb.core.units import UNITS, UP_AXES
 
@@ -14,13 +15,16 @@ def add_build_parser(sub: argparse._SubParsersAction) -> None:
                                    "universal 14-joint skeleton (each also as its left-right mirror image), "
                                    "project every frame from every yaw, embed with landmark MDS, cluster with "
                                    "k-means and write a Parquet database.")
-    p.add_argument("sources", nargs="+", help="BVH files or folders")
-    p.add_argument("--out", required=True,
+    p.add_argument("sources", nargs="+", type=P.INPUT_ANY, help="BVH files or folders")
+    p.add_argument("--out", required=True, type=P.OUTPUT_DIR,
                    help="database directory to write (replaced atomically; a symlink is followed and kept)")
     p.add_argument("--fps", type=D.FPS_HZ, default=24.0, help="database frame rate in Hz (default 24)")
-    p.add_argument("--yaw-step", type=D.YAW_STEP_DEG, default=12.0, help="yaw step in degrees; must divide 360 (default 12)")
-    p.add_argument("--camera-height", type=D.CAMERA_HEIGHT_M, default=1.5, help="camera height above the floor, metres (default 1.5)")
-    p.add_argument("--camera-distance", type=D.CAMERA_DISTANCE_M, default=4.0, help="camera to pelvis, metres (default 4)")
+    p.add_argument("--yaw-step", type=D.YAW_STEP_DEG, default=12.0,
+                   help="yaw step in degrees; must divide 360 (default 12)")
+    p.add_argument("--camera-height", type=D.CAMERA_HEIGHT_M, default=1.5,
+                   help="camera height above the floor, metres (default 1.5)")
+    p.add_argument("--camera-distance", type=D.CAMERA_DISTANCE_M, default=4.0,
+                   help="camera to pelvis, metres (default 4)")
     p.add_argument("--focal", type=D.FOCAL_PX, default=1000.0, help="focal length in pixels (default 1000)")
     p.add_argument("--clusters", type=D.CLUSTERS, default=500, help="k-means clusters K (default 500)")
     p.add_argument("--dims", type=D.DIMS, default=5, help="MDS embedding dimensions (default 5)")
@@ -28,15 +32,16 @@ def add_build_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=D.SEED, default=0, help="random seed (the build is deterministic for a seed)")
     p.add_argument("--workers", type=D.WORKERS, default=os.cpu_count() or 1,
                    help="processes reading BVH files (default: one per CPU)")
-    p.add_argument("--exclude", action="append", default=[], metavar="PATTERN",
+    p.add_argument("--exclude", action="append", type=P.TextArg("a glob pattern"), default=[], metavar="PATTERN",
                    help="skip files whose name or path matches this glob (repeatable)")
     p.add_argument("--strict", action="store_true",
                    help="fail the build when any file is skipped (by default a file that cannot be read, "
                         "mapped or retargeted is skipped and named with the reason)")
-    p.add_argument("--joint-map", help="TOML file mapping skeleton roles to source joint names")
+    p.add_argument("--joint-map", type=P.INPUT_FILE, help="TOML file mapping skeleton roles to source joint names")
     p.add_argument("--unit", choices=UNITS, help="length unit of the BVH files (default: detected)")
     p.add_argument("--up-axis", choices=UP_AXES, help="up axis of the BVH files (default: detected)")
-    p.add_argument("--credit", help="credit/licence text stored with every clip (default: nearest CREDIT.txt)")
+    p.add_argument("--credit", type=P.TextArg("a credit text"),
+                   help="credit/licence text stored with every clip (default: nearest CREDIT.txt)")
     p.add_argument("--no-mirror", action="store_true",
                    help="store only the clips as captured, not also their left-right mirror images")
     p.set_defaults(run=run_build)
@@ -67,8 +72,8 @@ def add_inspect_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("inspect", help="show how a BVH file maps onto the universal skeleton",
                        description="Print a BVH file's detected rig convention, unit, up axis and the "
                                    "source joint used for each skeleton role.")
-    p.add_argument("bvh", help="BVH file")
-    p.add_argument("--joint-map", help="TOML file mapping skeleton roles to source joint names")
+    p.add_argument("bvh", type=P.INPUT_FILE, help="BVH file")
+    p.add_argument("--joint-map", type=P.INPUT_FILE, help="TOML file mapping skeleton roles to source joint names")
     p.add_argument("--unit", choices=UNITS, help="length unit (default: detected)")
     p.add_argument("--up-axis", choices=UP_AXES, help="up axis (default: detected)")
     p.set_defaults(run=run_inspect)

@@ -5,6 +5,7 @@ import argparse
 import threading
 from pathlib import Path
 
+from mocapdb.cli import paths as P
 from mocapdb.core import domains as D
 from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU, NO_MODEL
 
@@ -16,13 +17,16 @@ def add_detect_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
                                    "on each frame with onnxruntime (CPU) and write OUT/<video>_<frame>_keypoints.json "
                                    "in OpenPose's COCO-18 layout, ready for `mocapdb reconstruct` or `live`. "
                                    "Model layouts: data_specs/pose_models.md.")
-    p.add_argument("video", nargs="?", help="video file (any format OpenCV's FFmpeg decodes)")
+    p.add_argument("video", nargs="?", type=P.INPUT_FILE, help="video file (any format OpenCV's FFmpeg decodes)")
     p.add_argument("--camera", type=D.CAMERA_INDEX, metavar="N", help="read camera N instead of a file (Ctrl-C ends)")
-    p.add_argument("--model", metavar="POSE.onnx",
+    p.add_argument("--model", metavar="POSE.onnx", type=P.INPUT_FILE,
                    help="pose model: a YOLO-pose or RTMO ONNX export (see data_specs/pose_models.md)")
-    p.add_argument("--out", required=True, metavar="DIR", help="folder for the JSON files (created if missing)")
-    p.add_argument("--every", type=D.DETECT_EVERY, default=1, metavar="N", help="detect every N-th frame only (default 1)")
-    p.add_argument("--max-people", type=D.MAX_PEOPLE, metavar="N", help="keep the N best-scoring people per frame (default all)")
+    p.add_argument("--out", required=True, metavar="DIR", type=P.OUTPUT_DIR,
+                   help="folder for the JSON files (created if missing)")
+    p.add_argument("--every", type=D.DETECT_EVERY, default=1, metavar="N",
+                   help="detect every N-th frame only (default 1)")
+    p.add_argument("--max-people", type=D.MAX_PEOPLE, metavar="N",
+                   help="keep the N best-scoring people per frame (default all)")
     p.add_argument("--conf", type=D.CONF, default=DEFAULT_CONF,
                    help=f"least person score kept (default {DEFAULT_CONF})")
     p.add_argument("--iou", type=D.IOU, default=DEFAULT_IOU, help=f"NMS IoU threshold (default {DEFAULT_IOU})")

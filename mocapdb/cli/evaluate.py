@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import math
 
+from mocapdb.cli import paths as P
 from mocapdb.core import domains as D
 
 
@@ -17,26 +18,29 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
                                    "--leave-one-subject-out (a database per subject; table on stdout) or "
                                    "--db with --real-take (each camera of a calibrated Pose2Sim take alone, "
                                    "against its multi-camera triangulation; table on stdout).")
-    p.add_argument("--db", help="database built WITHOUT the held-out clips")
-    p.add_argument("--bvh", nargs="+", help="held-out BVH files or folders")
-    p.add_argument("--leave-one-subject-out", nargs="+", metavar="SOURCE", dest="loso",
+    p.add_argument("--db", type=P.INPUT_DIR, help="database built WITHOUT the held-out clips")
+    p.add_argument("--bvh", nargs="+", type=P.INPUT_ANY, help="held-out BVH files or folders")
+    p.add_argument("--leave-one-subject-out", nargs="+", type=P.INPUT_ANY, metavar="SOURCE", dest="loso",
                    help="BVH files or folders named SUBJECT_TRIAL.bvh: build a database without each "
                         "subject in turn (in a temporary folder) and evaluate that subject on it")
-    p.add_argument("--real-take", metavar="FOLDER",
+    p.add_argument("--real-take", metavar="FOLDER", type=P.INPUT_DIR,
                    help="a Pose2Sim take (calibration.toml, triangulated_4cam.trc, openpose_body25b/camNN_json): "
                         "run each camera alone through the engine (needs --db) and score it against the TRC")
-    p.add_argument("--cameras", help="with --real-take: camera names, e.g. cam_01,cam_03 (default all)")
-    p.add_argument("--subjects", help="with --leave-one-subject-out: subjects to hold out, e.g. 1,2 (default all)")
+    p.add_argument("--cameras", type=P.TextArg("a list of camera names"),
+                   help="with --real-take: camera names, e.g. cam_01,cam_03 (default all)")
+    p.add_argument("--subjects", type=P.TextArg("a list of subjects"),
+                   help="with --leave-one-subject-out: subjects to hold out, e.g. 1,2 (default all)")
     p.add_argument("--max-clips", type=D.MAX_CLIPS, default=8,
                    help="with --leave-one-subject-out: clips per subject, evenly spaced (default 8)")
     p.add_argument("--max-frames", type=D.MAX_FRAMES, default=240,
                    help="with --leave-one-subject-out: frames per clip from its middle, at 24 fps (default 240)")
-    p.add_argument("--clusters", type=D.CLUSTERS, default=500, help="with --leave-one-subject-out: k-means K (default 500)")
+    p.add_argument("--clusters", type=D.CLUSTERS, default=500,
+                   help="with --leave-one-subject-out: k-means K (default 500)")
     p.add_argument("--landmarks", type=D.LANDMARKS, default=2000,
                    help="with --leave-one-subject-out: landmark-MDS landmarks (default 2000)")
     p.add_argument("--workers", type=D.WORKERS, default=2,
                    help="with --leave-one-subject-out: processes reading BVH files per build (default 2)")
-    p.add_argument("--out", help="also write the JSON report to this file")
+    p.add_argument("--out", type=P.OUTPUT, help="also write the JSON report to this file")
     p.add_argument("--quick", action="store_true",
                    help="one database: two yaws and two scenarios; leave-one-subject-out: 2 clips per "
                         "subject, 120 frames, two scenarios")

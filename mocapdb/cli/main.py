@@ -11,6 +11,7 @@ import sys
 
 from mocapdb import __version__
 from mocapdb.cli import build, detect, evaluate, reconstruct, render, stereo
+from mocapdb.cli.paths import check_outputs_apart
 from mocapdb.core.errors import MocapdbError
 
 COMMANDS = (build.add_build_parser, build.add_inspect_parser, reconstruct.add_reconstruct_parser,
@@ -42,6 +43,12 @@ def parser() -> argparse.ArgumentParser:
         command.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                              help="errors only: no warnings, no progress bars")
     return top
+
+
+def command_parser(name: str) -> argparse.ArgumentParser:
+    """The parser of subcommand ``name``."""
+    sub = next(a for a in parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices[name]
 
 
 def error_text(exc: BaseException) -> str:
@@ -84,6 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         return exc.code if isinstance(exc.code, int) else 2
     configure_logging(args.verbose, args.quiet)
     try:
+        check_outputs_apart(command_parser(args.command), args)
         return args.run(args)
     except (MocapdbError, OSError) as exc:
         print(f"mocapdb {args.command}: error: {error_text(exc)}", file=sys.stderr)

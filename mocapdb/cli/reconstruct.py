@@ -6,6 +6,7 @@ import logging
 import os
 import sys
 
+from mocapdb.cli import paths as P
 from mocapdb.core import domains as D
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 
@@ -13,7 +14,7 @@ LOG = logging.getLogger("mocapdb.cli")
 
 
 def _add_engine_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--db", required=True, help="database directory written by `mocapdb build`")
+    p.add_argument("--db", required=True, type=P.INPUT_DIR, help="database directory written by `mocapdb build`")
     p.add_argument("--no-verify", action="store_true",
                    help="skip checking the database files' sha256 checksums on load (sizes, row counts and "
                         "finite values are still checked)")
@@ -35,8 +36,10 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                    help="input image WIDTHxHEIGHT in pixels (default: the input folder's take.json, else 1920x1080)")
     p.add_argument("--search", choices=("clustered", "exact"), default="clustered",
                    help="two-level search (the method) or brute force over every projection")
-    p.add_argument("--clusters-searched", type=D.CLUSTERS_SEARCHED, default=5, help="i: nearest clusters searched (default 5)")
-    p.add_argument("--per-cluster", type=D.PER_CLUSTER, default=10, help="j: projections taken per cluster (default 10)")
+    p.add_argument("--clusters-searched", type=D.CLUSTERS_SEARCHED, default=5,
+                   help="i: nearest clusters searched (default 5)")
+    p.add_argument("--per-cluster", type=D.PER_CLUSTER, default=10,
+                   help="j: projections taken per cluster (default 10)")
     p.add_argument("--window-weights", type=D.WINDOW_WEIGHTS, default=(0.4, 0.3, 0.2, 0.1), metavar="LIST",
                    help="weights of the last w reconstructed frames, most recent first (default 0.4,0.3,0.2,0.1)")
     p.add_argument("--weight-2d", type=D.WEIGHT_2D, default=0.5,
@@ -65,7 +68,7 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-translation", action="store_true", help="keep the pelvis at the origin")
     p.add_argument("--no-yaw-refinement", action="store_true", help="keep the database's yaw grid (12° steps)")
     files = p.add_argument_group("track files (data_specs/stream_output.md)")
-    files.add_argument("--format", default="bvh", metavar="LIST",
+    files.add_argument("--format", default="bvh", type=P.TextArg("a list of formats"), metavar="LIST",
                        help="files per track, comma-separated: bvh (animation), trc (OpenSim/Pose2Sim markers, "
                             "metres), csv (joint positions, metres); default bvh")
     files.add_argument("--rig", choices=("universal", "humanoid"), default="universal",
@@ -218,10 +221,11 @@ def add_reconstruct_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("reconstruct", help="2D keypoint files → 3D skeletons (JSON lines) and BVH per person",
                        description="Reconstruct every frame of a folder of OpenPose JSON files or a JSON-lines "
                                    "keypoint file; writes OUT/result.jsonl and OUT/track_<id>.bvh.")
-    p.add_argument("input", help="folder of OpenPose JSON frames, a .jsonl/.ndjson file, an MMPose prediction "
-                                 ".json, or a .npy/.npz keypoint array [T, K, 3] or [T, P, K, 3] (x, y, confidence) "
-                                 "or RTMLib keypoints + scores (layout detected from the keypoint count)")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("input", type=P.INPUT_ANY,
+                   help="folder of OpenPose JSON frames, a .jsonl/.ndjson file, an MMPose prediction "
+                        ".json, or a .npy/.npz keypoint array [T, K, 3] or [T, P, K, 3] (x, y, confidence) "
+                        "or RTMLib keypoints + scores (layout detected from the keypoint count)")
+    p.add_argument("--out", required=True, type=P.OUTPUT_DIR, help="output folder")
     p.add_argument("--preview", action="store_true",
                    help="also write OUT/preview.png: a contact sheet of 12 frames, the re-projected tracks over the "
                         "input keypoints beside a 3D view (`mocapdb render` draws every frame)")
@@ -305,12 +309,14 @@ def add_live_parser(sub: argparse._SubParsersAction) -> None:
                        description="Read keypoints as they arrive (a folder being written by a detector, "
                                    "'-' for stdin, tcp://HOST:PORT or udp://HOST:PORT to listen on), write one "
                                    "JSON line per frame to the sink, and a BVH per track on exit (Ctrl-C).")
-    p.add_argument("--source", required=True,
+    p.add_argument("--source", required=True, type=P.STREAM_SOURCE,
                    help="folder, '-', tcp://HOST:PORT or udp://HOST:PORT; with --model: a video file or a camera index")
-    p.add_argument("--model", help="YOLO-pose or RTMO ONNX export: detect people in the --source video/camera "
-                                   "(data_specs/pose_models.md)")
-    p.add_argument("--sink", default="-", help="'-' (stdout), a file, tcp://HOST:PORT or udp://HOST:PORT")
-    p.add_argument("--bvh-dir", help="folder for the tracks' BVH files, written when the stream ends")
+    p.add_argument("--model", type=P.INPUT_FILE,
+                   help="YOLO-pose or RTMO ONNX export: detect people in the --source video/camera "
+                        "(data_specs/pose_models.md)")
+    p.add_argument("--sink", default="-", type=P.STREAM_SINK,
+                   help="'-' (stdout), a file, tcp://HOST:PORT or udp://HOST:PORT")
+    p.add_argument("--bvh-dir", type=P.OUTPUT, help="folder for the tracks' BVH files, written when the stream ends")
     p.add_argument("--idle-timeout", type=D.IDLE_TIMEOUT_S,
                    help="stop after this many seconds without a message (any source; default: never)")
     p.add_argument("--client-timeout", type=D.CLIENT_TIMEOUT_S, default=30.0,
@@ -321,7 +327,8 @@ def add_live_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-rate", type=D.MAX_RATE_HZ, default=1000.0,
                    help="tcp:// and udp:// sources: messages per second per sender address, the excess "
                         "dropped and counted; 0: no limit (default 1000)")
-    p.add_argument("--buffer", type=D.BUFFER_MESSAGES, default=2, help="messages buffered before the oldest is dropped (default 2)")
+    p.add_argument("--buffer", type=D.BUFFER_MESSAGES, default=2,
+                   help="messages buffered before the oldest is dropped (default 2)")
     _add_engine_options(p)
     p.set_defaults(run=run_live)
 

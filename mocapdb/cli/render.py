@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from mocapdb.cli import paths as P
 from mocapdb.core import domains as D
 
 
@@ -17,13 +18,14 @@ def add_render_parser(sub: argparse._SubParsersAction) -> None:
                     "dark background), beside an orthographic 3D view with a floor grid. Writes OUT/frame_NNNNNN.png "
                     "or, with --mp4, one video. For the output of `mocapdb stereo` (a folder holding cameras.json) "
                     "without --keypoints: one picture of the two cameras and the motion (top and oblique views).")
-    p.add_argument("result", help="the --out folder of `mocapdb reconstruct` or `mocapdb stereo` (or its result.jsonl)")
-    p.add_argument("--out", required=True,
+    p.add_argument("result", type=P.INPUT_ANY,
+                   help="the --out folder of `mocapdb reconstruct` or `mocapdb stereo` (or its result.jsonl)")
+    p.add_argument("--out", required=True, type=P.OUTPUT,
                    help="folder for PNG frames; with --mp4 a .mp4 file (or a folder: OUT/render.mp4); for the "
                         "stereo plot a .png file")
-    p.add_argument("--keypoints", metavar="INPUT",
+    p.add_argument("--keypoints", metavar="INPUT", type=P.INPUT_ANY,
                    help="the 2D input given to reconstruct (OpenPose folder, .jsonl, MMPose .json, .npy/.npz)")
-    p.add_argument("--video", help="the input video, drawn under the skeletons (OpenCV reads it)")
+    p.add_argument("--video", type=P.INPUT_FILE, help="the input video, drawn under the skeletons (OpenCV reads it)")
     p.add_argument("--mp4", action="store_true", help="write one MP4 video (mp4v) instead of PNG frames")
     p.add_argument("--focal", type=D.FOCAL_PX,
                    help="focal length in pixels as given to reconstruct (default 1000; stereo: camera 1's)")

@@ -2,9 +2,10 @@
 from __future__ import annotations
 
 import argparse
-import math
 from typing import TYPE_CHECKING
 
+from mocapdb.cli import paths as P
+from mocapdb.core import domains as D
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 
 if TYPE_CHECKING:
@@ -36,12 +37,6 @@ def cameras_from_args(args: argparse.Namespace) -> tuple[CameraModel, CameraMode
     if args.focal is None or args.size is None:
         raise StereoError("give the intrinsics: --calibration FILE.toml --cameras NAME1 NAME2, "
                           "or --focal F --size W H [--center CX CY]")
-    if not (math.isfinite(args.focal) and args.focal > 0):
-        raise StereoError(f"--focal {args.focal:g} is not a positive focal length in pixels")
-    if min(args.size) <= 0:
-        raise StereoError(f"--size {args.size[0]} {args.size[1]} is not a positive width and height in pixels")
-    if args.center is not None and not all(math.isfinite(c) for c in args.center):
-        raise StereoError(f"--center {args.center[0]:g} {args.center[1]:g} is not two finite pixel coordinates")
     size = (int(args.size[0]), int(args.size[1]))
     center = tuple(args.center) if args.center else (size[0] / 2, size[1] / 2)
     return tuple(camera_from_intrinsics(args.focal, center, size) for _ in range(2))  # type: ignore[return-value]
@@ -60,20 +55,23 @@ def add_stereo_parser(sub: argparse._SubParsersAction) -> None:
                     "OUT/stereo_track_<id>.bvh for the others (universal rig, one y-up world). Intrinsics are "
                     "needed; with --calibration only the intrinsics and distortion of the two named cameras are "
                     "used, never their extrinsics.")
-    p.add_argument("view1", help="folder of OpenPose JSON frames from camera 1 (the output's reference)")
-    p.add_argument("view2", help="folder of OpenPose JSON frames from camera 2 (same frames, same rate)")
-    p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--calibration", help="Pose2Sim calibration TOML: intrinsics and distortion of --cameras")
-    p.add_argument("--cameras", nargs=2, metavar=("NAME1", "NAME2"),
+    p.add_argument("view1", type=P.INPUT_DIR,
+                   help="folder of OpenPose JSON frames from camera 1 (the output's reference)")
+    p.add_argument("view2", type=P.INPUT_DIR,
+                   help="folder of OpenPose JSON frames from camera 2 (same frames, same rate)")
+    p.add_argument("--out", required=True, type=P.OUTPUT_DIR, help="output folder")
+    p.add_argument("--calibration", type=P.INPUT_FILE,
+                   help="Pose2Sim calibration TOML: intrinsics and distortion of --cameras")
+    p.add_argument("--cameras", nargs=2, type=P.TextArg("a camera name"), metavar=("NAME1", "NAME2"),
                    help="section names of the two cameras in --calibration, e.g. cam_01 cam_02")
-    p.add_argument("--focal", type=float, help="focal length in pixels (both cameras, no distortion)")
-    p.add_argument("--center", type=float, nargs=2, metavar=("CX", "CY"),
+    p.add_argument("--focal", type=D.FOCAL_PX, help="focal length in pixels (both cameras, no distortion)")
+    p.add_argument("--center", type=D.PIXEL_COORDINATE, nargs=2, metavar=("CX", "CY"),
                    help="principal point in pixels (default: the image centre)")
-    p.add_argument("--size", type=int, nargs=2, metavar=("W", "H"), help="image size in pixels")
-    p.add_argument("--camera-distance", type=float, metavar="M",
+    p.add_argument("--size", type=D.IMAGE_SIDE_PX, nargs=2, metavar=("W", "H"), help="image size in pixels")
+    p.add_argument("--camera-distance", type=D.BASELINE_M, metavar="M",
                    help="distance between the cameras in metres, for metric output (default: metres from the "
                         "universal skeleton's leg length)")
-    p.add_argument("--fps", type=float, default=30.0, help="frame rate of both views in Hz (default 30)")
+    p.add_argument("--fps", type=D.FPS_HZ, default=30.0, help="frame rate of both views in Hz (default 30)")
     p.add_argument("--keypoints", choices=tuple(LAYOUTS), help="keypoint layout of the JSON (default: detected)")
     p.add_argument("--trim", action="store_true",
                    help="when the views' frame counts differ, cut both to the shorter (they must start together)")

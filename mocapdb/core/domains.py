@@ -121,7 +121,7 @@ class NumberListArg:
         for v in values:
             self.item.check(v, name)
         if not any(values):
-            raise DomainError(f"{name}: the values cannot all be 0")
+            raise DomainError(f"{name}: the values must not all be 0")
         return values
 
     def __call__(self, text: str) -> tuple[float, ...]:

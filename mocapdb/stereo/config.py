@@ -5,11 +5,11 @@ Coordinates: camera 1's OpenCV axes (x right, y down, z forward), the baseline =
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from mocapdb.core.domains import BASELINE_M
 from mocapdb.core.errors import MocapdbError
 
 # The files `mocapdb stereo` writes (``data_specs/stream_output.md``); one BVH per person (``bvh_name``).
@@ -48,10 +48,7 @@ class StereoConfig:
     noise_correction: bool = True     # remove triangulation-noise bias from the ellipsoid fit (not in the paper)
 
     def __post_init__(self) -> None:
-        distance = self.camera_distance_m
-        if distance is not None and not (isinstance(distance, (int, float)) and math.isfinite(distance)
-                                         and distance > 0):
-            raise StereoError(f"camera distance (--camera-distance) {distance!r} is not a positive number of metres")
+        BASELINE_M.check_optional(self.camera_distance_m, "camera_distance_m (--camera-distance)")
 
 
 @dataclass

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.cameras import CameraModel
+from mocapdb.core.domains import FPS_HZ
 from mocapdb.core.formats.keypoints import KeypointFrame
 from mocapdb.core.progress import progress
 from mocapdb.stereo.config import StereoConfig, StereoError, StereoResult
@@ -68,8 +69,7 @@ def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, 
     ``cam1``, ``cam2``: intrinsics and distortion (their extrinsics are not used). ``fps`` (Hz)
     times the frames. Raises StereoError, CalibrationError or KeypointError with a clear message.
     """
-    if not (np.isfinite(fps) and fps > 0):
-        raise StereoError(f"frame rate {fps!r} is not a positive number of frames per second")
+    FPS_HZ.check(fps, "fps (--fps)")
     check_out_dir(out_dir)
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
