@@ -17,7 +17,10 @@ from __future__ import annotations
 
 import importlib
 
+from mocapdb.core.kernel_cache import choose_kernel_cache
+
 __version__ = "0.1.0"
+choose_kernel_cache()  # before any module defines a numba kernel: where numba may cache them
 
 _API = {
     "build": "mocapdb.builder.pipeline",

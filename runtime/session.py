@@ -24,7 +24,7 @@ import numpy as np
 from mocapdb.core import domains as D
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.exports import TrackExport, write_track_files
-from mocapdb.core.formats.keypoints import KeypointError, KeypointFrame
+from mocapdb.core.formats.keypoints import LAYOUTS, KeypointError, KeypointFrame
 from mocapdb.core.formats.openpose import parse_stream_line
 from mocapdb.core.outputs import TrackRecording, frame_line, header_line
 from mocapdb.core.progress import compile_notice, kernels_cached
@@ -113,7 +113,8 @@ class SessionSummary:
                  f"latency p50 {p50:.2f} ms, p99 {p99:.2f} ms; throughput "
                  f"{self.frames / max(self.wall_s, 1e-9):.1f} frames/s over {self.wall_s:.2f} s",
                  f"skipped: stale {self.stream.dropped_stale}, oversized {self.stream.oversized}, "
-                 f"not UTF-8 {self.stream.decode_errors}, undelivered output lines {self.stream.sink_dropped}"]
+                 f"not UTF-8 {self.stream.decode_errors}, undelivered output lines {self.stream.sink_dropped}"
+                 + (f", folder entries not regular files {self.stream.not_regular}" if self.stream.not_regular else "")]
         lines += [f"skipped malformed ({n}): {why}" + (f" (first in {self.malformed_first[why]})"
                                                          if why in self.malformed_first else "")
                   for why, n in self.malformed.most_common()]
@@ -133,20 +134,36 @@ class SessionSummary:
 
 
 class FrameParser:
-    """Messages → frames: numbers frames without an index, keeps the first detected layout."""
+    """Messages → frames: numbers frames without an index. ``layout`` (``--keypoints``) holds for
+    every person; without it a person's layout is its own or its line's, else the first one seen
+    for its keypoint count (so BODY_25 or BODY_25B is decided once), else detected from that count:
+    a stream whose layout changes keeps every frame, and the first change is logged."""
 
     def __init__(self, layout: str | None = None):
         self.layout = layout
         self.next_index = 0
+        self.known: dict[int, str] = {}    # keypoint count → the layout first seen with it
+        self.current: str | None = None    # the layout of the last frame with people that shared one
+        self.layout_changes = 0
 
     def __call__(self, message: RawMessage) -> KeypointFrame:
-        frame = parse_stream_line(message.payload, self.layout)
-        if self.layout is None and frame.people and frame.layout is not None:
-            self.layout = frame.layout
+        frame = parse_stream_line(message.payload, self.layout, self.known)
         if frame.index < 0:
             frame.index = self.next_index
         self.next_index = frame.index + 1
+        if frame.people and frame.layout is not None:
+            self._seen(frame)
         return frame
+
+    def _seen(self, frame: KeypointFrame) -> None:
+        self.known.setdefault(len(LAYOUTS[frame.layout]), frame.layout)
+        if self.current not in (None, frame.layout):
+            if not self.layout_changes:
+                LOG.warning("the keypoint layout changed from %s to %s (in frame %d); each frame's layout is "
+                            "taken from its own keypoint count (further changes are not logged)",
+                            self.current, frame.layout, frame.index)
+            self.layout_changes += 1
+        self.current = frame.layout
 
 
 class InputError(MocapdbError, ValueError):

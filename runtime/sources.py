@@ -15,6 +15,9 @@ Choices:
   after that time stops being recent, for file systems with coarse time stamps, and every
   ``rescan_s`` as a safety net), and only names not seen before are looked at: an idle folder
   costs one ``stat`` per poll however many files it holds.
+- Folder: an entry named like a frame that is not a regular file when listed (a dangling or looping
+  symlink, a FIFO, a device, a folder) is never opened nor waited on: it is skipped for good, counted
+  (``StreamStats.not_regular``) and named in one warning (:func:`~mocapdb.core.formats.openpose.frame_entries`).
 """
 from __future__ import annotations
 
@@ -29,7 +32,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from mocapdb.core.formats.openpose import frame_order_key, is_frame_file
+from mocapdb.core.formats.openpose import frame_entries, frame_order_key
 from mocapdb.runtime.source_base import READ_BYTES, LineSplitter, Source
 from mocapdb.runtime.stream_types import RawMessage
 
@@ -95,13 +98,12 @@ class FolderSource(Source):
         self._listed = (self._folder_mtime(), time.time_ns(), time.monotonic())
         self.scans += 1
         try:
-            with os.scandir(self.folder) as entries:
-                new = [e.name for e in entries
-                       if is_frame_file(e.name) and e.name not in self._known and e.is_file()]
+            new, skipped = frame_entries(self.folder, self._known)
         except OSError:
             return
+        self._known.update(new + skipped)   # a name not a regular file when listed is skipped for good
+        self.stats.add(not_regular=len(skipped))
         if new:
-            self._known.update(new)
             self._pending = sorted(self._pending + new, key=frame_order_key)
 
     def _take_ready(self) -> Iterator[RawMessage]:
@@ -120,7 +122,8 @@ class FolderSource(Source):
 
     def _read(self, path: Path) -> tuple[bytes | None, tuple[int, int]]:
         """At most one byte over the limit (enough to tell it is oversized) and the file's
-        (size, mtime); None for a file that vanished or is not a regular file (never blocks on a FIFO)."""
+        (size, mtime); None for a file that vanished, is not a regular file or cannot be read (never
+        blocks: a FIFO, or a file that would block, such as ``/proc/kmsg`` behind a symlink)."""
         try:
             fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
         except OSError:
@@ -129,7 +132,11 @@ class FolderSource(Source):
             st = os.fstat(fd)
             if not stat.S_ISREG(st.st_mode):
                 return None, (0, 0)
-            return f.read(self.max_message_bytes + 1), (st.st_size, st.st_mtime_ns)
+            try:
+                data = f.read(self.max_message_bytes + 1)
+            except OSError:
+                return None, (0, 0)
+            return data, (st.st_size, st.st_mtime_ns)
 
     def _ready(self, name: str) -> bytes | None:
         """The file's bytes once it parses as JSON or has not changed for ``settle_s`` (b"" if it

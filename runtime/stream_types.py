@@ -32,6 +32,7 @@ class StreamStats:
     rate_limited: int = 0       # input messages over a sender's rate limit, skipped
     clients_refused: int = 0    # TCP source: connections closed because max_clients were connected
     clients_timed_out: int = 0  # TCP source: clients closed after client_timeout_s without a line
+    not_regular: int = 0        # folder source: *.json entries not regular files (dangling links, FIFOs...), skipped
 
     def add(self, **counts: int) -> None:
         """Adds to the named counters; safe from any thread."""

@@ -12,9 +12,10 @@ below is re-exported here.
 - :class:`LiveInput` (:mod:`~mocapdb.runtime.buffering`) runs a source in a background thread
   behind a small drop-oldest buffer, so a slow engine skips stale frames instead of falling further
   and further behind; ``reconstruct`` iterates the source itself and processes every frame.
-- Bad input never raises: oversized messages, non-UTF-8 payloads, messages over a sender's rate and
-  undelivered output lines are counted in :class:`StreamStats` (:mod:`~mocapdb.runtime.stream_types`)
-  and skipped. Blank messages are skipped silently.
+- Bad input never raises: oversized messages, non-UTF-8 payloads, messages over a sender's rate,
+  folder entries that are not regular files and undelivered output lines are counted in
+  :class:`StreamStats` (:mod:`~mocapdb.runtime.stream_types`) and skipped. Blank messages are
+  skipped silently.
 """
 from __future__ import annotations
 

@@ -216,7 +216,7 @@ BAD_FILES = {
     "nan_motion.bvh": (lambda t: _first_value(t, "nan"),
                        "NaN or infinite value in the MOTION data (frame 0, RL_BoneRoot Xposition"),
     "inf_motion.bvh": (lambda t: _first_value(t, "-inf"), "NaN or infinite value in the MOTION data"),
-    "overflow.bvh": (lambda t: _first_value(t, "1e308"), "NaN or infinite joint positions after retargeting"),
+    "overflow.bvh": (lambda t: _first_value(t, "1e308"), "Xposition 1e+308 is beyond 1e+07 units (10 km"),
     "short.bvh": (lambda t: t.replace("Frames: 86", "Frames: 87"), "header says 87 frames but only 86 are present"),
     "absurd.bvh": (lambda t: t.replace("Frames: 86", "Frames: 99999999"), ":672: Frames: 99999999 is absurd"),
     "boom.bvh": (lambda t: t, "unexpected ZeroDivisionError: float division by zero"),
@@ -449,3 +449,19 @@ def test_engine_commands_verify_checksums_unless_no_verify(small_db_path, tmp_pa
             _engine(args)
         args = cli.parser().parse_args([*command, "--db", str(db), "--no-verify"])
         assert _engine(args).db.n_frames == load_database(small_db_path).n_frames
+
+
+def test_a_build_with_every_source_skipped_names_each_reason(tmp_path, capsys):
+    """Every file skipped: each is printed with its reason before the one error line (exit 2), no database."""
+    folder = tmp_path / "src"
+    folder.mkdir()
+    (folder / "cut.bvh").write_text("HIERARCHY\nROOT x\n{\n")
+    (folder / "notes.bvh").write_text("not motion capture\n")
+    assert main(["build", str(folder), "--out", str(tmp_path / "db"), "--workers", "1"]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.split(": ")[0] for line in lines[:2]] == [f"skipped {folder / 'cut.bvh'}",
+                                                           f"skipped {folder / 'notes.bvh'}"]
+    assert all(line.split(": ", 1)[1].strip() for line in lines[:2])   # each with its reason
+    assert lines[2:] == ["mocapdb build: error: no readable BVH clip among the sources: all 2 BVH file(s) were "
+                         "skipped"]
+    assert not (tmp_path / "db").exists()

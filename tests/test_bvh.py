@@ -1,4 +1,6 @@
 """BVH reading, writing and forward kinematics against hand-computed poses."""
+import os
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -196,7 +198,7 @@ def test_utf8_byte_order_mark_is_accepted(tmp_path):
     (ARM.replace("Frame Time: 0.0083333", "Frame Time: 1e9"), "Frame Time: 1e9 is not a frame duration"),
     (ARM.replace("OFFSET 10.0 0.0 0.0", "OFFSET 10.0 nan 0.0"), r"bad.bvh:8: OFFSET of 'elbow' is not finite"),
     (ARM.replace("OFFSET 1.0 2.0 3.0", "OFFSET 1.0 -inf 3.0"), r"bad.bvh:4: OFFSET of 'root' is not finite"),
-    (ARM.replace("1.0e+0 0 0 0 0 90", "1.0e+0 0 0 0 0 inf"), "bad.bvh: NaN or infinite value in the MOTION data "
+    (ARM.replace("1.0e+0 0 0 0 0 90", "1.0e+0 0 0 0 0 inf"), r"bad.bvh:\d+: NaN or infinite value in the MOTION data "
                                                             r"\(frame 1, root Zrotation"),
     (ARM.replace("0 0 0 0 0 0 0 0 0", "0 0 0 0 NaN 0 0 0 0"), r"\(frame 0, root Xrotation"),
     (ARM.replace("Frames: 2", "Frames: 20000000"), "bad.bvh:17: Frames: 20000000 is absurd"),
@@ -204,10 +206,70 @@ def test_utf8_byte_order_mark_is_accepted(tmp_path):
     (ARM.replace("JOINT elbow", "JOINT"), "bad.bvh:6: JOINT without a name"),
     (ARM.replace("JOINT elbow", "JOINT root"), "bad.bvh:6: joint name 'root' appears twice"),
     ("\ufeffHIER\0ARCHY", "bad.bvh: not a text file"),
+    (ARM.replace("CHANNELS 3 Xrotation Yrotation", "CHANNELS 3 Xrotation Xrotation"),
+     "bad.bvh:9: channel list Xrotation Xrotation Zrotation names Xrotation twice"),
+    (ARM + "0 0 0 0 0 0 0 0 0\n", "bad.bvh:21: more motion rows than the header's 'Frames: 2'"),
+    (ARM.replace("1.0e+0 0 0 0 0 90", "2e7 0 0 0 0 90"),
+     r"bad.bvh:20: frame 1, root Zposition 2e\+07 is beyond 1e\+07 units \(10 km in millimetres\)"),
+    (ARM.replace("OFFSET 10.0 0.0 0.0", "OFFSET 10.0 1e9 0.0"), "bad.bvh:8: OFFSET of 'elbow' .* is beyond 1e"),
+    (ARM.replace("0 0 0 0 0 0 0 0 0", "0 0 0 0 0 0 0 x 0"), "bad.bvh:19: non-numeric value in the MOTION data"),
+    (ARM.replace("0 0 0 0 0 0 0 0 0", "0 0 0 0 0 0 0 0"), "bad.bvh:19: frame 0 has 8 values, expected 9"),
 ])
 def test_more_bad_input_gives_clear_error(text, message):
     with pytest.raises(BvhError, match=message):
         parse_bvh(text, "bad.bvh")
+
+
+def test_trailing_blank_lines_are_not_rows():
+    assert parse_bvh(ARM + "\n\n  \n").n_frames == 2
+
+
+@pytest.mark.parametrize("kind, message", [
+    ("fifo", "a FIFO (named pipe), not a BVH file"), ("device", "a device, not a BVH file"),
+    ("folder", "a folder, not a BVH file"), ("missing", "cannot read the BVH file (No such file"),
+])
+def test_only_regular_files_are_read(tmp_path, kind, message):
+    """A FIFO would block and /dev/zero never ends: both are refused before a byte is read."""
+    path = tmp_path / "x.bvh"
+    {"fifo": lambda: os.mkfifo(path), "device": lambda: path.symlink_to("/dev/zero"), "folder": path.mkdir,
+     "missing": lambda: None}[kind]()
+    with pytest.raises(BvhError, match=f"x.bvh: {re.escape(message)}"):
+        read_bvh(path)
+
+
+def test_a_file_beyond_the_size_bound_is_refused_unread(tmp_path, monkeypatch):
+    from mocapdb.core.formats import bvh
+
+    (tmp_path / "big.bvh").write_text(ARM)
+    monkeypatch.setattr(bvh, "MAX_BVH_BYTES", len(ARM) - 1)
+    with pytest.raises(BvhError, match=r"big.bvh: \d+ bytes, more than a BVH file may hold"):
+        read_bvh(tmp_path / "big.bvh")
+
+
+def _chain(n_joints: int) -> str:
+    """A chain of ``n_joints`` joints, written without recursion: the deepest hierarchy a file can hold."""
+    body = ["HIERARCHY", "ROOT j0", "{", "OFFSET 0 0 0", "CHANNELS 6 Xposition Yposition Zposition "
+            "Zrotation Xrotation Yrotation"]
+    for j in range(1, n_joints):
+        body += [f"JOINT j{j}", "{", "OFFSET 0 1 0", "CHANNELS 3 Zrotation Xrotation Yrotation"]
+    body += ["}"] * n_joints + ["MOTION", "Frames: 1", "Frame Time: 0.01", " ".join(["0"] * (3 * n_joints + 3))]
+    return "\n".join(body) + "\n"
+
+
+def test_reading_is_linear_in_the_joint_count():
+    """A 100,000-joint chain (hierarchy depth 100,000) reads with no recursion limit, in time
+    growing linearly (was quadratic: 51 s); compared by ratio in one run, not by a clock bound."""
+    import time
+
+    def seconds(n):
+        text = _chain(n)
+        start = time.perf_counter()
+        assert len(parse_bvh(text).names) == n
+        return time.perf_counter() - start
+
+    seconds(1000)
+    small, large = min(seconds(10_000) for _ in range(2)), min(seconds(100_000) for _ in range(2))
+    assert large < 30 * small, (small, large)  # 10x the joints: linear gives ~10x, quadratic ~100x
 
 
 def test_binary_file_is_not_text(tmp_path):

@@ -510,3 +510,28 @@ def test_a_broken_take_description_is_named(tmp_path):
         (tmp_path / "take.json").write_text(body)
         with pytest.raises(TakeError, match=words):
             read_take(tmp_path)
+
+
+def test_detect_replaces_its_own_output_and_refuses_a_foreign_folder(video, yolo_model, tmp_path, capsys):
+    """detect writes its frames in place as the video is read (live may follow the folder): an earlier
+    detect output is emptied first (no stale frame of another video left), a folder holding anything
+    else is refused before any work, naming a file, and kept byte for byte (OpenPose's own output:
+    frame files but no take.json)."""
+    out = tmp_path / "kp"
+    assert detect(str(video), "--model", str(yolo_model), "--out", str(out)) == 0
+    stale = out / "other_000000000099_keypoints.json"   # an earlier run's frame of another video
+    stale.write_text('{"version": 1.3, "people": []}')
+    assert detect(str(video), "--model", str(yolo_model), "--out", str(out)) == 0
+    assert not stale.exists() and len(list(out.glob("clip_*_keypoints.json"))) == VIDEO_FRAMES
+    capsys.readouterr()
+    openpose = tmp_path / "openpose"
+    openpose.mkdir()
+    (openpose / "cam_000000000000_keypoints.json").write_text('{"version": 1.3, "people": []}')
+    (out / "notes.txt").write_text("mine")
+    for folder, named in ((out, "it holds notes.txt"), (openpose, "but no take.json")):
+        before = {p.name: p.read_bytes() for p in folder.iterdir()}
+        assert detect(str(video), "--model", str(yolo_model), "--out", str(folder)) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("mocapdb detect: error: ") and err.count("\n") == 1, err
+        assert "is not an output folder of `mocapdb detect`" in err and named in err, err
+        assert {p.name: p.read_bytes() for p in folder.iterdir()} == before

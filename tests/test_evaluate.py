@@ -315,3 +315,25 @@ def test_eval_command_line_checks(capsys):
     assert "--leave-one-subject-out" in capsys.readouterr().err
     assert main(["eval", "--leave-one-subject-out", str(SAMPLE_BVH), "--db", "x"]) == 2
     assert main(["eval", "--leave-one-subject-out", str(SAMPLE_BVH), "--subjects", "two"]) == 2
+
+
+def test_eval_out_replaces_only_an_earlier_report(small_db_path, tmp_path, capsys):
+    """``eval --out FILE``: written atomically, marked as a report; a later run replaces it, any other
+    existing file is refused before any work and kept byte for byte."""
+    import json
+
+    from mocapdb.cli.main import main
+
+    report = tmp_path / "report.json"
+    args = ["eval", "--db", str(small_db_path), "--bvh", str(SAMPLE_BVH / "002_04.bvh"), "--quick"]
+    assert main([*args, "--out", str(report)]) == 0
+    assert main([*args, "--out", str(report)]) == 0   # its own earlier report: replaced
+    assert json.loads(report.read_text())["format"] == "mocapdb-eval"
+    capsys.readouterr()
+    mine = tmp_path / "settings.json"
+    mine.write_text('{"mine": true}\n')
+    assert main([*args, "--out", str(mine)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{mine}: the output (--out) exists and is not a JSON report" in err, err
+    assert mine.read_text() == '{"mine": true}\n'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json", "settings.json"]   # no temporary file

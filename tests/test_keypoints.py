@@ -379,6 +379,28 @@ def test_stream_line_errors(line, reason):
         parse_stream_line(line)
 
 
+def test_stream_line_numbers_are_bounded_where_parsed():
+    """Every number of a line that reaches the engine is bounded (issue 20): frame numbers and ids
+    below 2**53, times below 2**53 µs, finite positions within 10**6 px (NaN stays a missing point)."""
+    person = raw_person("coco17")
+    person[KP["head"], 0] = np.nan
+    edge = parse_stream_line(_line(frame=2**53 - 1, time=1.7e9,   # a Unix time in seconds
+                                   people=[{"id": 1 - 2**53, "keypoints": person.tolist()}]))
+    assert (edge.index, edge.time_s, edge.people[0].person_id) == (2**53 - 1, 1.7e9, 1 - 2**53)
+    assert edge.people[0].confidence[KP["head"]] == 0
+    far = raw_person("coco17")
+    far[3, 1] = -1.5e6   # an ear, with its confidence
+    refused = [(_line(frame=10**400, people=[]), "'frame'"), (_line(frame=2**53, people=[]), "'frame'"),
+               (_line(frame=1, time=-2**53, people=[]), "'time'"), (_line(frame=1, time=1e10, people=[]), "'time'"),
+               (_line(people=[{"id": 10**400, "keypoints": person.tolist()}]), "person id"),
+               (_line(people=[{"person_id": [2**53], "keypoints": person.tolist()}]), "person id"),
+               (_line(people=[{"keypoints": far.tolist()}]), "beyond 1,000,000 px")]
+    for line, reason in refused:
+        with pytest.raises(KeypointError, match=reason) as err:
+            parse_stream_line(line)
+        assert ": " not in str(err.value) and len(str(err.value)) <= 120, str(err.value)
+
+
 ODD_VALUES = (None, "x", True, -1, 2.5, 10**30, 10**400, float("nan"), [], {}, [[1, 2, 3]], {"people": []})
 
 
@@ -438,6 +460,7 @@ def test_frames_from_arrays_people_and_padding():
     (np.zeros((17, 3)), "expected \\[T, K, 3\\]"),
     (np.full((4, 17, 3), "x"), "non-numeric"),
     (np.zeros((4, 20, 3)), "20 keypoints"),
+    (np.full((4, 17, 3), 1e300), "beyond 1,000,000 px"),
 ])
 def test_frames_from_arrays_errors(array, reason):
     with pytest.raises(KeypointError, match=reason):
@@ -719,3 +742,53 @@ def test_cli_reads_keypoint_files_before_writing(small_db_path, tmp_path, capsys
     assert main(["reconstruct", str(tmp_path / "mp.npy"), "--db", str(small_db_path), "--out", str(out),
                  "--keypoints", "halpe26"]) == 2
     assert "does not fit layout halpe26" in capsys.readouterr().err
+
+
+def _npy_bytes_header(shape: tuple[int, ...]) -> bytes:
+    buffer = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buffer, {"descr": "<f8", "fortran_order": False, "shape": shape})
+    return buffer.getvalue()
+
+
+def _zip_bomb(path, n_frames: int) -> None:
+    """An .npz whose ``keypoints`` member is ``n_frames`` × 25 × 3 zeros, deflated (about 1000:1)."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf, zf.open("keypoints.npy", "w", force_zip64=True) as f:
+        f.write(_npy_bytes_header((n_frames, 25, 3)))
+        zeros = bytes(25 * 3 * 8 * 1000)
+        for _ in range(n_frames // 1000):
+            f.write(zeros)
+
+
+def test_an_npz_bomb_is_refused_before_it_is_inflated(tmp_path, monkeypatch):
+    from mocapdb.core.formats import keypoint_arrays
+
+    _zip_bomb(tmp_path / "bomb.npz", 20_000)  # 12 MB of zeros in ~12 kB
+    assert (tmp_path / "bomb.npz").stat().st_size < 100_000
+    monkeypatch.setattr(keypoint_arrays, "MAX_ARRAY_BYTES", 4_000_000)
+    tracemalloc.start()
+    with pytest.raises(KeypointError, match=r"bomb.npz: array 'keypoints': 12,000,128 bytes uncompressed, more than"):
+        read_keypoint_array(tmp_path / "bomb.npz")
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 1_000_000, peak
+
+
+def test_an_npz_member_claiming_terabytes_is_refused(tmp_path):
+    """The zip's index claims 4 GiB for a small member: refused by its claim, nothing allocated."""
+    np.savez(tmp_path / "liar.npz", keypoints=np.zeros((2, 17, 3)))
+    data = bytearray((tmp_path / "liar.npz").read_bytes())
+    central = data.index(b"PK\x01\x02")
+    data[central + 24:central + 28] = (0xFFFFFFFE).to_bytes(4, "little")  # uncompressed size
+    (tmp_path / "liar.npz").write_bytes(bytes(data))
+    with pytest.raises(KeypointError, match=r"liar.npz: array 'keypoints': 4,294,967,294 bytes uncompressed"):
+        read_keypoint_array(tmp_path / "liar.npz")
+
+
+@pytest.mark.parametrize("name", ["kp.npy", "kp.npz", "predictions.json"])
+def test_keypoint_files_must_be_regular(tmp_path, name):
+    """A FIFO would block the reader: it is refused before it is opened for a read."""
+    import os
+
+    os.mkfifo(tmp_path / name)
+    with pytest.raises(KeypointError, match=f"{name}: a FIFO"):
+        read_keypoint_file(tmp_path / name)

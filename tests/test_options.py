@@ -19,7 +19,8 @@ from mocapdb.core.domains import Domain, ImageSizeArg, NumberListArg
 
 from .conftest import SAMPLE_BVH, SAMPLE_KEYPOINTS
 
-HOSTILE_NUMBERS = ("0", "-1", "nan", "inf", "-inf", "1e308", "1e20", "100000000000000000000", "abc", "", "0x10")
+HOSTILE_NUMBERS = ("0", "-1", "nan", "inf", "-inf", "1e308", "1e20", "100000000000000000000", "1" + "0" * 400,
+                   "abc", "", "0x10")
 HOSTILE_SIZES = ("0x0", "-1x100", "1e20x2000", "100000000000000000000x2000", "nanxnan", "big", "1920x", "x")
 HOSTILE_LISTS = ("nan", "inf,1", "-1", "0,0", "", "1e308", ",", "1," * 100)
 FLAGS = (argparse._HelpAction, argparse._VersionAction, argparse._StoreTrueAction, argparse._CountAction,

@@ -281,3 +281,58 @@ def test_the_preview_title_names_the_output_not_the_temporary_folder(small_db_pa
                  "--image-size", "1088x1920", "--focal", "1681", "--preview"]) == 0
     title = next(t for t in texts if "frames" in t and "focal" in t)
     assert title.startswith(f"{out / 'result.jsonl'}:") and ".tmp" not in title
+
+
+# --------------------------------------------------------------------------- outputs and far positions (issue 20)
+
+
+def test_render_replaces_its_own_outputs_and_refuses_anything_else(tmp_path, capsys):
+    """PNG frames: a folder swapped in whole (an earlier render's frames replaced, a folder holding
+    anything else refused naming it); an .mp4 or .png file: replaced only when it is one. Refusals
+    come before any drawing and leave everything as it was."""
+    from mocapdb.cli.main import main
+
+    write_stream(tmp_path / "run", 3)
+    common = [str(tmp_path / "run"), "--scale", "0.1", "--no-progress"]
+    frames = tmp_path / "frames"
+    assert main(["render", *common, "--out", str(frames)]) == 0
+    (frames / "frame_000099.png").write_bytes(b"stale")
+    assert main(["render", *common, "--out", str(frames)]) == 0
+    assert sorted(p.name for p in frames.iterdir()) == [f"frame_{i:06d}.png" for i in range(3)]
+    assert main(["render", *common, "--mp4", "--out", str(tmp_path / "a.mp4")]) == 0
+    assert main(["render", *common, "--mp4", "--out", str(tmp_path / "a.mp4")]) == 0   # its own video: replaced
+    assert main(["render", *common, "--contact-sheet", "2", "--out", str(tmp_path / "sheet.png")]) == 0
+    assert main(["render", *common, "--contact-sheet", "2", "--out", str(tmp_path / "sheet.png")]) == 0
+    capsys.readouterr()
+    (frames / "notes.txt").write_text("mine")
+    (tmp_path / "notes.mp4").write_text("my notes")
+    (tmp_path / "notes.png").write_text("my notes")
+    cases = [(["--out", str(frames)], "is not an output folder of `mocapdb render`: it holds notes.txt"),
+             (["--mp4", "--out", str(tmp_path / "notes.mp4")], "exists and is not an MP4 video"),
+             (["--contact-sheet", "2", "--out", str(tmp_path / "notes.png")], "exists and is not a PNG picture")]
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    for argv, message in cases:
+        assert main(["render", *common, *argv]) == 2, argv
+        err = capsys.readouterr().err
+        assert err.startswith("mocapdb render: error: ") and err.count("\n") == 1 and message in err, err
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+    assert not list(tmp_path.glob(".*"))   # no temporary file or folder left
+
+
+def test_a_far_person_is_refused_and_the_floor_grid_stays_bounded(tmp_path, capsys, monkeypatch):
+    """A person 1e9 m away once drew ~10 million grid lines (3.5 GB): a joint beyond 10 km is refused
+    naming the file and line; within it, and for any extent, the grid has at most 13 lines each way."""
+    from mocapdb.cli.main import main
+
+    write_stream(tmp_path / "far", 2, [standing_pose(), standing_pose((1e9, 0.0, 4.0))])
+    assert main(["render", str(tmp_path / "far"), "--out", str(tmp_path / "frames"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "result.jsonl, line 2: person 1 (track 1) has a joint 1e+09 m" in err, err
+    assert "beyond 10,000 m" in err and not (tmp_path / "frames").exists()
+    for half in (1.2, 60.0, 5e8, 1e300):
+        assert 2 * half / draw.grid_step(half) <= draw.GRID_LINES
+    lines = []
+    monkeypatch.setattr(draw.cv2, "line", lambda img, a, b, *args: lines.append((a, b)))
+    poses = np.stack([standing_pose(), standing_pose((9000.0, 0.0, 4.0))])   # 9 km apart: still drawn
+    draw.draw_floor(np.zeros((400, 400, 3), np.uint8), draw.fit_view(poses))
+    assert 2 < len(lines) <= 2 * (draw.GRID_LINES + 1)

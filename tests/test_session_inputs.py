@@ -2,6 +2,7 @@
 keypoints outside the image, missing frame rate, empty input (issue 10)."""
 import json
 import resource
+import sys
 import time
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 from mocapdb.cli.main import main
 from mocapdb.core.cameras import DatabaseCamera
 from mocapdb.core.formats.database import load_database
+from mocapdb.core.formats.keypoint_layouts import LAYOUTS, SOURCE_INDEX
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import project_views
 from mocapdb.core.skeleton import PELVIS
@@ -141,6 +143,71 @@ def test_a_person_with_every_keypoint_at_one_pixel_is_skipped(small_db, tmp_path
     summary = session.finish(tmp_path)
     assert summary.person_frames == 0 and summary.degenerate == 5
     assert "within 4 px" in summary.report()
+
+
+# --- one message stops nothing (issue 20) -----------------------------------------------------------
+
+HUGE_FRAME = '{"frame": 1' + "0" * 400 + ', "people": []}'   # frame 10**400
+
+
+def _with_huge_frame(db, path) -> list[str]:
+    """Writes 30 good lines with a frame 10**400 after the 10th to ``path``; returns the good ones."""
+    lines = _stream_lines(db, 30)
+    path.write_text("\n".join(lines[:10] + [HUGE_FRAME] + lines[10:]) + "\n")
+    return lines
+
+
+def test_reconstruct_counts_a_frame_number_beyond_any_bound_as_one_malformed_line(small_db, small_db_path, tmp_path,
+                                                                                   capsys):
+    _with_huge_frame(small_db, tmp_path / "in.jsonl")
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--out", str(out)]) == 0
+    frames = [json.loads(line)["frame"] for line in (out / "result.jsonl").read_text().splitlines()[1:]]
+    assert frames == list(range(30))
+    report = capsys.readouterr().out
+    reason = "'frame' must be a non-negative integer below 2**53"
+    assert "frames 30" in report
+    assert f"skipped malformed (1): {reason} (first in {tmp_path / 'in.jsonl'}:line 11)" in report
+
+
+def test_live_skips_a_frame_number_beyond_any_bound_and_goes_on(small_db, small_db_path, tmp_path, monkeypatch, capsys):
+    _with_huge_frame(small_db, tmp_path / "in.jsonl")
+    monkeypatch.setattr(sys, "stdin", open(tmp_path / "in.jsonl"))
+    assert main(["live", "--source", "-", "--db", str(small_db_path), "--sink", str(tmp_path / "out.jsonl"),
+                 "--buffer", "64"]) == 0
+    sys.stdin.close()
+    frames = [json.loads(line)["frame"] for line in (tmp_path / "out.jsonl").read_text().splitlines()[1:]]
+    assert frames == list(range(30))
+    assert "skipped malformed (1): 'frame' must be a non-negative integer below 2**53" in capsys.readouterr().err
+
+
+def _in_layout(px: np.ndarray, layout: str) -> list:
+    """A person's universal keypoints ``[14, 2]`` as ``layout`` rows (x, y, 0.9); BODY_25 also gets the
+    neck and mid-hip OpenPose makes (so it is told from BODY_25B)."""
+    kp = np.zeros((len(LAYOUTS[layout]), 3))
+    for universal, index in enumerate(SOURCE_INDEX[layout]):
+        if index >= 0:
+            kp[index] = [*px[universal], 0.9]
+    if layout == "body25":
+        kp[1, :2], kp[8] = kp[[2, 5], :2].mean(axis=0), [*kp[[9, 12], :2].mean(axis=0), 0.9]
+    return np.round(kp, 2).tolist()
+
+
+def test_a_stream_whose_layout_changes_keeps_every_frame(small_db, tmp_path, caplog):
+    from mocapdb.runtime.streams import RawMessage
+
+    px = _walking_px(small_db, 150)
+    session = _session(small_db, tmp_path, strict=False)
+    layouts = ["body25"] * 50 + ["coco17"] * 50 + ["halpe26"] * 40 + ["body25"] * 10   # no line names its layout
+    for i, layout in enumerate(layouts):
+        message = json.dumps({"frame": i, "people": [{"keypoints": _in_layout(px[i], layout)}]})
+        session.handle(RawMessage(message, f"line {i + 1}", time.monotonic()))
+    summary = session.finish()
+    assert summary.frames == 150 and not summary.malformed and summary.person_frames >= 148
+    assert session.parser.known == {25: "body25", 17: "coco17", 26: "halpe26"}
+    assert session.parser.layout_changes == 3
+    changes = [r.getMessage() for r in caplog.records if "layout changed" in r.getMessage()]
+    assert len(changes) == 1 and "from body25 to coco17 (in frame 50)" in changes[0]
 
 
 # --- limits (issue 13): a hostile sender makes bounded work, memory and files -----------------------

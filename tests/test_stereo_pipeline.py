@@ -4,7 +4,6 @@ import json
 import os
 import re
 import shutil
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -528,9 +527,9 @@ def test_unreadable_calibration_files_name_the_file(tmp_path, capsys, content, m
 def test_os_errors_name_the_path(tmp_path, capsys, monkeypatch):
     missing, folder = tmp_path / "absent.toml", tmp_path / "a_folder"
     folder.mkdir()
-    with pytest.raises(CalibrationError, match=re.escape(f"{missing}: cannot read the calibration (No such file")):
+    with pytest.raises(CalibrationError, match=re.escape(f"{missing}: cannot read the calibration file (No such file")):
         read_calibration_toml(missing)
-    with pytest.raises(CalibrationError, match=re.escape(f"{folder}: cannot read the calibration (Is a directory)")):
+    with pytest.raises(CalibrationError, match=re.escape(f"{folder}: a folder, not a calibration file")):
         read_calibration_toml(folder)
     views = [str(BUNDLED / "pose2sim_cam01"), str(BUNDLED / "pose2sim_cam04")]
     _refused([views[0], str(tmp_path / "no_such_folder"), *BUNDLED_ARGS], capsys, tmp_path / "out",
@@ -543,11 +542,13 @@ def test_os_errors_name_the_path(tmp_path, capsys, monkeypatch):
     def denied(*args, **kwargs):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(Path, "read_bytes", denied)
-    with pytest.raises(CalibrationError, match=re.escape(f"{CALIBRATION}: cannot read the calibration "
-                                                         "(Permission denied)")):
-        read_calibration_toml(CALIBRATION)
-    monkeypatch.undo()
+    from mocapdb.core import files
+
+    with monkeypatch.context() as patch:
+        patch.setattr(files.os, "open", denied)
+        with pytest.raises(CalibrationError, match=re.escape(f"{CALIBRATION}: cannot read the calibration file "
+                                                             "(Permission denied)")):
+            read_calibration_toml(CALIBRATION)
     monkeypatch.setattr(stereo_views, "read_openpose_folder", denied)
     _refused([*views, *BUNDLED_ARGS], capsys, tmp_path / "out",
              f"{views[0]}: cannot read the keypoint folder (Permission denied)")
@@ -567,7 +568,8 @@ def test_an_unreadable_calibration_file_names_it(tmp_path):
     path = tmp_path / "calibration.toml"
     path.write_text(CALIBRATION.read_text())
     path.chmod(0)
-    with pytest.raises(CalibrationError, match=re.escape(f"{path}: cannot read the calibration (Permission denied)")):
+    with pytest.raises(CalibrationError,
+                       match=re.escape(f"{path}: cannot read the calibration file (Permission denied)")):
         read_calibration_toml(path)
 
 
@@ -588,3 +590,55 @@ def test_a_main_person_behind_a_camera_is_refused_others_warned():
     points[:5, :, 2] *= -1                                          # 5 of 40 frames behind camera 1
     assert in_front_check(points, valid, facing, 0)[0].startswith("track 0 (the main person) is behind camera 1 "
                                                                   "in 5 of its 40 frames")
+
+
+# --------------------------------------------------------------------------- outputs and synchronisation (issue 20)
+
+
+def _view_copy(folder, order):
+    """Camera 4's bundled frames renamed in the given order (a view of another moment of the take)."""
+    folder.mkdir()
+    frames = sorted((BUNDLED / "pose2sim_cam04").glob("*.json"))
+    for k, source in enumerate(frames[i] for i in order):
+        shutil.copy(source, folder / f"cam04.{k:04d}.json")
+    return folder
+
+
+def test_stereo_replaces_its_own_output_and_refuses_anything_else(tmp_path, capsys):
+    """The output folder is swapped in whole once complete: an earlier stereo output is replaced (no
+    stale person left), a folder holding anything else (a user's calibration.toml and result.jsonl)
+    is refused naming one of its files, before any work, and kept byte for byte."""
+    views = [str(BUNDLED / "pose2sim_cam01"), str(BUNDLED / "pose2sim_cam04")]
+    out = tmp_path / "out"
+    assert _stereo([*views, *BUNDLED_ARGS, "--out", str(out)]) == 0
+    (out / "stereo_track_7.bvh").write_text("stale")   # as if a person of an earlier run
+    assert _stereo([*views, *BUNDLED_ARGS, "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["calibration.toml", "cameras.json", "result.jsonl", "stereo.bvh"]
+    capsys.readouterr()
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "calibration.toml").write_text("[cam_01]\n# my calibration\n")
+    (mine / "result.jsonl").write_text("my results\n")
+    (out / "notes.txt").write_text("mine")
+    for folder, named in ((mine, "no cameras.json"), (out, "it holds notes.txt")):
+        before = {p.name: p.read_bytes() for p in folder.iterdir()}
+        assert _stereo([*views, *BUNDLED_ARGS, "--out", str(folder)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("mocapdb stereo: error: ") and err.count("\n") == 1, err
+        assert "is not an output folder of `mocapdb stereo`" in err and named in err, err
+        assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+    (tmp_path / "a_file").write_text("x")
+    assert _stereo([*views, *BUNDLED_ARGS, "--out", str(tmp_path / "a_file")]) == 2
+    assert f"{tmp_path / 'a_file'}: the output (--out) exists and is not a folder" in capsys.readouterr().err
+    assert not list(tmp_path.glob(".*"))   # no temporary folder left
+
+
+@pytest.mark.parametrize("order", [range(99, -1, -1), [(i + 50) % 100 for i in range(100)]],
+                         ids=["reversed", "shifted-50-frames"])
+def test_unsynchronised_views_are_refused(tmp_path, capsys, order):
+    """Camera 4's frames reversed or shifted by half the take: no real person matches across the views
+    (once a traceback from the ellipsoid fit): one line saying so, exit 2, nothing written."""
+    view2 = _view_copy(tmp_path / "cam04", list(order))
+    err = _refused([str(BUNDLED / "pose2sim_cam01"), str(view2), *BUNDLED_ARGS], capsys, tmp_path / "out",
+                   "no person matches across the views as a whole body", "do not look synchronised")
+    assert err.count("\n") == 1 and "r_shoulder–l_shoulder (0)" in err

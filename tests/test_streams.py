@@ -116,6 +116,56 @@ def test_folder_source_and_offline_reader_share_the_frame_order(tmp_path):
     assert [len(f.people) for f in read_openpose_folder(tmp_path)] == [names.index(n) for n in live_order]
 
 
+def not_regular_entries(folder) -> list[str]:
+    """Entries named like frame files that are not regular files: a symlink loop, a dangling symlink,
+    a FIFO, a folder and a symlink to a device. Returns their names."""
+    (folder / "loop.json").symlink_to("loop.json")
+    (folder / "gone.json").symlink_to("nowhere.json")
+    os.mkfifo(folder / "pipe_000000000003_keypoints.json")
+    (folder / "sub_000000000004_keypoints.json").mkdir()
+    (folder / "null.json").symlink_to(os.devnull)
+    return ["loop.json", "gone.json", "pipe_000000000003_keypoints.json", "sub_000000000004_keypoints.json",
+            "null.json"]
+
+
+@pytest.mark.parametrize("follow", [False, True])
+def test_folder_source_skips_entries_that_are_not_regular_files(tmp_path, caplog, follow):
+    expected = [frame_file(tmp_path, i) for i in range(100)]
+    names = not_regular_entries(tmp_path)
+    source = open_source(str(tmp_path), follow=follow)
+    if follow:
+        with LiveInput(source, capacity=128) as live:
+            got = payloads(drain(live, 100, timeout_s=5.0))
+            time.sleep(0.1)   # more polls: nothing more, no second warning
+            assert live.get(timeout=0) is None
+    else:
+        with source:
+            got = payloads(list(source))
+    assert got == expected
+    assert source.stats.not_regular == 5
+    warnings = [r.getMessage() for r in caplog.records if "not regular files" in r.getMessage()]
+    assert len(warnings) == 1 and all(name in warnings[0] for name in names), warnings
+
+
+def test_reconstruct_and_the_offline_reader_skip_entries_that_are_not_regular_files(small_db, small_db_path,
+                                                                                     tmp_path, capsys):
+    from mocapdb.cli.main import main
+    from mocapdb.core.formats.openpose import read_openpose_folder
+
+    from .test_session import _stream_lines
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, line in enumerate(_stream_lines(small_db, 20)):
+        (folder / f"cam_{i:012d}_keypoints.json").write_text(line)
+    names = not_regular_entries(folder)
+    assert main(["reconstruct", str(folder), "--db", str(small_db_path), "--out", str(tmp_path / "out")]) == 0
+    out, err = capsys.readouterr()
+    assert "frames 20," in out and "folder entries not regular files 5" in out
+    assert err.count("not regular files") == 1 and all(name in err for name in names)
+    assert len(list(read_openpose_folder(folder))) == 20
+
+
 def test_folder_source_ends_after_idle_timeout(tmp_path):
     frame_file(tmp_path, 0)
     with LiveInput(open_source(str(tmp_path), follow=True, idle_timeout_s=0.1)) as live:

@@ -40,7 +40,12 @@ MAX_YAWS = 32767  # projections.yaw is int16
 
 
 class BuildError(MocapdbError, RuntimeError):
-    """A build that cannot go on; the message says why."""
+    """A build that cannot go on; the message says why, ``skipped`` names the files skipped before
+    it stopped, each with its reason (``(path, reason)`` pairs)."""
+
+    def __init__(self, message: str, skipped: list[tuple[str, str]] = ()):
+        super().__init__(message)
+        self.skipped = list(skipped)
 
 
 @dataclass
@@ -154,7 +159,8 @@ def _process_one(args: tuple[Path, Path, BuildConfig]) -> list[Clip] | tuple[str
 def load_clips(files: list[tuple[Path, Path]], config: BuildConfig,
                summary: BuildSummary) -> list[Clip]:
     """Process every file (in ``config.workers`` processes); files that fail go to ``summary.skipped``
-    with the reason (``config.strict``: :class:`BuildError` naming them all)."""
+    with the reason (``config.strict``: :class:`BuildError` naming them all; no clip at all:
+    :class:`BuildError` whose ``skipped`` lists them)."""
     jobs = [(path, root, config) for path, root in files]
     bar = progress(total=len(jobs), desc="read+retarget", unit="clip")
     results = []
@@ -173,7 +179,8 @@ def load_clips(files: list[tuple[Path, Path]], config: BuildConfig,
     if summary.skipped and config.strict:
         raise BuildError("--strict: " + "; ".join(f"{p}: {why}" for p, why in summary.skipped))
     if not clips:
-        raise BuildError("no readable BVH clip among the sources")
+        why = f": all {len(summary.skipped)} BVH file(s) were skipped" if summary.skipped else ""
+        raise BuildError(f"no readable BVH clip among the sources{why}", summary.skipped)
     return clips
 
 

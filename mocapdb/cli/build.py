@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 
 from mocapdb.cli import paths as P
 from mocapdb.core import domains as D
@@ -50,7 +51,7 @@ def add_build_parser(sub: argparse._SubParsersAction) -> None:
 def run_build(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from mocapdb.builder.pipeline import BuildConfig, build
+    from mocapdb.builder.pipeline import BuildConfig, BuildError, build
     from mocapdb.core.cameras import DatabaseCamera
     from mocapdb.core.formats.database import output_target
 
@@ -61,7 +62,12 @@ def run_build(args: argparse.Namespace) -> int:
         workers=args.workers, strict=args.strict,
         joint_map=Path(args.joint_map) if args.joint_map else None,
         unit=args.unit, up_axis=args.up_axis, credit=args.credit, mirror=not args.no_mirror)
-    summary = build(args.sources, args.out, config, exclude=args.exclude)
+    try:
+        summary = build(args.sources, args.out, config, exclude=args.exclude)
+    except BuildError as exc:  # the files skipped before it stopped, each with its reason, then the error
+        for path, why in exc.skipped:
+            print(f"skipped {path}: {why}", file=sys.stderr)
+        raise
     target = output_target(args.out)
     print(f"wrote {args.out}" + (f" (symlink to {target})" if os.path.islink(args.out) else ""))
     print(summary.report())

@@ -22,7 +22,8 @@ def add_detect_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--model", metavar="POSE.onnx", type=P.INPUT_FILE,
                    help="pose model: a YOLO-pose or RTMO ONNX export (see data_specs/pose_models.md)")
     p.add_argument("--out", required=True, metavar="DIR", type=P.OUTPUT_DIR,
-                   help="folder for the JSON files (created if missing)")
+                   help="folder for the JSON files, written as the video is read (created if missing; an "
+                        "earlier detect output there is replaced, a folder holding other files refused)")
     p.add_argument("--every", type=D.DETECT_EVERY, default=1, metavar="N",
                    help="detect every N-th frame only (default 1)")
     p.add_argument("--max-people", type=D.MAX_PEOPLE, metavar="N",
@@ -40,10 +41,11 @@ def run_detect(args: argparse.Namespace) -> int:
     """``mocapdb detect``: 0 on success; DetectError (exit 2) for a user error, also a video file
     that ends before its declared frame count (its frames read are kept); 130 if a video file was
     interrupted before its end."""
+    from mocapdb.core.outputs import check_output_folder
     from mocapdb.core.signals import install_stop_handlers
     from mocapdb.detect.errors import DetectError
     from mocapdb.detect.model import PoseModel
-    from mocapdb.detect.openpose_out import detect_video
+    from mocapdb.detect.openpose_out import DETECT_FILES, detect_video
     from mocapdb.detect.video import VideoReader
 
     if not args.model:
@@ -52,9 +54,7 @@ def run_detect(args: argparse.Namespace) -> int:
         raise DetectError("give either a VIDEO file or --camera N")
     if args.every < 1:
         raise DetectError("--every must be at least 1")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise DetectError(f"{out}: the output (--out) exists and is not a folder")
+    check_output_folder(args.out, DETECT_FILES)  # before any work; emptied once the model and the video open
     model = PoseModel(args.model, conf=args.conf, iou=args.iou, max_people=args.max_people,
                       input_size=args.input_size)
     reader = VideoReader(args.camera if args.camera is not None else args.video)

@@ -7,6 +7,8 @@ import math
 from mocapdb.cli import paths as P
 from mocapdb.core import domains as D
 
+REPORT_FORMAT = "mocapdb-eval"  # the first key of an --out report: how a later run knows it may replace it
+
 
 def add_eval_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="accuracy and speed on held-out BVH clips (JSON report)",
@@ -40,7 +42,9 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
                    help="with --leave-one-subject-out: landmark-MDS landmarks (default 2000)")
     p.add_argument("--workers", type=D.WORKERS, default=2,
                    help="with --leave-one-subject-out: processes reading BVH files per build (default 2)")
-    p.add_argument("--out", type=P.OUTPUT, help="also write the JSON report to this file")
+    p.add_argument("--out", type=P.OUTPUT,
+                   help="also write the JSON report to this file (atomically; an existing file is replaced only "
+                        "when it is an earlier report, anything else refused before any work)")
     p.add_argument("--quick", action="store_true",
                    help="one database: two yaws and two scenarios; leave-one-subject-out: 2 clips per "
                         "subject, 120 frames, two scenarios")
@@ -54,17 +58,19 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
 def run_eval(args: argparse.Namespace) -> int:
     import logging
     from dataclasses import replace
-    from pathlib import Path
 
     from mocapdb.builder.pipeline import BuildConfig, find_sources
     from mocapdb.core.errors import UsageError
     from mocapdb.core.formats.database import load_database
+    from mocapdb.core.outputs import check_output_file, output_file
     from mocapdb.evaluation.reconstruction import EvalConfig, evaluate
     from mocapdb.runtime.engine import EngineConfig
 
     if not getattr(args, "quiet", False):  # the evaluation's progress lines (info level) are worth seeing on a long run
         logging.getLogger("mocapdb.evaluation").setLevel(min(logging.INFO, logging.getLogger("mocapdb").level))
 
+    if args.out:
+        check_output_file(args.out, _report_file())  # before any work
     engine = EngineConfig(weight_2d=args.weight_2d, search=args.search, own_body=not args.universal_body)
     if args.cameras and not args.real_take:
         raise UsageError("--cameras goes with --real-take")
@@ -77,7 +83,6 @@ def run_eval(args: argparse.Namespace) -> int:
         report = evaluate_real_take(load_database(args.db), args.real_take, engine, cameras)
         report["checks"] = check_lines(report)
         print(format_table(report) + "\n\n" + "\n".join(report["checks"]))
-        text = _report_json(report)
     elif args.loso:
         from mocapdb.evaluation.loso import LosoConfig, format_table, leave_one_subject_out
 
@@ -94,7 +99,6 @@ def run_eval(args: argparse.Namespace) -> int:
         loso = replace(loso, subjects=subjects, build=build, eval=replace(loso.eval, engine=engine))
         report = leave_one_subject_out(args.loso, loso)
         print(format_table(report))
-        text = _report_json(report)
     else:
         if not args.db or not args.bvh:
             raise UsageError("give --db and --bvh, or --leave-one-subject-out SOURCES")
@@ -104,11 +108,20 @@ def run_eval(args: argparse.Namespace) -> int:
         files = [f for f, _ in find_sources(args.bvh)]
         if not files:
             raise UsageError(f"no .bvh file in {', '.join(args.bvh)}")
-        text = _report_json(evaluate(load_database(args.db), files, config))
-        print(text)
+        report = evaluate(load_database(args.db), files, config)
+        print(_report_json(report))
     if args.out:
-        Path(args.out).write_text(text + "\n")
+        with output_file(args.out, _report_file()) as tmp:
+            tmp.write_text(_report_json({"format": REPORT_FORMAT, **report}) + "\n", encoding="utf-8")
     return 0
+
+
+def _report_file():
+    """What ``eval --out`` writes (:class:`mocapdb.core.outputs.OutputFile`): a JSON report whose
+    first key is ``"format": REPORT_FORMAT``, so a later run replaces it and nothing else."""
+    from mocapdb.core.outputs import OutputFile
+
+    return OutputFile("eval", "a JSON report", f'{{\n  "format": "{REPORT_FORMAT}"'.encode())
 
 
 def _finite(value):

@@ -22,7 +22,8 @@ def add_render_parser(sub: argparse._SubParsersAction) -> None:
                    help="the --out folder of `mocapdb reconstruct` or `mocapdb stereo` (or its result.jsonl)")
     p.add_argument("--out", required=True, type=P.OUTPUT,
                    help="folder for PNG frames; with --mp4 a .mp4 file (or a folder: OUT/render.mp4); for the "
-                        "stereo plot a .png file")
+                        "stereo plot a .png file (an existing OUT is replaced only when it is an earlier render's "
+                        "output of the same kind, else refused)")
     p.add_argument("--keypoints", metavar="INPUT", type=P.INPUT_ANY,
                    help="the 2D input given to reconstruct (OpenPose folder, .jsonl, MMPose .json, .npy/.npz)")
     p.add_argument("--video", type=P.INPUT_FILE, help="the input video, drawn under the skeletons (OpenCV reads it)")

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from mocapdb.core.errors import MocapdbError
-from mocapdb.core.files import os_error_message
+from mocapdb.core.files import MIB, read_input_bytes
 
 
 class CalibrationError(MocapdbError, ValueError):
@@ -90,6 +90,7 @@ class DatabaseCamera:
 # The principal point may lie outside the image (a crop), but not by more than this share of the
 # image's width or height beyond its border: further out, the matrix or the size is wrong.
 MAX_CENTER_OUTSIDE = 0.5
+MAX_CALIBRATION_BYTES = MIB  # a calibration of dozens of cameras takes a few kB
 
 
 def check_intrinsics(k: np.ndarray, size: tuple[float, float], where: str) -> None:
@@ -192,10 +193,7 @@ def read_calibration_toml(path: str | Path) -> dict[str, CameraModel]:
     Every error is a CalibrationError naming the file (and the line, or the section and field).
     """
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise CalibrationError(os_error_message(exc, path, "read the calibration")) from None
+    raw = read_input_bytes(path, MAX_CALIBRATION_BYTES, CalibrationError, "calibration file")
     if b"\0" in raw:
         raise CalibrationError(f"{path}: a binary file, not a calibration TOML (text)")
     try:
@@ -205,7 +203,7 @@ def read_calibration_toml(path: str | Path) -> dict[str, CameraModel]:
         raise CalibrationError(f"{path}, line {line}: not UTF-8 text: not a calibration TOML") from None
     try:
         data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, RecursionError) as exc:
         raise CalibrationError(_toml_message(path, str(exc))) from None
     cams = {key: _camera(key, sec, f"{path} [{key}]") for key, sec in data.items()
             if isinstance(sec, dict) and key != "metadata"}

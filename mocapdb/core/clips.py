@@ -11,11 +11,13 @@ from pathlib import Path
 
 import numpy as np
 
+from mocapdb.core.files import MIB, read_input_text
 from mocapdb.core.formats.bvh import BvhError, read_bvh
 from mocapdb.core.joint_map import detect_mapping, extract_keypoints, load_joint_map_file
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, BONE_LENGTHS_M, KP, mirror_keypoints, resample, retarget
 
 CREDIT_FILE = "CREDIT.txt"
+MAX_CREDIT_BYTES = MIB  # a licence text
 MIRROR_SUFFIX = "~mirror"  # added to the name of a clip's left-right mirror image
 
 
@@ -55,7 +57,7 @@ def credit_for(path: Path, root: Path, given: str | None) -> str:
     while True:
         candidate = folder / CREDIT_FILE
         if candidate.is_file():
-            return candidate.read_text(encoding="utf-8").strip()
+            return read_input_text(candidate, MAX_CREDIT_BYTES, BvhError, "credit text").strip()
         if folder == root or folder == folder.parent or root not in folder.parents:
             return ""
         folder = folder.parent

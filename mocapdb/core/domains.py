@@ -47,7 +47,7 @@ class Domain:
             return False
         if self.integer and not isinstance(value, numbers.Integral):
             return False
-        if not math.isfinite(value):
+        if not isinstance(value, numbers.Integral) and not math.isfinite(value):  # a huge int is finite
             return False
         above = value > self.low if self.low_open else value >= self.low
         return above and value <= self.high

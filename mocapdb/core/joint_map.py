@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.errors import MocapdbError
+from mocapdb.core.files import MIB, read_input_text
 from mocapdb.core.formats.bvh import POSITION_MODE_TEXT, Bvh, forward_kinematics
 from mocapdb.core.skeleton import KEYPOINTS, N_POINTS
 from mocapdb.core.units import UNITS, UP_AXES
@@ -42,6 +43,7 @@ KEYPOINT_ROLES = {
 # Plausible leg length (hip → knee → ankle), metres. The window spans a factor 2, less than the
 # smallest ratio between two units (cmu/in = 2.22), so at most one unit fits.
 LEG_LENGTH_RANGE_M = (0.6, 1.2)
+MAX_JOINT_MAP_BYTES = MIB  # a joint map names a few dozen joints
 UP_AXIS_MIN_COSINE = 0.8  # the body's median up direction must be this close to a world axis
 NOSE_FORWARD_M = 0.10     # nose ahead of the head joint, along the head's rest forward
 NOSE_UP_M = 0.02          # and above it, along the head's rest up
@@ -237,12 +239,10 @@ def _label(sources: list[list[str]], overridden: bool) -> str:
 def load_joint_map_file(path: str | Path) -> JointMapFile:
     """Read a joint-map TOML file (``[joints]`` role = "Joint", optional ``unit``, ``up_axis``)."""
     path = Path(path)
+    text = read_input_text(path, MAX_JOINT_MAP_BYTES, JointMapError, "joint map (TOML)")
     try:
-        with path.open("rb") as fh:
-            data = tomllib.load(fh)
-    except OSError as exc:
-        raise JointMapError(f"{path}: cannot read the joint map ({exc.strerror})") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        data = tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, RecursionError) as exc:
         raise JointMapError(f"{path}: not a valid TOML joint map ({exc})") from None
     unknown = [k for k in data if k not in ("joints", "unit", "up_axis")]
     if unknown:

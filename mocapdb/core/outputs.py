@@ -7,6 +7,7 @@ import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from fnmatch import fnmatchcase
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,6 @@ from mocapdb.core.skeleton import (
 )
 
 CAMERA_FROM_VIEW = np.array([1.0, 1.0, -1.0])  # view frame ↔ camera-aligned frame (z negated), either way
-OUTPUT_FILES = ("result.jsonl", "track_*.bvh", "track_*.trc", "track_*.csv", "preview.png")  # reconstruct writes
 
 
 @dataclass
@@ -149,7 +149,37 @@ def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str
 
 
 class OutputFolderError(MocapdbError, ValueError):
-    """An output folder that cannot be (re)placed; the message says why."""
+    """An output (folder or file) that cannot be (re)placed; the message says why."""
+
+
+@dataclass(frozen=True)
+class OutputFiles:
+    """What one command writes in its output folder, to tell an earlier output of it from anything
+    else: every file matches one of ``patterns`` (names, ``*`` wildcards) and one matches ``marker``
+    (a file the command always writes)."""
+
+    command: str
+    patterns: tuple[str, ...]
+    marker: str
+
+    def matches(self, name: str) -> bool:
+        """Whether a file named ``name`` is one the command writes."""
+        return any(fnmatchcase(name, pattern) for pattern in self.patterns)
+
+
+@dataclass(frozen=True)
+class OutputFile:
+    """A single file one command writes, told from anyone else's by its first bytes: ``signature``
+    at byte ``offset`` (a PNG's, an MP4's, a report's first line). ``what``: its kind in words."""
+
+    command: str
+    what: str
+    signature: bytes
+    offset: int = 0
+
+
+RECONSTRUCT_FILES = OutputFiles("reconstruct", ("result.jsonl", "track_*.bvh", "track_*.trc", "track_*.csv",
+                                                "preview.png"), "result.jsonl")
 
 
 STREAM_FORMAT = "mocapdb-stream"
@@ -211,31 +241,53 @@ def header_line(fps: float, image_size: tuple[int, int] | None = None, focal_px:
     return json.dumps(body, separators=(",", ":"))
 
 
-def _is_output_folder(path: Path) -> bool:
-    """An empty folder, or one holding only what a run writes (:data:`OUTPUT_FILES`)."""
-    return path.is_dir() and not path.is_symlink() and all(
-        any(f.match(pattern) for pattern in OUTPUT_FILES) and f.is_file() for f in path.iterdir())
+def _why_not_output(folder: Path, files: OutputFiles) -> str | None:
+    """Why the folder ``folder`` is no earlier output of ``files.command``; None when it is one or empty."""
+    names = []
+    with os.scandir(folder) as entries:
+        for entry in entries:
+            if not (entry.is_file(follow_symlinks=False) and files.matches(entry.name)):
+                return f"it holds {entry.name}, which `mocapdb {files.command}` does not write"
+            names.append(entry.name)
+    if names and not any(fnmatchcase(name, files.marker) for name in names):
+        return f"it holds {names[0]} but no {files.marker}"
+    return None
+
+
+def check_output_folder(out: str | Path, files: OutputFiles = RECONSTRUCT_FILES) -> Path:
+    """``out`` as a Path when a run of ``files.command`` may replace it: missing, an empty folder or an
+    earlier output of that command (:class:`OutputFiles`); else OutputFolderError naming a file that
+    is not the command's. Cheap: commands run it before any work."""
+    out = Path(out)
+    if not os.path.lexists(out):
+        return out
+    if out.is_symlink() or not out.is_dir():
+        kind = "a symbolic link: give the folder itself" if out.is_symlink() else "not a folder"
+        raise OutputFolderError(f"{out}: the output (--out) exists and is {kind}")
+    why = _why_not_output(out, files)
+    if why is not None:
+        raise OutputFolderError(f"{out}: the output (--out) is not an output folder of `mocapdb {files.command}`: "
+                                f"{why}; choose another --out (nothing was written)")
+    return out
 
 
 @contextmanager
-def output_folder(out: str | Path) -> Iterator[Path]:
+def output_folder(out: str | Path, files: OutputFiles = RECONSTRUCT_FILES) -> Iterator[Path]:
     """A fresh temporary folder beside ``out`` that replaces ``out`` when the block ends normally.
 
-    An earlier output at ``out`` (a folder of only :data:`OUTPUT_FILES`) is removed only then, so
-    a failing run leaves it as it was and a new run never mixes with an old one's files; any
-    other existing ``out`` is refused before work starts. On an exception the temporary folder
-    is deleted.
+    ``out`` is checked before the block (:func:`check_output_folder`: anything but an earlier output
+    of ``files.command`` is refused before work starts) and again before the swap, so an earlier
+    output is removed only once the new one is complete: a failing run leaves it as it was, a new
+    run never mixes with an old one's files. On an exception the temporary folder is deleted.
     """
-    out = Path(out)
-    if out.exists() and not _is_output_folder(out):
-        raise OutputFolderError(f"{out} exists and is not an output folder of mocapdb (only result.jsonl, "
-                                f"track files and preview.png): choose another --out")
+    out = check_output_folder(out, files)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
     try:
         yield tmp
+        check_output_folder(out, files)  # nothing else appeared there during the run
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -244,3 +296,48 @@ def output_folder(out: str | Path) -> Iterator[Path]:
         out.rename(old)
     tmp.rename(out)
     shutil.rmtree(old, ignore_errors=True)
+
+
+def clear_output_folder(out: str | Path, files: OutputFiles) -> Path:
+    """``out`` made ready for a run that writes its files in place as it goes (``mocapdb detect``,
+    whose folder ``live`` may read meanwhile): refused as :func:`check_output_folder` refuses, an
+    earlier output's files deleted, the folder created. A file the command does not write is never
+    deleted."""
+    out = check_output_folder(out, files)
+    out.mkdir(parents=True, exist_ok=True)
+    for path in out.iterdir():
+        if files.matches(path.name):
+            path.unlink()
+    return out
+
+
+def check_output_file(path: str | Path, kind: OutputFile) -> Path:
+    """``path`` as a Path when a run of ``kind.command`` may write it: missing, or a file of the kind
+    the command writes (:class:`OutputFile`); else OutputFolderError naming it. Cheap: commands run
+    it before any work."""
+    path = Path(path)
+    if not os.path.lexists(path):
+        return path
+    if not path.is_file():
+        raise OutputFolderError(f"{path}: the output (--out) exists and is not a file")
+    with open(path, "rb") as file:
+        head = file.read(kind.offset + len(kind.signature))
+    if head[kind.offset:] != kind.signature:
+        raise OutputFolderError(f"{path}: the output (--out) exists and is not {kind.what} (what `mocapdb "
+                                f"{kind.command}` writes): choose another --out (nothing was written)")
+    return path
+
+
+@contextmanager
+def output_file(path: str | Path, kind: OutputFile) -> Iterator[Path]:
+    """A temporary path beside ``path`` (same suffix: writers choose the format by it) that replaces
+    ``path`` when the block ends normally; ``path`` is checked (:func:`check_output_file`) before the
+    block and again before it is replaced. On an exception the temporary file is deleted."""
+    path = check_output_file(path, kind)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, check_output_file(path, kind))
+    finally:
+        tmp.unlink(missing_ok=True)

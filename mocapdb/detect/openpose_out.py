@@ -5,6 +5,12 @@ Detections come in COCO-17 (the models' order) and are written in OpenPose's COC
 (:func:`coco17_to_coco18`) as ``<video stem>_<frame:012d>_keypoints.json``, each file atomically,
 so `mocapdb reconstruct` and `live` read them like OpenPose's own output. File format:
 ``data_specs/pose_models.md``.
+
+The output folder is written in place as the video is read (``live`` may follow it meanwhile), not
+swapped in at the end as other commands' outputs are: a folder holding anything but an earlier
+detect output (its frame files and ``take.json``, :data:`DETECT_FILES`) is refused before any work,
+an earlier detect output's files are deleted when the run starts, and no other file is ever
+overwritten (:func:`mocapdb.core.outputs.clear_output_folder`).
 """
 from __future__ import annotations
 
@@ -19,6 +25,7 @@ import numpy as np
 from mocapdb.core.files import os_error_message, write_atomic
 from mocapdb.core.formats.keypoints import LAYOUTS
 from mocapdb.core.formats.take import TAKE_FILE, TakeInfo, write_take
+from mocapdb.core.outputs import OutputFiles, clear_output_folder
 from mocapdb.core.progress import progress
 from mocapdb.detect.errors import DetectError
 
@@ -27,6 +34,7 @@ if TYPE_CHECKING:
     from mocapdb.detect.video import VideoReader
 
 N_COCO = len(LAYOUTS["coco17"])
+DETECT_FILES = OutputFiles("detect", ("*_keypoints.json", TAKE_FILE), TAKE_FILE)  # an earlier output holds these
 
 
 def _coco17_name(openpose_name: str) -> str:
@@ -97,11 +105,13 @@ def detect_video(reader: VideoReader, model: PoseModel, out_dir: Path, every: in
     """Detect people in every ``every``-th frame and write one OpenPose JSON file per frame
     (atomically) into ``out_dir``, then the take description (``take.json``: the keypoints' frame
     rate, the image size, the frames written, source and model; :mod:`mocapdb.core.formats.take`);
-    ends with the video or once ``stop`` is set. ``truncated`` of the summary says when the video
-    file ended before its declared frame count (the files written are complete); DetectError naming
-    the path when the folder or a file cannot be written."""
+    ends with the video or once ``stop`` is set. ``out_dir`` is emptied of an earlier detect output
+    first and refused (OutputFolderError) when it holds anything else (see the module docstring).
+    ``truncated`` of the summary says when the video file ended before its declared frame count (the
+    files written are complete); DetectError naming the path when the folder or a file cannot be
+    written."""
     try:
-        out_dir.mkdir(parents=True, exist_ok=True)
+        clear_output_folder(out_dir, DETECT_FILES)
     except OSError as exc:
         raise DetectError(os_error_message(exc, out_dir, "create the output folder")) from None
     summary = DetectSummary()

@@ -244,16 +244,23 @@ def fit_view(joints: np.ndarray, basis: np.ndarray | None = None, extra_points: 
     return View3D(basis, centre, half, floor, top, azimuth_deg, elevation_deg)
 
 
+GRID_LINES = 12  # at most this many grid spacings across the floor, whatever its extent
+
+
 def grid_step(half_extent: float) -> float:
-    """Grid spacing (metres) giving about 4–12 lines across."""
-    for step in (0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0):
-        if 2 * half_extent / step <= 12:
-            return step
-    return 100.0
+    """Grid spacing (metres): the smallest of 0.25 m and 1, 2, 5 × 10ᵏ m giving at most
+    :data:`GRID_LINES` spacings across ``2 · half_extent`` (metres, finite), however large."""
+    span = 2 * half_extent / GRID_LINES
+    if span <= 0.25:
+        return 0.25
+    power = 10.0 ** math.floor(math.log10(span))
+    return next(m * power for m in (1, 2, 5, 10) if m * power >= span)
 
 
 def draw_floor(img: np.ndarray, view: View3D, colour=GRID_COLOUR, label: bool = True) -> None:
-    """The floor grid of ``view`` (scene plane y = floor), with its spacing written in a corner."""
+    """The floor grid of ``view`` (scene plane y = floor), with its spacing written in a corner: at
+    most :data:`GRID_LINES` + 1 lines each way (:func:`grid_step`), so time and memory stay bounded
+    whatever the coordinates."""
     size = img.shape[1::-1]
     h, step = view.half_extent, grid_step(view.half_extent)
     cx, cz = view.centre

@@ -22,6 +22,7 @@ from mocapdb.core.skeleton import KEYPOINTS, N_POINTS
 
 RESULT_FILE = "result.jsonl"
 CAMERAS_FILE = "cameras.json"
+MAX_POSITION_M = 10_000.0  # a joint or camera farther from camera 1 is no position a run gives: refused
 # every version up to the writer's: the fields drawn here (fps, joints, frames) have not changed
 STREAM_VERSIONS = tuple(range(1, STREAM_VERSION + 1))
 
@@ -115,7 +116,8 @@ def _bad(path: Path, line_no: int, why: str) -> RenderError:
 
 def read_result(result: str | Path) -> ResultStream:
     """The stream of a result folder (``result.jsonl`` inside) or file; RenderError naming the file
-    and line when it is no mocapdb stream (header) or a frame line is malformed."""
+    and line when it is no mocapdb stream (header), a frame line is malformed or a joint lies beyond
+    :data:`MAX_POSITION_M` (refused rather than drawn: nothing a camera films is that far)."""
     path = result_path(result)
     try:
         text = path.read_text(encoding="utf-8")
@@ -159,6 +161,9 @@ def _frame(path: Path, line_no: int, line: str) -> ResultFrame:
         if joints.shape != (N_POINTS, 3):
             raise _bad(path, line_no, f"person {k} (track {track}) has joints of shape {list(joints.shape)}, "
                                       f"not [{N_POINTS}, 3]")
+        if np.nanmax(np.abs(joints), initial=0.0) > MAX_POSITION_M:
+            raise _bad(path, line_no, f"person {k} (track {track}) has a joint {np.nanmax(np.abs(joints)):.3g} m "
+                                      f"from the camera, beyond {MAX_POSITION_M:,.0f} m: not a position to draw")
         match = p.get("match")
         dist = match.get("distance_2d") if isinstance(match, dict) else None
         height = p.get("height")
@@ -182,6 +187,8 @@ def read_cameras(folder: str | Path) -> StereoCameras | None:
             if K.shape != (3, 3) or R.shape != (3, 3) or not (np.all(np.isfinite(K)) and np.all(np.isfinite(R))
                                                              and np.all(np.isfinite(t))):
                 raise ValueError("K, R must be 3×3 and t 3 finite numbers")
+            if (far := float(np.linalg.norm(R.T @ t))) > MAX_POSITION_M:
+                raise ValueError(f"camera {len(cams) + 1} is {far:.3g} m from camera 1, beyond {MAX_POSITION_M:,.0f} m")
             size = (int(c["size"][0]), int(c["size"][1]))
             cams.append(CameraModel(K, np.zeros(5), R, t, size, str(c.get("name") or f"camera {len(cams) + 1}")))
         if not cams:

@@ -1,14 +1,17 @@
 """Pictures of results: per-frame overlays (PNG frames or one MP4), a contact sheet, a stereo camera plot.
 
-Every file is written atomically (a temporary name in the same folder, then ``os.replace``).
+Outputs are written as every command writes them (:mod:`mocapdb.core.outputs`): PNG frames into a
+temporary folder that replaces ``--out`` whole once complete (an earlier render's frames folder is
+replaced, a folder holding anything else refused); a PNG or MP4 file through a temporary name and a
+rename, replacing only a PNG or MP4 file. Both are checked before any drawing.
 """
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,6 +19,14 @@ import cv2
 import numpy as np
 
 from mocapdb.core.cameras import CameraModel, camera_from_intrinsics
+from mocapdb.core.outputs import (
+    OutputFile,
+    OutputFiles,
+    check_output_file,
+    check_output_folder,
+    output_file,
+    output_folder,
+)
 from mocapdb.core.progress import progress as progress_bar
 from mocapdb.core.skeleton import PELVIS
 from mocapdb.render import draw
@@ -25,6 +36,10 @@ VIEWS = ("both", "image", "3d")
 DEFAULT_FOCAL = 1000.0           # the defaults of `mocapdb reconstruct`
 DEFAULT_IMAGE_SIZE = (1920, 1080)
 MP4_NAME = "render.mp4"
+FRAME_FILES = OutputFiles("render", ("frame_*.png",), "frame_*.png")
+PNG_FILE = OutputFile("render", "a PNG picture", b"\x89PNG\r\n\x1a\n")
+MP4_FILE = OutputFile("render", "an MP4 video", b"ftyp", offset=4)
+MAX_FRAME_PX = 8192  # an output frame's longest side: bounds memory whatever image size a result names
 
 
 def image_camera(focal_px: float, size: tuple[int, int], principal_px: tuple[float, float] | None = None
@@ -62,6 +77,9 @@ class Layout:
         self.panel_3d = (wide, side)
         width = (self.image_panel[0] if self.view != "3d" else 0) + (wide if self.view != "image" else 0)
         self.size = (width + width % 2, side + side % 2)   # even: what video codecs want
+        if max(self.size) > MAX_FRAME_PX:
+            raise RenderError(f"an image of {w}×{h} px at scale {self.scale:g} makes frames of {self.size[0]}×"
+                              f"{self.size[1]} px, more than {MAX_FRAME_PX} px on a side: give a smaller --scale")
 
 
 def _fresh_background(layout: Layout, video_frame: np.ndarray | None) -> np.ndarray:
@@ -156,67 +174,41 @@ class VideoFrames:
         self.cap.release()
 
 
-def _tmp_name(path: Path) -> Path:
-    return path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
-
-
 def write_png(path: str | Path, img: np.ndarray) -> Path:
-    """Write ``img`` as a PNG atomically (temporary name, then rename)."""
+    """Write ``img`` as the PNG file ``path`` atomically, replacing only a PNG (:func:`output_file`)."""
     path = Path(path)
     ok, data = cv2.imencode(".png", img)
     if not ok:
         raise RenderError(f"{path}: OpenCV cannot encode the picture as PNG")
-    tmp = _tmp_name(path)
-    try:
+    with output_file(path, PNG_FILE) as tmp:
         tmp.write_bytes(data.tobytes())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path
 
 
-class _PngFrames:
-    def __init__(self, folder: Path):
-        if folder.exists() and not folder.is_dir():
-            raise RenderError(f"{folder}: --out exists and is not a folder (PNG frames go in a folder; "
-                              "add --mp4 for one video file)")
-        folder.mkdir(parents=True, exist_ok=True)
-        self.folder, self.written = folder, set()
-
-    def write(self, index: int, img: np.ndarray) -> None:
-        self.written.add(write_png(self.folder / f"frame_{index:06d}.png", img).name)
-
-    def finish(self) -> Path:
-        for old in self.folder.glob("frame_*.png"):   # an earlier render's frames this one has not
-            if old.name not in self.written:
-                old.unlink()
-        return self.folder
-
-    def abort(self) -> None:
-        pass
+def mp4_path(out: str | Path) -> Path:
+    """The video file of ``render --mp4 --out OUT``: OUT if it ends ``.mp4``, else OUT/render.mp4."""
+    out = Path(out)
+    return out if out.suffix.lower() == ".mp4" else out / MP4_NAME
 
 
-class _Mp4:
-    def __init__(self, path: Path, fps: float, size: tuple[int, int]):
-        if path.is_dir():
-            raise RenderError(f"{path}: is a folder; give --out a file name ending .mp4")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.path, self.tmp = path, _tmp_name(path.with_suffix(".mp4"))
-        self.writer = cv2.VideoWriter(str(self.tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
-        if not self.writer.isOpened():
-            raise RenderError(f"{path}: OpenCV cannot write an MP4 (mp4v) video here")
-
-    def write(self, index: int, img: np.ndarray) -> None:
-        self.writer.write(img)
-
-    def finish(self) -> Path:
-        self.writer.release()
-        os.replace(self.tmp, self.path)
-        return self.path
-
-    def abort(self) -> None:
-        self.writer.release()
-        self.tmp.unlink(missing_ok=True)
+@contextmanager
+def _frame_sink(out: Path, mp4: bool, fps: float, size: tuple[int, int]
+                ) -> Iterator[Callable[[int, np.ndarray], None]]:
+    """``write(index, image)`` for the frames: PNG files in a folder that replaces ``out`` whole, or
+    one MP4 (:func:`mp4_path`) at ``fps`` Hz of frames ``size`` px; either only when the block ends
+    normally."""
+    if not mp4:
+        with output_folder(out, FRAME_FILES) as tmp:
+            yield lambda index, img: write_png(tmp / f"frame_{index:06d}.png", img)
+        return
+    with output_file(mp4_path(out), MP4_FILE) as tmp:
+        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+        try:
+            if not writer.isOpened():
+                raise RenderError(f"{mp4_path(out)}: OpenCV cannot write an MP4 (mp4v) video here")
+            yield lambda index, img: writer.write(img)
+        finally:
+            writer.release()
 
 
 @dataclass
@@ -245,8 +237,8 @@ def _check_keypoint_extent(keypoints: list, camera: CameraModel, warn: Callable[
                  "give --image-size (and --focal) as given to reconstruct")
 
 
-def prepare(result: str | Path, keypoints: str | Path | list | None, camera: CameraModel | None, video: VideoFrames | None,
-            view: str, scale: float, margin: float, warn: Callable[[str], None]):
+def prepare(result: str | Path, keypoints: str | Path | list | None, camera: CameraModel | None,
+            video: VideoFrames | None, view: str, scale: float, margin: float, warn: Callable[[str], None]):
     """Read and check the inputs: (stream, frame pairs, layout)."""
     stream = read_result(result)
     if camera is None:
@@ -275,8 +267,9 @@ def render_result(result: str | Path, out: str | Path, keypoints: str | Path | N
                   view: str = "both", scale: float = 1.0, margin: float = 0.06, progress: bool = True,
                   warn: Callable[[str], None] | None = None) -> RenderSummary:
     """Draw every frame of a result (folder or ``result.jsonl``): PNG frames ``out/frame_NNNNNN.png``
-    (NNNNNN: the frame number), or with ``mp4`` one video (``out`` if it ends ``.mp4``, else
-    ``out/render.mp4``) at the stream's frame rate.
+    (NNNNNN: the frame number) in a folder that replaces ``out`` whole once complete, or with
+    ``mp4`` one video (:func:`mp4_path`) at the stream's frame rate; an existing ``out`` that is not
+    an earlier render of the same kind is refused before any drawing (see the module docstring).
 
     ``keypoints``: the 2D input (drawn thin grey; only frames both have are drawn, with a warning);
     ``video``: drawn under the skeletons (else a dark background); ``camera``: focal and image size
@@ -294,17 +287,15 @@ def render_result(result: str | Path, out: str | Path, keypoints: str | Path | N
 
     if not (math.isfinite(scale) and 0.05 <= scale <= 4):
         raise RenderError(f"scale {scale:g} is outside 0.05–4")
+    if mp4:  # before any work
+        check_output_file(mp4_path(out), MP4_FILE)
+    else:
+        check_output_folder(out, FRAME_FILES)
     frames_in = VideoFrames(video) if video is not None else None
     try:
         stream, pairs, layout = prepare(result, keypoints, camera, frames_in, view, scale, margin, _warn)
-        out = Path(out)
-        if mp4:
-            sink = _Mp4(out if out.suffix.lower() == ".mp4" else out / MP4_NAME, stream.fps, layout.size)
-        else:
-            sink = _PngFrames(out)
         trails: dict[int, deque] = {}
-        try:
-
+        with _frame_sink(Path(out), mp4, stream.fps, layout.size) as write:
             for rframe, kframe in (progress_bar(pairs, desc="render", unit="frame") if progress else pairs):
                 seen = set()
                 for p in rframe.people:
@@ -313,11 +304,8 @@ def render_result(result: str | Path, out: str | Path, keypoints: str | Path | N
                 for gone in [t for t in trails if t not in seen]:
                     del trails[gone]
                 background = frames_in.get(rframe.index) if frames_in is not None else None
-                sink.write(rframe.index, compose_frame(layout, rframe, kframe, background, trails))
-            written = sink.finish()
-        except BaseException:
-            sink.abort()
-            raise
+                write(rframe.index, compose_frame(layout, rframe, kframe, background, trails))
+        written = mp4_path(out) if mp4 else Path(out)
     finally:
         if frames_in is not None:
             frames_in.close()
@@ -338,11 +326,13 @@ def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, o
     ``focal`` (px) and ``image_size`` (width, height px): as given to reconstruct; ``video``:
     optional frames underneath; ``tile_height``: pixels per tile; ``name``: the result as the title
     shows it (default its folder and file name). Frames are chosen evenly among
-    those the result and keypoints share. Written atomically; returns ``out_png``. Raises
-    :class:`~mocapdb.render.results.RenderError` on unusable inputs (``reconstruct --preview``).
+    those the result and keypoints share. Written atomically, replacing only a PNG (checked
+    first); returns ``out_png``. Raises :class:`~mocapdb.render.results.RenderError` on unusable
+    inputs (``reconstruct --preview``).
     """
     if n < 1:
         raise RenderError(f"a contact sheet needs at least 1 frame, not {n}")
+    check_output_file(out_png, PNG_FILE)
     camera = image_camera(float(focal), tuple(image_size))
     frames_in = VideoFrames(video) if video is not None else None
     try:
@@ -379,8 +369,6 @@ def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, o
     for t in tracks[:10]:
         draw.put_text(sheet, f"#{t}", (x, int(title_h * 0.72)), tscale, draw.track_colour(t), 2)
         x += int(60 * tscale) + 10
-    out_png = Path(out_png)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
     return write_png(out_png, sheet)
 
 
@@ -396,7 +384,9 @@ def _stereo_basis(cams) -> np.ndarray | None:
 def render_stereo_plot(stereo_dir: str | Path, out_png: str | Path, panel: int = 900, snapshots: int = 6) -> Path:
     """One PNG of a ``mocapdb stereo`` output: a top view and an oblique view of the two cameras
     (frusta with their names) and the people's motion (pelvis path over time, skeletons at
-    ``snapshots`` evenly spaced frames, older ones darker). OpenCV only (no matplotlib)."""
+    ``snapshots`` evenly spaced frames, older ones darker). OpenCV only (no matplotlib). Written
+    atomically, replacing only a PNG (checked first)."""
+    check_output_file(out_png, PNG_FILE)
     cams = read_cameras(stereo_dir)
     if cams is None:
         raise RenderError(f"{stereo_dir}: no cameras.json (not the --out folder of `mocapdb stereo`; for a "
@@ -449,6 +439,4 @@ def render_stereo_plot(stereo_dir: str | Path, out_png: str | Path, panel: int =
         text += f", rotation {cams.rotation_deg:.0f} deg"
     text += f"; {len(stream.frames)} frames, {len(stream.tracks)} track(s); pelvis path darker = earlier"
     draw.put_text(header, text, (10, 34), 0.75, draw.TEXT_COLOUR, 1)
-    out_png = Path(out_png)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
     return write_png(out_png, np.concatenate([header, sheet], axis=0))

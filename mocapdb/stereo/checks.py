@@ -9,6 +9,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from mocapdb.core.skeleton import KEYPOINTS
 from mocapdb.stereo.config import StereoError
 from mocapdb.stereo.relative_pose import rotation_angle_deg, sampson_distance
 
@@ -30,6 +31,11 @@ BEHIND_REFUSED = 0.5
 BEHIND_WARNED = 0.05
 MIN_PARALLAX_DEG = 1.0
 LOW_PARALLAX_DEG = 5.0
+# The ellipsoid has one scale per rigid bone type: each type needs both joints seen by both views
+# in at least MIN_BONE_FRAMES frames. Unsynchronised views match no real person; what matches by
+# chance (the bundled pair with one view reversed, or shifted by 15 frames or more: view 1's
+# partial false person paired with view 2's person) never shows the shoulder line in both.
+MIN_BONE_FRAMES = 5
 
 
 def homography_residual(n1: np.ndarray, n2: np.ndarray, essential: np.ndarray,
@@ -63,6 +69,23 @@ def check_parallax(n1: np.ndarray, n2: np.ndarray, essential: np.ndarray, focal_
             f"{residuals[0]:.1f} px off, against {residuals[1]:.1f} px for the epipolar geometry). They are the "
             "same view (possibly shifted, scaled, mirrored or cropped) or two cameras at the same place, so depth "
             "cannot be recovered; give the keypoints of two cameras set apart")
+
+
+def check_bone_coverage(valid: np.ndarray, bones) -> None:
+    """StereoError when a bone type of ``bones`` (``(joint, joint, type)`` triples) has both joints
+    seen by both views (``valid [T, J]``) in fewer than :data:`MIN_BONE_FRAMES` frames: then no
+    person matches across the views as a whole body, the sign of unsynchronised views."""
+    seen: dict[int, tuple[str, int]] = {}
+    for i, j, b in bones:
+        name, frames = seen.get(b, (f"{KEYPOINTS[i]}–{KEYPOINTS[j]}", 0))
+        seen[b] = (name, frames + int(np.sum(valid[:, i] & valid[:, j])))
+    short = [f"{name} ({frames})" for name, frames in seen.values() if frames < MIN_BONE_FRAMES]
+    if short:
+        raise StereoError(
+            f"no person matches across the views as a whole body: bones seen by both views in fewer than "
+            f"{MIN_BONE_FRAMES} frames: {', '.join(short)}; the camera fit needs every rigid bone. The views do "
+            "not look synchronised (frames of two different takes, or one view shifted or reversed in time), or "
+            "the cameras see different parts of the people")
 
 
 def behind_cameras(points: np.ndarray, valid: np.ndarray, R: np.ndarray, t: np.ndarray) -> tuple[float, float, int]:

@@ -11,10 +11,14 @@ import numpy as np
 
 from mocapdb.core.domains import BASELINE_M
 from mocapdb.core.errors import MocapdbError
+from mocapdb.core.outputs import OutputFiles
 
 # The files `mocapdb stereo` writes (``data_specs/stream_output.md``); one BVH per person (``bvh_name``).
 RESULT_FILE, CAMERAS_FILE, BVH_FILE = "result.jsonl", "cameras.json", "stereo.bvh"
 CALIBRATION_FILE = "calibration.toml"  # the two cameras for Pose2Sim
+# An earlier output folder of `mocapdb stereo` holds cameras.json and only these (replaced whole).
+STEREO_FILES = OutputFiles("stereo", (RESULT_FILE, CAMERAS_FILE, CALIBRATION_FILE, BVH_FILE, "stereo_track_*.bvh"),
+                           CAMERAS_FILE)
 
 
 def bvh_name(track: int) -> str:

@@ -18,7 +18,7 @@ import numpy as np
 from mocapdb.core.cameras import CameraModel
 from mocapdb.core.progress import progress
 from mocapdb.stereo.bone_lengths import RIGID_BONES, refine_bone_lengths
-from mocapdb.stereo.checks import check_geometry, check_parallax
+from mocapdb.stereo.checks import check_bone_coverage, check_geometry, check_parallax
 from mocapdb.stereo.config import StereoConfig, StereoError, StereoResult
 from mocapdb.stereo.ellipsoid import bone_samples, ransac_ellipsoid, sphericity, undistort
 from mocapdb.stereo.relative_pose import (
@@ -83,7 +83,8 @@ def reconstruct(x1: np.ndarray, c1: np.ndarray, x2: np.ndarray, c2: np.ndarray, 
     """Stages 1–3 on keypoints ``x [T, J, 2]`` (pixels) with confidences ``c [T, J]``.
 
     Only the cameras' intrinsics and distortion are used; camera 2's pose is estimated. StereoError
-    when the views have no parallax (:func:`check_parallax`, after stage 1) or the final cameras
+    when the views have no parallax (:func:`check_parallax`, after stage 1), a rigid bone is not
+    seen by both views (:func:`check_bone_coverage`: unsynchronised views) or the final cameras
     cannot be right (:func:`check_geometry`).
     """
     if x1.shape != x2.shape or c1.shape != c2.shape or x1.shape[:2] != c1.shape:
@@ -95,6 +96,7 @@ def reconstruct(x1: np.ndarray, c1: np.ndarray, x2: np.ndarray, c2: np.ndarray, 
     n1[valid], n2[valid] = cam1.undistort_normalized(x1[valid]), cam2.undistort_normalized(x2[valid])
     focal_px = 0.25 * float(cam1.K[0, 0] + cam1.K[1, 1] + cam2.K[0, 0] + cam2.K[1, 1])
     R1, t1 = _stage1(n1, n2, valid, config, focal_px)
+    check_bone_coverage(valid, bones)
     stage1 = triangulate_all(R1, t1, n1, n2, valid)
     warnings: list[str] = []
     stage2, R, t, epsilons, kept = _stage2(stage1, n1, n2, valid, R1, t1, config, bones, warnings)

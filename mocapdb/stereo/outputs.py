@@ -15,8 +15,16 @@ import numpy as np
 from mocapdb.core.cameras import CameraModel, format_calibration_toml
 from mocapdb.core.files import os_error_message, write_atomic
 from mocapdb.core.formats.bvh import write_bvh
-from mocapdb.core.outputs import PersonPose, frame_line, header_line, universal_bvh
-from mocapdb.stereo.config import CALIBRATION_FILE, CAMERAS_FILE, RESULT_FILE, StereoError, StereoResult, bvh_name
+from mocapdb.core.outputs import PersonPose, frame_line, header_line, output_folder, universal_bvh
+from mocapdb.stereo.config import (
+    CALIBRATION_FILE,
+    CAMERAS_FILE,
+    RESULT_FILE,
+    STEREO_FILES,
+    StereoError,
+    StereoResult,
+    bvh_name,
+)
 from mocapdb.stereo.motion import Motion, World
 from mocapdb.stereo.people import People, listed_frames
 from mocapdb.stereo.relative_pose import rotation_angle_deg
@@ -122,32 +130,23 @@ def calibration_text(cam1: CameraModel, cam2: CameraModel, result: StereoResult,
                                             f"({world.scale_source}).")
 
 
-def check_out_dir(out_dir: str | Path) -> None:
-    """StereoError before any work when ``out_dir`` exists and is no folder."""
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise StereoError(f"{out}: the output (--out) exists and is not a folder")
-
-
 def write_outputs(out_dir: str | Path, motions: list[Motion], world: World, cameras_json: str,
                   fps: float, calibration_toml: str) -> list[Path]:
     """Write ``result.jsonl``, ``cameras.json`` (the text ``cameras_json``), ``calibration.toml`` (the
-    text ``calibration_toml``) and the BVH of every fitted person into ``out_dir`` (created); the
-    paths written. StereoError naming the folder on an OS error."""
+    text ``calibration_toml``) and the BVH of every fitted person as the folder ``out_dir``; the paths
+    written. The folder replaces ``out_dir`` whole once complete (:func:`mocapdb.core.outputs.output_folder`):
+    an earlier stereo output is replaced, a folder holding anything else is refused. StereoError naming
+    the folder on an OS error."""
     out = Path(out_dir)
+    names = [RESULT_FILE, CAMERAS_FILE, CALIBRATION_FILE] + [bvh_name(m.track) for m in motions if m.fitted]
     try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise StereoError(os_error_message(exc, out, "create the output folder")) from None
-    paths = [out / RESULT_FILE, out / CAMERAS_FILE, out / CALIBRATION_FILE]
-    try:
-        write_atomic(paths[0], result_text(motions, fps))
-        write_atomic(paths[1], cameras_json)
-        write_atomic(paths[2], calibration_toml)
-        for m in motions:
-            if m.fitted:
-                paths.append(out / bvh_name(m.track))
-                write_bvh(paths[-1], universal_bvh(m.quats_world, m.pelvis_world, fps))
+        with output_folder(out, STEREO_FILES) as tmp:
+            write_atomic(tmp / RESULT_FILE, result_text(motions, fps))
+            write_atomic(tmp / CAMERAS_FILE, cameras_json)
+            write_atomic(tmp / CALIBRATION_FILE, calibration_toml)
+            for m in motions:
+                if m.fitted:
+                    write_bvh(tmp / bvh_name(m.track), universal_bvh(m.quats_world, m.pelvis_world, fps))
     except OSError as exc:
         raise StereoError(os_error_message(exc, out, "write the output")) from None
-    return paths
+    return [out / name for name in names]

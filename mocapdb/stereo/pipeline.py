@@ -19,15 +19,15 @@ import numpy as np
 from mocapdb.core.cameras import CameraModel
 from mocapdb.core.domains import FPS_HZ
 from mocapdb.core.formats.keypoints import KeypointFrame
+from mocapdb.core.outputs import check_output_folder
 from mocapdb.core.progress import progress
-from mocapdb.stereo.config import StereoConfig, StereoError, StereoResult
+from mocapdb.stereo.config import STEREO_FILES, StereoConfig, StereoError, StereoResult
 from mocapdb.stereo.ellipose import reconstruct
 from mocapdb.stereo.motion import people_motions
 from mocapdb.stereo.outputs import (
     StereoSummary,
     calibration_text,
     cameras_text,
-    check_out_dir,
     track_records,
     write_outputs,
 )
@@ -64,13 +64,15 @@ def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, 
                config: StereoConfig, fps: float, out_dir: str | Path, layout: str | None = None,
                trim: bool = False) -> StereoSummary:
     """Reconstruct everyone two cameras see; writes ``result.jsonl``, ``cameras.json``,
-    ``calibration.toml`` and one BVH per person (:func:`mocapdb.stereo.config.bvh_name`).
+    ``calibration.toml`` and one BVH per person (:func:`mocapdb.stereo.config.bvh_name`) as the
+    folder ``out_dir``: an earlier stereo output there is replaced once the new one is complete, a
+    folder holding anything else is refused before any work (OutputFolderError naming a file).
 
     ``cam1``, ``cam2``: intrinsics and distortion (their extrinsics are not used). ``fps`` (Hz)
     times the frames. Raises StereoError, CalibrationError or KeypointError with a clear message.
     """
     FPS_HZ.check(fps, "fps (--fps)")
-    check_out_dir(out_dir)
+    check_output_folder(out_dir, STEREO_FILES)
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
 

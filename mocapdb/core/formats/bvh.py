@@ -25,12 +25,15 @@ from typing import NamedTuple
 import numpy as np
 
 from mocapdb.core.errors import MocapdbError
-from mocapdb.core.files import write_atomic
+from mocapdb.core.files import MIB, read_input_text, write_atomic
 from mocapdb.core.geometry import euler_to_matrix, matrix_to_euler
 
 VALID_CHANNELS = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
 MAX_FRAMES = 10_000_000     # more is a broken header, not motion (a day at 100 fps is 8.6 M)
 MAX_FRAME_TIME_S = 10.0     # a longer frame time is a broken header
+MAX_BVH_BYTES = 256 * MIB   # a larger file is read in parts (hours of motion at 120 fps fit below)
+MAX_POSITION = 1e7          # |OFFSET| and position channels, file units: 10 km in millimetres, the smallest unit
+MOTION_CHUNK_ROWS = 4096    # motion rows parsed per numpy call (memory bounded, time linear)
 # How non-root position channels are read (``Bvh.position_mode``), and how `mocapdb inspect` says it.
 NO_POSITIONS = "none"
 ADDED = "offset+channel"
@@ -134,6 +137,7 @@ class _Hierarchy:
     channels: list[list[str]] = field(default_factory=list)
     end_site: list[bool] = field(default_factory=list)
     stack: list[int] = field(default_factory=list)  # the open joints
+    declared: set[str] = field(default_factory=set)  # the names so far (a set: linear in the joint count)
     pending: int | None = None  # joint declared, waiting for its "{"
 
     def declare(self, keyword: str, name: str, line: int) -> None:
@@ -146,8 +150,9 @@ class _Hierarchy:
             name = f"{self.names[self.stack[-1]]}_End"
         elif not name:
             raise _fail(self.source, line, f"{keyword} without a name")
-        if name in self.names:
+        if name in self.declared:
             raise _fail(self.source, line, f"joint name {name!r} appears twice")
+        self.declared.add(name)
         self.names.append(name)
         self.parents.append(self.stack[-1] if self.stack else -1)
         self.offsets.append([0.0, 0.0, 0.0])
@@ -178,6 +183,9 @@ class _Hierarchy:
         if not all(math.isfinite(v) for v in offset):
             raise _fail(self.source, line, f"OFFSET of {self.names[self.stack[-1]]!r} is not finite "
                                            f"({' '.join(values)})")
+        if max(abs(v) for v in offset) > MAX_POSITION:
+            raise _fail(self.source, line, f"OFFSET of {self.names[self.stack[-1]]!r} ({' '.join(values)}) is "
+                                           f"beyond {MAX_POSITION:g} units (10 km in millimetres)")
         self.offsets[self.stack[-1]] = offset
 
     def set_channels(self, tokens: list[_Token], i: int) -> int:
@@ -192,6 +200,9 @@ class _Hierarchy:
         names = [t.text for t in tokens[i + 2:i + 2 + max(count, 0)]]
         if count < 0 or len(names) != count or any(c not in VALID_CHANNELS for c in names):
             raise _fail(self.source, line, f"bad channel list {names!r} (count {count})")
+        twice = sorted({c for c in names if names.count(c) > 1})
+        if twice:
+            raise _fail(self.source, line, f"channel list {' '.join(names)} names {', '.join(twice)} twice")
         self.channels[self.stack[-1]] = names
         return i + 2 + count
 
@@ -276,27 +287,68 @@ def _motion_header(lines: list[str], source: str, line0: int) -> tuple[int, floa
 
 def _parse_motion(body: str, labels: list[str], source: str, line0: int) -> tuple[float, np.ndarray]:
     """Frame time and motion ``[F, C]`` from what follows the MOTION keyword (on line ``line0``);
-    ``labels`` name the C channels ("joint Xrotation")."""
+    ``labels`` name the C channels ("joint Xrotation"). Exactly ``Frames:`` rows must follow; they
+    are parsed :data:`MOTION_CHUNK_ROWS` at a time (linear time, memory bounded by the file's size)."""
     lines = body.splitlines()
     n_frames, frame_time, k = _motion_header(lines, source, line0)
+    if n_frames * max(len(labels), 1) > len(body):  # every value takes at least a digit and a space
+        raise _fail(source, 0, f"header says {n_frames} frames of {len(labels)} values, more than the file "
+                               "holds (truncated?)")
+    motion = np.empty((n_frames, len(labels)), dtype=np.float64)
+    row_lines = np.empty(n_frames, dtype=np.int64)  # the file line of each frame
+    n_rows, chunk = 0, []
+    for i in range(k, len(lines)):
+        if not lines[i].strip():
+            continue
+        if n_rows == n_frames:
+            raise _fail(source, line0 + i, f"more motion rows than the header's 'Frames: {n_frames}' "
+                                           "(a wrong frame count?)")
+        row_lines[n_rows] = line0 + i
+        chunk.append(lines[i])
+        n_rows += 1
+        if len(chunk) == MOTION_CHUNK_ROWS:
+            _fill_rows(motion, row_lines, n_rows - len(chunk), chunk, labels, source)
+            chunk = []
+    if n_rows < n_frames:
+        raise _fail(source, 0, f"header says {n_frames} frames but only {n_rows} are present (truncated?)")
+    _fill_rows(motion, row_lines, n_rows - len(chunk), chunk, labels, source)
+    return frame_time, motion
+
+
+def _fill_rows(motion: np.ndarray, row_lines: np.ndarray, first: int, rows: list[str], labels: list[str],
+               source: str) -> None:
+    """Parse ``rows`` (text) into ``motion[first:first + len(rows)]``, checked: numbers, one per channel,
+    finite, positions within :data:`MAX_POSITION`; errors name the file line."""
+    if not rows:
+        return
     n_channels = len(labels)
-    rows = [ln for ln in lines[k:] if ln.strip()]
-    if len(rows) < n_frames:
-        raise _fail(source, 0, f"header says {n_frames} frames but only {len(rows)} are present (truncated?)")
     try:
-        values = np.array(" ".join(rows[:n_frames]).split(), dtype=np.float64)
+        values = np.array(" ".join(rows).split(), dtype=np.float64)
     except ValueError:
-        raise _fail(source, 0, "non-numeric value in the MOTION data") from None
-    if values.size != n_frames * n_channels:
-        per_row = [len(r.split()) for r in rows[:n_frames]]
-        bad = next(i for i, n in enumerate(per_row) if n != n_channels)
-        raise _fail(source, line0 + k + bad, f"frame {bad} has {per_row[bad]} values, expected {n_channels}")
-    not_finite = np.flatnonzero(~np.isfinite(values))
-    if not_finite.size:
-        frame, column = divmod(int(not_finite[0]), n_channels)
-        raise _fail(source, 0, f"NaN or infinite value in the MOTION data (frame {frame}, {labels[column]}; "
-                               f"{not_finite.size} such values)")
-    return frame_time, values.reshape(n_frames, n_channels)
+        bad = next(i for i, r in enumerate(rows) if not _is_numeric_row(r))
+        raise _fail(source, int(row_lines[first + bad]), "non-numeric value in the MOTION data") from None
+    if values.size != len(rows) * n_channels:
+        bad = next(i for i, r in enumerate(rows) if len(r.split()) != n_channels)
+        raise _fail(source, int(row_lines[first + bad]),
+                    f"frame {first + bad} has {len(rows[bad].split())} values, expected {n_channels}")
+    block = values.reshape(len(rows), n_channels)
+    positions = np.array([label.endswith("position") for label in labels], dtype=bool)
+    bad_value = ~np.isfinite(block) | (positions & (np.abs(block) > MAX_POSITION))
+    if bad_value.any():
+        row, column = np.argwhere(bad_value)[0]
+        value, where = block[row, column], f"frame {first + row}, {labels[column]}"
+        raise _fail(source, int(row_lines[first + row]),
+                    f"NaN or infinite value in the MOTION data ({where})" if not np.isfinite(value) else
+                    f"{where} {value:g} is beyond {MAX_POSITION:g} units (10 km in millimetres)")
+    motion[first:first + len(rows)] = block
+
+
+def _is_numeric_row(row: str) -> bool:
+    try:
+        np.array(row.split(), dtype=np.float64)
+    except ValueError:
+        return False
+    return True
 
 
 def _position_channels(bvh: Bvh, joint: int) -> tuple[list[int], list[int]]:
@@ -332,10 +384,7 @@ def detect_position_mode(bvh: Bvh) -> str:
 def read_bvh(path: str | os.PathLike) -> Bvh:
     """Read a BVH file (any line endings); raises :class:`BvhError` naming the file."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError as exc:
-        raise BvhError(f"{path}: cannot read ({exc.strerror})") from None
+    text = read_input_text(path, MAX_BVH_BYTES, BvhError, "BVH file", errors="replace")
     return parse_bvh(text, str(path))
 
 

@@ -25,10 +25,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mocapdb.core.errors import MocapdbError
+from mocapdb.core.files import MIB, read_input_text
 
 SCHEMA_VERSION = 2  # 2: clips.mirrored
 FORMAT = "mocapdb"
 MANIFEST = "manifest.json"
+MAX_MANIFEST_BYTES = MIB  # the manifest names five tables and the build's settings
 N_KEYPOINTS = 15
 N_KEYPOINTS_2D = 14
 
@@ -262,8 +264,8 @@ def _check_finite(db: MotionDatabase) -> None:
 
 def _is_database(path: Path) -> bool:
     try:
-        manifest = json.loads((path / MANIFEST).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        manifest = json.loads(read_input_text(path / MANIFEST, MAX_MANIFEST_BYTES, DatabaseError, "manifest"))
+    except (DatabaseError, ValueError, RecursionError):
         return False
     return isinstance(manifest, dict) and manifest.get("format") == FORMAT
 
@@ -489,9 +491,10 @@ def _read_manifest(path: Path) -> dict:
     file = path / MANIFEST
     if not file.is_file():
         raise DatabaseError(f"{path}: not a mocapdb database (no {MANIFEST})")
+    text = read_input_text(file, MAX_MANIFEST_BYTES, DatabaseError, "database manifest")
     try:
-        manifest = json.loads(file.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        manifest = json.loads(text)
+    except (ValueError, RecursionError) as e:
         raise DatabaseError(f"{file}: unreadable manifest: {e}") from None
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise DatabaseError(f"{path}: not a mocapdb database ({MANIFEST} lacks format {FORMAT!r})")

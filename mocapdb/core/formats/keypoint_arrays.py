@@ -17,6 +17,7 @@ from typing import BinaryIO
 
 import numpy as np
 
+from mocapdb.core.files import MIB, open_input
 from mocapdb.core.formats.keypoints import (
     KeypointError,
     KeypointFrame,
@@ -31,6 +32,9 @@ from mocapdb.core.formats.keypoints import (
 )
 from mocapdb.core.formats.openpose import read_mmpose_json
 from mocapdb.core.skeleton import N_KEYPOINTS_2D
+
+MAX_ARRAY_BYTES = 256 * MIB       # a keypoint array: an hour at 60 fps of two people of 25 keypoints, in float64
+MAX_ARRAY_FILE_BYTES = MAX_ARRAY_BYTES + MIB  # an .npz file: its arrays, stored or compressed, and the zip's index
 
 
 def frames_from_arrays(keypoints: np.ndarray, layout: str | None = None,
@@ -82,17 +86,22 @@ def _read_npy(f: BinaryIO, size: int) -> np.ndarray:
 
 
 def _npz_member(zf: zipfile.ZipFile, key: str, name: str) -> np.ndarray:
+    """One member's array; its stated uncompressed size is checked before anything is inflated
+    (a zip bomb), and no more than that size is ever read."""
     info = zf.getinfo(name)
     with error_source(f"array '{key}'"):
         if info.flag_bits & 0x1:
             raise KeypointError("encrypted")
+        if info.file_size > MAX_ARRAY_BYTES:
+            raise KeypointError(f"{info.file_size:,} bytes uncompressed, more than a keypoint array may hold "
+                                f"({MAX_ARRAY_BYTES:,}; split the take)")
         with zf.open(info) as f:
             return _read_npy(f, info.file_size)
 
 
 def _npz_arrays(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     """The ``keypoints`` and (None if absent) ``scores`` arrays of an ``.npz`` file."""
-    with open(path, "rb") as file:  # a missing or unreadable file raises OSError here, not below
+    with open_input(path, MAX_ARRAY_FILE_BYTES, KeypointError, ".npz keypoint file") as file:
         try:
             with zipfile.ZipFile(file) as zf:
                 names = {n.removesuffix(".npy"): n for n in zf.namelist() if n.endswith(".npy")}
@@ -100,7 +109,10 @@ def _npz_arrays(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
                     raise KeypointError("no 'keypoints' array in the .npz file")
                 scores = _npz_member(zf, "scores", names["scores"]) if "scores" in names else None
                 return _npz_member(zf, "keypoints", names["keypoints"]), scores
-        except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, OSError) as err:
+        except KeypointError:
+            raise
+        except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, OSError, OverflowError,
+                ValueError) as err:
             raise KeypointError(f"not a readable .npz (zip) file ({err})") from None
 
 
@@ -134,11 +146,11 @@ def read_keypoint_array(path: str | Path) -> np.ndarray:
     suffix = path.suffix.lower()
     if suffix not in (".npy", ".npz"):
         raise KeypointError(f"{path}: not a .npy or .npz keypoint file")
-    with error_source(path):
-        if suffix == ".npz":
+    if suffix == ".npz":
+        with error_source(path):
             return _checked_keypoints(*_npz_arrays(path))
-        with open(path, "rb") as f:
-            return _checked_keypoints(_read_npy(f, os.fstat(f.fileno()).st_size), None)
+    with open_input(path, MAX_ARRAY_BYTES, KeypointError, ".npy keypoint file") as f, error_source(path):
+        return _checked_keypoints(_read_npy(f, os.fstat(f.fileno()).st_size), None)
 
 
 KEYPOINT_FILE_SUFFIXES = (".npy", ".npz", ".json")

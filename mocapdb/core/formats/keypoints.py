@@ -11,7 +11,7 @@ Orders, mapping, layout detection, file forms and the JSON-lines schema: ``data_
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -31,6 +31,7 @@ UPPER_NECK_SPAN_NOSE = (0.2, 1.0)      # BODY_25B upper neck: fraction of the wa
 UPPER_NECK_SPAN_HEAD_TOP = (0.05, 0.9)  # and of the way mid-shoulder → head top
 LAYOUT_VOTE_RATIO = 3  # the winning layout needs more than this times the loser's votes
 NORMALISED_EXTENT = 2.0  # a MediaPipe person whose points all lie within this of 0 is not in pixels
+MAX_POSITION_PX = 1e6    # |x|, |y| of a finite keypoint at most this (30 times the largest image side)
 
 
 class KeypointError(MocapdbError, ValueError):
@@ -99,13 +100,17 @@ def to_universal(raw: np.ndarray, layout: str) -> tuple[np.ndarray, np.ndarray]:
     Returns ``points [P, 14, 2]`` (pixels; NaN where missing) and ``confidence [P, 14]`` (clipped
     to [0, 1]; 0 where missing: non-finite values, confidence <= 0, or no such keypoint). The neck
     is the mid-shoulder point whenever both shoulders are confident, else the layout's own neck.
-    MediaPipe positions normalised to [0, 1] instead of pixels raise KeypointError.
+    MediaPipe positions normalised to [0, 1] instead of pixels, and finite positions beyond
+    :data:`MAX_POSITION_PX`, raise KeypointError.
     """
     names = LAYOUTS[_check_layout(layout)]
     raw = numeric(raw, "keypoint array")
     if raw.ndim != 3 or raw.shape[1:] != (len(names), 3):
         raise KeypointError(f"keypoint array of shape {raw.shape} does not fit layout {layout}, "
                             f"which needs [P, {len(names)}, 3]")
+    xy = raw[..., :2]
+    if np.any(np.isfinite(xy) & (np.abs(xy) > MAX_POSITION_PX)):   # NaN and infinity: missing points
+        raise KeypointError(f"a keypoint position is beyond {MAX_POSITION_PX:,.0f} px from the image origin")
     if layout == "mediapipe33":
         _refuse_normalised(raw)
     source = np.array(SOURCE_INDEX[layout])
@@ -205,11 +210,14 @@ def with_scores(xy: np.ndarray, scores: np.ndarray, what: str) -> np.ndarray:
     return np.concatenate([xy, scores[..., None]], axis=-1)
 
 
-def build_frame(index: int, time_s: float | None, people: list[RawPerson], layout: str | None) -> KeypointFrame:
-    """Map every person onto the universal 14: own layout, else ``layout``, else detected by count."""
+def build_frame(index: int, time_s: float | None, people: list[RawPerson], layout: str | None,
+                known: Mapping[int, str] | None = None) -> KeypointFrame:
+    """Map every person onto the universal 14: own layout, else ``layout``, else ``known`` (layouts
+    already decided, by keypoint count: a stream's earlier frames), else detected by count."""
     names = [p.layout or layout for p in people]
     undecided = [p.raw for p, name in zip(people, names) if name is None]
-    detected = {k: detect_layout(np.stack([r for r in undecided if len(r) == k]))
+    known = known or {}
+    detected = {k: known.get(k) or detect_layout(np.stack([r for r in undecided if len(r) == k]))
                 for k in {len(r) for r in undecided}}
     names = [name or detected[len(p.raw)] for p, name in zip(people, names)]
     out: list[Person | None] = [None] * len(people)

@@ -6,12 +6,15 @@ from __future__ import annotations
 
 import itertools
 import json
+import logging
+import os
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Container, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from mocapdb.core.files import MIB, read_input_text
 from mocapdb.core.formats.keypoints import (
     KeypointError,
     KeypointFrame,
@@ -29,6 +32,13 @@ from mocapdb.core.formats.keypoints import (
 from mocapdb.core.formats.take import TAKE_FILE
 
 DETECT_FRAMES = 10     # a folder's or file's layout is detected from its first frames holding people
+MAX_INTEGER = 2**53    # frame numbers and person ids lie below this in magnitude (exact in float64 and JSON readers)
+MAX_TIME_S = 2**53 / 1e6   # |time| below this (about 285 years): exact to the microsecond the output writes
+MAX_NAMED = 10         # entries named in a warning about skipped folder entries
+MAX_FRAME_FILE_BYTES = 16 * MIB     # one frame's JSON (a crowd of 1,000 people takes under 1 MiB)
+MAX_PREDICTIONS_BYTES = 128 * MIB   # an MMPose prediction file: an hour of one person at 30 fps takes ~65 MiB
+
+LOG = logging.getLogger(__name__)
 
 
 def _load_json(text: str) -> dict | list:
@@ -44,11 +54,9 @@ def _load_json(text: str) -> dict | list:
     return obj
 
 
-def _read_text(path: Path) -> str:
-    try:
-        return path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise KeypointError("not UTF-8 text") from None
+def _read_text(path: Path, max_bytes: int) -> str:
+    """The text of a regular keypoint file of at most ``max_bytes`` (errors name the file)."""
+    return read_input_text(path, max_bytes, KeypointError, "keypoint file")
 
 
 def _person_id(value: object) -> int | None:
@@ -57,8 +65,8 @@ def _person_id(value: object) -> int | None:
         value = value[0]
     if value is None:
         return None
-    if not isinstance(value, int) or isinstance(value, bool):
-        raise KeypointError(f"person id {shown(value)} is not an integer")
+    if not isinstance(value, int) or isinstance(value, bool) or not abs(value) < MAX_INTEGER:
+        raise KeypointError(f"person id {shown(value)} is not an integer between -2**53 and 2**53")
     return None if value == -1 else value
 
 
@@ -139,19 +147,47 @@ def is_frame_file(name: str) -> bool:
     return name.lower().endswith(".json") and name != TAKE_FILE
 
 
+def _is_regular(entry: os.DirEntry) -> bool:
+    """Whether ``entry`` is a regular file, a symlink followed (a symlink loop is not one)."""
+    try:
+        return entry.is_file()
+    except OSError:
+        return False
+
+
+def frame_entries(folder: Path, known: Container[str] = ()) -> tuple[list[str], list[str]]:
+    """The names of ``folder``'s frame files (:func:`is_frame_file`) not in ``known``, as listed:
+    the regular files (symlinks to one included), and the others (a dangling or looping symlink, a
+    FIFO, a device, a folder), which no reader opens and one warning names. Shared by every folder
+    reader (:func:`read_openpose_folder`, the live folder source); OSError if it cannot be listed."""
+    files: list[str] = []
+    others: list[str] = []
+    with os.scandir(folder) as entries:
+        for entry in entries:
+            if is_frame_file(entry.name) and entry.name not in known:
+                (files if _is_regular(entry) else others).append(entry.name)
+    if others:
+        named = ", ".join(sorted(others)[:MAX_NAMED])
+        more = f" and {len(others) - MAX_NAMED} more" if len(others) > MAX_NAMED else ""
+        LOG.warning("%s: skipped %d .json entries that are not regular files (a dangling or looping symlink, "
+                    "a FIFO, a device or a folder): %s%s", folder, len(others), named, more)
+    return files, others
+
+
 def _frame_files(folder: Path) -> list[Path]:
-    """The folder's frame files (:func:`is_frame_file`) in frame order (:func:`frame_order_key`)."""
+    """The folder's frame files (:func:`frame_entries`) in frame order (:func:`frame_order_key`)."""
     if not folder.is_dir():
         raise KeypointError(f"{folder}: not a folder")
-    files = [p for p in folder.iterdir() if is_frame_file(p.name) and p.is_file()]
-    if not files:
+    names = frame_entries(folder)[0]
+    if not names:
         raise KeypointError(f"{folder}: no .json keypoint files")
-    return sorted(files, key=lambda p: frame_order_key(p.name))
+    return [folder / name for name in sorted(names, key=frame_order_key)]
 
 
 def _read_people(path: Path) -> list[RawPerson]:
+    text = _read_text(path, MAX_FRAME_FILE_BYTES)
     with error_source(path):
-        return _raw_people(_load_json(_read_text(path)))
+        return _raw_people(_load_json(text))
 
 
 def read_openpose_folder(folder: str | Path, layout: str | None = None,
@@ -220,8 +256,9 @@ def read_mmpose_json(path: str | Path, layout: str | None = None, fps: float | N
     """
     path = Path(path)
     check_fps(fps)
+    text = _read_text(path, MAX_PREDICTIONS_BYTES)
     with error_source(path):
-        people = _mmpose_people(_load_json(_read_text(path)))
+        people = _mmpose_people(_load_json(text))
         names = [f"frame {i}" for i in range(len(people))]
         return list(_detected_frames(iter(people), names, optional_layout(layout), fps, None))
 
@@ -233,23 +270,25 @@ def _field(obj: dict, key: str, kinds: tuple[type, ...], what: str) -> object:
     return value
 
 
-def parse_stream_line(line: str, default_layout: str | None = None) -> KeypointFrame:
+def parse_stream_line(line: str, default_layout: str | None = None,
+                      known: Mapping[int, str] | None = None) -> KeypointFrame:
     """One JSON-lines input frame (schema: ``data_specs/keypoint_formats.md``).
 
     ``{"frame": 12, "time": 0.4, "layout": "coco17", "people": [{"id": 3, "keypoints": [[x, y, c], ...]}]}``,
     an OpenPose-style object or an MMPose per-image list of instances. A missing ``frame`` gives
-    index -1 (the caller numbers the frame); ``time`` is in seconds. Any bad input raises
-    KeypointError with a short reason, nothing else.
+    index -1 (the caller numbers the frame); ``time`` is in seconds. ``known``: layouts by keypoint
+    count for people whose layout neither they, their line nor ``default_layout`` give
+    (:func:`build_frame`). Any bad input raises KeypointError with a short reason, nothing else.
     """
     obj = _load_json(line)
     if isinstance(obj, list):
-        return build_frame(-1, None, _raw_people(obj), optional_layout(default_layout))
+        return build_frame(-1, None, _raw_people(obj), optional_layout(default_layout), known)
     index = _field(obj, "frame", (int,), "a non-negative integer")
-    if index is not None and index < 0:
-        raise KeypointError("'frame' must be a non-negative integer")
+    if index is not None and not 0 <= index < MAX_INTEGER:
+        raise KeypointError("'frame' must be a non-negative integer below 2**53")
     time_s = _field(obj, "time", (int, float), "a number of seconds")
-    if time_s is not None and not abs(time_s) < 1e300:  # NaN, infinite, or an int too big for a float
-        raise KeypointError("'time' must be a finite number of seconds")
+    if time_s is not None and not abs(time_s) < MAX_TIME_S:  # NaN, infinite, or beyond any take
+        raise KeypointError(f"'time' must be a finite number of seconds below {MAX_TIME_S:,.0f} in magnitude")
     layout = optional_layout(obj.get("layout", default_layout))
     return build_frame(-1 if index is None else index, None if time_s is None else float(time_s),
-                       _raw_people(obj), layout)
+                       _raw_people(obj), layout, known)

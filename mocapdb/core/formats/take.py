@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from mocapdb.core.errors import MocapdbError, UsageError
-from mocapdb.core.files import write_atomic
+from mocapdb.core.files import read_input_text, write_atomic
 
 TAKE_FILE = "take.json"
 TAKE_FORMAT = "mocapdb-take"
@@ -97,12 +97,9 @@ def read_take(folder: str | Path) -> TakeInfo | None:
     path = Path(folder) / TAKE_FILE
     if not Path(folder).is_dir() or not path.exists():
         return None
-    if not path.is_file():
-        raise TakeError(f"{path}: not a regular file")
     try:
-        with path.open("rb") as fh:
-            body = json.loads(fh.read(MAX_TAKE_BYTES).decode("utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        body = json.loads(read_input_text(path, MAX_TAKE_BYTES, TakeError, "take description"))
+    except (ValueError, RecursionError) as exc:
         raise TakeError(f"{path}: not a take description ({exc})") from None
     if not isinstance(body, dict) or body.get("format") != TAKE_FORMAT:
         raise TakeError(f"{path}: not a take description (format {TAKE_FORMAT!r} expected)")

@@ -14,9 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.errors import MocapdbError
+from mocapdb.core.files import MIB, read_input_text
 from mocapdb.core.skeleton import KP, N_POINTS
 
 TRC_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}  # metres per file unit
+MAX_TRC_BYTES = 256 * MIB  # an hour of 60 markers at 100 Hz takes ~250 MiB
 _REQUIRED_KEYS = ("DataRate", "NumFrames", "NumMarkers", "Units")
 # The marker giving each universal keypoint (OpenPose names, as Pose2Sim writes them); the neck
 # and the pelvis are midpoints (the universal neck is the mid-shoulder point, not a neck marker).
@@ -111,13 +113,7 @@ def parse_trc(text: str, source: str = "<text>") -> Trc:
 def read_trc(path: str | Path) -> Trc:
     """Read a TRC file; raises :class:`TrcError` naming the file."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise TrcError(f"{path}: cannot read ({exc.strerror})") from None
-    except UnicodeDecodeError:
-        raise TrcError(f"{path}: not UTF-8 text") from None
-    return parse_trc(text, str(path))
+    return parse_trc(read_input_text(path, MAX_TRC_BYTES, TrcError, "TRC file"), str(path))
 
 
 def trc_keypoints(trc: Trc) -> np.ndarray:
