@@ -266,7 +266,8 @@ def stream_cases(tmp: Path, db: Path) -> list[Case]:
              check=lambda err: _frames_in(tmp / "o_huge" / "result.jsonl", 80)),
         Case(family, "reconstruct: layouts 25, 17, 26 points mid-stream", ["reconstruct", str(mixed), "--db", str(db),
              "--out", str(tmp / "o_mixed"), *CAMERA], expect=0,
-             check=lambda err: _frames_in(tmp / "o_mixed" / "result.jsonl", 150, with_people=150)),
+             check=lambda err: _frames_in(tmp / "o_mixed" / "result.jsonl", 150, with_people=149)),  # a track's
+        # first frame only starts it: every other frame, before and after each change of layout, holds the person
         Case(family, "reconstruct: folder with a symlink loop and a FIFO", ["reconstruct", str(loop_folder),
              "--db", str(db), "--out", str(tmp / "o_loop"), *CAMERA], expect=0,
              check=lambda err: _frames_in(tmp / "o_loop" / "result.jsonl", 100)),
