@@ -59,9 +59,11 @@ def _readers():
     from mocapdb.core.formats.keypoint_arrays import read_keypoint_file
     from mocapdb.core.formats.trc import read_trc
     from mocapdb.core.joint_map import load_joint_map_file
+    from mocapdb.render.results import read_result
 
     return {"x.bvh": read_bvh, "x.toml": read_calibration_toml, "x.trc": read_trc, "map.toml": load_joint_map_file,
-            "x.npy": read_keypoint_file, "x.npz": read_keypoint_file, "x.json": read_keypoint_file}
+            "x.npy": read_keypoint_file, "x.npz": read_keypoint_file, "x.json": read_keypoint_file,
+            "result.jsonl": read_result}
 
 
 @pytest.mark.parametrize("target", ["fifo", "zero", "folder"])
@@ -84,7 +86,7 @@ def test_every_reader_refuses_special_files_at_once(odd_paths, name, target):
     reader.join(timeout=10)
     assert not reader.is_alive(), f"{name} on a {target} hangs"
     assert outcome and isinstance(outcome[0], MocapdbError), outcome
-    assert str(path) in str(outcome[0]) and "not a" in str(outcome[0]), outcome[0]
+    assert str(path) in str(outcome[0]) and re.search("not a|no result.jsonl", str(outcome[0])), outcome[0]
 
 
 def test_the_take_description_and_manifest_refuse_special_files(odd_paths):

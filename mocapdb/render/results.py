@@ -16,12 +16,15 @@ import numpy as np
 
 from mocapdb.core.cameras import CameraModel
 from mocapdb.core.errors import MocapdbError
+from mocapdb.core.files import MIB, open_input, read_input_text
 from mocapdb.core.formats.take import TakeInfo
 from mocapdb.core.outputs import STREAM_FORMAT, STREAM_VERSION
 from mocapdb.core.skeleton import KEYPOINTS, N_POINTS
 
 RESULT_FILE = "result.jsonl"
 CAMERAS_FILE = "cameras.json"
+MAX_RESULT_BYTES = 512 * MIB  # a result stream: an hour at 60 fps of two people takes ~400 MiB
+MAX_CAMERAS_BYTES = MIB       # cameras.json: two cameras and the tracks' summaries
 MAX_POSITION_M = 10_000.0  # a joint or camera farther from camera 1 is no position a run gives: refused
 # every version up to the writer's: the fields drawn here (fps, joints, frames) have not changed
 STREAM_VERSIONS = tuple(range(1, STREAM_VERSION + 1))
@@ -96,9 +99,9 @@ def recorded_camera(result: str | Path) -> TakeInfo | None:
     description; None for a stream that records none (older runs, stereo)."""
     path = result_path(result)
     try:
-        with path.open(encoding="utf-8") as fh:
-            header = json.loads(fh.readline(1_000_000))
-    except (OSError, UnicodeDecodeError, ValueError):
+        with open_input(path, MAX_RESULT_BYTES, RenderError, "result stream") as fh:
+            header = json.loads(fh.readline(1_000_000).decode("utf-8"))
+    except (RenderError, OSError, UnicodeDecodeError, ValueError, RecursionError):
         return None  # read_result names the problem when the result is drawn
     if not isinstance(header, dict) or "focal_px" not in header:
         return None
@@ -119,11 +122,7 @@ def read_result(result: str | Path) -> ResultStream:
     and line when it is no mocapdb stream (header), a frame line is malformed or a joint lies beyond
     :data:`MAX_POSITION_M` (refused rather than drawn: nothing a camera films is that far)."""
     path = result_path(result)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise RenderError(f"{path}: not UTF-8 text, so not a mocapdb result stream") from None
-    lines = text.splitlines()
+    lines = read_input_text(path, MAX_RESULT_BYTES, RenderError, "mocapdb result stream").splitlines()
     if not lines or not lines[0].strip():
         raise RenderError(f"{path}: empty, no mocapdb stream header (did the run fail?)")
     try:
@@ -178,7 +177,7 @@ def read_cameras(folder: str | Path) -> StereoCameras | None:
     if not Path(folder).is_dir() or not path.is_file():
         return None
     try:
-        obj = json.loads(path.read_text(encoding="utf-8"))
+        obj = json.loads(read_input_text(path, MAX_CAMERAS_BYTES, RenderError, "stereo cameras file"))
         cams = []
         for c in obj["cameras"]:
             K = np.array(c["K"], dtype=np.float64)
