@@ -257,3 +257,26 @@ def test_cli_reports_what_the_limits_held_back(small_db_path, tmp_path, capsys):
     # The one track goes to the leftmost detection: the false one at the image's edge (static, no BVH).
     assert "limits: detections not tracked (--max-tracks 1 alive): 100" in out and "static tracks" in out
     assert not list(tmp_path.glob("track_*.bvh"))
+
+
+def test_live_never_writes_over_earlier_track_files_nor_touches_others(small_db_path, tmp_path, capsys):
+    """``--bvh-dir`` holding an earlier run's track file is refused before any work; a folder of the
+    user's other files gets the new track files beside them, the others untouched."""
+    import shutil
+
+    frames = tmp_path / "frames"
+    shutil.copytree(SAMPLE_KEYPOINTS, frames)
+    earlier, users = tmp_path / "earlier", tmp_path / "users"
+    earlier.mkdir()
+    (earlier / "track_1.bvh").write_text("an earlier capture")
+    users.mkdir()
+    (users / "notes.txt").write_text("the user's notes")
+    live = ["live", "--source", str(frames), "--db", str(small_db_path), "--sink", str(tmp_path / "out.jsonl"),
+            "--idle-timeout", "1", "--buffer", "10000", "--fps", "60", "--image-size", "1088x1920", "--focal", "1681"]
+    assert main([*live, "--bvh-dir", str(earlier)]) == 2
+    err = capsys.readouterr().err
+    assert "--bvh-dir already holds track files (track_1.bvh)" in err and err.count("\n") == 1
+    assert (earlier / "track_1.bvh").read_text() == "an earlier capture" and not (tmp_path / "out.jsonl").exists()
+    assert main([*live, "--bvh-dir", str(users)]) == 0
+    assert (users / "notes.txt").read_text() == "the user's notes"
+    assert sorted(p.name for p in users.iterdir()) == ["notes.txt", "track_1.bvh"]

@@ -316,7 +316,9 @@ def add_live_parser(sub: argparse._SubParsersAction) -> None:
                         "(data_specs/pose_models.md)")
     p.add_argument("--sink", default="-", type=P.STREAM_SINK,
                    help="'-' (stdout), a file, tcp://HOST:PORT or udp://HOST:PORT")
-    p.add_argument("--bvh-dir", type=P.OUTPUT, help="folder for the tracks' BVH files, written when the stream ends")
+    p.add_argument("--bvh-dir", type=P.OUTPUT,
+                   help="folder for the tracks' BVH files, written as tracks end (a folder already holding "
+                        "track files is refused: nothing is written over)")
     p.add_argument("--idle-timeout", type=D.IDLE_TIMEOUT_S,
                    help="stop after this many seconds without a message (any source; default: never)")
     p.add_argument("--client-timeout", type=D.CLIENT_TIMEOUT_S, default=30.0,
@@ -339,12 +341,15 @@ def run_live(args: argparse.Namespace) -> int:
     import threading
     from pathlib import Path
 
+    from mocapdb.core.outputs import check_no_track_files
     from mocapdb.core.signals import install_stop_handlers
     from mocapdb.runtime.session import SinkError, run_live
     from mocapdb.runtime.streams import NetworkLimits, open_source
     from mocapdb.runtime.video_input import open_video_source, run_video
 
     limits = NetworkLimits(args.max_clients, args.client_timeout, args.max_rate)   # checked before any work
+    if args.bvh_dir:
+        check_no_track_files(args.bvh_dir)
     resolve_take(args, args.source)
     session = _session(args, args.sink, strict=False)
     stop, video = threading.Event(), None

@@ -341,3 +341,23 @@ def output_file(path: str | Path, kind: OutputFile) -> Iterator[Path]:
         os.replace(tmp, check_output_file(path, kind))
     finally:
         tmp.unlink(missing_ok=True)
+
+
+TRACK_FILES = OutputFiles("live", ("track_*.bvh", "track_*.trc", "track_*.csv"), "track_*")
+
+
+def check_no_track_files(folder: str | Path, option: str = "--bvh-dir") -> None:
+    """Refuse (OutputFolderError) a folder that already holds track files (``track_*.bvh/trc/csv``):
+    a run that adds its track files to a folder as tracks end (``live --bvh-dir``) never writes over
+    an earlier run's, and touches no other file there. A missing folder passes (it is created)."""
+    folder = Path(folder)
+    if not os.path.lexists(folder):
+        return
+    if not folder.is_dir():
+        raise OutputFolderError(f"{folder}: {option} exists and is not a folder")
+    with os.scandir(folder) as entries:
+        earlier = sorted(e.name for e in entries if TRACK_FILES.matches(e.name))
+    if earlier:
+        raise OutputFolderError(f"{folder}: {option} already holds track files ({', '.join(earlier[:3])}"
+                                f"{', …' if len(earlier) > 3 else ''}) that this run would write over: choose "
+                                "another folder or move them (nothing was written)")
