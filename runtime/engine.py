@@ -318,6 +318,8 @@ class Engine:
         self.stats = EngineStats()
         self._new_tracks = NewTrackWindow()
         self._last_seen: tuple[int, float] | None = None
+        # the last frames' usable people (index, time, points, confidences), for tracks confirmed later
+        self._recent: deque[tuple[int, float, np.ndarray, np.ndarray]] = deque(maxlen=max(cfg.tracker.min_hits - 1, 0))
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -331,7 +333,8 @@ class Engine:
 
     # -- per frame -------------------------------------------------------------------------
     def step(self, frame: KeypointFrame, now_s: float | None = None) -> list[PersonPose]:
-        """Process one frame; returns the poses of the confirmed tracks seen in it. ``now_s``: the
+        """Process one frame; returns the poses of the confirmed tracks seen in it (a track confirmed
+        now records its detections of the frames before too, without returning them). ``now_s``: the
         clock of the new-track limit (seconds; default the frame's time)."""
         cfg = self.config
         t_s = frame.time_s if frame.time_s is not None else frame.index / cfg.fps
@@ -349,13 +352,30 @@ class Engine:
         for track, det in update.assignments:
             state = self.tracks.get(track)
             if state is None:
-                state = self.tracks[track] = _TrackState(track, frame.index, cfg, len(self.window_weights))
-                self.stats.tracks_started += 1
-            state.stillness.add(points[det], conf[det] > 0, t_s)
-            person_px = points[det] if state.keypoints is None else state.keypoints(points[det], conf[det], t_s)
-            poses.append(self._person(state, person_px, conf[det], frame.index, t_s))
+                state = self._start(track, update.earlier.get(track, []), frame.index)
+            poses.append(self._detected(state, points[det], conf[det], frame.index, t_s))
         self.stats.person_frames += len(poses)
+        self._recent.append((frame.index, t_s, points, conf))
         return poses
+
+    def _start(self, track: int, earlier: list[int], frame_index: int) -> _TrackState:
+        """A track confirmed on frame ``frame_index``, its ``earlier`` detections (the frames before,
+        :attr:`TrackUpdate.earlier`) already recorded: its recording starts at its first detection,
+        the stream at its confirmation."""
+        frames = list(self._recent)[len(self._recent) - len(earlier):] if earlier else []
+        first = frames[0][0] if frames else frame_index
+        state = self.tracks[track] = _TrackState(track, first, self.config, len(self.window_weights))
+        self.stats.tracks_started += 1
+        for (index, t_s, points, conf), det in zip(frames, earlier):
+            self._detected(state, points[det], conf[det], index, t_s)
+        return state
+
+    def _detected(self, state: _TrackState, points_px: np.ndarray, conf: np.ndarray, frame_index: int,
+                  t_s: float) -> PersonPose:
+        """The pose of one detection ``[14, 2]`` px of a track, recorded."""
+        state.stillness.add(points_px, conf > 0, t_s)
+        person_px = points_px if state.keypoints is None else state.keypoints(points_px, conf, t_s)
+        return self._person(state, person_px, conf, frame_index, t_s)
 
     def _track(self, points: np.ndarray, conf: np.ndarray, t_s: float, now_s: float) -> TrackUpdate:
         """The tracker's update within the limits, counting what they held back."""

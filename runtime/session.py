@@ -23,7 +23,7 @@ import numpy as np
 
 from mocapdb.core import domains as D
 from mocapdb.core.errors import MocapdbError
-from mocapdb.core.exports import TrackExport, write_track_files
+from mocapdb.core.exports import TrackExport, track_joints, write_track_files
 from mocapdb.core.formats.keypoints import LAYOUTS, KeypointError, KeypointFrame
 from mocapdb.core.formats.openpose import parse_stream_line
 from mocapdb.core.outputs import TrackRecording, frame_line, header_line
@@ -207,6 +207,7 @@ class SessionOptions:
     lag_frames: int = 0             # stream lines written this many frames late, smoothed (runtime.lag)
     camera_sources: dict[str, str] = field(default_factory=dict)  # where fps, image size, focal came from
     camera_height_m: float | None = None  # the shared floor's distance below the camera, when known
+    keep_joints: bool = False       # TrackFiles.joints: every written track's joints, for reconstruct --preview
 
     def __post_init__(self) -> None:
         D.MAX_BVH_FILES.check(self.max_bvh_files, "max_bvh_files")
@@ -233,6 +234,8 @@ class TrackFiles:
         self._paths: set[Path] = set()  # written
         self._waiting: list[tuple[TrackRecording, str]] = []
         self._held: list[tuple[TrackRecording, str]] = []  # final files held for the shared floor
+        # with options.keep_joints: file name → track, frame numbers [F], joints [F, 15, 3] (exports.track_joints)
+        self.joints: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
 
     def ended(self, rec: TrackRecording) -> None:
         """A track ended: its file (or last part), unless static or too short."""
@@ -298,6 +301,8 @@ class TrackFiles:
     def _write_files(self, rec: TrackRecording, name: str) -> None:
         paths = write_track_files(rec, self.options.bvh_dir, name, self.fps, self.options.export)
         self._names.add(name)
+        if self.options.keep_joints:
+            self.joints[name] = (rec.track, *track_joints(rec, self.options.export.floor))
         for path in paths:
             if path not in self._paths:
                 self._paths.add(path)
@@ -313,6 +318,7 @@ class TrackFiles:
                 self._paths.discard(path)
                 self.summary.bvh_files.remove(path)
         self._names.discard(name)
+        self.joints.pop(name, None)
 
     def _refuse(self) -> None:
         self.summary.limits.over_max_files += 1

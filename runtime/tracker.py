@@ -9,8 +9,11 @@ brief dropouts and people crossing paths keep their ids.
 Lifecycle: an unmatched detection starts a tentative track (that detection is its first hit);
 ``min_hits`` consecutive hits confirm it and give it the next id (ids only increase and are never
 reused); a tentative track that misses a frame is dropped; a confirmed track unmatched for more
-than ``max_missing`` frames ends. New tracks are created left to right (then top to bottom) by
-box centre, so ids do not depend on the order of the detections in the input.
+than ``max_missing`` frames ends. The update that confirms a track also gives its detections in the
+``min_hits - 1`` frames before (:attr:`TrackUpdate.earlier`), so that a caller can take the track
+from its first detection although it reports it from its confirmation. New tracks are created left
+to right (then top to bottom) by box centre, so ids do not depend on the order of the detections in
+the input.
 
 Limits (:meth:`Tracker.update`'s ``max_tracks``, ``max_new``): while ``max_tracks`` tracks (tentative
 included) live on, a further detection starts no track; a tentative track with enough hits waits,
@@ -55,11 +58,14 @@ class TrackUpdate:
 
     ``assignments``: ``(track_id, detection index)`` of every confirmed track matched this frame
     (including one confirmed on this frame), by track id. ``started``/``ended``: track ids.
+    ``earlier``: per track confirmed this frame, its detection indices in the ``min_hits - 1`` frames
+    before, oldest first (the hits that made it; a track that waited for ``max_new``: the last ones).
     ``over_max_tracks``/``over_max_new``: detections not tracked because of either limit.
     """
 
     assignments: list[tuple[int, int]] = field(default_factory=list)
     started: list[int] = field(default_factory=list)
+    earlier: dict[int, list[int]] = field(default_factory=dict)
     ended: list[int] = field(default_factory=list)
     over_max_tracks: int = 0
     over_max_new: int = 0
@@ -95,18 +101,23 @@ class _Tracks(_People):
     gain: np.ndarray       # [T] weight of the next velocity measurement (1 for the first)
     missing: np.ndarray    # [T] frames since the last match
     detection: np.ndarray  # [T] detection matched this frame, -1 if none
+    inputs: np.ndarray     # [T, H] input indices of the last H matches (H = min_hits), oldest first; -1: none
 
     @classmethod
-    def start(cls, people: _People, detection: np.ndarray, t_s: float) -> _Tracks:
+    def start(cls, people: _People, detection: np.ndarray, t_s: float, inputs: np.ndarray, hits: int) -> _Tracks:
+        """New tentative tracks of ``detection`` (input indices ``inputs``), keeping ``hits`` matches."""
         n = len(detection)
+        recent = np.full((n, hits), -1, dtype=np.int64)
+        recent[:, -1] = inputs
         return cls(people.points, people.visible, people.box, np.full(n, -1), np.zeros((n, 2)),
                    np.full(n, float(t_s)), np.ones(n, dtype=np.int64), np.ones(n), np.zeros(n, dtype=np.int64),
-                   detection)
+                   detection, recent)
 
     @classmethod
-    def empty(cls) -> _Tracks:
+    def empty(cls, hits: int) -> _Tracks:
+        none = np.zeros(0, dtype=np.int64)
         return cls.start(_People.of(np.zeros((0, N_KEYPOINTS_2D, 2)), np.zeros((0, N_KEYPOINTS_2D), dtype=bool)),
-                         np.zeros(0, dtype=np.int64), 0.0)
+                         none, 0.0, none, hits)
 
     def take(self, rows: np.ndarray) -> _Tracks:
         return _Tracks(*(getattr(self, f.name)[rows] for f in fields(self)))
@@ -120,7 +131,8 @@ class Tracker:
 
     def __init__(self, config: TrackerConfig | None = None) -> None:
         self.config = config or TrackerConfig()
-        self._tracks = _Tracks.empty()
+        self._hits_kept = max(self.config.min_hits, 1)
+        self._tracks = _Tracks.empty(self._hits_kept)
         self._next_id = 0
         self._t_s = -np.inf  # time of the last frame
 
@@ -149,18 +161,18 @@ class Tracker:
             points, visible = points[kept], visible[kept]
         dets = _People.of(points, visible)
         rows, cols = self._match(dets, t_s)
-        over_max_tracks = self._advance(rows, cols, dets, t_s, max_tracks)
+        over_max_tracks = self._advance(rows, cols, dets, kept, t_s, max_tracks)
         self._t_s = max(self._t_s, t_s)
-        started, over_max_new = self._confirm(max_new)
+        started, earlier, over_max_new = self._confirm(max_new)
         tr = self._tracks
         assigned = ((tr.ids >= 0) & (tr.detection >= 0)).nonzero()[0]  # rows, hence ids, ascending
         assignments = list(zip(tr.ids[assigned].tolist(), kept[tr.detection[assigned]].tolist()))
-        return TrackUpdate(assignments, started, self._prune(), over_max_tracks, over_max_new)
+        return TrackUpdate(assignments, started, earlier, self._prune(), over_max_tracks, over_max_new)
 
     def finish(self) -> list[int]:
         """End every track (end of stream); returns the ids of the confirmed ones."""
         ended = self.active_ids
-        self._tracks = _Tracks.empty()
+        self._tracks = _Tracks.empty(self._hits_kept)
         self._t_s = -np.inf
         return ended
 
@@ -182,13 +194,16 @@ class Tracker:
         order = np.argsort(rows)
         return rows[order], cols[order]
 
-    def _advance(self, rows: np.ndarray, cols: np.ndarray, dets: _People, t_s: float, max_tracks: int) -> int:
-        """Move matched tracks to their detections, age the others, start tracks for the rest (while
-        fewer than ``max_tracks`` live on); returns how many detections got no track for that limit."""
+    def _advance(self, rows: np.ndarray, cols: np.ndarray, dets: _People, inputs: np.ndarray, t_s: float,
+                 max_tracks: int) -> int:
+        """Move matched tracks to their detections (input indices ``inputs``), age the others, start
+        tracks for the rest (while fewer than ``max_tracks`` live on); returns how many detections got
+        no track for that limit."""
         tr = self._tracks
         _advance_matched(tr.points, tr.visible, tr.box, tr.t_s, tr.velocity, tr.gain, tr.hits, tr.missing,
                          tr.detection, rows, cols, dets.points, dets.visible, dets.box, t_s,
                          t_s > self._t_s, self.config.velocity_smoothing)
+        tr.inputs[rows] = np.column_stack([tr.inputs[rows, 1:], inputs[cols]])
         if len(cols) == len(dets.points):
             return 0
         new = np.ones(len(dets.points), dtype=bool)
@@ -202,19 +217,21 @@ class Tracker:
             new = new[:max(max_tracks - int(staying.sum()), 0)]
         if len(new):
             self._tracks = tr.extend(_Tracks.start(_People(dets.points[new], dets.visible[new], dets.box[new]),
-                                                   new, t_s))
+                                                   new, t_s, inputs[new], self._hits_kept))
         return n_new - len(new)
 
-    def _confirm(self, max_new: int | None) -> tuple[list[int], int]:
+    def _confirm(self, max_new: int | None) -> tuple[list[int], dict[int, list[int]], int]:
         """Give ids, in creation order, to matched tentative tracks with enough hits, at most
-        ``max_new`` of them; returns their ids and how many wait."""
+        ``max_new`` of them; returns their ids, their earlier detections (:attr:`TrackUpdate.earlier`)
+        and how many wait."""
         tr = self._tracks
         rows = ((tr.ids < 0) & (tr.hits >= self.config.min_hits) & (tr.detection >= 0)).nonzero()[0]
         waiting = 0 if max_new is None else max(len(rows) - max_new, 0)
         rows = rows[:len(rows) - waiting]
         tr.ids[rows] = np.arange(self._next_id, self._next_id + len(rows))
         self._next_id += len(rows)
-        return tr.ids[rows].tolist(), waiting
+        ids = tr.ids[rows].tolist()
+        return ids, {i: [d for d in tr.inputs[r, :-1].tolist() if d >= 0] for i, r in zip(ids, rows)}, waiting
 
     def _prune(self) -> list[int]:
         """Drop expired confirmed tracks and unmatched tentative ones; returns the expired ids."""

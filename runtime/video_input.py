@@ -16,8 +16,9 @@ from typing import TYPE_CHECKING, NamedTuple
 
 from mocapdb.core.formats.keypoints import KeypointFrame, Person, to_universal
 from mocapdb.detect.errors import DetectError
-from mocapdb.detect.model import PoseModel
+from mocapdb.detect.model import Detections, PoseModel
 from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU
+from mocapdb.detect.tracked import FULL_FRAME, FastPath, TrackedDetector
 from mocapdb.detect.video import VideoFrame, VideoReader
 from mocapdb.runtime.buffering import BufferedThread
 from mocapdb.runtime.stream_types import StreamStats
@@ -35,15 +36,23 @@ class CapturedFrame(NamedTuple):
     capture_s: float
 
 
+def keypoint_frame(video_frame: VideoFrame, found: Detections) -> KeypointFrame:
+    """The people ``found`` in ``video_frame`` as the engine takes them (universal keypoints, frame pixels)."""
+    points, confidence = to_universal(found.keypoints, "coco17")
+    people = [Person(p, c) for p, c in zip(points, confidence)]
+    return KeypointFrame(video_frame.index, video_frame.time_s, people, "coco17")
+
+
 class VideoDetections(BufferedThread[CapturedFrame]):
-    """Frames of ``source`` (a video file path, or a camera index) with the people ``model`` finds.
+    """Frames of ``source`` (a video file path, or a camera index) with the people ``model`` finds
+    (a :class:`~mocapdb.detect.tracked.TrackedDetector` follows them across frames: crops, optical flow).
 
     ``every``: detect every N-th frame only; ``capacity``: frames buffered before the oldest is
     dropped (see :class:`~mocapdb.runtime.buffering.BufferedThread`). Opening the video happens here
     (DetectError if it fails); the thread starts at once.
     """
 
-    def __init__(self, source: str | int, model: PoseModel, *, every: int = 1, capacity: int = 2,
+    def __init__(self, source: str | int, model: TrackedDetector | PoseModel, *, every: int = 1, capacity: int = 2,
                  stats: StreamStats | None = None) -> None:
         if every < 1 or capacity < 1:
             raise DetectError("every and capacity must be at least 1")
@@ -64,10 +73,7 @@ class VideoDetections(BufferedThread[CapturedFrame]):
             yield captured
 
     def _detect(self, video_frame: VideoFrame) -> KeypointFrame:
-        found = self.model(video_frame.image)
-        points, confidence = to_universal(found.keypoints, "coco17")
-        people = [Person(p, c) for p, c in zip(points, confidence)]
-        return KeypointFrame(video_frame.index, video_frame.time_s, people, "coco17")
+        return keypoint_frame(video_frame, self.model(video_frame.image))
 
     @property
     def detection_fps(self) -> float:
@@ -92,10 +98,14 @@ class VideoDetections(BufferedThread[CapturedFrame]):
 
 def open_video_source(spec: str, model_path: str, *, conf: float = DEFAULT_CONF, iou: float = DEFAULT_IOU,
                       max_people: int | None = None, input_size: int = DEFAULT_INPUT_SIZE, every: int = 1,
-                      capacity: int = 2, stats: StreamStats | None = None) -> VideoDetections:
+                      capacity: int = 2, stats: StreamStats | None = None,
+                      fast: FastPath = FULL_FRAME) -> VideoDetections:
     """``mocapdb live --source SPEC --model POSE.onnx``: SPEC of digits is a camera index, anything
-    else a video file. The model options are :class:`~mocapdb.detect.model.PoseModel`'s; DetectError on failure."""
-    model = PoseModel(model_path, conf=conf, iou=iou, max_people=max_people, input_size=input_size)
+    else a video file. The model options are :class:`~mocapdb.detect.model.PoseModel`'s, ``fast`` the
+    detector's paths (:class:`~mocapdb.detect.tracked.FastPath`; the command line's default: crops);
+    DetectError on failure."""
+    model = TrackedDetector(PoseModel(model_path, conf=conf, iou=iou, max_people=max_people,
+                                      input_size=input_size), fast)
     source: str | int = int(spec) if spec.isdigit() else spec
     return VideoDetections(source, model, every=every, capacity=capacity, stats=stats)
 

@@ -42,6 +42,18 @@ def test_blender_imports_the_humanoid_rig_on_its_floor(tmp_path):
     assert {"Hips", "Spine", "Neck", "Head", "LeftHand", "RightFoot", "LeftToeBase", "RightShoulder"} <= set(bones)
 
 
+@pytest.mark.parametrize("rig", ["universal", "humanoid"])
+def test_blender_finds_no_zero_length_bone(tmp_path, rig):
+    from blender_check import INSIDE, run_in_blender
+
+    rng = np.random.default_rng(2)
+    quats, pos = retarget(rest_positions_m() + rng.normal(scale=0.05, size=(4, 15, 3)) + [0.3, 1.0, -3.0])
+    write_bvh(tmp_path / "track.bvh", universal_bvh(quats, pos[:, PELVIS], 30.0, "cm", rig=rig))
+    run = run_in_blender(INSIDE, [str(tmp_path / "track.bvh"), "[0]"])
+    assert "MOCAPDB" in run.stdout, run.stderr[-2000:]  # imported
+    assert "zero length" not in run.stdout + run.stderr  # the importer's warning for a bone without length
+
+
 def test_a_blender_export_builds_the_same_database_clip(tmp_path):
     # Blender's exporter writes position channels on every joint (they replace the OFFSET).
     from blender_roundtrip import compare, round_trip

@@ -38,7 +38,8 @@ def test_database_views_are_found_exactly(small_db, search):
         # The database camera stands camera.distance_m in front of the pelvis, 1.5 m above the floor.
         assert pose.root_m[2] == pytest.approx(camera.distance_m, rel=0.02)
     recordings = engine.finish()
-    assert [len(r.quaternions) for r in recordings] == [len(frames) - 1]
+    # the recording (the track's files) starts at the first detection, the frame before the confirmation
+    assert [(r.first_frame, len(r.quaternions)) for r in recordings] == [(0, len(frames))]
 
 
 @pytest.mark.parametrize("turn", [-4.0, 3.0])

@@ -129,6 +129,23 @@ def test_humanoid_rig_has_the_bones_auto_mappers_need_at_the_same_places(walk, t
     assert detect_mapping(humanoid).convention == "motionbuilder_mixamo"  # mocapdb build reads it back
 
 
+@pytest.mark.parametrize("rig", ["universal", "humanoid"])
+def test_no_bvh_bone_is_zero_length_and_every_joint_stays_in_place(walk, tmp_path, rig):
+    # Blender ends a bone at its End Site, else at the mean of its children's offsets: the root (hips
+    # either side of the pelvis, the spine at it) was zero length ("zero length node found: Hips").
+    quats, root, _ = walk
+    write_track_files(_recording(quats[:20], root[:20], scale=1.1), tmp_path, "t", 30.0, TrackExport(rig=rig))
+    bvh = read_bvh(tmp_path / "t.bvh")
+    for j in np.flatnonzero(~bvh.end_site):
+        children = bvh.children(j)
+        ends = [c for c in children if bvh.end_site[c]]
+        tail = bvh.offsets[ends[-1]] if ends else bvh.offsets[children].mean(axis=0)
+        assert np.linalg.norm(tail) > 0.05, bvh.names[j]  # metres
+    nodes = NODE_OF_POINT if rig == "universal" else [bvh.index(HUMANOID_NODE_OF_KEYPOINT[k]) for k in KEYPOINTS]
+    np.testing.assert_allclose(forward_kinematics(bvh)[0][:, nodes],
+                               pose_from_rotations(quats[:20], root[:20], 1.1), atol=1e-5)  # the motion as it was
+
+
 def test_export_options_are_checked():
     with pytest.raises(ValueError, match="unknown output format fbx"):
         TrackExport(formats=("bvh", "fbx"))

@@ -184,7 +184,7 @@ def test_an_output_over_an_input_is_refused_and_the_input_kept(tmp_path, small_d
         (["reconstruct", str(keypoints), "--db", db, "--out", str(keypoints.parent)], "holds the input"),
         (["reconstruct", str(keypoints), "--db", db, "--out", str(keypoints / "out")], "lies inside the input"),
         (["reconstruct", str(keypoints), "--db", db, "--out", str(Path(db) / "out")], "lies inside the input --db"),
-        (["stereo", str(keypoints), str(keypoints), "--focal", "1000", "--size", "1920", "1080",
+        (["stereo", str(keypoints), str(keypoints), "--focal", "1000", "--image-size", "1920x1080",
           "--out", str(keypoints)], "is the input"),
         (["build", str(bvh_dir), "--out", str(bvh_dir / "db")], "lies inside the input"),
         (["live", "--source", str(keypoints), "--db", db, "--sink", str(keypoints / "out.jsonl")], "lies inside"),

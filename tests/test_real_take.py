@@ -119,3 +119,28 @@ def test_real_take_command_on_one_camera(small_db_path, tmp_path, capsys):
                                 r["bone_length_cm"]["mean_error_7"]]))
     assert main(["eval", "--db", str(small_db_path), "--real-take", str(TAKE), "--bvh", str(tmp_path)]) == 2
     assert "--real-take" in capsys.readouterr().err
+
+
+@needs_take
+def test_a_camera_folders_take_description_must_agree_with_the_take(tmp_path):
+    """A camera folder that `mocapdb detect` wrote holds a take.json: its rate and image size must be the
+    TRC's and the calibration's (here the video was detected at half its rate)."""
+    import shutil
+
+    from mocapdb.core.errors import UsageError
+    from mocapdb.core.formats.take import TakeInfo, write_take
+    from mocapdb.evaluation.real_take import load_take
+
+    for name in ("calibration.toml", "triangulated_4cam.trc"):
+        shutil.copy(TAKE / name, tmp_path / name)
+    folder = tmp_path / "openpose_body25b" / "cam01_json"
+    shutil.copytree(TAKE / "openpose_body25b" / "cam01_json", folder)
+    write_take(folder, TakeInfo(fps=60.0, image_size=(1088, 1920), frames=100, source="cam01.mp4"))
+    assert load_take(tmp_path, ["cam_01"]).fps == 60.0
+    write_take(folder, TakeInfo(fps=30.0, image_size=(1088, 1920), frames=100, source="cam01.mp4"))
+    with pytest.raises(UsageError, match=f"the rate of {tmp_path / 'triangulated_4cam.trc'} 60 contradicts "
+                                         f"{folder / 'take.json'}, which says 30: correct one of them"):
+        load_take(tmp_path, ["cam_01"])
+    write_take(folder, TakeInfo(fps=60.0, image_size=(1920, 1080), frames=100, source="cam01.mp4"))
+    with pytest.raises(UsageError, match="the image size of cam_01 in .*calibration.toml 1088x1920 contradicts"):
+        load_take(tmp_path, ["cam_01"])

@@ -283,6 +283,28 @@ def test_the_preview_title_names_the_output_not_the_temporary_folder(small_db_pa
     assert title.startswith(f"{out / 'result.jsonl'}:") and ".tmp" not in title
 
 
+def test_the_preview_with_floor_draws_the_track_files_on_their_floor(small_db_path, tmp_path, monkeypatch):
+    # --floor puts the track files on the floor found (levelled, y = 0, the origin under the camera);
+    # the preview's 3D view drew the camera-aligned stream whatever --floor said.
+    from mocapdb.cli.main import main
+    from mocapdb.render import video as render_video
+
+    drawn = []
+    real = render_video.draw.draw_skeleton_3d
+    monkeypatch.setattr(render_video.draw, "draw_skeleton_3d", lambda img, view, joints, *a, **k: (
+        drawn.append((joints, view)), real(img, view, joints, *a, **k)))
+    out = tmp_path / "rec"
+    assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(out), "--fps", "60",
+                 "--image-size", "1088x1920", "--focal", "1681", "--floor", "--format", "csv", "--preview"]) == 0
+    rows = np.loadtxt(out / "track_1.csv", delimiter=",", skiprows=1)  # the one track file (track 0 is static)
+    on_floor = {int(r[0]): r[2:].reshape(N_POINTS, 3) * [1.0, 1.0, -1.0] for r in rows}  # drawn in camera axes
+    tiles = np.round(np.linspace(0, 99, 12)).astype(int)  # the sheet's 12 frames of 100
+    assert len(drawn) == len(tiles)  # one person a tile, frame 0 included; not the static one
+    for frame, (joints, view) in zip(tiles, drawn):
+        np.testing.assert_allclose(joints, on_floor[frame], atol=1e-5)  # the CSV's 5 decimals
+        assert np.array_equal(view.basis, np.eye(3)) and abs(view.floor) < 0.01  # the grid: that floor, level
+
+
 # --------------------------------------------------------------------------- outputs and far positions (issue 20)
 
 

@@ -51,8 +51,8 @@ def test_offline_session_outputs_and_bvh_agree(small_db, tmp_path):
     people = [f["people"][0] for f in out[1:] if f["people"]]
     assert len(people) == 29 and all(len(p["joints"]) == 15 and len(p["quaternions"]) == 11 for p in people)
     bvh = read_bvh(tmp_path / "track_0.bvh")
-    assert bvh.n_frames == 29 and bvh.fps == pytest.approx(24.0)
-    fk, _ = forward_kinematics(bvh)
+    assert bvh.n_frames == 30 and bvh.fps == pytest.approx(24.0)  # from the first detection: a frame before the stream
+    fk = forward_kinematics(bvh)[0][1:]
     # The BVH holds the track's final body; the stream's bones are the running estimate, which moves
     # by millimetres while it settles: the last frames (settled) agree to 2 mm, all to 1 cm.
     for name, joint in BVH_NODE_OF_JOINT.items():
@@ -193,7 +193,7 @@ def test_live_process_writes_its_bvh_files_through_a_second_sigterm(small_db, sm
         _, err = proc.communicate(timeout=20)
     assert proc.returncode == 0, err
     assert "further signals are ignored" in err and "frames 30" in err
-    assert read_bvh(tmp_path / "track_0.bvh").n_frames == 29
+    assert read_bvh(tmp_path / "track_0.bvh").n_frames == 30
 
 
 def test_live_process_whose_stdout_closes_stops_and_still_writes_its_bvh_files(small_db, small_db_path, tmp_path):
@@ -239,7 +239,21 @@ def test_live_cli_with_a_failing_sink_exits_non_zero_after_writing_the_bvh_files
     err = capsys.readouterr().err
     assert "out.jsonl failed ([Errno 28] No space left on device): the stream stopped there" in err
     assert "output stopped: the sink failed" in err
-    assert read_bvh(tmp_path / "bvh" / "track_0.bvh").n_frames == 19  # frames 1–20: the last one failed to go out
+    assert read_bvh(tmp_path / "bvh" / "track_0.bvh").n_frames == 20  # frames 0–19: the last one failed to go out
+
+
+def test_track_files_hold_the_person_from_the_first_frame_and_the_static_track_stays_out(small_db_path, tmp_path):
+    # The sample's person is detected in all its 100 frames, as is a false person that never moves. The
+    # stream is causal: a track is confirmed on its second frame and shown from there; its files hold
+    # the frame before as well (they used to start at frame 1: 99 frames for 100).
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(out), "--fps", "60",
+                 "--image-size", "1088x1920", "--focal", "1681", "--format", "bvh,csv"]) == 0
+    stream = [json.loads(line) for line in (out / "result.jsonl").read_text().splitlines()[1:]]
+    assert [f["frame"] for f in stream if any(p["track"] == 1 for p in f["people"])] == list(range(1, 100))
+    assert sorted(p.name for p in out.glob("track_*")) == ["track_1.bvh", "track_1.csv"]  # static track 0: none
+    assert read_bvh(out / "track_1.bvh").n_frames == 100
+    assert [int(row.split(",")[0]) for row in (out / "track_1.csv").read_text().splitlines()[1:]] == list(range(100))
 
 
 @pytest.mark.parametrize("option, value", [("--max-tracks", "-1"), ("--max-bvh-files", "-5"),

@@ -78,7 +78,8 @@ def test_keypoints_outside_the_image_size_name_the_likely_swap(small_db, tmp_pat
 
 def test_cli_warns_about_an_assumed_frame_rate_and_refuses_empty_input(small_db_path, tmp_path, capsys):
     (tmp_path / "in.jsonl").write_text("\n".join(_stream_lines(load_database(small_db_path), 10)) + "\n")
-    assert main(["reconstruct", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--out", str(tmp_path / "a")]) == 0
+    assert main(["reconstruct", str(tmp_path / "in.jsonl"), "--db", str(small_db_path),
+                 "--out", str(tmp_path / "a")]) == 0
     assert "assuming 30 fps" in capsys.readouterr().err
     assert main(["reconstruct", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--out", str(tmp_path / "b"),
                  "--fps", "24"]) == 0
@@ -301,12 +302,12 @@ def test_a_long_track_is_written_in_parts_as_they_complete(small_db, tmp_path):
         session.handle_frame(KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9))]), 0.0)
         names.append(sorted(p.name for p in tmp_path.glob("track_*.bvh")))
         assert all(len(r.quaternions) < 15 for r in session.engine.open_recordings())  # memory per track
-    assert names[13] == ["track_0.bvh"]  # a checkpoint of the open track (13 frames: over 0.5 s)
-    assert names[15] == ["track_0_part1.bvh"]  # part 1 complete: it replaces the checkpoint
+    assert names[13] == ["track_0.bvh"]  # a checkpoint of the open track (14 frames: over 0.5 s)
+    assert names[14] == ["track_0_part1.bvh"]  # part 1 complete: it replaces the checkpoint
     summary = session.finish()
     assert [p.name for p in summary.bvh_files] == ["track_0_part1.bvh", "track_0_part2.bvh", "track_0_part3.bvh"]
     lengths = [len(p.read_text().split("Frame Time")[1].splitlines()) - 1 for p in summary.bvh_files]
-    assert lengths == [15, 15, 9]  # 39 frames: the track is confirmed on its second
+    assert lengths == [15, 15, 10]  # 40 frames: the track's files start at its first detection
 
 
 class _FailingSink:

@@ -12,6 +12,7 @@ from mocapdb.stereo.checks import check_geometry, check_parallax
 from mocapdb.stereo.config import StereoConfig, StereoError
 from mocapdb.stereo.ellipose import _stage2, reconstruct
 from mocapdb.stereo.ellipsoid import fit_ellipsoid, ransac_ellipsoid, sphericity, undistort
+from mocapdb.stereo.outputs import StereoSummary
 from mocapdb.stereo.relative_pose import rotation_angle_deg, triangulate, triangulate_all, triangulation_covariance
 
 from .conftest import SAMPLE_BVH
@@ -229,13 +230,36 @@ def test_mismatched_views():
                     cam, cam, StereoConfig())
 
 
+def test_an_ellipsoid_fit_that_cannot_converge_is_warned_once(dance, caplog):
+    """A body 30 % longer along the vertical than across (no rigid skeleton): under any camera pose its
+    bone vectors lie on an ellipsoid, never a sphere, so ε stays ≈ 0.15 in all 20 rounds."""
+    centre = dance.mean(axis=(0, 1))
+    stretched = (dance[:150] - centre) * [1.0, 1.3, 1.0] + centre
+    cam1, cam2, views, _, _ = _pair(stretched, "side", noise_px=1.0)
+    with caplog.at_level("WARNING", logger="mocapdb.stereo"):
+        result = reconstruct(*views, cam1, cam2, StereoConfig())
+    assert result.converged is False and len(result.epsilons) == 20 and min(result.epsilons) > 0.1
+    warned = [w for w in result.warnings if "did not converge" in w]
+    assert warned == [f"the ellipsoid fit did not converge: ε stayed at or above 0.025 in all 20 round(s) (at most "
+                      f"20; last ε {result.epsilons[-1]:.4f}; round {result.kept_round}, ε "
+                      f"{result.epsilons[result.kept_round]:.4f}, is kept)" + warned[0].split("is kept)")[1]]
+    assert [r.getMessage() for r in caplog.records] == warned
+    summary = StereoSummary(150, {}, result.epsilons, result.kept_round, 90.0, 1.0, False, "legs", warned, {}, [],
+                            [], [], result.converged)
+    assert f"kept round {result.kept_round}, not converged (warning below)" in summary.report()
+    assert f"warning: {warned[0]}" in summary.report()
+    cam1, cam2, views, _, _ = _pair(dance[:150], "side", noise_px=1.0)
+    rigid = reconstruct(*views, cam1, cam2, StereoConfig())
+    assert rigid.converged is True and not any("did not converge" in w for w in rigid.warnings)
+
+
 @pytest.mark.parametrize("case", ["still", "short"])
 def test_a_still_or_short_sequence_falls_back_to_stage1(dance, case):
     motion = np.repeat(dance[:1], 60, axis=0) if case == "still" else dance[:8]
     cam1, cam2, views, rel_R, _ = _pair(motion, "side", noise_px=0.0)
     result = reconstruct(*views, cam1, cam2, StereoConfig())
     assert any("too still" in w for w in result.warnings)
-    assert result.kept_round == 0 and result.epsilons == []
+    assert result.kept_round == 0 and result.epsilons == [] and result.converged is None
     assert np.isfinite(result.points_m[result.valid]).all()
 
 

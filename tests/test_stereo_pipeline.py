@@ -15,6 +15,7 @@ from mocapdb.core.clips import ClipOptions, process_clip
 from mocapdb.core.formats.bvh import read_bvh
 from mocapdb.core.formats.database import load_database
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
+from mocapdb.core.formats.take import TakeInfo, write_take
 from mocapdb.core.formats.trc import TrcError, parse_trc, read_trc, trc_keypoints
 from mocapdb.core.joint_map import detect_mapping, extract_keypoints
 from mocapdb.core.skeleton import KEYPOINTS, N_KEYPOINTS_2D, RIG_JOINTS
@@ -98,6 +99,29 @@ def test_inconsistent_frames_are_dropped_not_removed(motion):
     assert np.isnan(selection.x1[10]).all() and (selection.c1[10] == 0).all()
 
 
+def test_a_body_split_in_two_detections_is_put_back_together(motion):
+    """OpenPose split a body (the Pose2Sim take, camera 1, frame 37): upper and lower half as two
+    detections of one frame. Both halves lie on the other view's person: they are one body again. A
+    half that does not (another person's legs, 150 px lower) is not joined and is reported."""
+    (cam1, cam2), (x1, c1), (x2, c2) = _views(motion[:90], 1.0)
+    upper = np.arange(N_KEYPOINTS_2D) < 7
+    frames1 = _frames(x1, c1)
+    for t in (10, 11, 40):
+        frames1[t] = KeypointFrame(t, None, [Person(x1[t], np.where(upper, 0.0, c1[t])),
+                                             Person(x1[t], np.where(upper, c1[t], 0.0))])
+    frames1[60] = KeypointFrame(60, None, [Person(x1[60], np.where(upper, c1[60], 0.0)),
+                                           Person(x1[60] + [0.0, 150.0], np.where(upper, 0.0, c1[60]))])
+    people = match_people(frames1, _frames(x2, c2), cam1, cam2, StereoConfig())
+    selection = people.persons[0]
+    assert len(people.persons) == 1 and selection.kept.all()
+    for t in (10, 11, 40):
+        np.testing.assert_array_equal(selection.x1[t], x1[t])
+        np.testing.assert_array_equal(selection.c1[t], c1[t])
+    assert (selection.c1[60][~upper] == 0).all()  # the legs 150 px off are not joined
+    assert selection.correspondences == int(((selection.c1 > 0) & (selection.c2 > 0)).sum())
+    assert len(people.unmatched) == 1 and "1 detections in 1 frames (frames 60)" in people.unmatched[0]
+
+
 def test_mismatched_frame_counts(tmp_path, motion, capsys):
     (_, _), (x1, c1), (x2, c2) = _views(motion[:6], 0.0)
     _write_openpose(tmp_path / "a", x1, c1)
@@ -107,7 +131,7 @@ def test_mismatched_frame_counts(tmp_path, motion, capsys):
     frames1, frames2, warnings = load_views(tmp_path / "a", tmp_path / "b", trim=True)
     assert len(frames1) == len(frames2) == 5 and "trimmed" in warnings[0]
     code = _stereo([str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "out"),
-                    "--focal", "1145", "--size", "1000", "1000"])
+                    "--focal", "1145", "--image-size", "1000x1000"])
     assert code == 2
     err = capsys.readouterr().err
     assert err.startswith("mocapdb stereo: error:") and "Traceback" not in err
@@ -121,7 +145,7 @@ def test_run_stereo_writes_stream_cameras_and_bvh(tmp_path, motion, capsys):
     distance = np.linalg.norm(cam1.center_m - cam2.center_m)
     out = tmp_path / "out"
     code = _stereo([str(tmp_path / "v1"), str(tmp_path / "v2"), "--out", str(out), "--focal", "1145",
-                    "--size", "1000", "1000", "--camera-distance", f"{distance:.6f}", "--fps", "30"])
+                    "--image-size", "1000x1000", "--camera-distance", f"{distance:.6f}", "--fps", "30"])
     assert code == 0
     printed = capsys.readouterr().out
     assert "frames 120" in printed and "kept round" in printed
@@ -143,6 +167,7 @@ def test_run_stereo_writes_stream_cameras_and_bvh(tmp_path, motion, capsys):
     cameras = json.loads((out / "cameras.json").read_text())
     assert cameras["scaled"] and cameras["baseline_m"] == pytest.approx(distance, rel=1e-6)
     assert len(cameras["cameras"]) == 2 and len(cameras["epsilons"]) >= 1
+    assert cameras["converged"] == (min(cameras["epsilons"]) < StereoConfig().epsilon)
     rel = cam2.R @ cam1.R.T
     assert np.degrees(np.arccos((np.trace(np.array(cameras["cameras"][1]["R"]) @ rel.T) - 1) / 2)) < 1.0
 
@@ -171,6 +196,52 @@ def test_run_stereo_writes_stream_cameras_and_bvh(tmp_path, motion, capsys):
                  "--landmarks", "100", "--workers", "1"]) == 0
     db = load_database(db_dir)
     assert db.n_frames > 50 and db.n_projections == 30 * db.n_frames
+
+
+def test_stereo_reads_each_views_take_description(tmp_path, motion, capsys, caplog):
+    """Frame rate and image size from each view folder's take.json (what `mocapdb detect` writes);
+    options that contradict it, and views whose rates differ, are refused naming both."""
+    (_, _), (x1, c1), (x2, c2) = _views(motion[:90], 0.0)
+    v1, v2 = tmp_path / "v1", tmp_path / "v2"
+    for folder, x, c in ((v1, x1, c1), (v2, x2, c2)):
+        _write_openpose(folder, x, c)
+    with caplog.at_level("WARNING", logger="mocapdb"):
+        assert _stereo([str(v1), str(v2), "--focal", "1145", "--image-size", "1000x1000",
+                        "--out", str(tmp_path / "bare")]) == 0
+    assert "no frame rate given: the views were taken as 30 Hz" in caplog.text
+    for folder in (v1, v2):
+        write_take(folder, TakeInfo(fps=25.0, image_size=(1000, 1000), frames=90, source="cam.mp4"))
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="mocapdb"):
+        assert _stereo([str(v1), str(v2), "--focal", "1145", "--out", str(tmp_path / "out")]) == 0
+    assert "no frame rate" not in caplog.text
+    assert json.loads((tmp_path / "out" / "result.jsonl").read_text().splitlines()[0])["fps"] == 25.0
+    assert json.loads((tmp_path / "out" / "cameras.json").read_text())["cameras"][0]["size"] == [1000, 1000]
+    out, _ = tmp_path / "refused", capsys.readouterr()
+    _refused([str(v1), str(v2), "--focal", "1145", "--fps", "60"], capsys, out,
+             f"--fps 60 contradicts {v1 / 'take.json'}, which says 25")
+    _refused([str(v1), str(v2), "--focal", "1145", "--image-size", "1920x1080"], capsys, out,
+             f"--image-size 1920x1080 contradicts {v1 / 'take.json'}, which says 1000x1000")
+    _refused([str(v1), str(v2)], capsys, out, "give the intrinsics", "take.json give --focal PX")
+    _refused([str(v1), str(v2), "--calibration", str(CALIBRATION), "--cameras", "cam_01", "cam_04"], capsys, out,
+             f"the image size of cam_01 in {CALIBRATION} 1088x1920 contradicts {v1 / 'take.json'}, which says "
+             "1000x1000: correct one of them")
+    write_take(v2, TakeInfo(fps=50.0, image_size=(1000, 1000), frames=90, source="cam2.mp4"))
+    _refused([str(v1), str(v2), "--focal", "1145"], capsys, out,
+             f"{v1}/take.json says 25 Hz, {v2}/take.json says 50 Hz: the views must be synchronised")
+
+
+@pytest.mark.skipif(not POSE2SIM.is_dir(), reason="shared Pose2Sim data not present")
+def test_every_real_pair_keeps_every_frame_and_joint_both_views_see():
+    """Issue 19, item 3 (tools/eval_stereo_pairs.py): on all 6 pairs of the Pose2Sim take, no frame where
+    both views see the person is lost (target ≤ 2 %), and no joint both see is written null (camera 1's
+    frame 37 holds the body split in two detections)."""
+    from mocapdb.evaluation.stereo_pairs import TARGET_MISSING, all_pairs
+
+    rows = all_pairs(POSE2SIM)
+    assert len(rows) == 6
+    for row in rows:
+        assert row.both_see >= 95 and row.missing <= TARGET_MISSING and row.null_seen == 0, row
 
 
 @pytest.mark.skipif(not POSE2SIM.is_dir(), reason="shared Pose2Sim data not present")
@@ -246,7 +317,7 @@ def test_a_head_no_camera_pair_sees_follows_the_torso(tmp_path, motion, capsys):
     _write_openpose(tmp_path / "v2", x2, c2)
     out = tmp_path / "out"
     assert _stereo([str(tmp_path / "v1"), str(tmp_path / "v2"), "--out", str(out), "--focal", "1145",
-                    "--size", "1000", "1000", "--fps", "30"]) == 0
+                    "--image-size", "1000x1000", "--fps", "30"]) == 0
     assert "the head follows the torso" in capsys.readouterr().out
     frames = [json.loads(line) for line in (out / "result.jsonl").read_text().splitlines()[1:]]
     assert all(f["people"][0]["joints"][KEYPOINTS.index("head")] == [None, None, None] for f in frames)
@@ -329,7 +400,7 @@ def test_two_people_each_get_a_track_and_a_bvh(tmp_path, scene, capsys):
     out = tmp_path / "out"
     distance = np.linalg.norm(cam1.center_m - cam2.center_m)
     assert _stereo([str(tmp_path / "v1"), str(tmp_path / "v2"), "--out", str(out), "--focal", "1145",
-                    "--size", "1000", "1000", "--camera-distance", f"{distance:.6f}", "--fps", "30"]) == 0
+                    "--image-size", "1000x1000", "--camera-distance", f"{distance:.6f}", "--fps", "30"]) == 0
     printed = capsys.readouterr().out
     assert "people 2" in printed and "not a person: view 1: 1 2D track(s), 60 detections" in printed
 
@@ -453,25 +524,25 @@ def test_a_transformed_copy_has_no_parallax(tmp_path, motion, capsys, change):
           "mirrored": np.stack([1000.0 - x1[..., 0], x1[..., 1]], axis=-1)}[change]
     _write_openpose(tmp_path / "a", x1, c1)
     _write_openpose(tmp_path / "b", x2, c1)
-    _refused([str(tmp_path / "a"), str(tmp_path / "b"), "--focal", "1145", "--size", "1000", "1000"], capsys,
+    _refused([str(tmp_path / "a"), str(tmp_path / "b"), "--focal", "1145", "--image-size", "1000x1000"], capsys,
              tmp_path / "out", "the two views have no parallax: one homography maps view 1's keypoints")
 
 
 @pytest.mark.parametrize("options, message", [
-    (["--focal", "-1000", "--size", "1088", "1920"], "argument --focal: '-1000': must be a focal length in pixels"),
-    (["--focal", "0", "--size", "1088", "1920"], "argument --focal: '0': must be a focal length in pixels"),
-    (["--focal", "nan", "--size", "1088", "1920"], "argument --focal: 'nan': must be a focal length in pixels"),
-    (["--focal", "1000", "--size", "0", "0"], "argument --size: '0': must be a whole number of pixels"),
-    (["--focal", "1000", "--size", "-5", "10"], "argument --size: '-5': must be a whole number of pixels"),
-    (["--focal", "1000", "--size", "1088", "1920", "--center", "nan", "5"],
+    (["--focal", "-1000", "--image-size", "1088x1920"], "argument --focal: '-1000': must be a focal length in pixels"),
+    (["--focal", "0", "--image-size", "1088x1920"], "argument --focal: '0': must be a focal length in pixels"),
+    (["--focal", "nan", "--image-size", "1088x1920"], "argument --focal: 'nan': must be a focal length in pixels"),
+    (["--focal", "1000", "--image-size", "0x0"], "argument --image-size: '0x0': width and height must each be a whole"),
+    (["--focal", "1000", "--image-size", "5x10"], "argument --image-size: '5x10': width and height must each be"),
+    (["--focal", "1000", "--image-size", "1088x1920", "--center", "nan", "5"],
      "argument --center: 'nan': must be a pixel coordinate"),
-    (["--focal", "1000", "--size", "1088", "1920", "--center", "5000", "10"],
+    (["--focal", "1000", "--image-size", "1088x1920", "--center", "5000", "10"],
      "principal point (5000, 10) px is far outside the 1088 × 1920 px image"),
     ([*BUNDLED_ARGS, "--camera-distance", "0"], "argument --camera-distance: '0': must be a distance"),
     ([*BUNDLED_ARGS, "--camera-distance", "-5"], "argument --camera-distance: '-5': must be a distance"),
     ([*BUNDLED_ARGS, "--camera-distance", "inf"], "argument --camera-distance: 'inf': must be a distance"),
     ([*BUNDLED_ARGS, "--focal", "1000"], "--calibration gives the intrinsics: leave out --focal"),
-    (["--cameras", "cam_01", "cam_04", "--focal", "1000", "--size", "900", "900"], "--cameras names sections of"),
+    (["--cameras", "cam_01", "cam_04", "--focal", "1000", "--image-size", "900x900"], "--cameras names cameras of"),
     (["--calibration", str(CALIBRATION), "--cameras", "cam_01", "cam_09"],
      "has no camera cam_09 (it has cam_01, cam_02, cam_03, cam_04)"),
 ])

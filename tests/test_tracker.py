@@ -88,6 +88,18 @@ def test_new_track_is_reported_on_the_frame_it_is_confirmed():
     assert updates[2].assignments == [(0, 0)] and updates[2].started == []
 
 
+def test_the_update_that_confirms_a_track_gives_its_earlier_detections():
+    # so that a track's files can start at its first detection, the frame before it is reported
+    rng = np.random.default_rng(16)
+    frames = [{"A": person(600 + 3 * k, 500, rng)} for k in range(4)]
+    frames[1] = {"left": person(200, 500, rng), **frames[1]}  # there A is input 1
+    _, updates = run(frames, Tracker(TrackerConfig(min_hits=3)))
+    assert [u.started for u in updates] == [[], [], [0], []]
+    assert updates[2].earlier == {0: [0, 1]}  # A's input index in frames 0 and 1
+    _, updates = run(frames)  # min_hits 2
+    assert updates[1].started == [0] and updates[1].earlier == {0: [0]} and updates[2].earlier == {}
+
+
 def test_one_frame_false_detection_never_becomes_a_track():
     rng = np.random.default_rng(4)
     frames = [{"A": person(300 + 4 * k, 600, rng)} for k in range(30)]

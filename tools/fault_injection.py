@@ -301,7 +301,7 @@ def option_cases(tmp: Path, db: Path, out: Path) -> list[Case]:
               (recon, "--window-weights", "nan,1"), (recon, "--min-cutoff", "-1"), (recon, "--subject-height", "0"),
               (["live", "--source", "-", "--db", str(db)], "--buffer", "0"),
               (["live", "--source", "-", "--db", str(db)], "--max-rate", "inf"),
-              (["stereo", str(CAM1), str(CAM4), "--out", str(tmp / "s"), "--size", "1088", "1920"], "--center",
+              (["stereo", str(CAM1), str(CAM4), "--out", str(tmp / "s"), "--image-size", "1088x1920"], "--center",
                "1e308 5"),
               (["stereo", str(CAM1), str(CAM4), "--out", str(tmp / "s"), "--calibration", str(CALIBRATION),
                 "--cameras", "cam_01", "cam_04"], "--camera-distance", "1e308"),

@@ -22,11 +22,12 @@ def add_build_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fps", type=D.FPS_HZ, default=24.0, help="database frame rate in Hz (default 24)")
     p.add_argument("--yaw-step", type=D.YAW_STEP_DEG, default=12.0,
                    help="yaw step in degrees; must divide 360 (default 12)")
-    p.add_argument("--camera-height", type=D.CAMERA_HEIGHT_M, default=1.5,
-                   help="camera height above the floor, metres (default 1.5)")
-    p.add_argument("--camera-distance", type=D.CAMERA_DISTANCE_M, default=4.0,
-                   help="camera to pelvis, metres (default 4)")
-    p.add_argument("--focal", type=D.FOCAL_PX, default=1000.0, help="focal length in pixels (default 1000)")
+    p.add_argument("--camera-height", type=D.CAMERA_HEIGHT_M, default=1.5, metavar="METRES",
+                   help="the database's virtual camera: its height above the floor, metres (default 1.5)")
+    p.add_argument("--camera-distance", type=D.CAMERA_DISTANCE_M, default=4.0, metavar="METRES",
+                   help="the database's virtual camera: its distance to the pelvis, metres (default 4)")
+    p.add_argument("--focal", type=D.FOCAL_PX, default=1000.0, metavar="PX",
+                   help="the database's virtual camera: its focal length in pixels (default 1000)")
     p.add_argument("--clusters", type=D.CLUSTERS, default=500, help="k-means clusters K (default 500)")
     p.add_argument("--dims", type=D.DIMS, default=5, help="MDS embedding dimensions (default 5)")
     p.add_argument("--landmarks", type=D.LANDMARKS, default=2000, help="landmark-MDS landmarks (default 2000)")

@@ -4,10 +4,49 @@ from __future__ import annotations
 import argparse
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from mocapdb.cli import paths as P
 from mocapdb.core import domains as D
-from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU, NO_MODEL
+from mocapdb.detect.options import (
+    DEFAULT_CONF,
+    DEFAULT_CROP_PX,
+    DEFAULT_FULL_EVERY,
+    DEFAULT_INPUT_SIZE,
+    DEFAULT_IOU,
+    DETECTORS,
+    NO_MODEL,
+)
+
+if TYPE_CHECKING:
+    from mocapdb.detect.tracked import FastPath
+
+
+def add_detector_options(p: argparse.ArgumentParser, detector: str) -> None:
+    """The detector's fast-path options (``detect`` and ``live --model``), ``--detector`` defaulting to
+    ``detector`` (one of :data:`~mocapdb.detect.options.DETECTORS`); data_specs/pose_models.md."""
+    group = p.add_argument_group("detection with --model (data_specs/pose_models.md, \"Following the people\")")
+    group.add_argument("--detector", choices=DETECTORS, default=detector,
+                       help="full: the model on every whole frame; crops: on one crop around the people of the "
+                            "frame before, the whole frame every --full-every frames and whenever someone is lost "
+                            f"(default {detector})")
+    group.add_argument("--crop-size", type=D.MODEL_INPUT_PX, default=DEFAULT_CROP_PX, metavar="PX",
+                       help="largest model input side in pixels for a crop, rounded up to a multiple of 32 (a model "
+                            f"with a dynamic input size only; default {DEFAULT_CROP_PX})")
+    group.add_argument("--full-every", type=D.DETECT_EVERY, default=DEFAULT_FULL_EVERY, metavar="N",
+                       help=f"with crops: the whole frame at least every N frames, to find people coming in "
+                            f"(default {DEFAULT_FULL_EVERY})")
+    group.add_argument("--model-every", type=D.MODEL_EVERY, default=1, metavar="N",
+                       help="run the model on every N-th frame only; the frames between get the keypoints carried "
+                            "by optical flow (default 1: the model on every frame)")
+
+
+def fast_path(args: argparse.Namespace) -> FastPath:
+    """The :class:`~mocapdb.detect.tracked.FastPath` the options of :func:`add_detector_options` ask for."""
+    from mocapdb.detect.tracked import FastPath
+
+    return FastPath(crops=args.detector == "crops", crop_px=args.crop_size, full_every=args.full_every,
+                    model_every=args.model_every)
 
 
 def add_detect_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -33,6 +72,7 @@ def add_detect_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--iou", type=D.IOU, default=DEFAULT_IOU, help=f"NMS IoU threshold (default {DEFAULT_IOU})")
     p.add_argument("--input-size", type=D.MODEL_INPUT_PX, default=DEFAULT_INPUT_SIZE, metavar="PX",
                    help=f"input side in pixels for models with a dynamic input size (default {DEFAULT_INPUT_SIZE})")
+    add_detector_options(p, "full")
     p.set_defaults(run=run_detect)
     return p
 
@@ -46,6 +86,7 @@ def run_detect(args: argparse.Namespace) -> int:
     from mocapdb.detect.errors import DetectError
     from mocapdb.detect.model import PoseModel
     from mocapdb.detect.openpose_out import DETECT_FILES, detect_video
+    from mocapdb.detect.tracked import TrackedDetector
     from mocapdb.detect.video import VideoReader
 
     if not args.model:
@@ -55,8 +96,8 @@ def run_detect(args: argparse.Namespace) -> int:
     if args.every < 1:
         raise DetectError("--every must be at least 1")
     check_output_folder(args.out, DETECT_FILES)  # before any work; emptied once the model and the video open
-    model = PoseModel(args.model, conf=args.conf, iou=args.iou, max_people=args.max_people,
-                      input_size=args.input_size)
+    model = TrackedDetector(PoseModel(args.model, conf=args.conf, iou=args.iou, max_people=args.max_people,
+                                      input_size=args.input_size), fast_path(args))
     reader = VideoReader(args.camera if args.camera is not None else args.video)
     stop = threading.Event()
     try:

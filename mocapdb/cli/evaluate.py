@@ -28,8 +28,8 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--real-take", metavar="FOLDER", type=P.INPUT_DIR,
                    help="a Pose2Sim take (calibration.toml, triangulated_4cam.trc, openpose_body25b/camNN_json): "
                         "run each camera alone through the engine (needs --db) and score it against the TRC")
-    p.add_argument("--cameras", type=P.TextArg("a list of camera names"),
-                   help="with --real-take: camera names, e.g. cam_01,cam_03 (default all)")
+    p.add_argument("--cameras", nargs="+", type=P.TextArg("a camera name"), metavar="NAME",
+                   help="with --real-take: camera names as in its calibration, e.g. cam_01 cam_03 (default all)")
     p.add_argument("--subjects", type=P.TextArg("a list of subjects"),
                    help="with --leave-one-subject-out: subjects to hold out, e.g. 1,2 (default all)")
     p.add_argument("--max-clips", type=D.MAX_CLIPS, default=8,
@@ -79,8 +79,7 @@ def run_eval(args: argparse.Namespace) -> int:
 
         if args.bvh or args.loso or not args.db:
             raise UsageError("--real-take needs --db and goes without --bvh and --leave-one-subject-out")
-        cameras = [c.strip() for c in args.cameras.split(",") if c.strip()] if args.cameras else None
-        report = evaluate_real_take(load_database(args.db), args.real_take, engine, cameras)
+        report = evaluate_real_take(load_database(args.db), args.real_take, engine, args.cameras)
         report["checks"] = check_lines(report)
         print(format_table(report) + "\n\n" + "\n".join(report["checks"]))
     elif args.loso:

@@ -7,6 +7,7 @@ import os
 import sys
 
 from mocapdb.cli import paths as P
+from mocapdb.cli.detect import add_detector_options, fast_path
 from mocapdb.core import domains as D
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 
@@ -209,7 +210,8 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
                                  rate_by_arrival=not strict,
                                  take=None if args.per_frame else TakeParams(smoothing_hz=args.smoothing_hz),
                                  shared_floor=strict, camera_height_m=args.camera_height,
-                                 lag_frames=args.lag_frames, camera_sources=getattr(args, "camera_sources", {}))
+                                 lag_frames=args.lag_frames, camera_sources=getattr(args, "camera_sources", {}),
+                                 keep_joints=getattr(args, "preview", False) and args.floor)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     engine = _engine(args)
@@ -228,7 +230,8 @@ def add_reconstruct_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, type=P.OUTPUT_DIR, help="output folder")
     p.add_argument("--preview", action="store_true",
                    help="also write OUT/preview.png: a contact sheet of 12 frames, the re-projected tracks over the "
-                        "input keypoints beside a 3D view (`mocapdb render` draws every frame)")
+                        "input keypoints beside a 3D view (with --floor: the track files on their floor; "
+                        "`mocapdb render` draws every frame)")
     _add_engine_options(p)
     p.set_defaults(run=run_reconstruct)
 
@@ -244,9 +247,10 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     if Path(args.input).suffix.lower() in KEYPOINT_FILE_SUFFIXES and not Path(args.input).is_dir():
         frames = read_keypoint_file(args.input, args.keypoints, args.fps)
     with output_folder(args.out) as tmp:
-        summary, interrupted = _reconstruct_into(args, tmp, frames)
+        session, interrupted = _reconstruct_into(args, tmp, frames)
+        summary = session.summary
         if args.preview and summary.frames:
-            _preview(args, tmp)
+            _preview(args, tmp, session.files.joints)
     print(f"wrote {Path(args.out) / 'result.jsonl'} and {len(summary.bvh_files)} track file(s) in {args.out}"
           + (f"; preview {Path(args.out) / 'preview.png'}" if args.preview else ""))
     print(summary.report())
@@ -256,14 +260,18 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     return 0
 
 
-def _preview(args: argparse.Namespace, out_dir) -> None:
-    """OUT/preview.png: a contact sheet of the run (:func:`mocapdb.render.video.contact_sheet`)."""
+def _preview(args: argparse.Namespace, out_dir, files: dict) -> None:
+    """OUT/preview.png: a contact sheet of the run (:func:`mocapdb.render.video.contact_sheet`). With
+    ``--floor`` its 3D view draws the track files' joints (``files``: ``TrackFiles.joints``), on the
+    floor found as the files are, not the camera-aligned stream."""
     from pathlib import Path
 
+    from mocapdb.core.outputs import CAMERA_FROM_VIEW
     from mocapdb.render.video import contact_sheet
 
-    contact_sheet(out_dir, args.input, out_dir / "preview.png", focal=args.focal,
-                  image_size=args.image_size, name=str(Path(args.out) / "result.jsonl"))
+    scene = [(track, frames, joints * CAMERA_FROM_VIEW) for track, frames, joints in files.values()]
+    contact_sheet(out_dir, args.input, out_dir / "preview.png", focal=args.focal, image_size=args.image_size,
+                  name=str(Path(args.out) / "result.jsonl"), scene=scene if args.floor else None)
 
 
 def _input_size(path: str) -> int | None:
@@ -280,7 +288,7 @@ def _input_size(path: str) -> int | None:
 
 
 def _reconstruct_into(args: argparse.Namespace, out_dir, frames):
-    """Run the session into ``out_dir``; returns its summary and whether Ctrl-C stopped it early."""
+    """Run the session into ``out_dir``; returns it (finished) and whether Ctrl-C stopped it early."""
     from mocapdb.core.errors import UsageError
     from mocapdb.core.progress import progress
     from mocapdb.runtime.session import run_arrays, run_offline
@@ -301,7 +309,7 @@ def _reconstruct_into(args: argparse.Namespace, out_dir, frames):
         summary = session.finish()
     if not summary.frames:
         raise UsageError(f"no keypoint frame in {args.input}")
-    return summary, interrupted
+    return session, interrupted
 
 
 def add_live_parser(sub: argparse._SubParsersAction) -> None:
@@ -311,7 +319,7 @@ def add_live_parser(sub: argparse._SubParsersAction) -> None:
                                    "JSON line per frame to the sink, and a BVH per track on exit (Ctrl-C).")
     p.add_argument("--source", required=True, type=P.STREAM_SOURCE,
                    help="folder, '-', tcp://HOST:PORT or udp://HOST:PORT; with --model: a video file or a camera index")
-    p.add_argument("--model", type=P.INPUT_FILE,
+    p.add_argument("--model", metavar="POSE.onnx", type=P.INPUT_FILE,
                    help="YOLO-pose or RTMO ONNX export: detect people in the --source video/camera "
                         "(data_specs/pose_models.md)")
     p.add_argument("--sink", default="-", type=P.STREAM_SINK,
@@ -331,6 +339,7 @@ def add_live_parser(sub: argparse._SubParsersAction) -> None:
                         "dropped and counted; 0: no limit (default 1000)")
     p.add_argument("--buffer", type=D.BUFFER_MESSAGES, default=2,
                    help="messages buffered before the oldest is dropped (default 2)")
+    add_detector_options(p, "crops")
     _add_engine_options(p)
     p.set_defaults(run=run_live)
 
@@ -356,7 +365,8 @@ def run_live(args: argparse.Namespace) -> int:
     with install_stop_handlers(stop, force_quit=False):
         try:
             if args.model:
-                video = open_video_source(args.source, args.model, capacity=args.buffer, stats=session.summary.stream)
+                video = open_video_source(args.source, args.model, capacity=args.buffer, stats=session.summary.stream,
+                                          fast=fast_path(args))
                 run_video(session, video, stop)
             else:
                 source = open_source(args.source, stats=session.summary.stream, follow=True,

@@ -28,7 +28,7 @@ def add_render_parser(sub: argparse._SubParsersAction) -> None:
                    help="the 2D input given to reconstruct (OpenPose folder, .jsonl, MMPose .json, .npy/.npz)")
     p.add_argument("--video", type=P.INPUT_FILE, help="the input video, drawn under the skeletons (OpenCV reads it)")
     p.add_argument("--mp4", action="store_true", help="write one MP4 video (mp4v) instead of PNG frames")
-    p.add_argument("--focal", type=D.FOCAL_PX,
+    p.add_argument("--focal", type=D.FOCAL_PX, metavar="PX",
                    help="focal length in pixels as given to reconstruct (default 1000; stereo: camera 1's)")
     p.add_argument("--image-size", type=D.IMAGE_SIZE, metavar="WxH",
                    help="input image WIDTHxHEIGHT in pixels as given to reconstruct (default: the video's, else "

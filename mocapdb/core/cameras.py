@@ -1,5 +1,6 @@
-"""Cameras: pinhole models with OpenCV lens distortion (:class:`CameraModel`, the Pose2Sim/OpenCV
-calibration TOML) and the database's virtual camera (:class:`DatabaseCamera`)."""
+"""Cameras: pinhole models with OpenCV lens distortion (:class:`CameraModel`; Pose2Sim's calibrations:
+its TOML and Qualisys's ``.qca.txt``, :func:`read_calibration`) and the database's virtual camera
+(:class:`DatabaseCamera`)."""
 from __future__ import annotations
 
 import math
@@ -12,7 +13,7 @@ import cv2
 import numpy as np
 
 from mocapdb.core.errors import MocapdbError
-from mocapdb.core.files import MIB, read_input_bytes
+from mocapdb.core.files import MIB, read_input_bytes, read_input_text
 
 
 class CalibrationError(MocapdbError, ValueError):
@@ -126,7 +127,7 @@ def camera_from_intrinsics(focal_px: float, center_px: tuple[float, float], size
     """A distortion-free camera at the world origin (for ``--focal/--center``); CalibrationError when
     the values cannot be a camera (:func:`check_intrinsics`)."""
     k = np.array([[focal_px, 0.0, center_px[0]], [0.0, focal_px, center_px[1]], [0.0, 0.0, 1.0]], dtype=np.float64)
-    check_intrinsics(k, size, "intrinsics (--focal, --center, --size)")
+    check_intrinsics(k, size, "intrinsics (--focal, --center, --image-size)")
     return CameraModel(k, np.zeros(4), np.eye(3), np.zeros(3), (int(size[0]), int(size[1])))
 
 
@@ -221,6 +222,124 @@ def _toml_message(path: Path, message: str) -> str:
     if end:
         return f"{path}, at its end: not valid TOML ({message[:end.start()]})"
     return f"{path}: not valid TOML ({message})"
+
+
+# Qualisys QTM's calibration (.qca.txt, XML; data_specs/stereo.md): sensor coordinates are in
+# subpixels, QCA_SUBPIXELS to a pixel; the camera's axes are y up, looking along -z (OpenGL's), so
+# OpenCV's are QTM's turned 180° about x; positions are millimetres; a `video_resolution` of "720p"
+# scales the sensor's QCA_VIDEO_LINES lines to 720.
+QCA_SUBPIXELS = 64.0
+QTM_TO_OPENCV = np.diag([1.0, -1.0, -1.0])
+QCA_VIDEO_LINES = 1080.0
+QCA_ROTATION_TOLERANCE = 1e-3  # |RᵀR − I| and |det R − 1| of the transform, at most
+
+
+def read_calibration(path: str | Path) -> dict[str, CameraModel]:
+    """Cameras of a Pose2Sim calibration by name: a Qualisys ``*.qca.txt`` (:func:`read_calibration_qca`),
+    any other file a calibration TOML (:func:`read_calibration_toml`)."""
+    if Path(path).name.lower().endswith(".qca.txt"):
+        return read_calibration_qca(path)
+    return read_calibration_toml(path)
+
+
+def read_calibration_qca(path: str | Path) -> dict[str, CameraModel]:
+    """Active cameras of a Qualisys QTM calibration ``.qca.txt`` by serial, as Pose2Sim reads them:
+    per ``<camera>``, ``<fov_video>`` (the image: a crop of the sensor, pixels, bounds included),
+    ``<intrinsic>`` (focal lengths, principal point and distortion in subpixels of the sensor) and
+    ``<transform>`` (the camera's position in mm and its world → QTM-camera rotation ``r11``…``r33``).
+    Every error is a CalibrationError naming the file (and the camera and attribute)."""
+    from xml.etree import ElementTree
+
+    path = Path(path)
+    text = read_input_text(path, MAX_CALIBRATION_BYTES, CalibrationError, "calibration file")
+    if "<!DOCTYPE" in text or "<!ENTITY" in text:
+        raise CalibrationError(f"{path}: a document type or entity declaration: not a Qualisys calibration")
+    try:
+        root = ElementTree.fromstring(text)
+    except ElementTree.ParseError as exc:
+        line, column = exc.position
+        raise CalibrationError(f"{path}, line {line}, column {column + 1}: not valid XML, not a Qualisys "
+                               f"calibration ({str(exc).split(':')[0]})") from None
+    elements = root.findall("cameras/camera") if root.tag == "calibration" else []
+    if not elements:
+        raise CalibrationError(f"{path}: no <calibration><cameras><camera>: not a Qualisys calibration")
+    cams: dict[str, CameraModel] = {}
+    for k, element in enumerate(elements, start=1):
+        name = element.get("serial") or f"#{k}"
+        if name in cams:
+            raise CalibrationError(f"{path}: two cameras with serial {name!r}")
+        if element.get("active", "1").strip() != "0":
+            cams[name] = _qca_camera(element, name, f'{path} <camera serial="{name}">')
+    if not cams:
+        raise CalibrationError(f"{path}: every camera is inactive (active=\"0\")")
+    return cams
+
+
+def _qca_camera(element, name: str, where: str) -> CameraModel:
+    """One ``<camera>`` of a QCA file as an OpenCV camera (``x_cam = R x_world + t``, metres, pixels)."""
+    fov, intrinsic, transform = (_qca_child(element, tag, where) for tag in ("fov_video", "intrinsic", "transform"))
+    left, top, right, bottom = (_qca_number(fov, key, where) for key in ("left", "top", "right", "bottom"))
+    scale = _qca_video_scale(element, where)
+    size = ((right - left + 1) * scale, (bottom - top + 1) * scale)
+    fu, fv, cu, cv = (_qca_number(intrinsic, key, where) / QCA_SUBPIXELS
+                      for key in ("focalLengthU", "focalLengthV", "centerPointU", "centerPointV"))
+    if _qca_number(intrinsic, "skew", where, 0.0) != 0.0:
+        raise CalibrationError(f"{where}: <intrinsic skew=...> is not 0: a skewed sensor is not supported "
+                               "(OpenCV's camera model has no skew)")
+    k = np.array([[fu * scale, 0.0, (cu - left) * scale], [0.0, fv * scale, (cv - top) * scale], [0.0, 0.0, 1.0]])
+    check_intrinsics(k, size, where)
+    dist = np.array([_qca_number(intrinsic, key, where, 0.0) for key in
+                     ("radialDistortion1", "radialDistortion2", "tangentalDistortion1", "tangentalDistortion2",
+                      "radialDistortion3")]) / QCA_SUBPIXELS
+    rotation = QTM_TO_OPENCV @ _qca_rotation(transform, where)
+    centre_m = np.array([_qca_number(transform, key, where) for key in "xyz"]) / 1000.0
+    return CameraModel(k, dist, rotation, -rotation @ centre_m, (round(size[0]), round(size[1])), name)
+
+
+def _qca_child(element, tag: str, where: str):
+    child = element.find(tag)
+    if child is None:
+        raise CalibrationError(f"{where}: no <{tag}>")
+    return child
+
+
+# QTM writes "tangentalDistortion1"; the other spelling is read too.
+_QCA_SPELLINGS = {"tangentalDistortion1": "tangentialDistortion1", "tangentalDistortion2": "tangentialDistortion2"}
+
+
+def _qca_number(element, key: str, where: str, default: float | None = None) -> float:
+    """Attribute ``key`` of ``element`` as a finite number (``default`` when it is missing and one is given)."""
+    text = element.get(key, element.get(_QCA_SPELLINGS.get(key, key)))
+    if text is None and default is not None:
+        return default
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{where}: <{element.tag} {key}=...> is "
+                               + ("missing" if text is None else f"{text[:40]!r}, not a number")) from None
+    if not math.isfinite(value):
+        raise CalibrationError(f"{where}: <{element.tag} {key}=...> is not a finite number")
+    return value
+
+
+def _qca_video_scale(element, where: str) -> float:
+    """Image pixels per sensor pixel: ``video_resolution`` "720p" → 720 / 1080 (1 when absent)."""
+    text = element.get("video_resolution")
+    if text is None:
+        return 1.0
+    lines = text.strip().lower().removesuffix("p")
+    if not lines.isdigit() or not 0 < int(lines) <= QCA_VIDEO_LINES * 4:
+        raise CalibrationError(f"{where}: video_resolution {text[:40]!r} is not a video resolution like \"1080p\"")
+    return int(lines) / QCA_VIDEO_LINES
+
+
+def _qca_rotation(transform, where: str) -> np.ndarray:
+    """``r11``…``r33`` (row by row) of ``<transform>``; CalibrationError unless a rotation matrix."""
+    m = np.array([[_qca_number(transform, f"r{i}{j}", where) for j in (1, 2, 3)] for i in (1, 2, 3)])
+    if (np.abs(m.T @ m - np.eye(3)).max() > QCA_ROTATION_TOLERANCE
+            or abs(np.linalg.det(m) - 1.0) > QCA_ROTATION_TOLERANCE):
+        raise CalibrationError(f"{where}: <transform r11..r33> {_numbers(m)} is no rotation matrix")
+    return m
 
 
 def intrinsics_only(cam: CameraModel) -> CameraModel:

@@ -189,6 +189,7 @@ MAX_PEOPLE = Domain("a number of people", 1, 1000, integer=True)
 CONF = Domain("a score", 0, 1)
 IOU = Domain("an overlap ratio (IoU)", 0, 1, low_open=True)
 MODEL_INPUT_PX = Domain("a model input side in pixels", 32, 4096, integer=True)
+MODEL_EVERY = Domain("a number of frames", 1, 100, integer=True)
 
 # --- evaluation and pictures ---------------------------------------------------------------
 MAX_CLIPS = Domain("a number of clips", 1, 100_000, integer=True)

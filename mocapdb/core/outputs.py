@@ -124,6 +124,19 @@ def _rig_table(rig: str, proportions_m: np.ndarray | None = None
     raise ValueError(f"unknown rig {rig!r}: one of {', '.join(RIGS)}")
 
 
+ROOT_TAIL_M = np.array([0.0, 0.10, 0.0])  # the root's End Site: up from the pelvis, for a 1.75 m body
+
+
+def _with_root_tail(names: list[str], parents: np.ndarray, offsets_m: np.ndarray, sources: list[str | None],
+                    end_site: np.ndarray) -> tuple[list[str], np.ndarray, np.ndarray, list[str | None], np.ndarray]:
+    """A rig table (:func:`_rig_table`) with an End Site on the root, :data:`ROOT_TAIL_M` from it, listed
+    last. Importers that end a bone at the mean of its children's offsets (Blender) otherwise give the
+    root no length (the hips lie either side of the pelvis, the spine starts at it: "zero length node
+    found"); an End Site sets the root bone's end instead. It turns nothing: no joint moves."""
+    return (names + [f"{names[0]}_End"], np.append(parents, 0), np.vstack([offsets_m, ROOT_TAIL_M]),
+            sources + [None], np.append(end_site, True))
+
+
 def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str = "m",
                   body_scale: float = 1.0, rig: str = "universal", proportions_m: np.ndarray | None = None) -> Bvh:
     """A BVH of the universal skeleton: root position and every joint's rotation per frame.
@@ -136,7 +149,7 @@ def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str
     Mixamo's names (:data:`HUMANOID_NODES`); the joints of both rigs are at the same places.
     """
     scale = BVH_UNITS[unit]
-    names, parents, offsets_m, sources, end_site = _rig_table(rig, proportions_m)
+    names, parents, offsets_m, sources, end_site = _with_root_tail(*_rig_table(rig, proportions_m))
     channels = [([] if end else BVH_ROTATION_CHANNELS.copy()) for end in end_site]
     channels[0] = ["Xposition", "Yposition", "Zposition"] + BVH_ROTATION_CHANNELS
     skeleton = Bvh(names, parents, offsets_m * (scale * body_scale), channels, end_site, 1.0 / fps,

@@ -11,6 +11,9 @@ so the command-line parser stays fast):
 - :mod:`mocapdb.detect.model`: pre- and post-processing (letterbox, NMS, model layouts) and
   :class:`~mocapdb.detect.model.PoseModel`;
 - :mod:`mocapdb.detect.video`: :class:`~mocapdb.detect.video.VideoReader`, decoded frames;
+- :mod:`mocapdb.detect.tracked`: :class:`~mocapdb.detect.tracked.TrackedDetector`, the model on
+  crops around the people of the frame before, the whole frame now and then, optical flow between
+  (what both `detect` and `live --model` run);
 - :mod:`mocapdb.detect.openpose_out`: the OpenPose JSON files and the detect loop
   (:func:`~mocapdb.detect.openpose_out.detect_video`).
 

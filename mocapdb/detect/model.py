@@ -9,6 +9,7 @@ their own. Frames come from :mod:`mocapdb.detect.video`; the files written, from
 """
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -168,8 +169,15 @@ def _first_line(exc: Exception) -> str:
     return text.splitlines()[0] if text else type(exc).__name__
 
 
+def cpu_cores() -> int:
+    """The CPU cores this process may run on (its affinity where the platform tells it)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def _load_session(path: Path) -> Any:
-    """An onnxruntime CPU session for ``path``; DetectError when missing or not loadable."""
+    """An onnxruntime CPU session for ``path`` set for this machine (intra-op threads = its cores, not
+    spinning when idle; sequential execution; all graph optimisations); DetectError when missing or
+    not loadable."""
     if not path.exists():
         raise DetectError(f"pose model not found: {path}")
     check_readable(path, "pose model")
@@ -177,6 +185,12 @@ def _load_session(path: Path) -> Any:
 
     options = ort.SessionOptions()
     options.log_severity_level = 3   # errors only
+    options.intra_op_num_threads = cpu_cores()   # one thread per core: ORT's default may count differently
+    options.inter_op_num_threads = 1
+    options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL   # one model, one branch at a time
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    # idle threads sleep: spinning would take the cores the decoder and the live engine need
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     try:
         return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
     except Exception as exc:  # noqa: BLE001 - onnxruntime's exception types share no narrower base
@@ -198,8 +212,9 @@ class PoseModel:
     """A YOLO-pose or RTMO ONNX export run by onnxruntime on the CPU: frame (BGR) → :class:`Detections`.
 
     ``conf``: least person score kept; ``iou``: NMS threshold; ``max_people``: the best ones kept
-    (None: all); ``input_size``: side in pixels for a dynamic input. ``fps`` is the rate detection
-    sustains (frames per second of pre-processing, inference and post-processing time).
+    (None: all); ``input_size``: side in pixels for a dynamic input (``dynamic``: the export takes
+    any input size, which :meth:`run` may be given). ``fps`` is the rate detection sustains (frames
+    per second of pre-processing, inference and post-processing time).
     """
 
     def __init__(self, path: str | Path, *, conf: float = DEFAULT_CONF, iou: float = DEFAULT_IOU,
@@ -219,6 +234,7 @@ class PoseModel:
         self._input_name, self._dtype = inputs[0].name, _INPUT_TYPES[inputs[0].type]
         height, width = (d if isinstance(d, int) and d > 0 else input_size for d in inputs[0].shape[2:])
         self.input_wh = (width, height)
+        self.dynamic = not all(isinstance(d, int) and d > 0 for d in inputs[0].shape[2:])   # any input size runs
         self.conf, self.iou, self.max_people = conf, iou, max_people
         self.frames, self.seconds = 0, 0.0
 
@@ -234,13 +250,18 @@ class PoseModel:
     def __call__(self, image: np.ndarray) -> Detections:
         """The people in ``image [H, W, 3]`` (uint8 BGR, as OpenCV decodes), in its pixels."""
         started = time.perf_counter()
-        canvas, box = letterbox(image, self.input_wh, self.layout.centred)
+        found = self.run(*letterbox(image, self.input_wh, self.layout.centred))
+        self.frames += 1
+        self.seconds += time.perf_counter() - started
+        return found
+
+    def run(self, canvas: np.ndarray, box: Letterbox) -> Detections:
+        """The people in a prepared model input ``canvas [h, w, 3]`` (uint8 BGR; ``input_wh`` unless the
+        input is :attr:`dynamic`), mapped back to the frame's pixels by ``box``."""
         boxes, scores, keypoints = self._decode(self._infer(canvas))
         keep = self._select(boxes, scores)
         corners = box.to_original(boxes[keep].reshape(-1, 2, 2)).reshape(-1, 4)
         points = np.concatenate([box.to_original(keypoints[keep, :, :2]), keypoints[keep, :, 2:]], axis=-1)
-        self.frames += 1
-        self.seconds += time.perf_counter() - started
         return Detections(corners, scores[keep], points)
 
     def _infer(self, canvas: np.ndarray) -> list[np.ndarray]:

@@ -30,7 +30,7 @@ from mocapdb.core.progress import progress
 from mocapdb.detect.errors import DetectError
 
 if TYPE_CHECKING:
-    from mocapdb.detect.model import PoseModel
+    from mocapdb.detect.tracked import TrackedDetector
     from mocapdb.detect.video import VideoReader
 
 N_COCO = len(LAYOUTS["coco17"])
@@ -100,9 +100,10 @@ class DetectSummary:
             f"detection {self.detection_fps:.1f} frames/s"])
 
 
-def detect_video(reader: VideoReader, model: PoseModel, out_dir: Path, every: int = 1,
+def detect_video(reader: VideoReader, model: TrackedDetector, out_dir: Path, every: int = 1,
                  stop: threading.Event | None = None) -> DetectSummary:
-    """Detect people in every ``every``-th frame and write one OpenPose JSON file per frame
+    """Detect people in every ``every``-th frame (by the paths ``model`` allows:
+    :mod:`mocapdb.detect.tracked`) and write one OpenPose JSON file per frame
     (atomically) into ``out_dir``, then the take description (``take.json``: the keypoints' frame
     rate, the image size, the frames written, source and model; :mod:`mocapdb.core.formats.take`);
     ends with the video or once ``stop`` is set. ``out_dir`` is emptied of an earlier detect output

@@ -3,5 +3,8 @@
 DEFAULT_CONF = 0.25        # a person is kept when its model score is at least this
 DEFAULT_IOU = 0.65         # NMS drops a person whose box overlaps a better one's by more than this IoU
 DEFAULT_INPUT_SIZE = 640   # model input side in pixels when the export leaves it dynamic
+DEFAULT_CROP_PX = 256      # largest model input side in pixels for a person crop (dynamic exports)
+DEFAULT_FULL_EVERY = 30    # following people in crops, the whole frame is searched at least every this many frames
+DETECTORS = ("full", "crops")   # the model on every whole frame; or on crops around the people followed
 NO_MODEL = ("no pose model given: pass --model POSE.onnx (a YOLO-pose or RTMO ONNX export; "
             "see data_specs/pose_models.md)")

@@ -40,6 +40,7 @@ from mocapdb.core.errors import UsageError
 from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame
 from mocapdb.core.formats.openpose import read_openpose_folder
+from mocapdb.core.formats.take import TAKE_FILE, read_take, resolve_camera
 from mocapdb.core.formats.trc import Trc, read_trc, trc_keypoints
 from mocapdb.core.skeleton import MEASURED_BONE_NAMES, N_KEYPOINTS_2D, N_POINTS, PELVIS, bone_lengths_m
 from mocapdb.evaluation.metrics import foot_height_error_m, foot_skating_mps, pa_mpjpe, planted_feet
@@ -110,7 +111,9 @@ def focal_px(cam: CameraModel) -> float:
 
 
 def load_take(folder: str | Path, names: Sequence[str] | None = None) -> Take:
-    """The take in ``folder`` (cameras ``names``, default all); UsageError naming what is missing."""
+    """The take in ``folder`` (cameras ``names``, default all); UsageError naming what is missing, or
+    a camera folder's ``take.json`` whose frame rate or image size contradicts the TRC's rate or the
+    calibration's size (the calibration and the TRC are what is used; a take's focal is not)."""
     folder = Path(folder)
     files = [folder / "calibration.toml", folder / "triangulated_4cam.trc"]
     for path in files:
@@ -127,6 +130,9 @@ def load_take(folder: str | Path, names: Sequence[str] | None = None) -> Take:
         if not path.is_dir():
             raise UsageError(f"{folder}: no OpenPose folder {path.relative_to(folder)} for camera {n}")
     trc = read_trc(files[1])
+    for n, path in folders.items():  # a take.json (when `mocapdb detect` wrote the folder) must agree
+        resolve_camera(read_take(path), str(path / TAKE_FILE), trc.rate_hz, cameras[n].size, None,
+                       {"fps": f"the rate of {files[1]}", "image_size": f"the image size of {n} in {files[0]}"})
     frames = {n: list(read_openpose_folder(path, fps=trc.rate_hz)) for n, path in folders.items()}
     for n, camera_frames in frames.items():
         if len(camera_frames) != len(trc.positions):

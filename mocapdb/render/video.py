@@ -28,9 +28,9 @@ from mocapdb.core.outputs import (
     output_folder,
 )
 from mocapdb.core.progress import progress as progress_bar
-from mocapdb.core.skeleton import PELVIS
+from mocapdb.core.skeleton import N_POINTS, PELVIS
 from mocapdb.render import draw
-from mocapdb.render.results import RenderError, ResultFrame, overlap, read_cameras, read_result
+from mocapdb.render.results import RenderError, ResultFrame, TrackPose, overlap, read_cameras, read_result
 
 VIEWS = ("both", "image", "3d")
 DEFAULT_FOCAL = 1000.0           # the defaults of `mocapdb reconstruct`
@@ -97,10 +97,11 @@ def _fresh_background(layout: Layout, video_frame: np.ndarray | None) -> np.ndar
 
 
 def compose_frame(layout: Layout, frame: ResultFrame, keypoints=None, video_frame: np.ndarray | None = None,
-                  trails: dict[int, deque] | None = None, caption: str | None = None) -> np.ndarray:
+                  trails: dict[int, deque] | None = None, caption: str | None = None,
+                  people_3d: list[TrackPose] | None = None) -> np.ndarray:
     """One output image (BGR) of a result frame: the re-projected skeletons over the input keypoints
     (grey) and the video frame, and/or the 3D panel. ``trails``: per track the recent pelvis
-    positions, drawn in the 3D panel."""
+    positions, drawn in the 3D panel; ``people_3d``: who the 3D panel draws (default the frame's people)."""
     cam = layout.camera
     people = sorted(frame.people, key=lambda p: -float(np.nan_to_num(p.joints[PELVIS, 2], nan=0.0)))
     out = np.zeros((layout.size[1], layout.size[0], 3), np.uint8)
@@ -131,7 +132,8 @@ def compose_frame(layout: Layout, frame: ResultFrame, keypoints=None, video_fram
                     px, _ = layout.view3d.project(flat, (pw, side), scene=True)
                     colour = tuple(int(c * 0.55) for c in draw.track_colour(track))
                     cv2.polylines(panel, [np.round(px).astype(np.int32)], False, colour, 1, cv2.LINE_AA)
-        ordered = sorted(people, key=lambda p: -float(np.nanmean(layout.view3d.project(p.joints, (pw, side))[1])))
+        shown = people if people_3d is None else people_3d
+        ordered = sorted(shown, key=lambda p: -float(np.nanmean(layout.view3d.project(p.joints, (pw, side))[1])))
         for p in ordered:
             draw.draw_skeleton_3d(panel, layout.view3d, p.joints, draw.track_colour(p.track), f"#{p.track}")
         draw.put_text(panel, "3D, orthographic", (8, int(28 * text_scale) + 8), text_scale, (170, 170, 170))
@@ -238,8 +240,10 @@ def _check_keypoint_extent(keypoints: list, camera: CameraModel, warn: Callable[
 
 
 def prepare(result: str | Path, keypoints: str | Path | list | None, camera: CameraModel | None,
-            video: VideoFrames | None, view: str, scale: float, margin: float, warn: Callable[[str], None]):
-    """Read and check the inputs: (stream, frame pairs, layout)."""
+            video: VideoFrames | None, view: str, scale: float, margin: float, warn: Callable[[str], None],
+            scene_joints: np.ndarray | None = None):
+    """Read and check the inputs: (stream, frame pairs, layout). The 3D view holds the stream, up
+    from the bodies, or ``scene_joints [N, 15, 3]`` in a levelled world (y up)."""
     stream = read_result(result)
     if camera is None:
         cams = read_cameras(stream.path.parent)
@@ -258,7 +262,7 @@ def prepare(result: str | Path, keypoints: str | Path | list | None, camera: Cam
     if keypoints is not None:
         _check_keypoint_extent(keypoints, camera, warn)
     pairs = overlap(stream, keypoints, video.count if video is not None else None, warn)
-    view3d = draw.fit_view(stream.all_joints())
+    view3d = draw.fit_view(stream.all_joints()) if scene_joints is None else draw.fit_view(scene_joints, np.eye(3))
     return stream, pairs, Layout(camera, view, view3d, scale, margin)
 
 
@@ -313,11 +317,14 @@ def render_result(result: str | Path, out: str | Path, keypoints: str | Path | N
     return RenderSummary(len(pairs), tracks, written, time.perf_counter() - start, warnings)
 
 
+Scene = list[tuple[int, np.ndarray, np.ndarray]]  # per track: its id, frame numbers [F], joints [F, 15, 3]
+
+
 def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, out_png: str | Path, n: int = 12, *,
                   focal: float = DEFAULT_FOCAL, image_size: tuple[int, int] = DEFAULT_IMAGE_SIZE,
                   video: str | Path | None = None, view: str = "both", tile_height: int = 520,
                   columns: int | None = None, warn: Callable[[str], None] | None = None,
-                  name: str | None = None) -> Path:
+                  name: str | None = None, scene: Scene | None = None) -> Path:
     """One PNG: a grid of ``n`` evenly spaced frames of a result with their overlays (the
     re-projected skeletons over the input keypoints, and the 3D view with ``view="both"``).
 
@@ -325,10 +332,12 @@ def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, o
     ``keypoints``: its input (folder, file, or frames already read; None: skeletons only);
     ``focal`` (px) and ``image_size`` (width, height px): as given to reconstruct; ``video``:
     optional frames underneath; ``tile_height``: pixels per tile; ``name``: the result as the title
-    shows it (default its folder and file name). Frames are chosen evenly among
-    those the result and keypoints share. Written atomically, replacing only a PNG (checked
-    first); returns ``out_png``. Raises :class:`~mocapdb.render.results.RenderError` on unusable
-    inputs (``reconstruct --preview``).
+    shows it (default its folder and file name); ``scene``: what the 3D view draws instead of the
+    stream, per track its id, frame numbers and joints (metres in a levelled world: y up, z away from
+    the camera as in the stream; ``reconstruct --preview --floor``: the track files' joints, z negated).
+    Frames are chosen evenly among those the result and keypoints share. Written atomically,
+    replacing only a PNG (checked first); returns ``out_png``. Raises
+    :class:`~mocapdb.render.results.RenderError` on unusable inputs (``reconstruct --preview``).
     """
     if n < 1:
         raise RenderError(f"a contact sheet needs at least 1 frame, not {n}")
@@ -338,14 +347,16 @@ def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, o
     try:
         full_h = camera.size[1] * (1 + 2 * 0.06)
         scale = max(0.05, tile_height / full_h)
+        by_frame = None if scene is None else _scene_by_frame(scene)
         stream, pairs, layout = prepare(result_dir, keypoints, camera, frames_in, view, scale, 0.06,
-                                        warn or (lambda text: None))
+                                        warn or (lambda text: None), None if scene is None else _scene_joints(scene))
         picks = sorted(set(np.round(np.linspace(0, len(pairs) - 1, min(n, len(pairs)))).astype(int).tolist()))
         tiles = []
         for i in picks:
             rframe, kframe = pairs[i]
             background = frames_in.get(rframe.index) if frames_in is not None else None
-            tiles.append(compose_frame(layout, rframe, kframe, background))
+            people_3d = None if by_frame is None else by_frame.get(rframe.index, [])
+            tiles.append(compose_frame(layout, rframe, kframe, background, people_3d=people_3d))
     finally:
         if frames_in is not None:
             frames_in.close()
@@ -370,6 +381,20 @@ def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, o
         draw.put_text(sheet, f"#{t}", (x, int(title_h * 0.72)), tscale, draw.track_colour(t), 2)
         x += int(60 * tscale) + 10
     return write_png(out_png, sheet)
+
+
+def _scene_by_frame(scene: Scene) -> dict[int, list[TrackPose]]:
+    """Per frame number, the people of a :func:`contact_sheet` scene in it."""
+    by_frame: dict[int, list[TrackPose]] = {}
+    for track, frames, joints in scene:
+        for index, pose in zip(np.asarray(frames).tolist(), joints):
+            by_frame.setdefault(index, []).append(TrackPose(track, pose))
+    return by_frame
+
+
+def _scene_joints(scene: Scene) -> np.ndarray:
+    """Every pose of a :func:`contact_sheet` scene, ``[N, 15, 3]``."""
+    return np.concatenate([joints for _, _, joints in scene]) if scene else np.zeros((0, N_POINTS, 3))
 
 
 def _stereo_basis(cams) -> np.ndarray | None:

@@ -61,7 +61,8 @@ class StereoResult:
 
     ``points_m [T, J, 3]`` final joints (NaN where invalid), ``stage1_points``/``stage2_points``
     the intermediate ones; camera 2 is ``x₂ = R x₁ + t`` (``stage1_R``, ``stage1_t``: its stage-1
-    estimate); ``epsilons`` the sphericity of each ellipsoid round, ``kept_round`` the one kept.
+    estimate); ``epsilons`` the sphericity of each ellipsoid round, ``kept_round`` the one kept,
+    ``converged`` whether a round reached the stop (:func:`mocapdb.stereo.ellipose.converged`; None: no round).
     """
 
     points_m: np.ndarray
@@ -76,3 +77,4 @@ class StereoResult:
     kept_round: int = 0
     warnings: list[str] = field(default_factory=list)
     valid: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
+    converged: bool | None = None

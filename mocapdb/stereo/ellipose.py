@@ -4,13 +4,16 @@ Stage 1 estimates camera 2's pose from the body keypoints of all frames (essenti
 triangulates. Stage 2 fits one origin-centred ellipsoid to the bone vectors (one scale per bone
 type; the fit discounts each bone's triangulation noise: :mod:`mocapdb.stereo.ellipsoid`),
 undistorts the 3D points partway along its axes, re-fits both cameras by PnP and re-triangulates,
-until the ellipsoid is nearly a sphere. Stage 3 makes bone lengths constant against the 2D
+until the ellipsoid is nearly a sphere (:func:`converged`; when no round gets there, the round
+with the lowest ε is kept and a warning says so). Stage 3 makes bone lengths constant against the 2D
 evidence (:mod:`mocapdb.stereo.bone_lengths`). Views without parallax and camera poses that put the
 people behind a camera are refused (:mod:`mocapdb.stereo.checks`). Decisions:
 ``data_specs/stereo.md``. Coordinates: camera 1's OpenCV axes (x right, y down, z forward), the
 baseline = 1 unless ``camera_distance_m`` gives metres.
 """
 from __future__ import annotations
+
+import logging
 
 import cv2
 import numpy as np
@@ -28,6 +31,24 @@ from mocapdb.stereo.relative_pose import (
     triangulate_all,
     triangulation_covariance,
 )
+
+LOG = logging.getLogger(__name__)
+
+
+def converged(epsilons: list[float], config: StereoConfig) -> bool | None:
+    """Whether the ellipsoid rounds converged: a round's sphericity ε fell below ``config.epsilon``
+    (the method's stop: the bone vectors lie on a sphere, the rounds end there); None when no round
+    ran (stage 2 off, or a sequence too short or still for it)."""
+    return None if not epsilons else min(epsilons) < config.epsilon
+
+
+def convergence_warning(epsilons: list[float], kept: int, config: StereoConfig) -> str:
+    """The warning of rounds that did not converge (:func:`converged`): their count, the last ε and the kept round's."""
+    return (f"the ellipsoid fit did not converge: ε stayed at or above {config.epsilon:g} in all {len(epsilons)} "
+            f"round(s) (at most {config.max_rounds}; last ε {epsilons[-1]:.4f}; round {kept}, ε {epsilons[kept]:.4f}, "
+            "is kept). The bone vectors do not lie on one sphere under any camera pose the rounds tried: noisy or "
+            "sliding joints (real detections), or a camera estimate the rounds could not correct; the relative "
+            "camera pose may be off by a few degrees")
 
 
 def _stage1(n1, n2, valid, config, focal_px: float):
@@ -102,7 +123,11 @@ def reconstruct(x1: np.ndarray, c1: np.ndarray, x2: np.ndarray, c2: np.ndarray, 
     stage2, R, t, epsilons, kept = _stage2(stage1, n1, n2, valid, R1, t1, config, bones, warnings)
     final = refine_bone_lengths(np.nan_to_num(stage2), projection_matrix(np.eye(3), np.zeros(3)),
                                 projection_matrix(R, t), n1, n2, valid, bones, config.alpha, config.bone_rounds)
+    if converged(epsilons, config) is False:
+        warnings.append(convergence_warning(epsilons, kept, config))
+        LOG.warning(warnings[-1])
     warnings += check_geometry(final, valid, R, t)
     scale = config.camera_distance_m or 1.0
     return StereoResult(final * scale, stage1 * scale, stage2 * scale, R, t * scale, R1, t1 * scale,
-                        config.camera_distance_m is not None, epsilons, kept, warnings, valid)
+                        config.camera_distance_m is not None, epsilons, kept, warnings, valid,
+                        converged(epsilons, config))

@@ -47,6 +47,7 @@ class StereoSummary:
     outputs: list[Path]
     tracks: list[dict]             # per person: track, frames, first, last, correspondences, bvh
     unmatched: list[str]           # detections that are no person, per view
+    converged: bool | None = None  # the ellipsoid rounds reached their stop (None: no round ran)
 
     def report(self) -> str:
         """Human-readable lines for the command line."""
@@ -59,7 +60,8 @@ class StereoSummary:
                   for why, frames in self.dropped.items()]
         lines += [f"  not a person: {line}" for line in self.unmatched]
         eps = ", ".join(f"{e:.4f}" for e in self.epsilons) or "none"
-        lines.append(f"ellipsoid ε per round: {eps}; kept round {self.kept_round}")
+        state = {None: "", True: ", converged", False: ", not converged (warning below)"}[self.converged]
+        lines.append(f"ellipsoid ε per round: {eps}; kept round {self.kept_round}{state}")
         lines.append(f"camera 2 relative to camera 1: rotation {self.rotation_deg:.2f}°, "
                      f"baseline {self.baseline:.3f} m ({self.scale_source})")
         lines += [f"warning: {w}" for w in self.warnings]
@@ -108,6 +110,7 @@ def cameras_text(cam1: CameraModel, cam2: CameraModel, result: StereoResult, wor
         "rotation_deg": rotation_angle_deg(np.asarray(result.R)),
         "camera_source": "all people's correspondences (tracks stacked along time)",
         "epsilons": [float(e) for e in result.epsilons], "kept_round": int(result.kept_round),
+        "converged": result.converged,
         "warnings": warnings, "dropped_frames": people.dropped, "tracks": tracks, "not_people": people.unmatched,
         "bvh_from_camera1": world.bvh_from_camera.tolist(),
     }

@@ -5,8 +5,9 @@ of the body's box diagonal). Pairs of 2D tracks, one per view, are matched by ep
 over the frames they share, under an essential matrix chosen as the one that makes the scene most
 consistent (each of the best-corresponding pairings proposes one), then re-fitted to every matched
 person. Matched 2D tracks chain into people (a person keeps its id when one view's 2D track breaks
-and the other's does not). Detections that match no one are not people: they are reported.
-Decisions and thresholds: ``data_specs/stereo.md``.
+and the other's does not). A body the detector split in two is put back together (:func:`fragments`).
+Detections that match no one are not people: they are reported. Decisions and thresholds:
+``data_specs/stereo.md``.
 """
 from __future__ import annotations
 
@@ -42,6 +43,12 @@ MIN_TRACK_JOINTS = 3
 # better-matching partner. A person needs MIN_PERSON_FRAMES consistent frames.
 MIN_LINK_SHARE = 0.5
 MIN_PERSON_FRAMES = 5
+# OpenPose sometimes splits one body into two detections of a frame (the Pose2Sim take, camera 1,
+# frame 37: head and arms apart from hips and legs). A detection that no person uses is a piece of a
+# person's detection in that view when its confident joints are none of the body's and at least
+# MIN_FRAGMENT_JOINTS of them, confident in the person's detection of the other view too, lie within
+# MAX_EPIPOLAR_PX of it (median): its joints complete the body (:func:`fragments`).
+MIN_FRAGMENT_JOINTS = 3
 SEED_PAIRINGS = 8  # the best-corresponding pairings of 2D tracks whose own essential matrix is tried
 MAX_MATCH_CORRESPONDENCES = 3000  # per essential matrix fitted for matching (the cameras' fit uses all)
 
@@ -352,16 +359,21 @@ def match_people(frames1: list[KeypointFrame], frames2: list[KeypointFrame], cam
     """Everyone seen in both views, one :class:`Selection` per person (see the module docstring)."""
     n_frames = len(frames1)
     d1, d2 = detections(frames1, cam1, config.confidence), detections(frames2, cam2, config.confidence)
-    essential, measured, rows, person = _matched(d1, d2, _focal(cam1, cam2), n_frames, config)
+    focal = _focal(cam1, cam2)
+    essential, measured, rows, person = _matched(d1, d2, focal, n_frames, config)
     big = np.flatnonzero(np.bincount(person, minlength=1) >= MIN_PERSON_FRAMES)
     rows, person = rows[np.isin(person, big)], person[np.isin(person, big)]
-    persons = sorted((_selection(measured, rows[person == k], d1, d2, n_frames) for k in big),
+    i, j = measured.i[rows], measured.j[rows]
+    pieces = (fragments(d1, d2, i, j, essential, focal, True), fragments(d2, d1, j, i, essential, focal, False))
+    persons = sorted((_selection(measured, rows[person == k], d1, d2, n_frames, pieces) for k in big),
                      key=lambda sel: -sel.correspondences)
     kept = np.flatnonzero(np.any([sel.kept for sel in persons], axis=0)) if persons else np.zeros(0, np.int64)
     dropped = dropped_frames(n_frames, d1, d2, measured, kept)
     for k, sel in enumerate(persons):
         sel.track, sel.dropped = k, dropped
-    return People(persons, dropped, unmatched_lines((d1, d2), (measured.i[rows], measured.j[rows])), essential)
+    used = tuple(np.concatenate([chosen, *map(np.asarray, found.values())]).astype(np.int64)
+                 for chosen, found in zip((i, j), pieces))
+    return People(persons, dropped, unmatched_lines((d1, d2), used), essential)
 
 
 def _focal(cam1: CameraModel, cam2: CameraModel) -> float:
@@ -383,19 +395,63 @@ def _matched(d1: Detections, d2: Detections, focal: float, n_frames: int,
     return essential, measured, rows, person
 
 
-def _selection(pairs: Pairs, rows: np.ndarray, d1: Detections, d2: Detections, n_frames: int) -> Selection:
-    """The arrays of one person's chosen pairs ``rows`` (one per frame)."""
-    t, i, j = pairs.frame[rows], pairs.i[rows], pairs.j[rows]
-    x1 = np.full((n_frames, N_KEYPOINTS_2D, 2), np.nan)
-    x2 = x1.copy()
-    c1, c2 = np.zeros((n_frames, N_KEYPOINTS_2D)), np.zeros((n_frames, N_KEYPOINTS_2D))
-    x1[t], c1[t], x2[t], c2[t] = d1.points[i], d1.conf[i], d2.points[j], d2.conf[j]
+def fragments(d: Detections, other: Detections, chosen: np.ndarray, partner: np.ndarray, essential: np.ndarray,
+              focal: float, first: bool) -> dict[int, list[int]]:
+    """The pieces of a body OpenPose split (above :data:`MIN_FRAGMENT_JOINTS`): for each chosen detection
+    ``chosen[k]`` of view ``d`` (``first``: view 1), paired with ``partner[k]`` of ``other``, the unused
+    detections of its frame whose confident joints are none of the body's so far and lie on the
+    partner's epipolar geometry. Detection → its pieces (only those that have one)."""
+    used = set(chosen.tolist())
+    bounds = np.searchsorted(d.frame, d.frame[chosen][:, None] + np.array([0, 1]))  # each chosen frame's slice
+    found: dict[int, list[int]] = {}
+    for c, p, (start, stop) in zip(chosen.tolist(), partner.tolist(), bounds):
+        body = d.vis[c].copy()
+        for k in range(start, stop):
+            if k not in used and not (d.vis[k] & body).any() and _on_partner(d, other, k, p, essential, focal, first):
+                found.setdefault(c, []).append(k)
+                used.add(k)
+                body |= d.vis[k]
+    return found
+
+
+def _on_partner(d: Detections, other: Detections, k: int, p: int, essential: np.ndarray, focal: float,
+                first: bool) -> bool:
+    """Whether at least MIN_FRAGMENT_JOINTS joints confident in both ``d``'s detection ``k`` and ``other``'s
+    ``p`` lie within MAX_EPIPOLAR_PX of each other's epipolar lines (median)."""
+    shared = d.vis[k] & other.vis[p]
+    if shared.sum() < MIN_FRAGMENT_JOINTS:
+        return False
+    ends = (d.normalised[k][shared], other.normalised[p][shared])
+    return float(np.median(sampson_distance(essential, *(ends if first else ends[::-1])))) * focal <= MAX_EPIPOLAR_PX
+
+
+def _selection(pairs: Pairs, rows: np.ndarray, d1: Detections, d2: Detections, n_frames: int,
+               pieces: tuple[dict[int, list[int]], dict[int, list[int]]]) -> Selection:
+    """The arrays of one person's chosen pairs ``rows`` (one per frame), completed by their ``pieces``
+    (:func:`fragments`, per view)."""
+    t = pairs.frame[rows]
+    views = [_view_arrays(n_frames, t, chosen, d, found) for chosen, d, found in
+             ((pairs.i[rows], d1, pieces[0]), (pairs.j[rows], d2, pieces[1]))]
+    (x1, c1, v1), (x2, c2, v2) = views
     kept = np.zeros(n_frames, dtype=bool)
     kept[t] = True
     distance = np.full(n_frames, np.nan)
     distance[t] = pairs.distance[rows]
-    return Selection(x1, np.where(np.isfinite(x1).all(-1), c1, 0.0), x2, np.where(np.isfinite(x2).all(-1), c2, 0.0),
-                     kept, distance, correspondences=int(pairs.shared[rows].sum()))
+    return Selection(x1, c1, x2, c2, kept, distance, correspondences=int((v1 & v2).sum()))
+
+
+def _view_arrays(n_frames: int, frames: np.ndarray, chosen: np.ndarray, d: Detections,
+                 pieces: dict[int, list[int]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One view of a person: points ``[T, 14, 2]`` (NaN where missing), confidences ``[T, 14]`` (0 where
+    missing) and confident joints ``[T, 14]`` of the detections ``chosen`` in ``frames``, with their pieces' joints."""
+    x = np.full((n_frames, N_KEYPOINTS_2D, 2), np.nan)
+    c, v = np.zeros((n_frames, N_KEYPOINTS_2D)), np.zeros((n_frames, N_KEYPOINTS_2D), dtype=bool)
+    x[frames], c[frames], v[frames] = d.points[chosen], d.conf[chosen], d.vis[chosen]
+    for t, k in zip(frames.tolist(), chosen.tolist()):
+        for piece in pieces.get(k, ()):
+            joints = d.vis[piece]
+            x[t, joints], c[t, joints], v[t, joints] = d.points[piece, joints], d.conf[piece, joints], True
+    return x, np.where(np.isfinite(x).all(-1), c, 0.0), v
 
 
 def dropped_frames(n_frames: int, d1: Detections, d2: Detections, pairs: Pairs,

@@ -104,4 +104,4 @@ def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, 
     return StereoSummary(len(frames1), people.dropped, [float(e) for e in result.epsilons],
                          int(result.kept_round), rotation_angle_deg(np.asarray(result.R)),
                          float(np.linalg.norm(result.t)) * world.scale, bool(result.scaled),
-                         world.scale_source, warnings, seconds, paths, tracks, people.unmatched)
+                         world.scale_source, warnings, seconds, paths, tracks, people.unmatched, result.converged)

@@ -126,18 +126,22 @@ class CameraSettings:
 
 
 def resolve_camera(take: TakeInfo | None, take_path: str, fps: float | None = None,
-                   image_size: tuple[int, int] | None = None, focal_px: float | None = None) -> CameraSettings:
+                   image_size: tuple[int, int] | None = None, focal_px: float | None = None,
+                   given_as: dict[str, str] | None = None) -> CameraSettings:
     """Each of fps, image size and focal: the option when given, else the take description's, else
     :data:`DEFAULTS` (the focal: :func:`default_focal_px` of the image). An option that contradicts
-    the description is a UsageError naming both."""
+    the description is a UsageError naming both; ``given_as`` names where a given value came from
+    when it is no option (``{"image_size": "cam_01's size in calib.toml"}``; default: the option)."""
     given = {"fps": fps, "image_size": image_size, "focal_px": focal_px}
     read = {} if take is None else {"fps": take.fps, "image_size": take.image_size, "focal_px": take.focal_px}
     values, sources = {}, {}
     for name, value in given.items():
         known = read.get(name)
         if value is not None and known is not None and not _agree(value, known):
-            raise UsageError(f"{_option(name)} {_text(value)} contradicts {take_path}, which says {_text(known)}: "
-                             f"leave the option out or correct it")
+            origin = (given_as or {}).get(name)
+            fix = "correct one of them" if origin else "leave the option out or correct it"
+            raise UsageError(f"{origin or _option(name)} {_text(value)} contradicts {take_path}, which says "
+                             f"{_text(known)}: {fix}")
         if value is not None:
             values[name], sources[name] = value, "given"
         elif known is not None:

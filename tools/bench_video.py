@@ -1,0 +1,194 @@
+"""Benchmark video → 3D: what each step costs, end to end, for each detector path (issue 19, item 5).
+
+    python tools/bench_video.py VIDEO --model POSE.onnx [--db demo/sample.db] [--frames 400]
+
+POSE.onnx should be an export with a dynamic input size (``yolo export ... dynamic=True``): the
+full-frame runs feed it 640 px, the crops ``--crop-size`` px. For each configuration:
+
+* full: the model on every whole frame at 640 px (what `detect` and `live` did before the fast path);
+* crops: one crop around the people of the frame before, the whole frame every 30 frames or when
+  someone is lost (``--detector crops``, live's default);
+* crops + flow: as crops, the model on every 2nd frame, optical flow between (``--model-every 2``);
+
+it prints, over one thread (decode → detect → engine step → output line, as `live` does them):
+each stage's mean and p99 in ms (detection split by the path each frame took) and the frames per
+second end to end; the 2D keypoints' difference from the full-frame 640 px run (mean and p95 of
+the distance per keypoint, in % of the person's box height; keypoints of confidence ≥ 0.5 in both);
+then the real `mocapdb live --source VIDEO --model POSE.onnx` (detection in its own thread): its
+throughput and latency p50/p99 from a frame's capture to its output line. The file is read as
+fast as detection goes (frames queue as they would behind a camera too fast for the machine), so
+the latency includes waiting in the buffer. Other processes on the machine slow every figure
+alike: compare the ratios within one run (the load average is printed).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from mocapdb.cli.main import parser  # noqa: E402
+from mocapdb.cli.reconstruct import _session, resolve_take  # noqa: E402
+from mocapdb.detect.model import Detections, PoseModel, box_iou  # noqa: E402
+from mocapdb.detect.tracked import FULL_FRAME, FastPath, TrackedDetector  # noqa: E402
+from mocapdb.detect.video import VideoReader  # noqa: E402
+from mocapdb.runtime.video_input import keypoint_frame  # noqa: E402
+
+WARM_UP_FRAMES = 10     # left out of the timings: onnxruntime's first runs, the engine's first frames
+MIN_CONFIDENCE = 0.5    # keypoints compared: confident in both runs
+MIN_IOU = 0.3           # a person of the reference run is compared with the best-overlapping one found
+STAGES = ("decode", "detect full", "detect crop", "detect crop+full", "flow", "engine step", "output")
+
+
+def configurations(crop_px: int) -> dict[str, tuple[FastPath, list[str]]]:
+    """Name → (the detector's paths, the same as `live` options)."""
+    size = ["--crop-size", str(crop_px)]
+    return {"full 640": (FULL_FRAME, ["--detector", "full"]),
+            "crops": (FastPath(crop_px=crop_px), ["--detector", "crops", *size]),
+            "crops + flow/2": (FastPath(crop_px=crop_px, model_every=2),
+                               ["--detector", "crops", *size, "--model-every", "2"])}
+
+
+def live_args(video: str, model: str, db: str, sink: str, flags: list[str]) -> argparse.Namespace:
+    """`mocapdb live` options as its parser reads them, the take resolved from the video."""
+    args = parser().parse_args(["live", "--source", video, "--model", model, "--db", db, "--sink", sink, *flags])
+    resolve_take(args, args.source)
+    return args
+
+
+def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[dict, list[Detections], float]:
+    """Decode → detect → engine step → output line in one thread: milliseconds per stage, the
+    detections of every frame and the frames per second over the timed frames."""
+    detector = TrackedDetector(PoseModel(args.model), fast)
+    session = _session(args, args.sink, strict=False)
+    engine_ms: list[float] = []
+    step = session.engine.step
+
+    def timed_step(*a, **k):
+        started = time.perf_counter()
+        try:
+            return step(*a, **k)
+        finally:
+            engine_ms.append((time.perf_counter() - started) * 1000.0)
+
+    session.engine.step = timed_step
+    reader = VideoReader(args.source)
+    stages: dict[str, list[float]] = defaultdict(list)
+    found_all: list[Detections] = []
+    frame_iter = reader.frames()
+    wall = 0.0
+    for i in range(frames):
+        t0 = time.perf_counter()
+        frame = next(frame_iter, None)
+        if frame is None:
+            break
+        t1 = time.perf_counter()
+        found = detector(frame.image)
+        t2 = time.perf_counter()
+        session.handle_frame(keypoint_frame(frame, found), frame.capture_s)
+        t3 = time.perf_counter()
+        found_all.append(found)
+        if i >= WARM_UP_FRAMES:
+            path = "flow" if detector.last_path == "flow" else f"detect {detector.last_path}"
+            stages["decode"].append((t1 - t0) * 1000.0)
+            stages[path].append((t2 - t1) * 1000.0)
+            stages["engine step"].append(engine_ms[-1])
+            stages["output"].append((t3 - t2) * 1000.0 - engine_ms[-1])
+            wall += t3 - t0
+    session.finish()
+    reader.close()
+    return stages, found_all, len(stages["decode"]) / wall
+
+
+def keypoint_difference(reference: list[Detections], found: list[Detections]) -> np.ndarray:
+    """Per keypoint compared: its distance from the reference run's, % of the reference box height."""
+    out = []
+    for ref, got in zip(reference, found):
+        if not len(ref.scores) or not len(got.scores):
+            continue
+        overlap = box_iou(ref.boxes, got.boxes)
+        for r, g in enumerate(overlap.argmax(axis=1)):
+            if overlap[r, g] < MIN_IOU:
+                continue
+            seen = (ref.keypoints[r, :, 2] >= MIN_CONFIDENCE) & (got.keypoints[g, :, 2] >= MIN_CONFIDENCE)
+            height = ref.boxes[r, 3] - ref.boxes[r, 1]
+            out.append(np.linalg.norm(ref.keypoints[r, seen, :2] - got.keypoints[g, seen, :2], axis=-1) / height)
+    return np.concatenate(out) * 100.0 if out else np.zeros(0)
+
+
+def live_run(video: str, model: str, db: str, flags: list[str], sink: str) -> dict[str, float]:
+    """The real `mocapdb live --source VIDEO --model M` (a subprocess): its summary's figures."""
+    command = [sys.executable, "-m", "mocapdb", "-q", "live", "--source", video, "--model", model, "--db", db,
+               "--sink", sink, *flags]
+    err = subprocess.run(command, capture_output=True, text=True, check=True, cwd=ROOT).stderr
+    latency = re.search(r"latency p50 ([\d.]+) ms, p99 ([\d.]+) ms; throughput ([\d.]+) frames/s", err)
+    video_line = re.search(r"frames read (\d+), detected (\d+), dropped (\d+); detection ([\d.]+) frames/s", err)
+    if latency is None or video_line is None:
+        raise RuntimeError(f"unexpected summary from {' '.join(command)}:\n{err}")
+    return {"p50": float(latency[1]), "p99": float(latency[2]), "fps": float(latency[3]),
+            "read": int(video_line[1]), "dropped": int(video_line[3]), "detect_fps": float(video_line[4])}
+
+
+def stage_table(results: dict[str, tuple[dict, float]]) -> list[str]:
+    """One row per stage: mean / p99 ms of each configuration."""
+    names = list(results)
+    rows = [f"{'stage (ms: mean / p99)':24}" + "".join(f"{n:>22}" for n in names)]
+    for stage in STAGES:
+        cells = []
+        for name in names:
+            ms = np.array(results[name][0].get(stage, []))
+            cells.append(f"{ms.mean():8.2f} / {np.percentile(ms, 99):6.2f} ({len(ms):3d})" if len(ms) else "-")
+        rows.append(f"{stage:24}" + "".join(f"{c:>22}" for c in cells))
+    rows.append(f"{'end to end, frames/s':24}" + "".join(f"{results[n][1]:>22.1f}" for n in names))
+    return rows
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("video")
+    ap.add_argument("--model", required=True, help="YOLO-pose ONNX export with a dynamic input size")
+    ap.add_argument("--db", default=str(ROOT / "demo" / "sample.db"))
+    ap.add_argument("--frames", type=int, default=400, help="frames of the one-thread runs (default 400)")
+    ap.add_argument("--crop-size", type=int, default=256, help="largest crop input side, pixels (default 256)")
+    args = ap.parse_args()
+    print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())}; {os.cpu_count()} cores")
+    results, detections = {}, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        sink = str(Path(tmp) / "out.jsonl")
+        for name, (fast, flags) in configurations(args.crop_size).items():
+            run_args = live_args(args.video, args.model, args.db, sink, flags)
+            stages, found, fps = one_thread(run_args, fast, args.frames)
+            results[name], detections[name] = (stages, fps), found
+        live = {name: live_run(args.video, args.model, args.db, flags, sink)
+                for name, (_, flags) in configurations(args.crop_size).items()}
+    reader = VideoReader(args.video)
+    first = next(reader.frames()).image
+    reader.close()
+    print(f"video {args.video}: {first.shape[1]}x{first.shape[0]}, {args.frames} frames (the first "
+          f"{WARM_UP_FRAMES} untimed); one thread; (n) frames per stage")
+    print("\n".join(stage_table(results)))
+    print(f"\n{'2D keypoints vs full 640':24}{'mean %':>10}{'p95 %':>10}{'max %':>10}{'compared':>10}")
+    for name in results:
+        diff = keypoint_difference(detections["full 640"], detections[name])
+        print(f"{name:24}{diff.mean():10.2f}{np.percentile(diff, 95):10.2f}{diff.max():10.2f}{len(diff):10d}")
+    print(f"\n{'mocapdb live':24}{'frames/s':>10}{'p50 ms':>10}{'p99 ms':>10}{'read':>8}{'dropped':>9}"
+          f"{'detect/s':>10}")
+    for name, row in live.items():
+        print(f"{name:24}{row['fps']:10.1f}{row['p50']:10.1f}{row['p99']:10.1f}{row['read']:8d}{row['dropped']:9d}"
+              f"{row['detect_fps']:10.1f}")
+    print(f"\nload average after: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
