@@ -9,6 +9,7 @@ error naming both.
 from __future__ import annotations
 
 import json
+import logging
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -22,6 +23,8 @@ TAKE_VERSION = 1
 MAX_SIDE_PX = 65536          # no camera makes larger images
 MAX_FPS = 10000.0
 MAX_TAKE_BYTES = 1_000_000   # a take description is a few hundred bytes: more is read as broken
+CODEC_BLOCK_PX = 16          # video codecs code whole 16-px blocks: a 1080-line video is 1088 lines, cropped
+LOG = logging.getLogger(__name__)
 DEFAULTS = {"fps": 30.0, "image_size": (1920, 1080)}  # when nothing says otherwise (the focal: below)
 FULL_FRAME_DIAGONAL_MM = 43.27  # a 36 × 24 mm frame: what "35 mm-equivalent" focal lengths refer to
 DEFAULT_FOCAL_35MM = 26.0       # a typical phone main camera (24–28 mm equivalent), when nothing is given
@@ -130,15 +133,21 @@ def resolve_camera(take: TakeInfo | None, take_path: str, fps: float | None = No
                    given_as: dict[str, str] | None = None) -> CameraSettings:
     """Each of fps, image size and focal: the option when given, else the take description's, else
     :data:`DEFAULTS` (the focal: :func:`default_focal_px` of the image). An option that contradicts
-    the description is a UsageError naming both; ``given_as`` names where a given value came from
-    when it is no option (``{"image_size": "cam_01's size in calib.toml"}``; default: the option)."""
+    the description is a UsageError naming both, but for image sizes that differ by less than a
+    codec block (:data:`CODEC_BLOCK_PX`: a warning, the given size is used); ``given_as`` names where
+    a given value came from when it is no option (``{"image_size": "cam_01's size in calib.toml"}``;
+    default: the option)."""
     given = {"fps": fps, "image_size": image_size, "focal_px": focal_px}
     read = {} if take is None else {"fps": take.fps, "image_size": take.image_size, "focal_px": take.focal_px}
     values, sources = {}, {}
     for name, value in given.items():
         known = read.get(name)
-        if value is not None and known is not None and not _agree(value, known):
-            origin = (given_as or {}).get(name)
+        origin = (given_as or {}).get(name)
+        if value is not None and known is not None and _codec_padding(value, known):
+            LOG.warning("%s %s and %s (%s) differ by less than a codec block (%d px): the same image, padded "
+                        "or cropped by the video codec; using %s", origin or _option(name), _text(value), take_path,
+                        _text(known), CODEC_BLOCK_PX, _text(value))
+        elif value is not None and known is not None and not _agree(value, known):
             fix = "correct one of them" if origin else "leave the option out or correct it"
             raise UsageError(f"{origin or _option(name)} {_text(value)} contradicts {take_path}, which says "
                              f"{_text(known)}: {fix}")
@@ -151,6 +160,11 @@ def resolve_camera(take: TakeInfo | None, take_path: str, fps: float | None = No
         else:
             values[name], sources[name] = default_focal_px(tuple(values["image_size"])), "default"
     return CameraSettings(float(values["fps"]), tuple(values["image_size"]), float(values["focal_px"]), sources)
+
+
+def _codec_padding(a: object, b: object) -> bool:
+    """Two image sizes (px) that differ, each side by less than :data:`CODEC_BLOCK_PX`."""
+    return isinstance(a, tuple) and tuple(a) != tuple(b) and all(abs(x - y) < CODEC_BLOCK_PX for x, y in zip(a, b))
 
 
 def _agree(a: object, b: object) -> bool:
