@@ -6,11 +6,12 @@ import re
 import shutil
 from types import SimpleNamespace
 
+import cv2
 import numpy as np
 import pytest
 
 from mocapdb.cli.main import main
-from mocapdb.core.cameras import CalibrationError, read_calibration_toml
+from mocapdb.core.cameras import CalibrationError, CameraModel, format_calibration_toml, read_calibration_toml
 from mocapdb.core.clips import ClipOptions, process_clip
 from mocapdb.core.formats.bvh import read_bvh
 from mocapdb.core.formats.database import load_database
@@ -24,7 +25,7 @@ from mocapdb.stereo import StereoConfig, StereoError
 from mocapdb.stereo import outputs as stereo_outputs
 from mocapdb.stereo import views as stereo_views
 from mocapdb.stereo.motion import CAMERA_ALIGNED, in_front_check
-from mocapdb.stereo.people import match_people
+from mocapdb.stereo.people import MIRROR, match_people
 from mocapdb.stereo.pipeline import select_people
 from mocapdb.stereo.relative_pose import rotation_angle_deg
 from mocapdb.stereo.views import load_views
@@ -120,6 +121,82 @@ def test_a_body_split_in_two_detections_is_put_back_together(motion):
     assert (selection.c1[60][~upper] == 0).all()  # the legs 150 px off are not joined
     assert selection.correspondences == int(((selection.c1 > 0) & (selection.c2 > 0)).sum())
     assert len(people.unmatched) == 1 and "1 detections in 1 frames (frames 60)" in people.unmatched[0]
+
+
+def test_a_still_person_far_behind_and_a_biased_moving_one_are_both_matched(motion):
+    """The demo video's cameras 1 and 2 (issue 19): a still person far behind, and a moving one whose detections
+    a camera geometry fits only to several pixels (a detector's systematic, viewpoint-dependent error; here view 2
+    sees the moving person as a camera turned 2° would). Each one's own essential matrix misses the other, so the
+    matching kept the still person alone (on the demo then refused as having no parallax); the two together propose
+    the matrix that fits both. The moving one is the main person (track 0) although the still one has more joints
+    seen by both views."""
+    positions = motion[:90]
+    cam1, cam2 = eval_stereo.pair_cameras("front", positions.mean(axis=(0, 1)))
+    turn = cv2.Rodrigues(np.array([np.radians(2.0), 0.0, 0.0]))[0]
+    biased = CameraModel(cam2.K, cam2.dist, turn @ cam2.R, turn @ cam2.t, cam2.size)
+    centre = positions.mean(axis=(0, 1))
+    away = centre - 0.5 * (cam1.center_m + cam2.center_m)
+    away = away * [1.0, 0.0, 1.0] / np.linalg.norm(away * [1.0, 0.0, 1.0])
+    place = centre + 10.0 * away + np.cross(away, [0.0, 1.0, 0.0])     # 10 m behind, 1 m aside
+    still = np.repeat(positions[40:41] - positions[40].mean(axis=0) + place, len(positions), axis=0)
+    rng = np.random.default_rng(0)
+    (x1, c1), (x2, c2) = (eval_stereo.render(positions, cam, rng, 3.0, 0.0) for cam in (cam1, biased))
+    c1[:, HEAD] = 0.0                                                  # its nose never seen by camera 1
+    (s1, k1), (s2, k2) = (eval_stereo.render(still, cam, rng, 1.0, 0.0) for cam in (cam1, cam2))
+    people = match_people(_frames(x1, c1, [(s1, k1)]), _frames(x2, c2, [(s2, k2)]), cam1, cam2, StereoConfig())
+    assert len(people.persons) == 2 and all(p.kept.all() for p in people.persons)
+    main_person, behind = people.persons
+    np.testing.assert_array_equal(main_person.x2, x2)
+    np.testing.assert_array_equal(behind.x2, s2)
+    assert not main_person.still and behind.still and main_person.correspondences < behind.correspondences
+
+
+def test_a_still_track_never_pairs_with_a_moving_one(motion):
+    """An essential matrix fitted to a still person of one view and a moving one of the other puts every moving
+    joint on its fixed epipolar line (the demo video: camera 2's still woman behind paired with camera 4's
+    performer, consistent in 99 of 100 frames, beat the true pairing's 72). Here view 2's person slides sideways
+    at the still one's heights, exactly on the epipolar lines of a sideways baseline: no one, both reported."""
+    (cam1, _), (x1, c1), _ = _views(motion[:60], 0.0)
+    pose = x1[30]
+    rng = np.random.default_rng(0)
+    still = pose + rng.normal(0.0, 0.5, x1.shape)
+    slide = 80.0 * np.sin(np.arange(60)[:, None] / 6.0 + np.arange(N_KEYPOINTS_2D)[None] / 3.0)
+    moving = pose + np.stack([slide, np.zeros_like(slide)], axis=-1)
+    people = match_people(_frames(still, c1), _frames(moving, c1), cam1, cam1, StereoConfig())
+    assert people.persons == [] and len(people.unmatched) == 2
+
+
+def test_noisy_detections_of_linked_tracks_are_kept(motion):
+    """A noisier detector (YOLO11n-pose on the demo video: the true pairs 10-15 px off the epipolar geometry,
+    a lunge up to 36-43 px) spreads a person's frames beyond the 20 px that finds who is who; once the two 2D
+    tracks are linked, every frame of theirs within 4 times their median is that person (here σ 12 px, and
+    frames 30-39 with view 2's arm and legs 60 px off: they were lost)."""
+    positions = motion[:90]
+    cam1, cam2 = eval_stereo.pair_cameras("front", positions.mean(axis=(0, 1)))
+    rng = np.random.default_rng(1)
+    (x1, c1), (x2, c2) = (eval_stereo.render(positions, cam, rng, 12.0, 0.0) for cam in (cam1, cam2))
+    x2[30:40, 5:] += [0.0, 60.0]
+    selection = select_people(_frames(x1, c1), _frames(x2, c2), cam1, cam2, StereoConfig())
+    assert selection.kept.all() and selection.dropped == {}
+    assert np.nanmax(selection.distance_px[30:40]) > 20
+    np.testing.assert_array_equal(selection.x2, x2)
+
+
+def test_a_detection_with_left_and_right_swapped_is_turned_back(motion):
+    """A detector sometimes swaps a body's left and right (the demo video: camera 1's frame 87, camera 2's 10 and
+    81); the pair is then consistent only with them swapped back. The frames were lost; now the detection of the
+    view that the swap brings closer to its own 2D track is turned back."""
+    positions = motion[:90]
+    cam1, cam2 = eval_stereo.pair_cameras("front", positions.mean(axis=(0, 1)))
+    rng = np.random.default_rng(0)
+    (x1, c1), (x2, c2) = (eval_stereo.render(positions, cam, rng, 2.0, 0.0) for cam in (cam1, cam2))
+    flipped1, flipped2 = x1.copy(), x2.copy()
+    flipped1[68] = x1[68][MIRROR]
+    flipped2[[65, 71]] = x2[[65, 71]][:, MIRROR]
+    selection = select_people(_frames(flipped1, c1), _frames(flipped2, c2), cam1, cam2, StereoConfig())
+    assert selection.kept.all()
+    np.testing.assert_array_equal(selection.x1, x1)
+    np.testing.assert_array_equal(selection.x2, x2)
 
 
 def test_mismatched_frame_counts(tmp_path, motion, capsys):
@@ -242,6 +319,38 @@ def test_every_real_pair_keeps_every_frame_and_joint_both_views_see():
     assert len(rows) == 6
     for row in rows:
         assert row.both_see >= 95 and row.missing <= TARGET_MISSING and row.null_seen == 0, row
+
+
+def test_pairs_of_keypoint_folders_are_scored_against_the_calibration(tmp_path, motion):
+    """tools/eval_stereo_pairs.py --views ... --calibration ... (issue 19, item 3): without a TRC the reference
+    is the person the most views agree on under the calibration's cameras, triangulated from all of them; a
+    still person seen by two cameras only and a detection with left and right swapped change nothing. Every
+    pair then runs through `mocapdb stereo` and is scored against it."""
+    from mocapdb.evaluation.stereo_pairs import calibrated_pairs, reference_person
+
+    positions = motion[:90]
+    target = positions.mean(axis=(0, 1))
+    cams = [eval_stereo.look_at(target + [4.6 * np.cos(np.radians(a)), 1.7 - target[1], 4.6 * np.sin(np.radians(a))],
+                                target, f"cam{k}") for k, a in enumerate((-60.0, -120.0, 150.0), start=1)]
+    rng = np.random.default_rng(0)
+    views = [eval_stereo.render(positions, cam, rng, 1.0, 0.0) for cam in cams]
+    bystander = np.repeat(positions[:1] + [0.0, 0.0, 2.5], len(positions), axis=0)  # behind, seen by cameras 1, 2
+    frames = [_frames(x, c, [eval_stereo.render(bystander, cam, rng, 1.0, 0.0)] if k < 2 else [])
+              for k, ((x, c), cam) in enumerate(zip(views, cams))]
+    frames[2][40].people[0] = Person(views[2][0][40][MIRROR], views[2][1][40][MIRROR])
+    reference = reference_person(frames, cams, StereoConfig().confidence)
+    assert np.abs(reference[:, :N_KEYPOINTS_2D] - positions[:, :N_KEYPOINTS_2D]).max() < 0.02
+
+    folders = []
+    for k, (x, c) in enumerate(views, start=1):
+        _write_openpose(tmp_path / f"cam{k}", x, c)
+        folders.append(tmp_path / f"cam{k}")
+    (tmp_path / "calibration.toml").write_text(format_calibration_toml(cams))
+    rows = calibrated_pairs(folders, tmp_path / "calibration.toml", ["cam1", "cam2", "cam3"], 30.0)
+    assert [r.pair for r in rows] == ["cam1–cam2", "cam1–cam3", "cam2–cam3"]
+    for row in rows:
+        assert row.both_see == 90 and row.reconstructed == 90 and not row.refused, row
+        assert row.rotation_error_deg < 2.0 and row.pa_mpjpe_mm < 30.0, row
 
 
 @pytest.mark.skipif(not POSE2SIM.is_dir(), reason="shared Pose2Sim data not present")
@@ -552,7 +661,8 @@ def test_bad_options_are_refused_before_any_work(tmp_path, capsys, options, mess
 
 
 CAM_01 = CALIBRATION.read_text().split("[cam_02]")[0]   # one section, as written by Pose2Sim
-GOOD_MATRIX = "[ [ 1681.244873046875, 0.0, 532.97369384375], [ 0.0, 1681.075439453125, 948.137390140625], [ 0.0, 0.0, 1.0]]"
+GOOD_MATRIX = ("[ [ 1681.244873046875, 0.0, 532.97369384375], [ 0.0, 1681.075439453125, 948.137390140625], "
+               "[ 0.0, 0.0, 1.0]]")
 
 
 @pytest.mark.parametrize("matrix, size, message", [
@@ -650,8 +760,8 @@ def test_a_main_person_behind_a_camera_is_refused_others_warned():
     points = rng.normal(0.0, 0.3, (40, 14, 3)) + [0.0, 0.0, 4.0]    # 4 m in front of camera 1
     valid = np.ones((40, 14), bool)
     turned = SimpleNamespace(R=np.diag([-1.0, 1.0, -1.0]), t=np.array([1.0, 0.0, 0.0]))  # camera 2 looks away
-    with pytest.raises(StereoError, match=r"rotation 180.0°.* puts the main person \(track 0\) behind camera 2 in 40 of "
-                                          r"40 frames: it cannot be right"):
+    with pytest.raises(StereoError, match=r"rotation 180.0°.* puts the main person \(track 0\) behind camera 2 in "
+                                          r"40 of 40 frames: it cannot be right"):
         in_front_check(points, valid, turned, 0)
     assert in_front_check(points, valid, turned, 1) == [
         "behind camera 2 in 40 of its 40 frames: not a person both cameras see (a false match?), or a wrong "
@@ -707,9 +817,12 @@ def test_stereo_replaces_its_own_output_and_refuses_anything_else(tmp_path, caps
 @pytest.mark.parametrize("order", [range(99, -1, -1), [(i + 50) % 100 for i in range(100)]],
                          ids=["reversed", "shifted-50-frames"])
 def test_unsynchronised_views_are_refused(tmp_path, capsys, order):
-    """Camera 4's frames reversed or shifted by half the take: no real person matches across the views
-    (once a traceback from the ellipsoid fit): one line saying so, exit 2, nothing written."""
+    """Camera 4's frames reversed or shifted by half the take: the person's keypoints fit the epipolar
+    geometry better with view 2 shifted in time (once a traceback from the ellipsoid fit; then refused only
+    because camera 1's still figure matched camera 4's person by chance): one line saying so, exit 2,
+    nothing written."""
     view2 = _view_copy(tmp_path / "cam04", list(order))
     err = _refused([str(BUNDLED / "pose2sim_cam01"), str(view2), *BUNDLED_ARGS], capsys, tmp_path / "out",
-                   "no person matches across the views as a whole body", "do not look synchronised")
-    assert err.count("\n") == 1 and "r_shoulder–l_shoulder (0)" in err
+                   "the views do not look synchronised: the main person's keypoints fit one camera geometry "
+                   "better with view 2")
+    assert err.count("\n") == 1

@@ -31,7 +31,8 @@ KP = {name: i for i, name in enumerate(KEYPOINTS)}
 MIRROR_PAIRS: tuple[tuple[str, str], ...] = tuple(
     (f"r_{part}", f"l_{part}") for part in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle"))
 _OPPOSITE = {a: b for pair in MIRROR_PAIRS for a, b in (pair, pair[::-1])}
-_MIRROR_SOURCE = np.array([KP[_OPPOSITE.get(name, name)] for name in KEYPOINTS])
+MIRROR_SOURCE = np.array(  # each keypoint's mirror partner (itself: head, neck, pelvis)
+    [KP[_OPPOSITE.get(name, name)] for name in KEYPOINTS])
 
 # Bone lengths of the universal skeleton, metres (175 cm adult; ankle 8 cm above the floor).
 BONE_LENGTHS_M = {
@@ -344,7 +345,7 @@ def rig_globals_into(quats, root_m, scale, parents, offsets, node_joint, local, 
 def mirror_keypoints(points: np.ndarray) -> np.ndarray:
     """The left-right mirror image of keypoints ``[..., 15, 3]`` (KEYPOINTS order): x negated
     (reflection in the y-z plane) and every :data:`MIRROR_PAIRS` pair swapped. Its own inverse."""
-    mirrored = points[..., _MIRROR_SOURCE, :].copy()
+    mirrored = points[..., MIRROR_SOURCE, :].copy()
     mirrored[..., 0] *= -1
     return mirrored
 

@@ -1,16 +1,19 @@
-"""Sanity of a two-view reconstruction: views without parallax, camera poses that cannot be right.
+"""Sanity of a two-view reconstruction: unsynchronised views, views without parallax, camera poses that
+cannot be right.
 
-:func:`check_parallax` runs after stage 1's essential matrix, :func:`check_geometry` on the final
-cameras and joints, :func:`behind_cameras` per person (``mocapdb stereo``'s warnings). Decisions and
-measured thresholds: ``data_specs/stereo.md``.
+:func:`check_synchronised` runs on the main person after matching, :func:`check_parallax` after stage
+1's essential matrix, :func:`check_geometry` on the final cameras and joints, :func:`behind_cameras`
+per person (``mocapdb stereo``'s warnings). Decisions and measured thresholds: ``data_specs/stereo.md``.
 """
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
+from mocapdb.core.cameras import CameraModel
 from mocapdb.core.skeleton import KEYPOINTS
-from mocapdb.stereo.config import StereoError
+from mocapdb.stereo.config import StereoConfig, StereoError
+from mocapdb.stereo.people import Selection, fit_essential, mean_focal, normalised
 from mocapdb.stereo.relative_pose import rotation_angle_deg, sampson_distance
 
 # No parallax (checked after stage 1's essential matrix): a single homography maps view 1's
@@ -33,17 +36,27 @@ MIN_PARALLAX_DEG = 1.0
 LOW_PARALLAX_DEG = 5.0
 # The ellipsoid has one scale per rigid bone type: each type needs both joints seen by both views
 # in at least MIN_BONE_FRAMES frames. Unsynchronised views match no real person; what matches by
-# chance (the bundled pair with one view reversed, or shifted by 15 frames or more: view 1's
-# partial false person paired with view 2's person) never shows the shoulder line in both.
+# chance (the bundled pair with one view reversed or shifted, before check_synchronised and the
+# still-or-moving rule of the matching: view 1's still partial figure paired with view 2's person)
+# never shows the shoulder line in both.
 MIN_BONE_FRAMES = 5
+# Synchronised views (check_synchronised): the main person's keypoints fit the epipolar geometry
+# best as given; with view 2 shifted in time by an offset of SYNC_OFFSETS frames (each offset with its
+# own essential matrix) they fit worse. Views of two moments fit some offset better. Refused when one
+# fits below SYNC_RATIO times the unshifted median distance. Measured (best offset / as given): 1.6-2.0
+# on the Pose2Sim take's pairs, 1.03-1.28 on the demo video's (YOLO11n-pose); camera 4 of the bundled
+# pair reversed 0.77, shifted by 50 frames 0.59. A still main person cannot tell (not checked).
+SYNC_OFFSETS = (-30, -15, -8, -4, 4, 8, 15, 30)
+SYNC_RATIO = 0.9
 
 
-def homography_residual(n1: np.ndarray, n2: np.ndarray, essential: np.ndarray,
-                        focal_px: float) -> tuple[float, float] | None:
+def homography_residual(n1: np.ndarray, n2: np.ndarray, essential: np.ndarray, focal_px: float,
+                        person: np.ndarray | None = None) -> tuple[float, float] | None:
     """Median residuals (px) of correspondences ``n1, n2 [N, 2]`` (normalised) under the best
     homography (RANSAC, 3 px, on at most :data:`MAX_HOMOGRAPHY_POINTS` of them) and under ``essential``
-    (Sampson distance, at least :data:`NOISE_FLOOR_PX`); None when no homography is found. ``focal_px``
-    turns them into pixels."""
+    (Sampson distance, at least :data:`NOISE_FLOOR_PX`), of the person (``person [N]``: each
+    correspondence's; None: one person) whose homography residual is the largest against its epipolar
+    one; None when no homography is found. ``focal_px`` turns them into pixels."""
     fit = np.linspace(0, len(n1) - 1, min(len(n1), MAX_HOMOGRAPHY_POINTS)).astype(int)  # evenly spread
     # Few draws suffice: a view pair a homography explains has most points inliers (found at once);
     # for a real pair the best of many draws would still be far off.
@@ -53,16 +66,22 @@ def homography_residual(n1: np.ndarray, n2: np.ndarray, essential: np.ndarray,
     mapped = np.c_[n1, np.ones(len(n1))] @ H.T
     with np.errstate(divide="ignore", invalid="ignore"):
         moved = np.linalg.norm(mapped[:, :2] / mapped[:, 2:] - n2, axis=1)
-    homography_px = float(np.median(np.where(np.isfinite(moved), moved, np.inf))) * focal_px
-    epipolar_px = max(float(np.median(sampson_distance(essential, n1, n2))) * focal_px, NOISE_FLOOR_PX)
-    return homography_px, epipolar_px
+    moved = np.where(np.isfinite(moved), moved, np.inf) * focal_px
+    epipolar = sampson_distance(essential, n1, n2) * focal_px
+    person = np.zeros(len(n1), dtype=np.int64) if person is None else person
+    medians = [(float(np.median(moved[person == k])), max(float(np.median(epipolar[person == k])), NOISE_FLOOR_PX))
+               for k in np.unique(person)]
+    return max(medians, key=lambda m: m[0] / m[1])
 
 
-def check_parallax(n1: np.ndarray, n2: np.ndarray, essential: np.ndarray, focal_px: float) -> None:
-    """StereoError when a homography explains the correspondences about as well as the essential
-    matrix does (:data:`HOMOGRAPHY_RATIO`): the views then have no parallax, and the relative pose and
-    the depths are not determined."""
-    residuals = homography_residual(n1, n2, essential, focal_px)
+def check_parallax(n1: np.ndarray, n2: np.ndarray, essential: np.ndarray, focal_px: float,
+                   person: np.ndarray | None = None) -> None:
+    """StereoError when one homography explains the correspondences of every person (``person [N]``:
+    each correspondence's; None: one person) about as well as the essential matrix does
+    (:data:`HOMOGRAPHY_RATIO`): the views then have no parallax, and the relative pose and the depths are
+    not determined. Per person, because a still person far away is nearly flat: a homography maps it
+    whatever the baseline, and its repeated keypoints would outnumber a moving person's."""
+    residuals = homography_residual(n1, n2, essential, focal_px, person)
     if residuals is not None and residuals[0] <= HOMOGRAPHY_RATIO * residuals[1]:
         raise StereoError(
             f"the two views have no parallax: one homography maps view 1's keypoints onto view 2's (median "
@@ -86,6 +105,42 @@ def check_bone_coverage(valid: np.ndarray, bones) -> None:
             f"{MIN_BONE_FRAMES} frames: {', '.join(short)}; the camera fit needs every rigid bone. The views do "
             "not look synchronised (frames of two different takes, or one view shifted or reversed in time), or "
             "the cameras see different parts of the people")
+
+
+def offset_distance(n1: np.ndarray, n2: np.ndarray, offset: int, focal_px: float,
+                    config: StereoConfig) -> float | None:
+    """Median over frames of the median Sampson distance (px) of a person's joints ``n1, n2 [T, J, 2]``
+    (normalised, NaN where not seen), view 2 taken ``offset`` frames later, under an essential matrix
+    fitted to them; None with fewer than ``config.min_correspondences`` or no matrix."""
+    n = len(n1)
+    a, b = n1[max(0, -offset):n - max(0, offset)], n2[max(0, offset):n - max(0, -offset)]
+    ok = np.isfinite(a).all(axis=-1) & np.isfinite(b).all(axis=-1)
+    essential = fit_essential(a[ok], b[ok], config) if ok.sum() >= max(8, config.min_correspondences) else None
+    if essential is None:
+        return None
+    distance = np.full(ok.shape, np.nan)
+    distance[ok] = sampson_distance(essential, a[ok], b[ok]) * focal_px
+    return float(np.median(np.nanmedian(distance[ok.any(axis=1)], axis=1)))
+
+
+def check_synchronised(person: Selection, cam1: CameraModel, cam2: CameraModel, config: StereoConfig) -> None:
+    """StereoError when the main ``person``'s keypoints fit the epipolar geometry clearly better with view 2
+    shifted in time (:data:`SYNC_OFFSETS`, :data:`SYNC_RATIO`): the views are not synchronised."""
+    if person.still:
+        return
+    n1, n2 = (normalised(cam, np.where((c >= config.confidence)[..., None], x, np.nan))
+              for cam, x, c in ((cam1, person.x1, person.c1), (cam2, person.x2, person.c2)))
+    focal_px = mean_focal(cam1, cam2)
+    base = offset_distance(n1, n2, 0, focal_px, config)
+    shifted = {k: offset_distance(n1, n2, k, focal_px, config) for k in SYNC_OFFSETS} if base else {}
+    shifted = {k: d for k, d in shifted.items() if d is not None}
+    best = min(shifted, key=shifted.__getitem__, default=None)
+    if best is not None and shifted[best] < SYNC_RATIO * base:
+        raise StereoError(
+            f"the views do not look synchronised: the main person's keypoints fit one camera geometry better "
+            f"with view 2 {abs(best)} frames {'later' if best > 0 else 'earlier'} (median {shifted[best]:.1f} px "
+            f"off) than as given ({base:.1f} px). Give two views of one take, frame i of one taken at the same "
+            "instant as frame i of the other (the same start and frame rate)")
 
 
 def behind_cameras(points: np.ndarray, valid: np.ndarray, R: np.ndarray, t: np.ndarray) -> tuple[float, float, int]:

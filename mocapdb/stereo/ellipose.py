@@ -51,9 +51,10 @@ def convergence_warning(epsilons: list[float], kept: int, config: StereoConfig) 
             "camera pose may be off by a few degrees")
 
 
-def _stage1(n1, n2, valid, config, focal_px: float):
+def _stage1(n1, n2, valid, config, focal_px: float, person: np.ndarray):
     """Camera 2's pose ``R, t`` (baseline 1) from the essential matrix of all valid correspondences;
-    StereoError when there are too few or the views have no parallax (:func:`check_parallax`)."""
+    StereoError when there are too few or the views have no parallax (:func:`check_parallax`, per
+    person: ``person [T]`` of each frame)."""
     count = int(valid.sum())
     if count < max(config.min_correspondences, 8):
         raise StereoError(f"{count} confident keypoint correspondences between the views; at least "
@@ -62,7 +63,7 @@ def _stage1(n1, n2, valid, config, focal_px: float):
                                 prob=config.ransac_prob, threshold=config.ransac_threshold)
     if e is None:
         raise StereoError("no essential matrix fits the correspondences")
-    check_parallax(n1[valid], n2[valid], e[:3], focal_px)
+    check_parallax(n1[valid], n2[valid], e[:3], focal_px, np.broadcast_to(person[:, None], valid.shape)[valid])
     _, R, t, _ = cv2.recoverPose(e[:3], n1[valid], n2[valid], np.eye(3))
     return R, t.ravel() / np.linalg.norm(t)
 
@@ -100,8 +101,10 @@ def _stage2(points, n1, n2, valid, R, t, config, bones, warnings):
 
 
 def reconstruct(x1: np.ndarray, c1: np.ndarray, x2: np.ndarray, c2: np.ndarray, cam1: CameraModel,
-                cam2: CameraModel, config: StereoConfig, bones=RIGID_BONES) -> StereoResult:
-    """Stages 1–3 on keypoints ``x [T, J, 2]`` (pixels) with confidences ``c [T, J]``.
+                cam2: CameraModel, config: StereoConfig, bones=RIGID_BONES,
+                person: np.ndarray | None = None) -> StereoResult:
+    """Stages 1–3 on keypoints ``x [T, J, 2]`` (pixels) with confidences ``c [T, J]``; ``person [T]``:
+    each frame's person when several are stacked along time (None: one person).
 
     Only the cameras' intrinsics and distortion are used; camera 2's pose is estimated. StereoError
     when the views have no parallax (:func:`check_parallax`, after stage 1), a rigid bone is not
@@ -116,7 +119,8 @@ def reconstruct(x1: np.ndarray, c1: np.ndarray, x2: np.ndarray, c2: np.ndarray, 
     n1, n2 = np.zeros(x1.shape), np.zeros(x2.shape)
     n1[valid], n2[valid] = cam1.undistort_normalized(x1[valid]), cam2.undistort_normalized(x2[valid])
     focal_px = 0.25 * float(cam1.K[0, 0] + cam1.K[1, 1] + cam2.K[0, 0] + cam2.K[1, 1])
-    R1, t1 = _stage1(n1, n2, valid, config, focal_px)
+    person = np.zeros(len(x1), dtype=np.int64) if person is None else np.asarray(person)
+    R1, t1 = _stage1(n1, n2, valid, config, focal_px, person)
     check_bone_coverage(valid, bones)
     stage1 = triangulate_all(R1, t1, n1, n2, valid)
     warnings: list[str] = []

@@ -3,22 +3,25 @@
 Each view's detections are linked into 2D tracks by proximity (median joint displacement in units
 of the body's box diagonal). Pairs of 2D tracks, one per view, are matched by epipolar consistency
 over the frames they share, under an essential matrix chosen as the one that makes the scene most
-consistent (each of the best-corresponding pairings proposes one), then re-fitted to every matched
-person. Matched 2D tracks chain into people (a person keeps its id when one view's 2D track breaks
-and the other's does not). A body the detector split in two is put back together (:func:`fragments`).
-Detections that match no one are not people: they are reported. Decisions and thresholds:
-``data_specs/stereo.md``.
+consistent (each of the best-corresponding pairings, and every two, proposes one), then re-fitted to
+every matched person; a still 2D track never pairs with a moving one. Matched 2D tracks chain into
+people (a person keeps its id when one view's 2D track breaks and the other's does not); once linked,
+a noisy frame of theirs is still the person's (:func:`linked_bounds`). A body the detector split in two
+is put back together (:func:`fragments`), one whose left and right it swapped is turned back
+(:func:`unflip`). Detections that match no one are not people: they are reported. Decisions and
+thresholds: ``data_specs/stereo.md``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import itertools
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 
 from mocapdb.core.cameras import CameraModel
 from mocapdb.core.formats.keypoints import KeypointFrame
-from mocapdb.core.skeleton import N_KEYPOINTS_2D
+from mocapdb.core.skeleton import MIRROR_SOURCE, N_KEYPOINTS_2D
 from mocapdb.stereo.config import StereoConfig, StereoError
 from mocapdb.stereo.relative_pose import ESSENTIAL_METHOD, sampson_distance
 
@@ -30,6 +33,16 @@ from mocapdb.stereo.relative_pose import ESSENTIAL_METHOD, sampson_distance
 # person paired with the true one in the other view lies 18-300 px off.
 MIN_SHARED_JOINTS = 6
 MAX_EPIPOLAR_PX = 20.0
+# Once two 2D tracks are linked (the same person over time), a frame of theirs is that person within
+# LINKED_SPREAD times the pairing's median distance (at least MAX_EPIPOLAR_PX): a noisier detector
+# spreads the true pairs wider (YOLO11n-pose on the Pose2Sim demo video: medians 10-15 px, the lunge's
+# frames up to 43 px, 3.4 times their pairing's median), while the 2D tracks already say who is who.
+LINKED_SPREAD = 4.0
+# A detector sometimes swaps a body's left and right (a back view; on the demo video camera 1's frame
+# 87, camera 2's frames 10 and 81): the pair of the person's 2D tracks is then inconsistent, and
+# consistent with one detection's left and right swapped. Of its two detections, the one that the swap
+# brings closer to its own 2D track's neighbouring detections is turned back (neither: left as it is).
+MIRROR = MIRROR_SOURCE[:N_KEYPOINTS_2D]  # each keypoint's left-right partner
 # 2D tracks. A detection continues a track when the median displacement of their common confident
 # joints is at most TRACK_STEP box diagonals (of the track's last detection; ≥ 3 common joints), the
 # track was last seen at most TRACK_GAP frames before, and neither has a rival choice within
@@ -49,6 +62,14 @@ MIN_PERSON_FRAMES = 5
 # MIN_FRAGMENT_JOINTS of them, confident in the person's detection of the other view too, lie within
 # MAX_EPIPOLAR_PX of it (median): its joints complete the body (:func:`fragments`).
 MIN_FRAGMENT_JOINTS = 3
+# A 2D track whose joints stay within STILL_SPREAD box diagonals of their mean (median over the joints:
+# a still person, detector noise only) is never the same person as one whose joints move MOVING_SPREAD
+# or more in the other view over the same frames (every joint would have to move along the first
+# camera's rays). Yet an essential matrix fitted to such a pair puts each moving joint on its fixed
+# epipolar line: the Pose2Sim demo video's still woman behind (cameras 1 and 2: 0.005 and 0.011)
+# paired with the performer (0.12-0.15) is consistent in 72-99 of 100 frames under its own matrix.
+STILL_SPREAD = 0.03
+MOVING_SPREAD = 0.06
 SEED_PAIRINGS = 8  # the best-corresponding pairings of 2D tracks whose own essential matrix is tried
 MAX_MATCH_CORRESPONDENCES = 3000  # per essential matrix fitted for matching (the cameras' fit uses all)
 
@@ -66,12 +87,13 @@ class Selection:
     dropped: dict[str, list[int]] = field(default_factory=dict)  # frames with no person at all, by reason
     track: int = 0
     correspondences: int = 0  # joints confident in both views, over the kept frames
+    still: bool = False       # a still person (:data:`STILL_SPREAD` in both views): never the main one
 
 
 @dataclass
 class People:
-    """Everyone seen in both views: ``persons[k]`` has track id ``k``; track 0 has the most
-    correspondences (the camera estimate's source)."""
+    """Everyone seen in both views: ``persons[k]`` has track id ``k``; track 0, the main person, has the
+    most correspondences of the people who move (a still person behind may have more: every joint seen)."""
 
     persons: list[Selection]
     dropped: dict[str, list[int]]  # frames with no person, by reason
@@ -100,10 +122,17 @@ class Pairs:
     frame: np.ndarray     # [M]
     shared: np.ndarray    # [M, 14] joints confident in both
     distance: np.ndarray  # [M] median Sampson distance (px); inf with fewer than MIN_SHARED_JOINTS shared
+    mirrored: np.ndarray  # [M] the same with view 2's left and right swapped
+    still_moving: np.ndarray  # [M] one of the pair's 2D tracks still, the other moving: never one person
 
     @property
     def consistent(self) -> np.ndarray:
         return self.distance <= MAX_EPIPOLAR_PX
+
+    @property
+    def flipped(self) -> np.ndarray:
+        """``[M]`` pairs consistent only with one detection's left and right swapped."""
+        return ~self.consistent & (self.mirrored <= MAX_EPIPOLAR_PX)
 
 
 # --------------------------------------------------------------------------- detections and 2D tracks
@@ -222,15 +251,39 @@ def all_pairs(d1: Detections, d2: Detections) -> Pairs:
     ij = np.array([(i, j) for i, f in enumerate(d1.frame.tolist()) for j in by_frame.get(f, [])],
                   dtype=np.int64).reshape(-1, 2)
     i, j = ij[:, 0], ij[:, 1]
-    return Pairs(i, j, d1.frame[i], d1.vis[i] & d2.vis[j], np.full(len(i), np.inf))
+    pairs = Pairs(i, j, d1.frame[i], d1.vis[i] & d2.vis[j], np.full(len(i), np.inf), np.full(len(i), np.inf),
+                  np.zeros(len(i), dtype=bool))
+    for rows in _pairing_groups(pairs, d1, d2)[1]:
+        spreads = sorted((spread(d1, pairs.i[rows]), spread(d2, pairs.j[rows])))
+        pairs.still_moving[rows] = spreads[0] < STILL_SPREAD and spreads[1] >= MOVING_SPREAD
+    return pairs
+
+
+def spread(d: Detections, det: np.ndarray) -> float:
+    """How much detections ``det`` (of one 2D track) move: the median over their joints of each one's RMS
+    distance from its mean position, in median box diagonals."""
+    seen = d.vis[det].sum(axis=0) >= 2
+    if not seen.any():
+        return 0.0
+    xy = np.where(d.vis[det][:, seen, None], d.points[det][:, seen], np.nan)
+    rms = np.sqrt(np.nanvar(xy, axis=0).sum(axis=-1))
+    return float(np.median(rms) / np.median(_box_diagonal(d.points[det], d.vis[det])))
 
 
 def measure(pairs: Pairs, d1: Detections, d2: Detections, essential: np.ndarray, focal: float) -> Pairs:
-    """``pairs`` with their median Sampson distances (px) under ``essential``."""
+    """``pairs`` with their median Sampson distances (px) under ``essential``, as detected and with view
+    2's left and right swapped."""
     n1, n2 = np.nan_to_num(d1.normalised[pairs.i]), np.nan_to_num(d2.normalised[pairs.j])
-    median = masked_median(sampson_distance(essential, n1, n2) * focal, pairs.shared)
-    enough = pairs.shared.sum(axis=1) >= MIN_SHARED_JOINTS
-    return Pairs(pairs.i, pairs.j, pairs.frame, pairs.shared, np.where(enough, median, np.inf))
+    mirrored = d1.vis[pairs.i] & d2.vis[pairs.j][:, MIRROR]
+    return replace(pairs, distance=_median_px(n1, n2, pairs.shared, essential, focal),
+                   mirrored=_median_px(n1, n2[:, MIRROR], mirrored, essential, focal))
+
+
+def _median_px(n1: np.ndarray, n2: np.ndarray, shared: np.ndarray, essential: np.ndarray,
+               focal: float) -> np.ndarray:
+    """Median Sampson distance (px) of the ``shared`` joints of each pair; inf with fewer than MIN_SHARED_JOINTS."""
+    median = masked_median(sampson_distance(essential, n1, n2) * focal, shared)
+    return np.where(shared.sum(axis=1) >= MIN_SHARED_JOINTS, median, np.inf)
 
 
 def fit_essential(n1: np.ndarray, n2: np.ndarray, config: StereoConfig) -> np.ndarray | None:
@@ -264,10 +317,10 @@ def link_tracks(pairs: Pairs, d1: Detections, d2: Detections, n_frames: int) -> 
 
     Pairings by decreasing count of consistent frames; one is kept when it is consistent in at
     least MIN_LINK_SHARE of the frames it shares with enough joints, and its consistent frames are
-    not already given to another partner of either track.
+    not already given to another partner of either track. A still track never pairs with a moving one.
     """
     pairings, groups = _pairing_groups(pairs, d1, d2)
-    ok, enough = pairs.consistent, np.isfinite(pairs.distance)
+    ok, enough = pairs.consistent & ~pairs.still_moving, np.isfinite(pairs.distance)
     good = np.array([ok[g].sum() for g in groups], dtype=np.int64)
     used1 = np.zeros((int(d1.track.max(initial=-1)) + 1, n_frames), dtype=bool)
     used2 = np.zeros((int(d2.track.max(initial=-1)) + 1, n_frames), dtype=bool)
@@ -298,14 +351,27 @@ def _components(links: set[tuple[int, int]]) -> dict[tuple[int, int], int]:
     return {link: ids[r] for link, r in roots.items()}
 
 
+def linked_bounds(pairs: Pairs, d1: Detections, d2: Detections, links: set[tuple[int, int]]) -> np.ndarray:
+    """``[M]`` each pair's epipolar bound (px): for a pairing of linked 2D tracks :data:`LINKED_SPREAD`
+    times its median distance, at least :data:`MAX_EPIPOLAR_PX` (that alone for any other pair)."""
+    bound = np.full(len(pairs.i), MAX_EPIPOLAR_PX)
+    pairings, groups = _pairing_groups(pairs, d1, d2)
+    for (ta, tb), rows in zip(pairings.tolist(), groups):
+        finite = pairs.distance[rows][np.isfinite(pairs.distance[rows])]
+        if (ta, tb) in links and len(finite):
+            bound[rows] = max(MAX_EPIPOLAR_PX, LINKED_SPREAD * float(np.median(finite)))
+    return bound
+
+
 def person_rows(pairs: Pairs, d1: Detections, d2: Detections,
                 links: set[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
-    """The chosen pair row of each (person, frame): consistent rows of linked 2D tracks, the
-    closest when a person has two in one frame. Returns rows ``[K]`` and their persons ``[K]``."""
+    """The chosen pair row of each (person, frame): rows of linked 2D tracks within their bound
+    (:func:`linked_bounds`), the closest when a person has two in one frame. Returns rows ``[K]`` and
+    their persons ``[K]``."""
     person_of = _components(links)
     person = np.array([person_of.get((int(a), int(b)), -1)
                        for a, b in zip(d1.track[pairs.i], d2.track[pairs.j])], dtype=np.int64)
-    rows = np.flatnonzero((person >= 0) & pairs.consistent)
+    rows = np.flatnonzero((person >= 0) & (pairs.distance <= linked_bounds(pairs, d1, d2, links)))
     order = rows[np.lexsort((pairs.distance[rows], pairs.frame[rows], person[rows]))]
     first = np.r_[True, (np.diff(person[order]) != 0) | (np.diff(pairs.frame[order]) != 0)] if len(order) else []
     rows = order[np.asarray(first, dtype=bool)]
@@ -331,24 +397,41 @@ def _most_prominent_rows(pairs: Pairs, d1: Detections, d2: Detections) -> np.nda
     return np.flatnonzero(np.isin(pairs.i, top[0]) & np.isin(pairs.j, top[1]))
 
 
+def seed_rows(pairs: Pairs, d1: Detections, d2: Detections) -> list[np.ndarray]:
+    """The rows whose correspondences each propose an essential matrix: each of the SEED_PAIRINGS
+    best-corresponding 2D-track pairings (not a still track with a moving one), every two of them that
+    share no 2D track (two people: one person's own matrix may miss the other, e.g. a still one far
+    behind, whose own matrix is degenerate), and the frames' most prominent pairs (a fallback when the
+    2D tracks are short)."""
+    pairings, groups = _pairing_groups(pairs, d1, d2)
+    plausible = [k for k, rows in enumerate(groups) if not pairs.still_moving[rows[0]]]
+    counts = np.array([pairs.shared[groups[k]].sum() for k in plausible], dtype=np.int64)
+    best = [plausible[k] for k in np.argsort(-counts, kind="stable")[:SEED_PAIRINGS]]
+    two = [np.concatenate([groups[a], groups[b]]) for a, b in itertools.combinations(best, 2)
+           if (pairings[a] != pairings[b]).all()]
+    return [groups[k] for k in best] + two + [_most_prominent_rows(pairs, d1, d2)]
+
+
+def _score(measured: Pairs, rows: np.ndarray) -> int:
+    """How well an essential matrix matches the scene: its chosen rows within :data:`MAX_EPIPOLAR_PX`."""
+    return int(measured.consistent[rows].sum())
+
+
 def seed_essential(pairs: Pairs, d1: Detections, d2: Detections, focal: float, n_frames: int,
                    config: StereoConfig) -> np.ndarray:
-    """The essential matrix under which the most person-frames are matched, among those of the
-    SEED_PAIRINGS best-corresponding 2D-track pairings and of the frames' most prominent pairs
-    (a fallback when the 2D tracks are short)."""
+    """The essential matrix under which the most person-frames are matched within MAX_EPIPOLAR_PX
+    (:func:`_score`), among those the :func:`seed_rows` propose."""
     need = max(8, config.min_correspondences)
-    _, groups = _pairing_groups(pairs, d1, d2)
-    counts = np.array([pairs.shared[g].sum() for g in groups], dtype=np.int64)
-    candidates = [groups[k] for k in np.argsort(-counts, kind="stable")[:SEED_PAIRINGS]]
     best, best_score = None, -1
-    for rows in candidates + [_most_prominent_rows(pairs, d1, d2)]:
+    for rows in seed_rows(pairs, d1, d2):
         essential = fit_essential(*_correspondences(pairs, rows, d1, d2), config) \
             if pairs.shared[rows].sum() >= need else None
-        score = -1 if essential is None else len(_match(pairs, d1, d2, essential, focal, n_frames)[1])
+        score = -1 if essential is None else _score(*_match(pairs, d1, d2, essential, focal, n_frames)[:2])
         if score > best_score:
             best, best_score = essential, score
     if best is None:
-        raise StereoError(f"at most {int(counts.max(initial=0))} keypoint correspondences between a person of "
+        counts = [pairs.shared[g].sum() for g in _pairing_groups(pairs, d1, d2)[1]]
+        raise StereoError(f"at most {int(max(counts, default=0))} keypoint correspondences between a person of "
                           f"view 1 and one of view 2 (need {need}), or no essential matrix fits them: too few "
                           "frames or joints seen by both cameras, or the folders are not the same take")
     return best
@@ -359,14 +442,16 @@ def match_people(frames1: list[KeypointFrame], frames2: list[KeypointFrame], cam
     """Everyone seen in both views, one :class:`Selection` per person (see the module docstring)."""
     n_frames = len(frames1)
     d1, d2 = detections(frames1, cam1, config.confidence), detections(frames2, cam2, config.confidence)
-    focal = _focal(cam1, cam2)
+    focal = mean_focal(cam1, cam2)
     essential, measured, rows, person = _matched(d1, d2, focal, n_frames, config)
+    if unflip(d1, d2, measured, rows):
+        measured, rows, person = _match(all_pairs(d1, d2), d1, d2, essential, focal, n_frames)
     big = np.flatnonzero(np.bincount(person, minlength=1) >= MIN_PERSON_FRAMES)
     rows, person = rows[np.isin(person, big)], person[np.isin(person, big)]
     i, j = measured.i[rows], measured.j[rows]
     pieces = (fragments(d1, d2, i, j, essential, focal, True), fragments(d2, d1, j, i, essential, focal, False))
     persons = sorted((_selection(measured, rows[person == k], d1, d2, n_frames, pieces) for k in big),
-                     key=lambda sel: -sel.correspondences)
+                     key=lambda sel: (sel.still, -sel.correspondences))
     kept = np.flatnonzero(np.any([sel.kept for sel in persons], axis=0)) if persons else np.zeros(0, np.int64)
     dropped = dropped_frames(n_frames, d1, d2, measured, kept)
     for k, sel in enumerate(persons):
@@ -376,23 +461,52 @@ def match_people(frames1: list[KeypointFrame], frames2: list[KeypointFrame], cam
     return People(persons, dropped, unmatched_lines((d1, d2), used), essential)
 
 
-def _focal(cam1: CameraModel, cam2: CameraModel) -> float:
+def mean_focal(cam1: CameraModel, cam2: CameraModel) -> float:
+    """The mean focal length (px) of both cameras: normalised distances × it ≈ pixels."""
     return float(np.mean([cam1.K[0, 0], cam1.K[1, 1], cam2.K[0, 0], cam2.K[1, 1]]))
 
 
 def _matched(d1: Detections, d2: Detections, focal: float, n_frames: int,
              config: StereoConfig) -> tuple[np.ndarray, Pairs, np.ndarray, np.ndarray]:
     """The essential matrix (seeded, then re-fitted to every matched person when that matches at
-    least as many person-frames), the measured pairs, the chosen rows and their persons."""
+    least as many person-frames within MAX_EPIPOLAR_PX), the measured pairs, the chosen rows and their persons."""
     pairs = all_pairs(d1, d2)
     essential = seed_essential(pairs, d1, d2, focal, n_frames, config)
     measured, rows, person = _match(pairs, d1, d2, essential, focal, n_frames)
     refit = fit_essential(*_correspondences(measured, rows, d1, d2), config) if len(rows) >= 8 else None
     if refit is not None:
         again = _match(pairs, d1, d2, refit, focal, n_frames)
-        if len(again[1]) >= len(rows):
+        if _score(*again[:2]) >= _score(measured, rows):
             return (refit,) + again
     return essential, measured, rows, person
+
+
+def unflip(d1: Detections, d2: Detections, pairs: Pairs, chosen: np.ndarray) -> bool:
+    """Turns back, in place, the detection whose left and right are swapped in each flipped pair
+    (:attr:`Pairs.flipped`) of the 2D-track pairings of the ``chosen`` rows (people's): of its two, the
+    one that the swap brings closer to its own 2D track (:func:`flip_gain` above 1). Whether any was."""
+    key = d1.track[pairs.i] * (int(d2.track.max(initial=-1)) + 1) + d2.track[pairs.j]
+    flipped = pairs.flipped & np.isin(key, key[chosen])
+    turned: set[tuple[int, int]] = set()  # (view, detection)
+    for i, j in zip(pairs.i[flipped].tolist(), pairs.j[flipped].tolist()):
+        gain, view, k = max((flip_gain(d1, i), 1, i), (flip_gain(d2, j), 2, j))
+        if gain > 1 and not {(1, i), (2, j)} & turned:
+            d = d1 if view == 1 else d2
+            for values in (d.points, d.conf, d.vis, d.normalised):
+                values[k] = values[k][MIRROR]
+            turned.add((view, k))
+    return bool(turned)
+
+
+def flip_gain(d: Detections, k: int) -> float:
+    """How many times closer detection ``k`` lies to its 2D track's nearest detections before and after it
+    with its left and right swapped (median displacement of their common joints); 1 without either."""
+    same = np.flatnonzero(d.track == d.track[k])
+    near = np.r_[same[d.frame[same] < d.frame[k]][-1:], same[d.frame[same] > d.frame[k]][:1]]
+    moved = [masked_median(np.linalg.norm(np.nan_to_num(d.points[near] - points), axis=-1), d.vis[near] & vis)
+             for points, vis in ((d.points[k], d.vis[k]), (d.points[k][MIRROR], d.vis[k][MIRROR]))]
+    as_is, swapped = (float(np.nansum(m)) for m in moved)
+    return as_is / swapped if len(near) and swapped > 0 else 1.0
 
 
 def fragments(d: Detections, other: Detections, chosen: np.ndarray, partner: np.ndarray, essential: np.ndarray,
@@ -437,7 +551,8 @@ def _selection(pairs: Pairs, rows: np.ndarray, d1: Detections, d2: Detections, n
     kept[t] = True
     distance = np.full(n_frames, np.nan)
     distance[t] = pairs.distance[rows]
-    return Selection(x1, c1, x2, c2, kept, distance, correspondences=int((v1 & v2).sum()))
+    still = max(spread(d1, pairs.i[rows]), spread(d2, pairs.j[rows])) < STILL_SPREAD
+    return Selection(x1, c1, x2, c2, kept, distance, correspondences=int((v1 & v2).sum()), still=still)
 
 
 def _view_arrays(n_frames: int, frames: np.ndarray, chosen: np.ndarray, d: Detections,

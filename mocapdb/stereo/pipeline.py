@@ -21,6 +21,7 @@ from mocapdb.core.domains import FPS_HZ
 from mocapdb.core.formats.keypoints import KeypointFrame
 from mocapdb.core.outputs import check_output_folder
 from mocapdb.core.progress import progress
+from mocapdb.stereo.checks import check_synchronised
 from mocapdb.stereo.config import STEREO_FILES, StereoConfig, StereoError, StereoResult
 from mocapdb.stereo.ellipose import reconstruct
 from mocapdb.stereo.motion import people_motions
@@ -57,7 +58,8 @@ def estimate_cameras(people: People, cam1: CameraModel, cam2: CameraModel, confi
     per bone type for all; each person's stage 3 is
     :func:`mocapdb.stereo.motion.person_points`)."""
     stacked = [np.concatenate([getattr(p, name) for p in people.persons]) for name in ("x1", "c1", "x2", "c2")]
-    return reconstruct(*stacked, cam1, cam2, config)
+    person = np.concatenate([np.full(len(p.kept), k) for k, p in enumerate(people.persons)])
+    return reconstruct(*stacked, cam1, cam2, config, person=person)
 
 
 def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, cam2: CameraModel,
@@ -90,6 +92,7 @@ def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, 
     frames1, frames2, warnings = load_views(view1_dir, view2_dir, layout, trim)
     lap("load")
     people = require_people(match_people(frames1, frames2, cam1, cam2, config))
+    check_synchronised(people.persons[0], cam1, cam2, config)
     lap("select")
     result = estimate_cameras(people, cam1, cam2, config)
     warnings += list(result.warnings)
