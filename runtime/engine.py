@@ -23,6 +23,7 @@ from mocapdb.core.formats.database import DatabaseError, MotionDatabase
 from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
 from mocapdb.core.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, Match, PersonPose, TrackRecording
+from mocapdb.core.search_rules import clusters_searched_for
 from mocapdb.core.skeleton import (
     KP,
     N_KEYPOINTS_2D,
@@ -73,11 +74,12 @@ class TrackLimits:
 
 @dataclass
 class EngineConfig:
-    """Runtime parameters (defaults: the method's i=5, j=10, w=4)."""
+    """Runtime parameters (defaults: the method's j=10, w=4; i=5 on its K = 500 clusters, more for more clusters)."""
 
     search: str = "clustered"            # "clustered" (the method) or "exact" (brute force)
-    n_clusters: int = 5                  # i: clusters searched
+    n_clusters: int | None = None        # i: clusters searched; None: search_rules.clusters_searched_for(K)
     per_cluster: int = 10                # j: projections taken from each
+    grid_descents: int = 3               # best candidates moved to better grid neighbours (0: the method's only)
     window_weights: tuple[float, ...] = (0.4, 0.3, 0.2, 0.1)  # w = 4, most recent first
     joint_weights: tuple[float, ...] | None = None            # per rig joint; default all 1
     weight_2d: float = 0.5               # added to Eq. 2: this × the candidate's Eq. 1 distance
@@ -117,8 +119,9 @@ class EngineConfig:
 
     def _check_domains(self) -> None:
         """Every number given within its domain (:mod:`mocapdb.core.domains`), DomainError otherwise."""
-        D.CLUSTERS_SEARCHED.check(self.n_clusters, "n_clusters")
+        D.CLUSTERS_SEARCHED.check_optional(self.n_clusters, "n_clusters")
         D.PER_CLUSTER.check(self.per_cluster, "per_cluster")
+        D.GRID_DESCENTS.check(self.grid_descents, "grid_descents")
         D.WINDOW_WEIGHTS.check(self.window_weights, "window_weights")
         D.WEIGHT_2D.check(self.weight_2d, "weight_2d")
         D.FOCAL_PX.check(self.focal_px, "focal_px")
@@ -299,6 +302,7 @@ class Engine:
         self.config = config or EngineConfig()
         cfg = self.config
         self.index = SearchIndex.from_database(db)
+        self.n_clusters = cfg.n_clusters or clusters_searched_for(db.n_clusters)  # i
         self.db_quats = np.ascontiguousarray(db.quaternions)
         self.clip_first = db.clip_first_frame[db.frame_clip]
         self.proj_yaw = db.proj_yaw.astype(np.int64)
@@ -468,8 +472,8 @@ class Engine:
     def _search(self, query: np.ndarray, visible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config
         if cfg.search == "exact":
-            return search_exact(self.index, query, visible, cfg.n_clusters * cfg.per_cluster)
-        return search_clustered(self.index, query, visible, cfg.n_clusters, cfg.per_cluster)
+            return search_exact(self.index, query, visible, self.n_clusters * cfg.per_cluster)
+        return search_clustered(self.index, query, visible, self.n_clusters, cfg.per_cluster, cfg.grid_descents)
 
     def _choose(self, state: _TrackState, rows: np.ndarray, dist: np.ndarray) -> int:
         """Index into ``rows`` of the candidate to use (Eq. 2, or Eq. 1 at a track's start)."""

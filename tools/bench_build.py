@@ -1,17 +1,22 @@
-"""Benchmark `mocapdb build` at the method's scale and at 2,000,000 projections.
+"""Benchmark `mocapdb build` at several sizes: seconds per stage, peak memory, disk.
 
-Each size is built in its own process so that its peak memory (max RSS) is measured alone.
-Prints per-stage seconds, totals, peak memory and how each stage grows between the sizes.
+Each size is built in its own process, which reports its own peak resident memory (and that of its
+reader processes). Prints one row per size, and how each stage grows between sizes. With
+``--baseline DIR`` (a checkout of another version, e.g. ``git worktree add /tmp/old HEAD~1``) each
+size is also built with that version, alternately, so the two are compared on the same machine
+load.
 
-    python tools/bench_build.py [--sources ../shared/data/cmu_bvh] [--yaw-steps 12 3.6]
+    python tools/bench_build.py [--sources ../shared/data/cmu_bvh] [--yaw-steps 12 3.6 1.25]
+                                [--memory-limit MB] [--baseline DIR] [--repeat N]
 
-(Every clip is also stored mirrored, so 3.6° steps give ~2,100,000 projections.)
+(Every clip is also stored mirrored: 12°, 3.6° and 1.25° give 0.63 M, 2.1 M and 6.0 M projections.)
 """
 from __future__ import annotations
 
 import argparse
 import json
-import resource
+import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -21,52 +26,83 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SOURCES = ROOT.parent / "shared" / "data" / "cmu_bvh"
 
 CHILD = """
-import json, sys
+import json, resource, sys
 from mocapdb.builder.pipeline import BuildConfig, build
-cfg = BuildConfig(yaw_step_deg=float(sys.argv[2]), workers=int(sys.argv[4]))
-s = build([sys.argv[1]], sys.argv[3], cfg, exclude=sys.argv[5:])
-print(json.dumps({"projections": s.projections, "frames": s.frames, "clips": s.clips,
-                  "seconds": s.seconds, "bytes": s.bytes_on_disk}))
+options = {"yaw_step_deg": float(sys.argv[2]), "workers": int(sys.argv[4])}
+if sys.argv[5] != "default":
+    options["memory_limit_mb"] = int(sys.argv[5])
+s = build([sys.argv[1]], sys.argv[3], BuildConfig(**options), exclude=sys.argv[6:])
+print(json.dumps({"projections": s.projections, "seconds": s.seconds, "bytes": s.bytes_on_disk,
+                  "work_bytes": getattr(s, "work_bytes", 0),
+                  "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                  "reader_peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}))
 """
 
 
-def run_one(sources: Path, yaw_step: float, workers: int, exclude: list[str]) -> dict:
-    """Build once in a child process; return its summary and peak memory in MB."""
+def run_one(sources: Path, yaw_step: float, workers: int, memory_limit: str, exclude: list[str],
+            code: Path = ROOT) -> dict:
+    """Build once in a child process running the package at ``code``; its summary and peaks."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(code), os.environ.get("PYTHONPATH", "")])}
     with tempfile.TemporaryDirectory() as tmp:
-        before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-        out = subprocess.run([sys.executable, "-c", CHILD, str(sources), str(yaw_step),
-                              str(Path(tmp) / "db"), str(workers), *exclude],
-                             check=True, capture_output=True, text=True)
-        peak_kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        out = subprocess.run([sys.executable, "-c", CHILD, str(sources), str(yaw_step), str(Path(tmp) / "db"),
+                              str(workers), memory_limit, *exclude],
+                             check=True, capture_output=True, text=True, env=env, cwd=tmp)
     result = json.loads(out.stdout.strip().splitlines()[-1])
-    result["peak_mb"] = peak_kb / 1024 if peak_kb > before else float("nan")
     result["yaw_step"] = yaw_step
     return result
+
+
+def median_run(runs: list[dict]) -> dict:
+    """The run of median total time, its per-stage seconds replaced by the per-stage medians."""
+    ordered = sorted(runs, key=lambda r: sum(r["seconds"].values()))
+    result = dict(ordered[len(ordered) // 2])
+    result["seconds"] = {s: statistics.median(r["seconds"][s] for r in runs) for s in runs[0]["seconds"]}
+    result["peak_mb"] = max(r["peak_mb"] for r in runs)
+    return result
+
+
+def print_table(title: str, runs: list[dict]) -> None:
+    stages = list(runs[0]["seconds"])
+    print(title)
+    print(f"{'yaw step':>9} {'projections':>12} " + " ".join(f"{s:>8}" for s in stages)
+          + f" {'total s':>8} {'peak MB':>8} {'readers':>8} {'db MB':>8} {'work MB':>8}")
+    for r in runs:
+        print(f"{r['yaw_step']:>9g} {r['projections']:>12,} " + " ".join(f"{r['seconds'][s]:>8.2f}" for s in stages)
+              + f" {sum(r['seconds'].values()):>8.2f} {r['peak_mb']:>8.0f} {r['reader_peak_mb']:>8.0f}"
+              + f" {r['bytes'] / 1e6:>8.1f} {r['work_bytes'] / 1e6:>8.1f}")
+    for a, b in zip(runs, runs[1:]):
+        growth = " ".join(f"{s} x{b['seconds'][s] / max(a['seconds'][s], 1e-9):.1f}" for s in stages)
+        total = sum(b["seconds"].values()) / sum(a["seconds"].values())
+        print(f"growth for x{b['projections'] / a['projections']:.1f} projections: {growth}; total x{total:.1f}, "
+              f"peak memory x{b['peak_mb'] / a['peak_mb']:.2f}")
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sources", type=Path, default=DEFAULT_SOURCES, help="BVH folder")
-    ap.add_argument("--yaw-steps", type=float, nargs="+", default=[12.0, 3.6],
-                    help="yaw steps in degrees, one build each (default 12 and 3.6)")
+    ap.add_argument("--yaw-steps", type=float, nargs="+", default=[12.0, 3.6, 1.25],
+                    help="yaw steps in degrees, one build each (default 12, 3.6 and 1.25)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--memory-limit", default="default", help="--memory-limit in MB (default: the build's own)")
+    ap.add_argument("--repeat", type=int, default=1, help="builds per size (medians are printed)")
+    ap.add_argument("--baseline", type=Path, help="a checkout of another version to build alternately")
     ap.add_argument("--exclude", nargs="*", default=[], help="glob patterns to leave out")
     args = ap.parse_args()
     if not args.sources.is_dir():
         print(f"no BVH folder at {args.sources}", file=sys.stderr)
         return 2
-    runs = [run_one(args.sources, step, args.workers, args.exclude) for step in args.yaw_steps]
-    stages = list(runs[0]["seconds"])
-    print(f"{'yaw step':>9} {'projections':>12} " + " ".join(f"{s:>9}" for s in stages)
-          + f" {'total s':>9} {'peak MB':>9} {'disk MB':>9}")
-    for r in runs:
-        print(f"{r['yaw_step']:>9g} {r['projections']:>12,} "
-              + " ".join(f"{r['seconds'][s]:>9.2f}" for s in stages)
-              + f" {sum(r['seconds'].values()):>9.2f} {r['peak_mb']:>9.0f} {r['bytes'] / 1e6:>9.1f}")
-    for a, b in zip(runs, runs[1:]):
-        n_ratio = b["projections"] / a["projections"]
-        growth = " ".join(f"{s} x{b['seconds'][s] / max(a['seconds'][s], 1e-9):.1f}" for s in stages)
-        print(f"growth for x{n_ratio:.1f} projections: {growth}")
+    versions = {"this version": ROOT, **({f"baseline {args.baseline}": args.baseline} if args.baseline else {})}
+    runs: dict[str, list[dict]] = {name: [] for name in versions}
+    for step in args.yaw_steps:
+        repeats: dict[str, list[dict]] = {name: [] for name in versions}
+        for _ in range(args.repeat):
+            for name, code in versions.items():
+                repeats[name].append(run_one(args.sources, step, args.workers, args.memory_limit, args.exclude, code))
+        for name in versions:
+            runs[name].append(median_run(repeats[name]))
+    for name, results in runs.items():
+        print_table(f"{name} (--memory-limit {args.memory_limit}, {args.workers} workers, "
+                    f"median of {args.repeat}):", results)
     return 0
 
 

@@ -8,6 +8,7 @@ memory, one k-means iteration at most ``O(N·K·d)``; all hot loops are numba ke
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
@@ -19,7 +20,7 @@ from mocapdb.core.kernels import pose_distances_into
 TRIANGULATE_CHUNK = 50_000     # landmark MDS: poses per kernel call (and per progress report)
 MAXMIN_POOL_PER_LANDMARK = 3  # landmark MDS: MaxMin picks from a random pool of this many × L poses
 KMEANS_INIT_PER_CLUSTER = 20   # k-means++ runs on a random subsample of this many × k points
-KMEANS_BLOCKS = 256            # fixed partition of the points for order-stable partial sums
+KMEANS_BLOCK_ROWS = 4096       # k-means sums points in fixed blocks of this many, then the blocks in order
 
 
 @njit(parallel=True, cache=True)
@@ -31,6 +32,17 @@ def _distances_soa(a: np.ndarray, bt: np.ndarray) -> np.ndarray:
     for i in prange(a.shape[0]):
         pose_distances_into(bt[0], bt[1], 0, bt.shape[2], a[i], joints, out[i])
     return out
+
+
+@njit(parallel=True, cache=True)
+def _nearest_kernel(a: np.ndarray, bt: np.ndarray, out: np.ndarray) -> None:
+    """``out[i]`` = index of the pose of joint-major ``bt [2, J, M]`` nearest ``a[i]`` under Eq. 1 (the
+    first on ties), from the distances :func:`_distances_soa` gives, one ``[M]`` row per pose."""
+    joints = np.arange(a.shape[1])
+    for i in prange(a.shape[0]):
+        row = np.zeros(bt.shape[2])
+        pose_distances_into(bt[0], bt[1], 0, bt.shape[2], a[i], joints, row)
+        out[i] = np.argmin(row)
 
 
 @njit(parallel=True, cache=True, fastmath=True)
@@ -79,6 +91,17 @@ def pose_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return _distances_soa(a, _joint_major(b))
 
 
+def nearest_poses(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """int64 ``[N]``: for each pose of ``a [N, J, 2]`` the index of the nearest pose of ``b [M, J, 2]``
+    under Eq. 1 (the first on ties): ``pose_distances(a, b).argmin(axis=1)`` without the ``[N, M]``
+    matrix."""
+    dtype = _work_dtype(a, b)
+    a, b = _as_poses(a, dtype), _as_poses(b, dtype)
+    out = np.empty(len(a), dtype=np.int64)
+    _nearest_kernel(a, _joint_major(b), out)
+    return out
+
+
 def _double_centre(sq_dist: np.ndarray) -> np.ndarray:
     """Torgerson's ``B = −½ H D² H`` from squared distances ``D² [n, n]``."""
     b = sq_dist - sq_dist.mean(axis=0) - sq_dist.mean(axis=1)[:, None] + sq_dist.mean()
@@ -108,26 +131,53 @@ def classical_mds(dist: np.ndarray, dims: int) -> np.ndarray:
     return vecs * np.sqrt(np.maximum(vals, 0.0))
 
 
-def _maxmin_landmarks(poses: np.ndarray, n_landmarks: int, rng: np.random.Generator) -> np.ndarray:
-    """Indices (sorted) of ``n_landmarks`` poses chosen by MaxMin (farthest-point) selection.
-
-    Selection runs on a random pool of ``MAXMIN_POOL_PER_LANDMARK × n_landmarks`` poses (all of
-    them when fewer), starting from a random pool member; each step adds the pool pose farthest
-    (Eq. 1) from the landmarks chosen so far.
-    """
-    n = len(poses)
+def landmark_pool(n: int, n_landmarks: int, rng: np.random.Generator) -> np.ndarray:
+    """Sorted indices of the random pool of ``MAXMIN_POOL_PER_LANDMARK × n_landmarks`` poses (of
+    ``n``) that landmarks are chosen from; all ``n`` when fewer."""
     pool_size = min(n, MAXMIN_POOL_PER_LANDMARK * n_landmarks)
-    pool = np.sort(rng.choice(n, pool_size, replace=False)) if pool_size < n else np.arange(n)
-    pool_poses = poses[pool]
+    return np.sort(rng.choice(n, pool_size, replace=False)) if pool_size < n else np.arange(n)
+
+
+def _maxmin(pool_poses: np.ndarray, n_landmarks: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices (sorted) of ``n_landmarks`` of ``pool_poses`` chosen by MaxMin (farthest-point)
+    selection from a random start: each step adds the pose farthest (Eq. 1) from those chosen."""
     pool_t = _joint_major(pool_poses)
     chosen = np.empty(n_landmarks, dtype=np.int64)
-    chosen[0] = rng.integers(pool_size)
-    nearest = np.full(pool_size, np.inf)
+    chosen[0] = rng.integers(len(pool_poses))
+    nearest = np.full(len(pool_poses), np.inf)
     for i in range(1, n_landmarks):
         np.minimum(nearest, _distances_soa(pool_poses[chosen[i - 1]:chosen[i - 1] + 1], pool_t)[0],
                    out=nearest)
         chosen[i] = np.argmax(nearest)
-    return np.sort(pool[chosen])
+    return np.sort(chosen)
+
+
+@dataclass(frozen=True)
+class Landmarks:
+    """Landmark MDS's frame: the landmark poses and the map that places any pose from its squared
+    Eq. 1 distances ``δ`` to them, ``y = (δ − mean_sq) @ projection``."""
+
+    poses: np.ndarray       # [L, J, 2]
+    projection: np.ndarray  # [L, dims] float64: −½ L⁺ᵀ
+    mean_sq: np.ndarray     # [L] float64: the landmarks' mean squared distance to each landmark
+
+    def place(self, poses: np.ndarray, out: np.ndarray) -> None:
+        """Write the coordinates of ``poses [n, J, 2]`` into ``out [n, dims]`` (float32) with the fused
+        kernel: each pose's ``[L]`` distance row stays in cache, no distance block in memory."""
+        _triangulate_kernel(_as_poses(poses, self.poses.dtype), _joint_major(self.poses), self.mean_sq,
+                            np.ascontiguousarray(self.projection.T), out)
+
+
+def fit_landmarks(pool_poses: np.ndarray, dims: int, n_landmarks: int, rng: np.random.Generator) -> Landmarks:
+    """The :class:`Landmarks` of ``n_landmarks`` poses chosen by MaxMin among ``pool_poses`` (all of
+    them when there are no more), from classical MDS of their distance matrix."""
+    pool_poses = _as_poses(pool_poses, _work_dtype(pool_poses))
+    landmarks = pool_poses if n_landmarks >= len(pool_poses) else pool_poses[_maxmin(pool_poses, n_landmarks, rng)]
+    sq = pose_distances(landmarks, landmarks) ** 2
+    vals, vecs = _top_eigen(_double_centre(sq), dims)
+    root = np.sqrt(np.maximum(vals, 0.0))
+    pseudo_inverse = np.divide(vecs, root, out=np.zeros_like(vecs), where=root > 0)  # [L, dims]
+    return Landmarks(landmarks, -0.5 * pseudo_inverse, sq.mean(axis=0))
 
 
 def landmark_mds(poses: np.ndarray, dims: int = 5, n_landmarks: int = 2000, seed: int = 0,
@@ -135,15 +185,15 @@ def landmark_mds(poses: np.ndarray, dims: int = 5, n_landmarks: int = 2000, seed
     """Landmark MDS (de Silva & Tenenbaum 2004) of poses ``[N, J, 2]`` under Eq. 1 → float32 ``[N, dims]``.
 
     Landmarks: MaxMin (farthest-point) selection, from a seeded random start, within a seeded
-    random pool of ``3 × n_landmarks`` poses. Measured against exact classical MDS (1,500–8,000
-    poses, 50–300 landmarks) this had the lowest mean error overall: pure random landmarks were
-    up to 10× worse on some sets and pure MaxMin over all poses grew worse as ``N / L`` grew
-    (it favours outlying poses). Classical MDS of the landmarks' distance matrix gives their
-    coordinates; every pose is then triangulated from its squared distances ``δ`` to the landmarks,
-    ``y = −½ L⁺ (δ − δ̄)``, by a fused numba kernel that keeps each pose's ``[L]`` distance row
-    in cache (no distance block in memory), ``TRIANGULATE_CHUNK`` poses per call; ``progress(n)``
-    is called after each chunk with the number of poses it held. With ``N ≤ n_landmarks`` this is
-    exact classical MDS. Deterministic for a fixed ``seed``.
+    random pool of ``3 × n_landmarks`` poses (:func:`landmark_pool`, :func:`fit_landmarks`).
+    Measured against exact classical MDS (1,500–8,000 poses, 50–300 landmarks) this had the lowest
+    mean error overall: pure random landmarks were up to 10× worse on some sets and pure MaxMin
+    over all poses grew worse as ``N / L`` grew (it favours outlying poses). Classical MDS of the
+    landmarks' distance matrix gives their coordinates; every pose is then triangulated from its
+    squared distances ``δ`` to the landmarks, ``y = −½ L⁺ (δ − δ̄)`` (:meth:`Landmarks.place`),
+    ``TRIANGULATE_CHUNK`` poses per call; ``progress(n)`` is called after each chunk with the
+    number of poses it held. With ``N ≤ n_landmarks`` every pose is a landmark and this is exact
+    classical MDS. Deterministic for a fixed ``seed``.
 
     Stated error against exact classical MDS on a small set (1,500 poses, 300 landmarks, d = 5,
     Procrustes disparity ``1 − R²``): 5.7e-4 on latent-driven poses and 1.2e-3 on articulated
@@ -151,29 +201,12 @@ def landmark_mds(poses: np.ndarray, dims: int = 5, n_landmarks: int = 2000, seed
     kind, mean 2e-3 and 8e-3, worst 9e-3 and 2.3e-2.
     """
     poses = _as_poses(poses, _work_dtype(poses))
-    n = len(poses)
-    if n <= n_landmarks:
-        coords = classical_mds(pose_distances(poses, poses), dims).astype(np.float32)
-        if progress is not None:
-            progress(n)
-        return coords
-    landmarks = poses[_maxmin_landmarks(poses, n_landmarks, np.random.default_rng(seed))]
-    sq = pose_distances(landmarks, landmarks) ** 2
-    vals, vecs = _top_eigen(_double_centre(sq), dims)
-    root = np.sqrt(np.maximum(vals, 0.0))
-    pseudo_inverse = np.divide(vecs, root, out=np.zeros_like(vecs), where=root > 0)  # [L, dims]
-    return _triangulate(poses, landmarks, -0.5 * pseudo_inverse, sq.mean(axis=0), progress)
-
-
-def _triangulate(poses: np.ndarray, landmarks: np.ndarray, projection: np.ndarray, mean_sq: np.ndarray,
-                 progress: Callable[[int], object] | None) -> np.ndarray:
-    """float32 ``[N, dims]`` rows ``(δ − mean_sq) @ projection``, ``δ`` a pose's squared Eq. 1
-    distances to the ``L`` landmarks, ``TRIANGULATE_CHUNK`` poses per kernel call."""
-    landmarks_t, projection_t = _joint_major(landmarks), np.ascontiguousarray(projection.T)
-    out = np.empty((len(poses), projection.shape[1]), dtype=np.float32)
+    rng = np.random.default_rng(seed)
+    landmarks = fit_landmarks(poses[landmark_pool(len(poses), n_landmarks, rng)], dims, n_landmarks, rng)
+    out = np.empty((len(poses), dims), dtype=np.float32)
     for start in range(0, len(poses), TRIANGULATE_CHUNK):
         stop = min(start + TRIANGULATE_CHUNK, len(poses))
-        _triangulate_kernel(poses[start:stop], landmarks_t, mean_sq, projection_t, out[start:stop])
+        landmarks.place(poses[start:stop], out[start:stop])
         if progress is not None:
             progress(stop - start)
     return out
@@ -224,15 +257,16 @@ def _two_nearest(x: np.ndarray, cent_t: np.ndarray, acc: np.ndarray) -> tuple[in
 @njit(parallel=True, cache=True, fastmath=_FASTMATH_WITH_INF)
 def _assign(points: np.ndarray, centroids: np.ndarray, moved: np.ndarray, half_gap: np.ndarray,
             labels: np.ndarray, upper: np.ndarray, lower: np.ndarray,
-            n_blocks: int) -> tuple[np.ndarray, np.ndarray]:
+            block_rows: int) -> tuple[np.ndarray, np.ndarray]:
     """Lloyd assignment step with Hamerly's (2010) bounds, exact like brute force but mostly O(d).
 
     ``upper[i]`` bounds the distance of point ``i`` to its centroid ``labels[i]`` from above,
     ``lower[i]`` the distance to any other centroid from below; both are first loosened by the
-    centroids' last moves ``moved [k]``; ``half_gap[c]`` is half the distance from centroid ``c``
-    to its nearest other centroid. Points whose bounds cannot prove their label get a full search.
-    Returns per-block partial ``sums [n_blocks, k, d]`` and ``counts [n_blocks, k]`` by label;
-    blocks are a fixed partition of the points, so reducing them in order is deterministic.
+    centroids' last moves ``moved [k]`` (infinite moves: bounds unknown, labels any in ``[0, k)``);
+    ``half_gap[c]`` is half the distance from centroid ``c`` to its nearest other centroid. Points
+    whose bounds cannot prove their label get a full search. Returns per-block partial
+    ``sums [n_blocks, k, d]`` and ``counts [n_blocks, k]`` by label, blocks of ``block_rows``
+    points each summed in order (the caller adds the blocks in order: deterministic).
     """
     n, d = points.shape
     k = centroids.shape[0]
@@ -240,11 +274,12 @@ def _assign(points: np.ndarray, centroids: np.ndarray, moved: np.ndarray, half_g
     order = np.argsort(moved)
     top, top_move = order[-1], moved[order[-1]]
     runner_up = moved[order[-2]] if k > 1 else 0.0
+    n_blocks = (n + block_rows - 1) // block_rows
     sums = np.zeros((n_blocks, k, d))
     counts = np.zeros((n_blocks, k), dtype=np.int64)
     for blk in prange(n_blocks):
         acc = np.empty(k)
-        for i in range(blk * n // n_blocks, (blk + 1) * n // n_blocks):
+        for i in range(blk * block_rows, min(n, (blk + 1) * block_rows)):
             a = labels[i]
             upper[i] += moved[a]
             lower[i] -= runner_up if a == top else top_move
@@ -260,6 +295,17 @@ def _assign(points: np.ndarray, centroids: np.ndarray, moved: np.ndarray, half_g
     return sums, counts
 
 
+@njit(cache=True)
+def _add_blocks(sums: np.ndarray, counts: np.ndarray, block_sums: np.ndarray, block_counts: np.ndarray) -> None:
+    """``sums += block_sums[0]``, then ``[1]``, …: one block at a time, in order (no fastmath: the
+    order of the additions is the result's definition)."""
+    for b in range(block_sums.shape[0]):
+        for c in range(block_sums.shape[1]):
+            counts[c] += block_counts[b, c]
+            for j in range(block_sums.shape[2]):
+                sums[c, j] += block_sums[b, c, j]
+
+
 def _half_gaps(centroids: np.ndarray) -> np.ndarray:
     """Half the distance from each centroid to its nearest other centroid (inf when ``k = 1``)."""
     gaps = cdist(centroids, centroids)
@@ -268,8 +314,15 @@ def _half_gaps(centroids: np.ndarray) -> np.ndarray:
 
 
 def _as_points(points: np.ndarray) -> np.ndarray:
-    """float64 C-contiguous ``[N, d]`` (one compiled signature per kernel; 80 MB at 2M × 5)."""
+    """float64 C-contiguous ``[N, d]`` (one compiled signature per kernel)."""
     return np.ascontiguousarray(points, dtype=np.float64)
+
+
+def _as_chunk(points: np.ndarray) -> np.ndarray:
+    """A chunk of points for the k-means kernels: float32 ones as they are (the kernels compute in
+    float64, into which float32 converts exactly: the same results, no float64 copy), else float64."""
+    points = np.asarray(points)
+    return np.ascontiguousarray(points) if points.dtype == np.float32 else _as_points(points)
 
 
 def _kmeans_pp(sample: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
@@ -288,61 +341,166 @@ def _kmeans_pp(sample: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarr
     return centres
 
 
-def _update_centroids(points: np.ndarray, sums: np.ndarray, counts: np.ndarray, labels: np.ndarray,
-                      old: np.ndarray) -> np.ndarray:
-    """Means of the clusters; each empty cluster takes one of the points farthest from their centroid."""
+def _chunks(n: int, chunk_rows: int) -> list[slice]:
+    """The chunks of ``n`` rows, ``chunk_rows`` rounded down to whole k-means blocks (at least one)
+    so that no chunk splits a block."""
+    step = max(KMEANS_BLOCK_ROWS, chunk_rows // KMEANS_BLOCK_ROWS * KMEANS_BLOCK_ROWS)
+    return [slice(start, min(start + step, n)) for start in range(0, n, step)]
+
+
+def _farthest_members(points, labels, centroids: np.ndarray, m: int, chunk_rows: int) -> np.ndarray:
+    """The ``m`` points farthest from their cluster's centroid (farthest first, lower index first on
+    ties), streamed over chunks of ``points [N, d]``; ``labels [N]``."""
+    best_dist, best_index = np.empty(0), np.empty(0, dtype=np.int64)
+    for rows in _chunks(len(points), chunk_rows):
+        dist = _member_distances(_as_chunk(points[rows]), np.asarray(labels[rows]), centroids)
+        kth = max(len(dist) - m, 0)
+        keep = np.flatnonzero(dist >= np.partition(dist, kth)[kth])  # the m farthest and their ties
+        dist, index = np.concatenate([best_dist, dist[keep]]), np.concatenate([best_index, rows.start + keep])
+        order = np.lexsort((index, -dist))[:m]
+        best_dist, best_index = dist[order], index[order]
+    return best_index
+
+
+def _update_centroids(points, sums: np.ndarray, counts: np.ndarray, labels, old: np.ndarray,
+                      chunk_rows: int = KMEANS_BLOCK_ROWS) -> np.ndarray:
+    """Means of the clusters; each empty cluster takes one of the points farthest from their centroid.
+    ``points [N, d]`` and ``labels [N]`` are arrays or work arrays, read ``chunk_rows`` at a time."""
     empty = np.flatnonzero(counts == 0)
     if empty.size:
-        far = np.argpartition(-_member_distances(points, labels, old), empty.size - 1)[:empty.size]
-        np.subtract.at(sums, labels[far], points[far])
-        np.subtract.at(counts, labels[far], 1)
-        sums[empty], counts[empty] = points[far], 1
+        far = _farthest_members(points, labels, old, empty.size, chunk_rows)
+        far_points, far_labels = _as_points(points.take(far, axis=0)), labels.take(far, axis=0)
+        np.subtract.at(sums, far_labels, far_points)
+        np.subtract.at(counts, far_labels, 1)
+        sums[empty], counts[empty] = far_points, 1
     new = old.copy()
     filled = counts > 0
     new[filled] = sums[filled] / counts[filled, None]
     return new
 
 
-def kmeans(points: np.ndarray, k: int, seed: int = 0, max_iter: int = 50, tol: float = 1e-4,
-           progress: Callable[[int, float], object] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Lloyd's k-means of ``points [N, d]`` → ``(centroids float64 [k, d], labels int32 [N])``.
+@dataclass
+class KMeansBounds:
+    """Per point: its cluster and Hamerly's bounds; numpy arrays or the build's work arrays (anything
+    sliced by row ranges into writable arrays). Any content will do while the bounds are unknown."""
 
-    Seeded by greedy k-means++ on a random subsample of ``20 k`` points. Assignment steps use
-    Hamerly's bounds (same result as brute force; once clusters settle most points skip the
-    ``O(k·d)`` search); update steps sum fixed blocks of points in parallel and reduce them in
-    order. Iterates until the summed squared centroid shift is ≤ ``tol ×`` the mean per-axis
-    variance of the points (sklearn's rule) or ``max_iter`` iterations; ``progress(iteration,
-    shift)`` reports that shift. Labels are the final assignment to the returned centroids. An
-    empty cluster is re-seeded with the point farthest from its centroid. Deterministic for a
-    fixed ``seed`` whatever the thread count.
-    """
-    points = _as_points(points)
+    labels: np.ndarray  # int32 [N]
+    upper: np.ndarray   # float64 [N]
+    lower: np.ndarray   # float64 [N]
+
+    FIELDS = (("labels", np.int32), ("upper", np.float64), ("lower", np.float64))
+
+    @classmethod
+    def in_memory(cls, n: int) -> KMeansBounds:
+        return cls(*(np.zeros(n, dtype=dtype) for _, dtype in cls.FIELDS))
+
+
+@dataclass
+class KMeansState:
+    """A streamed k-means between two iterations: what a resumed build needs to go on."""
+
+    centroids: np.ndarray       # [k, d] float64
+    tol_abs: float              # converged when the summed squared centroid shift is at most this
+    iteration: int = 0          # Lloyd iterations done
+    shift: float = np.inf       # the last iteration's summed squared centroid shift
+    moved: np.ndarray | None = None  # the centroids' last moves while the bounds hold; None: bounds unknown
+
+    @property
+    def converged(self) -> bool:
+        return self.shift <= self.tol_abs
+
+
+def kmeans_seed(points, k: int, seed: int = 0, tol: float = 1e-4) -> KMeansState:
+    """Greedy k-means++ seeding on a seeded random sample of ``20 k`` of ``points [N, d]`` (an array or
+    a work array); the tolerance is ``tol ×`` the sample's mean per-axis variance (sklearn's rule,
+    on the sample: it only decides when to stop)."""
     n = len(points)
     if not 1 <= k <= n:
         raise ValueError(f"k must be in [1, {n}], got {k}")
     rng = np.random.default_rng(seed)
-    sample = rng.choice(n, min(n, KMEANS_INIT_PER_CLUSTER * k), replace=False)
-    centroids = _kmeans_pp(points[np.sort(sample)], k, rng)
-    tol_abs = tol * float(np.mean(np.var(points, axis=0)))
-    labels, upper, lower = np.zeros(n, dtype=np.int32), np.full(n, np.inf), np.zeros(n)
-    moved, n_blocks = np.zeros(k), min(KMEANS_BLOCKS, n)
-    for iteration in range(max_iter):
-        sums, counts = _assign(points, centroids, moved, _half_gaps(centroids), labels, upper, lower,
-                               n_blocks)
-        new = _update_centroids(points, sums.sum(axis=0), counts.sum(axis=0), labels, centroids)
-        moved = np.sqrt(((new - centroids) ** 2).sum(axis=1))
-        centroids = new
-        shift = float((moved ** 2).sum())
+    sample = _as_points(points.take(np.sort(rng.choice(n, min(n, KMEANS_INIT_PER_CLUSTER * k), replace=False)),
+                                    axis=0))
+    return KMeansState(_kmeans_pp(sample, k, rng), tol * float(np.mean(np.var(sample, axis=0))))
+
+
+def _lloyd_pass(points, state: KMeansState, bounds: KMeansBounds, chunk_rows: int,
+                each_chunk: Callable[[int, np.ndarray, np.ndarray], object] | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """One assignment of every point to ``state.centroids``, chunk by chunk; returns the float64
+    ``sums [k, d]`` and ``counts [k]`` by cluster, added block by block in order (the same for any
+    chunk size or thread count). ``each_chunk(start, points, labels)`` sees every chunk after it."""
+    k, d = state.centroids.shape
+    moved = np.full(k, np.inf) if state.moved is None else state.moved
+    half_gap = _half_gaps(state.centroids)
+    sums, counts = np.zeros((k, d)), np.zeros(k, dtype=np.int64)
+    for rows in _chunks(len(points), chunk_rows):
+        chunk, labels = _as_chunk(points[rows]), bounds.labels[rows]
+        block_sums, block_counts = _assign(chunk, state.centroids, moved, half_gap, labels, bounds.upper[rows],
+                                           bounds.lower[rows], KMEANS_BLOCK_ROWS)
+        _add_blocks(sums, counts, block_sums, block_counts)
+        if each_chunk is not None:
+            each_chunk(rows.start, chunk, labels)
+    return sums, counts
+
+
+def kmeans_iterate(points, state: KMeansState, bounds: KMeansBounds, max_iter: int = 50,
+                   chunk_rows: int = 1 << 20, progress: Callable[[KMeansState], object] | None = None) -> None:
+    """Lloyd iterations of ``state`` over ``points [N, d]`` until converged or ``max_iter`` done,
+    streamed ``chunk_rows`` points at a time; ``progress(state)`` after each iteration (where a
+    build saves it). ``bounds`` may hold anything when ``state.moved`` is None (a resumed state)."""
+    while not state.converged and state.iteration < max_iter:
+        sums, counts = _lloyd_pass(points, state, bounds, chunk_rows)
+        new = _update_centroids(points, sums, counts, bounds.labels, state.centroids, chunk_rows)
+        state.moved = np.sqrt(((new - state.centroids) ** 2).sum(axis=1))
+        state.centroids, state.iteration, state.shift = new, state.iteration + 1, float((state.moved ** 2).sum())
         if progress is not None:
-            progress(iteration, shift)
-        if shift <= tol_abs:
-            break
-    _assign(points, centroids, moved, _half_gaps(centroids), labels, upper, lower, n_blocks)
-    return centroids, labels
+            progress(state)
+
+
+def kmeans_finish(points, state: KMeansState, bounds: KMeansBounds, chunk_rows: int = 1 << 20) -> np.ndarray:
+    """The final assignment of every point to ``state.centroids`` (into ``bounds.labels``) and each
+    cluster's representative: int64 ``[k]`` index of the member nearest its centroid (lowest index on
+    ties; −1 for an empty cluster), streamed like :func:`kmeans_iterate`."""
+    k = len(state.centroids)
+    best, best_sq = np.full(k, -1, dtype=np.int64), np.full(k, np.inf)
+
+    def nearest(start: int, chunk: np.ndarray, labels: np.ndarray) -> None:
+        index, sq = _nearest_members(chunk, labels, state.centroids)
+        closer = sq < best_sq
+        best[closer], best_sq[closer] = start + index[closer], sq[closer]
+
+    _lloyd_pass(points, state, bounds, chunk_rows, nearest)
+    return best
+
+
+def kmeans(points: np.ndarray, k: int, seed: int = 0, max_iter: int = 50, tol: float = 1e-4,
+           progress: Callable[[int, float], object] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Lloyd's k-means of ``points [N, d]`` → ``(centroids float64 [k, d], labels int32 [N])``.
+
+    Seeded by greedy k-means++ on a random subsample of ``20 k`` points (:func:`kmeans_seed`).
+    Assignment steps use Hamerly's bounds (same result as brute force; once clusters settle most
+    points skip the ``O(k·d)`` search); update steps sum fixed blocks of ``KMEANS_BLOCK_ROWS``
+    points in parallel and add them in order. Iterates until the summed squared centroid shift is
+    ≤ ``tol ×`` the mean per-axis variance of the sample or ``max_iter`` iterations;
+    ``progress(iteration, shift)`` reports that shift. Labels are the final assignment to the
+    returned centroids. An empty cluster is re-seeded with the point farthest from its centroid.
+    Deterministic for a fixed ``seed`` whatever the thread count; the build streams the same steps
+    over its work arrays (:func:`kmeans_iterate`, :func:`kmeans_finish`) and gets the same result.
+    """
+    points = _as_points(points)
+    state = kmeans_seed(points, k, seed, tol)
+    bounds = KMeansBounds.in_memory(len(points))
+    report = None if progress is None else (lambda s: progress(s.iteration - 1, s.shift))
+    kmeans_iterate(points, state, bounds, max_iter, len(points), report)
+    kmeans_finish(points, state, bounds, len(points))
+    return state.centroids, bounds.labels
 
 
 @njit(cache=True)
-def _nearest_members(points: np.ndarray, labels: np.ndarray, centroids: np.ndarray) -> np.ndarray:
+def _nearest_members(points: np.ndarray, labels: np.ndarray, centroids: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Per cluster, the index of its member nearest its centroid (first on ties; −1 if none) and
+    that squared distance (inf if none)."""
     best = np.full(centroids.shape[0], -1, dtype=np.int64)
     best_sq = np.full(centroids.shape[0], np.inf)
     for i in range(points.shape[0]):
@@ -350,13 +508,13 @@ def _nearest_members(points: np.ndarray, labels: np.ndarray, centroids: np.ndarr
         sq = _sq_dist(points[i], centroids[c])
         if sq < best_sq[c]:
             best[c], best_sq[c] = i, sq
-    return best
+    return best, best_sq
 
 
 def representatives(points: np.ndarray, labels: np.ndarray, centroids: np.ndarray) -> np.ndarray:
     """int64 ``[k]``: per cluster, the index of the member of ``points [N, d]`` nearest its centroid
     (Euclidean, lowest index on ties; −1 for an empty cluster). ``labels [N]`` in ``[0, k)``."""
-    return _nearest_members(_as_points(points), np.asarray(labels, dtype=np.int32), _as_points(centroids))
+    return _nearest_members(_as_points(points), np.asarray(labels, dtype=np.int32), _as_points(centroids))[0]
 
 
 def mean_member_distance(points: np.ndarray, labels: np.ndarray, centroids: np.ndarray) -> float:

@@ -1,14 +1,20 @@
-"""`mocapdb build`: BVH clips → universal skeleton → yaw projections → MDS → k-means → database.
+"""`mocapdb build`: BVH clips → universal skeleton → yaw projections → MDS → k-means → database,
+out of core: each stage streams chunks of a size set by ``--memory-limit`` between the work
+folder's arrays, so memory does not grow with the library, and an interrupted build re-run with
+the same command goes on where it stopped (``data_specs/build.md``).
 
 Stage costs (N projections, F frames, V yaws, L landmarks, K clusters, d dims, I iterations):
 reading and retargeting O(F·source joints); projection O(F·V); landmark MDS O(N·L·14);
-k-means O(I·N·K·d); writing O(N). ``tools/bench_build.py`` prints how each grows with N.
+k-means O(I·N·K·d); assignment O(N·K·14); writing O(N). ``tools/bench_build.py`` prints how each
+grows with N.
 """
 from __future__ import annotations
 
 import fnmatch
 import os
 import time
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
@@ -17,13 +23,25 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb import __version__
-from mocapdb.builder.embedding import kmeans, landmark_mds, pose_distances, representatives
+from mocapdb.builder.embedding import (
+    KMEANS_BLOCK_ROWS,
+    KMeansBounds,
+    KMeansState,
+    fit_landmarks,
+    kmeans_finish,
+    kmeans_iterate,
+    kmeans_seed,
+    landmark_pool,
+    nearest_poses,
+)
+from mocapdb.builder.memory import ChunkPlan, default_memory_limit_mb, peak_memory_mb
+from mocapdb.builder.work import STAGES, WorkArray, WorkFolder
 from mocapdb.core import domains as D
 from mocapdb.core.cameras import DatabaseCamera
 from mocapdb.core.clips import Clip, ClipOptions, clips_from_bvh
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.formats.bvh import BvhError
-from mocapdb.core.formats.database import MotionDatabase, check_output_path, recover_interrupted, write_database
+from mocapdb.core.formats.database import DatabaseWriter, check_output_path, output_target, recover_interrupted
 from mocapdb.core.geometry import normalize_pose_2d, project_views
 from mocapdb.core.joint_map import UNITS, UP_AXES, JointMapError, load_joint_map_file
 from mocapdb.core.progress import progress
@@ -31,12 +49,22 @@ from mocapdb.core.skeleton import (
     BONE_LENGTHS_M,
     KEYPOINTS,
     N_KEYPOINTS_2D,
+    N_POINTS,
     PELVIS,
     RIG_JOINTS,
 )
 
-PROJECTION_CHUNK_FRAMES = 2000
 MAX_YAWS = 32767  # projections.yaw is int16
+KMEANS_MAX_ITER = 50
+COMMIT_INTERVAL_S = 10.0  # a stage's progress is saved at most this often (and at its end)
+MIN_CHUNK_ROWS = 1024  # chunks of rows (poses, projections, frames written) are whole multiples of this
+# Memory per chunk row of each stage, bytes (measured, with margin; data_specs/build.md "Memory"):
+PROJECT_BYTES_PER_PROJECTION = 2048  # float64 views, pixels and normalisation of one projection
+EMBED_BYTES_PER_POSE = 256           # the pose read, its coordinates written
+KMEANS_BYTES_PER_POINT = 64          # the point, its label and bounds
+ASSIGN_BYTES_PER_POSE = 256          # the pose read, its label written
+WRITE_BYTES_PER_PROJECTION = 1024    # the row read, its Arrow and Parquet encodings
+WRITE_BYTES_PER_FRAME = 2048
 
 
 class BuildError(MocapdbError, RuntimeError):
@@ -66,6 +94,9 @@ class BuildConfig:
     up_axis: str | None = None
     credit: str | None = None
     mirror: bool = True  # also store every clip's left-right mirror image
+    memory_limit_mb: int | None = None  # peak memory aimed at; None: default_memory_limit_mb()
+    work_dir: Path | None = None  # the work folder; None: the output's path with ".work" appended
+    restart: bool = False  # ignore an interrupted build's work and start again
 
     def clip_options(self) -> ClipOptions:
         """The options that turn a BVH file into clips (:mod:`mocapdb.core.clips`)."""
@@ -80,6 +111,11 @@ class BuildConfig:
             raise BuildError(f"--yaw-step {step} does not divide 360 degrees into 1 to {MAX_YAWS} yaws")
         return np.arange(n) * step
 
+    @property
+    def limit_mb(self) -> int:
+        """The memory limit in MB: the one given, else the default (a share of the machine's)."""
+        return default_memory_limit_mb() if self.memory_limit_mb is None else self.memory_limit_mb
+
     def check(self) -> None:
         """Raise DomainError or BuildError naming the first option (by its ``mocapdb build`` flag)
         that cannot work."""
@@ -92,6 +128,7 @@ class BuildConfig:
                 ("camera width_px", D.IMAGE_SIDE_PX, self.camera.width_px),
                 ("camera height_px", D.IMAGE_SIDE_PX, self.camera.height_px)]:
             domain.check(value, flag)
+        D.MEMORY_LIMIT_MB.check_optional(self.memory_limit_mb, "--memory-limit")
         self.yaws_deg
         if self.landmarks <= self.dims:
             raise BuildError(f"--landmarks {self.landmarks} is too few for --dims {self.dims}: "
@@ -113,13 +150,22 @@ class BuildSummary:
     seconds: dict[str, float] = field(default_factory=dict)
     bytes_on_disk: int = 0
     warnings: list[str] = field(default_factory=list)
+    resumed: dict[str, str] = field(default_factory=dict)  # stage → what an earlier run had done of it
+    memory_limit_mb: int = 0
+    peak_memory_mb: float = 0.0  # this process's peak resident memory
+    reader_peak_mb: float = 0.0  # the largest reader process's (0: read in this process)
+    work_bytes: int = 0  # the work folder's largest size on disk
 
     def report(self) -> str:
         lines = [f"files {self.files}, clips {self.clips} (files split at jumps in the data; {self.mirrored} of them "
                  f"mirrored copies), frames {self.frames}, projections {self.projections}, "
                  f"clusters {self.clusters}, size on disk {self.bytes_on_disk / 1e6:.1f} MB"]
+        lines += [f"resumed {stage}: {what}" for stage, what in self.resumed.items()]
         lines += [f"  {stage:<12} {sec:8.2f} s" for stage, sec in self.seconds.items()]
         lines.append(f"  {'total':<12} {sum(self.seconds.values()):8.2f} s")
+        readers = f", reader processes {self.reader_peak_mb:.0f} MB" if self.reader_peak_mb else ""
+        lines.append(f"peak memory {self.peak_memory_mb:.0f} MB (limit {self.memory_limit_mb} MB){readers}; "
+                     f"work folder up to {self.work_bytes / 1e6:.1f} MB")
         lines += [f"skipped {path}: {why}" for path, why in self.skipped]
         lines += [f"warning: {text}" for text in self.warnings]
         return "\n".join(lines)
@@ -156,116 +202,273 @@ def _process_one(args: tuple[Path, Path, BuildConfig]) -> list[Clip] | tuple[str
         return (str(path), f"unexpected {type(exc).__name__}: {exc}")
 
 
-def load_clips(files: list[tuple[Path, Path]], config: BuildConfig,
-               summary: BuildSummary) -> list[Clip]:
-    """Process every file (in ``config.workers`` processes); files that fail go to ``summary.skipped``
-    with the reason (``config.strict``: :class:`BuildError` naming them all; no clip at all:
-    :class:`BuildError` whose ``skipped`` lists them)."""
-    jobs = [(path, root, config) for path, root in files]
-    bar = progress(total=len(jobs), desc="read+retarget", unit="clip")
-    results = []
-    if config.workers > 1 and len(jobs) > 1:
-        with ProcessPoolExecutor(max_workers=config.workers) as pool:
-            for res in pool.map(_process_one, jobs):
-                results.append(res)
-                bar.update()
-    else:
+# ----------------------------------------------------------------------------------- read
+
+
+def _in_order(function: Callable, jobs: list, workers: int) -> Iterator:
+    """``function(job)`` of every job, in the jobs' order; with ``workers > 1`` in that many processes,
+    at most ``2 × workers`` jobs ahead of the one awaited (results never pile up)."""
+    if workers == 1 or len(jobs) < 2:
+        yield from map(function, jobs)
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        pending = deque()
         for job in jobs:
-            results.append(_process_one(job))
-            bar.update()
+            pending.append(pool.submit(function, job))
+            if len(pending) >= 2 * workers:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
+
+
+def _clip_row(clip: Clip) -> dict:
+    return {"name": clip.name, "source": clip.source, "source_fps": clip.source_fps, "convention": clip.convention,
+            "credit": clip.credit, "mirrored": clip.mirrored, "n_frames": len(clip.positions)}
+
+
+def _read_stage(run: _Run, files: list[tuple[Path, Path]]) -> list[WorkArray]:
+    """Every file's clips (in ``config.workers`` processes) appended to the frame arrays in the files'
+    order; the clip table and the skipped files go to the stage's record."""
+    record = run.work.record("read")
+    if "files_done" not in record:
+        record.update(files_done=0, clips=[], skipped=[])
+        run.work.new_array("positions", np.float32, (N_POINTS, 3))
+        run.work.new_array("quaternions", np.float32, (len(RIG_JOINTS), 4))
+    arrays = [run.work.array("positions"), run.work.array("quaternions")]
+    frames = sum(c["n_frames"] for c in record["clips"])
+    for array in arrays:
+        array.resize(frames)  # what an interrupted run appended after its last commit goes
+    jobs = [(path, root, run.config) for path, root in files[record["files_done"]:]]
+    bar = progress(total=len(files), initial=record["files_done"], desc="read+retarget", unit="file")
+    for result in _in_order(_process_one, jobs, run.config.workers):
+        if isinstance(result, tuple):
+            record["skipped"].append(list(result))
+        for clip in result if isinstance(result, list) else []:
+            arrays[0].append(clip.positions)
+            arrays[1].append(clip.quaternions)
+            record["clips"].append(_clip_row(clip))
+        record["files_done"] += 1
+        bar.update()
+        _checkpoint(run, arrays)
     bar.close()
-    clips = [clip for r in results if isinstance(r, list) for clip in r]
-    summary.skipped = [r for r in results if isinstance(r, tuple)]
+    return arrays
+
+
+def _check_read(record: dict, config: BuildConfig, summary: BuildSummary) -> None:
+    """The skipped files into the summary; :class:`BuildError` with ``--strict`` and a skip, or without
+    any clip."""
+    summary.skipped = [tuple(s) for s in record["skipped"]]
     if summary.skipped and config.strict:
         raise BuildError("--strict: " + "; ".join(f"{p}: {why}" for p, why in summary.skipped))
-    if not clips:
+    if not record["clips"]:
         why = f": all {len(summary.skipped)} BVH file(s) were skipped" if summary.skipped else ""
         raise BuildError(f"no readable BVH clip among the sources{why}", summary.skipped)
-    return clips
 
 
-def project_all(positions: np.ndarray, config: BuildConfig) -> np.ndarray:
-    """Normalised 2D poses ``[F·V, 14, 2]`` (frame-major) of every frame from every yaw."""
-    yaws = config.yaws_deg
-    out = np.empty((len(positions) * len(yaws), N_KEYPOINTS_2D, 2), dtype=np.float32)
-    bar = progress(total=len(positions), desc="project", unit="frame")
-    for start in range(0, len(positions), PROJECTION_CHUNK_FRAMES):
-        chunk = positions[start:start + PROJECTION_CHUNK_FRAMES].astype(np.float64)
-        pixels = project_views(chunk, chunk[:, PELVIS], yaws, 0.0, config.camera)
-        normalised, _, _ = normalize_pose_2d(pixels[..., :N_KEYPOINTS_2D, :])
-        out[start * len(yaws):(start + len(chunk)) * len(yaws)] = normalised.reshape(-1, N_KEYPOINTS_2D, 2)
-        bar.update(len(chunk))
+# ----------------------------------------------------------------------------------- chunked stages
+
+
+@dataclass
+class _Run:
+    """One build's shared pieces."""
+
+    config: BuildConfig
+    work: WorkFolder
+    plan: ChunkPlan
+    summary: BuildSummary
+    n_yaws: int = 0
+    n_frames: int = 0
+
+    @property
+    def n_projections(self) -> int:
+        return self.n_frames * self.n_yaws
+
+    def note_disk(self) -> None:
+        """Keep the work folder's largest size so far in the summary."""
+        self.summary.work_bytes = max(self.summary.work_bytes, self.work.size_bytes())
+
+
+def _checkpoint(run: _Run, arrays: list[WorkArray]) -> None:
+    """Save the progress (``arrays`` made durable) when the last save is :data:`COMMIT_INTERVAL_S` old."""
+    if time.monotonic() - run.work.last_commit > COMMIT_INTERVAL_S:
+        run.work.commit(*arrays)
+
+
+def _chunks(run: _Run, stage: str, total: int, chunk: int, arrays: list[WorkArray],
+            desc: str, unit: str) -> Iterator[tuple[int, int]]:
+    """``(start, stop)`` of the chunks of the stage's ``total`` rows that an earlier run has not done;
+    a chunk counts as done once the loop body that got it has run (progress saved every
+    :data:`COMMIT_INTERVAL_S`)."""
+    record = run.work.record(stage)
+    done = record.setdefault("rows_done", 0)
+    bar = progress(total=total, initial=done, desc=desc, unit=unit)
+    for start in range(done, total, chunk):
+        stop = min(start + chunk, total)
+        yield start, stop
+        record["rows_done"] = stop
+        bar.update(stop - start)
+        _checkpoint(run, arrays)
     bar.close()
-    return out
 
 
-def _embed_and_cluster(keypoints_2d: np.ndarray, config: BuildConfig, summary: BuildSummary):
-    t0 = time.perf_counter()
-    bar = progress(total=len(keypoints_2d), desc="embed (MDS)", unit="pose")
-    embedding = landmark_mds(keypoints_2d, dims=config.dims, n_landmarks=config.landmarks,
-                             seed=config.seed, progress=bar.update)
+def _output(run: _Run, stage: str, name: str, dtype: type, row_shape: tuple[int, ...], rows: int) -> WorkArray:
+    """The stage's output array: made anew when the stage starts, the earlier run's when it resumes."""
+    if "rows_done" in run.work.record(stage):
+        return run.work.array(name)
+    return run.work.new_array(name, dtype, row_shape, rows)
+
+
+def project_frames(positions_m: np.ndarray, config: BuildConfig) -> np.ndarray:
+    """Normalised 2D poses ``[F·V, 14, 2]`` float32 (frame-major) of frames ``[F, 15, 3]`` from every yaw."""
+    positions_m = positions_m.astype(np.float64)
+    pixels = project_views(positions_m, positions_m[:, PELVIS], config.yaws_deg, 0.0, config.camera)
+    normalised, _, _ = normalize_pose_2d(pixels[..., :N_KEYPOINTS_2D, :])
+    return normalised.reshape(-1, N_KEYPOINTS_2D, 2).astype(np.float32)
+
+
+def _project_stage(run: _Run) -> list[WorkArray]:
+    positions = run.work.array("positions")
+    keypoints = _output(run, "project", "keypoints_2d", np.float32, (N_KEYPOINTS_2D, 2), run.n_projections)
+    frames = run.plan.rows(PROJECT_BYTES_PER_PROJECTION * run.n_yaws)
+    for start, stop in _chunks(run, "project", run.n_frames, frames, [keypoints], "project", "frame"):
+        keypoints[start * run.n_yaws:stop * run.n_yaws] = project_frames(positions[start:stop], run.config)
+    return [keypoints]
+
+
+def _embed_stage(run: _Run) -> list[WorkArray]:
+    """Landmark MDS: landmarks from a seeded sample (fitted again, identically, on a resume), then
+    every pose placed chunk by chunk."""
+    keypoints, config = run.work.array("keypoints_2d"), run.config
+    rng = np.random.default_rng(config.seed)
+    pool = landmark_pool(len(keypoints), config.landmarks, rng)
+    landmarks = fit_landmarks(keypoints.take(pool), config.dims, config.landmarks, rng)
+    embedding = _output(run, "embed", "embedding", np.float32, (config.dims,), len(keypoints))
+    rows = run.plan.rows(EMBED_BYTES_PER_POSE, MIN_CHUNK_ROWS)
+    for start, stop in _chunks(run, "embed", len(keypoints), rows, [embedding], "embed (MDS)", "pose"):
+        landmarks.place(keypoints[start:stop], embedding[start:stop])
+    return [embedding]
+
+
+def _kmeans_bounds(run: _Run, n: int, fresh: bool) -> KMeansBounds:
+    """The labels and bounds of every point: new arrays, or an interrupted run's (any content will do)."""
+    names = [(f"kmeans_{name}", dtype) for name, dtype in KMeansBounds.FIELDS]
+    if fresh or not all((run.work.path / f"{name}.npy").is_file() for name, _ in names):
+        return KMeansBounds(*(run.work.new_array(name, dtype, (), n) for name, dtype in names))
+    return KMeansBounds(*(run.work.array(name) for name, _ in names))
+
+
+def _cluster_stage(run: _Run) -> list[WorkArray]:
+    """Streamed k-means of the embedding (saved after every iteration), then each cluster's
+    representative; the bounds' scratch arrays are deleted at the end."""
+    embedding, config, record = run.work.array("embedding"), run.config, run.work.record("cluster")
+    resumed = "iteration" in record
+    if resumed:
+        state = KMeansState(run.work.load("centroids"), record["tol_abs"], record["iteration"], record["shift"])
+    else:
+        state = kmeans_seed(embedding, config.clusters, config.seed)
+    bounds = _kmeans_bounds(run, len(embedding), fresh=not resumed)
+    partial_bytes = 8 * config.clusters * (config.dims + 1) / KMEANS_BLOCK_ROWS  # block sums, per point
+    rows = run.plan.rows(KMEANS_BYTES_PER_POINT + partial_bytes, KMEANS_BLOCK_ROWS)
+    bar = progress(total=KMEANS_MAX_ITER, initial=state.iteration, desc="k-means", unit="iter")
+
+    def save(state: KMeansState) -> None:
+        run.work.save("centroids", state.centroids)
+        record.update(iteration=state.iteration, shift=state.shift, tol_abs=state.tol_abs)
+        run.work.commit()
+        bar.update()
+
+    kmeans_iterate(embedding, state, bounds, KMEANS_MAX_ITER, rows, save)
     bar.close()
-    t1 = time.perf_counter()
-    bar = progress(total=None, desc="k-means", unit="iter")
-    centroids, labels = kmeans(embedding, config.clusters, seed=config.seed, progress=lambda it, shift: bar.update())
-    bar.close()
-    reps = representatives(embedding, labels, centroids)
-    labels = assign_to_representatives(keypoints_2d, reps)
-    summary.seconds["embed"] = t1 - t0
-    summary.seconds["cluster"] = time.perf_counter() - t1
-    return embedding, centroids, labels, reps
+    run.work.save("representatives", kmeans_finish(embedding, state, bounds, rows))
+    run.note_disk()
+    for array in (bounds.labels, bounds.upper, bounds.lower):
+        array.path.unlink()
+    return []
 
 
-ASSIGN_CHUNK = 20000
-
-
-def assign_to_representatives(keypoints_2d: np.ndarray, reps: np.ndarray) -> np.ndarray:
-    """Cluster of every projection = its nearest representative under Eq. 1 (int32 ``[P]``).
+def assign_to_representatives(poses: np.ndarray, reps: np.ndarray, rep_poses: np.ndarray,
+                              first_row: int = 0) -> np.ndarray:
+    """Cluster (int32) of each of ``poses [n, 14, 2]`` (rows ``first_row…`` of the projections) = its
+    nearest representative under Eq. 1; ``rep_poses`` are the poses of the non-empty clusters'
+    representatives ``reps[reps >= 0]``. A representative always belongs to its own cluster (ties).
 
     k-means works in the 5-D MDS space, which keeps Eq. 1 neighbourhoods only roughly: on the
     CMU set, a projection's own k-means cluster was among the 5 clusters with the nearest
     representatives for only ~70 % of queries. Re-assigning members to their nearest
     representative makes the runtime's "nearest representatives, then their members" search
-    find the exact nearest projection (recall ~1.0, see ``mocapdb eval``). Cost O(P·K).
+    find the exact nearest projection (recall ~1.0, see ``mocapdb eval``). Cost O(n·K).
     """
     valid = np.flatnonzero(reps >= 0)
-    rep_poses = keypoints_2d[reps[valid]]
-    labels = np.empty(len(keypoints_2d), dtype=np.int32)
-    bar = progress(total=len(keypoints_2d), desc="assign", unit="pose")
-    for start in range(0, len(keypoints_2d), ASSIGN_CHUNK):
-        chunk = keypoints_2d[start:start + ASSIGN_CHUNK]
-        labels[start:start + len(chunk)] = valid[pose_distances(chunk, rep_poses).argmin(axis=1)]
-        bar.update(len(chunk))
-    bar.close()
-    labels[reps[valid]] = valid  # a representative always belongs to its own cluster (ties)
+    labels = valid[nearest_poses(poses, rep_poses)].astype(np.int32)
+    own = (reps[valid] >= first_row) & (reps[valid] < first_row + len(poses))
+    labels[reps[valid][own] - first_row] = valid[own]
     return labels
 
 
-def assemble(clips: list[Clip], keypoints_2d: np.ndarray, embedding: np.ndarray, centroids: np.ndarray,
-             labels: np.ndarray, reps: np.ndarray, config: BuildConfig) -> MotionDatabase:
-    """The database tables of a finished build."""
-    n_frames = np.array([len(c.positions) for c in clips])
-    n_yaws = len(config.yaws_deg)
-    total = int(n_frames.sum())
-    return MotionDatabase(
-        meta=_meta(config),
-        clip_name=[c.name for c in clips], clip_source=[c.source for c in clips],
-        clip_source_fps=np.array([c.source_fps for c in clips]),
-        clip_n_frames=n_frames.astype(np.int32),
-        clip_first_frame=np.concatenate([[0], np.cumsum(n_frames)[:-1]]).astype(np.int64),
-        clip_convention=[c.convention for c in clips], clip_credit=[c.credit for c in clips],
-        clip_mirrored=np.array([c.mirrored for c in clips], dtype=bool),
-        frame_clip=np.repeat(np.arange(len(clips), dtype=np.int32), n_frames),
-        frame_index=np.concatenate([np.arange(n, dtype=np.int32) for n in n_frames]),
-        quaternions=np.concatenate([c.quaternions for c in clips]),
-        positions=np.concatenate([c.positions for c in clips]),
-        proj_frame=np.repeat(np.arange(total, dtype=np.int64), n_yaws),
-        proj_yaw=np.tile(np.arange(n_yaws, dtype=np.int16), total),
-        keypoints_2d=keypoints_2d, embedding=embedding.astype(np.float32),
-        cluster=labels.astype(np.int32), centroids=centroids.astype(np.float32),
-        representative=reps.astype(np.int64),
-        cluster_size=np.bincount(labels, minlength=len(centroids)).astype(np.int32),
-    )
+def _assign_stage(run: _Run) -> list[WorkArray]:
+    keypoints, reps = run.work.array("keypoints_2d"), run.work.load("representatives")
+    rep_poses = keypoints.take(reps[reps >= 0])
+    cluster = _output(run, "assign", "cluster", np.int32, (), len(keypoints))
+    rows = run.plan.rows(ASSIGN_BYTES_PER_POSE, MIN_CHUNK_ROWS)
+    for start, stop in _chunks(run, "assign", len(keypoints), rows, [cluster], "assign", "pose"):
+        cluster[start:stop] = assign_to_representatives(keypoints[start:stop], reps, rep_poses, start)
+    return [cluster]
+
+
+# ----------------------------------------------------------------------------------- write
+
+
+def _row_ranges(total: int, rows: int) -> Iterator[tuple[int, int]]:
+    return ((start, min(start + rows, total)) for start in range(0, total, rows))
+
+
+def _clip_table(clips: list[dict]) -> dict:
+    n_frames = np.array([c["n_frames"] for c in clips], dtype=np.int64)
+    return {
+        "clip_name": [c["name"] for c in clips], "clip_source": [c["source"] for c in clips],
+        "clip_source_fps": np.array([c["source_fps"] for c in clips], dtype=np.float64),
+        "clip_n_frames": n_frames.astype(np.int32), "clip_first_frame": np.cumsum(n_frames) - n_frames,
+        "clip_convention": [c["convention"] for c in clips], "clip_credit": [c["credit"] for c in clips],
+        "clip_mirrored": np.array([c["mirrored"] for c in clips], dtype=bool),
+    }
+
+
+def _frame_rows(run: _Run, first_frame: np.ndarray) -> Iterator[dict]:
+    positions, quaternions = run.work.array("positions"), run.work.array("quaternions")
+    for start, stop in _row_ranges(run.n_frames, run.plan.rows(WRITE_BYTES_PER_FRAME, MIN_CHUNK_ROWS)):
+        frames = np.arange(start, stop)
+        clip = np.searchsorted(first_frame, frames, side="right") - 1
+        yield {"frame_clip": clip.astype(np.int32), "frame_index": (frames - first_frame[clip]).astype(np.int32),
+               "quaternions": quaternions[start:stop], "positions": positions[start:stop]}
+
+
+def _projection_rows(run: _Run, cluster_size: np.ndarray, bar) -> Iterator[dict]:
+    """The projections table in chunks; counts each chunk's clusters into ``cluster_size``."""
+    keypoints, embedding, cluster = (run.work.array(n) for n in ("keypoints_2d", "embedding", "cluster"))
+    for start, stop in _row_ranges(run.n_projections, run.plan.rows(WRITE_BYTES_PER_PROJECTION, MIN_CHUNK_ROWS)):
+        rows = np.arange(start, stop)
+        labels = cluster[start:stop]
+        cluster_size += np.bincount(labels, minlength=len(cluster_size))
+        yield {"proj_frame": rows // run.n_yaws, "proj_yaw": (rows % run.n_yaws).astype(np.int16),
+               "keypoints_2d": keypoints[start:stop], "embedding": embedding[start:stop], "cluster": labels}
+        bar.update(stop - start)
+
+
+def _write_stage(run: _Run, out: str | os.PathLike) -> int:
+    """The database, table by table, row group by row group; returns its size in bytes."""
+    clips = _clip_table(run.work.record("read")["clips"])
+    reps, centroids = run.work.load("representatives"), run.work.load("centroids")
+    cluster_size = np.zeros(len(reps), dtype=np.int64)
+    bar = progress(total=run.n_projections, desc="write", unit="projection")
+    with DatabaseWriter(out, _meta(run.config)) as writer:
+        writer.write_table("clips", [clips])
+        writer.write_table("frames", _frame_rows(run, clips["clip_first_frame"]))
+        writer.write_table("projections", _projection_rows(run, cluster_size, bar))
+        writer.write_table("clusters", [{"centroids": centroids.astype(np.float32), "representative": reps,
+                                         "cluster_size": cluster_size.astype(np.int32)}])
+        size = writer.finish()
+    bar.close()
+    return size
 
 
 def _meta(config: BuildConfig) -> dict:
@@ -280,14 +483,19 @@ def _meta(config: BuildConfig) -> dict:
     }
 
 
-def _check_before_work(out: str | os.PathLike, config: BuildConfig, summary: BuildSummary) -> None:
+def _check_before_work(out: str | os.PathLike, config: BuildConfig, summary: BuildSummary) -> Path:
     """Fail in milliseconds, before any file is read, on what would stop the build at the end; then
-    clean up after interrupted earlier writes of ``out``."""
+    clean up after interrupted earlier writes of ``out``. Returns the work folder."""
     config.check()
     if config.joint_map:
         load_joint_map_file(config.joint_map)
     check_output_path(out)
+    target = output_target(out)
+    work = Path(os.path.abspath(config.work_dir)) if config.work_dir else target.with_name(target.name + ".work")
+    if work == target or target in work.parents:
+        raise BuildError(f"--work-dir {work} lies inside the output {target}: choose a folder beside it")
     summary.warnings += recover_interrupted(out)
+    return work
 
 
 def _fit_clusters(config: BuildConfig, n_projections: int, summary: BuildSummary) -> BuildConfig:
@@ -299,28 +507,96 @@ def _fit_clusters(config: BuildConfig, n_projections: int, summary: BuildSummary
     return replace(config, clusters=n_projections)
 
 
+def _file_stamp(path: Path) -> list:
+    status = path.stat()
+    return [str(path), status.st_size, status.st_mtime_ns]
+
+
+def _fingerprints(config: BuildConfig, files: list[tuple[Path, Path]]) -> dict[str, dict]:
+    """What each stage's result depends on (a change restarts the stage and those after it)."""
+    options = asdict(config.clip_options())
+    options["joint_map"] = _file_stamp(config.joint_map) if config.joint_map else None
+    return {
+        "read": {"builder_version": __version__, "options": options,
+                 "sources": [[*_file_stamp(path), str(root)] for path, root in files]},
+        "project": {"yaw_step_deg": config.yaw_step_deg, "camera": asdict(config.camera)},
+        "embed": {"dims": config.dims, "landmarks": config.landmarks, "seed": config.seed},
+        "cluster": {"clusters": config.clusters, "seed": config.seed},
+        "assign": {},
+    }
+
+
+_STAGE_BODIES: dict[str, Callable[[_Run], list[WorkArray]]] = {
+    "project": _project_stage, "embed": _embed_stage, "cluster": _cluster_stage, "assign": _assign_stage}
+
+
+def _run_stage(run: _Run, name: str, body: Callable[[_Run], list[WorkArray]]) -> None:
+    """Run a stage unless an earlier run finished it; note in the summary what an earlier run did."""
+    record = run.work.record(name)
+    if record.get("done"):
+        run.summary.resumed[name] = "done by an earlier run"
+        return
+    done = [f"{key.replace('_', ' ')} {record[key]:,}" for key in ("files_done", "rows_done", "iteration")
+            if record.get(key)]
+    if done:
+        run.summary.resumed[name] = "went on from " + ", ".join(done)
+    start = time.perf_counter()
+    arrays = body(run)
+    record["done"] = True
+    run.work.commit(*arrays)
+    run.summary.seconds[name] = time.perf_counter() - start
+    run.note_disk()
+
+
+def _stages(run: _Run, files: list[tuple[Path, Path]], out: str | os.PathLike) -> None:
+    _run_stage(run, "read", lambda r: _read_stage(r, files))
+    read = run.work.record("read")
+    _check_read(read, run.config, run.summary)
+    run.n_yaws, run.n_frames = len(run.config.yaws_deg), sum(c["n_frames"] for c in read["clips"])
+    run.config = _fit_clusters(run.config, run.n_projections, run.summary)
+    for name in STAGES[1:]:
+        _run_stage(run, name, _STAGE_BODIES[name])
+    start = time.perf_counter()
+    run.summary.bytes_on_disk = _write_stage(run, out)
+    run.summary.seconds["write"] = time.perf_counter() - start
+
+
 def build(sources: list[str], out: str | os.PathLike, config: BuildConfig,
-          exclude: list[str] = ()) -> BuildSummary:
-    """Build a database at ``out`` from BVH files and folders; returns the summary."""
-    summary = BuildSummary()
-    t0 = time.perf_counter()
-    _check_before_work(out, config, summary)
-    files = find_sources(sources, exclude)
+          exclude: Iterable[str] = ()) -> BuildSummary:
+    """Build a database at ``out`` from BVH files and folders; returns the summary.
+
+    The work folder (``config.work_dir``, else ``out`` + ``.work``) holds each stage's arrays and the
+    state; it is removed after the database is written, and when the build fails on its inputs
+    (:class:`~mocapdb.core.errors.MocapdbError`). An interrupted build leaves it: the same call goes
+    on where it stopped (``config.restart`` starts again).
+    """
+    summary = BuildSummary(memory_limit_mb=config.limit_mb)
+    work_dir = _check_before_work(out, config, summary)
+    files = find_sources(sources, list(exclude))
     if not files:
         raise BuildError(f"no .bvh file found in {', '.join(sources)}")
-    clips = load_clips(files, config, summary)
-    t1 = time.perf_counter()
-    positions = np.concatenate([c.positions for c in clips])
-    keypoints_2d = project_all(positions, config)
-    summary.seconds.update({"read": t1 - t0, "project": time.perf_counter() - t1})
-    config = _fit_clusters(config, len(keypoints_2d), summary)
-    embedding, centroids, labels, reps = _embed_and_cluster(keypoints_2d, config, summary)
-    t2 = time.perf_counter()
-    db = assemble(clips, keypoints_2d, embedding, centroids, labels, reps, config)
-    summary.bytes_on_disk = write_database(db, out)
-    summary.seconds["write"] = time.perf_counter() - t2
-    summary.files = len(files) - len(summary.skipped)
-    summary.clips, summary.frames = db.n_clips, db.n_frames
-    summary.mirrored = int(db.clip_mirrored.sum())
-    summary.projections, summary.clusters = db.n_projections, db.n_clusters
+    plan = ChunkPlan(config.limit_mb)
+    if plan.below_base:
+        summary.warnings.append(f"--memory-limit {config.limit_mb} MB is below what the process itself takes "
+                                "(data_specs/build.md): the build runs in its smallest chunks")
+    with WorkFolder(work_dir, _fingerprints(config, files), config.restart) as work:
+        summary.warnings += work.notes
+        run = _Run(config, work, plan, summary)
+        try:
+            _stages(run, files, out)
+        except MocapdbError:
+            work.remove()
+            raise
+        work.remove()
+    _finish_summary(run, len(files))
     return summary
+
+
+def _finish_summary(run: _Run, n_files: int) -> None:
+    summary, clips = run.summary, run.work.record("read")["clips"]
+    summary.files = n_files - len(summary.skipped)
+    summary.clips, summary.frames = len(clips), run.n_frames
+    summary.mirrored = sum(c["mirrored"] for c in clips)
+    summary.projections, summary.clusters = run.n_projections, run.config.clusters
+    summary.peak_memory_mb = peak_memory_mb()
+    summary.reader_peak_mb = peak_memory_mb(children=True) if run.config.workers > 1 else 0.0

@@ -34,6 +34,16 @@ def add_build_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=D.SEED, default=0, help="random seed (the build is deterministic for a seed)")
     p.add_argument("--workers", type=D.WORKERS, default=os.cpu_count() or 1,
                    help="processes reading BVH files (default: one per CPU)")
+    p.add_argument("--memory-limit", type=D.MEMORY_LIMIT_MB, metavar="MB",
+                   help="peak memory the build aims at, in MB; it sets the chunk sizes (default: a quarter of "
+                        "the machine's memory; below ~400 MB the build runs in its smallest chunks)")
+    p.add_argument("--work-dir", type=P.OUTPUT_DIR, metavar="DIR",
+                   help="folder for the stages' arrays and the resumable state (default: --out with '.work' "
+                        "appended); removed once the database is written")
+    p.add_argument("--restart", action="store_true",
+                   help="ignore an interrupted build's work folder and start again (by default the same "
+                        "command goes on where it stopped; a changed option or source restarts the stages "
+                        "it affects)")
     p.add_argument("--exclude", action="append", type=P.TextArg("a glob pattern"), default=[], metavar="PATTERN",
                    help="skip files whose name or path matches this glob (repeatable)")
     p.add_argument("--strict", action="store_true",
@@ -62,12 +72,18 @@ def run_build(args: argparse.Namespace) -> int:
         clusters=args.clusters, dims=args.dims, seed=args.seed, landmarks=args.landmarks,
         workers=args.workers, strict=args.strict,
         joint_map=Path(args.joint_map) if args.joint_map else None,
-        unit=args.unit, up_axis=args.up_axis, credit=args.credit, mirror=not args.no_mirror)
+        unit=args.unit, up_axis=args.up_axis, credit=args.credit, mirror=not args.no_mirror,
+        memory_limit_mb=args.memory_limit, work_dir=Path(args.work_dir) if args.work_dir else None,
+        restart=args.restart)
     try:
         summary = build(args.sources, args.out, config, exclude=args.exclude)
     except BuildError as exc:  # the files skipped before it stopped, each with its reason, then the error
         for path, why in exc.skipped:
             print(f"skipped {path}: {why}", file=sys.stderr)
+        raise
+    except KeyboardInterrupt:
+        print("mocapdb build: the same command goes on where this build stopped (--restart starts again)",
+              file=sys.stderr)
         raise
     target = output_target(args.out)
     print(f"wrote {args.out}" + (f" (symlink to {target})" if os.path.islink(args.out) else ""))

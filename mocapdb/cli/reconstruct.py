@@ -37,10 +37,14 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                    help="input image WIDTHxHEIGHT in pixels (default: the input folder's take.json, else 1920x1080)")
     p.add_argument("--search", choices=("clustered", "exact"), default="clustered",
                    help="two-level search (the method) or brute force over every projection")
-    p.add_argument("--clusters-searched", type=D.CLUSTERS_SEARCHED, default=5,
-                   help="i: nearest clusters searched (default 5)")
+    p.add_argument("--clusters-searched", type=D.CLUSTERS_SEARCHED,
+                   help="i: nearest clusters searched (default: 5 on the method's 500 clusters, more on a database "
+                        "of more clusters, see mocapdb/core/search_rules.py)")
     p.add_argument("--per-cluster", type=D.PER_CLUSTER, default=10,
                    help="j: projections taken per cluster (default 10)")
+    p.add_argument("--grid-descents", type=D.GRID_DESCENTS, default=3,
+                   help="the best N candidates each move to a nearer neighbouring frame or yaw while there is one "
+                        "(default 3; 0: the method's candidates only)")
     p.add_argument("--window-weights", type=D.WINDOW_WEIGHTS, default=(0.4, 0.3, 0.2, 0.1), metavar="LIST",
                    help="weights of the last w reconstructed frames, most recent first (default 0.4,0.3,0.2,0.1)")
     p.add_argument("--weight-2d", type=D.WEIGHT_2D, default=0.5,
@@ -174,6 +178,7 @@ def _engine(args: argparse.Namespace):
             min_cutoff_hz=default.min_cutoff_hz if args.min_cutoff is None else args.min_cutoff,
             beta=default.beta if args.beta is None else args.beta)
         config = EngineConfig(search=args.search, n_clusters=args.clusters_searched, per_cluster=args.per_cluster,
+                              grid_descents=args.grid_descents,
                               window_weights=tuple(args.window_weights), weight_2d=args.weight_2d, focal_px=focal,
                               image_size=(width, height), fps=args.fps or DEFAULTS["fps"],
                               translation=not args.no_translation,

@@ -159,10 +159,13 @@ DIMS = Domain("a number of embedding dimensions", 1, 100, integer=True)
 LANDMARKS = Domain("a number of MDS landmarks", 2, 10_000_000, integer=True)
 SEED = Domain("a random seed", 0, 2**32 - 1, integer=True)
 WORKERS = Domain("a number of worker processes", 1, 256, integer=True)
+MEMORY_LIMIT_MB = Domain("a memory limit in megabytes", 64, 100_000_000, integer=True)
 
 # --- retrieval, refinement and filters -----------------------------------------------------
 CLUSTERS_SEARCHED = Domain("a number of clusters searched", 1, 10_000, integer=True)
 PER_CLUSTER = Domain("a number of projections per cluster", 1, 10_000, integer=True)
+GRID_DESCENTS = Domain("a number of candidates refined by grid descent", 0, 1000, integer=True,
+                       zero_means="none, the clustered search's candidates only")
 WINDOW_WEIGHT = Domain("a weight", 0, 1000)
 WINDOW_WEIGHTS = NumberListArg(WINDOW_WEIGHT, min_items=1, max_items=32)
 WEIGHT_2D = Domain("a weight", 0, 1000)

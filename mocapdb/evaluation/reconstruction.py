@@ -440,10 +440,11 @@ def search_benchmark(engine: Engine, people: list[Person], threshold: float) -> 
         query, _, scale = normalize_pose_2d(person.points_px, vis)
         if scale > 0:
             prepared.append((query, vis))
-    search_clustered(engine.index, *prepared[0])
+    search_clustered(engine.index, *prepared[0], descents=cfg.grid_descents)
     search_exact(engine.index, *prepared[0])
     t0 = time.perf_counter()
-    clustered = [search_clustered(engine.index, q, v, cfg.n_clusters, cfg.per_cluster)[0] for q, v in prepared]
+    clustered = [search_clustered(engine.index, q, v, engine.n_clusters, cfg.per_cluster,
+                                  cfg.grid_descents)[0] for q, v in prepared]
     t1 = time.perf_counter()
     exact = [search_exact(engine.index, q, v, 1)[0][0] for q, v in prepared]
     t2 = time.perf_counter()
@@ -474,6 +475,7 @@ def two_view(db: MotionDatabase, truths: list[Truth], config: EvalConfig, separa
 
 def engine_summary(engine: EngineConfig) -> dict:
     return {"search": engine.search, "n_clusters": engine.n_clusters, "per_cluster": engine.per_cluster,
+            "grid_descents": engine.grid_descents,
             "window_weights": engine.window_weights, "weight_2d": engine.weight_2d, "smoothing": engine.smoothing,
             "variants": {name: {"refine": refine} for name, refine in VARIANTS}}
 

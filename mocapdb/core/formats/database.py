@@ -9,16 +9,18 @@ import ctypes
 import errno
 import functools
 import hashlib
+import io
 import json
 import math
 import numbers
 import os
 import re
 import shutil
+from collections.abc import Iterable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
+from typing import BinaryIO, NamedTuple
 
 import numpy as np
 import pyarrow as pa
@@ -128,7 +130,7 @@ class MotionDatabase:
         """Raise DatabaseError if dtypes, shapes, meta or cross-table indices are inconsistent."""
         _check_meta(self.meta)
         for table, columns in _TABLES.items():
-            _check_columns(self, table, columns)
+            _check_columns(vars(self), table, columns)
         for name in ("embedding", "centroids"):
             width = getattr(self, name).shape[1]
             if width != self.meta["dims"]:
@@ -163,10 +165,12 @@ def _shape_text(col: _Column) -> str:
     return "[" + ", ".join(["rows", *("*" if s is None else str(s) for s in col.shape)]) + "]"
 
 
-def _check_columns(db: MotionDatabase, table: str, columns: tuple[_Column, ...]) -> None:
+def _check_columns(values: Mapping[str, object], table: str, columns: tuple[_Column, ...]) -> None:
+    """DatabaseError unless ``values`` (field → column) holds every column of ``table`` with its dtype
+    and row shape, all of one length."""
     lengths = {}
     for col in columns:
-        value = getattr(db, col.field)
+        value = values[col.field]
         if col.dtype is None:
             if not (isinstance(value, list) and all(isinstance(s, str) for s in value)):
                 raise DatabaseError(f"{col.field} must be a list of str")
@@ -224,23 +228,58 @@ def write_database(db: MotionDatabase, path: str | os.PathLike) -> int:
     Replaces an existing mocapdb database or empty directory at ``path``; refuses anything else,
     and a database holding a NaN or infinite value. A symlink at ``path`` is followed: the database
     is written at its target and the link stays. Leftovers of interrupted writes to ``path`` are
-    cleaned up first (:func:`recover_interrupted`).
+    cleaned up first (:func:`recover_interrupted`). Each table is one row group.
     """
     db.validate()
-    _check_finite(db)
-    path = output_target(path)
-    check_output_path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    recover_interrupted(path)
-    tmp = _sibling(path, "tmp", os.getpid())
-    try:
-        tmp.mkdir()
-        total = _write_contents(db, tmp)
-        _replace(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return total
+    with DatabaseWriter(path, db.meta) as writer:
+        for table, columns in _TABLES.items():
+            writer.write_table(table, [{col.field: getattr(db, col.field) for col in columns}])
+        return writer.finish()
+
+
+class DatabaseWriter:
+    """Writes a database table by table, row group by row group, as the rows come: never a whole
+    table in memory. Files go to a temporary folder beside the target (``.<name>.tmp-<pid>``) that
+    :meth:`finish` puts in place atomically, as :func:`write_database` does; leaving the ``with``
+    block by an exception removes it. Each file's sha256 is computed while it is written.
+    """
+
+    def __init__(self, path: str | os.PathLike, meta: dict):
+        _check_meta(meta)
+        self.path = output_target(path)
+        check_output_path(self.path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        recover_interrupted(self.path)
+        self.meta = meta
+        self.tables: dict[str, dict] = {}
+        self._tmp = _sibling(self.path, "tmp", os.getpid())
+        self._tmp.mkdir()
+
+    def __enter__(self) -> DatabaseWriter:
+        return self
+
+    def __exit__(self, kind, value, traceback) -> None:
+        if kind is not None:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+
+    def write_table(self, table: str, chunks: Iterable[Mapping[str, np.ndarray | list[str]]]) -> None:
+        """Write ``table`` from ``chunks`` (each: field → values of the next rows), one row group per
+        chunk; each chunk's dtypes, row shapes and float values (finite) are checked first. At
+        least one chunk, which may have no rows."""
+        self.tables[table] = _write_table((_checked_arrow(chunk, table) for chunk in chunks),
+                                          self._tmp / f"{table}.parquet")
+
+    def finish(self) -> int:
+        """Write the manifest (last), put the database in place; return its size in bytes."""
+        if set(self.tables) != set(_TABLES):
+            raise DatabaseError(f"{self.path}: tables {sorted(set(_TABLES) - set(self.tables))} not written")
+        manifest = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "meta": self.meta,
+                    "tables": {name: self.tables[name] for name in _TABLES}}
+        data = json.dumps(manifest, indent=2).encode("utf-8")
+        _write_file(self._tmp / MANIFEST, data)
+        _fsync_dir(self._tmp)
+        _replace(self._tmp, self.path)
+        return len(data) + sum(entry["bytes"] for entry in self.tables.values())
 
 
 def _is_float(col: _Column) -> bool:
@@ -255,9 +294,17 @@ def _nonfinite_row(values: np.ndarray) -> int | None:
     return int(np.argmin(finite.reshape(len(values), -1).all(axis=1)))
 
 
-def _check_finite(db: MotionDatabase) -> None:
-    bad = [col.field for columns in _TABLES.values() for col in columns
-           if _is_float(col) and _nonfinite_row(getattr(db, col.field)) is not None]
+def _checked_arrow(values: Mapping[str, object], table: str) -> pa.Table:
+    """Rows of ``table`` (field → values) as an Arrow table, once their columns are checked and
+    their floats finite (else DatabaseError)."""
+    _check_columns(values, table, _TABLES[table])
+    _check_finite(values)
+    return _to_arrow(values, table)
+
+
+def _check_finite(values: Mapping[str, object]) -> None:
+    bad = [field for field, value in values.items()
+           if isinstance(value, np.ndarray) and value.dtype.kind == "f" and _nonfinite_row(value) is not None]
     if bad:
         raise DatabaseError(f"NaN or infinite values in {', '.join(bad)}: refusing to write them")
 
@@ -300,19 +347,10 @@ def check_output_path(path: str | os.PathLike) -> None:
         raise DatabaseError(f"{path}: cannot write in {folder} (permission denied or read-only)")
 
 
-def _write_contents(db: MotionDatabase, directory: Path) -> int:
-    tables = {name: _write_table(_to_arrow(db, name), directory / f"{name}.parquet") for name in _TABLES}
-    manifest = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "meta": db.meta, "tables": tables}
-    data = json.dumps(manifest, indent=2).encode("utf-8")
-    _write_file(directory / MANIFEST, data)
-    _fsync_dir(directory)
-    return len(data) + sum(entry["bytes"] for entry in tables.values())
-
-
-def _to_arrow(db: MotionDatabase, table: str) -> pa.Table:
+def _to_arrow(values: Mapping[str, object], table: str) -> pa.Table:
     arrays, fields = [], []
     for col in _TABLES[table]:
-        value = getattr(db, col.field)
+        value = values[col.field]
         if col.dtype is None:
             array = pa.array(value, pa.string())
         elif col.shape:
@@ -329,16 +367,47 @@ def _to_arrow(db: MotionDatabase, table: str) -> pa.Table:
     return pa.Table.from_arrays(arrays, schema=pa.schema(fields, metadata=metadata))
 
 
-def _write_table(table: pa.Table, file: Path) -> dict:
-    """Write ``table`` as zstd Parquet to ``file``; return its manifest entry."""
-    sink = pa.BufferOutputStream()
-    scalar_columns = [f.name for f in table.schema if not pa.types.is_fixed_size_list(f.type)]
-    pq.write_table(table, sink, compression="zstd", use_dictionary=scalar_columns,
-                   row_group_size=max(table.num_rows, 1))  # one row group: loads without copies
-    data = sink.getvalue()
-    _write_file(file, data)
-    return {"file": file.name, "rows": table.num_rows, "bytes": data.size,
-            "sha256": hashlib.sha256(data).hexdigest()}
+class _HashingFile(io.RawIOBase):
+    """A binary file to write that keeps the sha256 and the size of what went through it."""
+
+    def __init__(self, file: BinaryIO):
+        super().__init__()
+        self._file, self.size, self.sha256 = file, 0, hashlib.sha256()
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, data) -> int:
+        view = memoryview(data).cast("B")
+        self.sha256.update(view)
+        self.size += len(view)
+        return self._file.write(view)
+
+    def tell(self) -> int:
+        return self.size
+
+
+def _write_table(batches: Iterable[pa.Table], file: Path) -> dict:
+    """Write ``batches`` (Arrow tables of one schema) as zstd Parquet to ``file``, one row group
+    each, hashing as it goes; return the file's manifest entry. At least one batch."""
+    rows, writer = 0, None
+    with open(file, "wb") as raw:
+        sink = _HashingFile(raw)
+        try:
+            for batch in batches:
+                if writer is None:
+                    scalar_columns = [f.name for f in batch.schema if not pa.types.is_fixed_size_list(f.type)]
+                    writer = pq.ParquetWriter(sink, batch.schema, compression="zstd", use_dictionary=scalar_columns)
+                writer.write_table(batch, row_group_size=max(batch.num_rows, 1))
+                rows += batch.num_rows
+        finally:
+            if writer is not None:
+                writer.close()
+        if writer is None:
+            raise ValueError(f"{file.name}: no rows given, not even an empty batch")
+        raw.flush()
+        os.fsync(raw.fileno())
+    return {"file": file.name, "rows": rows, "bytes": sink.size, "sha256": sink.sha256.hexdigest()}
 
 
 def _write_file(file: Path, data: bytes | pa.Buffer) -> None:

@@ -1,0 +1,38 @@
+"""How the clustered search scales with the database: clusters K for N projections, clusters searched i for K.
+
+The method (Yiannakides et al.): K = 500 k-means clusters over ~630,000 projections; a query scores every
+cluster representative, then the members of the i = 5 nearest clusters (10 taken from each). A query costs
+K + i × (members of a searched cluster) Eq. 1 distances, and the clusters a query lands in are the big ones
+(about 4 × the mean N / K). Measured with ``tools/bench_search.py`` (README, "Search at scale"; subject 7
+held out, databases at 12°, 3.6° and 1.25° yaw steps, 0.58 M to 5.5 M projections):
+
+* recall@1 against exact search depends on K and i, hardly on N (K 500, i 5: 0.989 clean / 0.954 noisy at
+  0.58 M, 0.998 / 0.963 at 5.5 M), so with K fixed the members searched grow like N (5.5 M: 190,000
+  distances per query, 7 × the 0.58 M database's time);
+* at one N, more and smaller clusters reach a recall with fewer distances, but need more of them searched:
+  i ∝ K^0.45 keeps the recall (5.5 M, recall@1 ~0.98 noisy: K 500 needs i ≈ 7 and ~240,000 distances,
+  K 1,550 i 10 and 113,000, K 4,600 i 20 and 84,000).
+
+Hence :func:`clusters_for`: the paper's cluster size, 1,260 projections per cluster (K 500 up to 630,000),
+and :func:`clusters_searched_for`: 5 at K 500, growing as K^0.45. A core leaf: the builder (default
+``--clusters``) and the runtime (default ``--clusters-searched``) both call it.
+"""
+from __future__ import annotations
+
+PAPER_CLUSTERS = 500                   # K of the method
+PAPER_CLUSTERS_SEARCHED = 5            # i of the method
+PROJECTIONS_PER_CLUSTER = 1_260        # the method's ~630,000 projections / 500 clusters
+SEARCHED_EXPONENT = 0.45               # i ∝ K^0.45 keeps recall@1 (fit over K 500, 1,550, 4,600 at 5.5 M)
+
+
+def clusters_for(n_projections: int) -> int:
+    """Default K for a database of ``n_projections``: 500 up to 630,000 projections, then one cluster per
+    1,260 (2 M: 1,587; 6 M: 4,762; 25 M: 19,841); never more than the projections."""
+    return max(1, min(n_projections, max(PAPER_CLUSTERS, round(n_projections / PROJECTIONS_PER_CLUSTER))))
+
+
+def clusters_searched_for(n_clusters: int) -> int:
+    """Default i for a database of ``n_clusters`` clusters: 5 at the method's 500 (and below), then
+    ``5 · (K / 500)^0.45`` rounded (K 1,587: 8; 4,762: 14; 19,841: 26)."""
+    ratio = max(n_clusters, PAPER_CLUSTERS) / PAPER_CLUSTERS
+    return round(PAPER_CLUSTERS_SEARCHED * ratio ** SEARCHED_EXPONENT)

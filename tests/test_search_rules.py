@@ -1,0 +1,39 @@
+"""The rules that scale the clustered search with the database (mocapdb/core/search_rules.py)."""
+import pytest
+
+from mocapdb.core.domains import DomainError
+from mocapdb.core.search_rules import clusters_for, clusters_searched_for
+from mocapdb.runtime.engine import Engine, EngineConfig
+
+
+@pytest.mark.parametrize("projections, clusters", [(1, 1), (300, 300), (100_000, 500), (630_000, 500),
+                                                   (2_000_000, 1_587), (6_000_000, 4_762), (25_000_000, 19_841)])
+def test_clusters_grow_with_the_database_above_the_papers_size(projections, clusters):
+    """K = 500 (the method's) up to 630,000 projections, then one cluster per 1,260, never more than the
+    projections."""
+    assert clusters_for(projections) == clusters
+
+
+@pytest.mark.parametrize("clusters, searched", [(1, 5), (500, 5), (1_587, 8), (4_762, 14), (19_841, 26)])
+def test_clusters_searched_grow_with_the_clusters(clusters, searched):
+    """i = 5 (the method's) at K = 500 and below, then 5 · (K / 500)^0.45."""
+    assert clusters_searched_for(clusters) == searched
+
+
+def test_rules_never_shrink():
+    sizes = [10 ** e for e in range(1, 9)]
+    assert [clusters_for(n) for n in sizes] == sorted(clusters_for(n) for n in sizes)
+    assert [clusters_searched_for(k) for k in sizes] == sorted(clusters_searched_for(k) for k in sizes)
+
+
+def test_engine_searches_the_rules_clusters_unless_told(small_db):
+    assert EngineConfig().n_clusters is None
+    assert Engine(small_db).n_clusters == clusters_searched_for(small_db.n_clusters)
+    assert Engine(small_db, EngineConfig(n_clusters=7)).n_clusters == 7
+
+
+@pytest.mark.parametrize("field, value", [("n_clusters", 0), ("grid_descents", -1), ("grid_descents", 1001),
+                                          ("grid_descents", 2.5), ("n_clusters", 10 ** 20)])
+def test_search_options_outside_their_domains_are_refused(field, value):
+    with pytest.raises(DomainError, match=field):
+        EngineConfig(**{field: value})
