@@ -7,9 +7,10 @@ O(K + n_clusters · mean cluster size) pose distances. Exact search: every proje
 Grid descent (``descents`` > 0): the best candidates of the clustered search then move, while it lowers Eq. 1,
 to a neighbouring projection on the database's grid (the same frame at the next or previous yaw, or the next or
 previous frame of the same clip at the same yaw), a few distances each. The exact nearest projection the
-clusters miss is mostly one of these neighbours (split from its neighbour by a cluster boundary): on 5.5 M
-projections (K 4,600, 10 clusters searched) recall@1 rises from 0.991 to 0.998 clean and 0.931 to 0.970 with
-noise and missing joints (``tools/bench_search.py``; how K and i grow with the database:
+clusters miss is often one of these neighbours, split from it by a cluster boundary: on 5.5 M projections
+(K 4,401, 10 clusters searched) 3 descents raise recall@1 from 0.997 to 1.000 clean and from 0.926 to 0.963
+with noise and missing joints, at the paper's size (K 500, 5 clusters) from 0.954 to 0.973 with missing
+joints, for 6–11 µs (``tools/bench_search.py``; how K and i grow with the database:
 :mod:`mocapdb.core.search_rules`).
 
 Missing joints: the query is normalised over its visible joints only, and each database pose is

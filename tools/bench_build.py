@@ -1,10 +1,12 @@
 """Benchmark `mocapdb build` at several sizes: seconds per stage, peak memory, disk.
 
-Each size is built in its own process, which reports its own peak resident memory (and that of its
-reader processes). Prints one row per size, and how each stage grows between sizes. With
-``--baseline DIR`` (a checkout of another version, e.g. ``git worktree add /tmp/old HEAD~1``) each
-size is also built with that version, alternately, so the two are compared on the same machine
-load.
+A small build of one file comes first in each version (numba compiles the kernels on first use,
+and again after their source changes). Each size is built in its own process, which reports its
+own peak resident memory (and that of its reader processes) and the processor seconds it and they
+used (less sensitive than the wall time to other work on a shared machine). Prints one row per
+size, and how each stage grows between sizes. With ``--baseline DIR`` (a checkout of another
+version, e.g. ``git worktree add /tmp/old HEAD~1``) each size is also built with that version,
+alternately, so the two are compared on the same machine load.
 
     python tools/bench_build.py [--sources ../shared/data/cmu_bvh] [--yaw-steps 12 3.6 1.25]
                                 [--memory-limit MB] [--baseline DIR] [--repeat N]
@@ -32,14 +34,15 @@ options = {"yaw_step_deg": float(sys.argv[2]), "workers": int(sys.argv[4])}
 if sys.argv[5] != "default":
     options["memory_limit_mb"] = int(sys.argv[5])
 s = build([sys.argv[1]], sys.argv[3], BuildConfig(**options), exclude=sys.argv[6:])
-print(json.dumps({"projections": s.projections, "seconds": s.seconds, "bytes": s.bytes_on_disk,
-                  "work_bytes": getattr(s, "work_bytes", 0),
+cpu = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
+print(json.dumps({"cpu_s": sum(u.ru_utime + u.ru_stime for u in cpu), "projections": s.projections,
+                  "seconds": s.seconds, "bytes": s.bytes_on_disk, "work_bytes": getattr(s, "work_bytes", 0),
                   "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "reader_peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}))
 """
 
 
-def run_one(sources: Path, yaw_step: float, workers: int, memory_limit: str, exclude: list[str],
+def run_one(sources: Path | str, yaw_step: float, workers: int, memory_limit: str, exclude: list[str],
             code: Path = ROOT) -> dict:
     """Build once in a child process running the package at ``code``; its summary and peaks."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(code), os.environ.get("PYTHONPATH", "")])}
@@ -65,10 +68,11 @@ def print_table(title: str, runs: list[dict]) -> None:
     stages = list(runs[0]["seconds"])
     print(title)
     print(f"{'yaw step':>9} {'projections':>12} " + " ".join(f"{s:>8}" for s in stages)
-          + f" {'total s':>8} {'peak MB':>8} {'readers':>8} {'db MB':>8} {'work MB':>8}")
+          + f" {'total s':>8} {'cpu s':>8} {'peak MB':>8} {'readers':>8} {'db MB':>8} {'work MB':>8}")
     for r in runs:
         print(f"{r['yaw_step']:>9g} {r['projections']:>12,} " + " ".join(f"{r['seconds'][s]:>8.2f}" for s in stages)
-              + f" {sum(r['seconds'].values()):>8.2f} {r['peak_mb']:>8.0f} {r['reader_peak_mb']:>8.0f}"
+              + f" {sum(r['seconds'].values()):>8.2f} {r['cpu_s']:>8.1f} {r['peak_mb']:>8.0f}"
+              + f" {r['reader_peak_mb']:>8.0f}"
               + f" {r['bytes'] / 1e6:>8.1f} {r['work_bytes'] / 1e6:>8.1f}")
     for a, b in zip(runs, runs[1:]):
         growth = " ".join(f"{s} x{b['seconds'][s] / max(a['seconds'][s], 1e-9):.1f}" for s in stages)
@@ -92,6 +96,8 @@ def main() -> int:
         print(f"no BVH folder at {args.sources}", file=sys.stderr)
         return 2
     versions = {"this version": ROOT, **({f"baseline {args.baseline}": args.baseline} if args.baseline else {})}
+    for code in versions.values():  # numba compiles on first use: a small build first, so no size pays it
+        run_one(next(args.sources.rglob("*.bvh")), 120.0, 1, "default", [], code)
     runs: dict[str, list[dict]] = {name: [] for name in versions}
     for step in args.yaw_steps:
         repeats: dict[str, list[dict]] = {name: [] for name in versions}

@@ -375,6 +375,7 @@ def _cluster_stage(run: _Run) -> list[WorkArray]:
         run.work.save("centroids", state.centroids)
         record.update(iteration=state.iteration, shift=state.shift, tol_abs=state.tol_abs)
         run.work.commit()
+        run.work.wait()  # the state of this iteration is on disk before the next one's centroids
         bar.update()
 
     kmeans_iterate(embedding, state, bounds, KMEANS_MAX_ITER, rows, save)

@@ -167,7 +167,8 @@ class WorkFolder:
         except (OSError, ValueError) as exc:
             self.notes.append(f"unreadable {file} ({exc}): started again")
             return fresh
-        if not isinstance(state, dict) or state.get("format") != WORK_FORMAT:
+        if not (isinstance(state, dict) and state.get("format") == WORK_FORMAT
+                and isinstance(state.get("fingerprints"), dict) and isinstance(state.get("stages"), dict)):
             return fresh
         for i, stage in enumerate(STAGES):
             if state["fingerprints"].get(stage) != self.fingerprints[stage]:
@@ -181,9 +182,6 @@ class WorkFolder:
     def record(self, stage: str) -> dict:
         """The stage's record (its progress; ``done`` once complete), created empty."""
         return self.state["stages"].setdefault(stage, {})
-
-    def done(self, stage: str) -> bool:
-        return bool(self.state["stages"].get(stage, {}).get("done"))
 
     def commit(self, *arrays: WorkArray) -> None:
         """Save the state as it is now, atomically, once ``arrays`` are durable (fsync): the state
@@ -208,10 +206,12 @@ class WorkFolder:
             save.result()
 
     def array(self, name: str) -> WorkArray:
+        """The folder's array ``name`` (``<name>.npy``)."""
         return WorkArray(self.path / f"{name}.npy")
 
     def new_array(self, name: str, dtype: np.dtype | type, row_shape: tuple[int, ...] = (),
                   rows: int = 0) -> WorkArray:
+        """A new array ``name`` of ``rows`` zero rows (replacing one of that name)."""
         return WorkArray.create(self.path / f"{name}.npy", dtype, row_shape, rows)
 
     def save(self, name: str, values: np.ndarray) -> None:

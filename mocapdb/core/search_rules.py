@@ -6,23 +6,26 @@ K + i × (members of a searched cluster) Eq. 1 distances, and the clusters a que
 (about 4 × the mean N / K). Measured with ``tools/bench_search.py`` (README, "Search at scale"; subject 7
 held out, databases at 12°, 3.6° and 1.25° yaw steps, 0.58 M to 5.5 M projections):
 
-* recall@1 against exact search depends on K and i, hardly on N (K 500, i 5: 0.989 clean / 0.954 noisy at
-  0.58 M, 0.998 / 0.963 at 5.5 M), so with K fixed the members searched grow like N (5.5 M: 190,000
-  distances per query, 7 × the 0.58 M database's time);
+* recall@1 against exact search depends on K and i, hardly on N (K 500, i 5: 0.988 clean / 0.954 noisy at
+  0.58 M, 0.998 / 0.963 at 5.5 M), so with K fixed the members searched grow like N (5.5 M: 193,000
+  distances per query, 9.5 × the 0.58 M database's);
 * at one N, more and smaller clusters reach a recall with fewer distances, but need more of them searched:
-  i ∝ K^0.45 keeps the recall (5.5 M, recall@1 ~0.98 noisy: K 500 needs i ≈ 7 and ~240,000 distances,
-  K 1,550 i 10 and 113,000, K 4,600 i 20 and 84,000).
+  i ∝ K^0.45 keeps the recall (5.5 M, noisy recall@1 ~0.98: K 500 needs i 7 and 252,000 distances,
+  K 4,401 i 20 and 85,000; clean and noisy at the rule's K 4,401 and i 13, with the runtime's grid descents:
+  1.000 / 0.975 from 61,000 distances, against 0.995 / 0.973 from 20,000 at the paper's size).
 
 Hence :func:`clusters_for`: the paper's cluster size, 1,260 projections per cluster (K 500 up to 630,000),
-and :func:`clusters_searched_for`: 5 at K 500, growing as K^0.45. A core leaf: the builder (default
-``--clusters``) and the runtime (default ``--clusters-searched``) both call it.
+and :func:`clusters_searched_for`: 5 at K 500, growing as K^0.45. A core leaf: the runtime's default
+``--clusters-searched`` is :func:`clusters_searched_for` of the database's K; the builder's default
+``--clusters`` is meant to be :func:`clusters_for` of its projections (its k-means and Eq. 1 assignment then
+cost O(N²/1,260): 1,900 s at 5.5 M with today's builder, against 212 s for K 500).
 """
 from __future__ import annotations
 
 PAPER_CLUSTERS = 500                   # K of the method
 PAPER_CLUSTERS_SEARCHED = 5            # i of the method
 PROJECTIONS_PER_CLUSTER = 1_260        # the method's ~630,000 projections / 500 clusters
-SEARCHED_EXPONENT = 0.45               # i ∝ K^0.45 keeps recall@1 (fit over K 500, 1,550, 4,600 at 5.5 M)
+SEARCHED_EXPONENT = 0.45               # i ∝ K^0.45 keeps recall@1 (fit on 5.5 M over K 500, 1,550, 4,600)
 
 
 def clusters_for(n_projections: int) -> int:
