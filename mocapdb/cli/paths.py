@@ -13,6 +13,8 @@ import stat
 from dataclasses import dataclass
 from pathlib import Path
 
+from mocapdb.core.files import file_kind
+
 STREAM_PREFIXES = ("tcp://", "udp://")
 MAX_TEXT_CHARS = 4096
 
@@ -49,8 +51,7 @@ class PathArg:
                 return text
             raise argparse.ArgumentTypeError(f"{text}: cannot be read ({exc.strerror})") from None
         if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
-            raise argparse.ArgumentTypeError(f"{text}: a special file (FIFO, device or socket), "
-                                             f"not a {_kind_words(self.kind)}")
+            raise argparse.ArgumentTypeError(f"{text}: {file_kind(mode)}, not a {_kind_words(self.kind)}")
         if self.role == "input" and self.kind == "file" and not stat.S_ISREG(mode):
             raise argparse.ArgumentTypeError(f"{text}: is a folder, not a file")
         if self.role == "input" and self.kind == "dir" and not stat.S_ISDIR(mode):

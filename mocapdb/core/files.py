@@ -29,6 +29,14 @@ _FILE_KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"
                (stat.S_ISBLK, "a device"), (stat.S_ISSOCK, "a socket"))
 
 
+def file_kind(mode: int) -> str:
+    """What a file of ``st_mode`` ``mode`` is, in words: "a folder", "a FIFO (named pipe)", "a device",
+    "a socket", "a regular file" (or "a special file")."""
+    if stat.S_ISREG(mode):
+        return "a regular file"
+    return next((words for test, words in _FILE_KINDS if test(mode)), "a special file")
+
+
 def _size_text(n_bytes: int) -> str:
     return f"{n_bytes / MIB:,.1f} MiB" if n_bytes >= MIB else f"{n_bytes:,} bytes"
 
@@ -47,8 +55,7 @@ def open_input(path: str | os.PathLike, max_bytes: int, error: type[Exception], 
     if not stat.S_ISREG(status.st_mode) or status.st_size > max_bytes:
         os.close(fd)
         if not stat.S_ISREG(status.st_mode):
-            kind = next((words for test, words in _FILE_KINDS if test(status.st_mode)), "a special file")
-            raise error(f"{name}: {kind}, not a {what}")
+            raise error(f"{name}: {file_kind(status.st_mode)}, not a {what}")
         raise error(f"{name}: {_size_text(status.st_size)}, more than a {what} may hold ({_size_text(max_bytes)})")
     return os.fdopen(fd, "rb")
 

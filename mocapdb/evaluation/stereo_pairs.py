@@ -32,7 +32,7 @@ from mocapdb.evaluation.metrics import pa_mpjpe
 from mocapdb.evaluation.real_take import camera_to_trc, trc_to_world, world_to_trc
 from mocapdb.stereo import StereoConfig, StereoError, StereoSummary, run_stereo
 from mocapdb.stereo.people import MIN_SHARED_JOINTS, MIRROR
-from mocapdb.stereo.relative_pose import rotation_angle_deg
+from mocapdb.stereo.relative_pose import projection_matrix, rotation_angle_deg
 
 TARGET_MISSING = 0.02   # of the frames where both views see the person (issue 19)
 ON_PERSON = 0.1         # a detection is the reference person when its confident joints lie within this
@@ -218,7 +218,7 @@ def triangulate_views(points: list[np.ndarray], seen: list[np.ndarray], cams: li
     rows = []
     for px, ok, cam in zip(points, seen, cams):
         n = cam.undistort_normalized(np.nan_to_num(px))
-        P = np.hstack([cam.R, cam.t.reshape(3, 1)])
+        P = projection_matrix(cam.R, cam.t)
         rows.append((n[..., None] * P[2] - P[:2]) * ok[:, None, None])  # [14, 2, 4]: x P₃ − P₁, y P₃ − P₂
     system = np.concatenate(rows, axis=1)
     out = np.full((N_KEYPOINTS_2D, 3), np.nan)
