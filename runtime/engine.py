@@ -305,10 +305,10 @@ class Engine:
         self.n_clusters = cfg.n_clusters or clusters_searched_for(db.n_clusters)  # i
         self.db_quats = np.ascontiguousarray(db.quaternions)
         self.clip_first = db.clip_first_frame[db.frame_clip]
-        self.proj_yaw = db.proj_yaw.astype(np.int64)
         self.yaws_deg = np.asarray(db.meta["yaws_deg"], dtype=np.float64)
         self.yaw_quats = matrix_to_quat(yaw_matrix(self.yaws_deg))
         _check_frame_major(db)
+        self.n_yaws = len(self.yaws_deg)
         self.window_weights = np.asarray(cfg.window_weights, dtype=np.float64)
         weights = cfg.joint_weights or (1.0,) * N_RIG_JOINTS
         if len(weights) != N_RIG_JOINTS:
@@ -328,7 +328,7 @@ class Engine:
 
     def _warm_up(self) -> None:
         """Run every compiled kernel once on a database pose, so the first real frame is not slow."""
-        points = self.db.keypoints_2d[0].astype(np.float64) * 400.0 + 500.0
+        points = self.index.pose(0).astype(np.float64) * 400.0 + 500.0
         conf = np.ones(N_KEYPOINTS_2D)
         Tracker(self.config.tracker).update(points[None], conf[None], 0.0)
         state = _TrackState(-1, 0, self.config, len(self.window_weights))
@@ -438,7 +438,7 @@ class Engine:
         rows, dist = self._search(query, visible)
         best = self._choose(state, rows, dist)
         row = int(rows[best])
-        f, v = int(self.db.proj_frame[row]), int(self.db.proj_yaw[row])
+        f, v = divmod(row, self.n_yaws)  # rows are frame-major
         yaw_deg = self._refined_yaw(f, v, query, visible)
         quats = yawed_rotations(self.db_quats, f, yaw_quaternion(yaw_deg))
         root_view = self._root_view(f, yaw_deg, points_px, visible) * state.scale
@@ -479,8 +479,8 @@ class Engine:
         """Index into ``rows`` of the candidate to use (Eq. 2, or Eq. 1 at a track's start)."""
         if state.n_history == 0:
             return int(np.argmin(dist))
-        costs = temporal_costs(self.db_quats, self.clip_first, self.yaw_quats, self.db.proj_frame[rows],
-                               self.proj_yaw[rows], state.history, state.n_history,
+        costs = temporal_costs(self.db_quats, self.clip_first, self.yaw_quats, rows // self.n_yaws,
+                               rows % self.n_yaws, state.history, state.n_history,
                                self.window_weights, self.joint_weights)
         return int(np.argmin(costs + self.config.weight_2d * dist))
 
@@ -533,6 +533,8 @@ class Engine:
 def _check_frame_major(db: MotionDatabase) -> None:
     """Projections must be frame-major (row = frame × yaws + yaw), as the builder writes them."""
     n = len(db.meta["yaws_deg"])
+    if db.proj_yaw is None:  # loaded from its search index, which holds one projection per frame and yaw
+        return
     if db.n_projections != db.n_frames * n or not np.array_equal(db.proj_yaw[:n], np.arange(n)):
         raise DatabaseError("projections are not one per (frame, yaw) in frame-major order; rebuild the database")
 

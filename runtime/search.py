@@ -51,17 +51,31 @@ class SearchIndex:
     n_yaws: int
 
     @classmethod
-    def from_database(cls, db: MotionDatabase) -> "SearchIndex":
+    def from_database(cls, db: MotionDatabase) -> SearchIndex:
+        """The database's search index, memory-mapped (databases built with one), else sorted here."""
+        nonempty = np.flatnonzero(db.representative >= 0)
+        frame_clip, n_yaws = np.asarray(db.frame_clip, dtype=np.int64), len(db.meta["yaws_deg"])
+        if db.search_index is not None:
+            built = db.search_index
+            x, y, columns = np.asarray(built.x), np.asarray(built.y), np.asarray(built.columns)
+            rep_columns = columns[db.representative[nonempty]]
+            return cls(x, y, np.asarray(built.rows), np.asarray(built.cluster_start),
+                       np.ascontiguousarray(x[:, rep_columns]), np.ascontiguousarray(y[:, rep_columns]),
+                       nonempty.astype(np.int64), columns, frame_clip, n_yaws)
         order = np.argsort(db.cluster, kind="stable")
         counts = np.bincount(db.cluster, minlength=db.n_clusters)
         start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        nonempty = np.flatnonzero(db.representative >= 0)
         poses = db.keypoints_2d[order]
         reps = db.keypoints_2d[db.representative[nonempty]]
         return cls(np.ascontiguousarray(poses[..., 0].T), np.ascontiguousarray(poses[..., 1].T),
                    order.astype(np.int64), start, np.ascontiguousarray(reps[..., 0].T),
                    np.ascontiguousarray(reps[..., 1].T), nonempty.astype(np.int64), np.argsort(order),
-                   np.asarray(db.frame_clip, dtype=np.int64), len(db.meta["yaws_deg"]))
+                   frame_clip, n_yaws)
+
+    def pose(self, row: int) -> np.ndarray:
+        """The normalised 2D pose ``[14, 2]`` of projection ``row``."""
+        column = self.column_of_row[row]
+        return np.stack([self.x[:, column], self.y[:, column]], axis=1)
 
 
 @njit(cache=True)

@@ -48,6 +48,8 @@ def assert_same_database(a, b) -> None:
     a, b = load_database(a), load_database(b)
     for name in TABLES:
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    for name in ("x", "y", "rows", "columns", "cluster_start"):
+        np.testing.assert_array_equal(getattr(a.search_index, name), getattr(b.search_index, name), err_msg=name)
     assert (a.clip_name, a.clip_credit) == (b.clip_name, b.clip_credit)
     assert {k: v for k, v in a.meta.items() if k != "created"} == {k: v for k, v in b.meta.items() if k != "created"}
 
@@ -89,6 +91,7 @@ def _fail_on_call(monkeypatch, name: str, call: int) -> list:
     ("project", "project_frames", 100, "went on from rows done 99"),
     ("embed", "fit_landmarks", 1, None),
     ("assign", "assign_to_representatives", 3, "went on from rows done 2,048"),
+    ("index", "gather_group", 20, "went on from columns done 2,048"),  # 8 chunks a group of 1,024 columns
 ])
 def test_an_interrupted_build_goes_on_where_it_stopped(sources, whole, tmp_path, monkeypatch, stage, function,
                                                        call, went_on):
@@ -113,13 +116,13 @@ def test_an_interrupted_build_goes_on_where_it_stopped(sources, whole, tmp_path,
 def test_kmeans_goes_on_from_its_last_saved_iteration(sources, whole, tmp_path, monkeypatch):
     real, seen = pipeline.kmeans_iterate, []
 
-    def stop_after_two(points, state, bounds, max_iter, rows, progress):
+    def stop_after_two(points, state, bounds, max_iter, rows, progress, tasks):
         def report(s):
             progress(s)
             seen.append(s.iteration)
             if s.iteration == 2:
                 raise Interrupt("k-means")
-        real(points, state, bounds, max_iter, rows, report)
+        real(points, state, bounds, max_iter, rows, report, tasks)
 
     with monkeypatch.context() as patch:
         patch.setattr(pipeline, "kmeans_iterate", stop_after_two)

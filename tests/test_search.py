@@ -12,6 +12,7 @@ class _Db:
 
     def __init__(self, n: int = 4000, k: int = 40, seed: int = 0, n_yaws: int = 20, clip_frames: int = 50):
         rng = np.random.default_rng(seed)
+        self.search_index = None  # sorted in memory, as for a database built without one
         self.meta = {"yaws_deg": list(np.arange(n_yaws) * 360.0 / n_yaws)}
         self.frame_clip = np.arange(n // n_yaws) // clip_frames
         centres = rng.normal(size=(k, 14, 2))

@@ -5,7 +5,8 @@ The pose distance (Eq. 1) sums the Euclidean distances of corresponding joints (
 Nothing here builds an ``N × N`` matrix: landmark MDS costs ``O(N·L·J)`` time and ``O(N·d + L²)``
 memory, one k-means iteration at most ``O(N·K·d)``; all hot loops are numba kernels. The k-means
 also runs streamed over arrays on disk, chunk by chunk, with the same result for any chunk size
-(:func:`kmeans_seed`, :func:`kmeans_iterate`, :func:`kmeans_finish`; ``data_specs/build.md``).
+(:func:`kmeans_seed`, :func:`kmeans_iterate`, :func:`kmeans_finish`; ``data_specs/build.md``), and its
+chunks run as tasks wherever the build's tasks run (:mod:`mocapdb.builder.tasks`).
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from numba import njit, prange
 from scipy.linalg import eigh
 from scipy.spatial.distance import cdist
 
+from mocapdb.builder.tasks import Tasks
 from mocapdb.core.kernels import pose_distances_into
 
 TRIANGULATE_CHUNK = 50_000     # landmark MDS: poses per kernel call (and per progress report)
@@ -460,34 +462,74 @@ def kmeans_seed(points, k: int, seed: int = 0, tol: float = 1e-4) -> KMeansState
     return KMeansState(_kmeans_pp(sample, k, rng), tol * float(np.mean(np.var(sample, axis=0))))
 
 
-def _lloyd_pass(points, state: KMeansState, bounds: KMeansBounds, chunk_rows: int,
-                each_chunk: Callable[[int, np.ndarray, np.ndarray], object] | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """One assignment of every point to ``state.centroids``, chunk by chunk; returns the float64
-    ``sums [k, d]`` and ``counts [k]`` by cluster, added block by block in order (the same for any
-    chunk size or thread count). ``each_chunk(start, points, labels)`` sees every chunk after it."""
+@dataclass
+class _LloydStep:
+    """What every chunk of one assignment pass needs: the centroids ``[k, d]``, their last moves
+    ``[k]`` (infinite: bounds unknown), half the gap to each one's nearest other centroid ``[k]``,
+    and each one's nearest centroids ``near [k, m]`` at ``near_dist [k, m]``."""
+
+    centroids: np.ndarray
+    moved: np.ndarray
+    half_gap: np.ndarray
+    near: np.ndarray
+    near_dist: np.ndarray
+
+    @classmethod
+    def of(cls, state: KMeansState) -> _LloydStep:
+        k = len(state.centroids)
+        near, near_dist = _neighbours(state.centroids)
+        half_gap = 0.5 * near_dist[:, 1] if k > 1 else np.full(k, np.inf)
+        moved = np.full(k, np.inf) if state.moved is None else state.moved
+        return cls(state.centroids, moved, half_gap, near, near_dist)
+
+
+def lloyd_task(job: tuple) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+    """One chunk of an assignment pass: ``job = (points, bounds, rows, step, members, durable)``.
+    Assigns the chunk's points (their labels and bounds updated in place) and returns its per-block
+    ``sums [blocks, k, d]`` and ``counts [blocks, k]``, and with ``members`` each cluster's member
+    nearest its centroid among the chunk's (:func:`_nearest_members`); ``durable``: fsync the bounds
+    (a task on another machine)."""
+    points, bounds, rows, step, members, durable = job
+    chunk, labels = _as_chunk(points[rows]), bounds.labels[rows]
+    block_sums, block_counts = _assign(chunk, step.centroids, step.moved, step.half_gap, labels, bounds.upper[rows],
+                                       bounds.lower[rows], step.near, step.near_dist, KMEANS_BLOCK_ROWS)
+    nearest = _nearest_members(chunk, labels, step.centroids) if members else None
+    if durable:
+        for array in (bounds.labels, bounds.upper, bounds.lower):
+            array.sync()
+    return block_sums, block_counts, nearest
+
+
+def _lloyd_pass(points, state: KMeansState, bounds: KMeansBounds, chunk_rows: int, tasks: Tasks,
+                members: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """One assignment of every point to ``state.centroids``, chunk by chunk as ``tasks`` run them;
+    returns the float64 ``sums [k, d]`` and ``counts [k]`` by cluster, added block by block in order
+    (the same for any chunk size, thread count or cluster), and with ``members`` each cluster's member
+    nearest its centroid (int64 ``[k]``, lowest index on ties, −1 if empty)."""
     k, d = state.centroids.shape
-    moved = np.full(k, np.inf) if state.moved is None else state.moved
-    near, near_dist = _neighbours(state.centroids)
-    half_gap = 0.5 * near_dist[:, 1] if k > 1 else np.full(k, np.inf)  # to the nearest other centroid
+    step = tasks.share(_LloydStep.of(state))
+    chunks = _chunks(len(points), tasks.chunk_rows(chunk_rows, len(points), KMEANS_BLOCK_ROWS))
+    jobs = [(points, bounds, rows, step, members, tasks.remote) for rows in chunks]
     sums, counts = np.zeros((k, d)), np.zeros(k, dtype=np.int64)
-    for rows in _chunks(len(points), chunk_rows):
-        chunk, labels = _as_chunk(points[rows]), bounds.labels[rows]
-        block_sums, block_counts = _assign(chunk, state.centroids, moved, half_gap, labels, bounds.upper[rows],
-                                           bounds.lower[rows], near, near_dist, KMEANS_BLOCK_ROWS)
+    best, best_sq = np.full(k, -1, dtype=np.int64), np.full(k, np.inf)
+    for rows, (block_sums, block_counts, nearest) in zip(chunks, tasks.in_order(lloyd_task, jobs)):
         _add_blocks(sums, counts, block_sums, block_counts)
-        if each_chunk is not None:
-            each_chunk(rows.start, chunk, labels)
-    return sums, counts
+        if nearest is not None:
+            closer = nearest[1] < best_sq
+            best[closer], best_sq[closer] = rows.start + nearest[0][closer], nearest[1][closer]
+    return sums, counts, best if members else None
 
 
 def kmeans_iterate(points, state: KMeansState, bounds: KMeansBounds, max_iter: int = 50,
-                   chunk_rows: int = 1 << 20, progress: Callable[[KMeansState], object] | None = None) -> None:
+                   chunk_rows: int = 1 << 20, progress: Callable[[KMeansState], object] | None = None,
+                   tasks: Tasks | None = None) -> None:
     """Lloyd iterations of ``state`` over ``points [N, d]`` until converged or ``max_iter`` done,
-    streamed ``chunk_rows`` points at a time; ``progress(state)`` after each iteration (where a
-    build saves it). ``bounds`` may hold anything when ``state.moved`` is None (a resumed state)."""
+    streamed ``chunk_rows`` points at a time (as ``tasks`` run them: here by default, or on a
+    cluster); ``progress(state)`` after each iteration (where a build saves it). ``bounds`` may hold
+    anything when ``state.moved`` is None (a resumed state)."""
+    tasks = tasks or Tasks()
     while not state.converged and state.iteration < max_iter:
-        sums, counts = _lloyd_pass(points, state, bounds, chunk_rows)
+        sums, counts, _ = _lloyd_pass(points, state, bounds, chunk_rows, tasks)
         new = _update_centroids(points, sums, counts, bounds.labels, state.centroids, chunk_rows)
         state.moved = np.sqrt(((new - state.centroids) ** 2).sum(axis=1))
         state.centroids, state.iteration, state.shift = new, state.iteration + 1, float((state.moved ** 2).sum())
@@ -495,20 +537,12 @@ def kmeans_iterate(points, state: KMeansState, bounds: KMeansBounds, max_iter: i
             progress(state)
 
 
-def kmeans_finish(points, state: KMeansState, bounds: KMeansBounds, chunk_rows: int = 1 << 20) -> np.ndarray:
+def kmeans_finish(points, state: KMeansState, bounds: KMeansBounds, chunk_rows: int = 1 << 20,
+                  tasks: Tasks | None = None) -> np.ndarray:
     """The final assignment of every point to ``state.centroids`` (into ``bounds.labels``) and each
     cluster's representative: int64 ``[k]`` index of the member nearest its centroid (lowest index on
     ties; −1 for an empty cluster), streamed like :func:`kmeans_iterate`."""
-    k = len(state.centroids)
-    best, best_sq = np.full(k, -1, dtype=np.int64), np.full(k, np.inf)
-
-    def nearest(start: int, chunk: np.ndarray, labels: np.ndarray) -> None:
-        index, sq = _nearest_members(chunk, labels, state.centroids)
-        closer = sq < best_sq
-        best[closer], best_sq[closer] = start + index[closer], sq[closer]
-
-    _lloyd_pass(points, state, bounds, chunk_rows, nearest)
-    return best
+    return _lloyd_pass(points, state, bounds, chunk_rows, tasks or Tasks(), members=True)[2]
 
 
 def kmeans(points: np.ndarray, k: int, seed: int = 0, max_iter: int = 50, tol: float = 1e-4,

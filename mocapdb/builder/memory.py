@@ -55,6 +55,12 @@ class ChunkPlan:
         """The limit leaves nothing for chunks: the build runs in its smallest ones."""
         return self.chunk_bytes == 0
 
+    @property
+    def budget_bytes(self) -> int:
+        """All the limit leaves beside the process's own memory (for a stage that is faster in
+        fewer, larger pieces: the search index's groups)."""
+        return max(0, (self.limit_mb - PROCESS_BASE_MB) * MB)
+
     def rows(self, bytes_per_row: float, multiple: int = 1) -> int:
         """Rows per chunk at ``bytes_per_row``: a whole multiple of ``multiple``, at least one."""
         return max(1, int(self.chunk_bytes // bytes_per_row) // multiple) * multiple

@@ -13,9 +13,7 @@ from __future__ import annotations
 import fnmatch
 import os
 import time
-from collections import deque
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -34,7 +32,9 @@ from mocapdb.builder.embedding import (
     landmark_pool,
     nearest_poses,
 )
+from mocapdb.builder.index import BYTES_PER_COLUMN, columns_of, gather_group
 from mocapdb.builder.memory import ChunkPlan, default_memory_limit_mb, peak_memory_mb
+from mocapdb.builder.tasks import DaskTasks, ProcessTasks, Tasks, connect
 from mocapdb.builder.work import STAGES, WorkArray, WorkFolder
 from mocapdb.core import domains as D
 from mocapdb.core.cameras import DatabaseCamera
@@ -42,6 +42,7 @@ from mocapdb.core.clips import Clip, ClipOptions, clips_from_bvh
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.formats.bvh import BvhError
 from mocapdb.core.formats.database import DatabaseWriter, check_output_path, output_target, recover_interrupted
+from mocapdb.core.formats.search_index import ARRAYS as INDEX_ARRAYS
 from mocapdb.core.geometry import normalize_pose_2d, project_views
 from mocapdb.core.joint_map import UNITS, UP_AXES, JointMapError, load_joint_map_file
 from mocapdb.core.progress import progress
@@ -65,6 +66,7 @@ KMEANS_BYTES_PER_POINT = 64          # the point, its label and bounds
 ASSIGN_BYTES_PER_POSE = 256          # the pose read, its label written
 WRITE_BYTES_PER_PROJECTION = 1024    # the row read, its Arrow and Parquet encodings
 WRITE_BYTES_PER_FRAME = 2048
+INDEX_BYTES_PER_ROW = 256            # the index: a pose read, its label and column
 
 
 class BuildError(MocapdbError, RuntimeError):
@@ -97,6 +99,7 @@ class BuildConfig:
     memory_limit_mb: int | None = None  # peak memory aimed at; None: default_memory_limit_mb()
     work_dir: Path | None = None  # the work folder; None: the output's path with ".work" appended
     restart: bool = False  # ignore an interrupted build's work and start again
+    scheduler: str | None = None  # run the tasks on Dask: a scheduler's address, or "local:N" workers here
 
     def clip_options(self) -> ClipOptions:
         """The options that turn a BVH file into clips (:mod:`mocapdb.core.clips`)."""
@@ -154,6 +157,8 @@ class BuildSummary:
     memory_limit_mb: int = 0
     peak_memory_mb: float = 0.0  # this process's peak resident memory
     reader_peak_mb: float = 0.0  # the largest reader process's (0: read in this process)
+    cluster: str = ""  # where the tasks ran, when not here: "3 Dask workers (3 threads) at tcp://..."
+    worker_peak_mb: float = 0.0  # the largest Dask worker process's peak resident memory
     work_bytes: int = 0  # the work folder's largest size on disk
 
     def report(self) -> str:
@@ -164,8 +169,11 @@ class BuildSummary:
         lines += [f"  {stage:<12} {sec:8.2f} s" for stage, sec in self.seconds.items()]
         lines.append(f"  {'total':<12} {sum(self.seconds.values()):8.2f} s")
         readers = f", reader processes {self.reader_peak_mb:.0f} MB" if self.reader_peak_mb else ""
-        lines.append(f"peak memory {self.peak_memory_mb:.0f} MB (limit {self.memory_limit_mb} MB){readers}; "
+        workers = f", Dask workers {self.worker_peak_mb:.0f} MB" if self.cluster else ""
+        lines.append(f"peak memory {self.peak_memory_mb:.0f} MB (limit {self.memory_limit_mb} MB){readers}{workers}; "
                      f"work folder up to {self.work_bytes / 1e6:.1f} MB")
+        if self.cluster:
+            lines.append(f"tasks ran on {self.cluster}")
         lines += [f"skipped {path}: {why}" for path, why in self.skipped]
         lines += [f"warning: {text}" for text in self.warnings]
         return "\n".join(lines)
@@ -205,22 +213,6 @@ def _process_one(args: tuple[Path, Path, BuildConfig]) -> list[Clip] | tuple[str
 # ----------------------------------------------------------------------------------- read
 
 
-def _in_order(function: Callable, jobs: list, workers: int) -> Iterator:
-    """``function(job)`` of every job, in the jobs' order; with ``workers > 1`` in that many processes,
-    at most ``2 × workers`` jobs ahead of the one awaited (results never pile up)."""
-    if workers == 1 or len(jobs) < 2:
-        yield from map(function, jobs)
-        return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        pending = deque()
-        for job in jobs:
-            pending.append(pool.submit(function, job))
-            if len(pending) >= 2 * workers:
-                yield pending.popleft().result()
-        while pending:
-            yield pending.popleft().result()
-
-
 def _clip_row(clip: Clip) -> dict:
     return {"name": clip.name, "source": clip.source, "source_fps": clip.source_fps, "convention": clip.convention,
             "credit": clip.credit, "mirrored": clip.mirrored, "n_frames": len(clip.positions)}
@@ -240,7 +232,7 @@ def _read_stage(run: _Run, files: list[tuple[Path, Path]]) -> list[WorkArray]:
         array.resize(frames)  # what an interrupted run appended after its last commit goes
     jobs = [(path, root, run.config) for path, root in files[record["files_done"]:]]
     bar = progress(total=len(files), initial=record["files_done"], desc="read+retarget", unit="file")
-    for result in _in_order(_process_one, jobs, run.config.workers):
+    for result in run.readers.in_order(_process_one, jobs):
         if isinstance(result, tuple):
             record["skipped"].append(list(result))
         for clip in result if isinstance(result, list) else []:
@@ -276,6 +268,8 @@ class _Run:
     work: WorkFolder
     plan: ChunkPlan
     summary: BuildSummary
+    chunks: Tasks = field(default_factory=Tasks)   # runs the chunked stages' tasks
+    readers: Tasks = field(default_factory=Tasks)  # reads the BVH files
     n_yaws: int = 0
     n_frames: int = 0
 
@@ -294,17 +288,18 @@ def _checkpoint(run: _Run, arrays: list[WorkArray]) -> None:
         run.work.commit(*arrays)
 
 
-def _chunks(run: _Run, stage: str, total: int, chunk: int, arrays: list[WorkArray],
-            desc: str, unit: str) -> Iterator[tuple[int, int]]:
-    """``(start, stop)`` of the chunks of the stage's ``total`` rows that an earlier run has not done;
-    a chunk counts as done once the loop body that got it has run (progress saved every
+def _chunked(run: _Run, stage: str, total: int, rows: int, task: Callable, job: Callable[[int, int], object],
+             arrays: list[WorkArray], desc: str, unit: str, multiple: int = 1) -> None:
+    """``task(job(start, stop))`` for the chunks of the stage's ``total`` rows that an earlier run has
+    not done, ``rows`` at a time (fewer where that leaves a cluster's task slots idle); a chunk counts
+    as done once its task has returned and every chunk before it has (progress saved every
     :data:`COMMIT_INTERVAL_S`)."""
     record = run.work.record(stage)
     done = record.setdefault("rows_done", 0)
+    rows = run.chunks.chunk_rows(rows, total - done, multiple)
+    ranges = [(start, min(start + rows, total)) for start in range(done, total, rows)]
     bar = progress(total=total, initial=done, desc=desc, unit=unit)
-    for start in range(done, total, chunk):
-        stop = min(start + chunk, total)
-        yield start, stop
+    for (start, stop), _ in zip(ranges, run.chunks.in_order(task, [job(*r) for r in ranges])):
         record["rows_done"] = stop
         bar.update(stop - start)
         _checkpoint(run, arrays)
@@ -326,13 +321,30 @@ def project_frames(positions_m: np.ndarray, config: BuildConfig) -> np.ndarray:
     return normalised.reshape(-1, N_KEYPOINTS_2D, 2).astype(np.float32)
 
 
+def _project_task(job: tuple) -> None:
+    positions, keypoints, config, start, stop, durable = job
+    n_yaws = len(config.yaws_deg)
+    keypoints[start * n_yaws:stop * n_yaws] = project_frames(positions[start:stop], config)
+    if durable:  # written on another machine: on the shared disk before the task returns
+        keypoints.sync()
+
+
 def _project_stage(run: _Run) -> list[WorkArray]:
     positions = run.work.array("positions")
     keypoints = _output(run, "project", "keypoints_2d", np.float32, (N_KEYPOINTS_2D, 2), run.n_projections)
     frames = run.plan.rows(PROJECT_BYTES_PER_PROJECTION * run.n_yaws)
-    for start, stop in _chunks(run, "project", run.n_frames, frames, [keypoints], "project", "frame"):
-        keypoints[start * run.n_yaws:stop * run.n_yaws] = project_frames(positions[start:stop], run.config)
+    config = run.chunks.share(run.config)
+    _chunked(run, "project", run.n_frames, frames, _project_task,
+             lambda start, stop: (positions, keypoints, config, start, stop, run.chunks.remote),
+             [keypoints], "project", "frame")
     return [keypoints]
+
+
+def _embed_task(job: tuple) -> None:
+    keypoints, embedding, landmarks, start, stop, durable = job
+    landmarks.place(keypoints[start:stop], embedding[start:stop])
+    if durable:  # written on another machine: on the shared disk before the task returns
+        embedding.sync()
 
 
 def _embed_stage(run: _Run) -> list[WorkArray]:
@@ -341,11 +353,12 @@ def _embed_stage(run: _Run) -> list[WorkArray]:
     keypoints, config = run.work.array("keypoints_2d"), run.config
     rng = np.random.default_rng(config.seed)
     pool = landmark_pool(len(keypoints), config.landmarks, rng)
-    landmarks = fit_landmarks(keypoints.take(pool), config.dims, config.landmarks, rng)
+    landmarks = run.chunks.share(fit_landmarks(keypoints.take(pool), config.dims, config.landmarks, rng))
     embedding = _output(run, "embed", "embedding", np.float32, (config.dims,), len(keypoints))
     rows = run.plan.rows(EMBED_BYTES_PER_POSE, MIN_CHUNK_ROWS)
-    for start, stop in _chunks(run, "embed", len(keypoints), rows, [embedding], "embed (MDS)", "pose"):
-        landmarks.place(keypoints[start:stop], embedding[start:stop])
+    _chunked(run, "embed", len(keypoints), rows, _embed_task,
+             lambda start, stop: (keypoints, embedding, landmarks, start, stop, run.chunks.remote),
+             [embedding], "embed (MDS)", "pose", MIN_CHUNK_ROWS)
     return [embedding]
 
 
@@ -378,9 +391,9 @@ def _cluster_stage(run: _Run) -> list[WorkArray]:
         run.work.wait()  # the state of this iteration is on disk before the next one's centroids
         bar.update()
 
-    kmeans_iterate(embedding, state, bounds, KMEANS_MAX_ITER, rows, save)
+    kmeans_iterate(embedding, state, bounds, KMEANS_MAX_ITER, rows, save, run.chunks)
     bar.close()
-    run.work.save("representatives", kmeans_finish(embedding, state, bounds, rows))
+    run.work.save("representatives", kmeans_finish(embedding, state, bounds, rows, run.chunks))
     run.note_disk()
     for array in (bounds.labels, bounds.upper, bounds.lower):
         array.path.unlink()
@@ -406,14 +419,71 @@ def assign_to_representatives(poses: np.ndarray, reps: np.ndarray, rep_poses: np
     return labels
 
 
+def _assign_task(job: tuple) -> None:
+    keypoints, cluster, reps, rep_poses, start, stop, durable = job
+    cluster[start:stop] = assign_to_representatives(keypoints[start:stop], reps, rep_poses, start)
+    if durable:  # written on another machine: on the shared disk before the task returns
+        cluster.sync()
+
+
 def _assign_stage(run: _Run) -> list[WorkArray]:
     keypoints, reps = run.work.array("keypoints_2d"), run.work.load("representatives")
-    rep_poses = keypoints.take(reps[reps >= 0])
+    rep_poses = run.chunks.share(keypoints.take(reps[reps >= 0]))
     cluster = _output(run, "assign", "cluster", np.int32, (), len(keypoints))
     rows = run.plan.rows(ASSIGN_BYTES_PER_POSE, MIN_CHUNK_ROWS)
-    for start, stop in _chunks(run, "assign", len(keypoints), rows, [cluster], "assign", "pose"):
-        cluster[start:stop] = assign_to_representatives(keypoints[start:stop], reps, rep_poses, start)
+    _chunked(run, "assign", len(keypoints), rows, _assign_task,
+             lambda start, stop: (keypoints, cluster, reps, rep_poses, start, stop, run.chunks.remote),
+             [cluster], "assign", "pose", MIN_CHUNK_ROWS)
     return [cluster]
+
+
+def _index_columns(run: _Run) -> np.ndarray:
+    """Pass 1 of the index: every projection's column (``index_columns``), streamed over the labels;
+    returns the cluster starts ``[K + 1]``."""
+    cluster = run.work.array("cluster")
+    rows = run.plan.rows(INDEX_BYTES_PER_ROW, MIN_CHUNK_ROWS)
+    counts = np.zeros(run.config.clusters, dtype=np.int64)
+    for start, stop in _row_ranges(len(cluster), rows):
+        counts += np.bincount(cluster[start:stop], minlength=len(counts))
+    cluster_start = np.concatenate([[0], np.cumsum(counts)])
+    columns = run.work.new_array("index_columns", np.int64, (), len(cluster))
+    next_free = cluster_start[:-1].copy()
+    for start, stop in _row_ranges(len(cluster), rows):
+        columns_of(cluster[start:stop], next_free, columns[start:stop])
+    return cluster_start
+
+
+def _index_stage(run: _Run) -> list[WorkArray]:
+    """The search index (``builder/index.py``): columns, then the poses copied in column groups as
+    large as the memory limit allows; a resumed run goes on from the groups done."""
+    record, n = run.work.record("index"), run.n_projections
+    if "columns_done" not in record:
+        run.work.save("index_cluster_start", _index_columns(run))
+        run.work.new_array("index_x", np.float32, (n,), 14)
+        run.work.new_array("index_y", np.float32, (n,), 14)
+        run.work.new_array("index_rows", np.int64, (), n)
+        record["columns_done"] = 0
+        run.work.commit(run.work.array("index_columns"))
+    keypoints, columns = run.work.array("keypoints_2d"), run.work.array("index_columns")
+    x, y, rows_out = (run.work.array(name) for name in ("index_x", "index_y", "index_rows"))
+    chunk = run.plan.rows(INDEX_BYTES_PER_ROW, MIN_CHUNK_ROWS)
+    group = max(MIN_CHUNK_ROWS, (run.plan.budget_bytes - chunk * INDEX_BYTES_PER_ROW) // BYTES_PER_COLUMN)
+    bar = progress(total=n, initial=record["columns_done"], desc="index", unit="projection")
+    for lo in range(record["columns_done"], n, group):
+        hi = min(lo + group, n)
+        gx, gy = np.empty((14, hi - lo), np.float32), np.empty((14, hi - lo), np.float32)
+        grows = np.empty(hi - lo, np.int64)
+        for start, stop in _row_ranges(n, chunk):
+            gather_group(keypoints[start:stop], columns[start:stop], start, lo, hi, gx, gy, grows)
+        for joint in range(14):
+            x.write_at(joint, lo, gx[joint])
+            y.write_at(joint, lo, gy[joint])
+        rows_out[lo:hi] = grows
+        record["columns_done"] = hi
+        run.work.commit(x, y, rows_out)
+        bar.update(hi - lo)
+    bar.close()
+    return [x, y, rows_out]
 
 
 # ----------------------------------------------------------------------------------- write
@@ -467,6 +537,7 @@ def _write_stage(run: _Run, out: str | os.PathLike) -> int:
         writer.write_table("projections", _projection_rows(run, cluster_size, bar))
         writer.write_table("clusters", [{"centroids": centroids.astype(np.float32), "representative": reps,
                                          "cluster_size": cluster_size.astype(np.int32)}])
+        writer.add_search_index({name: run.work.path / f"index_{name}.npy" for name in INDEX_ARRAYS})
         size = writer.finish()
     bar.close()
     return size
@@ -524,11 +595,13 @@ def _fingerprints(config: BuildConfig, files: list[tuple[Path, Path]]) -> dict[s
         "embed": {"dims": config.dims, "landmarks": config.landmarks, "seed": config.seed},
         "cluster": {"clusters": config.clusters, "seed": config.seed},
         "assign": {},
+        "index": {},
     }
 
 
 _STAGE_BODIES: dict[str, Callable[[_Run], list[WorkArray]]] = {
-    "project": _project_stage, "embed": _embed_stage, "cluster": _cluster_stage, "assign": _assign_stage}
+    "project": _project_stage, "embed": _embed_stage, "cluster": _cluster_stage, "assign": _assign_stage,
+    "index": _index_stage}
 
 
 def _run_stage(run: _Run, name: str, body: Callable[[_Run], list[WorkArray]]) -> None:
@@ -537,8 +610,8 @@ def _run_stage(run: _Run, name: str, body: Callable[[_Run], list[WorkArray]]) ->
     if record.get("done"):
         run.summary.resumed[name] = "done by an earlier run"
         return
-    done = [f"{key.replace('_', ' ')} {record[key]:,}" for key in ("files_done", "rows_done", "iteration")
-            if record.get(key)]
+    done = [f"{key.replace('_', ' ')} {record[key]:,}"
+            for key in ("files_done", "rows_done", "iteration", "columns_done") if record.get(key)]
     if done:
         run.summary.resumed[name] = "went on from " + ", ".join(done)
     start = time.perf_counter()
@@ -563,13 +636,17 @@ def _stages(run: _Run, files: list[tuple[Path, Path]], out: str | os.PathLike) -
 
 
 def build(sources: list[str], out: str | os.PathLike, config: BuildConfig,
-          exclude: Iterable[str] = ()) -> BuildSummary:
+          exclude: Iterable[str] = (), client=None) -> BuildSummary:
     """Build a database at ``out`` from BVH files and folders; returns the summary.
 
     The work folder (``config.work_dir``, else ``out`` + ``.work``) holds each stage's arrays and the
     state; it is removed after the database is written, and when the build fails on its inputs
     (:class:`~mocapdb.core.errors.MocapdbError`). An interrupted build leaves it: the same call goes
     on where it stopped (``config.restart`` starts again).
+
+    The tasks run here, or on a Dask cluster: ``client`` (a ``dask.distributed.Client``, left open)
+    or ``config.scheduler`` (connected to, and closed after). The work folder and the sources must
+    then be at the same paths on every worker (a shared disk); the database is the same either way.
     """
     summary = BuildSummary(memory_limit_mb=config.limit_mb)
     work_dir = _check_before_work(out, config, summary)
@@ -580,16 +657,21 @@ def build(sources: list[str], out: str | os.PathLike, config: BuildConfig,
     if plan.below_base:
         summary.warnings.append(f"--memory-limit {config.limit_mb} MB is below what the process itself takes "
                                 "(data_specs/build.md): the build runs in its smallest chunks")
-    with WorkFolder(work_dir, _fingerprints(config, files), config.restart) as work:
-        summary.warnings += work.notes
-        run = _Run(config, work, plan, summary)
-        try:
-            _stages(run, files, out)
-        except MocapdbError:
+    tasks = DaskTasks(client) if client is not None else connect(config.scheduler) if config.scheduler else None
+    try:
+        with WorkFolder(work_dir, _fingerprints(config, files), config.restart) as work:
+            summary.warnings += work.notes
+            run = _Run(config, work, plan, summary, tasks or Tasks(), tasks or ProcessTasks(config.workers))
+            try:
+                _stages(run, files, out)
+            except MocapdbError:
+                work.remove()
+                raise
             work.remove()
-            raise
-        work.remove()
-    _finish_summary(run, len(files))
+        _finish_summary(run, len(files))
+    finally:
+        if tasks is not None:
+            tasks.close()
     return summary
 
 
@@ -600,4 +682,8 @@ def _finish_summary(run: _Run, n_files: int) -> None:
     summary.mirrored = sum(c["mirrored"] for c in clips)
     summary.projections, summary.clusters = run.n_projections, run.config.clusters
     summary.peak_memory_mb = peak_memory_mb()
-    summary.reader_peak_mb = peak_memory_mb(children=True) if run.config.workers > 1 else 0.0
+    if isinstance(run.chunks, DaskTasks):
+        summary.cluster = run.chunks.describe()
+        summary.worker_peak_mb = max(run.chunks.client.run(peak_memory_mb).values())
+    elif run.config.workers > 1:
+        summary.reader_peak_mb = peak_memory_mb(children=True)

@@ -20,7 +20,7 @@ from mocapdb.core.files import write_atomic
 WORK_FORMAT = 1
 STATE_FILE = "state.json"
 LOCK_FILE = "lock"
-STAGES = ("read", "project", "embed", "cluster", "assign")  # the resumable stages, in order
+STAGES = ("read", "project", "embed", "cluster", "assign", "index")  # the resumable stages, in order
 
 
 class WorkError(MocapdbError, RuntimeError):
@@ -80,6 +80,16 @@ class WorkArray:
                 f.seek(self.offset + int(row) * self.row_bytes)
                 f.readinto(flat[i])
         return out
+
+    def write_at(self, row: int, column: int, values: np.ndarray) -> None:
+        """Write ``values [m]`` into row ``row`` from column ``column`` on (a stretch of one row of a
+        ``[rows, columns]`` array; nothing else is mapped)."""
+        values = np.ascontiguousarray(values, dtype=self.dtype)
+        fd = os.open(self.path, os.O_WRONLY)
+        try:
+            os.pwrite(fd, values.tobytes(), self.offset + row * self.row_bytes + column * self.dtype.itemsize)
+        finally:
+            os.close(fd)
 
     def append(self, values: np.ndarray) -> None:
         """Add ``values [m, *row_shape]`` after the last row."""

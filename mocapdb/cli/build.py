@@ -44,6 +44,10 @@ def add_build_parser(sub: argparse._SubParsersAction) -> None:
                    help="ignore an interrupted build's work folder and start again (by default the same "
                         "command goes on where it stopped; a changed option or source restarts the stages "
                         "it affects)")
+    p.add_argument("--scheduler", type=P.TextArg("a Dask scheduler address"), metavar="ADDRESS",
+                   help="run the build's tasks on a Dask cluster: a scheduler's address (tcp://host:8786; the "
+                        "sources and the work folder must be at the same paths on every worker) or local:N "
+                        "for N worker processes on this machine (needs mocapdb[dask])")
     p.add_argument("--exclude", action="append", type=P.TextArg("a glob pattern"), default=[], metavar="PATTERN",
                    help="skip files whose name or path matches this glob (repeatable)")
     p.add_argument("--strict", action="store_true",
@@ -74,7 +78,7 @@ def run_build(args: argparse.Namespace) -> int:
         joint_map=Path(args.joint_map) if args.joint_map else None,
         unit=args.unit, up_axis=args.up_axis, credit=args.credit, mirror=not args.no_mirror,
         memory_limit_mb=args.memory_limit, work_dir=Path(args.work_dir) if args.work_dir else None,
-        restart=args.restart)
+        restart=args.restart, scheduler=args.scheduler)
     try:
         summary = build(args.sources, args.out, config, exclude=args.exclude)
     except BuildError as exc:  # the files skipped before it stopped, each with its reason, then the error

@@ -189,7 +189,7 @@ def _engine(args: argparse.Namespace):
                               rotation_filter=rotation_filter, keep_take=not args.per_frame)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    return Engine(load_database(args.db, verify_checksums=not args.no_verify), config)
+    return Engine(load_database(args.db, verify_checksums=not args.no_verify, projections=False), config)
 
 
 def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=None):

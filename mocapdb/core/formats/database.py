@@ -28,6 +28,9 @@ import pyarrow.parquet as pq
 
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.files import MIB, read_input_text
+from mocapdb.core.formats.search_index import ARRAYS as INDEX_ARRAYS
+from mocapdb.core.formats.search_index import SearchIndexArrays, SearchIndexError, index_entry, load_search_index
+from mocapdb.core.formats.search_index import file_name as index_file_name
 
 SCHEMA_VERSION = 2  # 2: clips.mirrored
 FORMAT = "mocapdb"
@@ -85,7 +88,9 @@ class MotionDatabase:
     """Database content; shapes and meanings of every field are in ``data_specs/database.md``.
 
     Text columns are ``list[str]``, all others numpy arrays of exactly the documented dtype.
-    Arrays returned by :func:`load_database` may be read-only views of Arrow memory.
+    Arrays returned by :func:`load_database` may be read-only views of Arrow memory. The
+    ``projections`` fields are None when it was loaded without them (the runtime reads the poses
+    from ``search_index``, memory-mapped).
     """
 
     meta: dict
@@ -109,6 +114,7 @@ class MotionDatabase:
     centroids: np.ndarray
     representative: np.ndarray
     cluster_size: np.ndarray
+    search_index: SearchIndexArrays | None = None  # the builder's cluster-ordered poses (search_index.py)
 
     @property
     def n_clips(self) -> int:
@@ -120,7 +126,7 @@ class MotionDatabase:
 
     @property
     def n_projections(self) -> int:
-        return len(self.proj_frame)
+        return len(self.proj_frame) if self.proj_frame is not None else len(self.search_index.rows)
 
     @property
     def n_clusters(self) -> int:
@@ -129,16 +135,20 @@ class MotionDatabase:
     def validate(self) -> None:
         """Raise DatabaseError if dtypes, shapes, meta or cross-table indices are inconsistent."""
         _check_meta(self.meta)
-        for table, columns in _TABLES.items():
+        loaded = _TABLES if self.proj_frame is not None else {t: c for t, c in _TABLES.items() if t != "projections"}
+        for table, columns in loaded.items():
             _check_columns(vars(self), table, columns)
-        for name in ("embedding", "centroids"):
+        for name in ("embedding", "centroids") if self.embedding is not None else ("centroids",):
             width = getattr(self, name).shape[1]
             if width != self.meta["dims"]:
                 raise DatabaseError(f"{name} width {width} differs from meta dims {self.meta['dims']}")
         _check_clips(self)
-        _check_range("proj_frame", self.proj_frame, 0, self.n_frames)
-        _check_range("proj_yaw", self.proj_yaw, 0, len(self.meta["yaws_deg"]))
-        _check_clusters(self)
+        if self.proj_frame is not None:
+            _check_range("proj_frame", self.proj_frame, 0, self.n_frames)
+            _check_range("proj_yaw", self.proj_yaw, 0, len(self.meta["yaws_deg"]))
+            _check_clusters(self)
+        if self.search_index is not None:
+            _check_index(self)
 
 
 def _is_real(x: object) -> bool:
@@ -219,6 +229,23 @@ def _check_clusters(db: MotionDatabase) -> None:
         raise DatabaseError("a cluster's representative projection belongs to another cluster")
 
 
+def _check_index(db: MotionDatabase) -> None:
+    """The search index agrees with the clusters table (sizes, each representative in its cluster's
+    columns): O(K), nothing of the P columns read but the representatives'."""
+    index = db.search_index
+    if db.n_projections != db.n_frames * len(db.meta["yaws_deg"]):
+        raise DatabaseError("the search index does not hold one projection per frame and yaw")
+    if not np.array_equal(np.diff(index.cluster_start), db.cluster_size):
+        raise DatabaseError("the search index's cluster sizes differ from cluster_size")
+    _check_range("representative", db.representative, -1, db.n_projections)
+    filled = np.flatnonzero(db.representative >= 0)
+    if not np.array_equal(filled, np.flatnonzero(db.cluster_size > 0)):
+        raise DatabaseError("representative must be -1 exactly for the empty clusters")
+    column = index.columns[db.representative[filled]]
+    if np.any(column < index.cluster_start[filled]) or np.any(column >= index.cluster_start[filled + 1]):
+        raise DatabaseError("a cluster's representative lies outside its columns of the search index")
+
+
 # ----------------------------------------------------------------------------------- writing
 
 
@@ -252,6 +279,7 @@ class DatabaseWriter:
         recover_interrupted(self.path)
         self.meta = meta
         self.tables: dict[str, dict] = {}
+        self.search_index: dict[str, dict] | None = None
         self._tmp = _sibling(self.path, "tmp", os.getpid())
         self._tmp.mkdir()
 
@@ -269,17 +297,32 @@ class DatabaseWriter:
         self.tables[table] = _write_table((_checked_arrow(chunk, table) for chunk in chunks),
                                           self._tmp / f"{table}.parquet")
 
+    def add_search_index(self, files: Mapping[str, Path]) -> None:
+        """Add the search index (``search_index.py``): each array's ``.npy`` file, hard-linked (copied
+        across file systems) into the database, its block digests computed."""
+        self.search_index = {}
+        for name in INDEX_ARRAYS:
+            target = self._tmp / index_file_name(name)
+            try:
+                os.link(files[name], target)
+            except OSError:
+                shutil.copyfile(files[name], target)
+            self.search_index[name] = index_entry(target)
+
     def finish(self) -> int:
         """Write the manifest (last), put the database in place; return its size in bytes."""
         if set(self.tables) != set(_TABLES):
             raise DatabaseError(f"{self.path}: tables {sorted(set(_TABLES) - set(self.tables))} not written")
         manifest = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "meta": self.meta,
                     "tables": {name: self.tables[name] for name in _TABLES}}
+        if self.search_index is not None:
+            manifest["search_index"] = self.search_index
         data = json.dumps(manifest, indent=2).encode("utf-8")
         _write_file(self._tmp / MANIFEST, data)
         _fsync_dir(self._tmp)
         _replace(self._tmp, self.path)
-        return len(data) + sum(entry["bytes"] for entry in self.tables.values())
+        index = self.search_index or {}
+        return len(data) + sum(entry["bytes"] for entry in (*self.tables.values(), *index.values()))
 
 
 def _is_float(col: _Column) -> bool:
@@ -531,19 +574,32 @@ def recover_interrupted(path: str | os.PathLike) -> list[str]:
 # ----------------------------------------------------------------------------------- loading
 
 
-def load_database(path: str | os.PathLike, verify_checksums: bool = True) -> MotionDatabase:
+def load_database(path: str | os.PathLike, verify_checksums: bool = True, projections: bool = True
+                  ) -> MotionDatabase:
     """Load and validate the database at ``path``; raise DatabaseError on any problem.
 
     Sizes are always checked against the manifest, and every float value must be finite; the
-    files' sha256 checksums unless ``verify_checksums`` is False (``--no-verify``).
+    files' sha256 checksums unless ``verify_checksums`` is False (``--no-verify``). The search index
+    (databases built since it exists) is memory-mapped, not read; with ``projections`` False and
+    an index, the projections table is not read either (its fields are None): what the runtime
+    needs, in seconds at any size.
     """
     path = Path(path)
     manifest = _read_manifest(path)
-    columns = {}
+    index_entries = manifest.get("search_index")
+    skip = set() if projections or index_entries is None else {"projections"}
+    columns = {col.field: None for table in skip for col in _TABLES[table]}
     with ThreadPoolExecutor(max_workers=1) as hasher:  # hashing overlaps Parquet decoding (both release the GIL)
         for table, entry in manifest["tables"].items():
-            columns.update(_read_table(path, table, entry, hasher if verify_checksums else None))
+            if table not in skip:
+                columns.update(_read_table(path, table, entry, hasher if verify_checksums else None))
     db = MotionDatabase(meta=manifest["meta"], **columns)
+    if index_entries is not None:
+        try:
+            db.search_index = load_search_index(path, index_entries, manifest["tables"]["projections"]["rows"],
+                                                manifest["tables"]["clusters"]["rows"], verify_checksums)
+        except SearchIndexError as exc:
+            raise DatabaseError(str(exc)) from None
     try:
         db.validate()
     except DatabaseError as e:
