@@ -47,7 +47,7 @@ from mocapdb.runtime.filters import (
     QuaternionOneEuroFilter,
 )
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
-from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact, yaw_offset
+from mocapdb.runtime.search import SUBCLUSTERS_SEARCHED, SearchIndex, search_clustered, search_exact, yaw_offset
 from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotations
 from mocapdb.runtime.tracker import Tracker, TrackerConfig, TrackUpdate
 
@@ -80,6 +80,7 @@ class EngineConfig:
     n_clusters: int | None = None        # i: clusters searched; None: search_rules.clusters_searched_for(K)
     per_cluster: int = 10                # j: projections taken from each
     grid_descents: int = 3               # best candidates moved to better grid neighbours (0: the method's only)
+    subclusters: int = SUBCLUSTERS_SEARCHED  # sub-clusters searched in each cluster searched
     window_weights: tuple[float, ...] = (0.4, 0.3, 0.2, 0.1)  # w = 4, most recent first
     joint_weights: tuple[float, ...] | None = None            # per rig joint; default all 1
     weight_2d: float = 0.5               # added to Eq. 2: this × the candidate's Eq. 1 distance
@@ -122,6 +123,7 @@ class EngineConfig:
         D.CLUSTERS_SEARCHED.check_optional(self.n_clusters, "n_clusters")
         D.PER_CLUSTER.check(self.per_cluster, "per_cluster")
         D.GRID_DESCENTS.check(self.grid_descents, "grid_descents")
+        D.SUBCLUSTERS_SEARCHED.check(self.subclusters, "subclusters")
         D.WINDOW_WEIGHTS.check(self.window_weights, "window_weights")
         D.WEIGHT_2D.check(self.weight_2d, "weight_2d")
         D.FOCAL_PX.check(self.focal_px, "focal_px")
@@ -473,7 +475,8 @@ class Engine:
         cfg = self.config
         if cfg.search == "exact":
             return search_exact(self.index, query, visible, self.n_clusters * cfg.per_cluster)
-        return search_clustered(self.index, query, visible, self.n_clusters, cfg.per_cluster, cfg.grid_descents)
+        return search_clustered(self.index, query, visible, self.n_clusters, cfg.per_cluster, cfg.grid_descents,
+                                cfg.subclusters)
 
     def _choose(self, state: _TrackState, rows: np.ndarray, dist: np.ndarray) -> int:
         """Index into ``rows`` of the candidate to use (Eq. 2, or Eq. 1 at a track's start)."""

@@ -29,6 +29,7 @@ from mocapdb.core.kernels import pose_distances_into, pose_normalisation_into, r
 from mocapdb.core.skeleton import KP
 
 R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]  # numba freezes them as constants
+SUBCLUSTERS_SEARCHED = 3  # sub-clusters searched in each cluster searched (search_rules.py)
 
 
 @dataclass
@@ -49,28 +50,36 @@ class SearchIndex:
     column_of_row: np.ndarray   # [P] int64: inverse of ``rows``
     frame_clip: np.ndarray      # [F] int64: clip of each database frame (rows are frame-major: frame × yaws + yaw)
     n_yaws: int
+    cluster_subs: np.ndarray    # [K + 1] int64: cluster c's sub-clusters are cluster_subs[c]:cluster_subs[c+1]
+    sub_start: np.ndarray       # [S + 1] int64: sub-cluster s is columns sub_start[s]:sub_start[s+1]
+    sub_x: np.ndarray           # [14, S] float32: the sub-clusters' representatives
+    sub_y: np.ndarray           # [14, S] float32
 
     @classmethod
     def from_database(cls, db: MotionDatabase) -> SearchIndex:
-        """The database's search index, memory-mapped (databases built with one), else sorted here."""
+        """The database's search index, memory-mapped (databases built with one), else sorted here with
+        one sub-cluster per cluster (the method's search exactly)."""
         nonempty = np.flatnonzero(db.representative >= 0)
         frame_clip, n_yaws = np.asarray(db.frame_clip, dtype=np.int64), len(db.meta["yaws_deg"])
         if db.search_index is not None:
             built = db.search_index
             x, y, columns = np.asarray(built.x), np.asarray(built.y), np.asarray(built.columns)
-            rep_columns = columns[db.representative[nonempty]]
-            return cls(x, y, np.asarray(built.rows), np.asarray(built.cluster_start),
-                       np.ascontiguousarray(x[:, rep_columns]), np.ascontiguousarray(y[:, rep_columns]),
-                       nonempty.astype(np.int64), columns, frame_clip, n_yaws)
-        order = np.argsort(db.cluster, kind="stable")
-        counts = np.bincount(db.cluster, minlength=db.n_clusters)
-        start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        poses = db.keypoints_2d[order]
-        reps = db.keypoints_2d[db.representative[nonempty]]
-        return cls(np.ascontiguousarray(poses[..., 0].T), np.ascontiguousarray(poses[..., 1].T),
-                   order.astype(np.int64), start, np.ascontiguousarray(reps[..., 0].T),
-                   np.ascontiguousarray(reps[..., 1].T), nonempty.astype(np.int64), np.argsort(order),
-                   frame_clip, n_yaws)
+            rows, start = np.asarray(built.rows), np.asarray(built.cluster_start)
+            subs, sub_start, sub_rep = (np.asarray(built.cluster_subs), np.asarray(built.sub_start),
+                                        np.asarray(built.sub_rep))
+        else:
+            order = np.argsort(db.cluster, kind="stable")
+            counts = np.bincount(db.cluster, minlength=db.n_clusters)
+            start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+            poses = db.keypoints_2d[order]
+            x, y = np.ascontiguousarray(poses[..., 0].T), np.ascontiguousarray(poses[..., 1].T)
+            rows, columns = order.astype(np.int64), np.argsort(order)
+            subs, sub_start = np.arange(db.n_clusters + 1, dtype=np.int64), start
+            sub_rep = np.where(db.representative >= 0, columns[np.maximum(db.representative, 0)], 0)
+        rep_columns = columns[db.representative[nonempty]]
+        return cls(x, y, rows, start, np.ascontiguousarray(x[:, rep_columns]), np.ascontiguousarray(y[:, rep_columns]),
+                   nonempty.astype(np.int64), columns, frame_clip, n_yaws, subs, sub_start,
+                   np.ascontiguousarray(x[:, sub_rep]), np.ascontiguousarray(y[:, sub_rep]))
 
     def pose(self, row: int) -> np.ndarray:
         """The normalised 2D pose ``[14, 2]`` of projection ``row``."""
@@ -118,7 +127,8 @@ def _smallest(dist, k, offset):
 
 
 @njit(cache=True)
-def _clustered(x, y, cluster_start, rep_x, rep_y, rep_cluster, rows, query, visible, n_clusters, per_cluster):
+def _clustered(x, y, rep_x, rep_y, rep_cluster, cluster_subs, sub_start, sub_x, sub_y, rows, query, visible,
+               n_clusters, n_subs, per_cluster):
     vis_idx, renorm = _visible_joints(visible)
     n_rep = rep_x.shape[1]
     top_c, _ = _smallest(range_distances(rep_x, rep_y, 0, n_rep, query, vis_idx, renorm),
@@ -127,8 +137,19 @@ def _clustered(x, y, cluster_start, rep_x, rep_y, rep_cluster, rows, query, visi
     out_i = np.full(out_d.shape[0], -1, dtype=np.int64)
     for n in range(top_c.shape[0]):
         c = rep_cluster[top_c[n]]
-        lo, hi = cluster_start[c], cluster_start[c + 1]
-        best_i, best_d = _smallest(range_distances(x, y, lo, hi, query, vis_idx, renorm), per_cluster, lo)
+        s0, s1 = cluster_subs[c], cluster_subs[c + 1]
+        if s1 - s0 <= n_subs:
+            subs = np.arange(s0, s1)
+        else:
+            subs, _ = _smallest(range_distances(sub_x, sub_y, s0, s1, query, vis_idx, renorm), n_subs, s0)
+        best_d = np.full(per_cluster, np.inf)
+        best_i = np.full(per_cluster, -1, dtype=np.int64)
+        for s in subs:
+            lo, hi = sub_start[s], sub_start[s + 1]
+            found_i, found_d = _smallest(range_distances(x, y, lo, hi, query, vis_idx, renorm), per_cluster, lo)
+            merged_i, merged_d = _smallest(np.concatenate((best_d, found_d)), per_cluster, 0)
+            pool_i = np.concatenate((best_i, found_i))
+            best_i, best_d = np.where(merged_i >= 0, pool_i[np.maximum(merged_i, 0)], -1), merged_d
         out_i[n * per_cluster:(n + 1) * per_cluster] = best_i
         out_d[n * per_cluster:(n + 1) * per_cluster] = best_d
     keep = out_i >= 0
@@ -200,15 +221,20 @@ def visible_distances(x: np.ndarray, y: np.ndarray, query: np.ndarray, visible: 
 
 
 def search_clustered(index: SearchIndex, query: np.ndarray, visible: np.ndarray, n_clusters: int = 5,
-                     per_cluster: int = 10, descents: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Candidates of the two-level search: database projection rows and their Eq. 1 distances, followed by
-    the ends of the ``descents`` best candidates' grid descents that moved (see the module docstring).
+                     per_cluster: int = 10, descents: int = 0, subclusters: int = SUBCLUSTERS_SEARCHED
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Candidates of the clustered search: the ``per_cluster`` nearest members of each of the ``n_clusters``
+    clusters with the nearest representatives, searched in their ``subclusters`` sub-clusters with the nearest
+    representatives (all of them where a cluster has no more); database projection rows and their Eq. 1
+    distances, followed by the ends of the ``descents`` best candidates' grid descents that moved (see the
+    module docstring).
 
     ``query [14, 2]`` is normalised over ``visible [14]`` (see ``normalize_pose_2d``).
     """
     query = _query_like(query, index)
-    rows, dist = _clustered(index.x, index.y, index.cluster_start, index.rep_x, index.rep_y, index.rep_cluster,
-                            index.rows, query, visible, n_clusters, per_cluster)
+    rows, dist = _clustered(index.x, index.y, index.rep_x, index.rep_y, index.rep_cluster, index.cluster_subs,
+                            index.sub_start, index.sub_x, index.sub_y, index.rows, query, visible, n_clusters,
+                            subclusters, per_cluster)
     if descents == 0:
         return rows, dist
     more_rows, more_dist = _grid_descent(index.x, index.y, index.column_of_row, index.frame_clip, index.n_yaws,

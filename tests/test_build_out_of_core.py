@@ -91,7 +91,7 @@ def _fail_on_call(monkeypatch, name: str, call: int) -> list:
     ("project", "project_frames", 100, "went on from rows done 99"),
     ("embed", "fit_landmarks", 1, None),
     ("assign", "assign_to_representatives", 3, "went on from rows done 2,048"),
-    ("index", "gather_group", 20, "went on from columns done 2,048"),  # 8 chunks a group of 1,024 columns
+    ("index", "gather_group", 20, "went on from columns done 2,334"),  # 8 chunks a group of whole clusters
 ])
 def test_an_interrupted_build_goes_on_where_it_stopped(sources, whole, tmp_path, monkeypatch, stage, function,
                                                        call, went_on):

@@ -9,20 +9,20 @@ import shutil
 import numpy as np
 import pytest
 
-from mocapdb.builder.index import columns_of
+from mocapdb.builder.embedding import pose_distances
+from mocapdb.builder.index import columns_of, subclusters_of
 from mocapdb.builder.pipeline import build
 from mocapdb.core.formats import search_index as S
 from mocapdb.core.formats.database import DatabaseError, load_database
+from mocapdb.core.search_rules import subclusters_for
 from mocapdb.runtime.engine import Engine, EngineConfig
-from mocapdb.runtime.search import SearchIndex
+from mocapdb.runtime.search import SearchIndex, search_clustered
 
 from . import test_builder
 from .test_build_out_of_core import TINY_MB, whole  # noqa: F401 - the fixture
 from .test_builder import _config
 
 sources = test_builder.sources  # the fixture: two clips, 7,920 projections
-
-FIELDS = ("x", "y", "rows", "cluster_start", "rep_x", "rep_y", "rep_cluster", "column_of_row", "frame_clip")
 
 
 def _sorted_here(db) -> SearchIndex:
@@ -42,13 +42,19 @@ def test_counting_sort_columns_are_a_stable_sort_by_cluster():
     np.testing.assert_array_equal(columns, np.argsort(np.argsort(labels, kind="stable"), kind="stable"))
 
 
-def test_the_built_index_is_the_runtime_sort(whole):  # noqa: F811
+def test_the_built_index_holds_every_pose_in_its_cluster(whole):  # noqa: F811
     db = load_database(whole)
     built = SearchIndex.from_database(db)
     assert isinstance(db.search_index.x, np.memmap) and not db.search_index.x.flags.writeable
-    here = _sorted_here(db)
-    for name in FIELDS:
+    here = _sorted_here(load_database(whole))  # the projections sorted by cluster, rows in order
+    for name in ("cluster_start", "rep_x", "rep_y", "rep_cluster", "frame_clip"):
         np.testing.assert_array_equal(getattr(built, name), getattr(here, name), err_msg=name)
+    start = built.cluster_start
+    for c in range(len(start) - 1):  # the same members, ordered by sub-cluster within the cluster
+        np.testing.assert_array_equal(np.sort(built.rows[start[c]:start[c + 1]]), here.rows[start[c]:start[c + 1]])
+    np.testing.assert_array_equal(built.x, db.keypoints_2d[built.rows][..., 0].T)
+    np.testing.assert_array_equal(built.y, db.keypoints_2d[built.rows][..., 1].T)
+    np.testing.assert_array_equal(built.column_of_row[built.rows], np.arange(db.n_projections))
 
 
 def test_the_runtime_loads_no_projections_and_matches_the_same(whole):  # noqa: F811
@@ -93,8 +99,10 @@ def test_a_database_without_an_index_still_runs(whole, tmp_path):  # noqa: F811
         (db / S.file_name(name)).unlink()
     old = load_database(db, projections=False)  # no index: the projections are read after all
     assert old.search_index is None and old.keypoints_2d is not None
-    index = SearchIndex.from_database(old)
-    np.testing.assert_array_equal(index.x, SearchIndex.from_database(load_database(whole)).x)
+    index = SearchIndex.from_database(old)  # sorted here: one sub-cluster per cluster
+    np.testing.assert_array_equal(index.x, _sorted_here(load_database(whole)).x)
+    np.testing.assert_array_equal(index.sub_start, index.cluster_start)
+    assert Engine(old, EngineConfig(refine=False)).index.n_yaws == len(old.meta["yaws_deg"])
 
 
 def test_block_digests_cover_the_file_in_blocks(tmp_path, monkeypatch):
@@ -109,5 +117,57 @@ def test_block_digests_cover_the_file_in_blocks(tmp_path, monkeypatch):
 def test_the_index_under_a_tiny_memory_limit_is_built_in_groups(sources, whole, tmp_path):  # noqa: F811
     build([str(sources)], tmp_path / "db", _config(memory_limit_mb=TINY_MB))
     tiny, ref = load_database(tmp_path / "db", projections=False), load_database(whole, projections=False)
+    for name in S.ARRAYS:
+        np.testing.assert_array_equal(getattr(tiny.search_index, name), getattr(ref.search_index, name))
+
+
+def test_subclusters_put_every_member_with_its_nearest_representative():
+    rng = np.random.default_rng(1)
+    centres = rng.normal(size=(6, 14, 2))
+    poses = (centres[rng.integers(0, 6, 4000)] + 0.3 * rng.normal(size=(4000, 14, 2))).astype(np.float32)
+    embedding = poses.reshape(4000, -1)[:, :5].copy()
+    order, sizes, reps = subclusters_of(poses, embedding, 17, seed=0)
+    assert len(sizes) == subclusters_for(4000) == 4 and sizes.sum() == 4000 and (sizes > 0).all()
+    assert sorted(order) == list(range(4000))
+    ends = np.cumsum(sizes)
+    assert np.all(reps < ends) and np.all(reps >= ends - sizes)  # each representative inside its sub-cluster
+    ordered = poses[order]
+    dist = pose_distances(ordered, ordered[reps])  # Eq. 1, by brute force
+    label = np.repeat(np.arange(len(sizes)), sizes)
+    assert np.all(dist[np.arange(4000), label] <= dist.min(axis=1) + 1e-5)
+    for s in range(len(sizes)):  # rows in order within a sub-cluster
+        assert np.all(np.diff(order[ends[s] - sizes[s]:ends[s]]) > 0)
+    small, sizes_small, reps_small = subclusters_of(poses[:1000], embedding[:1000], 17, seed=0)
+    np.testing.assert_array_equal(small, np.arange(1000))
+    assert list(sizes_small) == [1000] and list(reps_small) == [17]  # one sub-cluster: the cluster as it was
+
+
+@pytest.fixture(scope="module")
+def few_clusters(sources, tmp_path_factory):
+    """Clusters of ~2,600 projections each: two or three sub-clusters per cluster."""
+    out = tmp_path_factory.mktemp("few") / "db"
+    build([str(sources)], out, _config(clusters=3))
+    return out
+
+
+def test_the_second_level_searched_whole_is_the_method(few_clusters):
+    db = load_database(few_clusters)
+    assert np.diff(db.search_index.cluster_subs).max() > 1
+    built = SearchIndex.from_database(db)
+    here = _sorted_here(load_database(few_clusters))
+    rng = np.random.default_rng(2)
+    for row in rng.choice(db.n_projections, 30, replace=False):
+        query = db.keypoints_2d[row] + rng.normal(0, 0.02, (14, 2)).astype(np.float32)
+        visible = rng.random(14) > 0.15
+        two_level = search_clustered(built, query, visible, 2, 10, 0, 10**6)[1]
+        flat = search_clustered(here, query, visible, 2, 10, 0)[1]
+        np.testing.assert_allclose(np.sort(two_level), np.sort(flat), rtol=1e-6)
+        one_sub = search_clustered(built, query, visible, 2, 10, 0, 1)[1]
+        assert one_sub.min() >= two_level.min() - 1e-7
+
+
+def test_subclusters_do_not_depend_on_the_memory_limit(sources, few_clusters, tmp_path):
+    build([str(sources)], tmp_path / "db", _config(clusters=3, memory_limit_mb=TINY_MB))
+    tiny, ref = load_database(tmp_path / "db", projections=False), load_database(few_clusters, projections=False)
     for name in S.ARRAYS:
         np.testing.assert_array_equal(getattr(tiny.search_index, name), getattr(ref.search_index, name))

@@ -8,9 +8,10 @@ clips sampled as ``mocapdb eval --leave-one-subject-out`` does (8 clips × 240 f
 varied bodies), rendered clean and with σ 5 px + 10 % dropout + 5 % left/right swaps (missing joints: Eq. 1
 over the visible joints, each database pose renormalised over them), every ``--every``-th frame.
 
-Methods: ``exact`` (brute force, the reference); ``clustered`` i × 10 on the database's own clusters (the
-method: 5 × 10; i also the rule's for the database's K, ``mocapdb.core.search_rules``), without and with the
-engine's default 3 grid descents (``runtime/search.py``; their few extra distances are not counted); with
+Methods: ``exact`` (brute force, the reference); ``clustered`` i × 10 on the database's own clusters searched
+whole (the method: 5 × 10; i also the rule's for the database's K, ``mocapdb.core.search_rules``), and 5 × 10
+searched in the j sub-clusters of each cluster nearest the query (the search index's second level, where its
+clusters have several), without and with the engine's default 3 grid descents (``runtime/search.py``; their few extra distances are not counted); with
 ``--graph``, hnswlib (``pip install hnswlib``: L2 over the 28 normalised coordinates, M 16, ef_construction 100;
 missing joints filled from the nearest representative) re-ranked with Eq. 1 at several ef.
 recall@1: the share of queries whose best candidate is at the exact search's Eq. 1 distance (relative 1e-5:
@@ -32,7 +33,7 @@ sys.path.insert(0, str(ROOT))
 
 from mocapdb.core.formats.database import MotionDatabase, load_database  # noqa: E402
 from mocapdb.core.geometry import normalize_pose_2d  # noqa: E402
-from mocapdb.core.search_rules import clusters_searched_for  # noqa: E402
+from mocapdb.core.search_rules import PAPER_CLUSTERS_SEARCHED, clusters_searched_for  # noqa: E402
 from mocapdb.evaluation.heldout import Scenario, camera_distance, camera_view, render, scenario_positions  # noqa: E402
 from mocapdb.evaluation.loso import LOSO_SCENARIOS, LosoConfig, sample_truths  # noqa: E402
 from mocapdb.evaluation.reconstruction import EvalConfig  # noqa: E402
@@ -41,6 +42,8 @@ from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact, 
 DEFAULT_HELDOUT = sorted((ROOT.parent / "shared" / "data" / "cmu_bvh").glob("007_*.bvh"))
 SCENARIOS = (LOSO_SCENARIOS[0], LOSO_SCENARIOS[2])  # varied bodies: clean; σ 5 px + 10 % dropout + 5 % swaps
 CLUSTERS_SEARCHED = (5, 7, 10, 20)
+SUBCLUSTERS = (1, 2, 3, 5, 8)  # sub-clusters searched per cluster (databases whose clusters have several)
+ALL_SUBS = 10**9               # every sub-cluster: the flat clusters of the method
 DESCENTS = 3  # the engine's default grid descents
 GRAPH_EF = (32, 64, 128, 256)
 CONFIDENCE = 0.3  # the engine's threshold for a visible joint
@@ -77,12 +80,21 @@ def timed(search, queries: np.ndarray, visible: np.ndarray) -> tuple[np.ndarray,
     return best, us
 
 
-def clustered_candidates(index: SearchIndex, query: np.ndarray, vis: np.ndarray, n_clusters: int) -> int:
-    """Eq. 1 distances the clustered search computes: every representative, then the members of the
-    ``n_clusters`` nearest."""
+def clustered_candidates(index: SearchIndex, query: np.ndarray, vis: np.ndarray, n_clusters: int,
+                         subclusters: int) -> int:
+    """Eq. 1 distances the clustered search computes: every representative, then in each of the
+    ``n_clusters`` nearest clusters its sub-clusters' representatives (where it has more than
+    ``subclusters``) and the members of its ``subclusters`` nearest sub-clusters."""
     rep = visible_distances(index.rep_x, index.rep_y, query, vis)
-    nearest = index.rep_cluster[np.argsort(rep, kind="stable")[:n_clusters]]
-    return len(rep) + int(np.sum(index.cluster_start[nearest + 1] - index.cluster_start[nearest]))
+    count = len(rep)
+    for c in index.rep_cluster[np.argsort(rep, kind="stable")[:n_clusters]]:
+        s0, s1 = index.cluster_subs[c], index.cluster_subs[c + 1]
+        subs = np.arange(s0, s1)
+        if s1 - s0 > subclusters:
+            sub = visible_distances(index.sub_x[:, s0:s1], index.sub_y[:, s0:s1], query, vis)
+            subs, count = s0 + np.argsort(sub, kind="stable")[:subclusters], count + (s1 - s0)
+        count += int(np.sum(index.sub_start[subs + 1] - index.sub_start[subs]))
+    return count
 
 
 class GraphSearch:
@@ -130,11 +142,13 @@ def database_rows(db: MotionDatabase, queries: dict, graph: bool) -> list[tuple]
     for name, (q, v) in queries.items():
         exact, us = timed(lambda a, b: search_exact(index, a, b, 1), q, v)
         rows.append((n, k, name, "exact", "", n, 1.0, *np.percentile(us, [50, 99])))
-        for i in sorted({*CLUSTERS_SEARCHED, clusters_searched_for(k)}):
-            cand = np.mean([clustered_candidates(index, a, b, i) for a, b in zip(q, v)])
+        for i, j in [(i, ALL_SUBS) for i in sorted({*CLUSTERS_SEARCHED, clusters_searched_for(k)})] + [
+                (PAPER_CLUSTERS_SEARCHED, j) for j in SUBCLUSTERS if np.diff(index.cluster_subs).max() > 1]:
+            cand = np.mean([clustered_candidates(index, a, b, i, j) for a, b in zip(q, v)])
             for descents in (0, DESCENTS):
-                best, us = timed(lambda a, b: search_clustered(index, a, b, i, 10, descents), q, v)
-                params = f"{i}×10" + (f", {descents} descents" if descents else "")
+                best, us = timed(lambda a, b: search_clustered(index, a, b, i, 10, descents, j), q, v)
+                params = f"{i}×10" + ("" if j == ALL_SUBS else f" in {j} sub-clusters") + (
+                    f", {descents} descents" if descents else "")
                 rows.append((n, k, name, "clustered", params, cand, _recall(best, exact), *np.percentile(us, [50, 99])))
         for ef in GRAPH_EF if searcher is not None else ():
             best, us = timed(lambda a, b: searcher.search(a, b, ef), q, v)
@@ -158,8 +172,8 @@ def main() -> int:
     print("| N | K | queries | method | params | candidates | recall@1 | µs p50 | µs p99 |")
     print("|---|---|---|---|---|---|---|---|---|")
     for path in args.databases:
-        for n, k, name, method, params, cand, recall, p50, p99 in database_rows(load_database(path), queries,
-                                                                                args.graph):
+        db = load_database(path, projections=args.graph)  # the poses from the search index, memory-mapped
+        for n, k, name, method, params, cand, recall, p50, p99 in database_rows(db, queries, args.graph):
             print(f"| {n:,} | {k:,} | {name} ({len(queries[name][0])}) | {method} | {params} | {cand:,.0f} | "
                   f"{recall:.3f} | {p50:,.0f} | {p99:,.0f} |", flush=True)
     return 0

@@ -91,6 +91,13 @@ class WorkArray:
         finally:
             os.close(fd)
 
+    def put(self, rows: np.ndarray, values: np.ndarray) -> None:
+        """Write ``values`` at the scattered ``rows`` (the whole file mapped while it writes)."""
+        mapped = np.memmap(self.path, self.dtype, "r+", self.offset, self.shape)
+        mapped[np.asarray(rows)] = values
+        mapped.flush()
+        del mapped
+
     def append(self, values: np.ndarray) -> None:
         """Add ``values [m, *row_shape]`` after the last row."""
         values = np.ascontiguousarray(values, dtype=self.dtype)

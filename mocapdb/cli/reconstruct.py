@@ -42,6 +42,10 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                         "of more clusters, see mocapdb/core/search_rules.py)")
     p.add_argument("--per-cluster", type=D.PER_CLUSTER, default=10,
                    help="j: projections taken per cluster (default 10)")
+    p.add_argument("--subclusters-searched", type=D.SUBCLUSTERS_SEARCHED, default=3,
+                   help="in each cluster searched, its sub-clusters with the nearest representatives searched "
+                        "(default 3; a database's clusters have one sub-cluster per ~1,260 projections, so on "
+                        "the method's 630,000 most clusters are searched whole)")
     p.add_argument("--grid-descents", type=D.GRID_DESCENTS, default=3,
                    help="the best N candidates each move to a nearer neighbouring frame or yaw while there is one "
                         "(default 3; 0: the method's candidates only)")
@@ -178,7 +182,7 @@ def _engine(args: argparse.Namespace):
             min_cutoff_hz=default.min_cutoff_hz if args.min_cutoff is None else args.min_cutoff,
             beta=default.beta if args.beta is None else args.beta)
         config = EngineConfig(search=args.search, n_clusters=args.clusters_searched, per_cluster=args.per_cluster,
-                              grid_descents=args.grid_descents,
+                              grid_descents=args.grid_descents, subclusters=args.subclusters_searched,
                               window_weights=tuple(args.window_weights), weight_2d=args.weight_2d, focal_px=focal,
                               image_size=(width, height), fps=args.fps or DEFAULTS["fps"],
                               translation=not args.no_translation,

@@ -164,6 +164,7 @@ MEMORY_LIMIT_MB = Domain("a memory limit in megabytes", 64, 100_000_000, integer
 # --- retrieval, refinement and filters -----------------------------------------------------
 CLUSTERS_SEARCHED = Domain("a number of clusters searched", 1, 10_000, integer=True)
 PER_CLUSTER = Domain("a number of projections per cluster", 1, 10_000, integer=True)
+SUBCLUSTERS_SEARCHED = Domain("a number of sub-clusters searched per cluster", 1, 100_000, integer=True)
 GRID_DESCENTS = Domain("a number of candidates refined by grid descent", 0, 1000, integer=True,
                        zero_means="none, the clustered search's candidates only")
 WINDOW_WEIGHT = Domain("a weight", 0, 1000)

@@ -34,6 +34,12 @@ def clusters_for(n_projections: int) -> int:
     return max(1, min(n_projections, max(PAPER_CLUSTERS, round(n_projections / PROJECTIONS_PER_CLUSTER))))
 
 
+def subclusters_for(n_members: int) -> int:
+    """Sub-clusters of a cluster of ``n_members`` projections in the search index: one per
+    :data:`PROJECTIONS_PER_CLUSTER` (rounded up), so a cluster of the method's size stays whole."""
+    return max(1, -(-n_members // PROJECTIONS_PER_CLUSTER))
+
+
 def clusters_searched_for(n_clusters: int) -> int:
     """Default i for a database of ``n_clusters`` clusters: 5 at the method's 500 (and below), then
     ``5 · (K / 500)^0.45`` rounded (K 1,587: 8; 4,762: 14; 19,841: 26)."""

@@ -12,9 +12,12 @@ file                dtype      shape        holds
 ``index_rows.npy``  int64      [P]          the projection row of each column
 ``index_columns.npy`` int64    [P]          the column of each projection row (inverse of rows)
 ``index_cluster_start.npy`` int64 [K + 1]  cluster c is columns start[c]:start[c + 1]
+``index_cluster_subs.npy`` int64 [K + 1]   cluster c's sub-clusters are subs[c]:subs[c + 1]
+``index_sub_start.npy`` int64   [S + 1]     sub-cluster s is columns sub_start[s]:sub_start[s + 1]
+``index_sub_rep.npy`` int64     [S]         the column of sub-cluster s's representative
 ==================  =========  ===========  =====================================================
 
-Within a cluster the columns follow the projection rows (a stable order). Each file's manifest
+Within a cluster the columns are grouped by sub-cluster, and follow the projection rows within one. Each file's manifest
 entry has its size and the sha256 of every :data:`BLOCK_BYTES` block, checked in parallel threads.
 """
 from __future__ import annotations
@@ -31,7 +34,8 @@ from mocapdb.core.errors import MocapdbError
 
 BLOCK_BYTES = 64 << 20  # one sha256 per 64 MiB block: checked in parallel
 N_JOINTS_2D = 14
-ARRAYS = {"x": "float32", "y": "float32", "rows": "int64", "columns": "int64", "cluster_start": "int64"}
+ARRAYS = {"x": "float32", "y": "float32", "rows": "int64", "columns": "int64", "cluster_start": "int64",
+          "cluster_subs": "int64", "sub_start": "int64", "sub_rep": "int64"}
 
 
 class SearchIndexError(MocapdbError, RuntimeError):
@@ -47,6 +51,9 @@ class SearchIndexArrays:
     rows: np.ndarray           # [P] int64
     columns: np.ndarray        # [P] int64
     cluster_start: np.ndarray  # [K + 1] int64
+    cluster_subs: np.ndarray   # [K + 1] int64
+    sub_start: np.ndarray      # [S + 1] int64
+    sub_rep: np.ndarray        # [S] int64
 
 
 def file_name(name: str) -> str:
@@ -88,9 +95,12 @@ def load_search_index(path: Path, entries: dict, n_projections: int, n_clusters:
     if not isinstance(entries, dict) or set(entries) != set(ARRAYS):
         raise SearchIndexError(f"{path}: the manifest's search index needs the arrays {sorted(ARRAYS)}")
     shapes = {"x": (N_JOINTS_2D, n_projections), "y": (N_JOINTS_2D, n_projections), "rows": (n_projections,),
-              "columns": (n_projections,), "cluster_start": (n_clusters + 1,)}
+              "columns": (n_projections,), "cluster_start": (n_clusters + 1,), "cluster_subs": (n_clusters + 1,)}
     arrays = {}
     for name, dtype in ARRAYS.items():
+        if name == "sub_start":  # S sub-clusters: the last of cluster_subs, read before
+            n_subs = int(arrays["cluster_subs"][-1])
+            shapes.update(sub_start=(n_subs + 1,), sub_rep=(n_subs,))
         _check_entry(name, entries[name])
         file = path / file_name(name)
         if not file.is_file() or file.stat().st_size != entries[name]["bytes"]:
@@ -105,7 +115,20 @@ def load_search_index(path: Path, entries: dict, n_projections: int, n_clusters:
         if arrays[name].dtype != np.dtype(dtype) or arrays[name].shape != shapes[name]:
             raise SearchIndexError(f"{file}: {arrays[name].dtype} {arrays[name].shape}, expected {dtype} "
                                    f"{shapes[name]}")
-    start = arrays["cluster_start"]
-    if start[0] != 0 or start[-1] != n_projections or np.any(np.diff(start) < 0):
-        raise SearchIndexError(f"{path}: the search index's cluster starts are not 0 … {n_projections}, rising")
+    _check_ranges(path, arrays, n_projections)
     return SearchIndexArrays(**arrays)
+
+
+def _check_ranges(path: Path, arrays: dict, n_projections: int) -> None:
+    """Clusters and sub-clusters cover the columns in order, each sub-cluster inside its cluster and
+    holding its representative: O(K + S), the columns themselves are not read."""
+    start, subs, sub_start, sub_rep = (arrays[k] for k in ("cluster_start", "cluster_subs", "sub_start", "sub_rep"))
+    for name, values, last in (("cluster starts", start, n_projections),
+                               ("sub-cluster starts", sub_start, n_projections),
+                               ("clusters' sub-clusters", subs, len(sub_rep))):
+        if values[0] != 0 or values[-1] != last or np.any(np.diff(values) < 0):
+            raise SearchIndexError(f"{path}: the search index's {name} are not 0 … {last}, rising")
+    if not np.array_equal(sub_start[subs[:-1]][np.diff(subs) > 0], start[:-1][np.diff(subs) > 0]):
+        raise SearchIndexError(f"{path}: the search index's sub-clusters do not start where their clusters do")
+    if np.any(sub_rep < sub_start[:-1]) or np.any(sub_rep >= sub_start[1:]):
+        raise SearchIndexError(f"{path}: a sub-cluster's representative lies outside it")
