@@ -29,7 +29,7 @@ from mocapdb.core.kernels import pose_distances_into, pose_normalisation_into, r
 from mocapdb.core.skeleton import KP
 
 R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]  # numba freezes them as constants
-SUBCLUSTERS_SEARCHED = 3  # sub-clusters searched in each cluster searched (search_rules.py)
+SUBCLUSTERS_SEARCHED = 5  # sub-clusters searched in each cluster searched (search_rules.py)
 
 
 @dataclass

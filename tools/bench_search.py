@@ -1,6 +1,7 @@
 """Search that scales with the database: recall@1 against exact search and µs per query, per method.
 
     python tools/bench_search.py /tmp/db06 /tmp/db2 /tmp/db6 [--heldout ../shared/data/cmu_bvh/007_*.bvh] [--graph]
+                                 [--subclusters 1 2 3 5 8] [--descents 0 3] [--every 2]
 
 Build the databases without the held-out subject (``mocapdb build ../shared/data/cmu_bvh --out /tmp/db06
 --exclude '007_*'``, ``--yaw-step 3.6`` and ``1.25`` for ~2 M and ~6 M projections). Queries: the held-out
@@ -11,9 +12,10 @@ over the visible joints, each database pose renormalised over them), every ``--e
 Methods: ``exact`` (brute force, the reference); ``clustered`` i × 10 on the database's own clusters searched
 whole (the method: 5 × 10; i also the rule's for the database's K, ``mocapdb.core.search_rules``), and 5 × 10
 searched in the j sub-clusters of each cluster nearest the query (the search index's second level, where its
-clusters have several), without and with the engine's default 3 grid descents (``runtime/search.py``; their few extra distances are not counted); with
-``--graph``, hnswlib (``pip install hnswlib``: L2 over the 28 normalised coordinates, M 16, ef_construction 100;
-missing joints filled from the nearest representative) re-ranked with Eq. 1 at several ef.
+clusters have several; ``--subclusters``), without and with the engine's default 3 grid descents
+(``runtime/search.py``; ``--descents``; their few extra distances are not counted); with ``--graph``, hnswlib
+(``pip install hnswlib``: L2 over the 28 normalised coordinates, M 16, ef_construction 100; missing joints
+filled from the nearest representative) re-ranked with Eq. 1 at several ef.
 recall@1: the share of queries whose best candidate is at the exact search's Eq. 1 distance (relative 1e-5:
 equal-distance ties count as found). Candidates: Eq. 1 distances per query (representatives plus the members
 of the clusters searched; for hnswlib the ef re-ranked, its L2 visits not counted).
@@ -44,7 +46,7 @@ SCENARIOS = (LOSO_SCENARIOS[0], LOSO_SCENARIOS[2])  # varied bodies: clean; σ 5
 CLUSTERS_SEARCHED = (5, 7, 10, 20)
 SUBCLUSTERS = (1, 2, 3, 5, 8)  # sub-clusters searched per cluster (databases whose clusters have several)
 ALL_SUBS = 10**9               # every sub-cluster: the flat clusters of the method
-DESCENTS = 3  # the engine's default grid descents
+DESCENTS = (0, 3)  # without grid descents, and the engine's default
 GRAPH_EF = (32, 64, 128, 256)
 CONFIDENCE = 0.3  # the engine's threshold for a visible joint
 
@@ -131,7 +133,8 @@ class GraphSearch:
         return rows, dist
 
 
-def database_rows(db: MotionDatabase, queries: dict, graph: bool) -> list[tuple]:
+def database_rows(db: MotionDatabase, queries: dict, graph: bool, subclusters: tuple = SUBCLUSTERS,
+                  descents_tried: tuple = DESCENTS) -> list[tuple]:
     """Table rows ``(N, K, scenario, method, params, candidates, recall@1, µs p50, µs p99)`` of one database."""
     index = SearchIndex.from_database(db)
     n, k = db.n_projections, db.n_clusters
@@ -143,9 +146,9 @@ def database_rows(db: MotionDatabase, queries: dict, graph: bool) -> list[tuple]
         exact, us = timed(lambda a, b: search_exact(index, a, b, 1), q, v)
         rows.append((n, k, name, "exact", "", n, 1.0, *np.percentile(us, [50, 99])))
         for i, j in [(i, ALL_SUBS) for i in sorted({*CLUSTERS_SEARCHED, clusters_searched_for(k)})] + [
-                (PAPER_CLUSTERS_SEARCHED, j) for j in SUBCLUSTERS if np.diff(index.cluster_subs).max() > 1]:
+                (PAPER_CLUSTERS_SEARCHED, j) for j in subclusters if np.diff(index.cluster_subs).max() > 1]:
             cand = np.mean([clustered_candidates(index, a, b, i, j) for a, b in zip(q, v)])
-            for descents in (0, DESCENTS):
+            for descents in descents_tried:
                 best, us = timed(lambda a, b: search_clustered(index, a, b, i, 10, descents, j), q, v)
                 params = f"{i}×10" + ("" if j == ALL_SUBS else f" in {j} sub-clusters") + (
                     f", {descents} descents" if descents else "")
@@ -167,13 +170,18 @@ def main() -> int:
     ap.add_argument("--heldout", type=Path, nargs="+", default=DEFAULT_HELDOUT, help="held-out BVH files")
     ap.add_argument("--every", type=int, default=2, help="query every n-th rendered frame (default 2)")
     ap.add_argument("--graph", action="store_true", help="also hnswlib re-ranked with Eq. 1 (pip install hnswlib)")
+    ap.add_argument("--subclusters", type=int, nargs="+", default=SUBCLUSTERS,
+                    help="sub-clusters searched per cluster, one row each (default 1 2 3 5 8)")
+    ap.add_argument("--descents", type=int, nargs="+", default=DESCENTS,
+                    help="grid descents, one row each (default 0 3)")
     args = ap.parse_args()
     queries = {s.name.removeprefix("varied bodies, "): heldout_queries(args.heldout, s, args.every) for s in SCENARIOS}
     print("| N | K | queries | method | params | candidates | recall@1 | µs p50 | µs p99 |")
     print("|---|---|---|---|---|---|---|---|---|")
     for path in args.databases:
         db = load_database(path, projections=args.graph)  # the poses from the search index, memory-mapped
-        for n, k, name, method, params, cand, recall, p50, p99 in database_rows(db, queries, args.graph):
+        for n, k, name, method, params, cand, recall, p50, p99 in database_rows(db, queries, args.graph,
+                                                                                args.subclusters, args.descents):
             print(f"| {n:,} | {k:,} | {name} ({len(queries[name][0])}) | {method} | {params} | {cand:,.0f} | "
                   f"{recall:.3f} | {p50:,.0f} | {p99:,.0f} |", flush=True)
     return 0

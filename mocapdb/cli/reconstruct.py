@@ -42,9 +42,9 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                         "of more clusters, see mocapdb/core/search_rules.py)")
     p.add_argument("--per-cluster", type=D.PER_CLUSTER, default=10,
                    help="j: projections taken per cluster (default 10)")
-    p.add_argument("--subclusters-searched", type=D.SUBCLUSTERS_SEARCHED, default=3,
+    p.add_argument("--subclusters-searched", type=D.SUBCLUSTERS_SEARCHED, default=5,
                    help="in each cluster searched, its sub-clusters with the nearest representatives searched "
-                        "(default 3; a database's clusters have one sub-cluster per ~1,260 projections, so on "
+                        "(default 5; a database's clusters have one sub-cluster per ~1,260 projections, so on "
                         "the method's 630,000 most clusters are searched whole)")
     p.add_argument("--grid-descents", type=D.GRID_DESCENTS, default=3,
                    help="the best N candidates each move to a nearer neighbouring frame or yaw while there is one "

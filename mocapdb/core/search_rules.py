@@ -16,9 +16,13 @@ held out, databases at 12°, 3.6° and 1.25° yaw steps, 0.58 M to 5.5 M project
 
 Hence :func:`clusters_for`: the paper's cluster size, 1,260 projections per cluster (K 500 up to 630,000),
 and :func:`clusters_searched_for`: 5 at K 500, growing as K^0.45. A core leaf: the runtime's default
-``--clusters-searched`` is :func:`clusters_searched_for` of the database's K; the builder's default
-``--clusters`` is meant to be :func:`clusters_for` of its projections (its k-means and Eq. 1 assignment then
-cost O(N²/1,260): 1,900 s at 5.5 M with today's builder, against 212 s for K 500).
+``--clusters-searched`` is :func:`clusters_searched_for` of the database's K.
+
+More clusters cost the build O(N·K) in k-means and the Eq. 1 assignment (``--clusters 4401`` took 1,900 s
+at 5.5 M, K 500 212 s), so the builder keeps the method's K 500 and bounds the search one level down
+instead: the search index cuts each cluster into :func:`subclusters_for` sub-clusters of the same 1,260
+projections (O(Σ n_c² / 1,260) to build), and a query searches the few nearest of each searched cluster
+(``runtime/search.py``, README "Search at scale").
 """
 from __future__ import annotations
 

@@ -18,12 +18,14 @@ file                dtype      shape        holds
 ==================  =========  ===========  =====================================================
 
 Within a cluster the columns are grouped by sub-cluster, and follow the projection rows within one. Each file's manifest
-entry has its size and the sha256 of every :data:`BLOCK_BYTES` block, checked in parallel threads.
+entry has its size and the CRC-32 of every :data:`BLOCK_BYTES` block, checked in parallel threads: the tables keep
+their sha256, the index (3.5 GB at 28 M projections) is checked at start-up, where CRC-32 (2.3 GB/s a core here)
+takes half of sha256's time (1.3 GB/s) and still finds any damage short of a deliberate forgery.
 """
 from __future__ import annotations
 
-import hashlib
 import os
+import zlib
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,7 +34,7 @@ import numpy as np
 
 from mocapdb.core.errors import MocapdbError
 
-BLOCK_BYTES = 64 << 20  # one sha256 per 64 MiB block: checked in parallel
+BLOCK_BYTES = 64 << 20  # one CRC-32 per 64 MiB block: checked in parallel
 N_JOINTS_2D = 14
 ARRAYS = {"x": "float32", "y": "float32", "rows": "int64", "columns": "int64", "cluster_start": "int64",
           "cluster_subs": "int64", "sub_start": "int64", "sub_rep": "int64"}
@@ -61,14 +63,14 @@ def file_name(name: str) -> str:
 
 
 def block_digests(file: Path, workers: int | None = None) -> list[str]:
-    """sha256 of each :data:`BLOCK_BYTES` block of ``file``, hashed in ``workers`` threads (hashlib
+    """CRC-32 (8 hex digits) of each :data:`BLOCK_BYTES` block of ``file``, in ``workers`` threads (zlib
     releases the GIL); read with ``pread``, so nothing is mapped into this process."""
     size = file.stat().st_size
     offsets = range(0, max(size, 1), BLOCK_BYTES)
     fd = os.open(file, os.O_RDONLY)
     try:
         def digest(offset: int) -> str:
-            return hashlib.sha256(os.pread(fd, min(BLOCK_BYTES, size - offset), offset)).hexdigest()
+            return f"{zlib.crc32(os.pread(fd, min(BLOCK_BYTES, size - offset), offset)):08x}"
         with ThreadPoolExecutor(max_workers=workers or os.cpu_count() or 1) as pool:
             return list(pool.map(digest, offsets))
     finally:
@@ -78,12 +80,12 @@ def block_digests(file: Path, workers: int | None = None) -> list[str]:
 def index_entry(file: Path) -> dict:
     """The manifest entry of an index file written at ``file``: name, bytes and block digests."""
     return {"file": file.name, "bytes": file.stat().st_size, "block_bytes": BLOCK_BYTES,
-            "sha256_blocks": block_digests(file)}
+            "crc32_blocks": block_digests(file)}
 
 
 def _check_entry(name: str, entry: object) -> None:
     if not (isinstance(entry, dict) and entry.get("file") == file_name(name) and isinstance(entry.get("bytes"), int)
-            and entry.get("block_bytes") == BLOCK_BYTES and isinstance(entry.get("sha256_blocks"), list)):
+            and entry.get("block_bytes") == BLOCK_BYTES and isinstance(entry.get("crc32_blocks"), list)):
         raise SearchIndexError(f"malformed search index entry {name!r} in the manifest")
 
 
@@ -105,7 +107,7 @@ def load_search_index(path: Path, entries: dict, n_projections: int, n_clusters:
         file = path / file_name(name)
         if not file.is_file() or file.stat().st_size != entries[name]["bytes"]:
             raise SearchIndexError(f"{file}: missing, or not the manifest's {entries[name]['bytes']} bytes")
-        if verify_checksums and block_digests(file) != entries[name]["sha256_blocks"]:
+        if verify_checksums and block_digests(file) != entries[name]["crc32_blocks"]:
             raise SearchIndexError(f"checksum mismatch: {file} is damaged: rebuild the database, or --no-verify "
                                    "to load it anyway")
         try:
