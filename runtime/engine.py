@@ -23,7 +23,7 @@ from mocapdb.core.formats.database import DatabaseError, MotionDatabase
 from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
 from mocapdb.core.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, Match, PersonPose, TrackRecording
-from mocapdb.core.search_rules import clusters_searched_for
+from mocapdb.core.search_rules import clusters_searched_for, subclusters_searched_for
 from mocapdb.core.skeleton import (
     KP,
     N_KEYPOINTS_2D,
@@ -47,7 +47,7 @@ from mocapdb.runtime.filters import (
     QuaternionOneEuroFilter,
 )
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
-from mocapdb.runtime.search import SUBCLUSTERS_SEARCHED, SearchIndex, search_clustered, search_exact, yaw_offset
+from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact, yaw_offset
 from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotations
 from mocapdb.runtime.tracker import Tracker, TrackerConfig, TrackUpdate
 
@@ -80,7 +80,7 @@ class EngineConfig:
     n_clusters: int | None = None        # i: clusters searched; None: search_rules.clusters_searched_for(K)
     per_cluster: int = 10                # j: projections taken from each
     grid_descents: int = 3               # best candidates moved to better grid neighbours (0: the method's only)
-    subclusters: int = SUBCLUSTERS_SEARCHED  # sub-clusters searched in each cluster searched
+    subclusters: int | None = None       # sub-clusters searched per cluster; None: search_rules' for the size
     window_weights: tuple[float, ...] = (0.4, 0.3, 0.2, 0.1)  # w = 4, most recent first
     joint_weights: tuple[float, ...] | None = None            # per rig joint; default all 1
     weight_2d: float = 0.5               # added to Eq. 2: this × the candidate's Eq. 1 distance
@@ -123,7 +123,7 @@ class EngineConfig:
         D.CLUSTERS_SEARCHED.check_optional(self.n_clusters, "n_clusters")
         D.PER_CLUSTER.check(self.per_cluster, "per_cluster")
         D.GRID_DESCENTS.check(self.grid_descents, "grid_descents")
-        D.SUBCLUSTERS_SEARCHED.check(self.subclusters, "subclusters")
+        D.SUBCLUSTERS_SEARCHED.check_optional(self.subclusters, "subclusters")
         D.WINDOW_WEIGHTS.check(self.window_weights, "window_weights")
         D.WEIGHT_2D.check(self.weight_2d, "weight_2d")
         D.FOCAL_PX.check(self.focal_px, "focal_px")
@@ -305,6 +305,7 @@ class Engine:
         cfg = self.config
         self.index = SearchIndex.from_database(db)
         self.n_clusters = cfg.n_clusters or clusters_searched_for(db.n_clusters)  # i
+        self.subclusters = cfg.subclusters or subclusters_searched_for(db.n_projections)
         self.db_quats = np.ascontiguousarray(db.quaternions)
         self.clip_first = db.clip_first_frame[db.frame_clip]
         self.yaws_deg = np.asarray(db.meta["yaws_deg"], dtype=np.float64)
@@ -476,7 +477,7 @@ class Engine:
         if cfg.search == "exact":
             return search_exact(self.index, query, visible, self.n_clusters * cfg.per_cluster)
         return search_clustered(self.index, query, visible, self.n_clusters, cfg.per_cluster, cfg.grid_descents,
-                                cfg.subclusters)
+                                self.subclusters)
 
     def _choose(self, state: _TrackState, rows: np.ndarray, dist: np.ndarray) -> int:
         """Index into ``rows`` of the candidate to use (Eq. 2, or Eq. 1 at a track's start)."""

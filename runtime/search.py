@@ -4,6 +4,12 @@ Clustered search: Eq. 1 distance from the query to every cluster representative 
 ``n_clusters`` nearest clusters, then the ``per_cluster`` nearest members of each: cost
 O(K + n_clusters · mean cluster size) pose distances. Exact search: every projection, O(P).
 
+Sub-clusters (databases with a search index, ``data_specs/database.md``): each cluster is cut into
+sub-clusters of ~1,260 projections, and the members searched are those of the ``n_clusters × subclusters``
+sub-clusters of the nearest clusters whose representatives are nearest the query, so the poses read per
+query stay bounded as the database grows (:func:`mocapdb.core.search_rules.subclusters_searched_for`). A
+database whose clusters are one sub-cluster each is searched exactly as the method does.
+
 Grid descent (``descents`` > 0): the best candidates of the clustered search then move, while it lowers Eq. 1,
 to a neighbouring projection on the database's grid (the same frame at the next or previous yaw, or the next or
 previous frame of the same clip at the same yaw), a few distances each. The exact nearest projection the
@@ -29,7 +35,6 @@ from mocapdb.core.kernels import pose_distances_into, pose_normalisation_into, r
 from mocapdb.core.skeleton import KP
 
 R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]  # numba freezes them as constants
-SUBCLUSTERS_SEARCHED = 5  # sub-clusters searched in each cluster searched (search_rules.py)
 
 
 @dataclass
@@ -133,18 +138,17 @@ def _clustered(x, y, rep_x, rep_y, rep_cluster, cluster_subs, sub_start, sub_x, 
     n_rep = rep_x.shape[1]
     top_c, _ = _smallest(range_distances(rep_x, rep_y, 0, n_rep, query, vis_idx, renorm),
                          min(n_clusters, n_rep), 0)
+    chosen = _nearest_subclusters(sub_x, sub_y, cluster_subs, rep_cluster[top_c], query, vis_idx, renorm,
+                                  n_subs * top_c.shape[0])
     out_d = np.full(top_c.shape[0] * per_cluster, np.inf)
     out_i = np.full(out_d.shape[0], -1, dtype=np.int64)
     for n in range(top_c.shape[0]):
         c = rep_cluster[top_c[n]]
-        s0, s1 = cluster_subs[c], cluster_subs[c + 1]
-        if s1 - s0 <= n_subs:
-            subs = np.arange(s0, s1)
-        else:
-            subs, _ = _smallest(range_distances(sub_x, sub_y, s0, s1, query, vis_idx, renorm), n_subs, s0)
         best_d = np.full(per_cluster, np.inf)
         best_i = np.full(per_cluster, -1, dtype=np.int64)
-        for s in subs:
+        for s in range(cluster_subs[c], cluster_subs[c + 1]):
+            if not chosen[s - cluster_subs[c] + _offset(cluster_subs, rep_cluster[top_c], n)]:
+                continue
             lo, hi = sub_start[s], sub_start[s + 1]
             found_i, found_d = _smallest(range_distances(x, y, lo, hi, query, vis_idx, renorm), per_cluster, lo)
             merged_i, merged_d = _smallest(np.concatenate((best_d, found_d)), per_cluster, 0)
@@ -154,6 +158,36 @@ def _clustered(x, y, rep_x, rep_y, rep_cluster, cluster_subs, sub_start, sub_x, 
         out_d[n * per_cluster:(n + 1) * per_cluster] = best_d
     keep = out_i >= 0
     return rows[out_i[keep]], out_d[keep]
+
+
+@njit(cache=True)
+def _offset(cluster_subs, clusters, n):
+    """Where cluster ``clusters[n]``'s sub-clusters start in the concatenation of the ``clusters``' ones."""
+    total = 0
+    for m in range(n):
+        total += cluster_subs[clusters[m] + 1] - cluster_subs[clusters[m]]
+    return total
+
+
+@njit(cache=True)
+def _nearest_subclusters(sub_x, sub_y, cluster_subs, clusters, query, vis_idx, renorm, count):
+    """Flags over the ``clusters``' sub-clusters (concatenated in that order): the ``count`` whose
+    representatives are nearest the query, all of them when they are no more."""
+    total = _offset(cluster_subs, clusters, clusters.shape[0])
+    chosen = np.ones(total, dtype=np.bool_)
+    if total <= count:
+        return chosen
+    dist = np.empty(total, dtype=np.float32)
+    at = 0
+    for c in clusters:
+        s0, s1 = cluster_subs[c], cluster_subs[c + 1]
+        dist[at:at + s1 - s0] = range_distances(sub_x, sub_y, s0, s1, query, vis_idx, renorm)
+        at += s1 - s0
+    picked, _ = _smallest(dist, count, 0)
+    chosen[:] = False
+    for i in picked:
+        chosen[i] = True
+    return chosen
 
 
 GRID_STEPS = np.array([[0, 1], [0, -1], [1, 0], [-1, 0]], dtype=np.int64)  # (frame, yaw) moves of a descent
@@ -221,13 +255,13 @@ def visible_distances(x: np.ndarray, y: np.ndarray, query: np.ndarray, visible: 
 
 
 def search_clustered(index: SearchIndex, query: np.ndarray, visible: np.ndarray, n_clusters: int = 5,
-                     per_cluster: int = 10, descents: int = 0, subclusters: int = SUBCLUSTERS_SEARCHED
+                     per_cluster: int = 10, descents: int = 0, subclusters: int = 5
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Candidates of the clustered search: the ``per_cluster`` nearest members of each of the ``n_clusters``
-    clusters with the nearest representatives, searched in their ``subclusters`` sub-clusters with the nearest
-    representatives (all of them where a cluster has no more); database projection rows and their Eq. 1
-    distances, followed by the ends of the ``descents`` best candidates' grid descents that moved (see the
-    module docstring).
+    clusters with the nearest representatives, searched in the ``n_clusters × subclusters`` sub-clusters of
+    theirs with the nearest representatives (all of them where they have no more); database projection rows
+    and their Eq. 1 distances, followed by the ends of the ``descents`` best candidates' grid descents that
+    moved (see the module docstring).
 
     ``query [14, 2]`` is normalised over ``visible [14]`` (see ``normalize_pose_2d``).
     """

@@ -171,3 +171,22 @@ def test_subclusters_do_not_depend_on_the_memory_limit(sources, few_clusters, tm
     tiny, ref = load_database(tmp_path / "db", projections=False), load_database(few_clusters, projections=False)
     for name in S.ARRAYS:
         np.testing.assert_array_equal(getattr(tiny.search_index, name), getattr(ref.search_index, name))
+
+
+def test_the_nearest_subclusters_of_the_nearest_clusters_are_searched(few_clusters):
+    db = load_database(few_clusters)
+    index = SearchIndex.from_database(db)
+    rng = np.random.default_rng(3)
+    for row in rng.choice(db.n_projections, 20, replace=False):
+        query = db.keypoints_2d[row] + rng.normal(0, 0.05, (14, 2)).astype(np.float32)
+        visible = np.ones(14, dtype=bool)
+        rows, dist = search_clustered(index, query, visible, 2, 10, 0, 1)  # 2 clusters, 2 × 1 sub-clusters
+        rep = pose_distances(query[None], np.stack([index.rep_x.T, index.rep_y.T], axis=-1))[0]  # by brute force
+        clusters = index.rep_cluster[np.argsort(rep, kind="stable")[:2]]
+        subs = np.concatenate([np.arange(index.cluster_subs[c], index.cluster_subs[c + 1]) for c in clusters])
+        sub = pose_distances(query[None], np.stack([index.sub_x[:, subs].T, index.sub_y[:, subs].T], axis=-1))[0]
+        chosen = subs[np.argsort(sub, kind="stable")[:2]]
+        members = np.concatenate([np.arange(index.sub_start[s], index.sub_start[s + 1]) for s in chosen])
+        member = pose_distances(query[None], np.stack([index.x[:, members].T, index.y[:, members].T], axis=-1))[0]
+        np.testing.assert_allclose(dist.min(), member.min(), rtol=1e-5)
+        assert set(index.column_of_row[rows]) <= set(members)

@@ -84,19 +84,17 @@ def timed(search, queries: np.ndarray, visible: np.ndarray) -> tuple[np.ndarray,
 
 def clustered_candidates(index: SearchIndex, query: np.ndarray, vis: np.ndarray, n_clusters: int,
                          subclusters: int) -> int:
-    """Eq. 1 distances the clustered search computes: every representative, then in each of the
-    ``n_clusters`` nearest clusters its sub-clusters' representatives (where it has more than
-    ``subclusters``) and the members of its ``subclusters`` nearest sub-clusters."""
+    """Eq. 1 distances the clustered search computes: every representative, then, of the ``n_clusters``
+    nearest clusters, their sub-clusters' representatives (where they have more than ``n_clusters ×
+    subclusters`` in all) and the members of the ``n_clusters × subclusters`` nearest sub-clusters."""
     rep = visible_distances(index.rep_x, index.rep_y, query, vis)
+    clusters = index.rep_cluster[np.argsort(rep, kind="stable")[:n_clusters]]
+    subs = np.concatenate([np.arange(index.cluster_subs[c], index.cluster_subs[c + 1]) for c in clusters])
     count = len(rep)
-    for c in index.rep_cluster[np.argsort(rep, kind="stable")[:n_clusters]]:
-        s0, s1 = index.cluster_subs[c], index.cluster_subs[c + 1]
-        subs = np.arange(s0, s1)
-        if s1 - s0 > subclusters:
-            sub = visible_distances(index.sub_x[:, s0:s1], index.sub_y[:, s0:s1], query, vis)
-            subs, count = s0 + np.argsort(sub, kind="stable")[:subclusters], count + (s1 - s0)
-        count += int(np.sum(index.sub_start[subs + 1] - index.sub_start[subs]))
-    return count
+    if len(subs) > n_clusters * subclusters:
+        sub = visible_distances(index.sub_x[:, subs], index.sub_y[:, subs], query, vis)
+        subs, count = subs[np.argsort(sub, kind="stable")[:n_clusters * subclusters]], count + len(subs)
+    return count + int(np.sum(index.sub_start[subs + 1] - index.sub_start[subs]))
 
 
 class GraphSearch:

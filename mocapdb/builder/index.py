@@ -10,8 +10,8 @@ members (:func:`subclusters_of`: the method's own recipe one level down: k-means
 MDS coordinates, each sub-cluster's member nearest its centroid as its representative, every
 member then moved to its nearest representative under Eq. 1), its columns ordered by sub-cluster,
 and the group's stretch of every joint's row written. Cost O(P) for pass 1, O(P · groups) reads
-for pass 2 (one group at the default limit up to ~40 M projections), and O(Σ n_c² / 1,260) for
-the sub-clusters (n_c: the members of cluster c).
+for pass 2 (groups of at most 1 GB: ~6.7 M columns, so 5 groups at 28 M projections), and
+O(Σ n_c² / 1,260) for the sub-clusters (n_c: the members of cluster c).
 """
 from __future__ import annotations
 

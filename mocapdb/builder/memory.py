@@ -58,7 +58,7 @@ class ChunkPlan:
     @property
     def budget_bytes(self) -> int:
         """All the limit leaves beside the process's own memory (for a stage that is faster in
-        fewer, larger pieces: the search index's groups)."""
+        fewer, larger pieces, up to a cap of its own: the search index's groups)."""
         return max(0, (self.limit_mb - PROCESS_BASE_MB) * MB)
 
     def rows(self, bytes_per_row: float, multiple: int = 1) -> int:

@@ -42,10 +42,11 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                         "of more clusters, see mocapdb/core/search_rules.py)")
     p.add_argument("--per-cluster", type=D.PER_CLUSTER, default=10,
                    help="j: projections taken per cluster (default 10)")
-    p.add_argument("--subclusters-searched", type=D.SUBCLUSTERS_SEARCHED, default=5,
-                   help="in each cluster searched, its sub-clusters with the nearest representatives searched "
-                        "(default 5; a database's clusters have one sub-cluster per ~1,260 projections, so on "
-                        "the method's 630,000 most clusters are searched whole)")
+    p.add_argument("--subclusters-searched", type=D.SUBCLUSTERS_SEARCHED,
+                   help="the searched clusters' sub-clusters searched, per cluster: their members are those of "
+                        "the N x --clusters-searched sub-clusters with the nearest representatives (default: 5 "
+                        "up to the method's 630,000 projections, more on larger databases, see "
+                        "mocapdb/core/search_rules.py)")
     p.add_argument("--grid-descents", type=D.GRID_DESCENTS, default=3,
                    help="the best N candidates each move to a nearer neighbouring frame or yaw while there is one "
                         "(default 3; 0: the method's candidates only)")

@@ -44,6 +44,14 @@ def subclusters_for(n_members: int) -> int:
     return max(1, -(-n_members // PROJECTIONS_PER_CLUSTER))
 
 
+def subclusters_searched_for(n_projections: int) -> int:
+    """Default sub-clusters searched per cluster searched, for a database of ``n_projections``: 5 up to the
+    method's 630,000, then ``5 · (N / 630,000)^0.25`` rounded (5.5 M: 9; 28 M: 13). Measured with
+    ``tools/bench_search.py`` (README "Search at scale"): noisy recall@1 0.973 at 0.58 M and 0.98 at 28 M."""
+    return max(PAPER_CLUSTERS_SEARCHED,
+               round(PAPER_CLUSTERS_SEARCHED * (n_projections / (PAPER_CLUSTERS * PROJECTIONS_PER_CLUSTER)) ** 0.25))
+
+
 def clusters_searched_for(n_clusters: int) -> int:
     """Default i for a database of ``n_clusters`` clusters: 5 at the method's 500 (and below), then
     ``5 · (K / 500)^0.45`` rounded (K 1,587: 8; 4,762: 14; 19,841: 26)."""
