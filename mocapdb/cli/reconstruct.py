@@ -42,7 +42,7 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                         "of more clusters, see mocapdb/core/search_rules.py)")
     p.add_argument("--per-cluster", type=D.PER_CLUSTER, default=10,
                    help="j: projections taken per cluster (default 10)")
-    p.add_argument("--subclusters-searched", type=D.SUBCLUSTERS_SEARCHED,
+    p.add_argument("--subclusters-searched", type=D.SUBCLUSTERS_SEARCHED, metavar="N",
                    help="the searched clusters' sub-clusters searched, per cluster: their members are those of "
                         "the N x --clusters-searched sub-clusters with the nearest representatives (default: 5 "
                         "up to the method's 630,000 projections, more on larger databases, see "
