@@ -298,3 +298,14 @@ def test_memory_stays_flat_under_a_small_limit(tmp_path):
     large = _peak_mb([SAMPLE_BVH], tmp_path / "large", 2.0)
     assert load_database(tmp_path / "large").n_projections == 231_840
     assert large - small < 25, (small, large)
+
+
+def test_a_new_work_array_leaves_a_hard_link_to_the_old_one_alone(tmp_path):
+    """The database hard-links the search index from the work folder: a restarted index stage must
+    make new files, not truncate the ones a database holds."""
+    array = WorkArray.create(tmp_path / "index_x.npy", np.float32, (3,), 2)
+    array[0:2] = np.ones((2, 3))
+    os.link(tmp_path / "index_x.npy", tmp_path / "in_database.npy")
+    WorkArray.create(tmp_path / "index_x.npy", np.float32, (3,), 2)
+    np.testing.assert_array_equal(np.load(tmp_path / "in_database.npy"), np.ones((2, 3)))
+    np.testing.assert_array_equal(np.load(tmp_path / "index_x.npy"), np.zeros((2, 3)))

@@ -44,7 +44,9 @@ class WorkArray:
 
     @classmethod
     def create(cls, path: Path, dtype: np.dtype | type, row_shape: tuple[int, ...] = (), rows: int = 0) -> WorkArray:
-        """A new array of ``rows`` zero rows at ``path`` (replacing any file there; sparse on disk)."""
+        """A new array of ``rows`` zero rows at ``path`` (replacing any file there by a new one: a database
+        holding a hard link to the old one keeps it; sparse on disk)."""
+        Path(path).unlink(missing_ok=True)
         with open(path, "wb") as f:
             _write_header(f, np.dtype(dtype), (rows, *row_shape))
             f.truncate(f.tell() + rows * int(np.prod(row_shape, dtype=np.int64)) * np.dtype(dtype).itemsize)
