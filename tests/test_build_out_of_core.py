@@ -309,3 +309,19 @@ def test_a_new_work_array_leaves_a_hard_link_to_the_old_one_alone(tmp_path):
     WorkArray.create(tmp_path / "index_x.npy", np.float32, (3,), 2)
     np.testing.assert_array_equal(np.load(tmp_path / "in_database.npy"), np.ones((2, 3)))
     np.testing.assert_array_equal(np.load(tmp_path / "index_x.npy"), np.zeros((2, 3)))
+
+
+def test_an_index_stage_interrupted_after_its_last_group_goes_on(sources, whole, tmp_path, monkeypatch):
+    real = pipeline._finish_index
+
+    def finish_then_stop(run, arrays):
+        real(run, arrays)
+        raise Interrupt("index finished, not yet recorded")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(pipeline, "_finish_index", finish_then_stop)
+        with pytest.raises(Interrupt):
+            build([str(sources)], tmp_path / "db", _config(memory_limit_mb=TINY_MB))
+    summary = build([str(sources)], tmp_path / "db", _config(memory_limit_mb=TINY_MB))
+    assert summary.resumed["index"].startswith("went on from columns done")
+    assert_same_database(whole, tmp_path / "db")

@@ -5,8 +5,10 @@ the same command goes on where it stopped (``data_specs/build.md``).
 
 Stage costs (N projections, F frames, V yaws, L landmarks, K clusters, d dims, I iterations):
 reading and retargeting O(F·source joints); projection O(F·V); landmark MDS O(N·L·14);
-k-means O(I·N·K·d); assignment O(N·K·14); writing O(N). ``tools/bench_build.py`` prints how each
-grows with N.
+k-means O(I·N·K·d); assignment O(N·K·14); the search index O(N · groups) and its sub-clusters
+O(Σ n_c² / 1,260) over the clusters' sizes n_c (``builder/index.py``); writing O(N). The chunked
+stages run here or as tasks on a Dask cluster (``builder/tasks.py``). ``tools/bench_build.py``
+prints how each grows with N.
 """
 from __future__ import annotations
 
@@ -69,6 +71,7 @@ WRITE_BYTES_PER_FRAME = 2048
 INDEX_BYTES_PER_ROW = 256            # the index: a pose read, its label and column
 INDEX_GROUP_BYTES_MAX = 1 << 30      # the index's column groups: larger ones save a pass over the poses
                                      # (~1 s at 28 M) but would make memory grow with the library
+
 
 class BuildError(MocapdbError, RuntimeError):
     """A build that cannot go on; the message says why, ``skipped`` names the files skipped before
@@ -540,13 +543,13 @@ def _index_stage(run: _Run) -> list[WorkArray]:
 
 def _finish_index(run: _Run, arrays: dict) -> None:
     """The index's small arrays in their final form: sub-cluster starts ending at P, each cluster's
-    first sub-cluster ``[K + 1]``; the scratch column order deleted."""
+    first sub-cluster ``[K + 1]`` (the scratch column order stays until the work folder goes: a run
+    interrupted here goes on from it)."""
     starts = np.array(arrays["index_sub_start"][0:len(arrays["index_sub_start"])])
     subs_of = np.array(arrays["index_subs_of"][0:len(arrays["index_subs_of"])])
     run.work.save("index_cluster_subs", np.concatenate([[0], np.cumsum(subs_of)]))
     run.work.save("index_sub_start", np.concatenate([starts, [run.n_projections]]))  # a resume cuts it back
     arrays["index_sub_start"] = run.work.array("index_sub_start")
-    (run.work.path / "index_sorted.npy").unlink(missing_ok=True)
 
 
 # ----------------------------------------------------------------------------------- write
