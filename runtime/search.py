@@ -146,8 +146,9 @@ def _clustered(x, y, rep_x, rep_y, rep_cluster, cluster_subs, sub_start, sub_x, 
         c = rep_cluster[top_c[n]]
         best_d = np.full(per_cluster, np.inf)
         best_i = np.full(per_cluster, -1, dtype=np.int64)
+        first = _offset(cluster_subs, rep_cluster[top_c], n)  # the cluster's first flag in ``chosen``
         for s in range(cluster_subs[c], cluster_subs[c + 1]):
-            if not chosen[s - cluster_subs[c] + _offset(cluster_subs, rep_cluster[top_c], n)]:
+            if not chosen[first + s - cluster_subs[c]]:
                 continue
             lo, hi = sub_start[s], sub_start[s + 1]
             found_i, found_d = _smallest(range_distances(x, y, lo, hi, query, vis_idx, renorm), per_cluster, lo)
