@@ -78,3 +78,14 @@ def test_the_cli_starts_a_local_cluster(sources, tmp_path, capsys):
 def test_a_bad_local_cluster_is_named(scheduler):
     with pytest.raises(TasksError, match="'local:N' needs N workers"):
         connect(scheduler)
+
+
+def test_workers_that_cannot_run_the_build_are_named(client, monkeypatch):
+    from mocapdb.builder import tasks
+
+    def broken():
+        raise ModuleNotFoundError("No module named 'mocapdb'")
+
+    monkeypatch.setattr(tasks, "_prepare_worker", broken)
+    with pytest.raises(TasksError, match="cannot run mocapdb's build.*No module named 'mocapdb'"):
+        tasks.DaskTasks(client)

@@ -74,7 +74,11 @@ class DaskTasks(Tasks):
 
     def __init__(self, client, cluster=None, owned: bool = False):
         self.client, self.cluster, self.owned = client, cluster, owned
-        versions = client.run(_prepare_worker)
+        try:
+            versions = client.run(_prepare_worker)
+        except Exception as exc:  # noqa: BLE001 - whatever a worker raised, the build cannot use it
+            raise TasksError(f"the Dask workers cannot run mocapdb's build (pip install 'mocapdb[dask]' on each): "
+                             f"{type(exc).__name__}: {exc}") from None
         other = {worker: version for worker, version in versions.items() if version != __version__}
         if other:
             raise TasksError(f"workers run another mocapdb than this {__version__}: {other}")
