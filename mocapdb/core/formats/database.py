@@ -216,16 +216,23 @@ def _check_clips(db: MotionDatabase) -> None:
         raise DatabaseError("frame_index is not 0, 1, 2, ... within each clip")
 
 
+def _filled_clusters(db: MotionDatabase) -> np.ndarray:
+    """The clusters with members (by ``cluster_size``), once every representative is a projection row
+    exactly for them and −1 for the empty ones."""
+    _check_range("representative", db.representative, -1, db.n_projections)
+    filled = db.cluster_size > 0
+    if not np.array_equal(db.representative >= 0, filled):
+        raise DatabaseError("representative must be -1 exactly for the empty clusters")
+    return np.flatnonzero(filled)
+
+
 def _check_clusters(db: MotionDatabase) -> None:
     _check_range("cluster", db.cluster, 0, db.n_clusters)
-    _check_range("representative", db.representative, -1, db.n_projections)
     sizes = np.bincount(db.cluster, minlength=db.n_clusters)
     if not np.array_equal(sizes, db.cluster_size):
         raise DatabaseError("cluster_size differs from the number of projections in each cluster")
-    filled = sizes > 0
-    if not np.array_equal(db.representative >= 0, filled):
-        raise DatabaseError("representative must be -1 exactly for the empty clusters")
-    if not np.array_equal(db.cluster[db.representative[filled]], np.flatnonzero(filled)):
+    filled = _filled_clusters(db)
+    if not np.array_equal(db.cluster[db.representative[filled]], filled):
         raise DatabaseError("a cluster's representative projection belongs to another cluster")
 
 
@@ -237,10 +244,7 @@ def _check_index(db: MotionDatabase) -> None:
         raise DatabaseError("the search index does not hold one projection per frame and yaw")
     if not np.array_equal(np.diff(index.cluster_start), db.cluster_size):
         raise DatabaseError("the search index's cluster sizes differ from cluster_size")
-    _check_range("representative", db.representative, -1, db.n_projections)
-    filled = np.flatnonzero(db.representative >= 0)
-    if not np.array_equal(filled, np.flatnonzero(db.cluster_size > 0)):
-        raise DatabaseError("representative must be -1 exactly for the empty clusters")
+    filled = _filled_clusters(db)
     column = index.columns[db.representative[filled]]
     if np.any(column < index.cluster_start[filled]) or np.any(column >= index.cluster_start[filled + 1]):
         raise DatabaseError("a cluster's representative lies outside its columns of the search index")
