@@ -6,6 +6,7 @@ import os
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -21,7 +22,7 @@ from mocapdb.builder.embedding import (
     kmeans_seed,
 )
 from mocapdb.builder.pipeline import build
-from mocapdb.builder.work import STAGES, WorkArray
+from mocapdb.builder.work import STAGES, WorkArray, WorkFolder
 from mocapdb.cli.main import main
 from mocapdb.core.formats.database import load_database
 
@@ -325,3 +326,19 @@ def test_an_index_stage_interrupted_after_its_last_group_goes_on(sources, whole,
     summary = build([str(sources)], tmp_path / "db", _config(memory_limit_mb=TINY_MB))
     assert summary.resumed["index"].startswith("went on from columns done")
     assert_same_database(whole, tmp_path / "db")
+
+
+def test_the_work_folder_size_skips_a_file_renamed_while_it_counts(tmp_path, monkeypatch):
+    """A save under way renames its temporary state file between the listing and its stat."""
+    with WorkFolder(tmp_path / "db.work", {stage: {} for stage in STAGES}) as work:
+        work.save("centroids", np.zeros(1000))
+        (work.path / ".state.json.tmp1").write_bytes(b"{}")
+        real_stat = Path.stat
+
+        def vanished(self, **kwargs):
+            if self.name == ".state.json.tmp1":
+                raise FileNotFoundError(self)
+            return real_stat(self, **kwargs)
+
+        monkeypatch.setattr(Path, "stat", vanished)
+        assert work.size_bytes() >= 8000

@@ -8,6 +8,7 @@ import fcntl
 import json
 import os
 import shutil
+import stat
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -247,8 +248,16 @@ class WorkFolder:
         return np.load(self.path / f"{name}.npy")
 
     def size_bytes(self) -> int:
-        """Bytes the folder's files take on disk (sparse files count what they hold)."""
-        return sum(f.stat().st_blocks * 512 for f in self.path.iterdir() if f.is_file())
+        """Bytes the folder's files take on disk (sparse files count what they hold); a file a save
+        under way renames meanwhile (its temporary) is not counted."""
+        total = 0
+        for file in self.path.iterdir():
+            try:
+                status = file.stat()
+            except FileNotFoundError:
+                continue
+            total += status.st_blocks * 512 if stat.S_ISREG(status.st_mode) else 0
+        return total
 
     def remove(self) -> None:
         """Delete the folder, once no save is under way."""
