@@ -11,8 +11,9 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    cut-off is :attr:`TakeParams.smoothing_hz` (the one smoothing control, in hertz: motion slower
    than it passes, jitter faster than it goes).
 2. **Contacts**: an ankle is planted where its keypoint stands still in the image (speed under
-   :attr:`TakeParams.planted_box_per_s` box heights per second: the slope of a line fitted to it
-   over :data:`CONTACT_WINDOW_S`) and it is within
+   :attr:`TakeParams.planted_box_per_s` box heights per second: the slope of a line fitted over
+   :data:`CONTACT_WINDOW_S` to its running median, which a detector's one-frame swaps and misses
+   do not move; gaps up to :data:`GAP_S` closed) and it is within
    :attr:`TakeParams.planted_height_m` of the other ankle's height or below it (along the estimated
    up; comparing the two feet of one frame cancels the depth's error, which moves both alike).
 3. **Root path**: one sparse linear least-squares problem over all frames: near the per-frame root
@@ -23,9 +24,10 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    **Planted feet**: each leg's hip and knee are then turned (two-bone IK, the knee kept in its
    bending plane) so that a planted ankle is exactly at its anchor, eased in and out of the contact.
 4. **Floor**: the plane through the planted ankles, lowered by the ankle height (:func:`floor_plane`:
-   fitted to the contacts when they span about 1 m both ways; along a straight walk, the camera's
-   estimated up made perpendicular to it; else that up); no ankle goes below it (the root is
-   lifted where one would).
+   fitted to the contacts when they lie on one plane and span about 1 m both ways; along a straight
+   walk, the camera's estimated up made perpendicular to it; else that up; its height that of the
+   lowest contacts, so a step or platform climbed on is not the floor); no ankle goes below it
+   (the root is lifted where one would).
 5. **One floor** (:func:`fit_takes`, what `reconstruct` writes): every track of the take on one
    plane, each scaled about the camera onto it (:func:`shared_floor`; ``--camera-height`` sets its
    distance and, with the people's heights, its pitch).
@@ -61,7 +63,11 @@ ANKLES = (KP["r_ankle"], KP["l_ankle"])
 MIN_CONTACT_FRAMES = 3
 MIN_SIGMA_FRAMES = 0.05   # narrower Gaussians (cut-offs above ~3 × the frame rate) leave the rotations as they are
 CONTACT_WINDOW_S = 0.25   # an ankle keypoint's image speed: the slope of a line fitted over this long
+MEDIAN_FRAMES = 5         # an ankle keypoint's image track: the running median over this many frames
+GAP_S = 0.1               # gaps in a contact up to this long are closed (a foot is not lifted and put back so fast)
 MIN_FLOOR_SPREAD_M = 0.3  # RMS extent of the contacts (≈ 1 m end to end) along a direction they fix
+MAX_FLOOR_RMS_M = 0.03    # contacts farther off their plane (RMS) are not one floor: their plane is not trusted
+FLOOR_BAND_M = 0.15       # contacts within this of the lowest are on the floor; higher: steps (risers 15-20 cm)
 
 
 @dataclass(frozen=True)
@@ -156,17 +162,58 @@ def smooth_rotations(quats: np.ndarray, fps: float, params: TakeParams) -> np.nd
 def planted_ankles(keypoints: np.ndarray, ankles_view_m: np.ndarray, up: np.ndarray, fps: float,
                    params: TakeParams) -> np.ndarray:
     """Which ankles ``[F, 2]`` are planted: still in the image and near the lowest (module docstring).
-    ``keypoints [F, 14, 3]`` (x, y px, confidence), ``ankles_view_m [F, 2, 3]``."""
-    px, seen = keypoints[:, ANKLES, :2], keypoints[:, ANKLES, 2] > 0
+    ``keypoints [F, 14, 3]`` (x, y px, confidence), ``ankles_view_m [F, 2, 3]``.
+
+    The image track of each ankle is first a running median over :data:`MEDIAN_FRAMES` frames of
+    its seen positions, so a detector's single-frame left/right swap or missed keypoint neither
+    moves a planted foot nor splits its contact; gaps of up to :data:`GAP_S` in a contact are closed."""
+    px = robust_track_px(keypoints[:, ANKLES])
+    seen = np.isfinite(px[..., 0])
     visible = keypoints[..., 2] > 0
     seen_frames = visible.any(axis=1)  # frames the track missed hold no keypoint
     ys = np.where(visible, keypoints[..., 1], np.nan)[seen_frames]
     box = float(np.median(np.nanmax(ys, axis=1) - np.nanmin(ys, axis=1))) if len(ys) else 1.0
-    speed = np.linalg.norm(_slope(px, max(int(round(CONTACT_WINDOW_S * fps / 2)), 1)), axis=-1) * fps / max(box, 1.0)
+    half_window = max(int(round(CONTACT_WINDOW_S * fps / 2)), 1)
+    speed = np.linalg.norm(_slope(_interpolated(px), half_window), axis=-1) * fps / max(box, 1.0)
     height = ankles_view_m @ up
     low = height <= height.min(axis=1, keepdims=True) + params.planted_height_m  # the lower foot (or both)
-    planted = seen & low & (speed < params.planted_box_per_s)
+    planted = _close_gaps(seen & low & (speed < params.planted_box_per_s), int(round(GAP_S * fps)))
     return _drop_short_runs(planted, MIN_CONTACT_FRAMES)
+
+
+def robust_track_px(points: np.ndarray) -> np.ndarray:
+    """Keypoints ``[F, K, 3]`` (x, y px, confidence) as positions ``[F, K, 2]``: per frame the median of
+    the seen positions over the :data:`MEDIAN_FRAMES` frames around it (NaN where none was seen)."""
+    xy = np.where(points[..., 2:] > 0, points[..., :2], np.nan)
+    half = MEDIAN_FRAMES // 2
+    padded = np.concatenate([np.full((half,) + xy.shape[1:], np.nan), xy, np.full((half,) + xy.shape[1:], np.nan)])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, MEDIAN_FRAMES, axis=0)  # [F, K, 2, window]
+    out = np.full(xy.shape, np.nan)
+    some = np.isfinite(windows).any(axis=-1)
+    out[some] = np.nanmedian(windows[some], axis=-1)
+    return out
+
+
+def _interpolated(values: np.ndarray) -> np.ndarray:
+    """``values [F, ...]`` with NaN filled by linear interpolation over frames (edges held; all-NaN
+    series: 0)."""
+    flat = values.reshape(len(values), -1).copy()
+    frames = np.arange(len(values))
+    for column in flat.T:
+        ok = np.isfinite(column)
+        column[~ok] = np.interp(frames[~ok], frames[ok], column[ok]) if ok.any() else 0.0
+    return flat.reshape(values.shape)
+
+
+def _close_gaps(mask: np.ndarray, max_gap: int) -> np.ndarray:
+    """``mask [F, K]`` with gaps of at most ``max_gap`` frames between two runs of True filled."""
+    out = mask.copy()
+    for k in range(mask.shape[1]):
+        runs = _runs(mask[:, k])
+        for (_, stop), (start, _) in zip(runs[:-1], runs[1:]):
+            if start - stop <= max_gap:
+                out[stop:start, k] = True
+    return out
 
 
 def _slope(values: np.ndarray, half: int) -> np.ndarray:
@@ -329,24 +376,57 @@ def _perpendiculars(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def floor_plane(ankles_view_m: np.ndarray, planted: np.ndarray, up: np.ndarray,
                 ankle_height_m: float) -> tuple[np.ndarray, float]:
     """The floor ``normal · p = offset`` (view frame) under the planted ankles ``[F, 2, 3]``, lowered by
-    ``ankle_height_m``: a plane fitted to them when they span about 1 m in two directions (its normal
-    on the ``up`` side); when they span one direction only (a straight walk), ``up`` made
-    perpendicular to it; else ``up``. The offset: the median over the contacts."""
+    ``ankle_height_m``. The normal (:func:`_floor_normal`): a plane fitted to the contacts where they
+    lie on one and span about 1 m in two directions; along a straight walk, ``up`` made
+    perpendicular to it; else ``up``. The offset: the median height of the contacts on the lowest
+    level (:func:`_floor_height`; contacts higher up stand on steps or platforms)."""
     points = ankles_view_m[planted]
-    normal = up / np.linalg.norm(up)
-    if len(points) >= 10:
-        centred = points - points.mean(axis=0)
-        _, spread, vt = np.linalg.svd(centred, full_matrices=False)
-        spread = spread / np.sqrt(len(points))  # RMS extent along each principal direction
-        if spread[1] >= MIN_FLOOR_SPREAD_M and abs(vt[2] @ normal) > 0.8:
-            normal = vt[2] * np.sign(vt[2] @ normal)
-        elif spread[0] >= MIN_FLOOR_SPREAD_M and abs(vt[0] @ normal) < 0.5:
+    normal = _floor_normal(points, up / np.linalg.norm(up))
+    return normal, _floor_height(points, normal) - ankle_height_m
+
+
+def _floor_normal(points: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """The floor's unit normal under contacts ``[N, 3]`` (view frame): see :func:`floor_plane`. A
+    plane is trusted only where the contacts lie on it (RMS :data:`MAX_FLOOR_RMS_M`): first all of
+    them, then those on the lowest level along ``up``."""
+    if len(points) < 10:
+        return up
+    for subset in (points, _lowest_level(points, up)):
+        plane = _coplanar_spread(subset)
+        if plane is None:
+            continue
+        spread, vt = plane
+        if spread[1] >= MIN_FLOOR_SPREAD_M and abs(vt[2] @ up) > 0.8:
+            return vt[2] * np.sign(vt[2] @ up)
+        if spread[0] >= MIN_FLOOR_SPREAD_M and abs(vt[0] @ up) < 0.5:
             # contacts along one line (a straight walk): the floor contains it; the up estimate keeps
             # only its tilt about the line
-            normal = normal - (normal @ vt[0]) * vt[0]
-            normal /= np.linalg.norm(normal)
-    offset = float(np.median(points @ normal)) - ankle_height_m
-    return normal, offset
+            normal = up - (up @ vt[0]) * vt[0]
+            return normal / np.linalg.norm(normal)
+    return up
+
+
+def _coplanar_spread(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The RMS extents ``[3]`` and principal directions ``[3, 3]`` (rows) of contacts ``[N, 3]``, or
+    None when they are fewer than 10 or do not lie on one plane (RMS off it over
+    :data:`MAX_FLOOR_RMS_M`)."""
+    if len(points) < 10:
+        return None
+    _, spread, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
+    spread = spread / np.sqrt(len(points))
+    return (spread, vt) if spread[2] <= MAX_FLOOR_RMS_M else None
+
+
+def _lowest_level(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """The contacts ``[N, 3]`` within :data:`FLOOR_BAND_M` of the lowest ones along ``normal`` (their
+    5th percentile): those on the floor, not on a step or platform above it."""
+    heights = points @ normal
+    return points[heights <= np.quantile(heights, 0.05) + FLOOR_BAND_M]
+
+
+def _floor_height(points: np.ndarray, normal: np.ndarray) -> float:
+    """The median height along ``normal`` of the contacts ``[N, 3]`` on the lowest level."""
+    return float(np.median(_lowest_level(points, normal) @ normal))
 
 
 def _above_floor(root_m: np.ndarray, ankle_offsets_m: np.ndarray, normal: np.ndarray, offset: float,
@@ -385,9 +465,7 @@ def shared_floor(fits: list[tuple[TrackRecording, TakeResult]], camera_height_m:
         scales[with_floor] = distance / own
         points = np.concatenate([scales[i] * fits[i][1].planted_ankles_m for i in with_floor])
         normal = floor_plane(points[:, None], np.ones((len(points), 1), dtype=bool), normal, 0.0)[0]
-    distance = float(np.median(np.concatenate([scales[i] * fits[i][1].planted_ankles_m @ normal
-                                                - ANKLE_HEIGHT_M * scales[i] * fits[i][0].scales[-1]
-                                                for i in with_floor])))
+    distance = float(np.median([scales[i] * _floor_distance(fits[i], normal) for i in with_floor]))
     if camera_height_m is not None:
         distance = -camera_height_m
     return [_rescaled(rec, k, normal, distance) for (rec, _), k in zip(fits, scales)]
@@ -414,7 +492,7 @@ def _pitch_from_camera_height(fits: list[tuple[TrackRecording, TakeResult]], nor
     cost = np.zeros(len(thetas))
     fixed = False
     for rec, result in fits:
-        points = result.planted_ankles_m
+        points = _lowest_level(result.planted_ankles_m, normal) if len(result.planted_ankles_m) else np.zeros((0, 3))
         own = np.median(points @ normals.T, axis=0) - ANKLE_HEIGHT_M * rec.scales[-1]       # [T]
         k = camera_height_m / np.maximum(-own, 1e-3)
         cost += (np.log(rec.scales[-1] * k) / STATURE_SD) ** 2
@@ -425,19 +503,20 @@ def _pitch_from_camera_height(fits: list[tuple[TrackRecording, TakeResult]], nor
 
 
 def _contacts_fix_pitch(points: np.ndarray) -> bool:
-    """Whether contacts ``[N, 3]`` (view frame) fix the floor's pitch: they span about 1 m in two
-    directions, or along one that runs mostly in depth (a walk towards or away from the camera)."""
-    if len(points) < 10:
+    """Whether contacts ``[N, 3]`` (view frame) fix the floor's pitch: they lie on one plane and span
+    about 1 m in two directions, or along one that runs mostly in depth (a walk towards or away
+    from the camera)."""
+    plane = _coplanar_spread(points)
+    if plane is None:
         return False
-    _, spread, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
-    spread = spread / np.sqrt(len(points))
+    spread, vt = plane
     return bool(spread[1] >= MIN_FLOOR_SPREAD_M or (spread[0] >= MIN_FLOOR_SPREAD_M and abs(vt[0, 2]) >= 0.7))
 
 
 def _floor_distance(fit: tuple[TrackRecording, TakeResult], normal: np.ndarray) -> float:
     """The floor's signed distance from the camera along ``normal`` under one track's contacts."""
     rec, result = fit
-    return float(np.median(result.planted_ankles_m @ normal)) - ANKLE_HEIGHT_M * rec.scales[-1]
+    return _floor_height(result.planted_ankles_m, normal) - ANKLE_HEIGHT_M * rec.scales[-1]
 
 
 def _geometric_mean(distances: np.ndarray, weights: np.ndarray) -> float:

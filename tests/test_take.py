@@ -10,6 +10,7 @@ from mocapdb.runtime.take import (
     fit_root_path,
     floor_plane,
     plant_feet,
+    planted_ankles,
     smooth_rotations,
 )
 
@@ -111,6 +112,65 @@ def test_floor_plane_from_planted_ankles_on_a_tilted_floor():
     np.testing.assert_allclose(normal, [0.0, 1.0, 0.0])
 
 
+def _walking_keypoints(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Keypoints ``[n, 14, 3]`` of a 400-px-tall person whose right ankle is planted for frames
+    10-49 and the left from frame 55 on, each swinging at 12 px a frame otherwise, σ 2 px noise;
+    and the truth ``[n, 2]`` (right, left planted)."""
+    t = np.arange(n)
+    truth = np.zeros((n, 2), dtype=bool)
+    truth[10:50, 0] = True
+    truth[55:, 1] = True
+    keypoints = np.zeros((n, 14, 3))
+    keypoints[:, :, 0] = 900.0 + 3.0 * t[:, None]       # the body moves on; the planted foot does not
+    keypoints[:, :, 1] = np.linspace(300.0, 700.0, 14)  # a 400-px box
+    keypoints[:, :, 2] = 0.9
+    for k, (side, start, stop) in enumerate((("r_ankle", 10, 49), ("l_ankle", 55, n - 1))):
+        keypoints[:, KP[side], 0] = 960.0 + 40 * k + 12.0 * (t - np.clip(t, start, stop))  # swinging: 12 px a frame
+    keypoints[..., :2] += rng.normal(scale=2.0, size=(n, 14, 2))
+    return keypoints, truth
+
+
+def test_contacts_survive_single_frame_swaps_and_missed_keypoints():
+    """A detector's one-frame left/right swaps and missed ankles neither split a contact nor end it:
+    each planted stretch is found as one contact, and the swinging foot is never planted."""
+    rng = np.random.default_rng(4)
+    keypoints, truth = _walking_keypoints(80, rng)
+    r, l_ = KP["r_ankle"], KP["l_ankle"]
+    for f in (15, 22, 31, 40, 60, 70):                    # swaps
+        keypoints[f, [r, l_]] = keypoints[f, [l_, r]]
+    keypoints[[18, 27, 36, 44, 63], r, 2] = 0.0           # missed right ankle
+    keypoints[[58, 66, 74], l_, 2] = 0.0                  # missed left ankle
+    ankles = np.zeros((80, 2, 3))                         # level feet: the height test passes
+    planted = planted_ankles(keypoints, ankles, np.array([0.0, 1.0, 0.0]), FPS, TakeParams())
+    for k in range(2):
+        runs = np.flatnonzero(np.diff(np.concatenate([[0], planted[:, k].astype(int), [0]])))
+        assert len(runs) == 2, f"ankle {k}: contacts {runs.reshape(-1, 2).tolist()}"   # one contact
+    assert np.mean(planted[truth]) > 0.85  # each stance but its ends (the 0.25 s speed window)
+    assert np.mean(truth[planted]) > 0.95                 # and hardly anything else
+
+
+def test_floor_is_the_lowest_level_and_a_non_planar_set_keeps_the_cameras_up():
+    """Contacts on the ground and on a platform 0.5 m up (a person climbing): the floor is the
+    ground, and the two levels together are no plane, so the camera's up is kept."""
+    rng = np.random.default_rng(5)
+    ground = np.column_stack([rng.uniform(-1, 1, 60), np.full(60, -1.42), rng.uniform(-6, -4, 60)])
+    platform = np.column_stack([rng.uniform(-1, 1, 40), np.full(40, -0.92), rng.uniform(-7, -6, 40)])
+    points = np.concatenate([ground, platform])
+    ankles = np.stack([points, points + [0.0, 0.3, 0.0]], axis=1)
+    planted = np.zeros((len(points), 2), dtype=bool)
+    planted[:, 0] = True
+    up = np.array([0.0, 1.0, 0.0])
+    normal, offset = floor_plane(ankles, planted, up, 0.08)
+    np.testing.assert_allclose(normal, up)
+    assert offset == pytest.approx(-1.50, abs=0.005)
+    # the ground alone, a floor pitched 6° from the estimate: fitted
+    tilt = np.radians(6.0)
+    tilted = ground.copy()
+    tilted[:, 1] = -1.42 - np.tan(tilt) * (tilted[:, 2] + 5.0)
+    normal, _ = floor_plane(np.stack([tilted, tilted], axis=1), planted[:60], up, 0.08)
+    assert np.degrees(np.arccos(normal @ [0.0, np.cos(tilt), np.sin(tilt)])) < 0.2
+
+
 def test_reconstruct_writes_the_whole_take_unless_per_frame(small_db_path, tmp_path):
     """The bundled real take: the whole-take BVH moves more smoothly than the per-frame one, on the
     same body; ``--per-frame`` writes the stream's motion."""
@@ -172,8 +232,9 @@ def test_two_people_share_one_floor_and_their_sizes_follow(small_db):
         x = np.median(np.array(rec.root_view_m)[:, 0])
         heights["left" if x < 0 else "right"] = 1.75 * rec.scales[-1]
     assert heights["right"] / heights["left"] == pytest.approx(1.85 / 1.55, rel=0.06)
-    # the camera's height above the shared floor is the true 1.5 m within 10 %
-    assert -shared[0].floor_offset_m == pytest.approx(1.5, rel=0.10)
+    # the camera's height above the shared floor is the true 1.5 m within 12 %: the two people's
+    # geometric mean stature (1.69 m) is taken for the assumed 1.75 m, +3.5 % before the pitch's share
+    assert -shared[0].floor_offset_m == pytest.approx(1.5, rel=0.12)
 
 
 def test_a_straight_walk_fixes_the_floors_tilt_about_its_line():
