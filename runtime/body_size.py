@@ -41,6 +41,7 @@ WINDOW = 240           # the median runs over the last this many frames
 SCALE_RANGE = (0.5 / UNIVERSAL_HEIGHT_M, 2.5 / UNIVERSAL_HEIGHT_M)
 _ANKLES = (KP["r_ankle"], KP["l_ankle"])
 R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]
+TILT_SD_DEG = 3.0  # the least error of CameraTilt's estimate (rendered walks; pitch and roll, degrees)
 
 
 class CameraTilt:
@@ -54,6 +55,7 @@ class CameraTilt:
 
     def __init__(self) -> None:
         self.up_sum = np.zeros(3)
+        self.count = 0
         self._scratch = np.empty((3, 4))
 
     @property
@@ -69,6 +71,18 @@ class CameraTilt:
     def update(self, root_refined: np.ndarray, root_upright: np.ndarray) -> None:
         """Add one frame: root quaternions (view frame) after the fit and as retrieved (untilted)."""
         _add_up_observation(root_refined, root_upright, self._scratch, self.up_sum)
+        self.count += 1
+
+    @property
+    def sd_deg(self) -> float:
+        """The estimate's error (degrees): :data:`TILT_SD_DEG`, or the frames' angular spread about
+        their mean (RMS) when larger. A pose the database does not hold (a jump, a balance) leans
+        the fitted root; its frames then disagree, and their mean is off by about as much (rendered
+        jumps: spread 14°, error 13°; walks: 3-6°, 1-7°)."""
+        if self.count < 2:
+            return TILT_SD_DEG
+        mean_length = min(float(np.linalg.norm(self.up_sum)) / self.count, 1.0)  # 1 − mean length ≈ mean(θ²)/2
+        return max(TILT_SD_DEG, float(np.degrees(np.sqrt(2.0 * (1.0 - mean_length)))))
 
 
 @njit(cache=True)
@@ -96,9 +110,6 @@ def _add_up_observation(refined, upright, scratch, up_sum):
     up_sum[2] += 2 * (y * z + w * x)
 
 
-TILT_SD_DEG = 3.0  # error of CameraTilt's estimate on rendered walks (pitch and roll, degrees)
-
-
 class FloorScale:
     """Running estimate of one track's body scale from its feet (see the module docstring), with
     the people's heights as a prior.
@@ -106,8 +117,8 @@ class FloorScale:
     A frame's estimate is only as good as the camera's tilt: an error δ moves the floor under a
     person ``Z`` metres away by ``δ Z``, a share ``δ Z / C`` of the camera height ``C``. The track's
     estimate (the median of its frames) is therefore combined in log space with the stature prior
-    (:data:`~mocapdb.core.anthropometry.STATURE_SD` about 1.75 m), its own SD taken as
-    :data:`TILT_SD_DEG` × the median ``Z / C`` of its frames.
+    (:data:`~mocapdb.core.anthropometry.STATURE_SD` about 1.75 m), its own SD taken as the tilt's
+    (:attr:`CameraTilt.sd_deg`) × the median ``Z / C`` of its frames.
     """
 
     def __init__(self, camera_height_m: float):
@@ -117,11 +128,12 @@ class FloorScale:
         self.samples: deque[float] = deque(maxlen=WINDOW)
         self.leverage: deque[float] = deque(maxlen=WINDOW)  # depth over the floor's distance
 
-    def update(self, up: np.ndarray, joints_view_m: np.ndarray, scale: float) -> float:
+    def update(self, up: np.ndarray, joints_view_m: np.ndarray, scale: float, tilt_sd_deg: float = TILT_SD_DEG
+               ) -> float:
         """Add one frame; returns the track's scale (``scale`` until enough frames were seen).
 
-        ``up``: the world's up in the view frame (:class:`CameraTilt`); ``joints_view_m [15, 3]``:
-        the refined keypoints at body scale ``scale``.
+        ``up``: the world's up in the view frame and ``tilt_sd_deg`` its error (:class:`CameraTilt`);
+        ``joints_view_m [15, 3]``: the refined keypoints at body scale ``scale``.
         """
         lower = min(_ANKLES, key=lambda k: float(up @ joints_view_m[k]))
         denominator = ANKLE_HEIGHT_M * scale - float(up @ joints_view_m[lower])
@@ -130,7 +142,7 @@ class FloorScale:
             self.leverage.append(-float(joints_view_m[lower, 2]) / denominator)
         if len(self.samples) < MIN_SAMPLES:
             return scale
-        floor_sd = np.radians(TILT_SD_DEG) * float(np.median(self.leverage))
+        floor_sd = np.radians(tilt_sd_deg) * float(np.median(self.leverage))
         weight = STATURE_SD ** 2 / (STATURE_SD ** 2 + floor_sd ** 2)  # of the floor's estimate against the prior
         return float(np.clip(np.exp(weight * np.log(np.median(self.samples))), *SCALE_RANGE))
 

@@ -191,7 +191,7 @@ class _TrackState:
             rec.fit_quaternions.append(fit[0])
             rec.fit_root_view_m.append(fit[1])
             rec.keypoints.append(fit[2])
-            rec.up_view = self.tilt.up
+            rec.up_view, rec.up_sd_deg = self.tilt.up, self.tilt.sd_deg
         rec.proportions_m = self.proportions_m
         self.last_frame = frame
 
@@ -461,7 +461,7 @@ class Engine:
         state.measure_bones(points_px, confidence, retrieved, root_view, self.config.focal_px)
         if state.floor is not None:
             joints = pose_from_rotations(quats[None], root_view[None], state.scale, state.offsets_m)[0]
-            scale = state.floor.update(state.tilt.up, joints, state.scale)
+            scale = state.floor.update(state.tilt.up, joints, state.scale, state.tilt.sd_deg)
             root_view = root_view * (scale / state.scale)
             state.scale = scale
         return root_view

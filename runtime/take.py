@@ -482,7 +482,7 @@ def _pitch_from_camera_height(fits: list[tuple[TrackRecording, TakeResult]], nor
     For a pitch θ, each track's scale k follows from its contacts (its floor must lie
     ``camera_height_m`` down); the cost is Σ (log(stature · k / 1.75 m) / ``STATURE_SD``)² over
     the tracks plus (θ / σ)², σ :data:`PITCH_SD_FIXED_DEG` when the contacts fix the pitch themselves
-    (:func:`_contacts_fix_pitch`), else the tilt estimate's (``body_size.TILT_SD_DEG``). The
+    (:func:`_contacts_fix_pitch`), else the tracks' tilt estimates' (:func:`_tilt_sd_deg`). The
     camera height alone cannot tell a tall person from a camera pitched down more: the people's
     heights decide between them."""
     thetas = np.radians(np.arange(-20.0, 20.0 + 1e-9, 0.1))
@@ -497,9 +497,16 @@ def _pitch_from_camera_height(fits: list[tuple[TrackRecording, TakeResult]], nor
         k = camera_height_m / np.maximum(-own, 1e-3)
         cost += (np.log(rec.scales[-1] * k) / STATURE_SD) ** 2
         fixed = fixed or _contacts_fix_pitch(points)
-    sd = np.radians(PITCH_SD_FIXED_DEG if fixed else TILT_SD_DEG)
+    sd = np.radians(PITCH_SD_FIXED_DEG if fixed else _tilt_sd_deg([rec for rec, _ in fits]))
     cost += (thetas / sd) ** 2
     return normals[int(np.argmin(cost))]
+
+
+def _tilt_sd_deg(recordings: list[TrackRecording]) -> float:
+    """The error (degrees) of the tracks' tilt estimates combined (inverse-variance; each
+    ``up_sd_deg``, else ``body_size.TILT_SD_DEG``)."""
+    sds = np.array([TILT_SD_DEG if rec.up_sd_deg is None else rec.up_sd_deg for rec in recordings])
+    return float(1.0 / np.sqrt(np.sum(1.0 / sds ** 2)))
 
 
 def _contacts_fix_pitch(points: np.ndarray) -> bool:

@@ -108,3 +108,22 @@ def test_own_bone_proportions_are_recovered_from_the_2d(small_db):
         np.testing.assert_allclose(bone_lengths_m(poses[-1].joints_m), poses[-1].bones_m, rtol=1e-9)
     with pytest.raises(AssertionError):  # the universal body would have missed the first
         np.testing.assert_allclose(universal_bone_lengths_m()[body], target[body], rtol=0.05)
+
+
+def test_tilt_error_grows_with_the_frames_disagreement():
+    """Frames whose fitted roots lean alternately ±10° about the camera's x axis: their mean up is
+    level and its error is their RMS spread, 2 sin(5°) = 9.99° in closed form; frames that agree
+    keep the least error, TILT_SD_DEG."""
+    from mocapdb.runtime.body_size import TILT_SD_DEG, CameraTilt
+
+    upright = np.array([1.0, 0.0, 0.0, 0.0])
+    half = np.radians(10.0) / 2
+    agreeing, leaning = CameraTilt(), CameraTilt()
+    for i in range(40):
+        agreeing.update(np.array([np.cos(half), np.sin(half), 0.0, 0.0]), upright)
+        sign = 1.0 if i % 2 else -1.0
+        leaning.update(np.array([np.cos(half), sign * np.sin(half), 0.0, 0.0]), upright)
+    assert agreeing.sd_deg == pytest.approx(TILT_SD_DEG)
+    np.testing.assert_allclose(agreeing.up, [0.0, np.cos(2 * half), np.sin(2 * half)], atol=1e-12)
+    np.testing.assert_allclose(leaning.up, [0.0, 1.0, 0.0], atol=1e-12)
+    assert leaning.sd_deg == pytest.approx(np.degrees(2 * np.sin(np.radians(5.0))), rel=1e-9)

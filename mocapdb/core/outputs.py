@@ -72,6 +72,7 @@ class TrackRecording:
     fit_root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] its root (view frame)
     keypoints: list[np.ndarray] = field(default_factory=list)        # [14, 3] the input: x, y px, confidence
     up_view: np.ndarray | None = None  # the world's up in the view frame (the camera's tilt estimate)
+    up_sd_deg: float | None = None     # that estimate's error (degrees; runtime.body_size.CameraTilt.sd_deg)
     floor_offset_m: float | None = None  # the floor found under the feet: up_view · p = this (view frame)
     static: bool = False  # its keypoints never moved (see StillnessCheck): a poster, not a person
     part: int = 0         # earlier parts of the track cut off (Engine.cut_recordings)
