@@ -372,6 +372,8 @@ class Engine:
         frames = list(self._recent)[len(self._recent) - len(earlier):] if earlier else []
         first = frames[0][0] if frames else frame_index
         state = self.tracks[track] = _TrackState(track, first, self.config, len(self.window_weights))
+        if self.config.keep_take and self.refiner is not None:
+            state.recording.camera_px = (self.config.focal_px, *self.center_px)
         self.stats.tracks_started += 1
         for (index, t_s, points, conf), det in zip(frames, earlier):
             self._detected(state, points[det], conf[det], index, t_s)
@@ -519,7 +521,8 @@ class Engine:
             rec = state.recording
             if len(rec.quaternions) >= max_frames:
                 rec.static = state.stillness.static
-                state.recording = TrackRecording(rec.track, state.last_frame + 1, part=rec.part + 1)
+                state.recording = TrackRecording(rec.track, state.last_frame + 1, part=rec.part + 1,
+                                                 camera_px=rec.camera_px)
                 cut.append(rec)
         return cut
 

@@ -9,7 +9,9 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
 1. **Rotations**: made sign-continuous, single-frame pops removed by a running median over
    :attr:`TakeParams.pop_frames` frames, then smoothed without lag by a zero-phase Gaussian whose
    cut-off is :attr:`TakeParams.smoothing_hz` (the one smoothing control, in hertz: motion slower
-   than it passes, jitter faster than it goes).
+   than it passes, jitter faster than it goes); then fitted again to each frame's keypoints on the
+   track's final body, near the smoothed pose (:func:`refit_to_image`, the per-frame refinement
+   with :attr:`TakeParams.refit_prior` times its pull to the prior), and smoothed once more.
 2. **Contacts**: an ankle is planted where its keypoint stands still in the image (speed under
    :attr:`TakeParams.planted_box_per_s` box heights per second: the slope of a line fitted over
    :data:`CONTACT_WINDOW_S` to its running median, which a detector's one-frame swaps and misses
@@ -32,7 +34,8 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    plane, each scaled about the camera onto it (:func:`shared_floor`; ``--camera-height`` sets its
    distance and, with the people's heights, its pitch).
 
-Costs O(F) per track (the least-squares system is banded): thousands of frames per second.
+Costs O(F) per track (the least-squares system is banded, the re-fit ~70 µs a frame): thousands of
+frames per second.
 """
 from __future__ import annotations
 
@@ -50,6 +53,7 @@ from mocapdb.core.outputs import CAMERA_FROM_VIEW, TrackRecording
 from mocapdb.core.skeleton import (
     ANKLE_HEIGHT_M,
     KP,
+    N_RIG_JOINTS,
     NODE_NAMES,
     NODE_OFFSETS_M,
     RIG_JOINTS,
@@ -58,6 +62,7 @@ from mocapdb.core.skeleton import (
     swing_matrices,
 )
 from mocapdb.runtime.body_size import TILT_SD_DEG
+from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
 
 ANKLES = (KP["r_ankle"], KP["l_ankle"])
 MIN_CONTACT_FRAMES = 3
@@ -83,12 +88,14 @@ class TakeParams:
     root_accel_mps2: float = 4.0       # root acceleration SD
     contact_m: float = 0.005           # a planted ankle's spread over its contact
     floor: bool = True                 # keep ankles above the floor found from the contacts
+    refit_prior: float = 20.0          # the re-fit's pull to the smoothed pose, × the per-frame fit's (0: none)
 
     def __post_init__(self) -> None:
         D.SMOOTHING_HZ.check(self.smoothing_hz, "smoothing_hz")
         positive = (self.planted_box_per_s, self.planted_height_m, self.root_across_m, self.root_depth_m,
                     self.root_accel_mps2, self.contact_m)
-        if self.pop_frames < 1 or not all(np.isfinite(v) and v > 0 for v in positive):
+        if self.pop_frames < 1 or not all(np.isfinite(v) and v > 0 for v in positive) \
+                or not (np.isfinite(self.refit_prior) and self.refit_prior >= 0):
             raise ValueError(f"whole-take settings out of range: {self}")
 
 
@@ -116,6 +123,9 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     root = np.array(rec.fit_root_view_m) * (scale / scales)[:, None]
     keypoints = np.array(rec.keypoints)
     offsets = None if rec.proportions_m is None else body_offsets_m(rec.proportions_m)
+    if params.refit_prior > 0 and rec.camera_px is not None:
+        quats = refit_to_image(quats, root, keypoints, scale, offsets, rec.camera_px, params.refit_prior)
+        quats = smooth_rotations(quats, fps, replace(params, pop_frames=1))
     up = np.array([0.0, 1.0, 0.0]) if rec.up_view is None else np.asarray(rec.up_view, dtype=np.float64)
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]  # ankles − root
     planted = planted_ankles(keypoints, root[:, None] + relative, up, fps, params)
@@ -157,6 +167,31 @@ def smooth_rotations(quats: np.ndarray, fps: float, params: TakeParams) -> np.nd
     if sigma_frames >= MIN_SIGMA_FRAMES:  # a cut-off far above the frame rate smooths nothing
         q = gaussian_filter1d(q, sigma_frames, axis=0, mode="nearest")
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def refit_to_image(quats: np.ndarray, root_m: np.ndarray, keypoints: np.ndarray, scale: float,
+                   offsets_m: np.ndarray | None, camera_px: tuple[float, float, float], prior: float) -> np.ndarray:
+    """``quats [F, R, 4]`` (smoothed) fitted again to each frame's keypoints ``[F, 14, 3]`` on the
+    track's final body (``scale``, ``offsets_m``): the per-frame refinement
+    (:class:`~mocapdb.runtime.refine.Refiner`) with the smoothed pose as its prior, ``prior`` times
+    the per-frame weights, no previous pose and no joint limits (the smoothed pose keeps within
+    them). The per-frame fits were made on the body known so far; this fits the one body of the
+    whole take. ``root_m [F, 3]``: the roots (view frame, metres; only the starting point);
+    ``camera_px``: focal, principal point (pixels). Frames without keypoints are kept."""
+    per_frame = RefineParams()
+    refiner = Refiner(replace(per_frame, prior_root=prior * per_frame.prior_root, previous=0.0, limits=0.0,
+                              prior_joint=prior * per_frame.prior_joint), _NO_LIMITS)
+    focal_px, cx, cy = camera_px
+    out = np.ascontiguousarray(quats.copy())
+    points = np.ascontiguousarray(keypoints[..., :2])
+    confidence = np.ascontiguousarray(keypoints[..., 2])
+    for f in np.flatnonzero((confidence > 0).any(axis=1)):
+        refiner(out[f], root_m[f].copy(), scale, points[f], confidence[f], quats[f], None, focal_px, (cx, cy),
+                offsets_m)
+    return out
+
+
+_NO_LIMITS = JointLimits(np.full((N_RIG_JOINTS, 3), -np.inf), np.full((N_RIG_JOINTS, 3), np.inf))
 
 
 def planted_ankles(keypoints: np.ndarray, ankles_view_m: np.ndarray, up: np.ndarray, fps: float,

@@ -11,6 +11,7 @@ from mocapdb.runtime.take import (
     floor_plane,
     plant_feet,
     planted_ankles,
+    refit_to_image,
     smooth_rotations,
 )
 
@@ -110,6 +111,35 @@ def test_floor_plane_from_planted_ankles_on_a_tilted_floor():
     # few contacts in one spot: the camera's up is kept
     normal, offset = floor_plane(ankles[:5], planted[:5], np.array([0.0, 1.0, 0.0]), 0.08)
     np.testing.assert_allclose(normal, [0.0, 1.0, 0.0])
+
+
+def test_refit_pulls_a_smoothed_pose_back_onto_the_image_and_keeps_frames_without_keypoints():
+    """Keypoints rendered by a pinhole from a known pose; the 'smoothed' pose has the right elbow
+    and left knee 25° off in the image plane: the re-fit turns both back towards the image, the further the weaker its
+    pull to the smoothed pose, while a frame without keypoints keeps its pose."""
+    from mocapdb.core.skeleton import N_KEYPOINTS_2D, RIG_JOINTS
+
+    focal, centre = 1000.0, (960.0, 540.0)
+    truth = np.tile([1.0, 0.0, 0.0, 0.0], (2, N_RIG_JOINTS, 1))
+    truth[:, RIG_JOINTS.index("r_elbow")] = _turns(np.array([0.6]))[0]
+    truth[:, RIG_JOINTS.index("l_knee")] = _turns(np.array([-0.4]))[0]
+    root = np.array([[0.2, 0.1, -4.0]] * 2)
+    joints = pose_from_rotations(truth, root)[:, :N_KEYPOINTS_2D]
+    pixels = np.stack([centre[0] + focal * joints[..., 0] / -joints[..., 2],
+                       centre[1] - focal * joints[..., 1] / -joints[..., 2]], axis=-1)
+    keypoints = np.concatenate([pixels, np.full(pixels.shape[:2] + (1,), 0.9)], axis=-1)
+    keypoints[1, :, 2] = 0.0                                   # frame 1: the track missed it
+    off = truth.copy()
+    off[:, RIG_JOINTS.index("r_elbow")] = _turns(np.array([0.6 + np.radians(25.0)]))[0]
+    off[:, RIG_JOINTS.index("l_knee")] = _turns(np.array([-0.4 - np.radians(25.0)]))[0]
+    held = refit_to_image(off, root, keypoints, 1.0, None, (focal, *centre), prior=20.0)
+    free = refit_to_image(off, root, keypoints, 1.0, None, (focal, *centre), prior=1.0)
+    for joint in ("r_elbow", "l_knee"):
+        j = RIG_JOINTS.index(joint)
+        before = quat_geodesic(off[0, j], truth[0, j])
+        assert quat_geodesic(held[0, j], truth[0, j]) < 0.8 * before, joint  # towards the image ...
+        assert quat_geodesic(free[0, j], truth[0, j]) < 0.4 * before, joint  # ... as far as the prior lets it
+    np.testing.assert_array_equal(held[1], off[1])
 
 
 def _walking_keypoints(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

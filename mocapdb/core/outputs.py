@@ -71,6 +71,7 @@ class TrackRecording:
     fit_quaternions: list[np.ndarray] = field(default_factory=list)  # [R, 4] the per-frame fit, unfiltered
     fit_root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] its root (view frame)
     keypoints: list[np.ndarray] = field(default_factory=list)        # [14, 3] the input: x, y px, confidence
+    camera_px: tuple[float, float, float] | None = None  # the pinhole they were fitted with: focal, cx, cy (px)
     up_view: np.ndarray | None = None  # the world's up in the view frame (the camera's tilt estimate)
     up_sd_deg: float | None = None     # that estimate's error (degrees; runtime.body_size.CameraTilt.sd_deg)
     floor_offset_m: float | None = None  # the floor found under the feet: up_view · p = this (view frame)
