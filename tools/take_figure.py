@@ -26,7 +26,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mocapdb.cli.reconstruct import image_size  # noqa: E402
+from mocapdb.core import domains as D  # noqa: E402
 from mocapdb.core.formats.database import load_database  # noqa: E402
 from mocapdb.core.formats.openpose import read_openpose_folder  # noqa: E402
 from mocapdb.core.skeleton import DRAWING_LINES, N_POINTS, swing_matrices  # noqa: E402
@@ -38,7 +38,7 @@ from mocapdb.runtime.take import ANKLES, fit_take, take_joints  # noqa: E402
 def run(args: argparse.Namespace) -> dict:
     """Per-frame and whole-take joints (camera-aligned) of the longest moving track, the input, the floor."""
     frames = list(read_openpose_folder(args.keypoints))
-    size = image_size(args.image_size)
+    size = args.image_size
     engine = Engine(load_database(args.db), EngineConfig(fps=args.fps, focal_px=args.focal, image_size=size,
                                                          keep_take=True))
     per_frame: dict[int, np.ndarray] = {}
@@ -135,7 +135,7 @@ def main() -> int:
     ap.add_argument("--db", required=True)
     ap.add_argument("--fps", type=float, required=True)
     ap.add_argument("--focal", type=float, required=True, help="pixels")
-    ap.add_argument("--image-size", required=True, help="WIDTHxHEIGHT")
+    ap.add_argument("--image-size", type=D.IMAGE_SIZE, required=True, metavar="WxH")
     ap.add_argument("--png", default="take_before_after.png")
     args = ap.parse_args()
     data = run(args)
