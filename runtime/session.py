@@ -16,7 +16,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -288,14 +288,17 @@ class TrackFiles:
             self._names.add(name)
             self._waiting.append((rec, name))
         else:
-            self._save(rec, name)
+            self._save(rec, name, final)
 
     def _sharing_floor(self, rec: TrackRecording) -> bool:
         return self.options.shared_floor and self.options.take is not None and bool(rec.keypoints)
 
-    def _save(self, rec: TrackRecording, name: str) -> None:
+    def _save(self, rec: TrackRecording, name: str, final: bool = True) -> None:
+        """``rec``'s files: the whole take when kept. A checkpoint (not ``final``: the live loop waits
+        for it) leaves out the whole take's re-fit to the image, its costliest step."""
         if self.options.take is not None and rec.keypoints:
-            rec, _ = fit_take(rec, self.fps, self.options.take)
+            params = self.options.take if final else replace(self.options.take, refit_prior=0.0)
+            rec, _ = fit_take(rec, self.fps, params)
         self._write_files(rec, name)
 
     def _write_files(self, rec: TrackRecording, name: str) -> None:

@@ -364,3 +364,29 @@ def test_skip_reasons_are_whole_and_say_where(small_db, tmp_path):
     session.handle(RawMessage('{"frame": 1, "people": [' + " " * 300 + "x]}", "in.jsonl line 7", 0.0))
     report = session.finish(tmp_path).report()
     assert "not JSON (Expecting value at line 1 column" in report and "first in in.jsonl line 7" in report
+
+
+def test_checkpoints_leave_out_the_whole_takes_refit_and_the_final_files_have_it(small_db, tmp_path, monkeypatch):
+    """A live checkpoint waits in the loop, so it skips the whole take's re-fit to the image (its
+    costliest step); the files written when the track ends have it."""
+    import mocapdb.runtime.session as session_module
+    from mocapdb.runtime.take import TakeParams, fit_take
+
+    calls = []
+
+    def recording_fit_take(rec, fps, params):
+        calls.append(params.refit_prior)
+        return fit_take(rec, fps, params)
+
+    monkeypatch.setattr(session_module, "fit_take", recording_fit_take)
+    px = _walking_px(small_db, 30)
+    summary = SessionSummary(stream=StreamStats())
+    engine = Engine(small_db, EngineConfig(fps=24.0, keep_take=True))
+    session = Session(engine, open_sink(str(tmp_path / "out.jsonl"), summary.stream), FrameParser(), summary,
+                      SessionOptions(bvh_dir=tmp_path, checkpoint_s=0.0, take=TakeParams()))
+    for i in range(30):
+        session.handle_frame(KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9))]), 0.0)
+    checkpoints = len(calls)
+    session.finish()
+    assert checkpoints > 5 and set(calls[:checkpoints]) == {0.0}
+    assert calls[checkpoints:] == [TakeParams().refit_prior]
