@@ -162,7 +162,7 @@ def _box_height(points_px: np.ndarray, confidence: np.ndarray) -> float:
     return max(float(ys.max() - ys.min()), 1.0) if len(ys) else 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # the live writer thread re-fits whole takes beside the stream
 def _refine(quats, root, scale, points, conf, box_h, prior, prev, has_prev, focal, cx, cy,
             params, iterations, lo, hi, rig, ws):
     hess, damped, grad, step, q_trial, root_trial = ws[3], ws[4], ws[5], ws[6], ws[7], ws[8]

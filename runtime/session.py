@@ -12,6 +12,7 @@ every BVH file.
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 import time
 from collections import Counter
@@ -208,6 +209,7 @@ class SessionOptions:
     camera_sources: dict[str, str] = field(default_factory=dict)  # where fps, image size, focal came from
     camera_height_m: float | None = None  # the shared floor's distance below the camera, when known
     keep_joints: bool = False       # TrackFiles.joints: every written track's joints, for reconstruct --preview
+    write_in_background: bool = False  # track files fitted and written by a thread of their own (live)
 
     def __post_init__(self) -> None:
         D.MAX_BVH_FILES.check(self.max_bvh_files, "max_bvh_files")
@@ -225,7 +227,12 @@ def track_stem(track: int, part: int | None) -> str:
 
 class TrackFiles:
     """The session's BVH files within its limits (:class:`SessionOptions`). Without a folder yet,
-    recordings wait for :meth:`flush` (at most ``max_bvh_files`` of them)."""
+    recordings wait for :meth:`flush` (at most ``max_bvh_files`` of them).
+
+    With ``write_in_background`` (live), every file operation (a whole-take fit and its files, a
+    removal) runs in order on one writer thread, so a long track's fit (~2 s for a 10-minute part)
+    does not hold up the stream; the first error it meets is raised by the next operation or by
+    :meth:`drain`."""
 
     def __init__(self, options: SessionOptions, fps: float, summary: SessionSummary):
         self.options, self.fps, self.summary = options, fps, summary
@@ -236,6 +243,9 @@ class TrackFiles:
         self._held: list[tuple[TrackRecording, str]] = []  # final files held for the shared floor
         # with options.keep_joints: file name → track, frame numbers [F], joints [F, 15, 3] (exports.track_joints)
         self.joints: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
+        self._jobs: queue.Queue | None = None
+        self._writer: threading.Thread | None = None
+        self._error: BaseException | None = None
 
     def ended(self, rec: TrackRecording) -> None:
         """A track ended: its file (or last part), unless static or too short."""
@@ -268,6 +278,7 @@ class TrackFiles:
     def flush(self) -> None:
         """Write the recordings that waited for a folder, then those held for the shared floor (all
         on one floor)."""
+        self.drain()
         waiting, self._waiting = self._waiting, []
         for rec, name in waiting:
             self._save(rec, name)
@@ -288,7 +299,8 @@ class TrackFiles:
             self._names.add(name)
             self._waiting.append((rec, name))
         else:
-            self._save(rec, name, final)
+            self._names.add(name)
+            self._run(self._save, rec, name, final)
 
     def _sharing_floor(self, rec: TrackRecording) -> bool:
         return self.options.shared_floor and self.options.take is not None and bool(rec.keypoints)
@@ -311,7 +323,45 @@ class TrackFiles:
                 self._paths.add(path)
                 self.summary.bvh_files.append(path)
 
+    def _run(self, operation: Callable, *args) -> None:
+        """``operation(*args)`` now, or queued for the writer thread (``write_in_background``)."""
+        if not self.options.write_in_background:
+            operation(*args)
+            return
+        self._raise_error()
+        if self._writer is None:
+            self._jobs = queue.Queue()
+            self._writer = threading.Thread(target=self._write_jobs, name="mocapdb-track-files", daemon=True)
+            self._writer.start()
+        self._jobs.put((operation, args))
+
+    def _write_jobs(self) -> None:
+        """The writer thread: queued operations in order until ``None``; after an error, the rest are
+        skipped (the error is raised in the session's thread)."""
+        while (job := self._jobs.get()) is not None:
+            if self._error is None:
+                try:
+                    job[0](*job[1])
+                except BaseException as exc:  # raised again by the session's thread
+                    self._error = exc
+
+    def drain(self) -> None:
+        """Wait for the writer thread's queued operations; raise the first error it met."""
+        if self._writer is not None:
+            self._jobs.put(None)
+            self._writer.join()
+            self._writer = None
+        self._raise_error()
+
+    def _raise_error(self) -> None:
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise error
+
     def _remove(self, name: str) -> None:
+        self._run(self._remove_now, name)
+
+    def _remove_now(self, name: str) -> None:
         if self.options.bvh_dir is None:
             return
         for suffix in self.options.export.formats:
@@ -445,6 +495,7 @@ class Session:
                 self.files.ended(rec)
             if self.options.bvh_dir is not None:
                 self.files.flush()
+            self.files.drain()
         finally:
             self._count()
             self._close_sink()

@@ -3,6 +3,7 @@ keypoints outside the image, missing frame rate, empty input (issue 10)."""
 import json
 import resource
 import sys
+import threading
 import time
 
 import numpy as np
@@ -390,3 +391,42 @@ def test_checkpoints_leave_out_the_whole_takes_refit_and_the_final_files_have_it
     session.finish()
     assert checkpoints > 5 and set(calls[:checkpoints]) == {0.0}
     assert calls[checkpoints:] == [TakeParams().refit_prior]
+
+
+def _parts_run(db, folder, background: bool) -> dict[str, bytes]:
+    """40 frames of one person in 15-frame parts with a checkpoint at every frame; the files written."""
+    px = _walking_px(db, 40)
+    folder.mkdir()
+    session = _session(db, folder, bvh_dir=folder, bvh_part_min=15 / 24.0 / 60.0, checkpoint_s=0.0,
+                       write_in_background=background)
+    for i in range(40):
+        session.handle_frame(KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9))]), 0.0)
+    summary = session.finish()
+    assert summary.bvh_files == sorted(folder.glob("track_*.bvh"))
+    return {p.name: p.read_bytes() for p in summary.bvh_files}
+
+
+def test_track_files_written_by_the_writer_thread_are_those_written_in_the_loop(small_db, tmp_path):
+    """live writes track files on a thread of its own (checkpoints, parts replacing them, the last
+    part), in the order the loop asked for them: the same files, byte for byte."""
+    in_loop = _parts_run(small_db, tmp_path / "loop", background=False)
+    threaded = _parts_run(small_db, tmp_path / "thread", background=True)
+    assert list(threaded) == ["track_0_part1.bvh", "track_0_part2.bvh", "track_0_part3.bvh"]
+    assert threaded == in_loop
+
+
+def test_a_writer_thread_error_reaches_the_session(small_db, tmp_path, monkeypatch):
+    import mocapdb.runtime.session as session_module
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(session_module, "write_track_files", full_disk)
+    px = _walking_px(small_db, 30)
+    session = _session(small_db, tmp_path, bvh_dir=tmp_path, checkpoint_s=0.0, write_in_background=True)
+    with pytest.raises(OSError, match="No space left"):  # a checkpoint's error, at a later frame
+        for i in range(30):
+            session.handle_frame(KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9))]), 0.0)
+    with pytest.raises(OSError, match="No space left"):  # the files due at the end fail too
+        session.finish()
+    assert not any(t.name == "mocapdb-track-files" for t in threading.enumerate())  # the writer is gone

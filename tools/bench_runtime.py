@@ -10,6 +10,9 @@
 * search: recall@1 of the clustered search against exact search and the time of each;
 * live: 4 people per frame streamed at 30 fps over TCP on loopback into the live loop;
   latency p50/p99 from a message's arrival to its output line;
+* track files in live: one person for 3,000 frames in 2,000-frame parts (a part's whole-take fit
+  written when it completes): the slowest frame of the loop with the files written in it and on
+  live's writer thread;
 * start-up: from launching ``mocapdb live --source -`` to its first output frame.
 """
 from __future__ import annotations
@@ -19,6 +22,7 @@ import json
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -33,9 +37,9 @@ from mocapdb.core.formats.keypoints import KeypointFrame  # noqa: E402
 from mocapdb.evaluation.heldout import Scenario, load_heldout, render, view_of  # noqa: E402
 from mocapdb.evaluation.reconstruction import search_benchmark  # noqa: E402
 from mocapdb.runtime.engine import Engine, EngineConfig  # noqa: E402
-from mocapdb.runtime.session import FrameParser, Session, SessionSummary, run_live  # noqa: E402
+from mocapdb.runtime.session import FrameParser, Session, SessionOptions, SessionSummary, run_live  # noqa: E402
 from mocapdb.runtime.streams import StreamStats, open_sink, open_source  # noqa: E402
-from mocapdb.runtime.take import fit_take  # noqa: E402
+from mocapdb.runtime.take import TakeParams, fit_take  # noqa: E402
 
 DEFAULT_HELDOUT = sorted((ROOT.parent / "shared" / "data" / "cmu_bvh").glob("007_*.bvh"))
 COCO17_OF_UNIVERSAL = {0: 0, 2: 6, 3: 8, 4: 10, 5: 5, 6: 7, 7: 9, 8: 12, 9: 14, 10: 16, 11: 11, 12: 13, 13: 15}
@@ -118,6 +122,33 @@ def live_latency(db, sequences, n_people: int = 4, fps: float = 30.0, n_frames: 
             "latency_ms_p99": round(float(np.percentile(lat, 99)), 2)}
 
 
+def part_writing_stall(db, frames: list[KeypointFrame], n_frames: int = 3000, part_frames: int = 2000) -> dict:
+    """The live loop's slowest and p99 frame (ms) while one person's 2,000-frame part is fitted and
+    written, in the loop and on the writer thread (``SessionOptions.write_in_background``); the
+    person walks ``frames`` back and forth (no jump, so one track)."""
+    period = 2 * len(frames) - 2
+    walk = [frames[i % period if i % period < len(frames) else period - i % period] for i in range(n_frames)]
+    report = {}
+    for label, background in (("in_loop", False), ("writer_thread", True)):
+        with tempfile.TemporaryDirectory() as folder:
+            summary = SessionSummary(stream=StreamStats())
+            options = SessionOptions(bvh_dir=Path(folder), bvh_part_min=part_frames / 24.0 / 60.0, take=TakeParams(),
+                                     checkpoint_s=1e9, strict=False, write_in_background=background)
+            session = Session(Engine(db, EngineConfig(fps=24.0, keep_take=True)),
+                              open_sink(str(Path(folder) / "out.jsonl"), summary.stream), FrameParser(), summary,
+                              options)
+            took = []
+            for i, frame in enumerate(walk):
+                start = time.perf_counter()
+                session.handle_frame(KeypointFrame(i, i / 24.0, frame.people), time.monotonic())
+                took.append(time.perf_counter() - start)
+            session.finish()
+        took_ms = np.array(took[10:]) * 1000
+        report[label] = {"max_ms": round(float(took_ms.max()), 1),
+                         "p99_ms": round(float(np.percentile(took_ms, 99)), 2)}
+    return report
+
+
 def startup(db_path: Path, line: str) -> float:
     """Seconds from launching `mocapdb live --source -` to its first output frame."""
     start = time.perf_counter()
@@ -161,6 +192,7 @@ def main() -> int:
     if not args.no_exact:
         report["search"] = search_benchmark(Engine(db), queries, 0.3)
     report["live_4_people_30fps"] = live_latency(db, sequences)
+    report["live_track_files_2000_frame_part"] = part_writing_stall(db, max(sequences, key=len))
     first_line = _coco_line(0, [sequences[0][0].people[0].points_px])
     report["startup_to_first_frame_s"] = round(startup(args.db, first_line), 2)
     print(json.dumps(report, indent=2))

@@ -217,7 +217,7 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
         options = SessionOptions(strict=strict, fps_given=args.fps is not None, keep_static=args.keep_static,
                                  bvh_dir=bvh_dir, export=export, max_bvh_files=args.max_bvh_files,
                                  min_track_s=args.min_track_s, bvh_part_min=args.bvh_part_min,
-                                 rate_by_arrival=not strict,
+                                 rate_by_arrival=not strict, write_in_background=not strict,
                                  take=None if args.per_frame else TakeParams(smoothing_hz=args.smoothing_hz),
                                  shared_floor=strict, camera_height_m=args.camera_height,
                                  lag_frames=args.lag_frames, camera_sources=getattr(args, "camera_sources", {}),
