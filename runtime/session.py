@@ -300,7 +300,8 @@ class TrackFiles:
             self._waiting.append((rec, name))
         else:
             self._names.add(name)
-            self._run(self._save, rec, name, final)
+            queued = self.options.write_in_background and not final  # an open track records on meanwhile
+            self._run(self._save, rec.snapshot() if queued else rec, name, final)
 
     def _sharing_floor(self, rec: TrackRecording) -> bool:
         return self.options.shared_floor and self.options.take is not None and bool(rec.keypoints)

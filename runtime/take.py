@@ -527,7 +527,7 @@ def _pitch_from_camera_height(fits: list[tuple[TrackRecording, TakeResult]], nor
     cost = np.zeros(len(thetas))
     fixed = False
     for rec, result in fits:
-        points = _lowest_level(result.planted_ankles_m, normal) if len(result.planted_ankles_m) else np.zeros((0, 3))
+        points = _lowest_level(result.planted_ankles_m, normal)  # a track with a floor has contacts
         own = np.median(points @ normals.T, axis=0) - ANKLE_HEIGHT_M * rec.scales[-1]       # [T]
         k = camera_height_m / np.maximum(-own, 1e-3)
         cost += (np.log(rec.scales[-1] * k) / STATURE_SD) ** 2

@@ -430,3 +430,20 @@ def test_a_writer_thread_error_reaches_the_session(small_db, tmp_path, monkeypat
     with pytest.raises(OSError, match="No space left"):  # the files due at the end fail too
         session.finish()
     assert not any(t.name == "mocapdb-track-files" for t in threading.enumerate())  # the writer is gone
+
+
+def test_a_checkpoint_on_the_writer_thread_is_of_the_track_as_it_was():
+    """The engine records on while the writer thread writes an open track's checkpoint: the
+    snapshot it is given keeps its frames."""
+    from mocapdb.core.outputs import TrackRecording
+
+    rec = TrackRecording(3, 0, quaternions=[np.ones((11, 4))], root_view_m=[np.zeros(3)], scales=[1.0],
+                         fit_quaternions=[np.ones((11, 4))], fit_root_view_m=[np.zeros(3)],
+                         keypoints=[np.ones((14, 3))])
+    frozen = rec.snapshot()
+    for name in ("quaternions", "root_view_m", "fit_quaternions", "fit_root_view_m", "keypoints"):
+        getattr(rec, name).append(np.zeros(1))
+    rec.scales.append(2.0)
+    assert [len(getattr(frozen, n)) for n in ("quaternions", "root_view_m", "scales", "fit_quaternions",
+                                               "fit_root_view_m", "keypoints")] == [1] * 6
+    assert frozen.track == 3 and frozen.scales == [1.0]

@@ -6,7 +6,7 @@ import os
 import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from fnmatch import fnmatchcase
 from pathlib import Path
 
@@ -79,6 +79,12 @@ class TrackRecording:
     part: int = 0         # earlier parts of the track cut off (Engine.cut_recordings)
     first_s: float = 0.0  # input time of the first and the last recorded frame
     last_s: float = 0.0
+
+    def snapshot(self) -> TrackRecording:
+        """A copy whose per-frame lists stay as they are now while the track records on (for a
+        thread that writes the track's files meanwhile); the frames' arrays are shared, not copied."""
+        lists = ("quaternions", "root_view_m", "scales", "fit_quaternions", "fit_root_view_m", "keypoints")
+        return replace(self, **{name: list(getattr(self, name)) for name in lists})
 
     def duration_s(self, fps: float) -> float:
         """Input time from the first recorded frame to the last, plus one frame (``1 / fps``)."""
