@@ -6,8 +6,8 @@ the body only up to a scale ``k`` about the camera centre. A flat floor at a kno
 below the camera (``--camera-height``) fixes it: the lowest ankle of a standing or walking
 person sits :data:`~mocapdb.core.skeleton.ANKLE_HEIGHT_M` (times the body scale) above the floor.
 
-The floor's normal in the view frame is the world's up seen by the camera (:class:`CameraTilt`). Per frame, with ``u`` that normal and ``a``
-the lower ankle (view frame, metres, body scale ``s``)::
+The floor's normal in the view frame is the world's up seen by the camera (:class:`CameraTilt`).
+Per frame, with ``u`` that normal and ``a`` the lower ankle (view frame, metres, body scale ``s``)::
 
     k (u·a) + H = ANKLE_HEIGHT_M · s · k    ⇒    k = H / (ANKLE_HEIGHT_M · s − u·a)
 

@@ -316,17 +316,17 @@ def _undo_swaps(points, value, seen, fresh, groups) -> int:
     for g in range(groups.shape[0]):
         keep, swap = 0.0, 0.0
         for i in range(groups.shape[1]):
-            r, l = groups[g, i, 0], groups[g, i, 1]
-            if seen[r] and seen[l] and not fresh[r] and not fresh[l]:
-                keep += _dist(points[r], value[r]) + _dist(points[l], value[l])
-                swap += _dist(points[r], value[l]) + _dist(points[l], value[r])
+            right, left = groups[g, i, 0], groups[g, i, 1]
+            if seen[right] and seen[left] and not fresh[right] and not fresh[left]:
+                keep += _dist(points[right], value[right]) + _dist(points[left], value[left])
+                swap += _dist(points[right], value[left]) + _dist(points[left], value[right])
         if swap < SWAP_MARGIN * keep:
             swaps += 1
             for i in range(groups.shape[1]):
-                r, l = groups[g, i, 0], groups[g, i, 1]
-                if seen[r] and seen[l]:
+                right, left = groups[g, i, 0], groups[g, i, 1]
+                if seen[right] and seen[left]:
                     for c in range(2):
-                        points[r, c], points[l, c] = points[l, c], points[r, c]
+                        points[right, c], points[left, c] = points[left, c], points[right, c]
     return swaps
 
 

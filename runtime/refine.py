@@ -255,7 +255,8 @@ def _outside(value, lo, hi):
 def _linearise(quats, root, scale, points, conf, box_h, prior, prev, has_prev, focal, cx, cy, params, lo, hi, rig, ws):
     """Gauss–Newton normal equations ``ws[3] (H)``, ``ws[5] (g)`` at the current pose (IRLS weights)."""
     parents, offsets, node_joint, kp_node, kp_chain, joint_node = rig
-    g_rot, g_pos, local, hess, grad, v, jr, blocks, cols = ws[0], ws[1], ws[2], ws[3], ws[5], ws[9], ws[10], ws[11], ws[12]
+    g_rot, g_pos, local, hess, grad = ws[0], ws[1], ws[2], ws[3], ws[5]
+    v, jr, blocks, cols = ws[9], ws[10], ws[11], ws[12]
     rig_globals_into(quats, root, scale, parents, offsets, node_joint, local, g_rot, g_pos)
     hess[:] = 0.0
     grad[:] = 0.0

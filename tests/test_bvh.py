@@ -117,7 +117,8 @@ def blender_style(bvh: Bvh) -> Bvh:
 
 def _arm_with_elbow_positions(frame0: str, frame1: str) -> Bvh:
     """ARM whose elbow also has position channels, holding ``frame0`` and ``frame1`` ("x y z")."""
-    header = ARM.split("MOTION")[0].replace("CHANNELS 3 Xrotation", "CHANNELS 6 Xposition Yposition Zposition Xrotation")
+    header = ARM.split("MOTION")[0].replace("CHANNELS 3 Xrotation",
+                                            "CHANNELS 6 Xposition Yposition Zposition Xrotation")
     return parse_bvh(f"{header}MOTION\nFrames: 2\nFrame Time: 0.0083333\n"
                      f"0 0 0 0 0 0 {frame0} 0 0 0\n1 0 0 0 0 90 {frame1} 0 90 0\n", "arm.bvh")
 
@@ -192,7 +193,8 @@ def test_utf8_byte_order_mark_is_accepted(tmp_path):
 
 
 @pytest.mark.parametrize("text, message", [
-    (ARM.replace("Frame Time: 0.0083333", "Frame Time: -0.01"), "bad.bvh:18: Frame Time: -0.01 is not a frame duration"),
+    (ARM.replace("Frame Time: 0.0083333", "Frame Time: -0.01"),
+     "bad.bvh:18: Frame Time: -0.01 is not a frame duration"),
     (ARM.replace("Frame Time: 0.0083333", "Frame Time: inf"), "bad.bvh:18: Frame Time: inf is not a frame duration"),
     (ARM.replace("Frame Time: 0.0083333", "Frame Time: nan"), "bad.bvh:18: Frame Time: nan is not a frame duration"),
     (ARM.replace("Frame Time: 0.0083333", "Frame Time: 1e9"), "Frame Time: 1e9 is not a frame duration"),

@@ -209,7 +209,8 @@ def test_root_error_and_reprojection_of_a_displaced_output(walk_and_dance):
     cam = camera_view(walk_and_dance[0][:10], 0.0, 1.5, 5.0)
     moved = cam + [0.0, 0.0, 0.5]   # the whole body 0.5 m too far: same pose, smaller image
     stats = VariantStats()
-    stats.add(EngineRun(moved, moved[:, PELVIS], moved, 1.0), View(cam, 1.5, 5.0, 0.0), np.zeros(10), _frames(np.zeros((10, 14, 2))), config)
+    stats.add(EngineRun(moved, moved[:, PELVIS], moved, 1.0), View(cam, 1.5, 5.0, 0.0), np.zeros(10),
+              _frames(np.zeros((10, 14, 2))), config)
     s = stats.summary()
     assert s["mpjpe_cm"] == pytest.approx(0.0, abs=1e-9)
     assert s["root_error_m"] == pytest.approx(0.5)
@@ -234,7 +235,8 @@ def test_single_database_report_has_both_variants_and_the_new_fields(small_db):
     assert floors[0] == floors[1]   # the floor does not depend on the camera's pitch
 
 
-VARIANT_FIELDS = ("mpjpe_cm", "mpjpe13_cm", "pa_mpjpe_cm", "pa_mpjpe13_cm", "bone_error_cm", "frames_with_pop", "accel_error_mm_per_frame2", "floor_mpjpe_cm", "engine_minus_floor_cm",
+VARIANT_FIELDS = ("mpjpe_cm", "mpjpe13_cm", "pa_mpjpe_cm", "pa_mpjpe13_cm", "bone_error_cm", "frames_with_pop",
+                  "accel_error_mm_per_frame2", "floor_mpjpe_cm", "engine_minus_floor_cm",
                   "frames_below_floor", "reprojection_error_pct", "reprojection_error_input_pct", "root_error_m",
                   "root_error_pct_distance", "engine_person_frames_per_s")
 

@@ -167,8 +167,8 @@ def test_keypoint_filter_undoes_a_left_right_swap_of_the_arms():
     for i in range(5):
         np.testing.assert_allclose(f(px, conf, i / 30.0), px)  # a still person passes unchanged
     swapped = px.copy()
-    for r, l in ARM_PAIRS:
-        swapped[[r, l]] = px[[l, r]]
+    for right, left in ARM_PAIRS:
+        swapped[[right, left]] = px[[left, right]]
     np.testing.assert_allclose(f(swapped, conf, 5 / 30.0), px, atol=1e-9)
     assert f.swaps == 1
     off = KeypointFilter(KeypointFilterParams(undo_swaps=False, min_cutoff_hz=1e6, max_cutoff_hz=1e6), 14)

@@ -3,7 +3,8 @@
     python tools/blender_check.py FILE.bvh [--frames 0 10 50]
 
 Runs Blender's own BVH importer (a Python with the ``bpy`` wheel given by ``--bpy-python`` or
-the ``MOCAPDB_BPY_PYTHON`` environment variable, else ``blender`` on the PATH in background mode), reads every bone's head and tail at the given frames, and compares them with
+the ``MOCAPDB_BPY_PYTHON`` environment variable, else ``blender`` on the PATH in background mode),
+reads every bone's head and tail at the given frames, and compares them with
 mocapdb's forward kinematics of the same file (Blender turns the BVH's y-up into its z-up:
 x → x, y → z, z → −y). Prints the largest difference in millimetres; exit code 0 when it is
 below 1 mm.

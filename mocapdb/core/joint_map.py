@@ -224,7 +224,8 @@ def _check_limbs_disjoint(bvh: Bvh, placed: dict[str, int]) -> None:
     for (role_a, a), (role_b, b) in itertools.permutations(tops.items(), 2):
         if role_a != "head" and (a == b or _is_ancestor(bvh, a, b)):
             raise JointMapError(f"{bvh.source}: {role_b} ({bvh.names[b]}) lies inside the {role_a} chain "
-                                f"({bvh.names[a]}); the limbs must be separate chains, the head outside them.\n{_MAP_HINT}")
+                                f"({bvh.names[a]}); the limbs must be separate chains, the head outside them."
+                                f"\n{_MAP_HINT}")
 
 
 def _label(sources: list[list[str]], overridden: bool) -> str:

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from mocapdb.evaluation.reconstruction import EvalConfig
 
 BODIES = ("universal", "varied")
-SWAP_PAIRS = [(KP[r], KP[l]) for r, l in MIRROR_PAIRS]  # right/left keypoint pairs
+SWAP_PAIRS = [(KP[right], KP[left]) for right, left in MIRROR_PAIRS]  # right/left keypoint pairs
 IMAGE_HEIGHT_PX = 1080
 UNIVERSAL_HEIGHT_M = 1.75   # the database skeleton's height (data_specs/skeleton.md)
 
@@ -164,7 +164,7 @@ def render(cam_points: np.ndarray, scenario: Scenario, focal_px: float, image_si
     inside = (px >= 0).all(axis=-1) & (px[..., 0] < image_size[0]) & (px[..., 1] < image_size[1])
     conf[~inside] = 0.0  # outside the image: unseen, as a detector leaves it
     swapped = rng.random(len(px)) < scenario.swap
-    for r, l in SWAP_PAIRS:
-        px[swapped, r], px[swapped, l] = px[swapped, l].copy(), px[swapped, r].copy()
+    for right, left in SWAP_PAIRS:
+        px[swapped, right], px[swapped, left] = px[swapped, left].copy(), px[swapped, right].copy()
     return [KeypointFrame(i, None, [Person(px[i], conf[i])]) for i in range(len(px))]
 

@@ -285,7 +285,8 @@ def format_table(report: dict) -> str:
             if mode == "camera_height_given" else "nothing (1.75 m)"
         skate = r["foot_skating_cm_per_s"]
         lines.append(
-            f"| {camera} | {variant} | {size} | {_cell(r['body_height_m'], 2)} m | {r['frames_with_output']}/{r['frames']} | "
+            f"| {camera} | {variant} | {size} | {_cell(r['body_height_m'], 2)} m | "
+            f"{r['frames_with_output']}/{r['frames']} | "
             f"{_cell(r['mpjpe_cm'])} cm | {_cell(r['pa_mpjpe_cm'])} cm | {_cell(r['root_error_m'], 2)} m | "
             f"{_cell(r['root_error_pct_distance'])} % | {_cell(r['bone_length_cm']['mean_error_7'])} cm | "
             f"{_cell(skate['mean'])} / {_cell(skate['median'])} cm/s | "

@@ -118,10 +118,10 @@ def to_universal(raw: np.ndarray, layout: str) -> tuple[np.ndarray, np.ndarray]:
     ok = np.isfinite(picked).all(axis=-1) & (picked[..., 2] > 0) & (source >= 0)
     conf = np.where(ok, np.clip(picked[..., 2], 0.0, 1.0), 0.0)
     points = np.where(ok[..., None], picked[..., :2], np.nan)
-    r, l, neck = KP["r_shoulder"], KP["l_shoulder"], KP["neck"]
-    both = (conf[:, r] >= CONFIDENCE_THRESHOLD) & (conf[:, l] >= CONFIDENCE_THRESHOLD)
-    points[:, neck] = np.where(both[:, None], 0.5 * (points[:, r] + points[:, l]), points[:, neck])
-    conf[:, neck] = np.where(both, np.minimum(conf[:, r], conf[:, l]), conf[:, neck])
+    right, left, neck = KP["r_shoulder"], KP["l_shoulder"], KP["neck"]
+    both = (conf[:, right] >= CONFIDENCE_THRESHOLD) & (conf[:, left] >= CONFIDENCE_THRESHOLD)
+    points[:, neck] = np.where(both[:, None], 0.5 * (points[:, right] + points[:, left]), points[:, neck])
+    conf[:, neck] = np.where(both, np.minimum(conf[:, right], conf[:, left]), conf[:, neck])
     return points, conf
 
 

@@ -79,7 +79,8 @@ def _data(rows: list[str], n_markers: int, source: str, first_line: int) -> np.n
         while len(cells) > width and not cells[-1].strip():
             cells.pop()
         if len(cells) != width:
-            raise _fail(source, first_line + i, f"{len(cells)} values, expected {width} (frame, time, xyz × {n_markers})")
+            raise _fail(source, first_line + i,
+                        f"{len(cells)} values, expected {width} (frame, time, xyz × {n_markers})")
         try:
             out[i] = [float(c) if c.strip() else np.nan for c in cells]
         except ValueError:
