@@ -146,15 +146,21 @@ def _clustered(x, y, rep_x, rep_y, rep_cluster, cluster_subs, sub_start, sub_x, 
         c = rep_cluster[top_c[n]]
         best_d = np.full(per_cluster, np.inf)
         best_i = np.full(per_cluster, -1, dtype=np.int64)
-        first = _offset(cluster_subs, rep_cluster[top_c], n)  # the cluster's first flag in ``chosen``
-        for s in range(cluster_subs[c], cluster_subs[c + 1]):
-            if not chosen[first + s - cluster_subs[c]]:
+        first = _offset(cluster_subs, rep_cluster[top_c], n) - cluster_subs[c]  # flags of c in ``chosen``
+        s, end = cluster_subs[c], cluster_subs[c + 1]
+        while s < end:
+            if not chosen[first + s]:
+                s += 1
                 continue
-            lo, hi = sub_start[s], sub_start[s + 1]
+            run_end = s + 1  # chosen sub-clusters next to each other are one column range: searched at once
+            while run_end < end and chosen[first + run_end]:
+                run_end += 1
+            lo, hi = sub_start[s], sub_start[run_end]
             found_i, found_d = _smallest(range_distances(x, y, lo, hi, query, vis_idx, renorm), per_cluster, lo)
             merged_i, merged_d = _smallest(np.concatenate((best_d, found_d)), per_cluster, 0)
             pool_i = np.concatenate((best_i, found_i))
             best_i, best_d = np.where(merged_i >= 0, pool_i[np.maximum(merged_i, 0)], -1), merged_d
+            s = run_end
         out_i[n * per_cluster:(n + 1) * per_cluster] = best_i
         out_d[n * per_cluster:(n + 1) * per_cluster] = best_d
     keep = out_i >= 0
