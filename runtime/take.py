@@ -202,7 +202,7 @@ def planted_ankles(keypoints: np.ndarray, ankles_view_m: np.ndarray, up: np.ndar
     The image track of each ankle is first a running median over :data:`MEDIAN_FRAMES` frames of
     its seen positions, so a detector's single-frame left/right swap or missed keypoint neither
     moves a planted foot nor splits its contact; gaps of up to :data:`GAP_S` in a contact are closed."""
-    px = robust_track_px(keypoints[:, ANKLES])
+    px = _robust_track_px(keypoints[:, ANKLES])
     seen = np.isfinite(px[..., 0])
     visible = keypoints[..., 2] > 0
     seen_frames = visible.any(axis=1)  # frames the track missed hold no keypoint
@@ -216,7 +216,7 @@ def planted_ankles(keypoints: np.ndarray, ankles_view_m: np.ndarray, up: np.ndar
     return _drop_short_runs(planted, MIN_CONTACT_FRAMES)
 
 
-def robust_track_px(points: np.ndarray) -> np.ndarray:
+def _robust_track_px(points: np.ndarray) -> np.ndarray:
     """Keypoints ``[F, K, 3]`` (x, y px, confidence) as positions ``[F, K, 2]``: per frame the median of
     the seen positions over the :data:`MEDIAN_FRAMES` frames around it (NaN where none was seen)."""
     xy = np.where(points[..., 2:] > 0, points[..., :2], np.nan)
