@@ -34,7 +34,7 @@ _API = {
     "KeypointFrame": "mocapdb.core.formats.keypoints",
     "Person": "mocapdb.core.formats.keypoints",
     "PersonPose": "mocapdb.core.outputs",
-    "fit_takes": "mocapdb.runtime.take",
+    "fit_takes": "mocapdb.runtime.world",
     "TakeParams": "mocapdb.runtime.take",
     "write_tracks": "mocapdb.core.exports",
     "TrackExport": "mocapdb.core.exports",

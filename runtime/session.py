@@ -33,7 +33,8 @@ from mocapdb.runtime import refine
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.lag import FixedLag
 from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source, StreamStats
-from mocapdb.runtime.take import TakeParams, fit_take, fit_takes
+from mocapdb.runtime.take import TakeParams, fit_take
+from mocapdb.runtime.world import fit_takes
 
 LOG = logging.getLogger(__name__)
 
@@ -204,7 +205,7 @@ class SessionOptions:
     bvh_part_min: float = 10.0
     rate_by_arrival: bool = False
     take: TakeParams | None = None  # track files from the whole-take fit (runtime.take); None: per frame
-    shared_floor: bool = False      # files written at the end, every track on one floor (runtime.take.shared_floor)
+    shared_floor: bool = False      # files written at the end, every track on one floor (runtime.world)
     lag_frames: int = 0             # stream lines written this many frames late, smoothed (runtime.lag)
     camera_sources: dict[str, str] = field(default_factory=dict)  # where fps, image size, focal came from
     camera_height_m: float | None = None  # the shared floor's distance below the camera, when known

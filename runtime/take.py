@@ -30,9 +30,8 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    walk, the camera's estimated up made perpendicular to it; else that up; its height that of the
    lowest contacts, so a step or platform climbed on is not the floor); no ankle goes below it
    (the root is lifted where one would).
-5. **One floor** (:func:`fit_takes`, what `reconstruct` writes): every track of the take on one
-   plane, each scaled about the camera onto it (:func:`shared_floor`; ``--camera-height`` sets its
-   distance and, with the people's heights, its pitch).
+5. **One world**: every track of a take on one floor, each with its own size
+   (:mod:`mocapdb.runtime.world`).
 
 Costs O(F) per track (the least-squares system is banded, the re-fit ~70 µs a frame): thousands of
 frames per second.
@@ -47,7 +46,6 @@ from scipy.ndimage import convolve1d, gaussian_filter1d, median_filter
 from scipy.sparse.linalg import spsolve
 
 from mocapdb.core import domains as D
-from mocapdb.core.anthropometry import STATURE_SD
 from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, TrackRecording
 from mocapdb.core.skeleton import (
@@ -61,7 +59,6 @@ from mocapdb.core.skeleton import (
     pose_from_rotations,
     swing_matrices,
 )
-from mocapdb.runtime.body_size import TILT_SD_DEG
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
 
 ANKLES = (KP["r_ankle"], KP["l_ankle"])
@@ -138,13 +135,6 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
         root = _above_floor(root, relative, normal, offset, ANKLE_HEIGHT_M * scale)
     out = _refitted(rec, list(quats), list(root), [scale] * len(root), up if normal is None else normal, offset)
     return out, TakeResult(planted, (root[:, None] + relative)[planted], normal, offset)
-
-
-def fit_takes(recordings: list[TrackRecording], fps: float, params: TakeParams = TakeParams(),
-              camera_height_m: float | None = None) -> list[TrackRecording]:
-    """Every track of a take through :func:`fit_take`, then onto one floor (:func:`shared_floor`,
-    ``camera_height_m`` below the camera when known): what ``reconstruct`` writes."""
-    return shared_floor([fit_take(rec, fps, params) for rec in recordings], camera_height_m)
 
 
 def take_joints(fitted: TrackRecording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -426,8 +416,8 @@ def _floor_normal(points: np.ndarray, up: np.ndarray) -> np.ndarray:
     them, then those on the lowest level along ``up``."""
     if len(points) < 10:
         return up
-    for subset in (points, _lowest_level(points, up)):
-        plane = _coplanar_spread(subset)
+    for subset in (points, lowest_level(points, up)):
+        plane = coplanar_spread(subset)
         if plane is None:
             continue
         spread, vt = plane
@@ -441,7 +431,7 @@ def _floor_normal(points: np.ndarray, up: np.ndarray) -> np.ndarray:
     return up
 
 
-def _coplanar_spread(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+def coplanar_spread(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """The RMS extents ``[3]`` and principal directions ``[3, 3]`` (rows) of contacts ``[N, 3]``, or
     None when they are fewer than 10 or do not lie on one plane (RMS off it over
     :data:`MAX_FLOOR_RMS_M`)."""
@@ -452,7 +442,7 @@ def _coplanar_spread(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None
     return (spread, vt) if spread[2] <= MAX_FLOOR_RMS_M else None
 
 
-def _lowest_level(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
+def lowest_level(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """The contacts ``[N, 3]`` within :data:`FLOOR_BAND_M` of the lowest ones along ``normal`` (their
     5th percentile): those on the floor, not on a step or platform above it."""
     heights = points @ normal
@@ -461,7 +451,7 @@ def _lowest_level(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
 
 def _floor_height(points: np.ndarray, normal: np.ndarray) -> float:
     """The median height along ``normal`` of the contacts ``[N, 3]`` on the lowest level."""
-    return float(np.median(_lowest_level(points, normal) @ normal))
+    return float(np.median(lowest_level(points, normal) @ normal))
 
 
 def _above_floor(root_m: np.ndarray, ankle_offsets_m: np.ndarray, normal: np.ndarray, offset: float,
@@ -470,107 +460,6 @@ def _above_floor(root_m: np.ndarray, ankle_offsets_m: np.ndarray, normal: np.nda
     heights = (root_m[:, None] + ankle_offsets_m) @ normal - offset
     deficit = np.maximum(ankle_height_m - heights.min(axis=1), 0.0)
     return root_m + deficit[:, None] * normal
-
-
-def shared_floor(fits: list[tuple[TrackRecording, TakeResult]], camera_height_m: float | None = None
-                 ) -> list[TrackRecording]:
-    """One floor for every track of a take (one camera, one world): the whole-take fits
-    (:func:`fit_take`) with one floor plane and each track scaled about the camera (its image
-    unchanged) so that its planted ankles stand on it.
-
-    The plane's normal starts as the tracks' normals averaged (weighted by their contacts), its pitch
-    corrected with ``camera_height_m`` when given (:func:`_pitch_from_camera_height`), and its
-    distance below the camera as their weighted geometric mean (the people's sizes stay what they
-    assumed on average), or ``camera_height_m``; each track's scale
-    ``k = distance / its own floor's distance`` follows; then the plane is fitted to all tracks'
-    scaled contacts when they span at least 1 m in two directions, twice. Tracks without contacts
-    keep their scale and take the shared floor. Returns new recordings, in order."""
-    with_floor = [i for i, (_, r) in enumerate(fits) if r.floor_normal is not None]
-    if not with_floor:
-        return [rec for rec, _ in fits]
-    weights = np.array([len(fits[i][1].planted_ankles_m) for i in with_floor], dtype=np.float64)
-    normal = sum(w * fits[i][1].floor_normal for w, i in zip(weights, with_floor))
-    normal /= np.linalg.norm(normal)
-    scales = np.ones(len(fits))
-    if camera_height_m is not None:
-        normal = _pitch_from_camera_height([fits[i] for i in with_floor], normal, camera_height_m)
-    for _ in range(3):
-        own = np.array([_floor_distance(fits[i], normal) for i in with_floor])  # negative: below
-        distance = -camera_height_m if camera_height_m is not None else _geometric_mean(own, weights)
-        scales[with_floor] = distance / own
-        points = np.concatenate([scales[i] * fits[i][1].planted_ankles_m for i in with_floor])
-        normal = floor_plane(points[:, None], np.ones((len(points), 1), dtype=bool), normal, 0.0)[0]
-    distance = float(np.median([scales[i] * _floor_distance(fits[i], normal) for i in with_floor]))
-    if camera_height_m is not None:
-        distance = -camera_height_m
-    return [_rescaled(rec, k, normal, distance) for (rec, _), k in zip(fits, scales)]
-
-
-PITCH_SD_FIXED_DEG = 0.5  # the floor's pitch error when the contacts span the depth (a walk towards or away)
-
-
-def _pitch_from_camera_height(fits: list[tuple[TrackRecording, TakeResult]], normal: np.ndarray,
-                              camera_height_m: float) -> np.ndarray:
-    """``normal`` turned about the camera's x axis by the pitch that best reconciles a floor
-    ``camera_height_m`` below the camera with the people's sizes.
-
-    For a pitch θ, each track's scale k follows from its contacts (its floor must lie
-    ``camera_height_m`` down); the cost is Σ (log(stature · k / 1.75 m) / ``STATURE_SD``)² over
-    the tracks plus (θ / σ)², σ :data:`PITCH_SD_FIXED_DEG` when the contacts fix the pitch themselves
-    (:func:`_contacts_fix_pitch`), else the tracks' tilt estimates' (:func:`_tilt_sd_deg`). The
-    camera height alone cannot tell a tall person from a camera pitched down more: the people's
-    heights decide between them."""
-    thetas = np.radians(np.arange(-20.0, 20.0 + 1e-9, 0.1))
-    c, s = np.cos(thetas), np.sin(thetas)
-    normals = np.stack([np.full_like(c, normal[0]), c * normal[1] - s * normal[2], s * normal[1] + c * normal[2]],
-                       axis=1)  # turned about the camera's x axis by each θ
-    cost = np.zeros(len(thetas))
-    fixed = False
-    for rec, result in fits:
-        points = _lowest_level(result.planted_ankles_m, normal)  # a track with a floor has contacts
-        own = np.median(points @ normals.T, axis=0) - ANKLE_HEIGHT_M * rec.scales[-1]       # [T]
-        k = camera_height_m / np.maximum(-own, 1e-3)
-        cost += (np.log(rec.scales[-1] * k) / STATURE_SD) ** 2
-        fixed = fixed or _contacts_fix_pitch(points)
-    sd = np.radians(PITCH_SD_FIXED_DEG if fixed else _tilt_sd_deg([rec for rec, _ in fits]))
-    cost += (thetas / sd) ** 2
-    return normals[int(np.argmin(cost))]
-
-
-def _tilt_sd_deg(recordings: list[TrackRecording]) -> float:
-    """The error (degrees) of the tracks' tilt estimates combined (inverse-variance; each
-    ``up_sd_deg``, else ``body_size.TILT_SD_DEG``)."""
-    sds = np.array([TILT_SD_DEG if rec.up_sd_deg is None else rec.up_sd_deg for rec in recordings])
-    return float(1.0 / np.sqrt(np.sum(1.0 / sds ** 2)))
-
-
-def _contacts_fix_pitch(points: np.ndarray) -> bool:
-    """Whether contacts ``[N, 3]`` (view frame) fix the floor's pitch: they lie on one plane and span
-    about 1 m in two directions, or along one that runs mostly in depth (a walk towards or away
-    from the camera)."""
-    plane = _coplanar_spread(points)
-    if plane is None:
-        return False
-    spread, vt = plane
-    return bool(spread[1] >= MIN_FLOOR_SPREAD_M or (spread[0] >= MIN_FLOOR_SPREAD_M and abs(vt[0, 2]) >= 0.7))
-
-
-def _floor_distance(fit: tuple[TrackRecording, TakeResult], normal: np.ndarray) -> float:
-    """The floor's signed distance from the camera along ``normal`` under one track's contacts."""
-    rec, result = fit
-    return _floor_height(result.planted_ankles_m, normal) - ANKLE_HEIGHT_M * rec.scales[-1]
-
-
-def _geometric_mean(distances: np.ndarray, weights: np.ndarray) -> float:
-    """The weighted geometric mean of negative ``distances``: the tracks' sizes stay what they assumed
-    on average (their scales' weighted geometric mean is 1)."""
-    return -float(np.exp(np.sum(weights * np.log(-np.minimum(distances, -1e-3))) / np.sum(weights)))
-
-
-def _rescaled(rec: TrackRecording, k: float, normal: np.ndarray, offset: float) -> TrackRecording:
-    """``rec`` scaled by ``k`` about the camera (root and body), on the floor ``normal · p = offset``."""
-    return _refitted(rec, rec.quaternions, [r * k for r in rec.root_view_m], [s * k for s in rec.scales],
-                     normal, offset)
 
 
 def _refitted(rec: TrackRecording, quats: list, roots: list, scales: list, up: np.ndarray,

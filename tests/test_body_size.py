@@ -54,7 +54,8 @@ def test_camera_height_measures_the_person_from_the_feet(small_db, pitch, tmp_pa
     """A 1.5 m person, the camera 1.4 m above the floor: per frame the floor's estimate pulls the size
     from the assumed 1.75 m towards 1.5 m, weighed against people's heights by the tilt's error; the
     whole take, whose contacts span the depth, measures it (5 %) and puts the root there."""
-    from mocapdb.runtime.take import fit_takes, take_joints
+    from mocapdb.runtime.take import take_joints
+    from mocapdb.runtime.world import fit_takes
 
     frames, truth = _seen(small_db, clip=0, height_m=1.5, camera_height_m=1.4, pitch_deg=pitch)
     engine, poses = _run(small_db, frames, camera_height_m=1.4, keep_take=True)

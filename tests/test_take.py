@@ -202,8 +202,9 @@ def test_floor_is_the_lowest_level_and_a_non_planar_set_keeps_the_cameras_up():
 
 
 def test_reconstruct_writes_the_whole_take_unless_per_frame(small_db_path, tmp_path):
-    """The bundled real take: the whole-take BVH moves more smoothly than the per-frame one, on the
-    same body; ``--per-frame`` writes the stream's motion."""
+    """The bundled real take: the whole-take BVH moves more smoothly than the per-frame one, on a
+    body of the same proportions (its size is the take's world's); ``--per-frame`` writes the
+    stream's motion."""
     from mocapdb.cli.main import main
     from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
 
@@ -219,7 +220,9 @@ def test_reconstruct_writes_the_whole_take_unless_per_frame(small_db_path, tmp_p
         joints, _ = forward_kinematics(bvh)
         motion[name] = (bvh, np.linalg.norm(np.diff(joints, 2, axis=0), axis=-1).mean())
     assert motion["take"][1] < 0.5 * motion["frame"][1]              # mean joint acceleration
-    np.testing.assert_allclose(motion["take"][0].offsets, motion["frame"][0].offsets)  # one body
+    take_offsets, frame_offsets = motion["take"][0].offsets, motion["frame"][0].offsets
+    size = np.linalg.norm(take_offsets) / np.linalg.norm(frame_offsets)
+    np.testing.assert_allclose(take_offsets, size * frame_offsets, atol=1e-6)  # one body, scaled
     assert motion["take"][0].n_frames == motion["frame"][0].n_frames
 
 
@@ -231,7 +234,8 @@ def test_two_people_share_one_floor_and_their_sizes_follow(small_db):
     from mocapdb.core.geometry import axis_rotation_matrices, yaw_matrix
     from mocapdb.core.skeleton import PELVIS
     from mocapdb.runtime.engine import Engine, EngineConfig
-    from mocapdb.runtime.take import fit_take, shared_floor
+    from mocapdb.runtime.take import fit_take
+    from mocapdb.runtime.world import estimate_world, place_in_world, track_evidence
 
     focal, size, pitch = 1000.0, (1920, 1080), np.radians(10.0)
     first, n = small_db.clip_first_frame[0], small_db.clip_n_frames[0]
@@ -251,7 +255,8 @@ def test_two_people_share_one_floor_and_their_sizes_follow(small_db):
     fits = [fit_take(rec, 24.0) for rec in recordings]
     own = [result.floor_offset_m for _, result in fits]
     assert abs(own[0] - own[1]) > 0.1                    # alone, each stands on a floor of its own
-    shared = shared_floor(fits)
+    world = estimate_world([track_evidence(rec, result) for rec, result in fits])
+    shared = [place_in_world(rec, world) for rec, _ in fits]
     assert shared[0].floor_offset_m == shared[1].floor_offset_m
     np.testing.assert_allclose(shared[0].up_view, shared[1].up_view)
     heights = {}

@@ -46,7 +46,8 @@ from mocapdb.core.skeleton import MEASURED_BONE_NAMES, N_KEYPOINTS_2D, N_POINTS,
 from mocapdb.evaluation.metrics import foot_height_error_m, foot_skating_mps, pa_mpjpe, planted_feet
 from mocapdb.evaluation.reconstruction import ANKLES, BELOW_HEAD, BODY_BONES, TAKE_VARIANT, variant_config
 from mocapdb.runtime.engine import Engine, EngineConfig
-from mocapdb.runtime.take import fit_takes, take_joints
+from mocapdb.runtime.take import take_joints
+from mocapdb.runtime.world import fit_takes
 
 TRC_FROM_WORLD = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # trc = TRC_FROM_WORLD @ world
 Y_DOWN = np.array([1.0, -1.0, 1.0])  # camera-aligned (y up) ↔ OpenCV camera (y down), either way

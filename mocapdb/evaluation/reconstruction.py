@@ -63,7 +63,8 @@ from mocapdb.evaluation.metrics import (
 )
 from mocapdb.runtime.engine import Engine, EngineConfig
 from mocapdb.runtime.search import search_clustered, search_exact
-from mocapdb.runtime.take import fit_takes, take_joints
+from mocapdb.runtime.take import take_joints
+from mocapdb.runtime.world import fit_takes
 
 if TYPE_CHECKING:
     from tqdm import tqdm

@@ -1,0 +1,392 @@
+"""One world per take: the floor, the camera's height and pitch, and every person's size.
+
+One camera fixes each person only up to a scale ``k`` about its centre (a small person near it
+makes the image of a tall one further away). The whole-take fit of a track
+(:func:`~mocapdb.runtime.take.fit_take`) places its planted ankles at the track's *nominal* size
+(the stream's: 1.75 m, or a given height). A floor ``n · p = −h`` (``n`` the world's up in the view
+frame, ``h`` the camera's height above the floor) under those contacts fixes ``k = h / d(n)``,
+``d(n)`` the floor's distance below the camera under them at the nominal size. So every track
+standing on the floor observes its stature as ``log S = log h + log(S₀ / d(n))``: the floor ties
+everyone's sizes together, and the camera height, when given, fixes them all.
+
+:func:`estimate_world` searches a grid of the camera's pitch ``θ`` (about the tracks' mean up) and
+``log h`` (or ``h`` given). Each track is one of three kinds (Bayesian model comparison):
+
+* **on the floor** (prior weight :data:`P_ON_FLOOR`): its observed stature is drawn from the stature
+  prior (:mod:`mocapdb.core.anthropometry`: adults and children of 2-17 years), blurred by the
+  observation's error (:func:`observation_sd`); a person whose height is given (``--subject-height``)
+  has that instead of the prior;
+* **elevated** (:data:`P_ELEVATED`): it stands on something (a box, a step, stairs), so the
+  floor-consistent stature overstates it: the prior's probability of a smaller person times a flat
+  density over the human range;
+* **unreliable** (:data:`P_UNRELIABLE`): contacts that tell nothing (a body cut by the image edge, a
+  false detection): the flat density.
+
+The cost is ``−Σ log`` of each track's mixture plus the pitch prior (its SD: the tracks' tilt
+estimates', or :data:`PITCH_SD_FIXED_DEG` when contacts spread in depth fix it); the grid's
+minimum is the world, its spread the camera height's uncertainty. Then each track on the floor
+takes the posterior mode of its observation and the prior; any other keeps the prior's mode (its
+given height) and stands in the same world, where its feet are (above the floor on a box). No
+scale is negative, no stature leaves :data:`HUMAN_STATURE_M`. The plane is then fitted to the
+floor tracks' scaled contacts where they span it (:func:`~mocapdb.runtime.take.floor_plane`) and
+the estimate made once more about it.
+
+Costs O(T·H·(N + P)) for T pitches, H heights, N contacts and P people: milliseconds per take.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.special import ndtr
+
+from mocapdb.core.anthropometry import STATURE_LOG_MEANS, STATURE_LOG_SDS, STATURE_WEIGHTS
+from mocapdb.core.outputs import TrackRecording
+from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
+from mocapdb.runtime.body_size import TILT_SD_DEG
+from mocapdb.runtime.take import (
+    FLOOR_BAND_M,
+    MIN_FLOOR_SPREAD_M,
+    TakeParams,
+    TakeResult,
+    coplanar_spread,
+    fit_take,
+    floor_plane,
+    lowest_level,
+)
+
+HUMAN_STATURE_M = (0.8, 2.3)  # no track is ever made smaller or taller (a 2-year-old to the tallest adults)
+P_ON_FLOOR, P_ELEVATED, P_UNRELIABLE = 0.88, 0.10, 0.02  # prior weights of a track's kinds
+GIVEN_STATURE_SD = 0.01      # of log stature, a height the user gave
+CONTACT_SD = 0.10            # of log stature, one contact frame's (depth and ankle-height noise) ...
+CONTACT_DECORRELATION = 5.0  # ... over this many frames (consecutive frames are far from independent)
+BASE_SD = 0.03               # of log stature, what more contacts do not remove (the body's own fit)
+TILT_RANGE_DEG = 20.0        # the grid's pitch and roll search about the tracks' mean up, each way
+LOG_HEIGHT_STEP = 0.01       # the camera-height grid's step (log metres)
+CAMERA_HEIGHT_RANGE_M = (0.1, 60.0)
+MIN_FLOOR_DEPTH = 0.05       # a floor less than this × the person's stature below the camera: not under them
+TILT_SD_FIXED_DEG = 0.5      # a tilt's error about an axis the contacts span (a walk fixes the floor along it)
+_FLAT = 1.0 / np.log(HUMAN_STATURE_M[1] / HUMAN_STATURE_M[0])  # a flat density over the human range (log)
+_STATURE_GRID = np.linspace(np.log(HUMAN_STATURE_M[0]), np.log(HUMAN_STATURE_M[1]), 400)
+
+
+@dataclass(frozen=True)
+class TrackEvidence:
+    """What one track tells about the world: its contacts ``[N, 3]`` (planted ankles, view frame,
+    metres at its nominal stature ``nominal_stature_m``), its own up estimate and that one's error
+    (degrees), and its height if the user gave it."""
+
+    track: int
+    nominal_stature_m: float
+    contacts_m: np.ndarray
+    up: np.ndarray
+    up_sd_deg: float
+    given_stature_m: float | None = None
+
+
+@dataclass(frozen=True)
+class PersonSize:
+    """One track in the world: its stature (metres) and that estimate's error (SD of its log: 0.05 ≈
+    5 %), ``kind`` ("floor", "elevated", "unreliable", "no contacts"), where the size came from
+    (``source``: "floor", "prior", "given"), the factor its nominal size was scaled by, and the height
+    of its feet's lowest contacts above the floor (metres; None without contacts)."""
+
+    track: int
+    stature_m: float
+    stature_log_sd: float
+    kind: str
+    source: str
+    scale_factor: float
+    feet_above_floor_m: float | None
+
+
+@dataclass(frozen=True)
+class World:
+    """A take's world: the floor ``normal · p = −camera_height_m`` (view frame, metres), the camera
+    height's error (SD of its log; 0 when given) and every track's :class:`PersonSize`."""
+
+    normal: np.ndarray
+    camera_height_m: float
+    camera_height_log_sd: float
+    camera_height_given: bool
+    people: dict[int, PersonSize] = field(default_factory=dict)
+
+    @property
+    def pitch_deg(self) -> float:
+        """The camera's pitch: positive looking down (the floor's normal leans towards the camera)."""
+        return float(np.degrees(np.arctan2(self.normal[2], self.normal[1])))
+
+    @property
+    def roll_deg(self) -> float:
+        """The camera's roll: positive when the world's up leans to the image's left."""
+        return float(np.degrees(np.arctan2(-self.normal[0], self.normal[1])))
+
+
+def fit_takes(recordings: list[TrackRecording], fps: float, params: TakeParams = TakeParams(),
+              camera_height_m: float | None = None, subject_heights_m: dict[int, float] | None = None
+              ) -> list[TrackRecording]:
+    """Every track of a take through :func:`~mocapdb.runtime.take.fit_take`, then into one world
+    (:func:`fit_world`): what ``reconstruct`` writes."""
+    return fit_world(recordings, fps, params, camera_height_m, subject_heights_m)[0]
+
+
+def fit_world(recordings: list[TrackRecording], fps: float, params: TakeParams = TakeParams(),
+              camera_height_m: float | None = None, subject_heights_m: dict[int, float] | None = None
+              ) -> tuple[list[TrackRecording], World]:
+    """:func:`fit_takes` with the :class:`World` found. ``camera_height_m``: the camera's height above
+    the floor when known; ``subject_heights_m``: track → stature (metres) where known."""
+    fits = [fit_take(rec, fps, params) for rec in recordings]
+    evidence = [track_evidence(rec, result, (subject_heights_m or {}).get(rec.track)) for rec, result in fits]
+    world = estimate_world(evidence, camera_height_m)
+    return [place_in_world(rec, world) for rec, _ in fits], world
+
+
+def track_evidence(rec: TrackRecording, result: TakeResult, given_stature_m: float | None = None
+                   ) -> TrackEvidence:
+    """A whole-take fit's :class:`TrackEvidence` (no contacts: an empty ``contacts_m``)."""
+    up = result.floor_normal if result.floor_normal is not None else rec.up_view
+    up = np.array([0.0, 1.0, 0.0]) if up is None else np.asarray(up, dtype=np.float64)
+    return TrackEvidence(rec.track, UNIVERSAL_HEIGHT_M * rec.scales[-1], result.planted_ankles_m.reshape(-1, 3),
+                         up / np.linalg.norm(up), TILT_SD_DEG if rec.up_sd_deg is None else rec.up_sd_deg,
+                         given_stature_m)
+
+
+def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None = None) -> World:
+    """The take's :class:`World` from every track's evidence (module docstring)."""
+    grounded = [e for e in evidence if len(e.contacts_m) > 0]
+    if not grounded:
+        return _world_without_contacts(evidence, camera_height_m)
+    tilt_sd = _tilt_sd_deg(grounded)
+    world = _grid_world(grounded, _mean_up(grounded), _tilt_sds([e.contacts_m for e in grounded], tilt_sd),
+                        camera_height_m)
+    floor_contacts = _floor_contacts(grounded, world)
+    refitted = None if floor_contacts is None else _plane_normal(floor_contacts, world.normal)
+    if refitted is not None:
+        sds = _tilt_sds([e.contacts_m for e in grounded] + [floor_contacts], tilt_sd)
+        world = _grid_world(grounded, refitted, sds, camera_height_m)
+    return _with_people(world, evidence)
+
+
+def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg: tuple[float, float],
+                camera_height_m: float | None) -> World:
+    """The cost's minimum over camera tilts about ``normal`` (pitch and roll SDs ``tilt_sds_deg``)
+    and camera heights (one, when given): a coarse grid, then a fine one about its minimum."""
+    centre = np.zeros(2)
+    for step, half_width in ((COARSE_STEP_DEG, TILT_RANGE_DEG), (FINE_STEP_DEG, COARSE_STEP_DEG * 1.5)):
+        offsets = np.arange(-half_width, half_width + 1e-9, step)
+        tilts = (centre + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2))
+        normals = _tilted_normals(normal, tilts)
+        cost, log_h = _cost(evidence, normals, tilts, tilt_sds_deg, camera_height_m)
+        t, h = np.unravel_index(int(np.argmin(cost)), cost.shape)
+        centre = tilts[t]
+    posterior = np.exp(-(cost[t] - cost[t, h]))
+    mean = np.sum(posterior * log_h) / np.sum(posterior)
+    sd = 0.0 if camera_height_m is not None else float(np.sqrt(np.sum(posterior * (log_h - mean) ** 2)
+                                                                / np.sum(posterior)))
+    return World(normals[t], float(np.exp(log_h[h])), sd, camera_height_m is not None)
+
+
+def _cost(evidence: list[TrackEvidence], normals: np.ndarray, tilts_deg: np.ndarray,
+          tilt_sds_deg: tuple[float, float], camera_height_m: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """``−log`` posterior ``[T, H]`` over tilts ``[T, 2]`` (pitch, roll; degrees) and the log camera
+    heights (returned, ``[H]``)."""
+    log_h = np.array([np.log(camera_height_m)]) if camera_height_m is not None else _LOG_HEIGHTS
+    prior = 0.5 * np.sum((tilts_deg / np.asarray(tilt_sds_deg)) ** 2, axis=1)
+    cost = np.repeat(prior[:, None], len(log_h), axis=1)
+    for e in evidence:
+        cost -= _log_likelihood(_observed_log_stature(e, normals)[:, None] + log_h[None, :], e)
+    return cost, log_h
+
+
+COARSE_STEP_DEG, FINE_STEP_DEG = 1.0, 0.1
+_LOG_HEIGHTS = np.arange(np.log(CAMERA_HEIGHT_RANGE_M[0]), np.log(CAMERA_HEIGHT_RANGE_M[1]), LOG_HEIGHT_STEP)
+
+
+def _tilted_normals(normal: np.ndarray, tilts_deg: np.ndarray) -> np.ndarray:
+    """``normal`` turned about the camera's x axis by each pitch, then about its viewing axis by each
+    roll (``tilts_deg [T, 2]``): ``[T, 3]``."""
+    pitch, roll = np.radians(tilts_deg[:, 0]), np.radians(tilts_deg[:, 1])
+    c, s = np.cos(pitch), np.sin(pitch)
+    x, y, z = np.full_like(c, normal[0]), c * normal[1] - s * normal[2], s * normal[1] + c * normal[2]
+    c, s = np.cos(roll), np.sin(roll)
+    return np.stack([c * x - s * y, s * x + c * y, z], axis=1)
+
+
+def _observed_log_stature(e: TrackEvidence, normals: np.ndarray) -> np.ndarray:
+    """Per floor normal ``[T, 3]``, ``log(S₀ / d)``: the track's log stature on a floor 1 m below the
+    camera (add ``log h``); NaN where that floor is not below its contacts."""
+    ankle_m = ANKLE_HEIGHT_M * e.nominal_stature_m / UNIVERSAL_HEIGHT_M
+    heights = e.contacts_m @ normals.T                                            # [N, T]
+    low = heights <= np.quantile(heights, 0.05, axis=0) + FLOOR_BAND_M            # the lowest level's
+    level = np.nanmedian(np.where(low, heights, np.nan), axis=0)
+    depth = ankle_m - level                                                       # the floor's, below the camera
+    ok = depth > MIN_FLOOR_DEPTH * e.nominal_stature_m
+    return np.where(ok, np.log(e.nominal_stature_m / np.where(ok, depth, 1.0)), np.nan)
+
+
+def observation_sd(e: TrackEvidence) -> float:
+    """The error (SD of log stature) of a track's floor-consistent stature at a known floor:
+    :data:`BASE_SD` and :data:`CONTACT_SD` over its independent contacts."""
+    independent = max(len(e.contacts_m) / CONTACT_DECORRELATION, 1.0)
+    return float(np.sqrt(BASE_SD ** 2 + CONTACT_SD ** 2 / independent))
+
+
+def _log_likelihood(log_stature: np.ndarray, e: TrackEvidence) -> np.ndarray:
+    """``log p(observed log stature)`` of one track under its three kinds (module docstring), read
+    off a table over :data:`_LIKELIHOOD_GRID`; the unreliable kind's alone where the floor is not
+    below it (NaN)."""
+    on_floor, smaller = _prior_density(_LIKELIHOOD_GRID, observation_sd(e), e.given_stature_m)
+    table = np.log(P_ON_FLOOR * on_floor + P_ELEVATED * _FLAT * smaller + P_UNRELIABLE * _FLAT)
+    values = np.interp(np.nan_to_num(log_stature, nan=_LIKELIHOOD_GRID[0]), _LIKELIHOOD_GRID, table)
+    return np.where(np.isnan(log_stature), np.log(P_UNRELIABLE * _FLAT), values)
+
+
+_LIKELIHOOD_GRID = np.arange(np.log(0.02), np.log(100.0), 0.002)  # log stature (metres)
+
+
+def _prior_density(x: np.ndarray, sd: float, given_stature_m: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """The stature prior (or the given height) blurred by ``sd`` at log statures ``x``, and its
+    probability of a stature below ``x`` (an elevated person is smaller than its floor says)."""
+    weights, means, sds = _components(given_stature_m)
+    total = np.sqrt(sds ** 2 + sd ** 2)
+    z = (x[..., None] - means) / total
+    density = np.sum(weights * np.exp(-0.5 * z ** 2) / (total * np.sqrt(2.0 * np.pi)), axis=-1)
+    return density, np.sum(weights * ndtr(z), axis=-1)
+
+
+def _components(given_stature_m: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The stature prior's mixture (weights, log means, log SDs), or the given height's one component."""
+    if given_stature_m is None:
+        return STATURE_WEIGHTS, STATURE_LOG_MEANS, STATURE_LOG_SDS
+    return np.ones(1), np.array([np.log(given_stature_m)]), np.array([GIVEN_STATURE_SD])
+
+
+def _floor_contacts(evidence: list[TrackEvidence], world: World) -> np.ndarray | None:
+    """The contacts ``[N, 3]`` of the tracks standing on ``world``'s floor, scaled into it (None: none)."""
+    people = _with_people(world, evidence).people
+    points = [people[e.track].scale_factor * e.contacts_m for e in evidence if people[e.track].kind == "floor"]
+    return np.concatenate(points) if points else None
+
+
+def _plane_normal(contacts: np.ndarray, normal: np.ndarray) -> np.ndarray | None:
+    """The floor's normal through ``contacts [N, 3]`` where they fix more than ``normal`` does
+    (:func:`~mocapdb.runtime.take.floor_plane`), else None."""
+    fitted = floor_plane(contacts[:, None], np.ones((len(contacts), 1), dtype=bool), normal, 0.0)[0]
+    return None if np.allclose(fitted, normal) else fitted
+
+
+def _with_people(world: World, evidence: list[TrackEvidence]) -> World:
+    """``world`` with every track's :class:`PersonSize`."""
+    return replace(world, people={e.track: person_size(e, world) for e in evidence})
+
+
+def person_size(e: TrackEvidence, world: World) -> PersonSize:
+    """One track's size and kind in ``world`` (the posterior over its kinds at the world's floor and
+    height; on the floor: the posterior mode of its stature; else the prior's mode or its given height)."""
+    if len(e.contacts_m) == 0:
+        return _prior_size(e, "no contacts", None)
+    observed = _observed_log_stature(e, world.normal[None])[0] + np.log(world.camera_height_m)
+    sd = observation_sd(e)
+    if np.isfinite(observed):
+        on_floor, smaller = _prior_density(np.array(observed), sd, e.given_stature_m)
+        kinds = {"floor": P_ON_FLOOR * on_floor, "elevated": P_ELEVATED * _FLAT * smaller,
+                 "unreliable": P_UNRELIABLE * _FLAT}
+        kind = max(kinds, key=lambda k: float(kinds[k]))
+    else:
+        kind = "unreliable"
+    if kind != "floor":
+        return _prior_size(e, kind, world)
+    stature = float(np.clip(np.exp(observed), *HUMAN_STATURE_M))
+    log_sd = _posterior_sd(float(observed), float(np.hypot(sd, world.camera_height_log_sd)), e.given_stature_m)
+    source = "given" if e.given_stature_m is not None else "floor" if log_sd < 0.8 * _PRIOR_SD else "prior"
+    return PersonSize(e.track, stature, log_sd, "floor", source, stature / e.nominal_stature_m,
+                      _feet_above_floor(e, world, stature / e.nominal_stature_m))
+
+
+def _posterior(observed: float, sd: float, given_stature_m: float | None) -> np.ndarray:
+    """The stature posterior on :data:`_STATURE_GRID` (normalised): the prior (or the given height)
+    times the observation ``N(observed, sd)`` (log stature)."""
+    weights, means, sds = _components(given_stature_m)
+    x = _STATURE_GRID[:, None]
+    prior = np.sum(weights * np.exp(-0.5 * ((x - means) / sds) ** 2) / sds, axis=1)
+    posterior = prior * np.exp(-0.5 * ((_STATURE_GRID - observed) / sd) ** 2)
+    posterior = posterior if np.any(posterior > 0) else prior
+    return posterior / posterior.sum()
+
+
+def _posterior_sd(observed: float, sd: float, given_stature_m: float | None) -> float:
+    """The SD of log stature of :func:`_posterior`."""
+    posterior = _posterior(observed, sd, given_stature_m)
+    mean = float(np.sum(posterior * _STATURE_GRID))
+    return float(np.sqrt(np.sum(posterior * (_STATURE_GRID - mean) ** 2)))
+
+
+def _prior_mode(given_stature_m: float | None) -> float:
+    """The stature (metres) the prior (or the given height) makes most likely."""
+    return float(np.exp(_STATURE_GRID[np.argmax(_posterior(0.0, 1e6, given_stature_m))]))
+
+
+_PRIOR_SD = _posterior_sd(0.0, 1e6, None)  # the prior's own spread (of log stature)
+
+
+def _prior_size(e: TrackEvidence, kind: str, world: World | None) -> PersonSize:
+    """A track whose size the floor does not give: the prior's mode (or its given height)."""
+    stature, log_sd = _prior_mode(e.given_stature_m), _posterior_sd(0.0, 1e6, e.given_stature_m)
+    k = stature / e.nominal_stature_m
+    feet = None if world is None else _feet_above_floor(e, world, k)
+    return PersonSize(e.track, stature, log_sd, kind, "given" if e.given_stature_m is not None else "prior", k, feet)
+
+
+def _feet_above_floor(e: TrackEvidence, world: World, k: float) -> float | None:
+    """How high the track's lowest contacts stand above the floor once scaled by ``k`` (metres)."""
+    if len(e.contacts_m) == 0:
+        return None
+    heights = k * (lowest_level(e.contacts_m, world.normal) @ world.normal)
+    ankle_m = ANKLE_HEIGHT_M * k * e.nominal_stature_m / UNIVERSAL_HEIGHT_M
+    return float(np.median(heights) - ankle_m + world.camera_height_m)
+
+
+def _world_without_contacts(evidence: list[TrackEvidence], camera_height_m: float | None) -> World:
+    """No track stood still anywhere: the mean up, the given height or the people's (prior) size's."""
+    up = _mean_up(evidence) if evidence else np.array([0.0, 1.0, 0.0])
+    world = World(up, camera_height_m or 1.5, 0.0 if camera_height_m else np.inf, camera_height_m is not None)
+    return _with_people(world, evidence)
+
+
+def _mean_up(evidence: list[TrackEvidence]) -> np.ndarray:
+    """The tracks' up estimates averaged, each weighted by its contacts (one at least)."""
+    total = sum(max(len(e.contacts_m), 1) * e.up for e in evidence)
+    return total / np.linalg.norm(total)
+
+
+def _tilt_sd_deg(evidence: list[TrackEvidence]) -> float:
+    """The error (degrees) of the tracks' tilt estimates combined (inverse-variance)."""
+    sds = np.array([e.up_sd_deg for e in evidence])
+    return float(1.0 / np.sqrt(np.sum(1.0 / sds ** 2)))
+
+
+def _tilt_sds(contacts: list[np.ndarray], tilt_sd_deg: float) -> tuple[float, float]:
+    """The pitch and roll errors (degrees): :data:`TILT_SD_FIXED_DEG` about an axis some set of
+    contacts ``[N, 3]`` fixes (they lie on one plane spanning about 1 m both ways, or along a line
+    running mostly in depth: the pitch, or mostly across: the roll), else ``tilt_sd_deg``."""
+    pitch = roll = tilt_sd_deg
+    for points in contacts:
+        plane = coplanar_spread(points)
+        if plane is None:
+            continue
+        spread, vt = plane
+        both = spread[1] >= MIN_FLOOR_SPREAD_M
+        line = spread[0] >= MIN_FLOOR_SPREAD_M
+        if both or (line and abs(vt[0, 2]) >= 0.7):
+            pitch = TILT_SD_FIXED_DEG
+        if both or (line and abs(vt[0, 0]) >= 0.7):
+            roll = TILT_SD_FIXED_DEG
+    return pitch, roll
+
+
+def place_in_world(rec: TrackRecording, world: World) -> TrackRecording:
+    """A whole-take fit scaled about the camera by its :class:`PersonSize` factor (its image
+    unchanged), on the world's floor."""
+    k = world.people[rec.track].scale_factor
+    return replace(rec, root_view_m=[r * k for r in rec.root_view_m], scales=[s * k for s in rec.scales],
+                   up_view=world.normal, floor_offset_m=-world.camera_height_m)
