@@ -6,9 +6,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from mocapdb.core import exports
 from mocapdb.core.clips import ClipOptions, process_clip
 from mocapdb.core.exports import TrackExport, on_floor, write_track_files
-from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
+from mocapdb.core.formats.bvh import format_bvh, forward_kinematics, read_bvh
 from mocapdb.core.formats.trc import format_trc, read_trc
 from mocapdb.core.geometry import axis_rotation_matrices, matrix_to_quat, quat_mul
 from mocapdb.core.joint_map import detect_mapping
@@ -43,7 +44,7 @@ def walk():
     return quats, fitted[:, PELVIS], fitted
 
 
-def _recording(quats, root_m, first_frame=10, scale=1.0):
+def _recording(quats, root_m, first_frame=0, scale=1.0):
     return TrackRecording(3, first_frame, list(quats), list(root_m), [scale] * len(quats), first_s=first_frame / 30.0,
                           last_s=(first_frame + len(quats) - 1) / 30.0)
 
@@ -80,12 +81,12 @@ def test_floor_without_depth_motion_only_shifts(walk):
 
 def test_trc_and_csv_carry_the_joints(walk, tmp_path):
     quats, root, _ = walk
-    rec = _recording(quats[:40], root[:40] + [0.0, 0.0, -4.0], scale=1.1)
-    paths = write_track_files(rec, tmp_path, "track_3", 30.0, TrackExport(formats=("bvh", "trc", "csv")))
+    rec = _recording(quats[:40], root[:40] + [0.0, 0.0, -4.0], first_frame=10, scale=1.1)
+    paths = write_track_files(rec, tmp_path, "track_3", 30.0, TrackExport(("bvh", "trc", "csv"), pad_to_input=False))
     assert [p.name for p in paths] == ["track_3.bvh", "track_3.trc", "track_3.csv"]
     joints = pose_from_rotations(quats[:40], root[:40] + [0.0, 0.0, -4.0], 1.1)
     trc = read_trc(tmp_path / "track_3.trc")
-    assert trc.markers == list(KEYPOINTS) and trc.rate_hz == 30.0 and trc.frame_numbers[0] == 10
+    assert trc.markers == list(KEYPOINTS) and trc.rate_hz == 30.0 and trc.frame_numbers[0] == 11  # input frame 10
     np.testing.assert_allclose(trc.positions, joints, atol=1e-5)
     np.testing.assert_allclose(trc.times_s, (10 + np.arange(40)) / 30.0, atol=1e-6)
     table = pd.read_csv(tmp_path / "track_3.csv")
@@ -93,6 +94,57 @@ def test_trc_and_csv_carry_the_joints(walk, tmp_path):
                                                                             "head_z"]
     np.testing.assert_allclose(table[["l_ankle_x", "l_ankle_y", "l_ankle_z"]].to_numpy(), joints[:, KP["l_ankle"]],
                                atol=1e-5)
+
+
+def test_track_files_line_up_with_the_input(walk, tmp_path):
+    # A track starting at input frame 37 (30 fps): its BVH holds frame 37's pose for input frames 0-36,
+    # then its own 40 frames; TRC Frame# 38-77 at 37/30 s on, CSV frames 37-76 (issue 27, item 4).
+    quats, root, _ = walk
+    root = root[:40] + [0.3, -0.9, -4.0]
+    write_track_files(_recording(quats[:40], root, first_frame=37, scale=1.1), tmp_path, "t", 30.0,
+                      TrackExport(formats=("bvh", "trc", "csv")))
+    bvh = read_bvh(tmp_path / "t.bvh")
+    joints = pose_from_rotations(quats[:40], root, 1.1)
+    assert bvh.n_frames == 77 and bvh.fps == pytest.approx(30.0)
+    fk = forward_kinematics(bvh)[0][:, NODE_OF_POINT]
+    np.testing.assert_allclose(fk[:37], np.broadcast_to(joints[0], (37, *joints[0].shape)), atol=1e-5)
+    np.testing.assert_allclose(fk[37:], joints, atol=1e-5)
+    assert (bvh.motion[:37] == bvh.motion[37]).all() and (np.abs(bvh.motion[37] - bvh.motion[38]) > 1e-4).any()
+    trc = read_trc(tmp_path / "t.trc")
+    np.testing.assert_array_equal(trc.frame_numbers, np.arange(38, 78))
+    np.testing.assert_allclose(trc.times_s, np.arange(37, 77) / 30.0, atol=1e-6)
+    header = dict(zip(*[line.split("\t") for line in (tmp_path / "t.trc").read_text().splitlines()[1:3]]))
+    assert (header["NumFrames"], header["OrigDataStartFrame"], header["OrigNumFrames"]) == ("40", "38", "40")
+    table = pd.read_csv(tmp_path / "t.csv")
+    np.testing.assert_array_equal(table["frame"], np.arange(37, 77))
+    np.testing.assert_allclose(table["time_s"], np.arange(37, 77) / 30.0, atol=1e-6)
+
+
+def test_bvh_from_the_track_start_and_past_the_padding_limit(walk, tmp_path, monkeypatch, caplog):
+    quats, root, _ = walk
+    rec = _recording(quats[:20], root[:20], first_frame=37)
+    write_track_files(rec, tmp_path, "own", 30.0, TrackExport(pad_to_input=False))  # --bvh-start track
+    own = read_bvh(tmp_path / "own.bvh")
+    assert own.n_frames == 20
+    np.testing.assert_allclose(forward_kinematics(own)[0][:, NODE_OF_POINT], pose_from_rotations(quats[:20], root[:20]),
+                               atol=1e-5)
+    monkeypatch.setattr(exports, "MAX_BVH_PAD_FRAMES", 37)
+    monkeypatch.setattr(exports, "_WARNED_UNPADDED", False)
+    write_track_files(rec, tmp_path, "at_limit", 30.0)
+    assert read_bvh(tmp_path / "at_limit.bvh").n_frames == 57 and not caplog.records
+    write_track_files(_recording(quats[:20], root[:20], first_frame=38), tmp_path, "past", 30.0)
+    write_track_files(_recording(quats[:20], root[:20], first_frame=39), tmp_path, "past2", 30.0)
+    assert read_bvh(tmp_path / "past.bvh").n_frames == read_bvh(tmp_path / "past2.bvh").n_frames == 20
+    assert [r.getMessage().split(" starts")[0] for r in caplog.records] == ["past.bvh"]  # logged once
+
+
+@pytest.mark.parametrize("lead", [-1, 3])
+def test_bvh_lead_frames_need_a_first_frame(lead):
+    bvh = universal_bvh(np.zeros((0, 11, 4)), np.zeros((0, 3)), 30.0)
+    if lead < 0:
+        bvh = universal_bvh(np.tile([1.0, 0, 0, 0], (2, 11, 1)), np.zeros((2, 3)), 30.0)
+    with pytest.raises(ValueError, match="lead frames"):
+        format_bvh(bvh, lead_frames=lead)
 
 
 @pytest.mark.skipif(not os.environ.get(OPENSIM_PYTHON_ENV), reason=f"no OpenSim: set ${OPENSIM_PYTHON_ENV}")

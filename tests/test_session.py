@@ -10,6 +10,7 @@ import pytest
 from mocapdb.cli.main import main
 from mocapdb.core.cameras import DatabaseCamera
 from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
+from mocapdb.core.formats.trc import read_trc
 from mocapdb.core.geometry import project_views
 from mocapdb.core.skeleton import PELVIS
 from mocapdb.runtime.engine import Engine, EngineConfig
@@ -125,6 +126,26 @@ def test_cli_reconstruct_coco17_array(small_db, small_db_path, tmp_path, capsys)
                  "--fps", "24"]) == 0
     assert "frames 24" in capsys.readouterr().out
     assert (tmp_path / "out" / "track_0.bvh").exists()
+
+
+@pytest.mark.parametrize("start, bvh_frames", [("input", 36), ("track", 24)])
+def test_cli_track_files_line_up_with_the_input(small_db, small_db_path, tmp_path, start, bvh_frames):
+    # The person comes in at input frame 12 (24 fps): the BVH starts at input frame 0, the track's first
+    # pose held until then, unless --bvh-start track; TRC Frame# and CSV frame are the input's either way.
+    lines = [json.dumps({"frame": i, "people": []}) for i in range(12)]
+    lines += [json.dumps({**json.loads(line), "frame": 12 + i}) for i, line in enumerate(_stream_lines(small_db, 24))]
+    (tmp_path / "in.jsonl").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--out", str(out),
+                 "--fps", "24", "--format", "bvh,trc,csv", "--bvh-start", start]) == 0
+    bvh = read_bvh(out / "track_0.bvh")
+    assert bvh.n_frames == bvh_frames and (bvh.motion[: bvh_frames - 23] == bvh.motion[bvh_frames - 24]).all()
+    assert (bvh.motion[bvh_frames - 24] != bvh.motion[bvh_frames - 1]).any()
+    trc = read_trc(out / "track_0.trc")
+    np.testing.assert_array_equal(trc.frame_numbers, np.arange(13, 37))
+    np.testing.assert_allclose(trc.times_s, np.arange(12, 36) / 24.0, atol=1e-6)
+    csv_frames = [int(row.split(",")[0]) for row in (out / "track_0.csv").read_text().splitlines()[1:]]
+    assert csv_frames == list(range(12, 36))
 
 
 def test_live_process_stops_cleanly_on_sigint(small_db, small_db_path, tmp_path):

@@ -11,6 +11,7 @@ import pytest
 
 from mocapdb.cli.main import main
 from mocapdb.core.cameras import DatabaseCamera
+from mocapdb.core.formats.bvh import read_bvh
 from mocapdb.core.formats.database import load_database
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS, SOURCE_INDEX
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
@@ -308,7 +309,9 @@ def test_a_long_track_is_written_in_parts_as_they_complete(small_db, tmp_path):
     summary = session.finish()
     assert [p.name for p in summary.bvh_files] == ["track_0_part1.bvh", "track_0_part2.bvh", "track_0_part3.bvh"]
     lengths = [len(p.read_text().split("Frame Time")[1].splitlines()) - 1 for p in summary.bvh_files]
-    assert lengths == [15, 15, 10]  # 40 frames: the track's files start at its first detection
+    assert lengths == [15, 30, 40]  # 40 frames in parts of 15, 15 and 10, each padded back to input frame 0
+    part2 = read_bvh(summary.bvh_files[1]).motion
+    assert (part2[:15] == part2[15]).all() and (part2[15] != part2[16]).any()  # its first pose held
 
 
 class _FailingSink:

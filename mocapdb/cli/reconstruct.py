@@ -89,6 +89,9 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                        help="put each track on a floor estimated from its feet: camera pitch levelled, feet on "
                             "y = 0, the pelvis starting above the origin (default: the camera is the origin)")
     files.add_argument("--bvh-unit", choices=("m", "cm"), default="m", help="length unit of the BVH files (default m)")
+    files.add_argument("--bvh-start", choices=("input", "track"), default="input",
+                       help="BVH frame 1: the input's first frame, the track's first pose held until it starts, so "
+                            "every BVH lines up with the video (default), or the track's own first frame")
     files.add_argument("--smoothing-hz", type=D.SMOOTHING_HZ, default=4.0, metavar="HZ",
                        help="the track files are each track fitted over the whole take: motion slower than HZ "
                             "kept, jitter faster removed, without lag; planted feet held still, no foot below the "
@@ -213,7 +216,7 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
     try:  # checked before the database is loaded
         limits = TrackLimits(args.max_tracks, args.max_new_tracks_per_min)
         export = TrackExport(tuple(f.strip().lower() for f in args.format.split(",") if f.strip()), args.bvh_unit,
-                             args.rig, args.floor)
+                             args.rig, args.floor, pad_to_input=args.bvh_start == "input")
         options = SessionOptions(strict=strict, fps_given=args.fps is not None, keep_static=args.keep_static,
                                  bvh_dir=bvh_dir, export=export, max_bvh_files=args.max_bvh_files,
                                  min_track_s=args.min_track_s, bvh_part_min=args.bvh_part_min,

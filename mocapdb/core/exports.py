@@ -9,9 +9,17 @@ the camera's pitch is taken out (the line the lowest ankle traces over depth is 
 person who hardly moves in depth (< :data:`MIN_DEPTH_SPREAD_M`) is only shifted, not levelled;
 the roll is not estimated; the floor height is the 5th percentile of the lowest ankle minus the
 ankle height.
+
+Alignment with the input (``data_specs/stream_output.md``, "Track files"): BVH has no start-frame
+field, so a track's BVH is padded at the start with its first pose (root and rotations) back to
+input frame 0: BVH frame ``k`` is input frame ``k - 1``, and every BVH of a take lines up with the
+video and with the others (``TrackExport.pad_to_input``; at most :data:`MAX_BVH_PAD_FRAMES`). TRC
+``Frame#`` is the input frame index + 1 and ``Time`` the input's time; CSV ``frame`` is the input
+frame index (from 0) and ``time_s`` the input's time. Neither is padded: their times are explicit.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,7 +32,12 @@ from mocapdb.core.geometry import axis_rotation_matrices, matrix_to_quat, quat_m
 from mocapdb.core.outputs import RIGS, TrackRecording, universal_bvh
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, KEYPOINTS, KP, pose_from_rotations, swing_matrices
 
+LOG = logging.getLogger("mocapdb")
 FORMATS = ("bvh", "trc", "csv")
+# A track starting later than this input frame gets an unpadded BVH (its own frames only, with a
+# warning): an hour at 30 fps, 45-80 MB of BVH text, keeps a numbered stream's far-off frame (or
+# a long live session) from writing files of gigabytes.
+MAX_BVH_PAD_FRAMES = 108_000
 MIN_DEPTH_SPREAD_M = 0.5   # the feet must cover this much depth for the camera pitch to be measured
 FLOOR_PERCENTILE = 5.0     # of the lowest ankle's height, for the floor
 LEVEL_INLIER_M = 0.05      # ankle points this close to the first line fit the second
@@ -33,12 +46,15 @@ LEVEL_INLIER_M = 0.05      # ankle points this close to the first line fit the s
 @dataclass(frozen=True)
 class TrackExport:
     """Which files a track gets and how: ``formats`` (of :data:`FORMATS`), the BVH ``unit``
-    ("m" or "cm") and ``rig`` (:data:`~mocapdb.core.outputs.RIGS`), and ``floor``."""
+    ("m" or "cm") and ``rig`` (:data:`~mocapdb.core.outputs.RIGS`), ``floor``, and
+    ``pad_to_input``: the BVH starts at input frame 0, the track's first pose held until the track
+    starts (False: at the track's first frame; `--bvh-start`)."""
 
     formats: tuple[str, ...] = ("bvh",)
     unit: str = "m"
     rig: str = "universal"
     floor: bool = False
+    pad_to_input: bool = True
 
     def __post_init__(self) -> None:
         unknown = [f for f in self.formats if f not in FORMATS]
@@ -117,11 +133,34 @@ def csv_text(joints_m: np.ndarray, frames: np.ndarray, times_s: np.ndarray) -> s
     return "\n".join([",".join(columns), *rows]) + "\n"
 
 
+def bvh_lead_frames(rec: TrackRecording, export: TrackExport, name: str = "") -> int:
+    """How many copies of its first pose a track's BVH starts with: its first input frame's index
+    (BVH frame 1 = input frame 0), 0 without ``export.pad_to_input`` or past
+    :data:`MAX_BVH_PAD_FRAMES` (then logged once per process, naming file ``name``)."""
+    global _WARNED_UNPADDED
+    if not export.pad_to_input:
+        return 0
+    if rec.first_frame <= MAX_BVH_PAD_FRAMES:
+        return rec.first_frame
+    if not _WARNED_UNPADDED:
+        _WARNED_UNPADDED = True
+        LOG.warning("%s starts at input frame %d, past the %d frames a BVH is padded back to frame 0: its BVH "
+                    "starts at the track's first frame (its TRC and CSV give the input's frame numbers; "
+                    "further such files are not logged)", name or f"track {rec.track}", rec.first_frame,
+                    MAX_BVH_PAD_FRAMES)
+    return 0
+
+
+_WARNED_UNPADDED = False
+
+
 def write_track_files(rec: TrackRecording, folder: str | Path, stem: str, fps: float,
                       export: TrackExport = TrackExport()) -> list[Path]:
     """Write ``<stem>.<format>`` for each of ``export.formats`` (atomically); returns the paths.
 
-    Frame numbers are the input's (the track's first frame onwards) and times the input's seconds.
+    Aligned with the input (see the module's docstring): the BVH padded back to input frame 0
+    (:func:`bvh_lead_frames`), TRC ``Frame#`` the input frame index + 1, CSV ``frame`` the index,
+    and both the input's times (seconds) from the track's first frame on.
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -130,11 +169,12 @@ def write_track_files(rec: TrackRecording, folder: str | Path, stem: str, fps: f
     times_s = rec.first_s + np.arange(len(quats)) / fps
     texts = {}
     if "bvh" in export.formats:
-        texts["bvh"] = format_bvh(universal_bvh(quats, root_m, fps, export.unit, scale, export.rig, rec.proportions_m))
+        bvh = universal_bvh(quats, root_m, fps, export.unit, scale, export.rig, rec.proportions_m)
+        texts["bvh"] = format_bvh(bvh, lead_frames=bvh_lead_frames(rec, export, f"{stem}.bvh"))
     if "trc" in export.formats or "csv" in export.formats:
-        joints_m = track_joints(rec, export.floor)[1]
+        joints_m = pose_from_rotations(quats, root_m, scale, rec.offsets_m())
         if "trc" in export.formats:
-            texts["trc"] = format_trc(list(KEYPOINTS), joints_m, fps, frames, times_s, f"{stem}.trc")
+            texts["trc"] = format_trc(list(KEYPOINTS), joints_m, fps, frames + 1, times_s, f"{stem}.trc")
         if "csv" in export.formats:
             texts["csv"] = csv_text(joints_m, frames, times_s)
     paths = []

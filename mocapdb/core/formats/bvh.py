@@ -392,8 +392,14 @@ def _fmt(x: float) -> str:
     return f"{x:.6f}" if abs(x) >= 1e-4 or x == 0 else f"{x:.9e}"
 
 
-def format_bvh(bvh: Bvh, decimals: int = 6) -> str:
-    """BVH text for ``bvh`` (LF line endings, tab indentation, values with ``decimals`` places)."""
+def format_bvh(bvh: Bvh, decimals: int = 6, lead_frames: int = 0) -> str:
+    """BVH text for ``bvh`` (LF line endings, tab indentation, values with ``decimals`` places).
+
+    ``lead_frames``: the first frame written that many more times before the motion (a track
+    padded back to its input's first frame): one line formatted once, repeated as text.
+    """
+    if lead_frames < 0 or (lead_frames and not bvh.n_frames):
+        raise ValueError(f"{lead_frames} lead frames for a motion of {bvh.n_frames} frames")
     out = ["HIERARCHY"]
 
     def emit(j: int, depth: int) -> None:
@@ -412,11 +418,14 @@ def format_bvh(bvh: Bvh, decimals: int = 6) -> str:
 
     emit(0, 0)
     out.append("MOTION")
-    out.append(f"Frames: {bvh.n_frames}")
+    out.append(f"Frames: {bvh.n_frames + lead_frames}")
     out.append(f"Frame Time: {bvh.frame_time:.8f}")
     body = np.char.mod(f"%.{decimals}f", np.round(bvh.motion, decimals) + 0.0)
-    out.extend(" ".join(row) for row in body)
-    return "\n".join(out) + "\n"
+    rows = [" ".join(row) for row in body]
+    out.extend(rows[:1] * lead_frames)
+    out.extend(rows)
+    out.append("")  # the final newline, without copying the text once more
+    return "\n".join(out)
 
 
 def write_bvh(path: str | os.PathLike, bvh: Bvh, decimals: int = 6) -> None:
