@@ -45,7 +45,6 @@ from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
 from mocapdb.runtime.body_size import TILT_SD_DEG
 from mocapdb.runtime.take import (
-    FLOOR_BAND_M,
     MIN_FLOOR_SPREAD_M,
     TakeParams,
     TakeResult,
@@ -74,7 +73,9 @@ _STATURE_GRID = np.linspace(np.log(HUMAN_STATURE_M[0]), np.log(HUMAN_STATURE_M[1
 class TrackEvidence:
     """What one track tells about the world: its contacts ``[N, 3]`` (planted ankles, view frame,
     metres at its nominal stature ``nominal_stature_m``), its own up estimate and that one's error
-    (degrees), and its height if the user gave it."""
+    (degrees), and its height if the user gave it. Derived once: the contacts on its lowest level
+    (at most :data:`MAX_FLOOR_POINTS`, evenly spaced) and its log-likelihood table
+    (:func:`_log_likelihood`)."""
 
     track: int
     nominal_stature_m: float
@@ -82,6 +83,17 @@ class TrackEvidence:
     up: np.ndarray
     up_sd_deg: float
     given_stature_m: float | None = None
+    floor_points_m: np.ndarray = field(init=False, repr=False)
+    likelihood: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        points = lowest_level(self.contacts_m, self.up) if len(self.contacts_m) else self.contacts_m
+        step = max(len(points) // MAX_FLOOR_POINTS, 1)
+        object.__setattr__(self, "floor_points_m", points[::step])
+        object.__setattr__(self, "likelihood", _likelihood_table(observation_sd(self), self.given_stature_m))
+
+
+MAX_FLOOR_POINTS = 64  # contacts kept per track for the floor's distance under it (a median)
 
 
 @dataclass(frozen=True)
@@ -170,35 +182,41 @@ def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None 
 def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg: tuple[float, float],
                 camera_height_m: float | None) -> World:
     """The cost's minimum over camera tilts about ``normal`` (pitch and roll SDs ``tilt_sds_deg``)
-    and camera heights (one, when given): a coarse grid, then a fine one about its minimum."""
-    centre = np.zeros(2)
+    and log camera heights (one, when given): a coarse grid, a fine one about its minimum, then the
+    whole height range at the best tilt (the height's spread)."""
+    given = None if camera_height_m is None else np.array([np.log(camera_height_m)])
+    tilt, log_h = np.zeros(2), _LOG_HEIGHTS[::COARSE_HEIGHT_STRIDE] if given is None else given
     for step, half_width in ((COARSE_STEP_DEG, TILT_RANGE_DEG), (FINE_STEP_DEG, COARSE_STEP_DEG * 1.5)):
         offsets = np.arange(-half_width, half_width + 1e-9, step)
-        tilts = (centre + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2))
-        normals = _tilted_normals(normal, tilts)
-        cost, log_h = _cost(evidence, normals, tilts, tilt_sds_deg, camera_height_m)
+        tilts = tilt + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
+        cost = _cost(evidence, _tilted_normals(normal, tilts), tilts, tilt_sds_deg, log_h)
         t, h = np.unravel_index(int(np.argmin(cost)), cost.shape)
-        centre = tilts[t]
-    posterior = np.exp(-(cost[t] - cost[t, h]))
+        tilt = tilts[t]
+        if given is None:  # the fine pass: heights about the coarse minimum
+            near = np.abs(_LOG_HEIGHTS - log_h[h]) <= LOG_HEIGHT_STEP * COARSE_HEIGHT_STRIDE
+            log_h = _LOG_HEIGHTS[near]
+    best = _tilted_normals(normal, tilt[None])
+    log_h = _LOG_HEIGHTS if given is None else given
+    cost = _cost(evidence, best, tilt[None], tilt_sds_deg, log_h)[0]
+    posterior = np.exp(-(cost - cost.min()))
     mean = np.sum(posterior * log_h) / np.sum(posterior)
-    sd = 0.0 if camera_height_m is not None else float(np.sqrt(np.sum(posterior * (log_h - mean) ** 2)
-                                                                / np.sum(posterior)))
-    return World(normals[t], float(np.exp(log_h[h])), sd, camera_height_m is not None)
+    sd = float(np.sqrt(np.sum(posterior * (log_h - mean) ** 2) / np.sum(posterior)))
+    return World(best[0], float(np.exp(log_h[np.argmin(cost)])), sd, given is not None)
 
 
 def _cost(evidence: list[TrackEvidence], normals: np.ndarray, tilts_deg: np.ndarray,
-          tilt_sds_deg: tuple[float, float], camera_height_m: float | None) -> tuple[np.ndarray, np.ndarray]:
-    """``−log`` posterior ``[T, H]`` over tilts ``[T, 2]`` (pitch, roll; degrees) and the log camera
-    heights (returned, ``[H]``)."""
-    log_h = np.array([np.log(camera_height_m)]) if camera_height_m is not None else _LOG_HEIGHTS
+          tilt_sds_deg: tuple[float, float], log_h: np.ndarray) -> np.ndarray:
+    """``−log`` posterior ``[T, H]`` over tilts ``[T, 2]`` (pitch, roll; degrees) and log camera
+    heights ``log_h [H]``."""
     prior = 0.5 * np.sum((tilts_deg / np.asarray(tilt_sds_deg)) ** 2, axis=1)
     cost = np.repeat(prior[:, None], len(log_h), axis=1)
     for e in evidence:
         cost -= _log_likelihood(_observed_log_stature(e, normals)[:, None] + log_h[None, :], e)
-    return cost, log_h
+    return cost
 
 
 COARSE_STEP_DEG, FINE_STEP_DEG = 1.0, 0.1
+COARSE_HEIGHT_STRIDE = 4  # the coarse pass takes every 4th height of the grid
 _LOG_HEIGHTS = np.arange(np.log(CAMERA_HEIGHT_RANGE_M[0]), np.log(CAMERA_HEIGHT_RANGE_M[1]), LOG_HEIGHT_STEP)
 
 
@@ -216,10 +234,7 @@ def _observed_log_stature(e: TrackEvidence, normals: np.ndarray) -> np.ndarray:
     """Per floor normal ``[T, 3]``, ``log(S₀ / d)``: the track's log stature on a floor 1 m below the
     camera (add ``log h``); NaN where that floor is not below its contacts."""
     ankle_m = ANKLE_HEIGHT_M * e.nominal_stature_m / UNIVERSAL_HEIGHT_M
-    heights = e.contacts_m @ normals.T                                            # [N, T]
-    low = heights <= np.quantile(heights, 0.05, axis=0) + FLOOR_BAND_M            # the lowest level's
-    level = np.nanmedian(np.where(low, heights, np.nan), axis=0)
-    depth = ankle_m - level                                                       # the floor's, below the camera
+    depth = ankle_m - np.median(e.floor_points_m @ normals.T, axis=0)  # the floor's, below the camera
     ok = depth > MIN_FLOOR_DEPTH * e.nominal_stature_m
     return np.where(ok, np.log(e.nominal_stature_m / np.where(ok, depth, 1.0)), np.nan)
 
@@ -231,13 +246,17 @@ def observation_sd(e: TrackEvidence) -> float:
     return float(np.sqrt(BASE_SD ** 2 + CONTACT_SD ** 2 / independent))
 
 
+def _likelihood_table(sd: float, given_stature_m: float | None) -> np.ndarray:
+    """``log p`` of an observed log stature of error ``sd`` under a track's three kinds (module
+    docstring), over :data:`_LIKELIHOOD_GRID`."""
+    on_floor, smaller = _prior_density(_LIKELIHOOD_GRID, sd, given_stature_m)
+    return np.log(P_ON_FLOOR * on_floor + P_ELEVATED * _FLAT * smaller + P_UNRELIABLE * _FLAT)
+
+
 def _log_likelihood(log_stature: np.ndarray, e: TrackEvidence) -> np.ndarray:
-    """``log p(observed log stature)`` of one track under its three kinds (module docstring), read
-    off a table over :data:`_LIKELIHOOD_GRID`; the unreliable kind's alone where the floor is not
-    below it (NaN)."""
-    on_floor, smaller = _prior_density(_LIKELIHOOD_GRID, observation_sd(e), e.given_stature_m)
-    table = np.log(P_ON_FLOOR * on_floor + P_ELEVATED * _FLAT * smaller + P_UNRELIABLE * _FLAT)
-    values = np.interp(np.nan_to_num(log_stature, nan=_LIKELIHOOD_GRID[0]), _LIKELIHOOD_GRID, table)
+    """``log p(observed log stature)`` of one track (its table, interpolated); the unreliable kind's
+    alone where the floor is not below it (NaN)."""
+    values = np.interp(np.nan_to_num(log_stature, nan=_LIKELIHOOD_GRID[0]), _LIKELIHOOD_GRID, e.likelihood)
     return np.where(np.isnan(log_stature), np.log(P_UNRELIABLE * _FLAT), values)
 
 
@@ -296,7 +315,7 @@ def person_size(e: TrackEvidence, world: World) -> PersonSize:
         kind = "unreliable"
     if kind != "floor":
         return _prior_size(e, kind, world)
-    stature = float(np.clip(np.exp(observed), *HUMAN_STATURE_M))
+    stature = float(np.clip(np.exp(observed) if e.given_stature_m is None else e.given_stature_m, *HUMAN_STATURE_M))
     log_sd = _posterior_sd(float(observed), float(np.hypot(sd, world.camera_height_log_sd)), e.given_stature_m)
     source = "given" if e.given_stature_m is not None else "floor" if log_sd < 0.8 * _PRIOR_SD else "prior"
     return PersonSize(e.track, stature, log_sd, "floor", source, stature / e.nominal_stature_m,

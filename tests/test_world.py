@@ -1,0 +1,124 @@
+"""The take's world (runtime/world.py) on hand-built evidence with a known truth: people standing or
+walking on a floor seen by one camera, their contacts as the whole-take fit would report them at
+the nominal size (each true contact scaled about the camera by 1.75 m / its person's stature)."""
+import numpy as np
+import pytest
+
+from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
+from mocapdb.runtime.take import floor_plane
+from mocapdb.runtime.world import HUMAN_STATURE_M, TrackEvidence, estimate_world
+
+
+def _normal(pitch_deg: float) -> np.ndarray:
+    """The world's up in the view frame of a camera pitched down by ``pitch_deg``."""
+    t = np.radians(pitch_deg)
+    return np.array([0.0, np.cos(t), np.sin(t)])
+
+
+def _person(track: int, stature_m: float, x_m: float, depth_m: float, camera_height_m: float, pitch_deg: float,
+            rng: np.random.Generator, walk_m: float = 1.0, raised_m: float = 0.0, n: int = 120,
+            given: float | None = None, up_error_deg: float = 0.0, in_depth: bool = False) -> TrackEvidence:
+    """One person's evidence: ``n`` contacts of a walk ``walk_m`` long across the view (or in depth)
+    about ``x_m`` (metres right), ``depth_m`` in front, on the floor (or ``raised_m`` above it), 1 cm
+    noise; the track's up estimate ``up_error_deg`` off in pitch."""
+    up = _normal(pitch_deg)
+    forward = np.cross(up, [1.0, 0.0, 0.0])  # horizontal, away from the camera (−z of the view frame)
+    across = np.cross(forward, up)
+    along = np.linspace(-walk_m / 2, walk_m / 2, n)[:, None] * (forward if in_depth else across)
+    ankle = ANKLE_HEIGHT_M * stature_m / UNIVERSAL_HEIGHT_M
+    true = (along + x_m * across + depth_m * forward
+            + (-camera_height_m + raised_m + ankle) * up + rng.normal(0.0, 0.01, (n, 3)))
+    nominal = true * (UNIVERSAL_HEIGHT_M / stature_m)
+    # the track's up as the whole-take fit reports it: its tilt estimate, corrected by its contacts where they fix it
+    up_estimate = floor_plane(nominal[:, None], np.ones((n, 1), dtype=bool), _normal(pitch_deg + up_error_deg), 0.0)[0]
+    return TrackEvidence(track, UNIVERSAL_HEIGHT_M, nominal, up_estimate, 3.0, given)
+
+
+def test_a_child_beside_adults_keeps_their_sizes_with_and_without_the_camera_height():
+    rng = np.random.default_rng(0)
+    truth = {1: 1.82, 2: 1.64, 3: 1.12}
+    people = [_person(t, s, x, d, 1.6, 10.0, rng) for (t, s), x, d in zip(truth.items(), (-1.5, 0.5, 1.8), (5, 6, 4))]
+    given = estimate_world(people, camera_height_m=1.6)
+    for track, stature in truth.items():
+        assert given.people[track].kind == "floor"
+        assert given.people[track].stature_m == pytest.approx(stature, rel=0.02)
+    assert given.pitch_deg == pytest.approx(10.0, abs=0.5)
+    free = estimate_world(people)
+    sizes = {t: free.people[t].stature_m for t in truth}
+    assert sizes[3] / sizes[1] == pytest.approx(truth[3] / truth[1], rel=0.05)  # the floor ties them together
+    assert sizes[2] / sizes[1] == pytest.approx(truth[2] / truth[1], rel=0.05)
+    for track, stature in truth.items():
+        assert sizes[track] == pytest.approx(stature, rel=0.10)
+    assert free.camera_height_m == pytest.approx(1.6, rel=0.10)
+    assert free.camera_height_log_sd > 0.0  # not given: estimated with an error (wide: children or adults?)
+
+
+def test_a_person_on_a_box_does_not_drag_the_others_and_stands_on_its_box():
+    rng = np.random.default_rng(1)
+    floor = [_person(1, 1.70, -1.0, 5.0, 1.5, 5.0, rng), _person(2, 1.60, 1.2, 6.5, 1.5, 5.0, rng)]
+    box = _person(3, 1.75, 0.0, 4.0, 1.5, 5.0, rng, walk_m=0.3, raised_m=0.4)
+    world = estimate_world([*floor, box], camera_height_m=1.5)
+    assert world.people[3].kind == "elevated"
+    assert world.people[3].feet_above_floor_m == pytest.approx(0.4, abs=0.1)
+    # the camera height ties size to pitch (1° moves a person 5 m away by ~6 %): the tilt estimate's
+    # 3° let the stature prior pull both towards 1.75 m
+    assert world.people[1].stature_m == pytest.approx(1.70, rel=0.06)
+    assert world.people[2].stature_m == pytest.approx(1.60, rel=0.08)
+    alone = estimate_world(floor, camera_height_m=1.5)  # as if the box person were not there
+    free, free_alone = estimate_world([*floor, box]), estimate_world(floor)
+    for track in (1, 2):
+        assert world.people[track].stature_m == pytest.approx(alone.people[track].stature_m, rel=0.01)
+        assert free.people[track].stature_m == pytest.approx(free_alone.people[track].stature_m, rel=0.02)
+
+
+def test_contacts_above_the_camera_never_give_a_negative_or_absurd_size():
+    """A false detection whose 'contacts' lie above the camera (no floor can be under them) and one
+    whose floor would make it 0.3 m tall: both keep a human size; the real person is untouched."""
+    rng = np.random.default_rng(2)
+    person = _person(1, 1.75, 0.0, 5.0, 1.6, 0.0, rng)
+    above = TrackEvidence(2, UNIVERSAL_HEIGHT_M, np.column_stack([np.linspace(-1, 1, 50), np.full(50, 0.5),
+                                                                  np.full(50, -6.0)]), _normal(0.0), 3.0)
+    tiny = _person(3, 1.75, 2.0, 8.0, 1.6, 0.0, rng)
+    tiny = TrackEvidence(3, UNIVERSAL_HEIGHT_M, tiny.contacts_m * 6.0, tiny.up, 3.0)  # floor 6x too far down
+    world = estimate_world([person, above, tiny], camera_height_m=1.6)
+    for size in world.people.values():
+        assert size.scale_factor > 0
+        assert HUMAN_STATURE_M[0] <= size.stature_m <= HUMAN_STATURE_M[1]
+    assert world.people[2].kind == "unreliable"
+    assert world.people[3].kind != "floor"
+    assert world.people[1].stature_m == pytest.approx(1.75, rel=0.02)
+
+
+def test_the_camera_height_fixes_the_size_and_the_pitch_the_tilt_estimate_missed():
+    """One person of 1.58 m walking 3 m towards the camera (the contacts fix the floor's pitch), the
+    camera's tilt estimate 5° off: nothing given, the size is the prior's (and said so); with the
+    camera height it is the person's own."""
+    rng = np.random.default_rng(3)
+    person = _person(1, 1.58, 0.3, 6.0, 1.7, 12.0, rng, walk_m=3.0, up_error_deg=-5.0, in_depth=True)
+    free = estimate_world([person])
+    assert free.people[1].source == "prior"
+    assert 1.65 <= free.people[1].stature_m <= 1.80
+    given = estimate_world([person], camera_height_m=1.7)
+    assert given.people[1].source == "floor"
+    assert abs(given.people[1].stature_m - 1.58) < abs(free.people[1].stature_m - 1.58)
+    assert given.people[1].stature_m == pytest.approx(1.58, rel=0.03)
+    assert given.pitch_deg == pytest.approx(12.0, abs=1.0)
+
+
+def test_one_persons_given_height_sizes_everyone_on_the_floor():
+    """Two people side by side (one depth: the pitch does not change their ratio), one height given."""
+    rng = np.random.default_rng(4)
+    a = _person(1, 1.62, -1.0, 6.0, 1.4, 8.0, rng, given=1.62)
+    b = _person(2, 1.93, 1.0, 6.0, 1.4, 8.0, rng)
+    world = estimate_world([a, b])
+    assert world.people[1].source == "given" and world.people[1].stature_m == pytest.approx(1.62, rel=0.01)
+    # its own size's error (3 %: the body's fit) lets the prior pull it in a little
+    assert world.people[2].stature_m == pytest.approx(1.93, rel=0.06)
+    assert world.camera_height_m == pytest.approx(1.4, rel=0.06)
+
+
+def test_tracks_without_contacts_take_the_priors_size():
+    empty = TrackEvidence(7, UNIVERSAL_HEIGHT_M, np.zeros((0, 3)), _normal(0.0), 3.0)
+    world = estimate_world([empty])
+    assert world.people[7].kind == "no contacts" and world.people[7].source == "prior"
+    assert 1.65 <= world.people[7].stature_m <= 1.80
