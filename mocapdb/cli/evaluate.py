@@ -3,9 +3,13 @@ from __future__ import annotations
 
 import argparse
 import math
+from typing import TYPE_CHECKING
 
 from mocapdb.cli import paths as P
 from mocapdb.core import domains as D
+
+if TYPE_CHECKING:
+    from mocapdb.runtime.engine import EngineConfig
 
 REPORT_FORMAT = "mocapdb-eval"  # the first key of an --out report: how a later run knows it may replace it
 
@@ -19,7 +23,8 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
                                    "one database (--db, --bvh: JSON report on stdout), "
                                    "--leave-one-subject-out (a database per subject; table on stdout) or "
                                    "--db with --real-take (each camera of a calibrated Pose2Sim take alone, "
-                                   "against its multi-camera triangulation; table on stdout).")
+                                   "against its multi-camera triangulation; table on stdout) or --db with --world "
+                                   "(several held-out people rendered in one camera's world; table on stdout).")
     p.add_argument("--db", type=P.INPUT_DIR, help="database built WITHOUT the held-out clips")
     p.add_argument("--bvh", nargs="+", type=P.INPUT_ANY, help="held-out BVH files or folders")
     p.add_argument("--leave-one-subject-out", nargs="+", type=P.INPUT_ANY, metavar="SOURCE", dest="loso",
@@ -28,6 +33,11 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--real-take", metavar="FOLDER", type=P.INPUT_DIR,
                    help="a Pose2Sim take (calibration.toml, triangulated_4cam.trc, openpose_body25b/camNN_json): "
                         "run each camera alone through the engine (needs --db) and score it against the TRC")
+    p.add_argument("--world", nargs="+", type=P.INPUT_ANY, metavar="HELDOUT",
+                   help="held-out BVH files or folders: takes of several people in one camera (adults, a child, a "
+                        "still bystander, one on a 0.4 m box, one cut by the image edge, one 15 m away), each through "
+                        "the engine and the whole-take world with the camera height given and not; stature, root and "
+                        "floor errors and implausible tracks against the truth (needs --db)")
     p.add_argument("--cameras", nargs="+", type=P.TextArg("a camera name"), metavar="NAME",
                    help="with --real-take: camera names as in its calibration, e.g. cam_01 cam_03 (default all)")
     p.add_argument("--subjects", type=P.TextArg("a list of subjects"),
@@ -47,7 +57,7 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
                         "when it is an earlier report, anything else refused before any work)")
     p.add_argument("--quick", action="store_true",
                    help="one database: two yaws and two scenarios; leave-one-subject-out: 2 clips per "
-                        "subject, 120 frames, two scenarios")
+                        "subject, 120 frames, two scenarios; --world: one take per scenario, 48 frames")
     p.add_argument("--weight-2d", type=D.WEIGHT_2D, default=0.5, help="as in reconstruct")
     p.add_argument("--search", choices=("clustered", "exact"), default="clustered")
     p.add_argument("--universal-body", action="store_true",
@@ -74,7 +84,9 @@ def run_eval(args: argparse.Namespace) -> int:
     engine = EngineConfig(weight_2d=args.weight_2d, search=args.search, own_body=not args.universal_body)
     if args.cameras and not args.real_take:
         raise UsageError("--cameras goes with --real-take")
-    if args.real_take:
+    if args.world:
+        report = _world_report(args, engine)
+    elif args.real_take:
         from mocapdb.evaluation.real_take import check_lines, evaluate_real_take, format_table
 
         if args.bvh or args.loso or not args.db:
@@ -113,6 +125,26 @@ def run_eval(args: argparse.Namespace) -> int:
         with output_file(args.out, _report_file()) as tmp:
             tmp.write_text(_report_json({"format": REPORT_FORMAT, **report}) + "\n", encoding="utf-8")
     return 0
+
+
+def _world_report(args: argparse.Namespace, engine: EngineConfig) -> dict:
+    """``eval --db DB --world HELDOUT...``: the report of :mod:`mocapdb.evaluation.world`, its tables
+    and checks printed."""
+    from mocapdb.builder.pipeline import find_sources
+    from mocapdb.core.errors import UsageError
+    from mocapdb.core.formats.database import load_database
+    from mocapdb.evaluation.world import WorldConfig, check_lines, evaluate_world, format_table
+
+    if args.bvh or args.loso or args.real_take or not args.db:
+        raise UsageError("--world needs --db and goes without --bvh, --leave-one-subject-out and --real-take")
+    files = [f for f, _ in find_sources(args.world)]
+    if not files:
+        raise UsageError(f"no .bvh file in {', '.join(args.world)}")
+    config = WorldConfig.quick(engine=engine) if args.quick else WorldConfig(engine=engine)
+    report = evaluate_world(load_database(args.db), files, config)
+    report["checks"] = check_lines(report)
+    print(format_table(report) + "\n\n" + "\n".join(report["checks"]))
+    return report
 
 
 def _report_file():

@@ -12,6 +12,10 @@ written down in ``data_specs/evaluation_bodies.md``:
   log-normal factor around the source's own proportion, correlated as in people
   (:mod:`mocapdb.core.anthropometry`, the same distribution the runtime's body estimate takes as
   its prior).
+
+Children (the whole-take world evaluation, :mod:`mocapdb.evaluation.world`): stature in
+:data:`CHILD_HEIGHT_RANGE_M` and a child's proportions on top of a sampled body
+(:func:`child_proportions`: shorter legs, a larger head, a longer trunk, relative to stature).
 """
 from __future__ import annotations
 
@@ -31,7 +35,19 @@ from mocapdb.core.skeleton import (
 )
 
 HEIGHT_RANGE_M = (1.50, 1.95)
+CHILD_HEIGHT_RANGE_M = (1.0, 1.4)  # about 4-10 years old
+# Sitting height / stature (data_specs/evaluation_bodies.md, "Children"): 55-56 % at 6-8.5 years,
+# 52-53 % in adults; leg length is stature minus sitting height.
+ADULT_SITTING_HEIGHT_RATIO = 0.525
+CHILD_SITTING_HEIGHT_RATIO = 0.555
+# Statures per head height: 7.5-8 in adults, about 6-7 at 4-10 years.
+ADULT_HEADS_PER_STATURE = 7.75
+CHILD_HEADS_PER_STATURE = 6.5
+CHILD_LEG_FACTOR = (1.0 - CHILD_SITTING_HEIGHT_RATIO) / (1.0 - ADULT_SITTING_HEIGHT_RATIO)  # thigh, shank
+CHILD_HEAD_FACTOR = ADULT_HEADS_PER_STATURE / CHILD_HEADS_PER_STATURE                      # neck→nose
 _LEGS = [MEASURED_BONE_NAMES.index("thigh"), MEASURED_BONE_NAMES.index("shank")]
+_TORSO = MEASURED_BONE_NAMES.index("torso")
+_HEAD = MEASURED_BONE_NAMES.index("neck_nose")
 UNIVERSAL_LEG_M = float(universal_bone_lengths_m()[_LEGS].sum())
 
 
@@ -47,10 +63,24 @@ class Body:
         return source_lengths_m * (self.height_m / stature_m(source_lengths_m)) * self.factors
 
 
-def sample_body(rng: np.random.Generator) -> Body:
-    """One body from the documented distribution (module docstring)."""
-    height = float(rng.uniform(*HEIGHT_RANGE_M))
+def sample_body(rng: np.random.Generator, height_range_m: tuple[float, float] = HEIGHT_RANGE_M) -> Body:
+    """One body from the documented distribution (module docstring), its stature uniform in
+    ``height_range_m`` (metres)."""
+    height = float(rng.uniform(*height_range_m))
     return Body(height, np.exp(rng.multivariate_normal(np.zeros(len(MEASURED_BONE_NAMES)), PROPORTION_COVARIANCE)))
+
+
+def child_proportions(lengths_m: np.ndarray) -> np.ndarray:
+    """Bone lengths ``[8]`` (metres) made a child's at the same stature: thigh and shank times
+    :data:`CHILD_LEG_FACTOR`, neck→nose times :data:`CHILD_HEAD_FACTOR`, and the torso longer by
+    what they give up along the stature chain (``skeleton.stature_m`` unchanged); arms and widths
+    keep their share of the stature."""
+    source = np.asarray(lengths_m, dtype=np.float64)
+    out = source.copy()
+    out[_LEGS] *= CHILD_LEG_FACTOR
+    out[_HEAD] *= CHILD_HEAD_FACTOR
+    out[_TORSO] += source[_LEGS].sum() + source[_HEAD] - out[_LEGS].sum() - out[_HEAD]
+    return out
 
 
 # Bones from the pelvis outwards: (parent keypoint, child keypoint, MEASURED_BONE_NAMES entry, share of it).
