@@ -65,6 +65,7 @@ LOG_HEIGHT_STEP = 0.01       # the camera-height grid's step (log metres)
 CAMERA_HEIGHT_RANGE_M = (0.1, 60.0)
 MIN_FLOOR_DEPTH = 0.05       # a floor less than this × the person's stature below the camera: not under them
 TILT_SD_FIXED_DEG = 0.5      # a tilt's error about an axis the contacts span (a walk fixes the floor along it)
+TILT_TAIL_SD_DEG, TILT_TAIL_SHARE = 15.0, 0.2  # the tilt prior's heavy tail: bodies' estimates can be far off
 _FLAT = 1.0 / np.log(HUMAN_STATURE_M[1] / HUMAN_STATURE_M[0])  # a flat density over the human range (log)
 _STATURE_GRID = np.linspace(np.log(HUMAN_STATURE_M[0]), np.log(HUMAN_STATURE_M[1]), 400)
 
@@ -208,11 +209,24 @@ def _cost(evidence: list[TrackEvidence], normals: np.ndarray, tilts_deg: np.ndar
           tilt_sds_deg: tuple[float, float], log_h: np.ndarray) -> np.ndarray:
     """``−log`` posterior ``[T, H]`` over tilts ``[T, 2]`` (pitch, roll; degrees) and log camera
     heights ``log_h [H]``."""
-    prior = 0.5 * np.sum((tilts_deg / np.asarray(tilt_sds_deg)) ** 2, axis=1)
-    cost = np.repeat(prior[:, None], len(log_h), axis=1)
+    cost = np.repeat(tilt_cost(tilts_deg, tilt_sds_deg)[:, None], len(log_h), axis=1)
     for e in evidence:
         cost -= _log_likelihood(_observed_log_stature(e, normals)[:, None] + log_h[None, :], e)
     return cost
+
+
+def tilt_cost(tilts_deg: np.ndarray, sds_deg: tuple[float, float]) -> np.ndarray:
+    """``−log`` prior ``[T]`` of tilt corrections ``[T, 2]`` (pitch, roll; degrees) about the bodies'
+    estimate, per axis a mixture: its error ``sds_deg`` (weight 1 − :data:`TILT_TAIL_SHARE`) and a
+    wide tail (:data:`TILT_TAIL_SD_DEG`): a body shows the camera's pitch only by its foreshortening,
+    so its estimate is now and then far off (16° on a real take's bystander), and then the floor
+    under several people overrules it. No tail about an axis the contacts fix."""
+    sds = np.asarray(sds_deg)
+    tail = np.where(sds > TILT_SD_FIXED_DEG, TILT_TAIL_SHARE, 0.0)  # none about an axis the contacts fix
+    narrow = np.log1p(-tail) - 0.5 * (tilts_deg / sds) ** 2 - np.log(sds)
+    with np.errstate(divide="ignore"):
+        wide = np.log(tail) - 0.5 * (tilts_deg / TILT_TAIL_SD_DEG) ** 2 - np.log(TILT_TAIL_SD_DEG)
+    return -np.sum(np.logaddexp(narrow, wide), axis=1)
 
 
 COARSE_STEP_DEG, FINE_STEP_DEG = 1.0, 0.1

@@ -108,8 +108,8 @@ def test_the_camera_height_fixes_the_size_and_the_pitch_the_tilt_estimate_missed
 def test_one_persons_given_height_sizes_everyone_on_the_floor():
     """Two people side by side (one depth: the pitch does not change their ratio), one height given."""
     rng = np.random.default_rng(4)
-    a = _person(1, 1.62, -1.0, 6.0, 1.4, 8.0, rng, given=1.62)
-    b = _person(2, 1.93, 1.0, 6.0, 1.4, 8.0, rng)
+    a = _person(1, 1.62, -1.2, 6.0, 1.4, 8.0, rng, given=1.62, walk_m=2.0)
+    b = _person(2, 1.93, 1.2, 6.0, 1.4, 8.0, rng, walk_m=2.0)
     world = estimate_world([a, b])
     assert world.people[1].source == "given" and world.people[1].stature_m == pytest.approx(1.62, rel=0.01)
     # its own size's error (3 %: the body's fit) lets the prior pull it in a little
