@@ -170,6 +170,13 @@ class BoneLengths:
     space, each median weighted as ``min(n, CAPACITY) / DECORRELATION`` independent samples of SD
     :data:`SAMPLE_SD`, and is rescaled to 1.75 m stature: the body's size stays what the track
     assumes (a given height, the floor, or 1.75 m); only its proportions are measured.
+
+    A median is judged as a proportion first (:func:`believed_bones`): one further from the prior's
+    than its people's, joint conventions' and own spread allow (a head keypoint on top of the
+    head: neck→nose 1.6×) is not believed and gets no weight, so the prior's value stands for that
+    bone and it does not shrink the rest through the stature. The prior is centred on the body's
+    common size (the believed medians' median): the estimate is scale-free
+    (``data_specs/stream_output.md``, "The person's own body").
     """
 
     IN_PLANE = 0.9
@@ -200,13 +207,48 @@ class BoneLengths:
         return True
 
     def estimate(self) -> np.ndarray:
-        """Bone lengths ``[8]`` (metres at 1.75 m stature) from the samples so far and the prior."""
+        """Bone lengths ``[8]`` (metres at 1.75 m stature) from the samples so far and the prior:
+        the believed medians (:func:`believed_bones`) weighed against the prior centred on the
+        body's common size (their median), which the rescale to 1.75 m stature then removes."""
         n = np.minimum(self.counts, self.CAPACITY)
         medians = _medians(self.samples, n)
-        weight = np.diag(n / self.DECORRELATION / self.SAMPLE_SD ** 2)
-        log_factor = np.linalg.solve(_PRIOR_PRECISION + weight, weight @ medians)
+        precision = n / self.DECORRELATION / self.SAMPLE_SD ** 2
+        believed = believed_bones(medians, precision)
+        size = float(np.median(medians[believed])) if believed.any() else 0.0
+        weight = np.diag(np.where(believed, precision, 0.0))
+        log_factor = np.linalg.solve(_PRIOR_PRECISION + weight, weight @ (medians - size))
         lengths = _UNIVERSAL_BONES * np.exp(log_factor)
         return lengths * (UNIVERSAL_HEIGHT_M / stature_m(lengths))
+
+
+PLAUSIBLE_SD = 3.0    # a bone's proportion further from the prior's than this many SDs is not believed
+CONVENTION_SD = 0.10  # log length: where skeletons and detectors put a joint (CMU's shank: +0.20 at one stature)
+MIN_OTHERS = 3        # measured other bones needed to judge a bone's proportion
+
+
+def believed_bones(medians: np.ndarray, precision: np.ndarray) -> np.ndarray:
+    """Per bone ``[8]``, whether its median log factor (``medians``, weight ``precision``: 0 when
+    unmeasured) is believed: measured, and its proportion (the median minus the body's common
+    size, the median of the other measured bones' medians) within :data:`PLAUSIBLE_SD` SDs of the
+    prior's. The SD is that of the bone minus the others' mean when each bone varies as people do
+    (``PROPORTION_COVARIANCE``), by joint conventions (:data:`CONVENTION_SD`) and by its median's
+    error (``1 / precision``). Bones with fewer than :data:`MIN_OTHERS` measured others are believed."""
+    measured = precision > 0
+    others = measured[None, :] & ~np.eye(len(medians), dtype=bool)
+    judged = measured & (others.sum(axis=1) >= MIN_OTHERS)
+    believed = measured.copy()
+    if not judged.any():
+        return believed
+    rows = others[judged]
+    k, row = rows.sum(axis=1), np.arange(len(rows))
+    ordered = np.sort(np.where(rows, medians, np.inf), axis=1)  # the others' medians first, in order
+    common = 0.5 * (ordered[row, (k - 1) // 2] + ordered[row, k // 2])
+    contrast = np.eye(len(medians))[judged] - rows / k[:, None]  # the bone minus the others' mean
+    noise = 1.0 / np.where(measured, precision, np.inf)
+    spread = PROPORTION_COVARIANCE + np.diag(noise + CONVENTION_SD ** 2)
+    sd = np.sqrt(np.einsum("ij,jk,ik->i", contrast, spread, contrast))
+    believed[judged] = np.abs(medians[judged] - common) <= PLAUSIBLE_SD * sd
+    return believed
 
 
 @njit(cache=True)

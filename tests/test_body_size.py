@@ -128,3 +128,95 @@ def test_tilt_error_grows_with_the_frames_disagreement():
     np.testing.assert_allclose(agreeing.up, [0.0, np.cos(2 * half), np.sin(2 * half)], atol=1e-12)
     np.testing.assert_allclose(leaning.up, [0.0, 1.0, 0.0], atol=1e-12)
     assert leaning.sd_deg == pytest.approx(np.degrees(2 * np.sin(np.radians(5.0))), rel=1e-9)
+
+
+def _filled(log_factors, n=None):
+    """A BoneLengths whose every bone holds ``n`` (default all) samples of ``log_factors [8]``; a NaN: none."""
+    from mocapdb.runtime.body_size import BoneLengths
+
+    bones = BoneLengths()
+    n = bones.CAPACITY if n is None else n
+    for b, value in enumerate(log_factors):
+        if np.isfinite(value):
+            bones.samples[b, :n], bones.counts[b] = value, n
+    return bones
+
+
+def test_a_head_top_keypoint_is_not_believed_and_does_not_shrink_the_body(monkeypatch):
+    """A body of known proportions (long shanks, short upper arms) measured exactly, 4 % larger than
+    assumed, but its head keypoint on top of the head: neck→nose 1.6× the bone. That bone is not
+    believed: the estimate is the body's own (neck→nose the prior's, here the truth's), as if the bone
+    had not been measured; believed, it took 1.6 × 0.21 m of the 1.75 m stature and shrank the rest."""
+    from mocapdb.core.skeleton import MEASURED_BONE_NAMES, stature_m, universal_bone_lengths_m
+    from mocapdb.runtime import body_size
+
+    universal = universal_bone_lengths_m()
+    truth = universal * [1.0, 1.12, 0.88, 1.0, 1.0, 1.1, 0.95, 1.0]
+    truth *= UNIVERSAL_HEIGHT_M / stature_m(truth)
+    measured = np.log(truth / universal) + 0.04
+    nose = MEASURED_BONE_NAMES.index("neck_nose")
+    head_top = measured.copy()
+    head_top[nose] += np.log(1.6)
+    bones = _filled(head_top)
+    precision = bones.counts / bones.DECORRELATION / bones.SAMPLE_SD ** 2
+    assert body_size.believed_bones(head_top, precision).tolist() == [b != nose for b in range(8)]
+    estimate = bones.estimate()
+    np.testing.assert_allclose(estimate, truth, rtol=0.01)
+    without = _filled(np.where(np.arange(8) == nose, np.nan, measured)).estimate()
+    np.testing.assert_allclose(estimate, without, rtol=1e-12)  # no weight at all
+    np.testing.assert_allclose(_filled(measured - 0.04).estimate(), _filled(measured).estimate(),
+                               rtol=1e-12)  # proportions: the common size does not matter
+    monkeypatch.setattr(body_size, "PLAUSIBLE_SD", np.inf)  # the bone believed, as before
+    shrunk = _filled(head_top).estimate() / truth
+    assert np.all(np.delete(shrunk, nose) < 0.95)
+
+
+def test_a_plausibly_long_neck_is_believed_and_few_bones_are_not_judged():
+    from mocapdb.core.skeleton import MEASURED_BONE_NAMES, universal_bone_lengths_m
+
+    nose, thigh = MEASURED_BONE_NAMES.index("neck_nose"), MEASURED_BONE_NAMES.index("thigh")
+    measured = np.zeros(8)
+    measured[nose] = np.log(1.1)  # a neck→nose 10 % longer than the universal proportion
+    estimate = _filled(measured).estimate() / universal_bone_lengths_m()
+    assert estimate[nose] / estimate[thigh] == pytest.approx(1.1, rel=0.02)
+    three = np.full(8, np.nan)
+    three[[thigh, nose, 1]] = [0.0, np.log(1.6), 0.0]  # two other bones measured: too few to judge by
+    estimate = _filled(three).estimate() / universal_bone_lengths_m()
+    assert estimate[nose] / estimate[thigh] > 1.5
+
+
+def test_a_head_top_detector_keeps_the_legs_through_the_engine(small_db):
+    """A walk rendered twice, the head keypoint once at the nose and once on top of the head (straight
+    above the neck, 1.6 × neck→nose): the track's thigh and shank come out the same (they were 6 %
+    shorter when the head-top bone was believed)."""
+    from mocapdb.core.skeleton import KP, MEASURED_BONE_NAMES, universal_bone_lengths_m
+
+    first, n = small_db.clip_first_frame[0], small_db.clip_n_frames[0]
+    world = small_db.positions[first:first + n].astype(np.float64)
+    up = world[:, KP["neck"]] - world[:, PELVIS]
+    head_top = world.copy()
+    head_top[:, KP["head"]] = world[:, KP["neck"]] + 1.6 * universal_bone_lengths_m()[-1] * up / np.linalg.norm(
+        up, axis=-1, keepdims=True)
+    legs = [MEASURED_BONE_NAMES.index("thigh"), MEASURED_BONE_NAMES.index("shank")]
+    found = []
+    for body in (world, head_top):
+        view = (body - body[:, PELVIS].mean(axis=0) * [1, 0, 1]) @ yaw_matrix(40.0).T - [0.0, 1.4, 4.0]
+        px = np.stack([SIZE[0] / 2 + FOCAL * view[..., 0] / -view[..., 2],
+                       SIZE[1] / 2 - FOCAL * view[..., 1] / -view[..., 2]], axis=-1)[:, :14]
+        _, poses = _run(small_db, [KeypointFrame(i, i / 24.0, [Person(px[i], np.full(14, 0.9))]) for i in range(n)])
+        found.append(poses[-1].bones_m)
+    np.testing.assert_allclose(found[1][legs], found[0][legs], rtol=0.03)
+    assert found[1][-1] == pytest.approx(found[0][-1], rel=0.05)  # neck→nose: the prior's, not 1.6×
+
+
+@pytest.mark.parametrize("offset, believed", [(0.385, True), (0.396, False), (-0.385, True), (-0.396, False)])
+def test_the_plausible_range_of_neck_nose_by_hand(offset, believed):
+    """Seven bones at the common size, measured without error, and neck→nose ``offset`` off. By hand:
+    neck→nose is uncorrelated, so the SD of it minus the others' mean is √(0.07² + 0.1² + (1ᵀΣ1 +
+    7 × 0.1²) / 7²), 1ᵀΣ1 over the seven = 0.018675 (variances) + 2 × 0.0058575 (the nine correlated
+    pairs) = 0.03039: SD 0.130188, a limit of 3 SD = 0.3906."""
+    from mocapdb.runtime.body_size import believed_bones
+
+    medians = np.full(8, 0.02)
+    medians[-1] += offset
+    assert believed_bones(medians, np.full(8, np.inf)).tolist() == [True] * 7 + [believed]
