@@ -34,7 +34,7 @@ from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.lag import FixedLag
 from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source, StreamStats
 from mocapdb.runtime.take import TakeParams, fit_take
-from mocapdb.runtime.world import fit_takes
+from mocapdb.runtime.world import fit_world, track_facts, world_line
 
 LOG = logging.getLogger(__name__)
 
@@ -83,6 +83,7 @@ class SessionSummary:
     degenerate: int = 0
     limits: LimitReport = field(default_factory=LimitReport)
     sink_error: str | None = None  # why the sink failed, which stopped the session
+    world_lines: list[str] = field(default_factory=list)  # the take's world and each track file's size (runtime.world)
 
     def add_latency(self, latency_s: float) -> None:
         self.latencies_s.append(latency_s)
@@ -130,6 +131,7 @@ class SessionSummary:
         if self.gaps:
             lines.append(f"jumps in time longer than the gap limit (every track ended): {self.gaps}")
         lines += self.limits.lines()
+        lines += self.world_lines
         if self.sink_error:
             lines.append(f"output stopped: the sink failed ({self.sink_error})")
         return "\n".join(lines)
@@ -209,6 +211,7 @@ class SessionOptions:
     lag_frames: int = 0             # stream lines written this many frames late, smoothed (runtime.lag)
     camera_sources: dict[str, str] = field(default_factory=dict)  # where fps, image size, focal came from
     camera_height_m: float | None = None  # the shared floor's distance below the camera, when known
+    subject_heights_m: dict[int | None, float] = field(default_factory=dict)  # track (None: all) → stature
     keep_joints: bool = False       # TrackFiles.joints: every written track's joints, for reconstruct --preview
     write_in_background: bool = False  # track files fitted and written by a thread of their own (live)
 
@@ -284,7 +287,11 @@ class TrackFiles:
         for rec, name in waiting:
             self._save(rec, name)
         held, self._held = self._held, []
-        fitted = fit_takes([rec for rec, _ in held], self.fps, self.options.take, self.options.camera_height_m)
+        if not held:
+            return
+        fitted, world = fit_world([rec for rec, _ in held], self.fps, self.options.take,
+                                  self.options.camera_height_m, self.options.subject_heights_m)
+        self.summary.world_lines = [world_line(world)] + [track_facts(rec, world).line() for rec in fitted]
         for rec, (_, name) in zip(fitted, held):
             self._write_files(rec, name)
 

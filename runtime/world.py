@@ -42,7 +42,12 @@ from scipy.special import ndtr
 
 from mocapdb.core.anthropometry import STATURE_LOG_MEANS, STATURE_LOG_SDS, STATURE_WEIGHTS
 from mocapdb.core.outputs import TrackRecording
-from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
+from mocapdb.core.skeleton import (
+    ANKLE_HEIGHT_M,
+    MEASURED_BONE_NAMES,
+    UNIVERSAL_HEIGHT_M,
+    universal_bone_lengths_m,
+)
 from mocapdb.runtime.body_size import TILT_SD_DEG
 from mocapdb.runtime.take import (
     MIN_FLOOR_SPREAD_M,
@@ -125,6 +130,11 @@ class World:
     people: dict[int, PersonSize] = field(default_factory=dict)
 
     @property
+    def floor_known(self) -> bool:
+        """Whether a floor was found (a planted foot somewhere) or given (the camera height)."""
+        return self.camera_height_given or bool(np.isfinite(self.camera_height_log_sd))
+
+    @property
     def pitch_deg(self) -> float:
         """The camera's pitch: positive looking down (the floor's normal leans towards the camera)."""
         return float(np.degrees(np.arctan2(self.normal[2], self.normal[1])))
@@ -136,7 +146,7 @@ class World:
 
 
 def fit_takes(recordings: list[TrackRecording], fps: float, params: TakeParams = TakeParams(),
-              camera_height_m: float | None = None, subject_heights_m: dict[int, float] | None = None
+              camera_height_m: float | None = None, subject_heights_m: dict[int | None, float] | None = None
               ) -> list[TrackRecording]:
     """Every track of a take through :func:`~mocapdb.runtime.take.fit_take`, then into one world
     (:func:`fit_world`): what ``reconstruct`` writes."""
@@ -144,12 +154,14 @@ def fit_takes(recordings: list[TrackRecording], fps: float, params: TakeParams =
 
 
 def fit_world(recordings: list[TrackRecording], fps: float, params: TakeParams = TakeParams(),
-              camera_height_m: float | None = None, subject_heights_m: dict[int, float] | None = None
+              camera_height_m: float | None = None, subject_heights_m: dict[int | None, float] | None = None
               ) -> tuple[list[TrackRecording], World]:
     """:func:`fit_takes` with the :class:`World` found. ``camera_height_m``: the camera's height above
-    the floor when known; ``subject_heights_m``: track → stature (metres) where known."""
+    the floor when known; ``subject_heights_m``: track → stature (metres) where known (key None:
+    everyone's)."""
     fits = [fit_take(rec, fps, params) for rec in recordings]
-    evidence = [track_evidence(rec, result, (subject_heights_m or {}).get(rec.track)) for rec, result in fits]
+    heights = subject_heights_m or {}
+    evidence = [track_evidence(rec, result, heights.get(rec.track, heights.get(None))) for rec, result in fits]
     world = estimate_world(evidence, camera_height_m)
     return [place_in_world(rec, world) for rec, _ in fits], world
 
@@ -382,7 +394,7 @@ def _feet_above_floor(e: TrackEvidence, world: World, k: float) -> float | None:
 def _world_without_contacts(evidence: list[TrackEvidence], camera_height_m: float | None) -> World:
     """No track stood still anywhere: the mean up, the given height or the people's (prior) size's."""
     up = _mean_up(evidence) if evidence else np.array([0.0, 1.0, 0.0])
-    world = World(up, camera_height_m or 1.5, 0.0 if camera_height_m else np.inf, camera_height_m is not None)
+    world = World(up, camera_height_m or np.nan, 0.0 if camera_height_m else np.inf, camera_height_m is not None)
     return _with_people(world, evidence)
 
 
@@ -419,7 +431,79 @@ def _tilt_sds(contacts: list[np.ndarray], tilt_sd_deg: float) -> tuple[float, fl
 
 def place_in_world(rec: TrackRecording, world: World) -> TrackRecording:
     """A whole-take fit scaled about the camera by its :class:`PersonSize` factor (its image
-    unchanged), on the world's floor."""
+    unchanged), on the world's floor (where no floor was found, its own, if any, scaled)."""
     k = world.people[rec.track].scale_factor
-    return replace(rec, root_view_m=[r * k for r in rec.root_view_m], scales=[s * k for s in rec.scales],
-                   up_view=world.normal, floor_offset_m=-world.camera_height_m)
+    scaled = replace(rec, root_view_m=[r * k for r in rec.root_view_m], scales=[s * k for s in rec.scales])
+    if world.floor_known:
+        return replace(scaled, up_view=world.normal, floor_offset_m=-world.camera_height_m)
+    return replace(scaled, floor_offset_m=None if rec.floor_offset_m is None else k * rec.floor_offset_m)
+
+
+@dataclass(frozen=True)
+class TrackFacts:
+    """What the summary says of one written track: its stature and leg length (metres), how far
+    from the camera its root is (metres, min and max), whether it stays in front of the camera, and
+    the world's verdict on its size (:class:`PersonSize`)."""
+
+    track: int
+    stature_m: float
+    legs_m: float
+    distance_m: tuple[float, float]
+    in_front: bool
+    size: PersonSize
+
+    @property
+    def flags(self) -> list[str]:
+        """Anything a person cannot be: a size outside the human range, a body at or behind the
+        camera, feet below the floor or standing high above it."""
+        flags = []
+        if not HUMAN_STATURE_M[0] <= round(self.stature_m, 3) <= HUMAN_STATURE_M[1] \
+                or self.size.stature_m in HUMAN_STATURE_M:
+            flags.append(f"SIZE AT OR OUTSIDE THE HUMAN RANGE {HUMAN_STATURE_M[0]}-{HUMAN_STATURE_M[1]} m")
+        if not self.in_front:
+            flags.append("AT OR BEHIND THE CAMERA")
+        feet = self.size.feet_above_floor_m
+        if feet is not None and feet < -FEET_TOLERANCE_M:
+            flags.append(f"FEET {-feet:.2f} m BELOW THE FLOOR")
+        return flags
+
+    def line(self) -> str:
+        """One summary line: ``track 3: 1.62 m (±4 %, floor), legs 0.78 m, 4.1-6.3 m away, on the floor``."""
+        size = self.size
+        where = {"floor": "on the floor", "no contacts": "no planted foot (size from the prior)",
+                 "unreliable": "its feet do not fit the floor (size from the prior)"}.get(size.kind)
+        if size.kind == "elevated" or (where is None and size.feet_above_floor_m is not None):
+            where = f"standing {size.feet_above_floor_m:.2f} m above the floor (on something; size from the prior)"
+        source = {"floor": "from the floor", "prior": "the stature prior's: the take cannot fix it",
+                  "given": "given"}[size.source]
+        text = (f"track {self.track}: {self.stature_m:.2f} m (±{100 * (np.exp(size.stature_log_sd) - 1):.0f} %, "
+                f"{source}), legs {self.legs_m:.2f} m, {self.distance_m[0]:.1f}-{self.distance_m[1]:.1f} m away, "
+                f"{where or size.kind}")
+        return text + "".join(f"; {flag}" for flag in self.flags)
+
+
+FEET_TOLERANCE_M = 0.05  # feet this far below the floor are flagged
+_LEGS = [MEASURED_BONE_NAMES.index("thigh"), MEASURED_BONE_NAMES.index("shank")]
+
+
+def track_facts(rec: TrackRecording, world: World) -> TrackFacts:
+    """:class:`TrackFacts` of a track placed in ``world`` (:func:`place_in_world`)."""
+    scale = rec.scales[-1]
+    proportions = universal_bone_lengths_m() if rec.proportions_m is None else rec.proportions_m
+    roots = np.array(rec.motion()[1])
+    distances = np.linalg.norm(roots, axis=1)
+    return TrackFacts(rec.track, UNIVERSAL_HEIGHT_M * scale, float(proportions[_LEGS].sum() * scale),
+                      (float(distances.min()), float(distances.max())), bool(np.all(roots[:, 2] < 0.0)),
+                      world.people[rec.track])
+
+
+def world_line(world: World) -> str:
+    """The summary's line on the world: the camera's height (given, or estimated with its error),
+    pitch and roll."""
+    if not world.floor_known:
+        return "world: no floor found (no planted foot, no --camera-height): each track's size is the prior's"
+    height = "given" if world.camera_height_given else (
+        f"±{100 * (np.exp(world.camera_height_log_sd) - 1):.0f} %, from the people's sizes"
+        if np.isfinite(world.camera_height_log_sd) else "unknown: no planted foot")
+    return (f"world: camera {world.camera_height_m:.2f} m above the floor ({height}), pitched "
+            f"{world.pitch_deg:.1f} deg down, roll {world.roll_deg:.1f} deg")

@@ -15,7 +15,7 @@ import pytest
 
 from mocapdb.cli.main import main, parser
 from mocapdb.cli.paths import PathArg, TextArg
-from mocapdb.core.domains import Domain, ImageSizeArg, NumberListArg
+from mocapdb.core.domains import Domain, ImageSizeArg, NumberListArg, PerTrackArg
 
 from .conftest import SAMPLE_BVH, SAMPLE_KEYPOINTS
 
@@ -23,6 +23,8 @@ HOSTILE_NUMBERS = ("0", "-1", "nan", "inf", "-inf", "1e308", "1e20", "1000000000
                    "abc", "", "0x10")
 HOSTILE_SIZES = ("0x0", "-1x100", "1e20x2000", "100000000000000000000x2000", "nanxnan", "big", "1920x", "x")
 HOSTILE_LISTS = ("nan", "inf,1", "-1", "0,0", "", "1e308", ",", "1," * 100)
+HOSTILE_PER_TRACK = ("nan", "=1.7", "-1=1.7", "x=1.7", "1.5=1.7", "1e20=1.7", "2=", "2=abc", "2=inf", "2=1e308",
+                     "2==1.7", "")
 FLAGS = (argparse._HelpAction, argparse._VersionAction, argparse._StoreTrueAction, argparse._CountAction,
          argparse._StoreConstAction, argparse._SubParsersAction)
 
@@ -50,7 +52,7 @@ def _run(command: str, action: argparse.Action, value: str, capsys) -> tuple[int
 def test_every_option_has_a_declared_type():
     """A flag, a choice, a number's domain, an image size, a number list, a path or free text:
     anything else (``type=float``, an untyped string) is an option nobody checks."""
-    declared = (Domain, ImageSizeArg, NumberListArg, PathArg, TextArg)
+    declared = (Domain, ImageSizeArg, NumberListArg, PathArg, TextArg, PerTrackArg)
     unchecked = [f"{name} {a.option_strings or a.dest}" for name, p in _commands().items() for a in p._actions
                  if not isinstance(a, FLAGS) and a.choices is None and not isinstance(a.type, declared)]
     assert unchecked == []
@@ -81,6 +83,14 @@ def test_hostile_sizes_and_lists_are_refused_naming_the_option(command, action, 
     for text in HOSTILE_SIZES if isinstance(action.type, ImageSizeArg) else HOSTILE_LISTS:
         code, err = _run(command, action, text, capsys)
         assert code == 2 and err.count("\n") == 1 and f"argument {_name(action)}:" in err, (command, text, err)
+
+
+@pytest.mark.parametrize("command, action", _options(PerTrackArg), ids=lambda v: getattr(v, "dest", v))
+def test_hostile_per_track_values_are_refused_naming_the_option(command, action, capsys):
+    for text in HOSTILE_PER_TRACK:
+        code, err = _run(command, action, text, capsys)
+        assert code == 2 and err.count("\n") == 1 and f"argument {_name(action)}:" in err, (command, text, err)
+    assert action.type("1.62") == (None, 1.62) and action.type("2=1.1") == (2, 1.1)
 
 
 def test_domains_hold_the_documented_values():

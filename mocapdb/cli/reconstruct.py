@@ -60,13 +60,15 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-refine", action="store_true",
                    help="output the retrieved database pose as it is (the method as published) instead of "
                         "fitting it to the keypoints")
-    size = p.add_mutually_exclusive_group()
-    size.add_argument("--subject-height", type=D.SUBJECT_HEIGHT_M, metavar="METRES",
-                      help="the person's standing height in metres: sets the skeleton's size and so the depth "
-                           "(default 1.75, the universal skeleton)")
-    size.add_argument("--camera-height", type=D.CAMERA_HEIGHT_M, metavar="METRES",
-                      help="the camera's height above a flat floor the people stand on: each person's size and "
-                           "depth are measured from their feet (data_specs/stream_output.md)")
+    p.add_argument("--subject-height", type=D.PerTrackArg(D.SUBJECT_HEIGHT_M), metavar="[TRACK=]METRES",
+                   action="append", default=[],
+                   help="a person's standing height in metres: METRES for everyone (sets the skeleton's size and "
+                        "so the depth; default: 1.75 m in the stream, each person's own from the take's world in "
+                        "the track files), TRACK=METRES for one track of the track files (repeatable, e.g. "
+                        "--subject-height 2=1.62 --subject-height 5=1.10)")
+    p.add_argument("--camera-height", type=D.CAMERA_HEIGHT_M, metavar="METRES",
+                   help="the camera's height above a flat floor the people stand on: each person's size and "
+                        "depth are measured from their feet (data_specs/stream_output.md, data_specs/world.md)")
     p.add_argument("--universal-body", action="store_true",
                    help="keep the universal skeleton's proportions (default: each track's own bone proportions "
                         "measured from its 2D)")
@@ -171,6 +173,11 @@ def _video_take(path: str):
         reader.close()
 
 
+def subject_heights(args: argparse.Namespace) -> dict[int | None, float]:
+    """``--subject-height`` as track → metres (None: everyone; the last given wins)."""
+    return {track: metres for track, metres in args.subject_height}
+
+
 def _engine(args: argparse.Namespace):
     from mocapdb.core.errors import UsageError
     from mocapdb.core.formats.database import load_database
@@ -191,7 +198,8 @@ def _engine(args: argparse.Namespace):
                               image_size=(width, height), fps=args.fps or DEFAULTS["fps"],
                               translation=not args.no_translation,
                               refine_yaw=not args.no_yaw_refinement, refine=not args.no_refine,
-                              subject_height_m=args.subject_height, camera_height_m=args.camera_height,
+                              subject_height_m=subject_heights(args).get(None),
+                              camera_height_m=args.camera_height,
                               smoothing=not args.no_smoothing and not args.lag_frames,
                               own_body=not args.universal_body,
                               rotation_filter=rotation_filter, keep_take=not args.per_frame)
@@ -223,6 +231,7 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
                                  rate_by_arrival=not strict, write_in_background=not strict,
                                  take=None if args.per_frame else TakeParams(smoothing_hz=args.smoothing_hz),
                                  shared_floor=strict, camera_height_m=args.camera_height,
+                                 subject_heights_m=subject_heights(args),
                                  lag_frames=args.lag_frames, camera_sources=getattr(args, "camera_sources", {}),
                                  keep_joints=getattr(args, "preview", False) and args.floor)
     except ValueError as exc:

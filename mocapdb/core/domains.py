@@ -138,6 +138,25 @@ class NumberListArg:
         return "a list of numbers"
 
 
+@dataclass(frozen=True)
+class PerTrackArg:
+    """``VALUE`` (every person) or ``ID=VALUE`` (the track of that id): the argparse type of an
+    option a user may give per person; the value of domain ``value``. Gives (id or None, value)."""
+
+    value: Domain
+
+    def __call__(self, text: str) -> tuple[int | None, int | float]:
+        track_text, _, value_text = text.rpartition("=")
+        track = _parse_number(track_text.strip(), integer=True) if "=" in text else None
+        if "=" in text and (track is None or not TRACK_ID.accepts(track)):
+            raise argparse.ArgumentTypeError(f"{text!r}: must be VALUE or TRACK=VALUE, TRACK {TRACK_ID.describe()}")
+        return track, self.value(value_text.strip())
+
+    @property
+    def __name__(self) -> str:
+        return f"{self.value.what}, or TRACK={self.value.what}"
+
+
 # --- the camera and the take ---------------------------------------------------------------
 FPS_HZ = Domain("a frame rate in hertz", 1, 1000)
 FOCAL_PX = Domain("a focal length in pixels", 10, 100_000)
@@ -150,6 +169,7 @@ CAMERA_HEIGHT_M = Domain("a camera height above the floor in metres", 0.1, 50)
 CAMERA_DISTANCE_M = Domain("a camera-to-subject distance in metres", 0.5, 100)
 BASELINE_M = Domain("a distance between the two cameras in metres", 0.01, 1000)
 SUBJECT_HEIGHT_M = Domain("a standing height in metres", 0.5, 2.5)
+TRACK_ID = Domain("a track id", 0, 1_000_000_000, integer=True)
 CAMERA_INDEX = Domain("a camera index", 0, 255, integer=True)
 
 # --- the database build --------------------------------------------------------------------
