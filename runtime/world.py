@@ -46,10 +46,12 @@ from mocapdb.core.skeleton import (
     ANKLE_HEIGHT_M,
     MEASURED_BONE_NAMES,
     UNIVERSAL_HEIGHT_M,
+    pose_from_rotations,
     universal_bone_lengths_m,
 )
 from mocapdb.runtime.body_size import TILT_SD_DEG
 from mocapdb.runtime.take import (
+    ANKLES,
     MIN_FLOOR_SPREAD_M,
     TakeParams,
     TakeResult,
@@ -79,7 +81,9 @@ _STATURE_GRID = np.linspace(np.log(HUMAN_STATURE_M[0]), np.log(HUMAN_STATURE_M[1
 class TrackEvidence:
     """What one track tells about the world: its contacts ``[N, 3]`` (planted ankles, view frame,
     metres at its nominal stature ``nominal_stature_m``), its own up estimate and that one's error
-    (degrees), and its height if the user gave it. Derived once: the contacts on its lowest level
+    (degrees), its height if the user gave it, how much its likelihood counts (``weight``, 0-1:
+    :func:`evidence_weight`) and its lower ankle in every frame ``[F, 3]`` (at the nominal size; where
+    it has no contact, the floor must still not be above it). Derived once: the contacts on its lowest level
     (at most :data:`MAX_FLOOR_POINTS`, evenly spaced) and its log-likelihood table
     (:func:`_log_likelihood`)."""
 
@@ -89,6 +93,8 @@ class TrackEvidence:
     up: np.ndarray
     up_sd_deg: float
     given_stature_m: float | None = None
+    weight: float = 1.0
+    lower_ankles_m: np.ndarray | None = None
     floor_points_m: np.ndarray = field(init=False, repr=False)
     likelihood: np.ndarray = field(init=False, repr=False)
 
@@ -161,19 +167,34 @@ def fit_world(recordings: list[TrackRecording], fps: float, params: TakeParams =
     everyone's)."""
     fits = [fit_take(rec, fps, params) for rec in recordings]
     heights = subject_heights_m or {}
-    evidence = [track_evidence(rec, result, heights.get(rec.track, heights.get(None))) for rec, result in fits]
+    evidence = [track_evidence(rec, result, fps, heights.get(rec.track, heights.get(None))) for rec, result in fits]
     world = estimate_world(evidence, camera_height_m)
     return [place_in_world(rec, world) for rec, _ in fits], world
 
 
-def track_evidence(rec: TrackRecording, result: TakeResult, given_stature_m: float | None = None
+FULL_WEIGHT_S = 2.0  # a track this long or longer counts as one person's whole evidence
+
+
+def evidence_weight(duration_s: float) -> float:
+    """How much a track's likelihood counts: its share of :data:`FULL_WEIGHT_S` (at most 1). A
+    fragment (a person lost and found again, a false detection for half a second) is not a second
+    person: its vote on the world counts in proportion to its length."""
+    return float(min(max(duration_s / FULL_WEIGHT_S, 0.0), 1.0))
+
+
+def track_evidence(rec: TrackRecording, result: TakeResult, fps: float, given_stature_m: float | None = None
                    ) -> TrackEvidence:
-    """A whole-take fit's :class:`TrackEvidence` (no contacts: an empty ``contacts_m``)."""
+    """A whole-take fit's :class:`TrackEvidence` (no contacts: an empty ``contacts_m``); ``fps``:
+    the take's frame rate (Hz)."""
     up = result.floor_normal if result.floor_normal is not None else rec.up_view
     up = np.array([0.0, 1.0, 0.0]) if up is None else np.asarray(up, dtype=np.float64)
-    return TrackEvidence(rec.track, UNIVERSAL_HEIGHT_M * rec.scales[-1], result.planted_ankles_m.reshape(-1, 3),
-                         up / np.linalg.norm(up), TILT_SD_DEG if rec.up_sd_deg is None else rec.up_sd_deg,
-                         given_stature_m)
+    up = up / np.linalg.norm(up)
+    quats, root_m, scale = rec.motion()
+    ankles = pose_from_rotations(quats, root_m, scale, rec.offsets_m())[:, list(ANKLES)]
+    lower = ankles[np.arange(len(ankles)), np.argmin(ankles @ up, axis=1)]
+    return TrackEvidence(rec.track, UNIVERSAL_HEIGHT_M * scale, result.planted_ankles_m.reshape(-1, 3), up,
+                         TILT_SD_DEG if rec.up_sd_deg is None else rec.up_sd_deg, given_stature_m,
+                         evidence_weight(len(rec.quaternions) / fps), lower[::max(len(lower) // 256, 1)])
 
 
 def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None = None) -> World:
@@ -223,7 +244,7 @@ def _cost(evidence: list[TrackEvidence], normals: np.ndarray, tilts_deg: np.ndar
     heights ``log_h [H]``."""
     cost = np.repeat(tilt_cost(tilts_deg, tilt_sds_deg)[:, None], len(log_h), axis=1)
     for e in evidence:
-        cost -= _log_likelihood(_observed_log_stature(e, normals)[:, None] + log_h[None, :], e)
+        cost -= e.weight * _log_likelihood(_observed_log_stature(e, normals)[:, None] + log_h[None, :], e)
     return cost
 
 
@@ -329,7 +350,7 @@ def person_size(e: TrackEvidence, world: World) -> PersonSize:
     """One track's size and kind in ``world`` (the posterior over its kinds at the world's floor and
     height; on the floor: the posterior mode of its stature; else the prior's mode or its given height)."""
     if len(e.contacts_m) == 0:
-        return _prior_size(e, "no contacts", None)
+        return _prior_size(e, "no contacts", world)
     observed = _observed_log_stature(e, world.normal[None])[0] + np.log(world.camera_height_m)
     sd = observation_sd(e)
     if np.isfinite(observed):
@@ -375,20 +396,48 @@ _PRIOR_SD = _posterior_sd(0.0, 1e6, None)  # the prior's own spread (of log stat
 
 
 def _prior_size(e: TrackEvidence, kind: str, world: World | None) -> PersonSize:
-    """A track whose size the floor does not give: the prior's mode (or its given height)."""
+    """A track whose size the floor does not give: the prior's mode (or its given height), made
+    smaller where that would put its lowest point below the floor (never below the human range)."""
     stature, log_sd = _prior_mode(e.given_stature_m), _posterior_sd(0.0, 1e6, e.given_stature_m)
     k = stature / e.nominal_stature_m
-    feet = None if world is None else _feet_above_floor(e, world, k)
-    return PersonSize(e.track, stature, log_sd, kind, "given" if e.given_stature_m is not None else "prior", k, feet)
+    if world is not None and world.floor_known and e.given_stature_m is None:
+        touching = _touching_scale(e, world)
+        if touching is not None and touching < k:
+            k = max(touching, HUMAN_STATURE_M[0] / e.nominal_stature_m)
+    feet = None if world is None or not world.floor_known else _feet_above_floor(e, world, k)
+    return PersonSize(e.track, k * e.nominal_stature_m, log_sd, kind,
+                      "given" if e.given_stature_m is not None else "prior", k, feet)
+
+
+def _lowest_points(e: TrackEvidence, normal: np.ndarray) -> np.ndarray | None:
+    """The points a track stands on (view frame, nominal size): its contacts on their lowest level,
+    else its lower ankle in the frames where it is lowest (its 5th percentile), else None."""
+    if len(e.contacts_m):
+        return lowest_level(e.contacts_m, normal)
+    if e.lower_ankles_m is None or not len(e.lower_ankles_m):
+        return None
+    heights = e.lower_ankles_m @ normal
+    return e.lower_ankles_m[heights <= np.quantile(heights, 0.05)]
+
+
+def _touching_scale(e: TrackEvidence, world: World) -> float | None:
+    """The scale about the camera that puts the track's lowest points on the floor (None: they are
+    not below the camera)."""
+    points = _lowest_points(e, world.normal)
+    if points is None:
+        return None
+    depth = ANKLE_HEIGHT_M * e.nominal_stature_m / UNIVERSAL_HEIGHT_M - float(np.median(points @ world.normal))
+    return world.camera_height_m / depth if depth > MIN_FLOOR_DEPTH * e.nominal_stature_m else None
 
 
 def _feet_above_floor(e: TrackEvidence, world: World, k: float) -> float | None:
-    """How high the track's lowest contacts stand above the floor once scaled by ``k`` (metres)."""
-    if len(e.contacts_m) == 0:
+    """How high the track's lowest points (:func:`_lowest_points`) stand above the floor once scaled
+    by ``k`` (metres; None: no point known)."""
+    points = _lowest_points(e, world.normal)
+    if points is None:
         return None
-    heights = k * (lowest_level(e.contacts_m, world.normal) @ world.normal)
     ankle_m = ANKLE_HEIGHT_M * k * e.nominal_stature_m / UNIVERSAL_HEIGHT_M
-    return float(np.median(heights) - ankle_m + world.camera_height_m)
+    return float(k * np.median(points @ world.normal) - ankle_m + world.camera_height_m)
 
 
 def _world_without_contacts(evidence: list[TrackEvidence], camera_height_m: float | None) -> World:
