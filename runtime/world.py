@@ -73,6 +73,7 @@ CAMERA_HEIGHT_RANGE_M = (0.1, 60.0)
 MIN_FLOOR_DEPTH = 0.05       # a floor less than this × the person's stature below the camera: not under them
 TILT_SD_FIXED_DEG = 0.5      # a tilt's error about an axis the contacts span (a walk fixes the floor along it)
 TILT_TAIL_SD_DEG, TILT_TAIL_SHARE = 15.0, 0.2  # the tilt prior's heavy tail: bodies' estimates can be far off
+PITCH_SD_MIN_DEG = 5.0  # bodies show the pitch only by their foreshortening, and share its error (the camera's)
 _FLAT = 1.0 / np.log(HUMAN_STATURE_M[1] / HUMAN_STATURE_M[0])  # a flat density over the human range (log)
 _STATURE_GRID = np.linspace(np.log(HUMAN_STATURE_M[0]), np.log(HUMAN_STATURE_M[1]), 400)
 
@@ -83,9 +84,9 @@ class TrackEvidence:
     metres at its nominal stature ``nominal_stature_m``), its own up estimate and that one's error
     (degrees), its height if the user gave it, how much its likelihood counts (``weight``, 0-1:
     :func:`evidence_weight`) and its lower ankle in every frame ``[F, 3]`` (at the nominal size; where
-    it has no contact, the floor must still not be above it). Derived once: the contacts on its lowest level
-    (at most :data:`MAX_FLOOR_POINTS`, evenly spaced) and its log-likelihood table
-    (:func:`_log_likelihood`)."""
+    it has no contact, the floor must still not be above it). Derived once: the contacts on its
+    lowest level and all its contacts (each at most :data:`MAX_FLOOR_POINTS`, evenly spaced) and
+    its log-likelihood table (:func:`_log_likelihood`)."""
 
     track: int
     nominal_stature_m: float
@@ -96,12 +97,14 @@ class TrackEvidence:
     weight: float = 1.0
     lower_ankles_m: np.ndarray | None = None
     floor_points_m: np.ndarray = field(init=False, repr=False)
+    contact_sample_m: np.ndarray = field(init=False, repr=False)
     likelihood: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         points = lowest_level(self.contacts_m, self.up) if len(self.contacts_m) else self.contacts_m
-        step = max(len(points) // MAX_FLOOR_POINTS, 1)
-        object.__setattr__(self, "floor_points_m", points[::step])
+        object.__setattr__(self, "floor_points_m", points[::max(len(points) // MAX_FLOOR_POINTS, 1)])
+        sample = self.contacts_m[::max(len(self.contacts_m) // MAX_FLOOR_POINTS, 1)]
+        object.__setattr__(self, "contact_sample_m", sample)
         object.__setattr__(self, "likelihood", _likelihood_table(observation_sd(self), self.given_stature_m))
 
 
@@ -172,7 +175,7 @@ def fit_world(recordings: list[TrackRecording], fps: float, params: TakeParams =
     return [place_in_world(rec, world) for rec, _ in fits], world
 
 
-FULL_WEIGHT_S = 2.0  # a track this long or longer counts as one person's whole evidence
+FULL_WEIGHT_S = 1.0  # a track this long or longer counts as one person's whole evidence
 
 
 def evidence_weight(duration_s: float) -> float:
@@ -245,7 +248,26 @@ def _cost(evidence: list[TrackEvidence], normals: np.ndarray, tilts_deg: np.ndar
     cost = np.repeat(tilt_cost(tilts_deg, tilt_sds_deg)[:, None], len(log_h), axis=1)
     for e in evidence:
         cost -= e.weight * _log_likelihood(_observed_log_stature(e, normals)[:, None] + log_h[None, :], e)
+        cost += e.weight * _unevenness(e, normals)[:, None]
     return cost
+
+
+FLATNESS_SD_M = 0.05  # a contact's height error about its floor (depth noise along a falling viewing ray)
+
+
+def _unevenness(e: TrackEvidence, normals: np.ndarray) -> np.ndarray:
+    """``−log`` likelihood ``[T]`` that a track's contacts lie level under each floor normal ``[T, 3]``:
+    each contact's height about their median, a Cauchy error of scale :data:`FLATNESS_SD_M` (a step
+    or a platform costs little), counted over its independent contacts. A walk in depth fixes the
+    floor's pitch, one across its roll. Only contacts spread over about a metre count: the depth's
+    noise spreads a standing person's contacts along the viewing ray, and a plane containing that
+    ray would fit them best."""
+    if len(e.contact_sample_m) < 2 or not _spans_floor(e.contacts_m):
+        return np.zeros(len(normals))
+    heights = e.contact_sample_m @ normals.T                                     # [P, T]
+    residual = (heights - np.median(heights, axis=0)) / FLATNESS_SD_M
+    independent = len(e.contacts_m) / CONTACT_DECORRELATION
+    return np.log1p(0.5 * residual ** 2).mean(axis=0) * independent
 
 
 def tilt_cost(tilts_deg: np.ndarray, sds_deg: tuple[float, float]) -> np.ndarray:
@@ -459,11 +481,22 @@ def _tilt_sd_deg(evidence: list[TrackEvidence]) -> float:
     return float(1.0 / np.sqrt(np.sum(1.0 / sds ** 2)))
 
 
+def _spans_floor(contacts: np.ndarray) -> bool:
+    """Whether contacts ``[N, 3]`` spread over about a metre (RMS :data:`MIN_FLOOR_SPREAD_M` along
+    their main direction)."""
+    if len(contacts) < 10:
+        return False
+    return bool(np.linalg.svd(contacts - contacts.mean(axis=0), compute_uv=False)[0] / np.sqrt(len(contacts))
+                >= MIN_FLOOR_SPREAD_M)
+
+
 def _tilt_sds(contacts: list[np.ndarray], tilt_sd_deg: float) -> tuple[float, float]:
     """The pitch and roll errors (degrees): :data:`TILT_SD_FIXED_DEG` about an axis some set of
     contacts ``[N, 3]`` fixes (they lie on one plane spanning about 1 m both ways, or along a line
-    running mostly in depth: the pitch, or mostly across: the roll), else ``tilt_sd_deg``."""
-    pitch = roll = tilt_sd_deg
+    running mostly in depth: the pitch, or mostly across: the roll), else ``tilt_sd_deg`` (the
+    tracks' estimates combined; the pitch's at least :data:`PITCH_SD_MIN_DEG`: the people of one take
+    share its error, so more of them do not average it away)."""
+    pitch, roll = max(tilt_sd_deg, PITCH_SD_MIN_DEG), tilt_sd_deg
     for points in contacts:
         plane = coplanar_spread(points)
         if plane is None:
