@@ -11,6 +11,7 @@ every BVH file.
 """
 from __future__ import annotations
 
+import json
 import logging
 import queue
 import threading
@@ -25,6 +26,7 @@ import numpy as np
 from mocapdb.core import domains as D
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.exports import TrackExport, track_joints, write_track_files
+from mocapdb.core.files import write_atomic
 from mocapdb.core.formats.keypoints import LAYOUTS, KeypointError, KeypointFrame
 from mocapdb.core.formats.openpose import parse_stream_line
 from mocapdb.core.outputs import TrackRecording, frame_line, header_line
@@ -33,8 +35,9 @@ from mocapdb.runtime import refine
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.lag import FixedLag
 from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source, StreamStats
+from mocapdb.runtime.subject import chosen, main_track
 from mocapdb.runtime.take import TakeParams, fit_take
-from mocapdb.runtime.world import fit_world, track_facts, world_line
+from mocapdb.runtime.world import fit_world, track_facts, world_line, world_record
 
 LOG = logging.getLogger(__name__)
 
@@ -212,6 +215,7 @@ class SessionOptions:
     camera_sources: dict[str, str] = field(default_factory=dict)  # where fps, image size, focal came from
     camera_height_m: float | None = None  # the shared floor's distance below the camera, when known
     subject_heights_m: dict[int | None, float] = field(default_factory=dict)  # track (None: all) → stature
+    people: str | tuple[int, ...] = "all"  # the tracks given files at the end: "all", "main" or ids (runtime.subject)
     keep_joints: bool = False       # TrackFiles.joints: every written track's joints, for reconstruct --preview
     write_in_background: bool = False  # track files fitted and written by a thread of their own (live)
 
@@ -291,9 +295,19 @@ class TrackFiles:
             return
         fitted, world = fit_world([rec for rec, _ in held], self.fps, self.options.take,
                                   self.options.camera_height_m, self.options.subject_heights_m)
-        self.summary.world_lines = [world_line(world)] + [track_facts(rec, world).line() for rec in fitted]
+        recordings = [rec for rec, _ in held]  # with their input keypoints (the fits drop them)
+        main = main_track(recordings, 2.0 * recordings[0].camera_px[1] if recordings[0].camera_px else 1.0)
+        written = {rec.track for rec in chosen(fitted, self.options.people, main)}
+        facts = [track_facts(rec, world) for rec in fitted]
+        self.summary.world_lines = [world_line(world)] + [f.line(f.track == main, f.track in written) for f in facts]
         for rec, (_, name) in zip(fitted, held):
-            self._write_files(rec, name)
+            if rec.track in written:
+                self._write_files(rec, name)
+            else:
+                self._names.discard(name)
+        if self.options.bvh_dir is not None:
+            record = world_record(world, facts, main, written)
+            write_atomic(Path(self.options.bvh_dir) / "world.json", json.dumps(record, indent=1) + "\n")
 
     def _write(self, rec: TrackRecording, name: str, final: bool) -> None:
         limit = self.options.max_bvh_files

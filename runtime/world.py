@@ -549,8 +549,9 @@ class TrackFacts:
             flags.append(f"FEET {-feet:.2f} m BELOW THE FLOOR")
         return flags
 
-    def line(self) -> str:
-        """One summary line: ``track 3: 1.62 m (±4 %, floor), legs 0.78 m, 4.1-6.3 m away, on the floor``."""
+    def line(self, main: bool = False, written: bool = True) -> str:
+        """One summary line: ``track 3: 1.62 m (±4 %, floor), legs 0.78 m, 4.1-6.3 m away, on the floor``
+        (``track 3 (main)`` for the take's subject; "no files" where ``--people`` left it out)."""
         size = self.size
         where = {"floor": "on the floor", "no contacts": "no planted foot (size from the prior)",
                  "unreliable": "its feet do not fit the floor (size from the prior)"}.get(size.kind)
@@ -558,7 +559,8 @@ class TrackFacts:
             where = f"standing {size.feet_above_floor_m:.2f} m above the floor (on something; size from the prior)"
         source = {"floor": "from the floor", "prior": "the stature prior's: the take cannot fix it",
                   "given": "given"}[size.source]
-        text = (f"track {self.track}: {self.stature_m:.2f} m (±{100 * (np.exp(size.stature_log_sd) - 1):.0f} %, "
+        label = f"track {self.track}" + (" (main)" if main else "") + ("" if written else " (no files: --people)")
+        text = (f"{label}: {self.stature_m:.2f} m (±{100 * (np.exp(size.stature_log_sd) - 1):.0f} %, "
                 f"{source}), legs {self.legs_m:.2f} m, {self.distance_m[0]:.1f}-{self.distance_m[1]:.1f} m away, "
                 f"{where or size.kind}")
         return text + "".join(f"; {flag}" for flag in self.flags)
@@ -589,3 +591,22 @@ def world_line(world: World) -> str:
         if np.isfinite(world.camera_height_log_sd) else "unknown: no planted foot")
     return (f"world: camera {world.camera_height_m:.2f} m above the floor ({height}), pitched "
             f"{world.pitch_deg:.1f} deg down, roll {world.roll_deg:.1f} deg")
+
+
+def world_record(world: World, facts: list[TrackFacts], main: int | None, written: set[int]) -> dict:
+    """``world.json`` (data_specs/world.md): the take's world, its subject and every track's size,
+    floor contact and flags, and whether it got files."""
+    camera = {"height_m": _finite(world.camera_height_m), "height_given": world.camera_height_given,
+              "height_log_sd": _finite(world.camera_height_log_sd), "pitch_deg": round(world.pitch_deg, 2),
+              "roll_deg": round(world.roll_deg, 2), "floor_normal_view": [round(float(v), 5) for v in world.normal]}
+    tracks = [{"track": f.track, "main": f.track == main, "written": f.track in written,
+               "stature_m": round(f.stature_m, 3), "stature_log_sd": _finite(f.size.stature_log_sd),
+               "size_from": f.size.source, "kind": f.size.kind, "legs_m": round(f.legs_m, 3),
+               "distance_m": [round(d, 2) for d in f.distance_m], "in_front": f.in_front,
+               "feet_above_floor_m": _finite(f.size.feet_above_floor_m), "flags": f.flags} for f in facts]
+    return {"format": "mocapdb-world", "version": 1, "camera": camera, "main_track": main, "tracks": tracks}
+
+
+def _finite(value: float | None, decimals: int = 3) -> float | None:
+    """``value`` rounded, or None when unknown (None, NaN, infinite)."""
+    return None if value is None or not np.isfinite(value) else round(float(value), decimals)

@@ -216,6 +216,7 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
     from mocapdb.runtime.engine import TrackLimits
     from mocapdb.runtime.session import FrameParser, Session, SessionOptions, SessionSummary
     from mocapdb.runtime.streams import StreamStats, open_sink
+    from mocapdb.runtime.subject import parse_people
     from mocapdb.runtime.take import TakeParams
 
     summary = SessionSummary(stream=StreamStats())
@@ -233,7 +234,8 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
                                  shared_floor=strict, camera_height_m=args.camera_height,
                                  subject_heights_m=subject_heights(args),
                                  lag_frames=args.lag_frames, camera_sources=getattr(args, "camera_sources", {}),
-                                 keep_joints=getattr(args, "preview", False) and args.floor)
+                                 keep_joints=getattr(args, "preview", False) and args.floor,
+                                 people=parse_people(getattr(args, "people", "all")))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     engine = _engine(args)
@@ -254,6 +256,10 @@ def add_reconstruct_parser(sub: argparse._SubParsersAction) -> None:
                    help="also write OUT/preview.png: a contact sheet of 12 frames, the re-projected tracks over the "
                         "input keypoints beside a 3D view (with --floor: the track files on their floor; "
                         "`mocapdb render` draws every frame)")
+    p.add_argument("--people", type=P.TextArg("main, all or track ids"), default="all", metavar="main|all|ID,...",
+                   help="which tracks get files: all (default), main (the take's subject: seen long, large, near "
+                        "the middle and moving; the summary and OUT/world.json name it) or track ids, e.g. 1,3; "
+                        "every track still counts in the take's world")
     _add_engine_options(p)
     p.set_defaults(run=run_reconstruct)
 

@@ -200,7 +200,7 @@ class OutputFile:
 
 
 RECONSTRUCT_FILES = OutputFiles("reconstruct", ("result.jsonl", "track_*.bvh", "track_*.trc", "track_*.csv",
-                                                "preview.png"), "result.jsonl")
+                                                "preview.png", "world.json"), "result.jsonl")
 
 
 STREAM_FORMAT = "mocapdb-stream"

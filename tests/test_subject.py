@@ -1,0 +1,68 @@
+"""The take's subject and --people (runtime/subject.py), and the world.json reconstruct writes."""
+import json
+
+import numpy as np
+import pytest
+
+from mocapdb.core.outputs import TrackRecording
+from mocapdb.runtime.subject import chosen, main_track, parse_people, subject_score
+
+
+def _track(track: int, centre_x: float, height_px: float, speed_px: float, frames: int = 50) -> TrackRecording:
+    """A track whose 14 keypoints fill a box ``height_px`` tall centred at ``centre_x``, moving
+    ``speed_px`` a frame to the right."""
+    t = np.arange(frames)[:, None]
+    x = centre_x + speed_px * t + np.linspace(-0.2, 0.2, 14)[None, :] * height_px
+    y = 500.0 + np.linspace(-0.5, 0.5, 14)[None, :] * height_px + 0.0 * t
+    keypoints = np.stack([x, y, np.ones_like(x)], axis=-1)
+    return TrackRecording(track=track, first_frame=0, keypoints=list(keypoints))
+
+
+def test_the_score_by_hand():
+    """A still 400 px box in the middle of a 1000 px image: 50 frames × 400 px × centrality 1 × (1 + 0)."""
+    assert subject_score(_track(0, 500.0, 400.0, 0.0), 1000.0) == pytest.approx(50 * 400.0)
+    # at the edge: centrality 0.5; moving 4 px a frame: 49 × 4 px = 0.49 box heights of motion
+    assert subject_score(_track(0, 0.0, 400.0, 0.0), 1000.0) == pytest.approx(50 * 400.0 * 0.5)
+    moving = subject_score(_track(0, 500.0, 400.0, 4.0), 1000.0)
+    centrality = 1.0 - 0.5 * np.abs(500.0 + 4.0 * np.arange(50) - 500.0) / 500.0
+    assert moving == pytest.approx(np.sum(400.0 * centrality) * (1.0 + 49 * 4.0 / 400.0))
+
+
+def test_the_subject_is_the_large_central_moving_track_not_the_bystander():
+    performer = _track(3, 520.0, 600.0, 3.0)
+    bystander = _track(1, 60.0, 300.0, 0.0)        # still, at the edge, further away
+    far = _track(2, 500.0, 120.0, 2.0, frames=80)  # longer, but small
+    assert main_track([bystander, far, performer], 1000.0) == 3
+    assert main_track([], 1000.0) is None
+
+
+def test_people_choices():
+    recs = [_track(t, 500.0, 300.0, 0.0) for t in (0, 4, 7)]
+    assert [r.track for r in chosen(recs, "all", 4)] == [0, 4, 7]
+    assert [r.track for r in chosen(recs, "main", 4)] == [4]
+    assert [r.track for r in chosen(recs, parse_people("7, 0"), 4)] == [0, 7]
+    assert parse_people(" MAIN ") == "main"
+    for bad in ("", "x", "1,,2", "-1", "main,1"):
+        with pytest.raises(ValueError, match="--people"):
+            parse_people(bad)
+
+
+def test_reconstruct_names_the_subject_writes_only_it_with_people_main_and_says_so(small_db_path, tmp_path, capsys):
+    from mocapdb.cli.main import main
+
+    from .conftest import SAMPLE_KEYPOINTS
+
+    out = tmp_path / "rec"
+    assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--fps", "60", "--image-size",
+                 "1088x1920", "--focal", "1681", "--out", str(out), "--people", "main", "--keep-static"]) == 0
+    world = json.loads((out / "world.json").read_text())
+    assert world["format"] == "mocapdb-world" and world["main_track"] == 1  # the balancing person, not the edge
+    assert sorted(p.name for p in out.glob("track_*")) == ["track_1.bvh"]
+    written = {t["track"]: t["written"] for t in world["tracks"]}
+    assert written[1] and not any(w for track, w in written.items() if track != 1)
+    lines = capsys.readouterr().out
+    assert "track 1 (main):" in lines and "world: camera" in lines
+    for track in world["tracks"]:
+        assert 0.8 <= track["stature_m"] <= 2.3 and track["in_front"]
+    assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(tmp_path / "x"),
+                 "--people", "main,2"]) == 2
