@@ -63,15 +63,17 @@ from mocapdb.runtime.take import (
 
 HUMAN_STATURE_M = (0.8, 2.3)  # no track is ever made smaller or taller (a 2-year-old to the tallest adults)
 P_ON_FLOOR, P_ELEVATED, P_UNRELIABLE = 0.88, 0.10, 0.02  # prior weights of a track's kinds
+ELEVATED_MIN_LOG = 0.1  # an elevated person's floor-consistent stature overstates it by this (log) at least:
+#                         a step of 15 cm under a camera 1.5 m high
 GIVEN_STATURE_SD = 0.01      # of log stature, a height the user gave
-CONTACT_SD = 0.10            # of log stature, one contact frame's (depth and ankle-height noise) ...
-CONTACT_DECORRELATION = 5.0  # ... over this many frames (consecutive frames are far from independent)
+CONTACT_SD = 0.10            # of log stature, one step's (depth and ankle-height noise), over its steps
+STEP_GRID_M = 0.01           # contacts within this of each other are one step (the whole-take fit anchors a step)
 BASE_SD = 0.03               # of log stature, what more contacts do not remove (the body's own fit)
 TILT_RANGE_DEG = 20.0        # the grid's pitch and roll search about the tracks' mean up, each way
 LOG_HEIGHT_STEP = 0.01       # the camera-height grid's step (log metres)
 CAMERA_HEIGHT_RANGE_M = (0.1, 60.0)
 MIN_FLOOR_DEPTH = 0.05       # a floor less than this × the person's stature below the camera: not under them
-TILT_SD_FIXED_DEG = 0.5      # a tilt's error about an axis the contacts span (a walk fixes the floor along it)
+TILT_SD_FIXED_DEG = 2.0      # a tilt's error about an axis a track's contacts span (rendered walks: 3 deg RMS each)
 TILT_TAIL_SD_DEG, TILT_TAIL_SHARE = 15.0, 0.2  # the tilt prior's heavy tail: bodies' estimates can be far off
 PITCH_SD_MIN_DEG = 5.0  # bodies show the pitch only by their foreshortening, and share its error (the camera's)
 _FLAT = 1.0 / np.log(HUMAN_STATURE_M[1] / HUMAN_STATURE_M[0])  # a flat density over the human range (log)
@@ -86,7 +88,8 @@ class TrackEvidence:
     :func:`evidence_weight`) and its lower ankle in every frame ``[F, 3]`` (at the nominal size; where
     it has no contact, the floor must still not be above it). Derived once: the contacts on its
     lowest level and all its contacts (each at most :data:`MAX_FLOOR_POINTS`, evenly spaced) and
-    its log-likelihood table (:func:`_log_likelihood`)."""
+    its log-likelihood table (:func:`_log_likelihood`), and its number of steps (distinct contacts:
+    the whole-take fit holds a planted ankle at one place for its whole contact)."""
 
     track: int
     nominal_stature_m: float
@@ -98,6 +101,7 @@ class TrackEvidence:
     lower_ankles_m: np.ndarray | None = None
     floor_points_m: np.ndarray = field(init=False, repr=False)
     contact_sample_m: np.ndarray = field(init=False, repr=False)
+    steps: int = field(init=False, repr=False)
     likelihood: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -105,7 +109,12 @@ class TrackEvidence:
         object.__setattr__(self, "floor_points_m", points[::max(len(points) // MAX_FLOOR_POINTS, 1)])
         sample = self.contacts_m[::max(len(self.contacts_m) // MAX_FLOOR_POINTS, 1)]
         object.__setattr__(self, "contact_sample_m", sample)
-        object.__setattr__(self, "likelihood", _likelihood_table(observation_sd(self), self.given_stature_m))
+        object.__setattr__(self, "steps", len(np.unique(np.round(self.contacts_m / STEP_GRID_M), axis=0)))
+        object.__setattr__(self, "likelihood", _likelihood_table(observation_sd(self), self._prior()))
+
+    def _prior(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """This track's stature prior (weights, log means, log SDs): its given height's, or the mixture."""
+        return _components(self.given_stature_m)
 
 
 MAX_FLOOR_POINTS = 64  # contacts kept per track for the floor's distance under it (a median)
@@ -252,22 +261,25 @@ def _cost(evidence: list[TrackEvidence], normals: np.ndarray, tilts_deg: np.ndar
     return cost
 
 
-FLATNESS_SD_M = 0.05  # a contact's height error about its floor (depth noise along a falling viewing ray)
+FLATNESS_SD_M = 0.05  # a contact's height error about its floor, besides its depth's
+DEPTH_SD_REL = 0.05   # a contact's depth error, relative (the per-frame depth from the body's image size)
 
 
 def _unevenness(e: TrackEvidence, normals: np.ndarray) -> np.ndarray:
     """``−log`` likelihood ``[T]`` that a track's contacts lie level under each floor normal ``[T, 3]``:
-    each contact's height about their median, a Cauchy error of scale :data:`FLATNESS_SD_M` (a step
-    or a platform costs little), counted over its independent contacts. A walk in depth fixes the
-    floor's pitch, one across its roll. Only contacts spread over about a metre count: the depth's
-    noise spreads a standing person's contacts along the viewing ray, and a plane containing that
-    ray would fit them best."""
+    each contact's height about their median, a Cauchy error (a step or a platform costs little)
+    whose scale is :data:`FLATNESS_SD_M` and its depth's error: that moves a contact along its
+    viewing ray, so its height by :data:`DEPTH_SD_REL` × its height below the camera (under the
+    track's own up: a scale that grew with the normal's tilt would favour tilted floors). Counted over
+    its steps. A walk in depth fixes the floor's pitch, one across its roll. Only contacts spread
+    over about a metre count: the depth's noise spreads a standing person's contacts along the
+    viewing ray, and a plane containing that ray would fit them best."""
     if len(e.contact_sample_m) < 2 or not _spans_floor(e.contacts_m):
         return np.zeros(len(normals))
     heights = e.contact_sample_m @ normals.T                                     # [P, T]
-    residual = (heights - np.median(heights, axis=0)) / FLATNESS_SD_M
-    independent = len(e.contacts_m) / CONTACT_DECORRELATION
-    return np.log1p(0.5 * residual ** 2).mean(axis=0) * independent
+    scale = np.hypot(FLATNESS_SD_M, DEPTH_SD_REL * (e.contact_sample_m @ e.up))[:, None]  # one per contact
+    residual = (heights - np.median(heights, axis=0)) / scale
+    return np.log1p(0.5 * residual ** 2).mean(axis=0) * e.steps
 
 
 def tilt_cost(tilts_deg: np.ndarray, sds_deg: tuple[float, float]) -> np.ndarray:
@@ -285,7 +297,7 @@ def tilt_cost(tilts_deg: np.ndarray, sds_deg: tuple[float, float]) -> np.ndarray
 
 
 COARSE_STEP_DEG, FINE_STEP_DEG = 1.0, 0.1
-COARSE_HEIGHT_STRIDE = 4  # the coarse pass takes every 4th height of the grid
+COARSE_HEIGHT_STRIDE = 2  # the coarse pass takes every 2nd height of the grid
 _LOG_HEIGHTS = np.arange(np.log(CAMERA_HEIGHT_RANGE_M[0]), np.log(CAMERA_HEIGHT_RANGE_M[1]), LOG_HEIGHT_STEP)
 
 
@@ -310,15 +322,14 @@ def _observed_log_stature(e: TrackEvidence, normals: np.ndarray) -> np.ndarray:
 
 def observation_sd(e: TrackEvidence) -> float:
     """The error (SD of log stature) of a track's floor-consistent stature at a known floor:
-    :data:`BASE_SD` and :data:`CONTACT_SD` over its independent contacts."""
-    independent = max(len(e.contacts_m) / CONTACT_DECORRELATION, 1.0)
-    return float(np.sqrt(BASE_SD ** 2 + CONTACT_SD ** 2 / independent))
+    :data:`BASE_SD` and :data:`CONTACT_SD` over its steps."""
+    return float(np.sqrt(BASE_SD ** 2 + CONTACT_SD ** 2 / max(e.steps, 1)))
 
 
-def _likelihood_table(sd: float, given_stature_m: float | None) -> np.ndarray:
+def _likelihood_table(sd: float, prior: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
     """``log p`` of an observed log stature of error ``sd`` under a track's three kinds (module
-    docstring), over :data:`_LIKELIHOOD_GRID`."""
-    on_floor, smaller = _prior_density(_LIKELIHOOD_GRID, sd, given_stature_m)
+    docstring) and its stature ``prior`` (:meth:`TrackEvidence._prior`), over :data:`_LIKELIHOOD_GRID`."""
+    on_floor, smaller = _prior_density(_LIKELIHOOD_GRID, sd, prior)
     return np.log(P_ON_FLOOR * on_floor + P_ELEVATED * _FLAT * smaller + P_UNRELIABLE * _FLAT)
 
 
@@ -332,14 +343,16 @@ def _log_likelihood(log_stature: np.ndarray, e: TrackEvidence) -> np.ndarray:
 _LIKELIHOOD_GRID = np.arange(np.log(0.02), np.log(100.0), 0.002)  # log stature (metres)
 
 
-def _prior_density(x: np.ndarray, sd: float, given_stature_m: float | None) -> tuple[np.ndarray, np.ndarray]:
+def _prior_density(x: np.ndarray, sd: float, prior: tuple[np.ndarray, np.ndarray, np.ndarray]
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """The stature prior (or the given height) blurred by ``sd`` at log statures ``x``, and its
-    probability of a stature below ``x`` (an elevated person is smaller than its floor says)."""
-    weights, means, sds = _components(given_stature_m)
+    probability of a stature below ``x`` by :data:`ELEVATED_MIN_LOG` at least (an elevated person
+    is smaller than its floor says: it stands on a step or more)."""
+    weights, means, sds = prior
     total = np.sqrt(sds ** 2 + sd ** 2)
     z = (x[..., None] - means) / total
     density = np.sum(weights * np.exp(-0.5 * z ** 2) / (total * np.sqrt(2.0 * np.pi)), axis=-1)
-    return density, np.sum(weights * ndtr(z), axis=-1)
+    return density, np.sum(weights * ndtr(z - ELEVATED_MIN_LOG / total), axis=-1)
 
 
 def _components(given_stature_m: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -376,7 +389,7 @@ def person_size(e: TrackEvidence, world: World) -> PersonSize:
     observed = _observed_log_stature(e, world.normal[None])[0] + np.log(world.camera_height_m)
     sd = observation_sd(e)
     if np.isfinite(observed):
-        on_floor, smaller = _prior_density(np.array(observed), sd, e.given_stature_m)
+        on_floor, smaller = _prior_density(np.array(observed), sd, e._prior())
         kinds = {"floor": P_ON_FLOOR * on_floor, "elevated": P_ELEVATED * _FLAT * smaller,
                  "unreliable": P_UNRELIABLE * _FLAT}
         kind = max(kinds, key=lambda k: float(kinds[k]))
@@ -385,16 +398,16 @@ def person_size(e: TrackEvidence, world: World) -> PersonSize:
     if kind != "floor":
         return _prior_size(e, kind, world)
     stature = float(np.clip(np.exp(observed) if e.given_stature_m is None else e.given_stature_m, *HUMAN_STATURE_M))
-    log_sd = _posterior_sd(float(observed), float(np.hypot(sd, world.camera_height_log_sd)), e.given_stature_m)
+    log_sd = _posterior_sd(float(observed), float(np.hypot(sd, world.camera_height_log_sd)), e._prior())
     source = "given" if e.given_stature_m is not None else "floor" if log_sd < 0.8 * _PRIOR_SD else "prior"
     return PersonSize(e.track, stature, log_sd, "floor", source, stature / e.nominal_stature_m,
                       _feet_above_floor(e, world, stature / e.nominal_stature_m))
 
 
-def _posterior(observed: float, sd: float, given_stature_m: float | None) -> np.ndarray:
-    """The stature posterior on :data:`_STATURE_GRID` (normalised): the prior (or the given height)
-    times the observation ``N(observed, sd)`` (log stature)."""
-    weights, means, sds = _components(given_stature_m)
+def _posterior(observed: float, sd: float, prior: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """The stature posterior on :data:`_STATURE_GRID` (normalised): the ``prior`` (weights, log means,
+    log SDs) times the observation ``N(observed, sd)`` (log stature)."""
+    weights, means, sds = prior
     x = _STATURE_GRID[:, None]
     prior = np.sum(weights * np.exp(-0.5 * ((x - means) / sds) ** 2) / sds, axis=1)
     posterior = prior * np.exp(-0.5 * ((_STATURE_GRID - observed) / sd) ** 2)
@@ -402,25 +415,25 @@ def _posterior(observed: float, sd: float, given_stature_m: float | None) -> np.
     return posterior / posterior.sum()
 
 
-def _posterior_sd(observed: float, sd: float, given_stature_m: float | None) -> float:
+def _posterior_sd(observed: float, sd: float, prior: tuple[np.ndarray, np.ndarray, np.ndarray]) -> float:
     """The SD of log stature of :func:`_posterior`."""
-    posterior = _posterior(observed, sd, given_stature_m)
+    posterior = _posterior(observed, sd, prior)
     mean = float(np.sum(posterior * _STATURE_GRID))
     return float(np.sqrt(np.sum(posterior * (_STATURE_GRID - mean) ** 2)))
 
 
-def _prior_mode(given_stature_m: float | None) -> float:
-    """The stature (metres) the prior (or the given height) makes most likely."""
-    return float(np.exp(_STATURE_GRID[np.argmax(_posterior(0.0, 1e6, given_stature_m))]))
+def _prior_mode(prior: tuple[np.ndarray, np.ndarray, np.ndarray]) -> float:
+    """The stature (metres) a ``prior`` makes most likely."""
+    return float(np.exp(_STATURE_GRID[np.argmax(_posterior(0.0, 1e6, prior))]))
 
 
-_PRIOR_SD = _posterior_sd(0.0, 1e6, None)  # the prior's own spread (of log stature)
+_PRIOR_SD = _posterior_sd(0.0, 1e6, _components(None))  # the prior's own spread (of log stature)
 
 
 def _prior_size(e: TrackEvidence, kind: str, world: World | None) -> PersonSize:
     """A track whose size the floor does not give: the prior's mode (or its given height), made
     smaller where that would put its lowest point below the floor (never below the human range)."""
-    stature, log_sd = _prior_mode(e.given_stature_m), _posterior_sd(0.0, 1e6, e.given_stature_m)
+    stature, log_sd = _prior_mode(e._prior()), _posterior_sd(0.0, 1e6, e._prior())
     k = stature / e.nominal_stature_m
     if world is not None and world.floor_known and e.given_stature_m is None:
         touching = _touching_scale(e, world)

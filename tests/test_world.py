@@ -49,7 +49,7 @@ def test_a_child_beside_adults_keeps_their_sizes_with_and_without_the_camera_hei
     assert sizes[2] / sizes[1] == pytest.approx(truth[2] / truth[1], rel=0.05)
     for track, stature in truth.items():
         assert sizes[track] == pytest.approx(stature, rel=0.10)
-    assert free.camera_height_m == pytest.approx(1.6, rel=0.10)
+    assert free.camera_height_m == pytest.approx(1.6, rel=0.15)  # from the people: the prior holds children too
     assert free.camera_height_log_sd > 0.0  # not given: estimated with an error (wide: children or adults?)
 
 
