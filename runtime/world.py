@@ -228,19 +228,19 @@ def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None 
 def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg: tuple[float, float],
                 camera_height_m: float | None) -> World:
     """The cost's minimum over camera tilts about ``normal`` (pitch and roll SDs ``tilt_sds_deg``)
-    and log camera heights (one, when given): a coarse grid, a fine one about its minimum, then the
-    whole height range at the best tilt (the height's spread)."""
+    and log camera heights (one, when given): tilt grids ever finer about the last one's minimum
+    (:data:`TILT_PASSES`; the first on every :data:`COARSE_HEIGHT_STRIDE`-th height, the others on
+    all: a height and a pitch can trade along a narrow valley), then the height's spread at the
+    best tilt."""
     given = None if camera_height_m is None else np.array([np.log(camera_height_m)])
     tilt, log_h = np.zeros(2), _LOG_HEIGHTS[::COARSE_HEIGHT_STRIDE] if given is None else given
-    for step, half_width in ((COARSE_STEP_DEG, TILT_RANGE_DEG), (FINE_STEP_DEG, COARSE_STEP_DEG * 1.5)):
+    for step, half_width in TILT_PASSES:
         offsets = np.arange(-half_width, half_width + 1e-9, step)
         tilts = tilt + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
         cost = _cost(evidence, _tilted_normals(normal, tilts), tilts, tilt_sds_deg, log_h)
         t, h = np.unravel_index(int(np.argmin(cost)), cost.shape)
         tilt = tilts[t]
-        if given is None:  # the fine pass: heights about the coarse minimum
-            near = np.abs(_LOG_HEIGHTS - log_h[h]) <= LOG_HEIGHT_STEP * COARSE_HEIGHT_STRIDE
-            log_h = _LOG_HEIGHTS[near]
+        log_h = _LOG_HEIGHTS if given is None else given  # the finer passes: every height
     best = _tilted_normals(normal, tilt[None])
     log_h = _LOG_HEIGHTS if given is None else given
     cost = _cost(evidence, best, tilt[None], tilt_sds_deg, log_h)[0]
@@ -296,7 +296,7 @@ def tilt_cost(tilts_deg: np.ndarray, sds_deg: tuple[float, float]) -> np.ndarray
     return -np.sum(np.logaddexp(narrow, wide), axis=1)
 
 
-COARSE_STEP_DEG, FINE_STEP_DEG = 1.0, 0.1
+TILT_PASSES = ((2.0, TILT_RANGE_DEG), (0.5, 3.0), (0.1, 0.75))  # (step, half width) of each tilt grid, degrees
 COARSE_HEIGHT_STRIDE = 2  # the coarse pass takes every 2nd height of the grid
 _LOG_HEIGHTS = np.arange(np.log(CAMERA_HEIGHT_RANGE_M[0]), np.log(CAMERA_HEIGHT_RANGE_M[1]), LOG_HEIGHT_STEP)
 

@@ -113,7 +113,8 @@ def test_one_persons_given_height_sizes_everyone_on_the_floor():
     assert world.people[1].source == "given" and world.people[1].stature_m == pytest.approx(1.62, rel=0.01)
     # its own size's error (3 %: the body's fit) lets the prior pull it in a little
     assert world.people[2].stature_m == pytest.approx(1.93, rel=0.06)
-    assert world.camera_height_m == pytest.approx(1.4, rel=0.06)
+    # the camera height trades with the tilt, known to 2° about the axis a walk fixes: within 10 %
+    assert world.camera_height_m == pytest.approx(1.4, rel=0.10)
 
 
 def test_tracks_without_contacts_take_the_priors_size():
