@@ -122,3 +122,18 @@ def test_tracks_without_contacts_take_the_priors_size():
     world = estimate_world([empty])
     assert world.people[7].kind == "no contacts" and world.people[7].source == "prior"
     assert 1.65 <= world.people[7].stature_m <= 1.80
+
+
+def test_a_person_cut_by_the_image_edge_does_not_drag_the_others():
+    """A partial body misjudges its own depth (its nominal contacts 35 % too near): it comes out
+    unreliable or sized apart, and the two whole people keep the sizes they have without it."""
+    rng = np.random.default_rng(5)
+    whole = [_person(1, 1.80, -1.0, 5.0, 1.5, 10.0, rng, walk_m=2.0),
+             _person(2, 1.62, 1.5, 7.0, 1.5, 10.0, rng, walk_m=2.0)]
+    cut = _person(3, 1.70, -2.5, 6.0, 1.5, 10.0, rng, walk_m=2.0)
+    cut = TrackEvidence(3, UNIVERSAL_HEIGHT_M, cut.contacts_m * 0.65, cut.up, 3.0)
+    for height in (1.5, None):
+        alone, world = estimate_world(whole, height), estimate_world([*whole, cut], height)
+        for track in (1, 2):
+            assert world.people[track].stature_m == pytest.approx(alone.people[track].stature_m, rel=0.02)
+        assert HUMAN_STATURE_M[0] <= world.people[3].stature_m <= HUMAN_STATURE_M[1]
