@@ -234,7 +234,6 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
                                  shared_floor=strict, camera_height_m=args.camera_height,
                                  subject_heights_m=subject_heights(args),
                                  lag_frames=args.lag_frames, camera_sources=getattr(args, "camera_sources", {}),
-                                 keep_joints=getattr(args, "preview", False) and args.floor,
                                  people=parse_people(getattr(args, "people", "all")))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
@@ -253,9 +252,9 @@ def add_reconstruct_parser(sub: argparse._SubParsersAction) -> None:
                         "or RTMLib keypoints + scores (layout detected from the keypoint count)")
     p.add_argument("--out", required=True, type=P.OUTPUT_DIR, help="output folder")
     p.add_argument("--preview", action="store_true",
-                   help="also write OUT/preview.png: a contact sheet of 12 frames, the re-projected tracks over the "
-                        "input keypoints beside a 3D view (with --floor: the track files on their floor; "
-                        "`mocapdb render` draws every frame)")
+                   help="also write OUT/preview.png: a contact sheet of 12 frames of the track files, re-projected "
+                        "over the input keypoints beside a 3D view on the take's floor, labelled with their sizes "
+                        "(`mocapdb render` draws every frame)")
     p.add_argument("--people", type=P.TextArg("main, all or track ids"), default="all", metavar="main|all|ID,...",
                    help="which tracks get files: all (default), main (the take's subject: seen long, large, near "
                         "the middle and moving; the summary and OUT/world.json name it) or track ids, e.g. 1,3; "
@@ -278,7 +277,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         session, interrupted = _reconstruct_into(args, tmp, frames)
         summary = session.summary
         if args.preview and summary.frames:
-            _preview(args, tmp, session.files.joints)
+            _preview(args, tmp)
     print(f"wrote {Path(args.out) / 'result.jsonl'} and {len(summary.bvh_files)} track file(s) in {args.out}"
           + (f"; preview {Path(args.out) / 'preview.png'}" if args.preview else ""))
     print(summary.report())
@@ -288,18 +287,17 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     return 0
 
 
-def _preview(args: argparse.Namespace, out_dir, files: dict) -> None:
-    """OUT/preview.png: a contact sheet of the run (:func:`mocapdb.render.video.contact_sheet`). With
-    ``--floor`` its 3D view draws the track files' joints (``files``: ``TrackFiles.joints``), on the
-    floor found as the files are, not the camera-aligned stream."""
+def _preview(args: argparse.Namespace, out_dir) -> None:
+    """OUT/preview.png: a contact sheet of the run (:func:`mocapdb.render.video.contact_sheet`) as
+    `mocapdb render` draws it: the track files just written (re-projected, and in 3D on the take's
+    floor, labelled with their sizes), or the stream when no track got files (said on stderr)."""
     from pathlib import Path
 
-    from mocapdb.core.outputs import CAMERA_FROM_VIEW
     from mocapdb.render.video import contact_sheet
 
-    scene = [(track, frames, joints * CAMERA_FROM_VIEW) for track, frames, joints in files.values()]
     contact_sheet(out_dir, args.input, out_dir / "preview.png", focal=args.focal, image_size=args.image_size,
-                  name=str(Path(args.out) / "result.jsonl"), scene=scene if args.floor else None)
+                  name=str(Path(args.out) / "result.jsonl"),
+                  note=lambda text: print(f"mocapdb reconstruct: preview: {text}", file=sys.stderr))
 
 
 def _input_size(path: str) -> int | None:

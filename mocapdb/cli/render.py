@@ -12,12 +12,17 @@ def add_render_parser(sub: argparse._SubParsersAction) -> None:
     """Add the ``render`` subcommand (``run`` returns the exit code)."""
     p = sub.add_parser(
         "render", help="draw a result: skeletons over the input keypoints/video, a 3D view, stereo cameras",
-        description="Draw the output of `mocapdb reconstruct` frame by frame: each track's 3D skeleton "
+        description="Draw the output of `mocapdb reconstruct` frame by frame: what its track files hold (each "
+                    "track's whole-take fit, read from track_<id>.csv, else .bvh; sizes and floor from world.json) "
                     "re-projected through the pinhole camera (--focal, --image-size as given to reconstruct) in "
-                    "its own colour with its id, over the input keypoints (thin grey) and the video frame (or a "
-                    "dark background), beside an orthographic 3D view with a floor grid. Writes OUT/frame_NNNNNN.png "
-                    "or, with --mp4, one video. For the output of `mocapdb stereo` (a folder holding cameras.json) "
-                    "without --keypoints: one picture of the two cameras and the motion (top and oblique views).")
+                    "its own colour, labelled with its id, 'main' and its stature, over the input keypoints (thin "
+                    "grey) and the video frame (or a dark background), beside an orthographic 3D view of the "
+                    "tracks on their floor (y = 0, the camera drawn at its height) whose grid holds the main track "
+                    "and most of the people, not every outlier. --stream draws the per-frame stream "
+                    "(result.jsonl) instead; a folder without track files or world.json falls back to it with a "
+                    "note. Writes OUT/frame_NNNNNN.png or, with --mp4, one video. For the output of `mocapdb "
+                    "stereo` (a folder holding cameras.json) without --keypoints: one picture of the two cameras "
+                    "and the motion (top and oblique views).")
     p.add_argument("result", type=P.INPUT_ANY,
                    help="the --out folder of `mocapdb reconstruct` or `mocapdb stereo` (or its result.jsonl)")
     p.add_argument("--out", required=True, type=P.OUTPUT,
@@ -39,6 +44,9 @@ def add_render_parser(sub: argparse._SubParsersAction) -> None:
                    help="output pixels per input pixel (default 0.5)")
     p.add_argument("--contact-sheet", type=D.CONTACT_FRAMES, metavar="N",
                    help="write one PNG (--out) holding N evenly spaced frames instead of every frame")
+    p.add_argument("--stream", action="store_true",
+                   help="draw the per-frame stream (result.jsonl: causal, camera-aligned, every person at 1.75 m "
+                        "unless given) instead of the track files")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(run=run_render)
 
@@ -61,6 +69,9 @@ def run_render(args: argparse.Namespace) -> int:
 
     def warn(text: str) -> None:
         print(f"mocapdb render: warning: {text}", file=sys.stderr)
+
+    def note(text: str) -> None:
+        print(f"mocapdb render: note: {text}", file=sys.stderr)
 
     folder = result_path(args.result).parent
     stereo = read_cameras(folder) is not None
@@ -94,10 +105,11 @@ def run_render(args: argparse.Namespace) -> int:
             c = _rc(folder).cameras[0]
             camera = image_camera(float(c.K[0, 0]), c.size)
         out = contact_sheet(args.result, args.keypoints, args.out, args.contact_sheet, focal=float(camera.K[0, 0]),
-                            image_size=camera.size, video=args.video, view=args.view, warn=warn)
+                            image_size=camera.size, video=args.video, view=args.view, warn=warn, stream=args.stream,
+                            note=note)
         print(f"wrote {out} ({args.contact_sheet} frames of {args.result})")
         return 0
     summary = render_result(args.result, args.out, args.keypoints, args.video, args.mp4, camera, args.view,
-                            args.scale, progress=not args.no_progress, warn=warn)
+                            args.scale, progress=not args.no_progress, warn=warn, stream=args.stream, note=note)
     print(summary.report())
     return 0

@@ -112,11 +112,11 @@ def draw_skeleton_px(img: np.ndarray, px: np.ndarray, colour, label: str | None 
                      max(1, w // 2), "centre")
 
 
-def track_label(track: int, distance_2d: float | None = None, at_edge: bool = False) -> str:
-    """``#3``; ``poor match 2.4`` added when the database's pose is far from the keypoints (Eq. 1
-    distance), ``at image edge`` when the skeleton touches the image's border (often a false
-    detection, or a person cut by the frame)."""
-    text = f"#{track}"
+def track_label(track: int, distance_2d: float | None = None, at_edge: bool = False, name: str | None = None) -> str:
+    """``#3`` (or ``name``); ``poor match 2.4`` added when the database's pose is far from the
+    keypoints (Eq. 1 distance), ``at image edge`` when the skeleton touches the image's border
+    (often a false detection, or a person cut by the frame)."""
+    text = name or f"#{track}"
     if distance_2d is not None and distance_2d > POOR_MATCH:
         text += f" poor match {distance_2d:.1f}"
     if at_edge:
@@ -312,3 +312,55 @@ def draw_camera_3d(img: np.ndarray, view: View3D, centre: np.ndarray, axes: np.n
     cv2.circle(img, _pt(up_edge), w + 2, colour, -1, cv2.LINE_AA)
     cv2.circle(img, _pt(pts[0]), w + 3, colour, -1, cv2.LINE_AA)
     put_text(img, name, (int(pts[0][0]) + 10, int(pts[0][1]) - 10), 0.5 + size[1] / 2000, colour, max(1, w // 2 + 1))
+
+
+def people_view(tracks: dict[int, np.ndarray], main: int | None = None, basis: np.ndarray | None = None,
+                floor: float | None = None, camera: np.ndarray | None = None, share: float = 0.9,
+                margin_m: float = 0.8, min_half_m: float = 1.5, azimuth_deg: float = -35.0,
+                elevation_deg: float = 22.0) -> View3D:
+    """A :class:`View3D` at a scale that shows people: its floor square holds the ``main`` track's
+    whole pelvis path and the middle ``share`` of everyone's pelvis positions (their frames pooled),
+    plus ``margin_m`` (metres; half side at least ``min_half_m``), so a short-lived outlier 50 m
+    away is left outside instead of shrinking everyone to dots. ``tracks``: per track id its poses
+    ``[F, 15, 3]`` (input coordinates); ``basis`` None: up from the bodies (:func:`body_up`);
+    ``floor`` None: the low ankles' level minus 8 cm, else that scene height (0: the files' floor);
+    ``camera``: a point (input coordinates) taken into the square when within twice its half side."""
+    poses = [p for p in tracks.values() if len(p)]
+    everyone = np.concatenate(poses) if poses else np.zeros((0, len(KP), 3))
+    basis = basis_with_up(body_up(everyone)) if basis is None else np.asarray(basis, dtype=np.float64)
+    view = fit_view(everyone, basis, azimuth_deg=azimuth_deg, elevation_deg=elevation_deg)
+    pelvis = everyone[:, PELVIS] @ basis.T
+    ok = np.all(np.isfinite(pelvis), axis=1)
+    if not np.any(ok):
+        return view
+    lo, hi = np.percentile(pelvis[ok][:, [0, 2]], [50 * (1 - share), 50 * (1 + share)], axis=0)
+    if main is not None and main in tracks and len(tracks[main]):
+        path = (tracks[main][:, PELVIS] @ basis.T)[:, [0, 2]]
+        path = path[np.all(np.isfinite(path), axis=1)]
+        if len(path):
+            lo, hi = np.minimum(lo, path.min(axis=0)), np.maximum(hi, path.max(axis=0))
+    centre, half = (lo + hi) / 2, max(float(np.max(hi - lo)) / 2 + margin_m, min_half_m)
+    if camera is not None:
+        cam = (np.asarray(camera, dtype=np.float64) @ basis.T)[[0, 2]]
+        if np.max(np.abs(cam - centre)) <= 2 * half:
+            lo, hi = np.minimum(lo, cam), np.maximum(hi, cam)
+            centre, half = (lo + hi) / 2, float(np.max(hi - lo)) / 2 + margin_m
+    inside = np.all(np.abs(pelvis[:, [0, 2]] - centre) <= half, axis=1)
+    heights = (everyone[inside] @ basis.T)[..., 1].ravel()
+    heights = heights[np.isfinite(heights)]
+    view.floor = view.floor if floor is None else float(floor)
+    view.top = max(float(np.percentile(heights, 99)) if len(heights) else view.floor, view.floor + 1.9)
+    if camera is not None and np.max(np.abs(cam - centre)) <= half:
+        view.top = max(view.top, float((np.asarray(camera) @ basis.T)[1]))
+    view.centre, view.half_extent = centre, half
+    return view
+
+
+def draw_legend(img: np.ndarray, lines: list[tuple[tuple[int, int, int], str]], origin: tuple[int, int],
+                scale: float) -> None:
+    """Lines of text, each in its colour, from ``origin`` (pixels, the first line's baseline) down."""
+    (_, h), _ = cv2.getTextSize("Ag", FONT, scale, 1)
+    x, y = origin
+    for colour, text in lines:
+        put_text(img, text, (x, y), scale, colour, 1)
+        y += int(h * 1.7) + 1

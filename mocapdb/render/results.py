@@ -41,6 +41,7 @@ class TrackPose:
     joints: np.ndarray
     height: float | None = None
     distance_2d: float | None = None   # the match's Eq. 1 distance (None for stereo results)
+    label: str | None = None           # drawn instead of "#<track>" (the track files': id, main, stature)
 
 
 @dataclass

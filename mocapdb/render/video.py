@@ -28,9 +28,18 @@ from mocapdb.core.outputs import (
     output_folder,
 )
 from mocapdb.core.progress import progress as progress_bar
-from mocapdb.core.skeleton import N_POINTS, PELVIS
+from mocapdb.core.skeleton import PELVIS
 from mocapdb.render import draw
-from mocapdb.render.results import RenderError, ResultFrame, TrackPose, overlap, read_cameras, read_result
+from mocapdb.render.results import (
+    RenderError,
+    ResultFrame,
+    ResultStream,
+    TrackPose,
+    overlap,
+    read_cameras,
+    read_result,
+)
+from mocapdb.render.tracks import FileScene, file_scene, people_at
 
 VIEWS = ("both", "image", "3d")
 DEFAULT_FOCAL = 1000.0           # the defaults of `mocapdb reconstruct`
@@ -57,12 +66,14 @@ def image_camera(focal_px: float, size: tuple[int, int], principal_px: tuple[flo
 @dataclass
 class Layout:
     """Where things go in an output frame: the image panel (input image scaled, with a margin
-    showing what falls outside it) and/or the square 3D panel to its right."""
+    showing what falls outside it) and/or the square 3D panel to its right; ``scene``: the track
+    files drawn (their camera and legend in the 3D panel), None for the stream."""
     camera: CameraModel
     view: str
     view3d: draw.View3D
     scale: float = 1.0
     margin: float = 0.06
+    scene: FileScene | None = None
 
     def __post_init__(self):
         if self.view not in VIEWS:
@@ -101,48 +112,88 @@ def compose_frame(layout: Layout, frame: ResultFrame, keypoints=None, video_fram
                   people_3d: list[TrackPose] | None = None) -> np.ndarray:
     """One output image (BGR) of a result frame: the re-projected skeletons over the input keypoints
     (grey) and the video frame, and/or the 3D panel. ``trails``: per track the recent pelvis
-    positions, drawn in the 3D panel; ``people_3d``: who the 3D panel draws (default the frame's people)."""
-    cam = layout.camera
+    positions (input coordinates of the 3D view), drawn in the 3D panel; ``people_3d``: who the 3D
+    panel draws (default the frame's people)."""
     people = sorted(frame.people, key=lambda p: -float(np.nan_to_num(p.joints[PELVIS, 2], nan=0.0)))
     out = np.zeros((layout.size[1], layout.size[0], 3), np.uint8)
     x0 = 0
     text_scale = 0.35 + layout.size[1] / 1800
     if layout.view != "3d":
-        img = _fresh_background(layout, video_frame)
-        m = layout.margin_px
-        if keypoints is not None:
-            for person in keypoints.people:
-                draw.draw_keypoints_2d(img, person.points_px, person.confidence, (m, m), layout.scale)
-        for p in people:
-            px = draw.project_pinhole(p.joints, cam.K[0, 0], (cam.K[0, 2], cam.K[1, 2]))
-            edge = draw.at_image_edge(px, cam.size)
-            draw.draw_skeleton_px(img, px * layout.scale + m, draw.track_colour(p.track),
-                                  draw.track_label(p.track, p.distance_2d, edge))
+        img = image_panel(layout, people, keypoints, video_frame)
         out[:img.shape[0], :img.shape[1]] = img
         x0 = img.shape[1]
     if layout.view != "image":
-        pw, side = layout.panel_3d
-        panel = np.full((side, pw, 3), 24, np.uint8)
-        draw.draw_floor(panel, layout.view3d)
-        if trails is not None:
-            for track, trail in trails.items():
-                if len(trail) > 1:
-                    flat = layout.view3d.scene(np.array(trail))
-                    flat[:, 1] = layout.view3d.floor
-                    px, _ = layout.view3d.project(flat, (pw, side), scene=True)
-                    colour = tuple(int(c * 0.55) for c in draw.track_colour(track))
-                    cv2.polylines(panel, [np.round(px).astype(np.int32)], False, colour, 1, cv2.LINE_AA)
-        shown = people if people_3d is None else people_3d
-        ordered = sorted(shown, key=lambda p: -float(np.nanmean(layout.view3d.project(p.joints, (pw, side))[1])))
-        for p in ordered:
-            draw.draw_skeleton_3d(panel, layout.view3d, p.joints, draw.track_colour(p.track), f"#{p.track}")
-        draw.put_text(panel, "3D, orthographic", (8, int(28 * text_scale) + 8), text_scale, (170, 170, 170))
-        out[:side, x0:x0 + pw] = panel
+        panel = panel_3d(layout, people if people_3d is None else people_3d, trails, text_scale)
+        out[:panel.shape[0], x0:x0 + panel.shape[1]] = panel
     t = "" if math.isnan(frame.time_s) else f"  {frame.time_s:.2f} s"
     draw.put_text(out, caption or f"frame {frame.index}{t}  people {len(frame.people)}",
                   (8, int(28 * text_scale) + 8 + (int(40 * text_scale) if layout.view == "3d" else 0)),
                   text_scale, draw.TEXT_COLOUR, 1 if text_scale < 1 else 2)
     return out
+
+
+def image_panel(layout: Layout, people: list[TrackPose], keypoints=None, video_frame: np.ndarray | None = None
+                ) -> np.ndarray:
+    """The image panel: the video frame (or a dark background), the input keypoints (grey) and each
+    person (camera-aligned joints) re-projected through the layout's camera, labelled."""
+    cam = layout.camera
+    img = _fresh_background(layout, video_frame)
+    m = layout.margin_px
+    if keypoints is not None:
+        for person in keypoints.people:
+            draw.draw_keypoints_2d(img, person.points_px, person.confidence, (m, m), layout.scale)
+    for p in people:
+        px = draw.project_pinhole(p.joints, cam.K[0, 0], (cam.K[0, 2], cam.K[1, 2]))
+        edge = draw.at_image_edge(px, cam.size)
+        draw.draw_skeleton_px(img, px * layout.scale + m, draw.track_colour(p.track),
+                              draw.track_label(p.track, p.distance_2d, edge, p.label))
+    return img
+
+
+def panel_3d(layout: Layout, people: list[TrackPose], trails: dict[int, deque] | None = None,
+             text_scale: float = 0.6) -> np.ndarray:
+    """The 3D panel: the floor grid, the pelvis trails, the people (far ones first), and for the
+    track files the camera and a legend of the tracks' sizes."""
+    view, (pw, side) = layout.view3d, layout.panel_3d
+    panel = np.full((side, pw, 3), 24, np.uint8)
+    draw.draw_floor(panel, view)
+    for track, trail in (trails or {}).items():
+        if len(trail) > 1:
+            flat = view.scene(np.array(trail))
+            flat[:, 1] = view.floor
+            px, _ = view.project(flat, (pw, side), scene=True)
+            colour = tuple(int(c * 0.55) for c in draw.track_colour(track))
+            cv2.polylines(panel, [np.round(px).astype(np.int32)], False, colour, 1, cv2.LINE_AA)
+    scene = layout.scene
+    if scene is not None and scene.camera_scene is not None:
+        _draw_camera(panel, layout)
+    for p in sorted(people, key=lambda p: -float(np.nanmean(view.project(p.joints, (pw, side))[1]))):
+        draw.draw_skeleton_3d(panel, view, p.joints, draw.track_colour(p.track), p.label or f"#{p.track}")
+    title = "3D, orthographic" if scene is None else (
+        "3D on the floor (y = 0), orthographic" if scene.on_floor else "3D (no floor found), orthographic")
+    y = int(28 * text_scale) + 8
+    draw.put_text(panel, title, (8, y), text_scale, (170, 170, 170))
+    if scene is not None:
+        lines = [(draw.track_colour(t.track), t.legend) for t in scene.tracks]
+        draw.draw_legend(panel, lines, (8, y + int(34 * text_scale)), 0.8 * text_scale)
+    return panel
+
+
+def _draw_camera(panel: np.ndarray, layout: Layout) -> None:
+    """The camera of the track files' floor as a small frustum with its height, and a line down
+    to the floor under it; only when it falls inside the floor grid."""
+    view, scene = layout.view3d, layout.scene
+    centre = scene.camera_scene
+    if np.max(np.abs(view.scene(centre)[[0, 2]] - view.centre)) > view.half_extent:
+        return
+    cam = layout.camera
+    fov = (cam.size[0] / 2 / cam.K[0, 0], cam.size[1] / 2 / cam.K[1, 1])
+    foot = centre * [1.0, 0.0, 1.0] + [0.0, view.floor, 0.0]
+    px, _ = view.project(np.array([centre, foot]), panel.shape[1::-1])
+    cv2.line(panel, draw._pt(px[0]), draw._pt(px[1]), (150, 150, 150), 1, cv2.LINE_AA)
+    draw.draw_camera_3d(panel, view, centre, scene.camera_axes, fov, 0.08 * view.half_extent, (200, 200, 200), "")
+    draw.put_text(panel, f"camera {scene.world.height_m:.2f} m up", (int(px[0][0]) + 8, int(px[0][1]) - 8),
+                  0.3 + panel.shape[0] / 2400, (200, 200, 200))
 
 
 class VideoFrames:
@@ -220,11 +271,13 @@ class RenderSummary:
     out: Path
     seconds: float
     warnings: list[str] = field(default_factory=list)
+    drawn: str = "the per-frame stream"   # or the track files (FileScene.describe)
 
     def report(self) -> str:
         tracks = ", ".join(f"#{t}" for t in self.tracks) or "none"
         warn = f"; {len(self.warnings)} warning(s)" if self.warnings else ""
-        return f"rendered {self.frames} frame(s), tracks {tracks}, to {self.out} in {self.seconds:.1f} s{warn}"
+        return (f"rendered {self.frames} frame(s) of {self.drawn}, tracks {tracks}, to {self.out} in "
+                f"{self.seconds:.1f} s{warn}")
 
 
 def _check_keypoint_extent(keypoints: list, camera: CameraModel, warn: Callable[[str], None]) -> None:
@@ -241,12 +294,14 @@ def _check_keypoint_extent(keypoints: list, camera: CameraModel, warn: Callable[
 
 def prepare(result: str | Path, keypoints: str | Path | list | None, camera: CameraModel | None,
             video: VideoFrames | None, view: str, scale: float, margin: float, warn: Callable[[str], None],
-            scene_joints: np.ndarray | None = None):
-    """Read and check the inputs: (stream, frame pairs, layout). The 3D view holds the stream, up
-    from the bodies, or ``scene_joints [N, 15, 3]`` in a levelled world (y up)."""
+            files: bool = True, note: Callable[[str], None] | None = None):
+    """Read and check the inputs: (stream, frame pairs, layout). With ``files`` the layout draws a
+    reconstruction's track files (:func:`choose_scene`; ``note`` says why not when it falls back to
+    the stream), its 3D view on their floor at a scale that shows the people
+    (:func:`~mocapdb.render.draw.people_view`); else the stream, its 3D view up from the bodies."""
     stream = read_result(result)
+    cams = read_cameras(stream.path.parent)
     if camera is None:
-        cams = read_cameras(stream.path.parent)
         if cams is not None:   # a stereo result: camera 1's own intrinsics
             c = cams.cameras[0]
             camera = image_camera(float(c.K[0, 0]), c.size, (float(c.K[0, 2]), float(c.K[1, 2])))
@@ -262,14 +317,38 @@ def prepare(result: str | Path, keypoints: str | Path | list | None, camera: Cam
     if keypoints is not None:
         _check_keypoint_extent(keypoints, camera, warn)
     pairs = overlap(stream, keypoints, video.count if video is not None else None, warn)
-    view3d = draw.fit_view(stream.all_joints()) if scene_joints is None else draw.fit_view(scene_joints, np.eye(3))
-    return stream, pairs, Layout(camera, view, view3d, scale, margin)
+    scene = choose_scene(stream, note) if files and cams is None else None
+    if scene is None:
+        return stream, pairs, Layout(camera, view, draw.fit_view(stream.all_joints()), scale, margin)
+    view3d = draw.people_view({t.track: t.scene for t in scene.tracks}, scene.main_track,
+                              np.eye(3) if scene.on_floor else None, 0.0 if scene.on_floor else None,
+                              scene.camera_scene)
+    return stream, pairs, Layout(camera, view, view3d, scale, margin, scene)
+
+
+def choose_scene(stream: ResultStream, note: Callable[[str], None] | None = None) -> FileScene | None:
+    """The track files beside a stream (:func:`~mocapdb.render.tracks.file_scene`), or None when
+    there are none to draw, ``note`` told why (the stream is drawn instead)."""
+    scene, why = file_scene(stream.path.parent, stream)
+    if scene is None and note is not None:
+        note(f"drawing the per-frame stream ({stream.path.name}): {why}")
+    return scene
+
+
+def as_drawn(layout: Layout, frame: ResultFrame) -> tuple[ResultFrame, list[TrackPose] | None]:
+    """A result frame as the layout draws it: with the track files' people (camera-aligned) and
+    theirs on the floor for the 3D view; the stream's frame itself (the 3D view the same people)."""
+    if layout.scene is None:
+        return frame, None
+    image, floor = people_at(layout.scene, frame)
+    return ResultFrame(frame.index, frame.time_s, image), floor
 
 
 def render_result(result: str | Path, out: str | Path, keypoints: str | Path | None = None,
                   video: str | Path | None = None, mp4: bool = False, camera: CameraModel | None = None,
                   view: str = "both", scale: float = 1.0, margin: float = 0.06, progress: bool = True,
-                  warn: Callable[[str], None] | None = None) -> RenderSummary:
+                  warn: Callable[[str], None] | None = None, stream: bool = False,
+                  note: Callable[[str], None] | None = None) -> RenderSummary:
     """Draw every frame of a result (folder or ``result.jsonl``): PNG frames ``out/frame_NNNNNN.png``
     (NNNNNN: the frame number) in a folder that replaces ``out`` whole once complete, or with
     ``mp4`` one video (:func:`mp4_path`) at the stream's frame rate; an existing ``out`` that is not
@@ -280,6 +359,10 @@ def render_result(result: str | Path, out: str | Path, keypoints: str | Path | N
     as given to reconstruct (None: a stereo result's camera 1, else reconstruct's defaults);
     ``view``: ``both`` (image and 3D panels), ``image`` or ``3d``; ``scale``: output pixels per
     input pixel. ``warn`` receives each warning (they are also in the summary).
+
+    A reconstruction's track files are drawn (the whole take; on their floor in the 3D view: see
+    :func:`prepare`) unless ``stream`` (the per-frame stream, result.jsonl) or there are none to
+    draw (then ``note`` says why and the stream is drawn).
     """
     start = time.perf_counter()
     warnings: list[str] = []
@@ -297,34 +380,40 @@ def render_result(result: str | Path, out: str | Path, keypoints: str | Path | N
         check_output_folder(out, FRAME_FILES)
     frames_in = VideoFrames(video) if video is not None else None
     try:
-        stream, pairs, layout = prepare(result, keypoints, camera, frames_in, view, scale, margin, _warn)
+        result_stream, pairs, layout = prepare(result, keypoints, camera, frames_in, view, scale, margin, _warn,
+                                               not stream, note)
         trails: dict[int, deque] = {}
-        with _frame_sink(Path(out), mp4, stream.fps, layout.size) as write:
+        tracks: set[int] = set()
+        with _frame_sink(Path(out), mp4, result_stream.fps, layout.size) as write:
             for rframe, kframe in (progress_bar(pairs, desc="render", unit="frame") if progress else pairs):
-                seen = set()
-                for p in rframe.people:
-                    trails.setdefault(p.track, deque(maxlen=max(2, int(stream.fps)))).append(p.joints[PELVIS])
-                    seen.add(p.track)
-                for gone in [t for t in trails if t not in seen]:
-                    del trails[gone]
+                frame, people_3d = as_drawn(layout, rframe)
+                _follow(trails, frame.people if people_3d is None else people_3d, int(result_stream.fps))
+                tracks.update(p.track for p in frame.people)
                 background = frames_in.get(rframe.index) if frames_in is not None else None
-                write(rframe.index, compose_frame(layout, rframe, kframe, background, trails))
+                write(rframe.index, compose_frame(layout, frame, kframe, background, trails, people_3d=people_3d))
         written = mp4_path(out) if mp4 else Path(out)
     finally:
         if frames_in is not None:
             frames_in.close()
-    tracks = sorted({p.track for f, _ in pairs for p in f.people})
-    return RenderSummary(len(pairs), tracks, written, time.perf_counter() - start, warnings)
+    return RenderSummary(len(pairs), sorted(tracks), written, time.perf_counter() - start, warnings,
+                         "the per-frame stream" if layout.scene is None else layout.scene.describe())
 
 
-Scene = list[tuple[int, np.ndarray, np.ndarray]]  # per track: its id, frame numbers [F], joints [F, 15, 3]
+def _follow(trails: dict[int, deque], people: list[TrackPose], length: int) -> None:
+    """Add each person's pelvis to its track's trail (at most ``length`` points); drop the trails of
+    tracks not in ``people``."""
+    for p in people:
+        trails.setdefault(p.track, deque(maxlen=max(2, length))).append(p.joints[PELVIS])
+    seen = {p.track for p in people}
+    for gone in [t for t in trails if t not in seen]:
+        del trails[gone]
 
 
 def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, out_png: str | Path, n: int = 12, *,
                   focal: float = DEFAULT_FOCAL, image_size: tuple[int, int] = DEFAULT_IMAGE_SIZE,
                   video: str | Path | None = None, view: str = "both", tile_height: int = 520,
                   columns: int | None = None, warn: Callable[[str], None] | None = None,
-                  name: str | None = None, scene: Scene | None = None) -> Path:
+                  name: str | None = None, stream: bool = False, note: Callable[[str], None] | None = None) -> Path:
     """One PNG: a grid of ``n`` evenly spaced frames of a result with their overlays (the
     re-projected skeletons over the input keypoints, and the 3D view with ``view="both"``).
 
@@ -332,9 +421,8 @@ def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, o
     ``keypoints``: its input (folder, file, or frames already read; None: skeletons only);
     ``focal`` (px) and ``image_size`` (width, height px): as given to reconstruct; ``video``:
     optional frames underneath; ``tile_height``: pixels per tile; ``name``: the result as the title
-    shows it (default its folder and file name); ``scene``: what the 3D view draws instead of the
-    stream, per track its id, frame numbers and joints (metres in a levelled world: y up, z away from
-    the camera as in the stream; ``reconstruct --preview --floor``: the track files' joints, z negated).
+    shows it (default its folder and file name). Draws the track files (on their floor in the 3D
+    view) unless ``stream`` or there are none (``note`` says why), as :func:`render_result`.
     Frames are chosen evenly among those the result and keypoints share. Written atomically,
     replacing only a PNG (checked first); returns ``out_png``. Raises
     :class:`~mocapdb.render.results.RenderError` on unusable inputs (``reconstruct --preview``).
@@ -347,19 +435,29 @@ def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, o
     try:
         full_h = camera.size[1] * (1 + 2 * 0.06)
         scale = max(0.05, tile_height / full_h)
-        by_frame = None if scene is None else _scene_by_frame(scene)
-        stream, pairs, layout = prepare(result_dir, keypoints, camera, frames_in, view, scale, 0.06,
-                                        warn or (lambda text: None), None if scene is None else _scene_joints(scene))
+        result, pairs, layout = prepare(result_dir, keypoints, camera, frames_in, view, scale, 0.06,
+                                        warn or (lambda text: None), not stream, note)
         picks = sorted(set(np.round(np.linspace(0, len(pairs) - 1, min(n, len(pairs)))).astype(int).tolist()))
         tiles = []
         for i in picks:
             rframe, kframe = pairs[i]
             background = frames_in.get(rframe.index) if frames_in is not None else None
-            people_3d = None if by_frame is None else by_frame.get(rframe.index, [])
-            tiles.append(compose_frame(layout, rframe, kframe, background, people_3d=people_3d))
+            frame, people_3d = as_drawn(layout, rframe)
+            tiles.append(compose_frame(layout, frame, kframe, background, people_3d=people_3d))
     finally:
         if frames_in is not None:
             frames_in.close()
+    tracks = result.tracks if layout.scene is None else [t.track for t in layout.scene.tracks]
+    drawn = "the stream" if layout.scene is None else layout.scene.describe()
+    shown = name or f"{result.path.parent.name}/{result.path.name}"
+    title = (f"{shown}: {len(tiles)} of {len(pairs)} frames of {drawn}, {len(tracks)} track(s), "
+             f"focal {camera.K[0, 0]:g} px, image {camera.size[0]}x{camera.size[1]}")
+    return write_png(out_png, _sheet(tiles, title, tracks, columns))
+
+
+def _sheet(tiles: list[np.ndarray], title: str, tracks: list[int], columns: int | None = None) -> np.ndarray:
+    """Tiles of one size in a grid (``columns``, default about 1.5 times as wide as high) under a
+    title line followed by the tracks' ids in their colours."""
     th, tw = tiles[0].shape[:2]
     cols = columns or max(1, min(len(tiles), round(math.sqrt(len(tiles) * 1.5 * th / tw))))
     rows = math.ceil(len(tiles) / cols)
@@ -369,10 +467,6 @@ def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, o
         r, c = divmod(k, cols)
         y, x = title_h + r * (th + gap), c * (tw + gap)
         sheet[y:y + th, x:x + tw] = tile
-    tracks = stream.tracks
-    shown = name or f"{stream.path.parent.name}/{stream.path.name}"
-    title = (f"{shown}: {len(tiles)} of {len(pairs)} frames, "
-             f"{len(tracks)} track(s), focal {camera.K[0, 0]:g} px, image {camera.size[0]}x{camera.size[1]}")
     tscale = title_h / 45
     draw.put_text(sheet, title, (8, int(title_h * 0.72)), tscale, draw.TEXT_COLOUR, 1)
     (tw_text, _), _ = cv2.getTextSize(title, draw.FONT, tscale, 1)
@@ -380,21 +474,7 @@ def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, o
     for t in tracks[:10]:
         draw.put_text(sheet, f"#{t}", (x, int(title_h * 0.72)), tscale, draw.track_colour(t), 2)
         x += int(60 * tscale) + 10
-    return write_png(out_png, sheet)
-
-
-def _scene_by_frame(scene: Scene) -> dict[int, list[TrackPose]]:
-    """Per frame number, the people of a :func:`contact_sheet` scene in it."""
-    by_frame: dict[int, list[TrackPose]] = {}
-    for track, frames, joints in scene:
-        for index, pose in zip(np.asarray(frames).tolist(), joints):
-            by_frame.setdefault(index, []).append(TrackPose(track, pose))
-    return by_frame
-
-
-def _scene_joints(scene: Scene) -> np.ndarray:
-    """Every pose of a :func:`contact_sheet` scene, ``[N, 15, 3]``."""
-    return np.concatenate([joints for _, _, joints in scene]) if scene else np.zeros((0, N_POINTS, 3))
+    return sheet
 
 
 def _stereo_basis(cams) -> np.ndarray | None:
