@@ -118,7 +118,7 @@ def test_render_draws_the_track_files_on_their_floor_at_a_scale_that_shows_the_p
     inside = lambda p: np.max(np.abs(p[[0, 2]] * [1, -1] - view.centre)) <= view.half_extent  # noqa: E731
     assert all(inside(tracks[1][t, PELVIS]) for t in (0, FRAMES - 1)) and inside(tracks[2][0, PELVIS])
     assert not inside(tracks[3][0, PELVIS]) and view.half_extent < 10.0
-    assert view.top == pytest.approx(1.9)   # the least height the view shows (heads at 1.63 m; the camera is 5 m off)
+    assert 1.9 <= view.top < 3.0   # heads at 1.63 m, room for labels; not the far person, not the camera 5 m off
     # the image: the main track's pelvis where the camera sees it (hand: view y = 1.524, z = 3.739 m)
     px, label = next((px, label) for px, label in drawn["image"] if label.startswith("#1 main"))
     layout_margin = round(0.06 * max(SIZE) * 0.25)

@@ -352,6 +352,7 @@ def people_view(tracks: dict[int, np.ndarray], main: int | None = None, basis: n
     view.top = max(float(np.percentile(heights, 99)) if len(heights) else view.floor, view.floor + 1.9)
     if camera is not None and np.max(np.abs(cam - centre)) <= half:
         view.top = max(view.top, float((np.asarray(camera) @ basis.T)[1]))
+    view.top += 0.2 + 0.1 * half   # room for the labels above the heads
     view.centre, view.half_extent = centre, half
     return view
 

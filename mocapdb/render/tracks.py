@@ -41,12 +41,14 @@ _Y = np.array([0.0, 1.0, 0.0])
 @dataclass
 class WorldFloor:
     """What ``world.json`` says: the floor (``normal_view``, unit, view frame; ``height_m`` the
-    camera's height above it; both None when the take found no floor), the main track and each
-    track's facts as written (stature_m, legs_m, kind, feet_above_floor_m, flags, ...)."""
+    camera's height above it; both None when the take found no floor), the main track, each
+    track's facts as written (stature_m, legs_m, kind, feet_above_floor_m, flags, ...) and the
+    camera's record (height_given, pitch_deg, roll_deg, ...)."""
     normal_view: np.ndarray | None
     height_m: float | None
     main_track: int | None
     tracks: dict[int, dict]
+    camera: dict | None = None
 
     @property
     def known(self) -> bool:
@@ -87,7 +89,8 @@ def read_world(folder: str | Path) -> WorldFloor | None:
     except (json.JSONDecodeError, TypeError, KeyError, ValueError) as exc:
         raise RenderError(f"{path}: not a world file of `mocapdb reconstruct` ({exc})") from None
     return WorldFloor(None if normal is None else normal / np.linalg.norm(normal),
-                      None if height is None else float(height), main if isinstance(main, int) else None, tracks)
+                      None if height is None else float(height), main if isinstance(main, int) else None, tracks,
+                      camera)
 
 
 @dataclass
@@ -316,7 +319,7 @@ def file_scene(folder: str | Path, stream: ResultStream) -> tuple[FileScene | No
     (no track files, no ``world.json``, files that do not line up with the stream)."""
     world = read_world(folder)
     if world is None:
-        return None, f"{Path(folder)} has no {WORLD_FILE} (not a reconstruction of this version)"
+        return None, f"{Path(folder)} has no {WORLD_FILE} (--per-frame runs and older versions write none)"
     files = read_track_files(folder, stream)
     if not files:
         return None, f"{Path(folder)} has no track files of the stream's tracks"

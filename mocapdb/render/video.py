@@ -151,9 +151,9 @@ def image_panel(layout: Layout, people: list[TrackPose], keypoints=None, video_f
 
 
 def panel_3d(layout: Layout, people: list[TrackPose], trails: dict[int, deque] | None = None,
-             text_scale: float = 0.6) -> np.ndarray:
+             text_scale: float = 0.6, legend: bool = True) -> np.ndarray:
     """The 3D panel: the floor grid, the pelvis trails, the people (far ones first), and for the
-    track files the camera and a legend of the tracks' sizes."""
+    track files the camera and (``legend``) a legend of the tracks' sizes."""
     view, (pw, side) = layout.view3d, layout.panel_3d
     panel = np.full((side, pw, 3), 24, np.uint8)
     draw.draw_floor(panel, view)
@@ -173,7 +173,7 @@ def panel_3d(layout: Layout, people: list[TrackPose], trails: dict[int, deque] |
         "3D on the floor (y = 0), orthographic" if scene.on_floor else "3D (no floor found), orthographic")
     y = int(28 * text_scale) + 8
     draw.put_text(panel, title, (8, y), text_scale, (170, 170, 170))
-    if scene is not None:
+    if scene is not None and legend:
         lines = [(draw.track_colour(t.track), t.legend) for t in scene.tracks]
         draw.draw_legend(panel, lines, (8, y + int(34 * text_scale)), 0.8 * text_scale)
     return panel
@@ -192,8 +192,8 @@ def _draw_camera(panel: np.ndarray, layout: Layout) -> None:
     px, _ = view.project(np.array([centre, foot]), panel.shape[1::-1])
     cv2.line(panel, draw._pt(px[0]), draw._pt(px[1]), (150, 150, 150), 1, cv2.LINE_AA)
     draw.draw_camera_3d(panel, view, centre, scene.camera_axes, fov, 0.08 * view.half_extent, (200, 200, 200), "")
-    draw.put_text(panel, f"camera {scene.world.height_m:.2f} m up", (int(px[0][0]) + 8, int(px[0][1]) - 8),
-                  0.3 + panel.shape[0] / 2400, (200, 200, 200))
+    draw.put_text(panel, f"camera {scene.world.height_m:.2f} m up", (int(px[1][0]), int(px[1][1]) + 16),
+                  0.3 + panel.shape[0] / 2400, (200, 200, 200), anchor="centre")
 
 
 class VideoFrames:
