@@ -35,7 +35,7 @@ from mocapdb.runtime import refine
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.lag import FixedLag
 from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source, StreamStats
-from mocapdb.runtime.subject import chosen, main_track
+from mocapdb.runtime.subject import chosen, join_fragments, main_track
 from mocapdb.runtime.take import TakeParams, fit_take
 from mocapdb.runtime.world import fit_world, track_facts, world_line, world_record
 
@@ -291,22 +291,29 @@ class TrackFiles:
         for rec, name in waiting:
             self._save(rec, name)
         held, self._held = self._held, []
-        if not held:
-            return
-        fitted, world = fit_world([rec for rec, _ in held], self.fps, self.options.take,
-                                  self.options.camera_height_m, self.options.subject_heights_m)
-        recordings = [rec for rec, _ in held]  # with their input keypoints (the fits drop them)
+        if held:
+            self._write_world(held)
+
+    def _write_world(self, held: list[tuple[TrackRecording, str]]) -> None:
+        """The held recordings as one take: fragments of one person joined, one world, its subject;
+        the files of the tracks ``--people`` asks for, the summary's lines and ``world.json``."""
+        names = {rec.track: name for rec, name in held}
+        recordings, joined = join_fragments([rec for rec, _ in held], self.fps)  # with their input keypoints
+        fitted, world = fit_world(recordings, self.fps, self.options.take, self.options.camera_height_m,
+                                  self.options.subject_heights_m)
         main = main_track(recordings, 2.0 * recordings[0].camera_px[1] if recordings[0].camera_px else 1.0)
         written = {rec.track for rec in chosen(fitted, self.options.people, main)}
         facts = [track_facts(rec, world) for rec in fitted]
         self.summary.world_lines = [world_line(world)] + [f.line(f.track == main, f.track in written) for f in facts]
-        for rec, (_, name) in zip(fitted, held):
+        self.summary.world_lines += [f"track {track} joined into track {into} (one person lost and found again)"
+                                     for track, into in joined.items()]
+        for rec in fitted:
             if rec.track in written:
-                self._write_files(rec, name)
-            else:
-                self._names.discard(name)
+                self._write_files(rec, names.pop(rec.track))
+        for name in names.values():
+            self._names.discard(name)
         if self.options.bvh_dir is not None:
-            record = world_record(world, facts, main, written)
+            record = world_record(world, facts, main, written, joined)
             write_atomic(Path(self.options.bvh_dir) / "world.json", json.dumps(record, indent=1) + "\n")
 
     def _write(self, rec: TrackRecording, name: str, final: bool) -> None:

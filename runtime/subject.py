@@ -9,6 +9,8 @@ the edge scores far below a performer in the middle.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from mocapdb.core.outputs import TrackRecording
@@ -67,3 +69,68 @@ def chosen(recordings: list[TrackRecording], people: str | tuple[int, ...], main
         return list(recordings)
     wanted = {main} if people == "main" else set(people)
     return [rec for rec in recordings if rec.track in wanted]
+
+
+MAX_JOIN_GAP_S = 1.0     # a person lost for at most this long and found again is joined into one track
+MAX_JOIN_SHIFT = 0.5     # ... where the box moved at most this many box heights meanwhile
+MAX_JOIN_SIZE_RATIO = 1.3  # ... and its height changed by at most this factor
+
+
+def join_fragments(recordings: list[TrackRecording], fps: float) -> tuple[list[TrackRecording], dict[int, int]]:
+    """Tracks of one person lost and found again joined: a track that starts at most
+    :data:`MAX_JOIN_GAP_S` after another ends, its first box within :data:`MAX_JOIN_SHIFT` box
+    heights of that one's last and of a like size, is appended to it (the frames between hold its
+    last pose and see no keypoint, as the engine holds a track over frames it missed). Tracks
+    without input keypoints and static ones are left alone. Returns the tracks (in order of their
+    first frames) and which track each joined one went into."""
+    out: list[TrackRecording] = []
+    joined: dict[int, int] = {}
+    for rec in sorted(recordings, key=lambda r: r.first_frame):
+        target = next((o for o in reversed(out) if _continues(o, rec, fps)), None)
+        if target is None:
+            out.append(rec)
+        else:
+            out[out.index(target)] = _appended(target, rec)
+            joined[rec.track] = target.track
+    return out, joined
+
+
+def _continues(before: TrackRecording, after: TrackRecording, fps: float) -> bool:
+    """Whether ``after`` is ``before``'s person found again (:func:`join_fragments`)."""
+    if before.static or after.static or not before.keypoints or not after.keypoints:
+        return False
+    gap = after.first_frame - (before.first_frame + len(before.quaternions))
+    if gap < 0 or gap > MAX_JOIN_GAP_S * fps:
+        return False
+    last, first = _box(before.keypoints[::-1]), _box(after.keypoints)
+    if last is None or first is None:
+        return False
+    (centre_a, height_a), (centre_b, height_b) = last, first
+    shift = float(np.linalg.norm(centre_b - centre_a)) / max((height_a + height_b) / 2.0, 1.0)
+    ratio = max(height_a, height_b) / max(min(height_a, height_b), 1.0)
+    return shift <= MAX_JOIN_SHIFT and ratio <= MAX_JOIN_SIZE_RATIO
+
+
+def _box(keypoints: list[np.ndarray]) -> tuple[np.ndarray, float] | None:
+    """Centre (px) and height (px) of the first frame in ``keypoints`` with two keypoints seen."""
+    for points in keypoints:
+        seen = points[:, 2] > 0
+        if seen.sum() >= 2:
+            low, high = points[seen, :2].min(axis=0), points[seen, :2].max(axis=0)
+            return (low + high) / 2.0, float(high[1] - low[1])
+    return None
+
+
+def _appended(before: TrackRecording, after: TrackRecording) -> TrackRecording:
+    """``before`` followed by ``after``, the frames between holding ``before``'s last pose."""
+    gap = after.first_frame - (before.first_frame + len(before.quaternions))
+    def held(name: str, empty: bool = False) -> list:
+        values = getattr(before, name)
+        filler = np.zeros_like(values[-1]) if empty else values[-1]
+        return list(values) + [filler] * gap + list(getattr(after, name))
+
+    lists = {name: held(name) for name in ("quaternions", "root_view_m", "scales", "fit_quaternions",
+                                            "fit_root_view_m")}
+    longer = before if len(before.quaternions) >= len(after.quaternions) else after
+    return replace(before, **lists, keypoints=held("keypoints", empty=True), last_s=after.last_s,
+                   proportions_m=longer.proportions_m, up_view=longer.up_view, up_sd_deg=longer.up_sd_deg)

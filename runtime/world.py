@@ -606,9 +606,10 @@ def world_line(world: World) -> str:
             f"{world.pitch_deg:.1f} deg down, roll {world.roll_deg:.1f} deg")
 
 
-def world_record(world: World, facts: list[TrackFacts], main: int | None, written: set[int]) -> dict:
+def world_record(world: World, facts: list[TrackFacts], main: int | None, written: set[int],
+                 joined: dict[int, int] | None = None) -> dict:
     """``world.json`` (data_specs/world.md): the take's world, its subject and every track's size,
-    floor contact and flags, and whether it got files."""
+    floor contact and flags, whether it got files, and the tracks joined into others."""
     camera = {"height_m": _finite(world.camera_height_m), "height_given": world.camera_height_given,
               "height_log_sd": _finite(world.camera_height_log_sd), "pitch_deg": round(world.pitch_deg, 2),
               "roll_deg": round(world.roll_deg, 2), "floor_normal_view": [round(float(v), 5) for v in world.normal]}
@@ -617,7 +618,8 @@ def world_record(world: World, facts: list[TrackFacts], main: int | None, writte
                "size_from": f.size.source, "kind": f.size.kind, "legs_m": round(f.legs_m, 3),
                "distance_m": [round(d, 2) for d in f.distance_m], "in_front": f.in_front,
                "feet_above_floor_m": _finite(f.size.feet_above_floor_m), "flags": f.flags} for f in facts]
-    return {"format": "mocapdb-world", "version": 1, "camera": camera, "main_track": main, "tracks": tracks}
+    return {"format": "mocapdb-world", "version": 1, "camera": camera, "main_track": main, "tracks": tracks,
+            "joined": {str(track): into for track, into in (joined or {}).items()}}
 
 
 def _finite(value: float | None, decimals: int = 3) -> float | None:

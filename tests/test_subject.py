@@ -66,3 +66,38 @@ def test_reconstruct_names_the_subject_writes_only_it_with_people_main_and_says_
         assert 0.8 <= track["stature_m"] <= 2.3 and track["in_front"]
     assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(tmp_path / "x"),
                  "--people", "main,2"]) == 2
+
+
+def _recorded(track: int, first: int, frames: int, x0: float, speed_px: float = 4.0) -> TrackRecording:
+    """A track as the engine keeps it for the whole take: ``frames`` entries from input frame ``first``,
+    its keypoints' box 300 px tall at ``x0 + speed_px * frame``."""
+    rec = _track(track, 0.0, 300.0, speed_px, frames=first + frames)
+    keypoints = rec.keypoints[first:]
+    for k in keypoints:
+        k[:, 0] += x0
+    quats = [np.array([[1.0, 0.0, 0.0, 0.0]]) * (track + 1)] * frames
+    roots = [np.array([float(track), 0.0, -5.0])] * frames
+    return TrackRecording(track=track, first_frame=first, quaternions=list(quats), root_view_m=list(roots),
+                          scales=[1.0] * frames, fit_quaternions=list(quats), fit_root_view_m=list(roots),
+                          keypoints=keypoints, first_s=first / 30.0, last_s=(first + frames - 1) / 30.0)
+
+
+def test_a_person_lost_and_found_again_is_one_track():
+    """Track 4 starts 12 frames (0.4 s) after track 1 ends, where track 1's box was heading: joined,
+    the 12 frames between holding track 1's last pose with no keypoint; track 7, 600 px away, and
+    track 9, overlapping track 1 in time, are not."""
+    from mocapdb.runtime.subject import join_fragments
+
+    first = _recorded(1, 0, 40, 300.0)
+    again = _recorded(4, 52, 30, 300.0)
+    elsewhere = _recorded(7, 52, 30, 900.0)
+    overlapping = _recorded(9, 30, 30, 300.0)
+    tracks, joined = join_fragments([again, elsewhere, first, overlapping], 30.0)
+    assert joined == {4: 1}
+    assert sorted(t.track for t in tracks) == [1, 7, 9]
+    whole = next(t for t in tracks if t.track == 1)
+    assert len(whole.quaternions) == len(whole.keypoints) == len(whole.fit_root_view_m) == 82
+    np.testing.assert_array_equal(whole.quaternions[45], first.quaternions[-1])   # held over the gap
+    np.testing.assert_array_equal(whole.quaternions[60], again.quaternions[8])
+    assert not np.any(whole.keypoints[45][:, 2]) and whole.last_s == again.last_s
+    assert join_fragments([first, _recorded(4, 52 + 31, 30, 300.0)], 30.0)[1] == {}  # lost for more than 1 s
