@@ -244,3 +244,17 @@ def test_cli_draws_the_files_and_with_stream_the_stream(two_runs, tmp_path, caps
         labels[bool(extra)] = {label for _, _, label in drawn["3d"]}
     assert labels[False] == {f"#1 main {stature:.2f} m"}      # the track file, sized by the world
     assert "#1" in labels[True] and all(re.fullmatch(r"#\d+", label) for label in labels[True])
+
+
+def test_bvh_parts_are_placed_on_the_input_frames():
+    """BVH has no frame numbers: a padded file (--bvh-start input) starts at input frame 0, an
+    unpadded one ends on the track's last frame in the stream, parts back to back; a frame two
+    padded parts hold is the earlier part's."""
+    from mocapdb.render.tracks import _bvh_frames, _merge
+
+    assert [f.tolist() for f in _bvh_frames([10], 9)] == [list(range(10))]           # padded
+    assert [f.tolist() for f in _bvh_frames([5], 9)] == [[5, 6, 7, 8, 9]]           # the track's own frames
+    assert [f.tolist() for f in _bvh_frames([4, 3], 9)] == [[3, 4, 5, 6], [7, 8, 9]]
+    padded = _bvh_frames([7, 10], 9)
+    frames, joints = _merge(padded, [np.full((7, 1), 1.0), np.full((10, 1), 2.0)])
+    assert frames.tolist() == list(range(10)) and joints[:, 0].tolist() == [1.0] * 7 + [2.0] * 3

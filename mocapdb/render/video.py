@@ -153,30 +153,51 @@ def image_panel(layout: Layout, people: list[TrackPose], keypoints=None, video_f
 def panel_3d(layout: Layout, people: list[TrackPose], trails: dict[int, deque] | None = None,
              text_scale: float = 0.6, legend: bool = True) -> np.ndarray:
     """The 3D panel: the floor grid, the pelvis trails, the people (far ones first), and for the
-    track files the camera and (``legend``) a legend of the tracks' sizes."""
-    view, (pw, side) = layout.view3d, layout.panel_3d
+    track files the camera and (``legend``) a legend of the tracks' sizes above the view."""
+    pw, side = layout.panel_3d
     panel = np.full((side, pw, 3), 24, np.uint8)
-    draw.draw_floor(panel, view)
+    scene = layout.scene
+    y = int(28 * text_scale) + 8
+    caption = int(40 * text_scale) if layout.view == "3d" else 0   # compose_frame's caption under the title
+    lines = [(draw.track_colour(t.track), t.legend) for t in scene.tracks] if scene is not None and legend else []
+    body = panel[_legend(panel, lines, y + caption + int(34 * text_scale), text_scale):]
+    _draw_scene(body, layout, people, trails)
+    title = "3D, orthographic" if scene is None else (
+        "3D on the floor (y = 0), orthographic" if scene.on_floor else "3D (no floor found), orthographic")
+    draw.put_text(panel, title, (8, y), text_scale, (170, 170, 170))
+    return panel
+
+
+def _legend(panel: np.ndarray, lines: list[tuple[tuple[int, int, int], str]], y: int, text_scale: float) -> int:
+    """The legend's ``lines`` from baseline ``y`` down, as large as the panel's width allows;
+    returns the rows it takes (0: none, when there are no lines or they would take over 40 % of it)."""
+    if not lines:
+        return 0
+    widest = max(cv2.getTextSize(text, draw.FONT, 1.0, 1)[0][0] for _, text in lines)
+    scale = max(0.3, min(0.8 * text_scale, (panel.shape[1] - 16) / max(widest, 1)))
+    step = int(cv2.getTextSize("Ag", draw.FONT, scale, 1)[0][1] * 1.7) + 1
+    bottom = y + step * (len(lines) - 1) + step // 2
+    if bottom > 0.4 * panel.shape[0]:
+        return 0
+    draw.draw_legend(panel, lines, (8, y), scale)
+    return bottom
+
+
+def _draw_scene(img: np.ndarray, layout: Layout, people: list[TrackPose], trails: dict[int, deque] | None) -> None:
+    """The 3D view in ``img``: floor grid, pelvis trails, the files' camera, the people (far first)."""
+    view, size = layout.view3d, img.shape[1::-1]
+    draw.draw_floor(img, view)
     for track, trail in (trails or {}).items():
         if len(trail) > 1:
             flat = view.scene(np.array(trail))
             flat[:, 1] = view.floor
-            px, _ = view.project(flat, (pw, side), scene=True)
+            px, _ = view.project(flat, size, scene=True)
             colour = tuple(int(c * 0.55) for c in draw.track_colour(track))
-            cv2.polylines(panel, [np.round(px).astype(np.int32)], False, colour, 1, cv2.LINE_AA)
-    scene = layout.scene
-    if scene is not None and scene.camera_scene is not None:
-        _draw_camera(panel, layout)
-    for p in sorted(people, key=lambda p: -float(np.nanmean(view.project(p.joints, (pw, side))[1]))):
-        draw.draw_skeleton_3d(panel, view, p.joints, draw.track_colour(p.track), p.label or f"#{p.track}")
-    title = "3D, orthographic" if scene is None else (
-        "3D on the floor (y = 0), orthographic" if scene.on_floor else "3D (no floor found), orthographic")
-    y = int(28 * text_scale) + 8
-    draw.put_text(panel, title, (8, y), text_scale, (170, 170, 170))
-    if scene is not None and legend:
-        lines = [(draw.track_colour(t.track), t.legend) for t in scene.tracks]
-        draw.draw_legend(panel, lines, (8, y + int(34 * text_scale)), 0.8 * text_scale)
-    return panel
+            cv2.polylines(img, [np.round(px).astype(np.int32)], False, colour, 1, cv2.LINE_AA)
+    if layout.scene is not None and layout.scene.camera_scene is not None:
+        _draw_camera(img, layout)
+    for p in sorted(people, key=lambda p: -float(np.nanmean(view.project(p.joints, size)[1]))):
+        draw.draw_skeleton_3d(img, view, p.joints, draw.track_colour(p.track), p.label or f"#{p.track}")
 
 
 def _draw_camera(panel: np.ndarray, layout: Layout) -> None:
