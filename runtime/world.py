@@ -73,7 +73,7 @@ TILT_RANGE_DEG = 20.0        # the grid's pitch and roll search about the tracks
 LOG_HEIGHT_STEP = 0.01       # the camera-height grid's step (log metres)
 CAMERA_HEIGHT_RANGE_M = (0.1, 60.0)
 MIN_FLOOR_DEPTH = 0.05       # a floor less than this × the person's stature below the camera: not under them
-TILT_SD_FIXED_DEG = 2.0      # a tilt's error about an axis a track's contacts span (rendered walks: 3 deg RMS each)
+TILT_SD_FIXED_DEG = 0.5      # a tilt's error at least, about an axis a track's contacts span
 TILT_TAIL_SD_DEG, TILT_TAIL_SHARE = 15.0, 0.2  # the tilt prior's heavy tail: bodies' estimates can be far off
 PITCH_SD_MIN_DEG = 5.0  # bodies show the pitch only by their foreshortening, and share its error (the camera's)
 _FLAT = 1.0 / np.log(HUMAN_STATURE_M[1] / HUMAN_STATURE_M[0])  # a flat density over the human range (log)
@@ -287,7 +287,7 @@ def tilt_cost(tilts_deg: np.ndarray, sds_deg: tuple[float, float]) -> np.ndarray
     estimate, per axis a mixture: its error ``sds_deg`` (weight 1 − :data:`TILT_TAIL_SHARE`) and a
     wide tail (:data:`TILT_TAIL_SD_DEG`): a body shows the camera's pitch only by its foreshortening,
     so its estimate is now and then far off (16° on a real take's bystander), and then the floor
-    under several people overrules it. No tail about an axis the contacts fix."""
+    under several people overrules it. No tail where contacts fix the axis to :data:`TILT_SD_FIXED_DEG`."""
     sds = np.asarray(sds_deg)
     tail = np.where(sds > TILT_SD_FIXED_DEG, TILT_TAIL_SHARE, 0.0)  # none about an axis the contacts fix
     narrow = np.log1p(-tail) - 0.5 * (tilts_deg / sds) ** 2 - np.log(sds)
@@ -504,23 +504,28 @@ def _spans_floor(contacts: np.ndarray) -> bool:
 
 
 def _tilt_sds(contacts: list[np.ndarray], tilt_sd_deg: float) -> tuple[float, float]:
-    """The pitch and roll errors (degrees): :data:`TILT_SD_FIXED_DEG` about an axis some set of
-    contacts ``[N, 3]`` fixes (they lie on one plane spanning about 1 m both ways, or along a line
-    running mostly in depth: the pitch, or mostly across: the roll), else ``tilt_sd_deg`` (the
-    tracks' estimates combined; the pitch's at least :data:`PITCH_SD_MIN_DEG`: the people of one take
-    share its error, so more of them do not average it away)."""
+    """The pitch and roll errors (degrees): ``tilt_sd_deg`` (the tracks' estimates combined; the
+    pitch's at least :data:`PITCH_SD_MIN_DEG`: the people of one take share its error, so more of
+    them do not average it away), or less about an axis some set of contacts ``[N, 3]`` fixes (they
+    lie on one plane spanning about 1 m both ways, or along a line running mostly in depth: the
+    pitch, or mostly across: the roll): the standard error of a plane's tilt fitted to them (their
+    RMS off it over their RMS extent along the axis and the root of their steps), at least
+    :data:`TILT_SD_FIXED_DEG`."""
     pitch, roll = max(tilt_sd_deg, PITCH_SD_MIN_DEG), tilt_sd_deg
     for points in contacts:
         plane = coplanar_spread(points)
         if plane is None:
             continue
         spread, vt = plane
-        both = spread[1] >= MIN_FLOOR_SPREAD_M
-        line = spread[0] >= MIN_FLOOR_SPREAD_M
-        if both or (line and abs(vt[0, 2]) >= 0.7):
-            pitch = TILT_SD_FIXED_DEG
-        if both or (line and abs(vt[0, 0]) >= 0.7):
-            roll = TILT_SD_FIXED_DEG
+        steps = len(np.unique(np.round(points / STEP_GRID_M), axis=0))
+        for axis in (0, 1):
+            if spread[axis] < MIN_FLOOR_SPREAD_M:
+                continue
+            sd = max(TILT_SD_FIXED_DEG, float(np.degrees(spread[2] / (spread[axis] * np.sqrt(steps)))))
+            if abs(vt[axis, 2]) >= 0.7:
+                pitch = min(pitch, sd)
+            if abs(vt[axis, 0]) >= 0.7:
+                roll = min(roll, sd)
     return pitch, roll
 
 
