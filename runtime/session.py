@@ -25,7 +25,7 @@ import numpy as np
 
 from mocapdb.core import domains as D
 from mocapdb.core.errors import MocapdbError
-from mocapdb.core.exports import TrackExport, track_joints, write_track_files
+from mocapdb.core.exports import TrackExport, write_track_files
 from mocapdb.core.files import write_atomic
 from mocapdb.core.formats.keypoints import LAYOUTS, KeypointError, KeypointFrame
 from mocapdb.core.formats.openpose import parse_stream_line
@@ -216,7 +216,6 @@ class SessionOptions:
     camera_height_m: float | None = None  # the shared floor's distance below the camera, when known
     subject_heights_m: dict[int | None, float] = field(default_factory=dict)  # track (None: all) → stature
     people: str | tuple[int, ...] = "all"  # the tracks given files at the end: "all", "main" or ids (runtime.subject)
-    keep_joints: bool = False       # TrackFiles.joints: every written track's joints, for reconstruct --preview
     write_in_background: bool = False  # track files fitted and written by a thread of their own (live)
 
     def __post_init__(self) -> None:
@@ -249,8 +248,6 @@ class TrackFiles:
         self._paths: set[Path] = set()  # written
         self._waiting: list[tuple[TrackRecording, str]] = []
         self._held: list[tuple[TrackRecording, str]] = []  # final files held for the shared floor
-        # with options.keep_joints: file name → track, frame numbers [F], joints [F, 15, 3] (exports.track_joints)
-        self.joints: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
         self._jobs: queue.Queue | None = None
         self._writer: threading.Thread | None = None
         self._error: BaseException | None = None
@@ -313,7 +310,7 @@ class TrackFiles:
         for name in names.values():
             self._names.discard(name)
         if self.options.bvh_dir is not None:
-            record = world_record(world, facts, main, written, joined)
+            record = world_record(world, facts, main, written, joined, self.options.export.floor)
             write_atomic(Path(self.options.bvh_dir) / "world.json", json.dumps(record, indent=1) + "\n")
 
     def _write(self, rec: TrackRecording, name: str, final: bool) -> None:
@@ -346,8 +343,6 @@ class TrackFiles:
     def _write_files(self, rec: TrackRecording, name: str) -> None:
         paths = write_track_files(rec, self.options.bvh_dir, name, self.fps, self.options.export)
         self._names.add(name)
-        if self.options.keep_joints:
-            self.joints[name] = (rec.track, *track_joints(rec, self.options.export.floor))
         for path in paths:
             if path not in self._paths:
                 self._paths.add(path)
@@ -401,7 +396,6 @@ class TrackFiles:
                 self._paths.discard(path)
                 self.summary.bvh_files.remove(path)
         self._names.discard(name)
-        self.joints.pop(name, None)
 
     def _refuse(self) -> None:
         self.summary.limits.over_max_files += 1

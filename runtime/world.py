@@ -612,9 +612,10 @@ def world_line(world: World) -> str:
 
 
 def world_record(world: World, facts: list[TrackFacts], main: int | None, written: set[int],
-                 joined: dict[int, int] | None = None) -> dict:
+                 joined: dict[int, int] | None = None, files_on_floor: bool = False) -> dict:
     """``world.json`` (data_specs/world.md): the take's world, its subject and every track's size,
-    floor contact and flags, whether it got files, and the tracks joined into others."""
+    floor contact and flags, whether it got files, the tracks joined into others, and whether the
+    files are on the floor (``--floor``) or in the view frame."""
     camera = {"height_m": _finite(world.camera_height_m), "height_given": world.camera_height_given,
               "height_log_sd": _finite(world.camera_height_log_sd), "pitch_deg": round(world.pitch_deg, 2),
               "roll_deg": round(world.roll_deg, 2), "floor_normal_view": [round(float(v), 5) for v in world.normal]}
@@ -624,7 +625,8 @@ def world_record(world: World, facts: list[TrackFacts], main: int | None, writte
                "distance_m": [round(d, 2) for d in f.distance_m], "in_front": f.in_front,
                "feet_above_floor_m": _finite(f.size.feet_above_floor_m), "flags": f.flags} for f in facts]
     return {"format": "mocapdb-world", "version": 1, "camera": camera, "main_track": main, "tracks": tracks,
-            "joined": {str(track): into for track, into in (joined or {}).items()}}
+            "joined": {str(track): into for track, into in (joined or {}).items()},
+            "files": "floor" if files_on_floor else "view"}
 
 
 def _finite(value: float | None, decimals: int = 3) -> float | None:

@@ -112,7 +112,7 @@ def test_output_that_survives(small_db, small_db_path, tmp_path, capsys):
     assert (out / "result.jsonl").read_text() == before and (out / "track_7.bvh").exists()
     # A new run replaces it whole: no stale files of another run.
     assert main(args) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["result.jsonl", "track_0.bvh"]
+    assert sorted(p.name for p in out.iterdir()) == ["result.jsonl", "track_0.bvh", "world.json"]
     # A folder holding anything else is never replaced.
     (out / "notes.txt").write_text("mine")
     assert main(args) == 2 and "not an output folder" in capsys.readouterr().err

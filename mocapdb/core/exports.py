@@ -118,13 +118,6 @@ def track_motion(rec: TrackRecording, floor: bool) -> tuple[np.ndarray, np.ndarr
     return quats, root_m, scale
 
 
-def track_joints(rec: TrackRecording, floor: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Input frame numbers ``[F]`` and joints ``[F, 15, 3]`` (metres, view frame; on the floor with
-    ``floor``) of a track's files: what its TRC and CSV hold, its BVH by forward kinematics."""
-    quats, root_m, scale = track_motion(rec, floor)
-    return rec.first_frame + np.arange(len(quats)), pose_from_rotations(quats, root_m, scale, rec.offsets_m())
-
-
 def csv_text(joints_m: np.ndarray, frames: np.ndarray, times_s: np.ndarray) -> str:
     """CSV with a header row: ``frame,time_s,<joint>_x,<joint>_y,<joint>_z,...`` (metres)."""
     columns = ["frame", "time_s"] + [f"{name}_{axis}" for name in KEYPOINTS for axis in "xyz"]

@@ -49,6 +49,7 @@ class WorldFloor:
     main_track: int | None
     tracks: dict[int, dict]
     camera: dict | None = None
+    files: str | None = None  # "floor" or "view": the frame its track files were written in (None: not said)
 
     @property
     def known(self) -> bool:
@@ -86,11 +87,14 @@ def read_world(folder: str | Path) -> WorldFloor | None:
             raise ValueError(f"camera height_m {height!r} is not a positive number")
         tracks = {int(t["track"]): t for t in obj.get("tracks", [])}
         main = obj.get("main_track")
+        files = obj.get("files")
+        if files not in (None, "floor", "view"):
+            raise ValueError(f"files {files!r} is neither \"floor\" nor \"view\"")
     except (json.JSONDecodeError, TypeError, KeyError, ValueError) as exc:
         raise RenderError(f"{path}: not a world file of `mocapdb reconstruct` ({exc})") from None
     return WorldFloor(None if normal is None else normal / np.linalg.norm(normal),
                       None if height is None else float(height), main if isinstance(main, int) else None, tracks,
-                      camera)
+                      camera, files)
 
 
 @dataclass
@@ -230,13 +234,15 @@ def misalignment_deg(files: list[TrackFile], to_view, pelvis: dict[tuple[int, in
 
 
 def files_frame(files: list[TrackFile], world: WorldFloor | None, stream: ResultStream) -> tuple[str | None, str]:
-    """Which frame the track files are in, "floor" (``--floor``, on the world's floor) or "view",
-    read from how they line up with the stream (:func:`misalignment_deg`); None and the reason when
-    neither lines up within :data:`LINE_UP_DEG`."""
+    """Which frame the track files are in, "floor" (``--floor``, on the world's floor) or "view": as
+    ``world.json`` says (its ``files``), else read from how they line up with the stream
+    (:func:`misalignment_deg`); None and the reason when neither lines up within :data:`LINE_UP_DEG`."""
     pelvis = stream_pelvis(stream)
     options = {"view": lambda p: p}
     if world is not None and world.known:
         options["floor"] = world.to_view
+    if world is not None and world.files in options:
+        options = {world.files: options[world.files]}
     errors = {name: misalignment_deg(files, f, pelvis) for name, f in options.items()}
     best = min(errors, key=lambda k: errors[k] if math.isfinite(errors[k]) else math.inf)
     if not math.isfinite(errors[best]):
