@@ -174,9 +174,8 @@ class BoneLengths:
     A median is judged as a proportion first (:func:`believed_bones`): one further from the prior's
     than its people's, joint conventions' and own spread allow (a head keypoint on top of the
     head: neck→nose 1.6×) is not believed and gets no weight, so the prior's value stands for that
-    bone and it does not shrink the rest through the stature. The prior is centred on the body's
-    common size (the believed medians' median): the estimate is scale-free
-    (``data_specs/stream_output.md``, "The person's own body").
+    bone and it does not shrink the rest through the stature (``data_specs/stream_output.md``, "The
+    person's own body").
     """
 
     IN_PLANE = 0.9
@@ -208,15 +207,12 @@ class BoneLengths:
 
     def estimate(self) -> np.ndarray:
         """Bone lengths ``[8]`` (metres at 1.75 m stature) from the samples so far and the prior:
-        the believed medians (:func:`believed_bones`) weighed against the prior centred on the
-        body's common size (their median), which the rescale to 1.75 m stature then removes."""
+        the believed medians (:func:`believed_bones`) weighed against the prior."""
         n = np.minimum(self.counts, self.CAPACITY)
         medians = _medians(self.samples, n)
         precision = n / self.DECORRELATION / self.SAMPLE_SD ** 2
-        believed = believed_bones(medians, precision)
-        size = float(np.median(medians[believed])) if believed.any() else 0.0
-        weight = np.diag(np.where(believed, precision, 0.0))
-        log_factor = np.linalg.solve(_PRIOR_PRECISION + weight, weight @ (medians - size))
+        weight = np.diag(np.where(believed_bones(medians, precision), precision, 0.0))
+        log_factor = np.linalg.solve(_PRIOR_PRECISION + weight, weight @ medians)
         lengths = _UNIVERSAL_BONES * np.exp(log_factor)
         return lengths * (UNIVERSAL_HEIGHT_M / stature_m(lengths))
 
