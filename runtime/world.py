@@ -9,29 +9,32 @@ frame, ``h`` the camera's height above the floor) under those contacts fixes ``k
 standing on the floor observes its stature as ``log S = log h + log(S₀ / d(n))``: the floor ties
 everyone's sizes together, and the camera height, when given, fixes them all.
 
-:func:`estimate_world` searches a grid of the camera's pitch ``θ`` (about the tracks' mean up) and
-``log h`` (or ``h`` given). Each track is one of three kinds (Bayesian model comparison):
+:func:`estimate_world` searches grids of the camera's pitch and roll (about the tracks' mean up)
+and ``log h`` (or ``h`` given). Each track is one of three kinds (Bayesian model comparison):
 
 * **on the floor** (prior weight :data:`P_ON_FLOOR`): its observed stature is drawn from the stature
   prior (:mod:`mocapdb.core.anthropometry`: adults and children of 2-17 years), blurred by the
   observation's error (:func:`observation_sd`); a person whose height is given (``--subject-height``)
   has that instead of the prior;
-* **elevated** (:data:`P_ELEVATED`): it stands on something (a box, a step, stairs), so the
-  floor-consistent stature overstates it: the prior's probability of a smaller person times a flat
-  density over the human range;
+* **elevated** (:data:`P_ELEVATED`): it stands on something (a box, a step, a roof), so the
+  floor-consistent stature overstates it by :data:`ELEVATED_MIN_LOG` at least: the prior's
+  probability of a person that much smaller times a flat density over the human range;
 * **unreliable** (:data:`P_UNRELIABLE`): contacts that tell nothing (a body cut by the image edge, a
   false detection): the flat density.
 
-The cost is ``−Σ log`` of each track's mixture plus the pitch prior (its SD: the tracks' tilt
-estimates', or :data:`PITCH_SD_FIXED_DEG` when contacts spread in depth fix it); the grid's
-minimum is the world, its spread the camera height's uncertainty. Then each track on the floor
-takes the posterior mode of its observation and the prior; any other keeps the prior's mode (its
-given height) and stands in the same world, where its feet are (above the floor on a box). No
-scale is negative, no stature leaves :data:`HUMAN_STATURE_M`. The plane is then fitted to the
-floor tracks' scaled contacts where they span it (:func:`~mocapdb.runtime.take.floor_plane`) and
-the estimate made once more about it.
+The cost sums each track's ``−log`` mixture (weighted by its length up to 1 s:
+:func:`evidence_weight`), the flatness of its contacts under each floor (:func:`_unevenness`) and
+the tilt prior (:func:`tilt_cost`: the bodies' tilt estimate with a heavy tail, tighter about an
+axis the contacts fix); the grid's minimum is the world, its spread the camera height's
+uncertainty. Each track on the floor then takes its floor-consistent stature; any other the prior's
+mode (or its given height), standing in the same world where its feet are (above the floor on a
+box), made smaller where its lowest points would sink below the floor. No scale is negative, no
+stature leaves :data:`HUMAN_STATURE_M`. The plane is then fitted to the floor tracks' scaled
+contacts where they span it (:func:`~mocapdb.runtime.take.floor_plane`) and the estimate made once
+more about it. ``data_specs/world.md`` gives the decisions and their reasons.
 
-Costs O(T·H·(N + P)) for T pitches, H heights, N contacts and P people: milliseconds per take.
+Costs O(T·H·P) for T tilts, H heights and P people (at most :data:`MAX_FLOOR_POINTS` contacts each):
+tens to hundreds of milliseconds per take, independent of its length (``tools/bench_world.py``).
 """
 from __future__ import annotations
 
@@ -109,15 +112,21 @@ class TrackEvidence:
         object.__setattr__(self, "floor_points_m", points[::max(len(points) // MAX_FLOOR_POINTS, 1)])
         sample = self.contacts_m[::max(len(self.contacts_m) // MAX_FLOOR_POINTS, 1)]
         object.__setattr__(self, "contact_sample_m", sample)
-        object.__setattr__(self, "steps", len(np.unique(np.round(self.contacts_m / STEP_GRID_M), axis=0)))
-        object.__setattr__(self, "likelihood", _likelihood_table(observation_sd(self), self._prior()))
+        object.__setattr__(self, "steps", count_steps(self.contacts_m))
+        object.__setattr__(self, "likelihood", _likelihood_table(observation_sd(self), self.prior()))
 
-    def _prior(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def prior(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """This track's stature prior (weights, log means, log SDs): its given height's, or the mixture."""
         return _components(self.given_stature_m)
 
 
 MAX_FLOOR_POINTS = 64  # contacts kept per track for the floor's distance under it (a median)
+
+
+def count_steps(contacts_m: np.ndarray) -> int:
+    """The steps among contacts ``[N, 3]``: the distinct ones to :data:`STEP_GRID_M` (the whole-take
+    fit holds a planted ankle at one place for its whole contact)."""
+    return len(np.unique(np.round(contacts_m / STEP_GRID_M), axis=0))
 
 
 @dataclass(frozen=True)
@@ -383,13 +392,13 @@ def _with_people(world: World, evidence: list[TrackEvidence]) -> World:
 
 def person_size(e: TrackEvidence, world: World) -> PersonSize:
     """One track's size and kind in ``world`` (the posterior over its kinds at the world's floor and
-    height; on the floor: the posterior mode of its stature; else the prior's mode or its given height)."""
+    height; on the floor: its floor-consistent stature; else the prior's mode or its given height)."""
     if len(e.contacts_m) == 0:
         return _prior_size(e, "no contacts", world)
     observed = _observed_log_stature(e, world.normal[None])[0] + np.log(world.camera_height_m)
     sd = observation_sd(e)
     if np.isfinite(observed):
-        on_floor, smaller = _prior_density(np.array(observed), sd, e._prior())
+        on_floor, smaller = _prior_density(np.array(observed), sd, e.prior())
         kinds = {"floor": P_ON_FLOOR * on_floor, "elevated": P_ELEVATED * _FLAT * smaller,
                  "unreliable": P_UNRELIABLE * _FLAT}
         kind = max(kinds, key=lambda k: float(kinds[k]))
@@ -398,7 +407,7 @@ def person_size(e: TrackEvidence, world: World) -> PersonSize:
     if kind != "floor":
         return _prior_size(e, kind, world)
     stature = float(np.clip(np.exp(observed) if e.given_stature_m is None else e.given_stature_m, *HUMAN_STATURE_M))
-    log_sd = _posterior_sd(float(observed), float(np.hypot(sd, world.camera_height_log_sd)), e._prior())
+    log_sd = _posterior_sd(float(observed), float(np.hypot(sd, world.camera_height_log_sd)), e.prior())
     source = "given" if e.given_stature_m is not None else "floor" if log_sd < 0.8 * _PRIOR_SD else "prior"
     return PersonSize(e.track, stature, log_sd, "floor", source, stature / e.nominal_stature_m,
                       _feet_above_floor(e, world, stature / e.nominal_stature_m))
@@ -433,7 +442,7 @@ _PRIOR_SD = _posterior_sd(0.0, 1e6, _components(None))  # the prior's own spread
 def _prior_size(e: TrackEvidence, kind: str, world: World | None) -> PersonSize:
     """A track whose size the floor does not give: the prior's mode (or its given height), made
     smaller where that would put its lowest point below the floor (never below the human range)."""
-    stature, log_sd = _prior_mode(e._prior()), _posterior_sd(0.0, 1e6, e._prior())
+    stature, log_sd = _prior_mode(e.prior()), _posterior_sd(0.0, 1e6, e.prior())
     k = stature / e.nominal_stature_m
     if world is not None and world.floor_known and e.given_stature_m is None:
         touching = _touching_scale(e, world)
@@ -517,7 +526,7 @@ def _tilt_sds(contacts: list[np.ndarray], tilt_sd_deg: float) -> tuple[float, fl
         if plane is None:
             continue
         spread, vt = plane
-        steps = len(np.unique(np.round(points / STEP_GRID_M), axis=0))
+        steps = count_steps(points)
         for axis in (0, 1):
             if spread[axis] < MIN_FLOOR_SPREAD_M:
                 continue
