@@ -238,18 +238,19 @@ def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg:
                 camera_height_m: float | None) -> World:
     """The cost's minimum over camera tilts about ``normal`` (pitch and roll SDs ``tilt_sds_deg``)
     and log camera heights (one, when given): tilt grids ever finer about the last one's minimum
-    (:data:`TILT_PASSES`; the first on every :data:`COARSE_HEIGHT_STRIDE`-th height, the others on
-    all: a height and a pitch can trade along a narrow valley), then the height's spread at the
-    best tilt."""
+    (:data:`TILT_PASSES`), the first on every :data:`COARSE_HEIGHT_STRIDE`-th height, the others on
+    every height within a window of the last minimum wide enough for the valley along which a
+    height and a pitch trade; then the height's spread at the best tilt."""
     given = None if camera_height_m is None else np.array([np.log(camera_height_m)])
     tilt, log_h = np.zeros(2), _LOG_HEIGHTS[::COARSE_HEIGHT_STRIDE] if given is None else given
-    for step, half_width in TILT_PASSES:
+    for step, half_width, log_h_window in TILT_PASSES:
         offsets = np.arange(-half_width, half_width + 1e-9, step)
         tilts = tilt + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
         cost = _cost(evidence, _tilted_normals(normal, tilts), tilts, tilt_sds_deg, log_h)
         t, h = np.unravel_index(int(np.argmin(cost)), cost.shape)
         tilt = tilts[t]
-        log_h = _LOG_HEIGHTS if given is None else given  # the finer passes: every height
+        if given is None:
+            log_h = _LOG_HEIGHTS[np.abs(_LOG_HEIGHTS - log_h[h]) <= log_h_window]
     best = _tilted_normals(normal, tilt[None])
     log_h = _LOG_HEIGHTS if given is None else given
     cost = _cost(evidence, best, tilt[None], tilt_sds_deg, log_h)[0]
@@ -305,8 +306,10 @@ def tilt_cost(tilts_deg: np.ndarray, sds_deg: tuple[float, float]) -> np.ndarray
     return -np.sum(np.logaddexp(narrow, wide), axis=1)
 
 
-TILT_PASSES = ((2.0, TILT_RANGE_DEG), (0.5, 3.0), (0.1, 0.75))  # (step, half width) of each tilt grid, degrees
-COARSE_HEIGHT_STRIDE = 2  # the coarse pass takes every 2nd height of the grid
+# Each tilt grid's step and half width (degrees) and the log camera heights searched by the next one
+# about this one's minimum: a pitch change of δ moves a person Z metres away by δ Z / h, up to ~0.4 in log.
+TILT_PASSES = ((2.0, TILT_RANGE_DEG, 0.5), (0.5, 3.0, 0.15), (0.1, 0.75, 0.15))
+COARSE_HEIGHT_STRIDE = 4  # the coarse pass takes every 4th height of the grid
 _LOG_HEIGHTS = np.arange(np.log(CAMERA_HEIGHT_RANGE_M[0]), np.log(CAMERA_HEIGHT_RANGE_M[1]), LOG_HEIGHT_STEP)
 
 
