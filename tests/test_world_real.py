@@ -84,3 +84,27 @@ def test_the_bystander_does_not_change_the_subjects_size(sample_db_path, tmp_pat
     assert [t["kind"] for t in with_bystander["tracks"]] == ["floor", "floor"]
     (subject_alone,) = alone["tracks"]
     assert subject["stature_m"] == pytest.approx(subject_alone["stature_m"], rel=0.05)
+
+
+def test_the_footage_check_passes_real_tracks_and_fails_a_broken_one(sample_db_path, monkeypatch):
+    """`eval --world … --videos`: the bundled balancing video's two tracks pass; each of them with
+    its size made negative (the failure of issue 27: a body behind the camera) fails."""
+    from dataclasses import replace
+
+    from mocapdb.core.formats.database import load_database
+    from mocapdb.evaluation import real_footage
+
+    db = load_database(sample_db_path)
+    check = real_footage.check_footage(db, VIDEOS / "video_balancing_cam01")
+    assert [t["ok"] for t in check["tracks"]] == [True, True] and check["passed"] == 2
+    assert real_footage.footage_check_line([check]).startswith("PASS")
+    original = real_footage._track_check
+
+    def flipped(rec, kind, fps):
+        return original(replace(rec, root_view_m=[-r for r in rec.root_view_m], scales=[-s for s in rec.scales]),
+                        kind, fps)
+
+    monkeypatch.setattr(real_footage, "_track_check", flipped)
+    broken = real_footage.check_footage(db, VIDEOS / "video_balancing_cam01")
+    assert not any(t["ok"] or t["in_front"] for t in broken["tracks"])
+    assert real_footage.footage_check_line([broken]).startswith("FAIL")

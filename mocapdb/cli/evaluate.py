@@ -33,6 +33,10 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--real-take", metavar="FOLDER", type=P.INPUT_DIR,
                    help="a Pose2Sim take (calibration.toml, triangulated_4cam.trc, openpose_body25b/camNN_json): "
                         "run each camera alone through the engine (needs --db) and score it against the TRC")
+    p.add_argument("--videos", nargs="+", type=P.INPUT_DIR, metavar="KEYPOINTS",
+                   help="with --world: keypoint folders of real videos (a detector's output with its take.json, "
+                        "e.g. data/sample_keypoints/video_*) reconstructed as `reconstruct --floor` does, every track "
+                        "of 1 s or more checked for a human size, in front of the camera and on the floor")
     p.add_argument("--world", nargs="+", type=P.INPUT_ANY, metavar="HELDOUT",
                    help="held-out BVH files or folders: takes of several people in one camera (adults, a child, a "
                         "still bystander, one on a 0.4 m box, one cut by the image edge, one 15 m away), each through "
@@ -82,6 +86,8 @@ def run_eval(args: argparse.Namespace) -> int:
     if args.out:
         check_output_file(args.out, _report_file())  # before any work
     engine = EngineConfig(weight_2d=args.weight_2d, search=args.search, own_body=not args.universal_body)
+    if args.videos and not args.world:
+        raise UsageError("--videos goes with --world")
     if args.cameras and not args.real_take:
         raise UsageError("--cameras goes with --real-take")
     if args.world:
@@ -141,9 +147,17 @@ def _world_report(args: argparse.Namespace, engine: EngineConfig) -> dict:
     if not files:
         raise UsageError(f"no .bvh file in {', '.join(args.world)}")
     config = WorldConfig.quick(engine=engine) if args.quick else WorldConfig(engine=engine)
-    report = evaluate_world(load_database(args.db), files, config)
+    db = load_database(args.db)
+    report = evaluate_world(db, files, config)
     report["checks"] = check_lines(report)
-    print(format_table(report) + "\n\n" + "\n".join(report["checks"]))
+    text = format_table(report)
+    if args.videos:
+        from mocapdb.evaluation.real_footage import check_footage, footage_check_line, footage_table
+
+        report["real_footage"] = [check_footage(db, folder, engine) for folder in args.videos]
+        report["checks"].append(footage_check_line(report["real_footage"]))
+        text += "\n\n" + footage_table(report["real_footage"])
+    print(text + "\n\n" + "\n".join(report["checks"]))
     return report
 
 
