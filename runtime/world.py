@@ -611,14 +611,18 @@ def track_facts(rec: TrackRecording, world: World) -> TrackFacts:
                       world.people[rec.track])
 
 
+UNFIXED_HEIGHT_PCT = 50.0  # a camera height estimated more loosely than this is said not to be fixed
+
+
 def world_line(world: World) -> str:
     """The summary's line on the world: the camera's height (given, or estimated with its error),
     pitch and roll."""
     if not world.floor_known:
         return "world: no floor found (no planted foot, no --camera-height): each track's size is the prior's"
+    error = 100 * (np.exp(world.camera_height_log_sd) - 1)
     height = "given" if world.camera_height_given else (
-        f"±{100 * (np.exp(world.camera_height_log_sd) - 1):.0f} %, from the people's sizes"
-        if np.isfinite(world.camera_height_log_sd) else "unknown: no planted foot")
+        f"±{error:.0f} %, from the people's sizes" if error <= UNFIXED_HEIGHT_PCT
+        else f"±{error:.0f} %: not fixed by this take, the people's assumed sizes; --camera-height fixes it")
     return (f"world: camera {world.camera_height_m:.2f} m above the floor ({height}), pitched "
             f"{world.pitch_deg:.1f} deg down, roll {world.roll_deg:.1f} deg")
 
