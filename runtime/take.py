@@ -132,7 +132,7 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     normal, offset = None, None
     if params.floor and planted.any():
         normal, offset = floor_plane(root[:, None] + relative, planted, up, ANKLE_HEIGHT_M * scale)
-        root = _above_floor(root, relative, normal, offset, ANKLE_HEIGHT_M * scale)
+        root = above_floor(root, relative, normal, offset, ANKLE_HEIGHT_M * scale)
     out = _refitted(rec, list(quats), list(root), [scale] * len(root), up if normal is None else normal, offset)
     return out, TakeResult(planted, (root[:, None] + relative)[planted], normal, offset)
 
@@ -454,7 +454,7 @@ def _floor_height(points: np.ndarray, normal: np.ndarray) -> float:
     return float(np.median(lowest_level(points, normal) @ normal))
 
 
-def _above_floor(root_m: np.ndarray, ankle_offsets_m: np.ndarray, normal: np.ndarray, offset: float,
+def above_floor(root_m: np.ndarray, ankle_offsets_m: np.ndarray, normal: np.ndarray, offset: float,
                  ankle_height_m: float) -> np.ndarray:
     """Roots lifted along ``normal`` where the lower ankle would sink below the ankle height."""
     heights = (root_m[:, None] + ankle_offsets_m) @ normal - offset

@@ -58,6 +58,7 @@ from mocapdb.runtime.take import (
     MIN_FLOOR_SPREAD_M,
     TakeParams,
     TakeResult,
+    above_floor,
     coplanar_spread,
     fit_take,
     floor_plane,
@@ -543,12 +544,17 @@ def _tilt_sds(contacts: list[np.ndarray], tilt_sd_deg: float) -> tuple[float, fl
 
 def place_in_world(rec: TrackRecording, world: World) -> TrackRecording:
     """A whole-take fit scaled about the camera by its :class:`PersonSize` factor (its image
-    unchanged), on the world's floor (where no floor was found, its own, if any, scaled)."""
+    unchanged), on the world's floor, its root lifted where an ankle would sink below it (as the
+    whole-take fit does on its own floor); where no floor was found, on its own, if any, scaled."""
     k = world.people[rec.track].scale_factor
     scaled = replace(rec, root_view_m=[r * k for r in rec.root_view_m], scales=[s * k for s in rec.scales])
-    if world.floor_known:
-        return replace(scaled, up_view=world.normal, floor_offset_m=-world.camera_height_m)
-    return replace(scaled, floor_offset_m=None if rec.floor_offset_m is None else k * rec.floor_offset_m)
+    if not world.floor_known:
+        return replace(scaled, floor_offset_m=None if rec.floor_offset_m is None else k * rec.floor_offset_m)
+    quats, root_m, scale = scaled.motion()
+    ankles = pose_from_rotations(quats, np.zeros_like(root_m), scale, scaled.offsets_m())[:, list(ANKLES)]
+    lifted = above_floor(root_m, ankles, world.normal, -world.camera_height_m, ANKLE_HEIGHT_M * scale)
+    return replace(scaled, root_view_m=list(lifted), scales=[scale] * len(lifted), up_view=world.normal,
+                   floor_offset_m=-world.camera_height_m)
 
 
 @dataclass(frozen=True)
