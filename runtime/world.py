@@ -629,8 +629,9 @@ def world_line(world: World) -> str:
     height = "given" if world.camera_height_given else (
         f"±{error:.0f} %, from the people's sizes" if error <= UNFIXED_HEIGHT_PCT
         else f"±{error:.0f} %: not fixed by this take, the people's assumed sizes; --camera-height fixes it")
-    return (f"world: camera {world.camera_height_m:.2f} m above the floor ({height}), pitched "
-            f"{world.pitch_deg:.1f} deg down, roll {world.roll_deg:.1f} deg")
+    pitch = f"{abs(world.pitch_deg):.1f} deg {'down' if world.pitch_deg >= 0 else 'up'}"
+    return (f"world: camera {world.camera_height_m:.2f} m above the floor ({height}), pitched {pitch}, "
+            f"roll {world.roll_deg:.1f} deg")
 
 
 def world_record(world: World, facts: list[TrackFacts], main: int | None, written: set[int],
