@@ -73,7 +73,10 @@ class LineSplitter:
 class Source(ABC):
     """An iterable of :class:`RawMessage`. :meth:`stop` (from any thread) ends the iteration within
     about ``poll_s``, as does ``idle_timeout_s`` without a message passed on; :meth:`close` then
-    releases files and sockets (idempotent)."""
+    releases files and sockets (idempotent). ``lossless``: its messages are files already written
+    (a folder of frames, a JSON-lines file), read at the engine's pace and never dropped as stale."""
+
+    lossless = False
 
     def __init__(self, *, stats: StreamStats | None = None, poll_s: float = POLL_S,
                  max_message_bytes: int = MAX_MESSAGE_BYTES, idle_timeout_s: float | None = None) -> None:

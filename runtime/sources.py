@@ -52,7 +52,10 @@ def _is_json(data: bytes) -> bool:
 
 
 class FolderSource(Source):
-    """The ``*.json`` files of a folder, one message each, in frame order (see the module notes)."""
+    """The ``*.json`` files of a folder, one message each, in frame order (see the module notes);
+    lossless: files on disk are read at the engine's pace, none dropped."""
+
+    lossless = True
 
     def __init__(self, folder: Path, *, follow: bool = False, settle_s: float = SETTLE_S,
                  rescan_s: float = RESCAN_S, **common: Any) -> None:
@@ -183,7 +186,9 @@ class _ByteStreamSource(Source):
 
 class JsonLinesFileSource(_ByteStreamSource):
     """A ``.jsonl``/``.ndjson`` file, one message per line; with ``follow`` it is tailed like
-    ``tail -f`` until stopped or the idle timeout passes."""
+    ``tail -f`` until stopped or the idle timeout passes. Lossless, as :class:`FolderSource`."""
+
+    lossless = True
 
     def __init__(self, path: Path, *, follow: bool = False, **common: Any) -> None:
         super().__init__(**common)

@@ -364,7 +364,8 @@ def add_live_parser(sub: argparse._SubParsersAction) -> None:
                    help="tcp:// and udp:// sources: messages per second per sender address, the excess "
                         "dropped and counted; 0: no limit (default 1000)")
     p.add_argument("--buffer", type=D.BUFFER_MESSAGES, default=2,
-                   help="messages buffered before the oldest is dropped (default 2)")
+                   help="messages of a live stream (tcp, udp, stdin) buffered before the oldest is dropped (default "
+                        "2); a folder of frames or a .jsonl file is read at the engine's pace, nothing dropped")
     add_detector_options(p, "crops")
     _add_engine_options(p)
     p.set_defaults(run=run_live)
