@@ -201,8 +201,10 @@ def test_live_process_writes_its_bvh_files_through_a_second_sigterm(small_db, sm
     import signal
 
     port = _free_port()
+    # --buffer 1000: on a loaded machine the engine may fall behind a 30 fps stream for a moment, and
+    # the default buffer of 2 would then drop frames (what is tested here is the signals, not the rate)
     proc = _live_process(small_db_path, tmp_path, "--source", f"tcp://127.0.0.1:{port}",
-                         "--sink", str(tmp_path / "out.jsonl"))
+                         "--sink", str(tmp_path / "out.jsonl"), "--buffer", "1000")
     with _connect(port, proc) as client:
         for line in _stream_lines(small_db, 30):
             client.sendall((line + "\n").encode())
