@@ -381,3 +381,50 @@ def test_symlink_to_other_content_is_refused(tmp_path):
     with pytest.raises(DatabaseError, match=r"photos: exists and is not a mocapdb database"):
         write_database(make_db(), tmp_path / "link")
     assert (tmp_path / "link").is_symlink() and os.listdir(tmp_path / "photos") == ["cat.jpg"]
+
+
+def _copy_db(small_db_path, tmp_path):
+    import shutil
+
+    target = tmp_path / "db"
+    shutil.copytree(small_db_path, target)
+    return target
+
+
+def test_verify_checks_every_file_and_says_which_is_damaged(small_db_path, tmp_path, capsys):
+    from mocapdb.cli.main import main
+    from mocapdb.core.formats.database import verify_database
+
+    db = _copy_db(small_db_path, tmp_path)
+    report = verify_database(db)
+    assert [what for what, _ in report][-2:] == ["search index", "the database as a whole"]
+    assert not any(problem for _, problem in report)
+    assert main(["verify", str(db)]) == 0 and "all 6 checks passed" in capsys.readouterr().out
+    table = db / "projections.parquet"
+    data = bytearray(table.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # one bit flipped mid-file: only the sha256 sees it
+    table.write_bytes(bytes(data))
+    assert main(["verify", str(db)]) == 1
+    out = capsys.readouterr().out
+    assert "FAIL  projections.parquet: checksum mismatch" in out and "ok    clusters.parquet" in out
+
+
+@pytest.mark.parametrize("damage", ["deleted", "truncated", "swapped"])
+def test_the_runtime_refuses_a_projections_table_it_does_not_read_when_it_is_gone_or_another(
+        small_db_path, tmp_path, damage):
+    """The runtime loads a database without reading its projections table (the search index holds
+    what it needs), but a deleted, truncated or other database's table is still refused."""
+    from mocapdb.core.formats.database import DatabaseError, load_database
+
+    db = _copy_db(small_db_path, tmp_path)
+    table = db / "projections.parquet"
+    if damage == "deleted":
+        table.unlink()
+    elif damage == "truncated":
+        table.write_bytes(table.read_bytes()[:-100])
+    else:  # the clusters table under the projections' name, padded to the manifest's size
+        size = table.stat().st_size
+        other = (db / "clusters.parquet").read_bytes()
+        table.write_bytes(other[:-8] + b"\0" * (size - len(other)) + other[-8:] if len(other) < size else other)
+    with pytest.raises(DatabaseError, match="projections.parquet"):
+        load_database(db, projections=False)

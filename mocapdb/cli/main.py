@@ -14,9 +14,9 @@ from mocapdb.cli import build, detect, evaluate, reconstruct, render, stereo
 from mocapdb.cli.paths import check_outputs_apart
 from mocapdb.core.errors import MocapdbError
 
-COMMANDS = (build.add_build_parser, build.add_inspect_parser, reconstruct.add_reconstruct_parser,
-            reconstruct.add_live_parser, evaluate.add_eval_parser, detect.add_detect_parser, stereo.add_stereo_parser,
-            render.add_render_parser)
+COMMANDS = (build.add_build_parser, build.add_inspect_parser, build.add_verify_parser,
+            reconstruct.add_reconstruct_parser, reconstruct.add_live_parser, evaluate.add_eval_parser,
+            detect.add_detect_parser, stereo.add_stereo_parser, render.add_render_parser)
 
 
 class _Parser(argparse.ArgumentParser):

@@ -15,10 +15,14 @@ LOG = logging.getLogger("mocapdb.cli")
 
 
 def _add_engine_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--db", required=True, type=P.INPUT_DIR, help="database directory written by `mocapdb build`")
+    p.add_argument("--db", required=True, type=P.INPUT_DIR,
+                   help="database directory written by `mocapdb build`; checked as it loads: the tables read "
+                        "(sizes, sha256, row counts, finite values), the search index (sizes, shapes, CRC-32 "
+                        "blocks), the projections table it does not read by its size and footer "
+                        "(`mocapdb verify DB` checks every byte)")
     p.add_argument("--no-verify", action="store_true",
-                   help="skip checking the database files' sha256 checksums on load (sizes, row counts and "
-                        "finite values are still checked)")
+                   help="skip checking the database files' sha256 and CRC-32 checksums on load (sizes, row counts "
+                        "and finite values are still checked)")
     p.add_argument("--keypoints",
                    choices=tuple(LAYOUTS),
                    help="keypoint layout of the input (default: detected from the keypoint count; 25 keypoints: "

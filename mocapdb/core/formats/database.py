@@ -586,12 +586,15 @@ def load_database(path: str | os.PathLike, verify_checksums: bool = True, projec
     files' sha256 checksums unless ``verify_checksums`` is False (``--no-verify``). The search index
     (databases built since it exists) is memory-mapped, not read; with ``projections`` False and
     an index, the projections table is not read either (its fields are None): what the runtime
-    needs, in seconds at any size.
+    needs, in seconds at any size. It must still be there, of the manifest's size, with a Parquet
+    footer naming that table and its rows (:func:`_check_unread`); ``mocapdb verify`` reads it all.
     """
     path = Path(path)
     manifest = _read_manifest(path)
     index_entries = manifest.get("search_index")
     skip = set() if projections or index_entries is None else {"projections"}
+    for table in skip:
+        _check_unread(path / manifest["tables"][table]["file"], table, manifest["tables"][table])
     columns = {col.field: None for table in skip for col in _TABLES[table]}
     with ThreadPoolExecutor(max_workers=1) as hasher:  # hashing overlaps Parquet decoding (both release the GIL)
         for table, entry in manifest["tables"].items():
@@ -612,6 +615,53 @@ def load_database(path: str | os.PathLike, verify_checksums: bool = True, projec
 
 
 _ENTRY_TYPES = {"file": str, "rows": int, "bytes": int, "sha256": str}
+
+
+def _check_unread(file: Path, table: str, entry: dict) -> None:
+    """A table file the load leaves unread: there, of the manifest's size, its Parquet footer
+    naming that table, schema version and row count (a deleted, truncated or swapped file)."""
+    if not file.is_file():
+        raise DatabaseError(f"{file}: table file missing; rebuild the database")
+    if (size := file.stat().st_size) != entry["bytes"]:
+        raise DatabaseError(f"{file}: size {size} bytes, manifest says {entry['bytes']}: file truncated or modified")
+    try:
+        footer = pq.read_metadata(str(file))
+    except (pa.ArrowException, OSError, ValueError) as e:
+        raise DatabaseError(f"{file}: corrupt Parquet file, cannot read its footer ({e})") from None
+    metadata = footer.metadata or {}
+    tag = (metadata.get(b"mocapdb.table"), metadata.get(b"mocapdb.schema_version"))
+    if tag != (table.encode(), str(SCHEMA_VERSION).encode()) or footer.num_rows != entry["rows"]:
+        raise DatabaseError(f"{file}: not this database's {table!r} table ({footer.num_rows} rows, metadata {tag}; "
+                            f"the manifest says {entry['rows']} rows)")
+
+
+def verify_database(path: str | os.PathLike) -> list[tuple[str, str | None]]:
+    """Every file of the database at ``path`` checked against its manifest, each on its own: the
+    tables (size, sha256, Parquet, columns, finite values), the search index (size, dtype, shape,
+    CRC-32 blocks), then the whole (shapes and value ranges across tables). Returns (what, the
+    problem or None) per check; DatabaseError when there is no readable manifest."""
+    path = Path(path)
+    manifest = _read_manifest(path)
+    report: list[tuple[str, str | None]] = []
+    with ThreadPoolExecutor(max_workers=1) as hasher:
+        for table, entry in manifest["tables"].items():
+            report.append((entry["file"], _problem(lambda: _read_table(path, table, entry, hasher))))
+    if (entries := manifest.get("search_index")) is not None:
+        tables = manifest["tables"]
+        report.append(("search index", _problem(lambda: load_search_index(
+            path, entries, tables["projections"]["rows"], tables["clusters"]["rows"], True))))
+    if not any(problem for _, problem in report):
+        report.append(("the database as a whole", _problem(lambda: load_database(path))))
+    return report
+
+
+def _problem(check) -> str | None:
+    """What ``check()`` raised (a DatabaseError or SearchIndexError), or None."""
+    try:
+        check()
+    except (DatabaseError, SearchIndexError) as exc:
+        return str(exc)
+    return None
 
 
 def _read_manifest(path: Path) -> dict:
