@@ -19,6 +19,7 @@ from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.openpose import read_openpose_folder
 from mocapdb.core.formats.take import default_focal_px, read_take
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, KP, UNIVERSAL_HEIGHT_M, pose_from_rotations
+from mocapdb.evaluation.reconstruction import run_sequence
 from mocapdb.runtime.engine import Engine, EngineConfig
 from mocapdb.runtime.world import HUMAN_STATURE_M, fit_world
 
@@ -39,10 +40,8 @@ def check_footage(db: MotionDatabase, folder: str | Path, engine: EngineConfig =
     focal = take.focal_px or default_focal_px(take.image_size)
     config = replace(engine, fps=take.fps, image_size=take.image_size, focal_px=focal, keep_take=True,
                      camera_height_m=None)
-    run = Engine(db, config)
-    for frame in read_openpose_folder(folder, fps=take.fps):
-        run.step(frame)
-    recordings = [r for r in run.finish() if not r.static and r.duration_s(take.fps) >= MIN_TRACK_S]
+    run = run_sequence(Engine(db, config), list(read_openpose_folder(folder, fps=take.fps)))
+    recordings = [r for r in run.recordings if not r.static and r.duration_s(take.fps) >= MIN_TRACK_S]
     fitted, world = fit_world(recordings, take.fps) if recordings else ([], None)
     tracks = [_track_check(rec, world.people[rec.track].kind, take.fps) for rec in fitted]
     return {"folder": str(folder), "fps": take.fps, "image_size": list(take.image_size), "focal_px": focal,
