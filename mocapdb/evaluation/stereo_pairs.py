@@ -213,18 +213,19 @@ def _support(body: np.ndarray, found: list[list[tuple[np.ndarray, np.ndarray]]],
 
 
 def triangulate_views(points: list[np.ndarray], seen: list[np.ndarray], cams: list[CameraModel]) -> np.ndarray:
-    """Joints ``[14, 3]`` (world, metres) by linear triangulation (DLT) from the views that see them
-    (``points[v] [14, 2]`` pixels, ``seen[v] [14]``, camera ``cams[v]``); NaN where fewer than two do."""
+    """Points ``[..., 3]`` (world, metres) by linear triangulation (DLT) from the views that see them
+    (``points[v] [..., 2]`` pixels, ``seen[v] [...]``, camera ``cams[v]``; e.g. ``[14]`` joints of one frame
+    or ``[T, J]``); NaN where fewer than two views do."""
     rows = []
     for px, ok, cam in zip(points, seen, cams):
         n = cam.undistort_normalized(np.nan_to_num(px))
         P = projection_matrix(cam.R, cam.t)
-        rows.append((n[..., None] * P[2] - P[:2]) * ok[:, None, None])  # [14, 2, 4]: x P₃ − P₁, y P₃ − P₂
-    system = np.concatenate(rows, axis=1)
-    out = np.full((N_KEYPOINTS_2D, 3), np.nan)
-    for j in np.flatnonzero(np.sum(seen, axis=0) >= 2):
-        homogeneous = np.linalg.svd(system[j])[2][-1]
-        out[j] = homogeneous[:3] / homogeneous[3]
+        rows.append((n[..., None] * P[2] - P[:2]) * ok[..., None, None])  # [..., 2, 4]: x P₃ − P₁, y P₃ − P₂
+    system = np.concatenate(rows, axis=-2)
+    valid = np.sum(seen, axis=0) >= 2
+    out = np.full(valid.shape + (3,), np.nan)
+    homogeneous = np.linalg.svd(system[valid])[2][..., -1, :]
+    out[valid] = homogeneous[:, :3] / homogeneous[:, 3:]
     return out
 
 

@@ -203,6 +203,12 @@ def read_openpose_folder(folder: str | Path, layout: str | None = None,
     return _detected_frames((_read_people(p) for p in files), files, optional_layout(layout), fps, files[0].parent)
 
 
+def read_raw_folder(folder: str | Path) -> list[list[RawPerson]]:
+    """Each frame's people of a keypoint folder as its files hold them (the source layout, not mapped
+    onto the universal 14), in frame order (:func:`frame_order_key`); errors name the file."""
+    return [_read_people(p) for p in _frame_files(Path(folder))]
+
+
 def _detected_frames(parsed: Iterator[list[RawPerson]], names: Sequence[object], layout: str | None,
                      fps: float | None, pool_name: object) -> Iterator[KeypointFrame]:
     """Frames of the people lists ``parsed`` (frame i is ``names[i]`` in errors); ``layout`` None:
