@@ -174,7 +174,7 @@ def cpu_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def _load_session(path: Path) -> Any:
+def load_session(path: Path) -> Any:
     """An onnxruntime CPU session for ``path`` set for this machine (intra-op threads = its cores, not
     spinning when idle; sequential execution; all graph optimisations); DetectError when missing or
     not loadable."""
@@ -221,7 +221,7 @@ class PoseModel:
                  max_people: int | None = None, input_size: int = DEFAULT_INPUT_SIZE) -> None:
         _check_options(conf, iou, max_people, input_size)
         self.path = Path(path)
-        self._session = _load_session(self.path)
+        self._session = load_session(self.path)
         inputs, outputs = self._session.get_inputs(), self._session.get_outputs()
         layout = identify_layout([i.shape for i in inputs], [o.shape for o in outputs])
         if layout is None or inputs[0].type not in _INPUT_TYPES:
