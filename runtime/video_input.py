@@ -1,8 +1,9 @@
 """Video as a live source: decoding and 2D pose detection in their own thread, feeding the live loop.
 
-:class:`VideoDetections` decodes a video file or a camera and runs a :class:`~mocapdb.detect.model.PoseModel`
-on each frame in a background thread, so detection of the next frame overlaps the engine's
-retrieval of this one. Frames (universal 14 keypoints) wait in a small buffer; when the consumer
+:class:`VideoDetections` decodes a video file or a camera and runs a detector
+(:func:`~mocapdb.detect.detectors.open_detector`: BlazePose, or a YOLO-pose/RTMO export) on each
+frame in a background thread, so detection of the next frame overlaps the engine's retrieval of
+this one. Frames (universal 14 keypoints) wait in a small buffer; when the consumer
 falls behind, the oldest is dropped and counted (``StreamStats.dropped_stale``), as
 :class:`~mocapdb.runtime.buffering.LiveInput` does for messages. Every frame carries the moment it was
 decoded, so the session's latency is end to end: capture → output line. A file is read as fast as
@@ -15,10 +16,9 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING, NamedTuple
 
 from mocapdb.core.formats.keypoints import KeypointFrame, Person, to_universal
+from mocapdb.detect.detectors import FrameDetector
 from mocapdb.detect.errors import DetectError
-from mocapdb.detect.model import Detections, PoseModel
-from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU
-from mocapdb.detect.tracked import FULL_FRAME, FastPath, TrackedDetector
+from mocapdb.detect.model import Detections
 from mocapdb.detect.video import VideoFrame, VideoReader
 from mocapdb.runtime.buffering import BufferedThread
 from mocapdb.runtime.stream_types import StreamStats
@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from mocapdb.runtime.session import Session
 
 POLL_S = 0.05   # how often the live loop checks ``stop`` while no frame is ready
+KEYPOINT_FILE_SUFFIXES = (".jsonl", ".json", ".ndjson", ".txt")   # a --source file with these is keypoints
 
 
 class CapturedFrame(NamedTuple):
@@ -36,23 +37,24 @@ class CapturedFrame(NamedTuple):
     capture_s: float
 
 
-def keypoint_frame(video_frame: VideoFrame, found: Detections) -> KeypointFrame:
-    """The people ``found`` in ``video_frame`` as the engine takes them (universal keypoints, frame pixels)."""
-    points, confidence = to_universal(found.keypoints, "coco17")
+def keypoint_frame(video_frame: VideoFrame, found: Detections, layout: str = "coco17") -> KeypointFrame:
+    """The people ``found`` (keypoints in ``layout``) in ``video_frame`` as the engine takes them
+    (universal keypoints, frame pixels)."""
+    points, confidence = to_universal(found.keypoints, layout)
     people = [Person(p, c) for p, c in zip(points, confidence)]
-    return KeypointFrame(video_frame.index, video_frame.time_s, people, "coco17")
+    return KeypointFrame(video_frame.index, video_frame.time_s, people, layout)
 
 
 class VideoDetections(BufferedThread[CapturedFrame]):
     """Frames of ``source`` (a video file path, or a camera index) with the people ``model`` finds
-    (a :class:`~mocapdb.detect.tracked.TrackedDetector` follows them across frames: crops, optical flow).
+    (BlazePose or a :class:`~mocapdb.detect.tracked.TrackedDetector`: both follow them across frames).
 
     ``every``: detect every N-th frame only; ``capacity``: frames buffered before the oldest is
     dropped (see :class:`~mocapdb.runtime.buffering.BufferedThread`). Opening the video happens here
     (DetectError if it fails); the thread starts at once.
     """
 
-    def __init__(self, source: str | int, model: TrackedDetector | PoseModel, *, every: int = 1, capacity: int = 2,
+    def __init__(self, source: str | int, model: FrameDetector, *, every: int = 1, capacity: int = 2,
                  stats: StreamStats | None = None) -> None:
         if every < 1 or capacity < 1:
             raise DetectError("every and capacity must be at least 1")
@@ -73,7 +75,7 @@ class VideoDetections(BufferedThread[CapturedFrame]):
             yield captured
 
     def _detect(self, video_frame: VideoFrame) -> KeypointFrame:
-        return keypoint_frame(video_frame, self.model(video_frame.image))
+        return keypoint_frame(video_frame, self.model(video_frame.image), self.model.keypoint_layout)
 
     @property
     def detection_fps(self) -> float:
@@ -96,16 +98,19 @@ class VideoDetections(BufferedThread[CapturedFrame]):
         self.reader.close()
 
 
-def open_video_source(spec: str, model_path: str, *, conf: float = DEFAULT_CONF, iou: float = DEFAULT_IOU,
-                      max_people: int | None = None, input_size: int = DEFAULT_INPUT_SIZE, every: int = 1,
-                      capacity: int = 2, stats: StreamStats | None = None,
-                      fast: FastPath = FULL_FRAME) -> VideoDetections:
-    """``mocapdb live --source SPEC --model POSE.onnx``: SPEC of digits is a camera index, anything
-    else a video file. The model options are :class:`~mocapdb.detect.model.PoseModel`'s, ``fast`` the
-    detector's paths (:class:`~mocapdb.detect.tracked.FastPath`; the command line's default: crops);
-    DetectError on failure."""
-    model = TrackedDetector(PoseModel(model_path, conf=conf, iou=iou, max_people=max_people,
-                                      input_size=input_size), fast)
+def is_video_source(spec: str) -> bool:
+    """Whether ``live --source SPEC`` is a camera (an index: digits) or a video file (a file that is
+    not JSON lines), rather than a keypoint stream."""
+    from pathlib import Path
+
+    return spec.isdigit() or (Path(spec).is_file() and Path(spec).suffix.lower() not in KEYPOINT_FILE_SUFFIXES)
+
+
+def open_video_source(spec: str, model: FrameDetector, *, every: int = 1, capacity: int = 2,
+                      stats: StreamStats | None = None) -> VideoDetections:
+    """``mocapdb live --source SPEC`` on a video: SPEC of digits is a camera index, anything else a
+    video file, ``model`` the detector (:func:`~mocapdb.detect.detectors.open_detector`); DetectError
+    on failure."""
     source: str | int = int(spec) if spec.isdigit() else spec
     return VideoDetections(source, model, every=every, capacity=capacity, stats=stats)
 

@@ -262,11 +262,11 @@ def test_detect_every_and_conf_options(video, rtmo_model, tmp_path):
     assert json.loads((out / "take.json").read_text())["fps"] == pytest.approx(VIDEO_FPS / 3)  # the keypoints' rate
 
 
-def test_detect_user_errors_exit_2_with_clear_messages(video, yolo_model, tmp_path, capsys):
+def test_detect_user_errors_exit_2_with_clear_messages(video, yolo_model, tmp_path, capsys, monkeypatch):
     bad_video = tmp_path / "bad.mp4"
     bad_video.write_bytes(np.random.default_rng(2).bytes(5000))
-    no_model = ("no pose model given: pass --model POSE.onnx (a YOLO-pose or RTMO ONNX export; "
-                "see data_specs/pose_models.md)")
+    monkeypatch.setenv("MOCAPDB_MODELS", str(tmp_path / "no_models"))   # an offline machine never set up
+    no_model = "BlazePose full is not prepared on this machine"
     cases = [((str(video), "--out", str(tmp_path / "o")), no_model),
              ((str(video), "--model", str(tmp_path / "absent.onnx"), "--out", str(tmp_path / "o")),
               "absent.onnx: no such file"),
@@ -277,13 +277,15 @@ def test_detect_user_errors_exit_2_with_clear_messages(video, yolo_model, tmp_pa
         err = capsys.readouterr().err
         assert err.startswith("mocapdb detect: error: ") and message in err and "Traceback" not in err
     assert not (tmp_path / "o").exists()
+    assert detect(str(video), "--out", str(tmp_path / "o")) == 2
+    assert "run `mocapdb models fetch` once" in capsys.readouterr().err
 
 
 # --- the live video source -------------------------------------------------------------------
 
 def test_video_detections_drop_the_oldest_for_a_slow_consumer(video, yolo_model):
     stats = StreamStats()
-    live = open_video_source(str(video), str(yolo_model), capacity=2, stats=stats)
+    live = open_video_source(str(video), PoseModel(yolo_model), capacity=2, stats=stats)
     deadline = time.monotonic() + 10
     while live.frames_detected < VIDEO_FRAMES and time.monotonic() < deadline:
         time.sleep(0.01)   # a consumer busy elsewhere
@@ -317,7 +319,7 @@ def test_run_video_hands_every_frame_to_the_session(video, yolo_model):
 
 def test_open_video_source_reads_digits_as_a_camera(yolo_model):
     with pytest.raises(DetectError, match="camera 99: cannot be opened"):
-        open_video_source("99", str(yolo_model))
+        open_video_source("99", PoseModel(yolo_model))
 
 
 # --- end to end: video → keypoints → 3D → BVH ---------------------------------------------------

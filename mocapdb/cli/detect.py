@@ -9,17 +9,28 @@ from typing import TYPE_CHECKING
 from mocapdb.cli import paths as P
 from mocapdb.core import domains as D
 from mocapdb.detect.options import (
+    BLAZEPOSE_VARIANTS,
+    DEFAULT_BLAZEPOSE,
     DEFAULT_CONF,
     DEFAULT_CROP_PX,
     DEFAULT_FULL_EVERY,
     DEFAULT_INPUT_SIZE,
     DEFAULT_IOU,
     DETECTORS,
-    NO_MODEL,
+    FETCH_COMMAND,
 )
 
 if TYPE_CHECKING:
     from mocapdb.detect.tracked import FastPath
+
+
+def add_model_options(p: argparse.ArgumentParser) -> None:
+    """``--blazepose VARIANT`` (the default detector) and ``--model POSE.onnx`` (an export instead)."""
+    p.add_argument("--blazepose", choices=BLAZEPOSE_VARIANTS, default=DEFAULT_BLAZEPOSE,
+                   help="BlazePose landmark model, the detector used without --model (prepared by "
+                        f"`{FETCH_COMMAND} [VARIANT]`; default %(default)s)")
+    p.add_argument("--model", metavar="POSE.onnx", type=P.INPUT_FILE,
+                   help="a YOLO-pose or RTMO ONNX export instead of BlazePose (data_specs/pose_models.md)")
 
 
 def add_detector_options(p: argparse.ArgumentParser, detector: str) -> None:
@@ -51,15 +62,16 @@ def fast_path(args: argparse.Namespace) -> FastPath:
 
 def add_detect_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Adds the ``detect`` subcommand; its ``run`` returns the exit code (2 for a user error)."""
-    p = sub.add_parser("detect", help="video or camera → 2D keypoints (OpenPose JSON per frame), ONNX pose model",
-                       description="Decode a video (or a camera) with OpenCV, run a YOLO-pose or RTMO ONNX export "
-                                   "on each frame with onnxruntime (CPU) and write OUT/<video>_<frame>_keypoints.json "
-                                   "in OpenPose's COCO-18 layout, ready for `mocapdb reconstruct` or `live`. "
-                                   "Model layouts: data_specs/pose_models.md.")
+    p = sub.add_parser("detect", help="video or camera → 2D keypoints of several people (OpenPose JSON per frame)",
+                       description="Decode a video (or a camera) with OpenCV, find the people of each frame with "
+                                   "BlazePose (33 landmarks each, heels, toes and hands included; onnxruntime, CPU) "
+                                   "or a YOLO-pose/RTMO export given with --model, and write "
+                                   "OUT/<video>_<frame>_keypoints.json (BlazePose: the mediapipe33 layout; exports: "
+                                   "OpenPose's COCO-18) and OUT/take.json, ready for `mocapdb reconstruct` or `live`. "
+                                   "Models and layouts: data_specs/pose_models.md.")
     p.add_argument("video", nargs="?", type=P.INPUT_FILE, help="video file (any format OpenCV's FFmpeg decodes)")
     p.add_argument("--camera", type=D.CAMERA_INDEX, metavar="N", help="read camera N instead of a file (Ctrl-C ends)")
-    p.add_argument("--model", metavar="POSE.onnx", type=P.INPUT_FILE,
-                   help="pose model: a YOLO-pose or RTMO ONNX export (see data_specs/pose_models.md)")
+    add_model_options(p)
     p.add_argument("--out", required=True, metavar="DIR", type=P.OUTPUT_DIR,
                    help="folder for the JSON files, written as the video is read (created if missing; an "
                         "earlier detect output there is replaced, a folder holding other files refused)")
@@ -83,21 +95,18 @@ def run_detect(args: argparse.Namespace) -> int:
     interrupted before its end."""
     from mocapdb.core.outputs import check_output_folder
     from mocapdb.core.signals import install_stop_handlers
+    from mocapdb.detect.detectors import open_detector
     from mocapdb.detect.errors import DetectError
-    from mocapdb.detect.model import PoseModel
     from mocapdb.detect.openpose_out import DETECT_FILES, detect_video
-    from mocapdb.detect.tracked import TrackedDetector
     from mocapdb.detect.video import VideoReader
 
-    if not args.model:
-        raise DetectError(NO_MODEL)
     if (args.video is None) == (args.camera is None):
         raise DetectError("give either a VIDEO file or --camera N")
     if args.every < 1:
         raise DetectError("--every must be at least 1")
     check_output_folder(args.out, DETECT_FILES)  # before any work; emptied once the model and the video open
-    model = TrackedDetector(PoseModel(args.model, conf=args.conf, iou=args.iou, max_people=args.max_people,
-                                      input_size=args.input_size), fast_path(args))
+    model = open_detector(args.model, args.blazepose, conf=args.conf, iou=args.iou, max_people=args.max_people,
+                          input_size=args.input_size, fast=fast_path(args))
     reader = VideoReader(args.camera if args.camera is not None else args.video)
     stop = threading.Event()
     try:
@@ -110,3 +119,46 @@ def run_detect(args: argparse.Namespace) -> int:
     if summary.truncated:
         raise DetectError(f"{summary.truncated}; the {len(summary.people)} file(s) written in {args.out} are kept")
     return 130 if summary.interrupted and not reader.is_camera else 0
+
+
+def add_models_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Adds ``models``: ``models fetch [VARIANT...]`` prepares BlazePose, ``models list`` says what is ready."""
+    p = sub.add_parser("models", help="prepare the BlazePose models (once, from the package index)",
+                       description="fetch: download the pinned MediaPipe packages that carry BlazePose (Apache-2.0) "
+                                   "from the package indexes, check their sha256, convert the models to ONNX with "
+                                   "mocapdb's own converter and keep them in $MOCAPDB_MODELS (default "
+                                   "~/.cache/mocapdb/models). list: the models prepared. Nothing is downloaded at "
+                                   "run time. Sources and pins: data_specs/pose_models.md.")
+    p.add_argument("action", choices=("fetch", "list"))
+    p.add_argument("variants", nargs="*", type=_variant, metavar="VARIANT",
+                   help=f"landmark models to prepare: {', '.join(BLAZEPOSE_VARIANTS)} (default {DEFAULT_BLAZEPOSE}; "
+                        "the person detector always)")
+    p.set_defaults(run=run_models)
+    return p
+
+
+def _variant(text: str) -> str:
+    """A BlazePose variant name (argparse's ``choices`` refuses an empty ``nargs="*"`` list)."""
+    if text not in BLAZEPOSE_VARIANTS:
+        raise argparse.ArgumentTypeError(f"unknown variant {text!r} (choose from {', '.join(BLAZEPOSE_VARIANTS)})")
+    return text
+
+
+def run_models(args: argparse.Namespace) -> int:
+    """``mocapdb models fetch|list``: 0 when every model asked for is ready; DetectError otherwise."""
+    from mocapdb.detect.errors import DetectError
+    from mocapdb.detect.model_store import blazepose_paths, fetch_models, models_dir
+
+    variants = tuple(args.variants) or (DEFAULT_BLAZEPOSE,)
+    if args.action == "fetch":
+        paths = fetch_models(variants)
+        print(f"BlazePose {', '.join(variants)} ready in {models_dir()} ({len(paths)} models)")
+        return 0
+    ready = []
+    for variant in BLAZEPOSE_VARIANTS:
+        try:
+            ready.append(f"{variant}: {blazepose_paths(variant)[1]}")
+        except DetectError:
+            ready.append(f"{variant}: not prepared (`{FETCH_COMMAND} {variant}`)")
+    print("\n".join([f"models in {models_dir()}"] + ready))
+    return 0

@@ -16,7 +16,7 @@ from mocapdb.core.errors import MocapdbError
 
 COMMANDS = (build.add_build_parser, build.add_inspect_parser, build.add_verify_parser,
             reconstruct.add_reconstruct_parser, reconstruct.add_live_parser, evaluate.add_eval_parser,
-            detect.add_detect_parser, stereo.add_stereo_parser, render.add_render_parser)
+            detect.add_detect_parser, detect.add_models_parser, stereo.add_stereo_parser, render.add_render_parser)
 
 
 class _Parser(argparse.ArgumentParser):

@@ -7,7 +7,7 @@ import os
 import sys
 
 from mocapdb.cli import paths as P
-from mocapdb.cli.detect import add_detector_options, fast_path
+from mocapdb.cli.detect import add_detector_options, add_model_options, fast_path
 from mocapdb.core import domains as D
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 
@@ -121,6 +121,13 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                              "each as soon as it is complete (default 10)")
 
 
+def _is_video(source: str) -> bool:
+    """``live --source`` names a video file or a camera (not a keypoint stream)."""
+    from mocapdb.runtime.video_input import is_video_source
+
+    return is_video_source(source)
+
+
 def resolve_take(args: argparse.Namespace, source: str) -> None:
     """Fill ``args.fps``, ``args.image_size`` and ``args.focal`` from what the input says where they
     were not given: ``source/take.json`` (what `mocapdb detect` wrote) for a folder, the video itself
@@ -131,7 +138,7 @@ def resolve_take(args: argparse.Namespace, source: str) -> None:
 
     from mocapdb.core.formats.take import DEFAULT_FOCAL_35MM, TAKE_FILE, read_take, resolve_camera
 
-    if getattr(args, "model", None) and Path(source).is_file():
+    if getattr(args, "blazepose", None) and _is_video(source):
         take, where = _video_take(source), source
     else:
         take = read_take(source) if source and Path(source).is_dir() else None
@@ -348,10 +355,9 @@ def add_live_parser(sub: argparse._SubParsersAction) -> None:
                                    "'-' for stdin, tcp://HOST:PORT or udp://HOST:PORT to listen on), write one "
                                    "JSON line per frame to the sink, and a BVH per track on exit (Ctrl-C).")
     p.add_argument("--source", required=True, type=P.STREAM_SOURCE,
-                   help="folder, '-', tcp://HOST:PORT or udp://HOST:PORT; with --model: a video file or a camera index")
-    p.add_argument("--model", metavar="POSE.onnx", type=P.INPUT_FILE,
-                   help="YOLO-pose or RTMO ONNX export: detect people in the --source video/camera "
-                        "(data_specs/pose_models.md)")
+                   help="folder of keypoint files, a .jsonl file, '-', tcp://HOST:PORT or udp://HOST:PORT; or a "
+                        "video file or a camera index (digits), whose people BlazePose (or --model) detects")
+    add_model_options(p)
     p.add_argument("--sink", default="-", type=P.STREAM_SINK,
                    help="'-' (stdout), a file, tcp://HOST:PORT or udp://HOST:PORT")
     p.add_argument("--bvh-dir", type=P.OUTPUT,
@@ -383,6 +389,8 @@ def run_live(args: argparse.Namespace) -> int:
 
     from mocapdb.core.outputs import check_no_track_files
     from mocapdb.core.signals import install_stop_handlers
+    from mocapdb.detect.detectors import open_detector
+    from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU
     from mocapdb.runtime.session import SinkError, run_live
     from mocapdb.runtime.streams import NetworkLimits, open_source
     from mocapdb.runtime.video_input import open_video_source, run_video
@@ -395,9 +403,10 @@ def run_live(args: argparse.Namespace) -> int:
     stop, video = threading.Event(), None
     with install_stop_handlers(stop, force_quit=False):
         try:
-            if args.model:
-                video = open_video_source(args.source, args.model, capacity=args.buffer, stats=session.summary.stream,
-                                          fast=fast_path(args))
+            if _is_video(args.source):
+                detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
+                                         max_people=None, input_size=DEFAULT_INPUT_SIZE, fast=fast_path(args))
+                video = open_video_source(args.source, detector, capacity=args.buffer, stats=session.summary.stream)
                 run_video(session, video, stop)
             else:
                 source = open_source(args.source, stats=session.summary.stream, follow=True,

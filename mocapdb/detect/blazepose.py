@@ -185,7 +185,7 @@ class BlazePose:
     ``max_people``: the people followed at most; ``scan_every``: the detector's schedule (frames).
     ``fps`` is the rate sustained (frames per second of detection time)."""
 
-    layout = "mediapipe33"
+    keypoint_layout = "mediapipe33"
 
     def __init__(self, detector_path: Path, landmark_path: Path, *, max_people: int | None = None,
                  scan_every: int = DEFAULT_SCAN_EVERY, name: str = "BlazePose") -> None:

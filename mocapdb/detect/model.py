@@ -217,6 +217,8 @@ class PoseModel:
     per second of pre-processing, inference and post-processing time).
     """
 
+    keypoint_layout = "coco17"
+
     def __init__(self, path: str | Path, *, conf: float = DEFAULT_CONF, iou: float = DEFAULT_IOU,
                  max_people: int | None = None, input_size: int = DEFAULT_INPUT_SIZE) -> None:
         _check_options(conf, iou, max_people, input_size)

@@ -1,8 +1,9 @@
 """What `mocapdb detect` writes: one OpenPose ``--write_json`` file per frame, and the loop that
 runs the model over a video to write them.
 
-Detections come in COCO-17 (the models' order) and are written in OpenPose's COCO-18 layout
-(:func:`coco17_to_coco18`) as ``<video stem>_<frame:012d>_keypoints.json``, each file atomically,
+Detections come in the detector's layout: BlazePose's 33 landmarks are written as they are
+(``mediapipe33``), YOLO-pose and RTMO's COCO-17 in OpenPose's COCO-18 layout
+(:func:`coco17_to_coco18`), as ``<video stem>_<frame:012d>_keypoints.json``, each file atomically,
 so `mocapdb reconstruct` and `live` read them like OpenPose's own output. File format:
 ``data_specs/pose_models.md``.
 
@@ -30,7 +31,7 @@ from mocapdb.core.progress import progress
 from mocapdb.detect.errors import DetectError
 
 if TYPE_CHECKING:
-    from mocapdb.detect.tracked import TrackedDetector
+    from mocapdb.detect.detectors import FrameDetector
     from mocapdb.detect.video import VideoReader
 
 N_COCO = len(LAYOUTS["coco17"])
@@ -65,9 +66,20 @@ def coco17_to_coco18(keypoints: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(out).all(axis=-1, keepdims=True), out, 0.0)
 
 
-def openpose_json(keypoints: np.ndarray) -> str:
-    """One OpenPose ``--write_json`` frame (version 1.3, COCO-18) for people ``[P, 17, 3]`` in COCO-17."""
-    rows = coco17_to_coco18(np.asarray(keypoints, dtype=np.float64).reshape(-1, N_COCO, 3))
+def written_layout(layout: str) -> str:
+    """The layout of the files written for a detector's ``layout``: COCO-17 is written as OpenPose's
+    COCO-18, any other layout as it is."""
+    return "coco18" if layout == "coco17" else layout
+
+
+def openpose_json(keypoints: np.ndarray, layout: str = "coco17") -> str:
+    """One OpenPose ``--write_json`` frame (version 1.3) for people ``[P, K, 3]`` in ``layout``:
+    COCO-17 becomes COCO-18 (:func:`coco17_to_coco18`), other layouts (BlazePose's 33) stay; non-finite
+    points become (0, 0, 0), "not found"."""
+    size = len(LAYOUTS[layout])
+    rows = np.asarray(keypoints, dtype=np.float64).reshape(-1, size, 3)
+    rows = coco17_to_coco18(rows) if layout == "coco17" else \
+        np.where(np.isfinite(rows).all(axis=-1, keepdims=True), rows, 0.0)
     rows = np.concatenate([np.round(rows[..., :2], 2), np.round(rows[..., 2:], 4)], axis=-1)
     people = [{"person_id": [-1], "pose_keypoints_2d": person.ravel().tolist(), "face_keypoints_2d": [],
                "hand_left_keypoints_2d": [], "hand_right_keypoints_2d": []} for person in rows]
@@ -100,7 +112,7 @@ class DetectSummary:
             f"detection {self.detection_fps:.1f} frames/s"])
 
 
-def detect_video(reader: VideoReader, model: TrackedDetector, out_dir: Path, every: int = 1,
+def detect_video(reader: VideoReader, model: FrameDetector, out_dir: Path, every: int = 1,
                  stop: threading.Event | None = None) -> DetectSummary:
     """Detect people in every ``every``-th frame (by the paths ``model`` allows:
     :mod:`mocapdb.detect.tracked`) and write one OpenPose JSON file per frame
@@ -124,7 +136,7 @@ def detect_video(reader: VideoReader, model: TrackedDetector, out_dir: Path, eve
             found = model(frame.image)
             path = out_dir / frame_file_name(reader.name, frame.index)
             try:
-                write_atomic(path, openpose_json(found.keypoints))
+                write_atomic(path, openpose_json(found.keypoints, model.keypoint_layout))
             except OSError as exc:
                 raise DetectError(os_error_message(exc, path, "write the keypoints")) from None
             summary.people.append(len(found.scores))
@@ -135,7 +147,7 @@ def detect_video(reader: VideoReader, model: TrackedDetector, out_dir: Path, eve
     summary.frames_read, summary.detection_fps = reader.frames_read, model.fps
     summary.truncated = None if summary.interrupted else reader.truncation()
     take = TakeInfo(fps=reader.fps / every if reader.fps else None, image_size=size, frames=len(summary.people),
-                    source=reader.label, model=model.path.name)
+                    source=reader.label, model=model.path.name, layout=written_layout(model.keypoint_layout))
     try:
         write_take(out_dir, take)
     except OSError as exc:

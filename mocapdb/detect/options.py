@@ -6,5 +6,6 @@ DEFAULT_INPUT_SIZE = 640   # model input side in pixels when the export leaves i
 DEFAULT_CROP_PX = 256      # largest model input side in pixels for a person crop (dynamic exports)
 DEFAULT_FULL_EVERY = 30    # following people in crops, the whole frame is searched at least every this many frames
 DETECTORS = ("full", "crops")   # the model on every whole frame; or on crops around the people followed
-NO_MODEL = ("no pose model given: pass --model POSE.onnx (a YOLO-pose or RTMO ONNX export; "
-            "see data_specs/pose_models.md)")
+BLAZEPOSE_VARIANTS = ("lite", "full", "heavy")   # landmark models; the person detector is shared
+DEFAULT_BLAZEPOSE = "full"
+FETCH_COMMAND = "mocapdb models fetch"          # prepares the BlazePose models (mocapdb.detect.model_store)

@@ -141,6 +141,8 @@ class TrackedDetector:
     ``paths`` counts them; ``fps`` is the rate sustained (frames per second of detection time).
     """
 
+    keypoint_layout = "coco17"
+
     def __init__(self, model: PoseModel, fast: FastPath = FULL_FRAME) -> None:
         self.model, self.fast = model, fast
         self.paths: Counter[str] = Counter()

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from mocapdb.core.errors import MocapdbError, UsageError
 from mocapdb.core.files import read_input_text, write_atomic
+from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 
 TAKE_FILE = "take.json"
 TAKE_FORMAT = "mocapdb-take"
@@ -53,7 +54,8 @@ class TakeError(MocapdbError, ValueError):
 @dataclass(frozen=True)
 class TakeInfo:
     """One take: keypoints' frame rate (Hz), image (width, height) in pixels, frames written, the
-    source video or camera, the model, and the focal length in pixels (None: unknown)."""
+    source video or camera, the model, the focal length in pixels (None: unknown) and the keypoint
+    layout of the files (a name of ``keypoint_layouts.LAYOUTS``; None: told by the files)."""
 
     fps: float | None
     image_size: tuple[int, int] | None
@@ -61,6 +63,7 @@ class TakeInfo:
     source: str
     model: str | None = None
     focal_px: float | None = None
+    layout: str | None = None
 
     def __post_init__(self) -> None:
         _check_fps(self.fps, "fps")
@@ -70,6 +73,8 @@ class TakeInfo:
         if self.frames is not None and (isinstance(self.frames, bool) or not isinstance(self.frames, int)
                                         or self.frames < 0):
             raise ValueError(f"frames must be a count, not {self.frames!r}")
+        if self.layout is not None and (not isinstance(self.layout, str) or self.layout not in LAYOUTS):
+            raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, not {self.layout!r}")
 
 
 def _check_fps(fps: object, name: str) -> None:
@@ -112,7 +117,7 @@ def read_take(folder: str | Path) -> TakeInfo | None:
     try:
         return TakeInfo(fps=body.get("fps"), image_size=tuple(size) if isinstance(size, list) else size,
                         frames=body.get("frames"), source=str(body.get("source", "")), model=body.get("model"),
-                        focal_px=body.get("focal_px"))
+                        focal_px=body.get("focal_px"), layout=body.get("layout"))
     except ValueError as exc:
         raise TakeError(f"{path}: {exc}") from None
 

@@ -1,0 +1,47 @@
+"""Which detector runs on a video: BlazePose (the default, converted at set-up) or a YOLO-pose/RTMO export.
+
+:func:`open_detector` gives what `mocapdb detect` and `live` call once per frame: a
+:class:`~mocapdb.detect.blazepose.BlazePose` when no ``--model`` is given, else the export in a
+:class:`~mocapdb.detect.tracked.TrackedDetector`. Both give
+:class:`~mocapdb.detect.model.Detections` and say their ``keypoint_layout`` (``mediapipe33`` or
+``coco17``), ``fps``, ``path`` and :meth:`describe`.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from mocapdb.detect.model import Detections
+
+
+class FrameDetector(Protocol):
+    """A detector run on the consecutive frames of one video."""
+
+    keypoint_layout: str
+    path: Path
+
+    @property
+    def fps(self) -> float: ...
+
+    def describe(self) -> str: ...
+
+    def __call__(self, image: np.ndarray) -> Detections: ...
+
+
+def open_detector(model: str | Path | None, variant: str, *, conf: float, iou: float, max_people: int | None,
+                  input_size: int, fast) -> FrameDetector:
+    """BlazePose ``variant`` (lite, full, heavy) when ``model`` is None, else the ONNX export ``model``
+    with the paths ``fast`` allows (:class:`~mocapdb.detect.tracked.FastPath`); DetectError when the
+    model cannot be used or BlazePose is not prepared on this machine."""
+    if model is None:
+        from mocapdb.detect.blazepose import BlazePose
+        from mocapdb.detect.model_store import blazepose_paths
+
+        detector_path, landmark_path = blazepose_paths(variant)
+        return BlazePose(detector_path, landmark_path, max_people=max_people, name=f"BlazePose {variant}")
+    from mocapdb.detect.model import PoseModel
+    from mocapdb.detect.tracked import TrackedDetector
+
+    return TrackedDetector(PoseModel(model, conf=conf, iou=iou, max_people=max_people, input_size=input_size), fast)
