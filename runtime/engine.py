@@ -20,6 +20,7 @@ from numba import njit
 
 from mocapdb.core import domains as D
 from mocapdb.core.formats.database import DatabaseError, MotionDatabase
+from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
 from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
 from mocapdb.core.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, Match, PersonPose, TrackRecording
@@ -52,6 +53,8 @@ from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotat
 from mocapdb.runtime.tracker import Tracker, TrackerConfig, TrackUpdate
 
 R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]  # numba freezes them as constants
+# A person's heels, toes and knuckles when its layout has none: all missing
+NO_EXTREMITIES = np.column_stack([np.full((len(EXTREMITIES), 2), np.nan), np.zeros(len(EXTREMITIES))])
 
 
 @dataclass(frozen=True)
@@ -167,10 +170,11 @@ class _TrackState:
         return self.history[0] if self.n_history and self.last_frame == frame - 1 else None
 
     def record(self, frame: int, t_s: float, quats: np.ndarray, root_view: np.ndarray,
-               fit: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
+               fit: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
         """Append this frame, holding the last pose over any frames the track missed; ``fit``: the
-        unfiltered rotations and root and the keypoints ``[14, 3]`` (x, y px, confidence), kept for the
-        whole-take fit (missed frames get the last fit and no keypoint)."""
+        unfiltered rotations and root, the keypoints ``[14, 3]`` and the heels, toes and knuckles
+        ``[8, 3]`` (x, y px, confidence), kept for the whole-take fit (missed frames get the last fit
+        and no keypoint)."""
         rec = self.recording
         if not rec.quaternions:
             rec.first_frame, rec.first_s = frame, t_s
@@ -184,6 +188,7 @@ class _TrackState:
                     rec.fit_quaternions.append(rec.fit_quaternions[-1])
                     rec.fit_root_view_m.append(rec.fit_root_view_m[-1])
                     rec.keypoints.append(np.zeros_like(rec.keypoints[-1]))
+                    rec.extremities.append(NO_EXTREMITIES)
         rec.quaternions.append(quats)
         rec.root_view_m.append(root_view)
         rec.scales.append(self.scale)
@@ -191,6 +196,7 @@ class _TrackState:
             rec.fit_quaternions.append(fit[0])
             rec.fit_root_view_m.append(fit[1])
             rec.keypoints.append(fit[2])
+            rec.extremities.append(fit[3])
             rec.up_view, rec.up_sd_deg = self.tilt.up, self.tilt.sd_deg
         rec.proportions_m = self.proportions_m
         self.last_frame = frame
@@ -241,6 +247,15 @@ class StillnessCheck:
         seen = np.isfinite(self.lo[:, 0])
         moved = np.linalg.norm(self.hi[seen] - self.lo[seen], axis=-1).max()
         return bool(moved <= STATIC_RANGE * max(self.box_px, 1.0))
+
+
+def _extremities(person: Person, threshold: float) -> np.ndarray:
+    """A person's heels, toes and knuckles ``[8, 3]`` (x px, y px, confidence), those below
+    ``threshold`` missing (confidence 0, as the 14 keypoints); all missing without any."""
+    if person.extremities is None:
+        return NO_EXTREMITIES
+    keep = person.extremities[:, 2] >= threshold
+    return np.where(keep[:, None], person.extremities, NO_EXTREMITIES)
 
 
 @njit(cache=True)
@@ -325,8 +340,10 @@ class Engine:
         self.stats = EngineStats()
         self._new_tracks = NewTrackWindow()
         self._last_seen: tuple[int, float] | None = None
-        # the last frames' usable people (index, time, points, confidences), for tracks confirmed later
-        self._recent: deque[tuple[int, float, np.ndarray, np.ndarray]] = deque(maxlen=max(cfg.tracker.min_hits - 1, 0))
+        # the last frames' usable people (index, time, points, confidences, extremities), for tracks
+        # confirmed later
+        self._recent: deque[tuple[int, float, np.ndarray, np.ndarray, np.ndarray]] = deque(
+            maxlen=max(cfg.tracker.min_hits - 1, 0))
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -336,7 +353,7 @@ class Engine:
         Tracker(self.config.tracker).update(points[None], conf[None], 0.0)
         state = _TrackState(-1, 0, self.config, len(self.window_weights))
         for i in range(2):
-            self._person(state, points, conf, i, i / self.config.fps)
+            self._person(state, points, conf, NO_EXTREMITIES, i, i / self.config.fps)
 
     # -- per frame -------------------------------------------------------------------------
     def step(self, frame: KeypointFrame, now_s: float | None = None) -> list[PersonPose]:
@@ -352,6 +369,8 @@ class Engine:
         points = np.array([p.points_px for p in people]).reshape(-1, N_KEYPOINTS_2D, 2)
         conf = np.array([p.confidence for p in people]).reshape(-1, N_KEYPOINTS_2D)
         conf = np.where(conf >= cfg.confidence_threshold, conf, 0.0)
+        extremities = np.array([_extremities(p, cfg.confidence_threshold) for p in people]).reshape(
+            -1, len(EXTREMITIES), 3)
         update = self._track(points, conf, t_s, t_s if now_s is None else now_s)
         for track in update.ended:
             self._end(track)
@@ -360,9 +379,9 @@ class Engine:
             state = self.tracks.get(track)
             if state is None:
                 state = self._start(track, update.earlier.get(track, []), frame.index)
-            poses.append(self._detected(state, points[det], conf[det], frame.index, t_s))
+            poses.append(self._detected(state, points[det], conf[det], extremities[det], frame.index, t_s))
         self.stats.person_frames += len(poses)
-        self._recent.append((frame.index, t_s, points, conf))
+        self._recent.append((frame.index, t_s, points, conf, extremities))
         return poses
 
     def _start(self, track: int, earlier: list[int], frame_index: int) -> _TrackState:
@@ -375,16 +394,16 @@ class Engine:
         if self.config.keep_take and self.refiner is not None:
             state.recording.camera_px = (self.config.focal_px, *self.center_px)
         self.stats.tracks_started += 1
-        for (index, t_s, points, conf), det in zip(frames, earlier):
-            self._detected(state, points[det], conf[det], index, t_s)
+        for (index, t_s, points, conf, extremities), det in zip(frames, earlier):
+            self._detected(state, points[det], conf[det], extremities[det], index, t_s)
         return state
 
-    def _detected(self, state: _TrackState, points_px: np.ndarray, conf: np.ndarray, frame_index: int,
-                  t_s: float) -> PersonPose:
-        """The pose of one detection ``[14, 2]`` px of a track, recorded."""
+    def _detected(self, state: _TrackState, points_px: np.ndarray, conf: np.ndarray, extremities: np.ndarray,
+                  frame_index: int, t_s: float) -> PersonPose:
+        """The pose of one detection ``[14, 2]`` px (heels, toes, knuckles ``[8, 3]``) of a track, recorded."""
         state.stillness.add(points_px, conf > 0, t_s)
         person_px = points_px if state.keypoints is None else state.keypoints(points_px, conf, t_s)
-        return self._person(state, person_px, conf, frame_index, t_s)
+        return self._person(state, person_px, conf, extremities, frame_index, t_s)
 
     def _track(self, points: np.ndarray, conf: np.ndarray, t_s: float, now_s: float) -> TrackUpdate:
         """The tracker's update within the limits, counting what they held back."""
@@ -414,7 +433,7 @@ class Engine:
             return False
         return True
 
-    def _person(self, state: _TrackState, points_px: np.ndarray, confidence: np.ndarray,
+    def _person(self, state: _TrackState, points_px: np.ndarray, confidence: np.ndarray, extremities: np.ndarray,
                 frame_index: int, t_s: float) -> PersonPose:
         quats, root_view, match = self._retrieve(state, points_px, confidence > 0)
         if self.refiner is not None:
@@ -424,7 +443,7 @@ class Engine:
         state.remember(quats)
         fit = None
         if self.config.keep_take:
-            fit = (quats.copy(), root_view.copy(), np.column_stack([points_px, confidence]))
+            fit = (quats.copy(), root_view.copy(), np.column_stack([points_px, confidence]), extremities)
         if self.config.smoothing:
             quats = state.rotations(quats, t_s)
             root_view = state.root(root_view, t_s)

@@ -50,18 +50,35 @@ from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, TrackRecording
 from mocapdb.core.skeleton import (
     ANKLE_HEIGHT_M,
+    HAND_LENGTH_M,
+    HEEL_TO_TOE_M,
+    HEEL_TO_TOE_SLOPE_DEG,
     KP,
     N_RIG_JOINTS,
     NODE_NAMES,
     NODE_OFFSETS_M,
     RIG_JOINTS,
     body_offsets_m,
+    global_rotations,
     pose_from_rotations,
     swing_matrices,
 )
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
 
 ANKLES = (KP["r_ankle"], KP["l_ankle"])
+WRISTS = (KP["r_wrist"], KP["l_wrist"])
+# Rows of the heels, big toes and knuckles (keypoint_layouts.EXTREMITIES order) per foot and hand
+HEELS, TOES, INDEX_KNUCKLES, PINKY_KNUCKLES = (0, 2), (1, 3), (4, 6), (5, 7)
+# Each foot's phase (foot_phases): heel or toe not seen, in the air, heel down alone, flat, toe down alone
+UNSEEN, SWING, HEEL_STRIKE, FLAT, TOE_OFF = -1, 0, 1, 2, 3
+# Each end joint (skeleton.END_JOINTS): the rig joint it hangs from, and its direction at rest (heel →
+# toe forwards, sloping down as on a standing foot; wrist → knuckles along the forearm, as the
+# humanoid rig's hand bones)
+END_PARENTS = ("r_knee", "l_knee", "r_elbow", "l_elbow")
+_SLOPE = np.radians(HEEL_TO_TOE_SLOPE_DEG)
+_FOOT_REST = [0.0, -np.sin(_SLOPE), np.cos(_SLOPE)]
+END_REST_DIRECTIONS = np.array([_FOOT_REST, _FOOT_REST, [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+END_LENGTHS_M = np.array([HEEL_TO_TOE_M, HEEL_TO_TOE_M, HAND_LENGTH_M, HAND_LENGTH_M])  # of a 1.75 m body
 MIN_CONTACT_FRAMES = 3
 MIN_SIGMA_FRAMES = 0.05   # narrower Gaussians (cut-offs above ~3 × the frame rate) leave the rotations as they are
 CONTACT_WINDOW_S = 0.25   # an ankle keypoint's image speed: the slope of a line fitted over this long
@@ -99,13 +116,15 @@ class TakeParams:
 @dataclass
 class TakeResult:
     """What :func:`fit_take` found besides the motion: contacts ``[F, 2]`` (right, left ankle), the
-    planted ankles ``[N, 3]`` (view frame, metres) and the floor plane ``normal · p = offset`` (view
-    frame, metres; None without contacts)."""
+    planted ankles ``[N, 3]`` (view frame, metres), the floor plane ``normal · p = offset`` (view
+    frame, metres; None without contacts) and each foot's phase ``[F, 2]`` (:func:`foot_phases`;
+    None without heels and toes)."""
 
     planted: np.ndarray
     planted_ankles_m: np.ndarray
     floor_normal: np.ndarray | None
     floor_offset_m: float | None
+    phases: np.ndarray | None = None
 
 
 def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams()) -> tuple[TrackRecording, TakeResult]:
@@ -125,7 +144,10 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
         quats = smooth_rotations(quats, fps, replace(params, pop_frames=1))
     up = np.array([0.0, 1.0, 0.0]) if rec.up_view is None else np.asarray(rec.up_view, dtype=np.float64)
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]  # ankles − root
-    planted = planted_ankles(keypoints, root[:, None] + relative, up, fps, params)
+    extremities = np.array(rec.extremities) if rec.extremities else None
+    ends = extremities is not None and bool((extremities[..., 2] > 0).any()) and rec.camera_px is not None
+    phases = foot_phases(extremities, box_height_px(keypoints), fps, params) if ends else None
+    planted = planted_ankles(keypoints, root[:, None] + relative, up, fps, params, phases)
     root, anchors = fit_root_path(root, relative, planted, fps, params)
     quats = plant_feet(quats, root, scale, offsets, planted, anchors)
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]
@@ -133,8 +155,13 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     if params.floor and planted.any():
         normal, offset = floor_plane(root[:, None] + relative, planted, up, ANKLE_HEIGHT_M * scale)
         root = above_floor(root, relative, normal, offset, ANKLE_HEIGHT_M * scale)
-    out = _refitted(rec, list(quats), list(root), [scale] * len(root), up if normal is None else normal, offset)
-    return out, TakeResult(planted, (root[:, None] + relative)[planted], normal, offset)
+    floor_up = up if normal is None else normal
+    end_quats = None
+    if ends:
+        end_quats = end_rotations(quats, root, scale, offsets, keypoints, extremities, rec.camera_px[0],
+                                  planted, floor_up, fps, params)
+    out = _refitted(rec, list(quats), list(root), [scale] * len(root), floor_up, offset, end_quats)
+    return out, TakeResult(planted, (root[:, None] + relative)[planted], normal, offset, phases)
 
 
 def take_joints(fitted: TrackRecording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -185,25 +212,106 @@ _NO_LIMITS = JointLimits(np.full((N_RIG_JOINTS, 3), -np.inf), np.full((N_RIG_JOI
 
 
 def planted_ankles(keypoints: np.ndarray, ankles_view_m: np.ndarray, up: np.ndarray, fps: float,
-                   params: TakeParams) -> np.ndarray:
+                   params: TakeParams, phases: np.ndarray | None = None) -> np.ndarray:
     """Which ankles ``[F, 2]`` are planted: still in the image and near the lowest (module docstring).
-    ``keypoints [F, 14, 3]`` (x, y px, confidence), ``ankles_view_m [F, 2, 3]``.
+    ``keypoints [F, 14, 3]`` (x, y px, confidence), ``ankles_view_m [F, 2, 3]``; ``phases [F, 2]``
+    (:func:`foot_phases`): where a foot's heel and toe are seen, it is planted when flat (both
+    still) instead of when its ankle is still, and, flat while the other foot is not, whatever
+    the heights: it carries the body.
 
-    The image track of each ankle is first a running median over :data:`MEDIAN_FRAMES` frames of
+    The image track of each point is first a running median over :data:`MEDIAN_FRAMES` frames of
     its seen positions, so a detector's single-frame left/right swap or missed keypoint neither
     moves a planted foot nor splits its contact; gaps of up to :data:`GAP_S` in a contact are closed."""
-    px = _robust_track_px(keypoints[:, ANKLES])
-    seen = np.isfinite(px[..., 0])
+    speed, seen = image_speeds(keypoints[:, ANKLES], box_height_px(keypoints), fps)
+    height = ankles_view_m @ up
+    low = height <= height.min(axis=1, keepdims=True) + params.planted_height_m  # the lower foot (or both)
+    still = seen & low & (speed < params.planted_box_per_s)
+    if phases is not None:
+        other = phases[:, ::-1]
+        support = (other != UNSEEN) & (other != FLAT)  # the other foot seen off the floor, or partly
+        still = np.where(phases != UNSEEN, (phases == FLAT) & (low | support), still)
+    planted = _close_gaps(still, int(round(GAP_S * fps)))
+    return _drop_short_runs(planted, MIN_CONTACT_FRAMES)
+
+
+def box_height_px(keypoints: np.ndarray) -> float:
+    """The median height (pixels) of the box around each frame's seen keypoints ``[F, 14, 3]``
+    (1 without any): image speeds are measured in it."""
     visible = keypoints[..., 2] > 0
     seen_frames = visible.any(axis=1)  # frames the track missed hold no keypoint
     ys = np.where(visible, keypoints[..., 1], np.nan)[seen_frames]
-    box = float(np.median(np.nanmax(ys, axis=1) - np.nanmin(ys, axis=1))) if len(ys) else 1.0
+    return float(np.median(np.nanmax(ys, axis=1) - np.nanmin(ys, axis=1))) if len(ys) else 1.0
+
+
+def image_speeds(points: np.ndarray, box_px: float, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """Image speeds ``[F, K]`` (box heights ``box_px`` per second) of keypoints ``[F, K, 3]`` (x, y px,
+    confidence) and where each is seen ``[F, K]``: the slope of a line fitted over
+    :data:`CONTACT_WINDOW_S` to its running median (:func:`_robust_track_px`)."""
+    px = _robust_track_px(points)
     half_window = max(int(round(CONTACT_WINDOW_S * fps / 2)), 1)
-    speed = np.linalg.norm(_slope(_interpolated(px), half_window), axis=-1) * fps / max(box, 1.0)
-    height = ankles_view_m @ up
-    low = height <= height.min(axis=1, keepdims=True) + params.planted_height_m  # the lower foot (or both)
-    planted = _close_gaps(seen & low & (speed < params.planted_box_per_s), int(round(GAP_S * fps)))
-    return _drop_short_runs(planted, MIN_CONTACT_FRAMES)
+    speed = np.linalg.norm(_slope(_interpolated(px), half_window), axis=-1) * fps / max(box_px, 1.0)
+    return speed, np.isfinite(px[..., 0])
+
+
+def foot_phases(extremities: np.ndarray, box_px: float, fps: float, params: TakeParams) -> np.ndarray:
+    """Each foot's phase ``[F, 2]`` (right, left) from its heel and big toe in the image
+    (``extremities [F, 8, 3]``, x px, y px, confidence): :data:`FLAT` when both are still (slower than
+    :attr:`TakeParams.planted_box_per_s` box heights ``box_px`` per second, :func:`image_speeds`),
+    :data:`HEEL_STRIKE` when the heel alone is, :data:`TOE_OFF` when the toe alone is, :data:`SWING`
+    when neither is; :data:`UNSEEN` where either is not seen."""
+    heel_speed, heel_seen = image_speeds(extremities[:, HEELS], box_px, fps)
+    toe_speed, toe_seen = image_speeds(extremities[:, TOES], box_px, fps)
+    heel, toe = heel_speed < params.planted_box_per_s, toe_speed < params.planted_box_per_s
+    phases = np.select([heel & toe, heel, toe], [FLAT, HEEL_STRIKE, TOE_OFF], SWING)
+    return np.where(heel_seen & toe_seen, phases, UNSEEN)
+
+
+def lift_direction(delta_px: np.ndarray, depth_m: np.ndarray, length_m: np.ndarray, focal_px: float,
+                   reference: np.ndarray) -> np.ndarray:
+    """Unit directions ``[..., 3]`` (view frame: x right, y up, z towards the camera) of segments of
+    ``length_m [...]`` whose image is ``delta_px [..., 2]`` (start → end, pixels, y down) at ``depth_m
+    [...]`` (metres from the camera): across the view ``delta_px × depth / focal_px``, along it what
+    the length leaves (0 when the image is longer), on the side of ``reference [..., 3]`` (where the
+    segment points without this measure)."""
+    across = np.stack([delta_px[..., 0], -delta_px[..., 1]], axis=-1) * (depth_m / focal_px)[..., None]
+    along = np.sqrt(np.maximum(length_m ** 2 - np.sum(across ** 2, axis=-1), 0.0))
+    along = np.where(reference[..., 2] < 0, -along, along)
+    return _unit(np.concatenate([across, along[..., None]], axis=-1))
+
+
+def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
+                  keypoints: np.ndarray, extremities: np.ndarray, focal_px: float, planted: np.ndarray,
+                  up: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:
+    """Local rotations ``[F, 4, 4]`` of the feet and hands (:data:`~mocapdb.core.skeleton.END_JOINTS`)
+    of the fitted motion (``quats [F, R, 4]``, ``root_m [F, 3]`` view frame, body ``scale`` and
+    ``offsets_m``): each turned from where its parent (shank, forearm) points it to the measured
+    direction, heel → big toe for a foot, wrist → mid-knuckles for a hand (:func:`lift_direction` at
+    the ankle's or wrist's depth, lengths :data:`END_LENGTHS_M` × ``scale``); gaps interpolated,
+    smoothed as the rotations (:attr:`TakeParams.smoothing_hz`); a ``planted [F, 2]`` foot flat
+    on the floor (perpendicular to ``up`` but for the standing foot's slope,
+    :data:`~mocapdb.core.skeleton.HEEL_TO_TOE_SLOPE_DEG`); never seen: not turned. ``keypoints [F, 14, 3]``,
+    ``extremities [F, 8, 3]``: x px, y px, confidence; ``focal_px``: the camera's focal length."""
+    joints = pose_from_rotations(quats, root_m, scale, offsets_m)
+    parents = global_rotations(quats)[:, [RIG_JOINTS.index(j) for j in END_PARENTS]]   # [F, 4, 3, 3]
+    reference = np.einsum("fkij,kj->fki", parents, END_REST_DIRECTIONS)                 # [F, 4, 3]
+    xy = np.where(extremities[..., 2:] > 0, extremities[..., :2], np.nan)
+    wrists = np.where(keypoints[:, WRISTS, 2:] > 0, keypoints[:, WRISTS, :2], np.nan)
+    starts = np.concatenate([xy[:, HEELS], wrists], axis=1)
+    ends = np.concatenate([xy[:, TOES], 0.5 * (xy[:, INDEX_KNUCKLES] + xy[:, PINKY_KNUCKLES])], axis=1)
+    depth = -joints[:, list(ANKLES) + list(WRISTS), 2]
+    direction = lift_direction(ends - starts, depth, END_LENGTHS_M * scale, focal_px, reference)
+    seen = np.isfinite(direction).all(axis=-1)
+    direction = np.where(seen.any(axis=0)[None, :, None], _interpolated(direction), reference)
+    up = up / np.linalg.norm(up)
+    flat = np.concatenate([planted, np.zeros_like(planted)], axis=1)
+    forwards = _unit(direction - (direction @ up)[..., None] * up)
+    standing = np.cos(_SLOPE) * forwards - np.sin(_SLOPE) * up
+    direction = np.where(flat[..., None], standing, direction)
+    sigma_frames = fps / (2.0 * np.pi * params.smoothing_hz) if params.smoothing_hz > 0 else 0.0
+    if sigma_frames >= MIN_SIGMA_FRAMES:
+        direction = gaussian_filter1d(direction, sigma_frames, axis=0, mode="nearest")
+    turn = swing_matrices(_unit(reference), _unit(direction))
+    return matrix_to_quat(np.swapaxes(parents, -1, -2) @ turn @ parents)
 
 
 def _robust_track_px(points: np.ndarray) -> np.ndarray:
@@ -463,7 +571,8 @@ def above_floor(root_m: np.ndarray, ankle_offsets_m: np.ndarray, normal: np.ndar
 
 
 def _refitted(rec: TrackRecording, quats: list, roots: list, scales: list, up: np.ndarray,
-              floor_offset_m: float | None) -> TrackRecording:
-    """``rec`` with new motion and floor; the per-frame fits (consumed) are not carried over."""
+              floor_offset_m: float | None, end_quats: np.ndarray | None) -> TrackRecording:
+    """``rec`` with new motion, floor and end rotations; the per-frame fits (consumed) are not carried over."""
     return replace(rec, quaternions=quats, root_view_m=roots, scales=scales, fit_quaternions=[],
-                   fit_root_view_m=[], keypoints=[], up_view=up, floor_offset_m=floor_offset_m)
+                   fit_root_view_m=[], keypoints=[], extremities=[], up_view=up, floor_offset_m=floor_offset_m,
+                   end_quaternions=end_quats)

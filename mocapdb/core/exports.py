@@ -162,7 +162,7 @@ def write_track_files(rec: TrackRecording, folder: str | Path, stem: str, fps: f
     times_s = rec.first_s + np.arange(len(quats)) / fps
     texts = {}
     if "bvh" in export.formats:
-        bvh = universal_bvh(quats, root_m, fps, export.unit, scale, export.rig, rec.proportions_m)
+        bvh = universal_bvh(quats, root_m, fps, export.unit, scale, export.rig, rec.proportions_m, rec.end_quaternions)
         texts["bvh"] = format_bvh(bvh, lead_frames=bvh_lead_frames(rec, export, f"{stem}.bvh"))
     if "trc" in export.formats or "csv" in export.formats:
         joints_m = pose_from_rotations(quats, root_m, scale, rec.offsets_m())

@@ -16,6 +16,7 @@ from mocapdb.core.errors import MocapdbError
 from mocapdb.core.formats.bvh import Bvh, motion_from_rotations
 from mocapdb.core.geometry import quat_to_matrix
 from mocapdb.core.skeleton import (
+    END_JOINTS,
     END_SITES,
     HUMANOID_BONE_AXES,
     HUMANOID_NODES,
@@ -71,10 +72,14 @@ class TrackRecording:
     fit_quaternions: list[np.ndarray] = field(default_factory=list)  # [R, 4] the per-frame fit, unfiltered
     fit_root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] its root (view frame)
     keypoints: list[np.ndarray] = field(default_factory=list)        # [14, 3] the input: x, y px, confidence
+    extremities: list[np.ndarray] = field(default_factory=list)      # [8, 3] its heels, toes, knuckles (same form)
     camera_px: tuple[float, float, float] | None = None  # the pinhole they were fitted with: focal, cx, cy (px)
     up_view: np.ndarray | None = None  # the world's up in the view frame (the camera's tilt estimate)
     up_sd_deg: float | None = None     # that estimate's error (degrees; runtime.body_size.CameraTilt.sd_deg)
     floor_offset_m: float | None = None  # the floor found under the feet: up_view · p = this (view frame)
+    # [F, 4, 4] the feet's and hands' local rotations (END_JOINTS order) found by the whole-take fit
+    # from heels, toes and knuckles; None: they do not turn
+    end_quaternions: np.ndarray | None = None
     static: bool = False  # its keypoints never moved (see StillnessCheck): a poster, not a person
     part: int = 0         # earlier parts of the track cut off (Engine.cut_recordings)
     first_s: float = 0.0  # input time of the first and the last recorded frame
@@ -83,7 +88,8 @@ class TrackRecording:
     def snapshot(self) -> TrackRecording:
         """A copy whose per-frame lists stay as they are now while the track records on (for a
         thread that writes the track's files meanwhile); the frames' arrays are shared, not copied."""
-        lists = ("quaternions", "root_view_m", "scales", "fit_quaternions", "fit_root_view_m", "keypoints")
+        lists = ("quaternions", "root_view_m", "scales", "fit_quaternions", "fit_root_view_m", "keypoints",
+                 "extremities")
         return replace(self, **{name: list(getattr(self, name)) for name in lists})
 
     def duration_s(self, fps: float) -> float:
@@ -116,8 +122,8 @@ RIGS = ("universal", "humanoid")  # BVH rigs: mocapdb's 11 joints, or with the b
 def _rig_table(rig: str, proportions_m: np.ndarray | None = None
                ) -> tuple[list[str], np.ndarray, np.ndarray, list[str | None], np.ndarray]:
     """Names, parents, rest offsets (metres, for a body of bone lengths ``proportions_m`` at 1.75 m;
-    None: the universal body), the universal joint each node turns with (None: identity) and the
-    End Site mask of a BVH rig (:data:`RIGS`)."""
+    None: the universal body), the universal joint or end joint (:data:`END_JOINTS`) each node turns
+    with (None: identity) and the End Site mask of a BVH rig (:data:`RIGS`)."""
     proportions = universal_bone_lengths_m() if proportions_m is None else proportions_m
     if rig == "universal":
         names = [n if n not in END_SITES else f"{RIG_NODES[NODE_NAMES.index(n)][1]}_End" for n in NODE_NAMES]
@@ -146,15 +152,18 @@ def _with_root_tail(names: list[str], parents: np.ndarray, offsets_m: np.ndarray
 
 
 def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str = "m",
-                  body_scale: float = 1.0, rig: str = "universal", proportions_m: np.ndarray | None = None) -> Bvh:
+                  body_scale: float = 1.0, rig: str = "universal", proportions_m: np.ndarray | None = None,
+                  end_quats: np.ndarray | None = None) -> Bvh:
     """A BVH of the universal skeleton: root position and every joint's rotation per frame.
 
     ``quats [F, 11, 4]`` are the rig joints' local rotations (:data:`RIG_JOINTS` order) and
     ``pelvis_m [F, 3]`` the root; ``unit`` is the BVH's length unit (``"m"`` or ``"cm"``);
     ``body_scale`` multiplies every bone (a subject's height / :data:`UNIVERSAL_HEIGHT_M`) of the
     body whose bone lengths at 1.75 m are ``proportions_m [8]`` (None: the universal body).
-    ``rig="humanoid"`` adds head, clavicle, hand, foot and toe bones (which do not turn) under
-    Mixamo's names (:data:`HUMANOID_NODES`); the joints of both rigs are at the same places.
+    ``rig="humanoid"`` adds head, clavicle, hand, foot and toe bones under Mixamo's names
+    (:data:`HUMANOID_NODES`); the joints of both rigs are at the same places. Its feet and hands
+    turn by ``end_quats [F, 4, 4]`` (local rotations, :data:`END_JOINTS` order; None: they do not
+    turn); the universal rig has no such joints.
     """
     scale = BVH_UNITS[unit]
     names, parents, offsets_m, sources, end_site = _with_root_tail(*_rig_table(rig, proportions_m))
@@ -163,8 +172,11 @@ def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str
     skeleton = Bvh(names, parents, offsets_m * (scale * body_scale), channels, end_site, 1.0 / fps,
                    np.zeros((quats.shape[0], 0)))
     local = np.broadcast_to(np.eye(3), (quats.shape[0], len(names), 3, 3)).copy()
-    turning = [i for i, source in enumerate(sources) if source is not None]
+    turning = [i for i, source in enumerate(sources) if source in RIG_JOINTS]
     local[:, turning] = quat_to_matrix(quats[:, [RIG_JOINTS.index(sources[i]) for i in turning]])
+    ends = [i for i, source in enumerate(sources) if source in END_JOINTS]
+    if end_quats is not None and ends:
+        local[:, ends] = quat_to_matrix(end_quats[:, [END_JOINTS.index(sources[i]) for i in ends]])
     skeleton.motion = motion_from_rotations(skeleton, local, pelvis_m * scale)
     return skeleton
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from mocapdb.core.geometry import frame_from_axes, matrix_to_quat
+from mocapdb.core.geometry import frame_from_axes, matrix_to_quat, quat_to_matrix
 from mocapdb.core.kernels import mat3_mul_into, quat_to_matrix_into
 
 # The 14 keypoints in OpenPose COCO-18 order (its first 14), then the pelvis (mid-hip).
@@ -110,11 +110,18 @@ NODE_BONE_AXES: dict[str, tuple[str | None, str | None, str | None]] = {
 # The humanoid rig of BVH export (``--rig humanoid``): the universal rig with the bones character
 # set-ups expect (head, clavicles, hands, feet, toes) under the names auto-mappers recognise
 # (Unity Humanoid, HumanIK, Blender: Mixamo's). Rows: (name, parent, rest offset from the parent in
-# metres, universal rig joint whose rotation it carries, or None: identity). The added joints turn
-# nothing, so every universal joint stays exactly where the universal rig puts it; names ending in
-# "_End" are End Sites (named as mocapdb reads them back: parent + "_End"). Hand, foot and
-# head-base lengths are not measured: fixed proportions.
-HAND_LENGTH_M = 0.08      # wrist → end of the hand bone, along the forearm
+# metres, universal rig joint or end joint (:data:`END_JOINTS`) whose rotation it carries, or None:
+# identity). The added joints move no universal joint: every universal joint stays exactly where
+# the universal rig puts it; the feet and hands turn only where a layout gives heels, toes and
+# knuckles (``runtime.take.end_rotations``); names ending in "_End" are End Sites (named as mocapdb
+# reads them back: parent + "_End"). Hand, foot and head-base lengths are not measured: fixed proportions.
+END_JOINTS: tuple[str, ...] = ("r_foot", "l_foot", "r_hand", "l_hand")  # at the ankles and wrists
+HAND_LENGTH_M = 0.08      # wrist → end of the hand bone (the index and pinky knuckles), along the forearm
+# Heel keypoint → big-toe keypoint of a standing foot: length and downward slope (the heel keypoint
+# sits higher on the heel than the toe's on the toe): the bundled balancing take's 4-camera
+# triangulation, medians over each planted foot (right, left: 20.2 and 20.7 cm; 14.8° and 10.0°)
+HEEL_TO_TOE_M = 0.21
+HEEL_TO_TOE_SLOPE_DEG = 12.0
 FOOT_FORWARD_M = 0.14     # ankle → ball of the foot, forwards (+z at rest)
 TOE_LENGTH_M = 0.05
 HEAD_BASE_M = 0.10        # neck → head joint (skull base), up; the head bone ends at the nose
@@ -130,7 +137,7 @@ def _humanoid_leg(x: float) -> tuple:
     return (
         (f"{name}UpLeg", "Hips", (x * b["half_hip_width"], 0.0, 0.0), f"{short}_hip"),
         (f"{name}Leg", f"{name}UpLeg", (0.0, -b["thigh"], 0.0), f"{short}_knee"),
-        (f"{name}Foot", f"{name}Leg", (0.0, -b["shin"], 0.0), None),
+        (f"{name}Foot", f"{name}Leg", (0.0, -b["shin"], 0.0), f"{short}_foot"),
         (f"{name}ToeBase", f"{name}Foot", _ANKLE_TO_BALL, None),
         (f"{name}ToeBase_End", f"{name}ToeBase", (0.0, 0.0, TOE_LENGTH_M), None),
     )
@@ -144,7 +151,7 @@ def _humanoid_arm(x: float) -> tuple:
         (f"{name}Shoulder", "Spine1", (x * CLAVICLE_M, _HALF_TORSO, 0.0), None),
         (f"{name}Arm", f"{name}Shoulder", (x * (b["half_shoulder_width"] - CLAVICLE_M), 0.0, 0.0), f"{short}_shoulder"),
         (f"{name}ForeArm", f"{name}Arm", (x * b["upper_arm"], 0.0, 0.0), f"{short}_elbow"),
-        (f"{name}Hand", f"{name}ForeArm", (x * b["forearm"], 0.0, 0.0), None),
+        (f"{name}Hand", f"{name}ForeArm", (x * b["forearm"], 0.0, 0.0), f"{short}_hand"),
         (f"{name}Hand_End", f"{name}Hand", (x * HAND_LENGTH_M, 0.0, 0.0), None),
     )
 
@@ -340,6 +347,19 @@ def rig_globals_into(quats, root_m, scale, parents, offsets, node_joint, local, 
         for a in range(3):
             g_pos[j, a] = g_pos[p, a] + scale * (g_rot[p, a, 0] * offsets[j, 0] + g_rot[p, a, 1] * offsets[j, 1]
                                                  + g_rot[p, a, 2] * offsets[j, 2])
+
+
+_JOINT_PARENT = [-1 if p < 0 else RIG_JOINTS.index(NODE_NAMES[p]) for p in NODE_PARENTS[JOINT_NODE]]
+
+
+def global_rotations(quats: np.ndarray) -> np.ndarray:
+    """Global rotation matrices ``[F, R, 3, 3]`` (:data:`RIG_JOINTS` order; the root's frame) of local
+    rotations ``[F, R, 4]``: each joint's parent's global rotation times its own local one."""
+    local = quat_to_matrix(quats)
+    out = np.empty_like(local)
+    for r, parent in enumerate(_JOINT_PARENT):
+        out[:, r] = local[:, r] if parent < 0 else out[:, parent] @ local[:, r]
+    return out
 
 
 def mirror_keypoints(points: np.ndarray) -> np.ndarray:

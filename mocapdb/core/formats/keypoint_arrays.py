@@ -27,6 +27,7 @@ from mocapdb.core.formats.keypoints import (
     error_source,
     frame_time,
     numeric,
+    to_extremities,
     to_universal,
     with_scores,
 )
@@ -53,12 +54,17 @@ def frames_from_arrays(keypoints: np.ndarray, layout: str | None = None,
     check_fps(fps)
     n_frames, n_people = arr.shape[:2]
     people = arr.reshape((-1,) + arr.shape[2:])
-    points, conf = to_universal(people, detect_layout(people) if layout is None else layout)
+    layout = detect_layout(people) if layout is None else layout
+    points, conf = to_universal(people, layout)
     points = points.reshape(n_frames, n_people, N_KEYPOINTS_2D, 2)
     conf = conf.reshape(n_frames, n_people, N_KEYPOINTS_2D)
+    extremities = to_extremities(people, layout)
+    if extremities is not None:
+        extremities = extremities.reshape(n_frames, n_people, -1, 3)
     present = (conf > 0).any(axis=-1)
-    return (KeypointFrame(t, frame_time(t, fps), [Person(points[t, p], conf[t, p]) for p in np.flatnonzero(present[t])])
-            for t in range(n_frames))
+    return (KeypointFrame(t, frame_time(t, fps), [
+        Person(points[t, p], conf[t, p], None, None if extremities is None else extremities[t, p])
+        for p in np.flatnonzero(present[t])]) for t in range(n_frames))
 
 
 _NPY_HEADERS = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}

@@ -46,6 +46,21 @@ _SOURCES: dict[str, tuple[str | None, ...]] = {
 # command-line parsers read this module, which therefore imports nothing heavy.
 SOURCE_INDEX: dict[str, tuple[int, ...]] = {
     name: tuple(LAYOUTS[name].index(s) if s else -1 for s in sources) for name, sources in _SOURCES.items()}
+# The points beyond the universal 14 that drive the feet and hands (``data_specs/keypoint_formats.md``,
+# "Feet and hands"): per foot the heel and the big toe, per hand the index and pinky knuckles
+# (the subject's own sides).
+EXTREMITIES: tuple[str, ...] = (
+    "r_heel", "r_big_toe", "l_heel", "l_big_toe", "r_index", "r_pinky", "l_index", "l_pinky")
+_COCO_FEET_SOURCES = ("right_heel", "right_big_toe", "left_heel", "left_big_toe")
+_EXTREMITY_SOURCES: dict[str, tuple[str | None, ...]] = {
+    "body25": ("RHeel", "RBigToe", "LHeel", "LBigToe", None, None, None, None),
+    "body25b": _COCO_FEET_SOURCES + (None,) * 4, "halpe26": _COCO_FEET_SOURCES + (None,) * 4,
+    "wholebody133": _COCO_FEET_SOURCES + ("right_hand_5", "right_hand_17", "left_hand_5", "left_hand_17"),
+    "mediapipe33": ("right_heel", "right_foot_index", "left_heel", "left_foot_index",
+                    "right_index", "right_pinky", "left_index", "left_pinky")}
+# Per layout with any of them, the index of the source of each of EXTREMITIES; -1: none.
+EXTREMITY_INDEX: dict[str, tuple[int, ...]] = {
+    name: tuple(LAYOUTS[name].index(s) if s else -1 for s in sources) for name, sources in _EXTREMITY_SOURCES.items()}
 # The layout of each keypoint count that only one layout has (25 is BODY_25 or BODY_25B).
 LAYOUT_OF_COUNT: dict[int, str] = {
     len(LAYOUTS[name]): name for name in ("coco17", "coco18", "halpe26", "mediapipe33", "wholebody133")}

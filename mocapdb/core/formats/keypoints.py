@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numpy as np
 
 from mocapdb.core.errors import MocapdbError
-from mocapdb.core.formats.keypoint_layouts import LAYOUT_OF_COUNT, LAYOUTS, SOURCE_INDEX
+from mocapdb.core.formats.keypoint_layouts import EXTREMITY_INDEX, LAYOUT_OF_COUNT, LAYOUTS, SOURCE_INDEX
 from mocapdb.core.skeleton import KP
 
 CONFIDENCE_THRESHOLD = 0.3  # a keypoint is confident (visible) at or above this confidence
@@ -44,6 +44,9 @@ class Person:
     points_px: np.ndarray   # [14, 2] float64, pixels, x right, y down
     confidence: np.ndarray  # [14] float64 in [0, 1], 0 = missing
     person_id: int | None = None
+    # [8, 3] heels, big toes and knuckles (EXTREMITIES order): x px, y px, confidence (0 and NaN
+    # position = missing); None when the layout has none of them
+    extremities: np.ndarray | None = None
 
 
 @dataclass
@@ -113,16 +116,32 @@ def to_universal(raw: np.ndarray, layout: str) -> tuple[np.ndarray, np.ndarray]:
         raise KeypointError(f"a keypoint position is beyond {MAX_POSITION_PX:,.0f} px from the image origin")
     if layout == "mediapipe33":
         _refuse_normalised(raw)
-    source = np.array(SOURCE_INDEX[layout])
-    picked = raw[:, np.maximum(source, 0)]
-    ok = np.isfinite(picked).all(axis=-1) & (picked[..., 2] > 0) & (source >= 0)
-    conf = np.where(ok, np.clip(picked[..., 2], 0.0, 1.0), 0.0)
-    points = np.where(ok[..., None], picked[..., :2], np.nan)
+    points, conf = _picked(raw, SOURCE_INDEX[layout])
     right, left, neck = KP["r_shoulder"], KP["l_shoulder"], KP["neck"]
     both = (conf[:, right] >= CONFIDENCE_THRESHOLD) & (conf[:, left] >= CONFIDENCE_THRESHOLD)
     points[:, neck] = np.where(both[:, None], 0.5 * (points[:, right] + points[:, left]), points[:, neck])
     conf[:, neck] = np.where(both, np.minimum(conf[:, right], conf[:, left]), conf[:, neck])
     return points, conf
+
+
+def _picked(raw: np.ndarray, source: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The points ``source`` (layout indices; -1: none) of ``raw [P, K, 3]``: positions ``[P, N, 2]``
+    (NaN where missing) and confidences ``[P, N]`` (clipped to [0, 1]; 0 where missing)."""
+    index = np.array(source)
+    picked = raw[:, np.maximum(index, 0)]
+    ok = np.isfinite(picked).all(axis=-1) & (picked[..., 2] > 0) & (index >= 0)
+    conf = np.where(ok, np.clip(picked[..., 2], 0.0, 1.0), 0.0)
+    return np.where(ok[..., None], picked[..., :2], np.nan), conf
+
+
+def to_extremities(raw: np.ndarray, layout: str) -> np.ndarray | None:
+    """The heels, big toes and knuckles (``keypoint_layouts.EXTREMITIES``) of ``raw [P, K, 3]``, a
+    layout already checked by :func:`to_universal`: ``[P, 8, 3]`` x px, y px, confidence, missing
+    points as in :func:`to_universal`; None for a layout without any of them."""
+    if layout not in EXTREMITY_INDEX:
+        return None
+    points, conf = _picked(np.asarray(raw, dtype=np.float64), EXTREMITY_INDEX[layout])
+    return np.concatenate([points, conf[..., None]], axis=-1)
 
 
 def _refuse_normalised(raw: np.ndarray) -> None:
@@ -227,9 +246,11 @@ def build_frame(index: int, time_s: float | None, people: list[RawPerson], layou
         if wrong:
             raise KeypointError(f"person {wrong[0]} has {len(people[wrong[0]].raw)} keypoints; "
                                 f"layout {name} has {len(LAYOUTS[name])}")
-        points, conf = to_universal(np.stack([people[i].raw for i in members]), name)
+        raw = np.stack([people[i].raw for i in members])
+        points, conf = to_universal(raw, name)
+        extremities = to_extremities(raw, name)
         for j, i in enumerate(members):
-            out[i] = Person(points[j], conf[j], people[i].person_id)
+            out[i] = Person(points[j], conf[j], people[i].person_id, None if extremities is None else extremities[j])
     return KeypointFrame(index, time_s, out, names[0] if len(set(names)) == 1 else None)
 
 
