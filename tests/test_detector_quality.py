@@ -147,7 +147,7 @@ def test_per_joint_table_of_a_tiny_take(tmp_path):
     assert wrist["joints"]["r_wrist"]["mean_px"] == pytest.approx(expected, rel=0.03)
     assert report["planted_from"]["detector"] == "clean"
     table = dq.format_table(report)
-    assert "| joint | clean | wrist |" in table and "| r_heel | 0.0 / 0.0 px" in table
+    assert "| joint | clean | wrist |" in table and "| r_heel | 0.0 / 0.0 px (0.00 / 0.00 %, 4.0 views) | – |" in table
     assert table.count("\n| ") == len(dq.BODY_JOINTS) + len(dq.FOOT_JOINTS) + 2   # joints, body, feet
 
 

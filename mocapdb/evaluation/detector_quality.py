@@ -245,13 +245,15 @@ def motion_figures(rec_m: np.ndarray, planted: np.ndarray, fps: float) -> dict:
 def _cell(stats: dict | None) -> str:
     if not stats or stats["median_px"] is None:
         return "–"
+    views = f", {stats['mean_views']:.1f} views" if stats.get("mean_views") else ""
     return (f"{stats['median_px']:.1f} / {stats['mean_px']:.1f} px "
-            f"({stats['median_pct']:.2f} / {stats['mean_pct']:.2f} %)")
+            f"({stats['median_pct']:.2f} / {stats['mean_pct']:.2f} %{views})")
 
 
 def format_table(report: dict) -> str:
     """A markdown table of :func:`evaluate`'s ``report``: a row per joint, a column per detector
-    (median / mean residual, px and % of the body height), then the reconstructions' figures."""
+    (median / mean residual, px and % of the body height; the mean number of views it was triangulated
+    from), then the reconstructions' figures."""
     names = list(report["detectors"])
     joints = list(BODY_JOINTS) + [j for j in FOOT_JOINTS if any(j in d["joints"] for d in report["detectors"].values())]
     lines = ["| joint | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
