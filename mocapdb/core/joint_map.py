@@ -1,20 +1,21 @@
 """Which joints of a BVH rig make the universal skeleton, and where they are in metres, y up.
 
 A rig's joints are matched to 13 *roles* (head, and upper arm, forearm, hand, thigh, shin, foot
-on each side) by name and topology together, for the conventions of ``data_specs/joint_conventions.md``
-(CMU ASF/AMC, CMU cgspeed/3ds Max, MotionBuilder/Mixamo, Character Creator, MakeHuman CMU+, and
-mocapdb's own universal rig).
+on each side) from the words of their names, the hierarchy and the rest pose
+(:mod:`mocapdb.core.rig_detect`, ``data_specs/joint_conventions.md``), for any exporter's
+spelling; the named conventions of the spec (CMU ASF/AMC, CMU cgspeed/3ds Max,
+MotionBuilder/Mixamo, Character Creator, MakeHuman CMU+) only label the result, and mocapdb's
+own universal rig is read by its exact names.
 Nothing is guessed: a role with no candidate or several gives :class:`JointMapError`, and a
 ``--joint-map`` TOML file can name any role's joint. The length unit and the up axis are
 detected from the body (leg length; head above the feet) unless given.
 """
 from __future__ import annotations
 
-import itertools
 import re
 import tomllib
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -22,16 +23,18 @@ import numpy as np
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.files import MIB, read_input_text
 from mocapdb.core.formats.bvh import POSITION_MODE_TEXT, Bvh, forward_kinematics
+from mocapdb.core.rig_detect import (
+    LIMBS,
+    ROLES,
+    check_sides,
+    check_structure,
+    found_so_far,
+    place_roles,
+    rest_positions,
+)
 from mocapdb.core.skeleton import KEYPOINTS, N_POINTS
 from mocapdb.core.units import UNITS, UP_AXES
 
-ROLES: tuple[str, ...] = (
-    "head", "r_upperarm", "r_forearm", "r_hand", "l_upperarm", "l_forearm", "l_hand",
-    "r_thigh", "r_shin", "r_foot", "l_thigh", "l_shin", "l_foot")
-# Each chain runs parent → descendant in the hierarchy.
-CHAINS: tuple[tuple[str, ...], ...] = (
-    ("head",), ("r_upperarm", "r_forearm", "r_hand"), ("l_upperarm", "l_forearm", "l_hand"),
-    ("r_thigh", "r_shin", "r_foot"), ("l_thigh", "l_shin", "l_foot"))
 # Keypoints that are a joint's position; neck, pelvis and head (nose) are derived.
 KEYPOINT_ROLES = {
     "r_shoulder": "r_upperarm", "r_elbow": "r_forearm", "r_wrist": "r_hand",
@@ -62,7 +65,7 @@ _TO_Y_UP = {
 def _convention(sides: tuple[str, str], head: tuple[str, ...], upperarm: tuple[str, ...],
                 forearm: tuple[str, ...], hand: tuple[str, ...], thigh: tuple[str, ...],
                 shin: tuple[str, ...], foot: tuple[str, ...]) -> dict[str, tuple[str, ...]]:
-    """Role → accepted lower-case names, best first; ``{s}`` is the (left, right) side token."""
+    """Role → the lower-case names a convention gives it; ``{s}`` is the (left, right) side token."""
     table = {"head": head}
     parts = {"upperarm": upperarm, "forearm": forearm, "hand": hand, "thigh": thigh, "shin": shin, "foot": foot}
     for side, token in zip("lr", sides):
@@ -102,10 +105,12 @@ class JointMapError(MocapdbError, ValueError):
 
 @dataclass
 class JointMapping:
-    """The detected (or given) source joint of every role."""
+    """The detected (or given) source joint of every role, and the evidence."""
 
     convention: str
     joints: dict[str, str]  # role -> source joint name
+    why: dict[str, str] = field(default_factory=dict)  # role -> what chose its joint
+    notes: list[str] = field(default_factory=list)     # the structure and sides as checked
 
 
 @dataclass
@@ -120,52 +125,6 @@ class JointMapFile:
 def _normalized_name(name: str) -> str:
     """Joint name without a namespace prefix (``mixamorig:``, ``Armature|``), lower case."""
     return re.split(r"[:|]", name)[-1].lower()
-
-
-def _is_ancestor(bvh: Bvh, a: int, b: int) -> bool:
-    """Whether joint ``a`` is a proper ancestor of joint ``b``."""
-    p = int(bvh.parents[b])
-    while p >= 0 and p != a:
-        p = int(bvh.parents[p])
-    return p == a
-
-
-def _candidates(normal: list[str], names: tuple[str, ...]) -> list[int]:
-    """Joints with the first of ``names`` (in priority order) that any joint carries."""
-    for name in names:
-        hits = [j for j, n in enumerate(normal) if n == name]
-        if hits:
-            return hits
-    return []
-
-
-def _chain_matches(bvh: Bvh, normal: list[str], chain: tuple[str, ...],
-                   fixed: dict[str, int]) -> dict[tuple[int, ...], list[str]]:
-    """Every parent→descendant placement of ``chain`` some convention allows → those conventions."""
-    found: dict[tuple[int, ...], list[str]] = {}
-    for convention, table in CONVENTIONS.items():
-        options = [[fixed[r]] if r in fixed else _candidates(normal, table[r]) for r in chain]
-        for combo in itertools.product(*options):
-            if all(_is_ancestor(bvh, a, b) for a, b in zip(combo, combo[1:])):
-                found.setdefault(combo, []).append(convention)
-    return found
-
-
-def _explain_unplaced(bvh: Bvh, normal: list[str], chain: tuple[str, ...], fixed: dict[str, int]) -> list[str]:
-    """Why ``chain`` has no placement, per role, for the convention that came closest."""
-    def found(table: dict[str, tuple[str, ...]]) -> list[bool]:
-        return [r in fixed or bool(_candidates(normal, table[r])) for r in chain]
-
-    convention, table = max(CONVENTIONS.items(), key=lambda item: sum(found(item[1])))
-    present = found(table)
-    if not any(present):
-        return [f"{r}: no candidate joint in any known convention" for r in chain]
-    if all(present):
-        names = [bvh.names[fixed[r]] if r in fixed else "/".join(bvh.names[j] for j in _candidates(normal, table[r]))
-                 for r in chain]
-        return [f"{' → '.join(chain)}: {', '.join(names)} are not a parent→descendant chain"]
-    return [f"{r}: no joint named {' or '.join(table[r])} (any case or namespace, as in a {convention} rig)"
-            for r, ok in zip(chain, present) if not ok]
 
 
 def _fixed_joints(bvh: Bvh, overrides: dict[str, str]) -> dict[str, int]:
@@ -185,56 +144,61 @@ def _check_roles(roles: Sequence[str] | dict[str, str], where: str) -> None:
                             f"valid roles: {', '.join(ROLES)}")
 
 
-def detect_mapping(bvh: Bvh, overrides: dict[str, str] | None = None) -> JointMapping:
-    """Map every role onto a source joint, by names and topology; ``overrides`` fix some roles.
+def _universal_joints(bvh: Bvh) -> dict[str, int]:
+    """mocapdb's own rig (its End Sites are roles): every role's joint when each name is there once."""
+    normal = [_normalized_name(n) for n in bvh.names]
+    table = CONVENTIONS[UNIVERSAL_CONVENTION]
+    hits = {r: [j for j, n in enumerate(normal) if n == table[r][0]] for r in ROLES}
+    return {r: js[0] for r, js in hits.items() if len(js) == 1} if all(len(js) == 1 for js in hits.values()) else {}
 
-    Raises :class:`JointMapError` naming every role with no candidate, or with several (and
-    those candidates), and when the placement breaks the topology rules.
+
+def detect_mapping(bvh: Bvh, overrides: dict[str, str] | None = None) -> JointMapping:
+    """Map every role onto a source joint from its name's words, the hierarchy and the rest pose
+    (:mod:`mocapdb.core.rig_detect`); ``overrides`` (role → joint name) fix some roles.
+
+    Raises :class:`JointMapError` naming every role with no candidate or several (and those
+    candidates), a hierarchy that is no humanoid's, or sides the rest pose contradicts, with
+    what was found.
     """
     overrides = overrides or {}
     fixed = _fixed_joints(bvh, overrides)
-    normal = [_normalized_name(n) for n in bvh.names]
-    placed: dict[str, int] = {}
-    sources: list[list[str]] = []
-    problems: list[str] = []
-    for chain in CHAINS:
-        matches = _chain_matches(bvh, normal, chain, fixed)
-        if len(matches) == 1:
-            (joints, conventions), = matches.items()
-            placed.update(zip(chain, joints))
-            if len(chain) > 1 and not all(r in fixed for r in chain):
-                sources.append(conventions)
-        elif matches:
-            for i, role in enumerate(chain):
-                options = sorted({combo[i] for combo in matches})
-                if len(options) > 1:
-                    problems.append(f"{role}: ambiguous, candidates {', '.join(bvh.names[j] for j in options)}")
-        else:
-            problems += _explain_unplaced(bvh, normal, chain, fixed)
-    if problems:
+    own = {} if overrides else _universal_joints(bvh)
+    reading = place_roles(bvh, own or fixed)
+    if own:
+        reading.why = dict.fromkeys(ROLES, "mocapdb's own rig (universal_bvh)")
+    if not reading.problems:
+        check_structure(bvh, reading.placed, reading)
+    if not reading.problems:
+        check_sides(bvh, reading.placed, set(fixed), reading)
+    if reading.problems:
         raise JointMapError(f"{bvh.source}: cannot map the rig onto the universal skeleton:\n  "
-                            + "\n  ".join(problems) + "\n" + _MAP_HINT)
-    _check_limbs_disjoint(bvh, placed)
-    return JointMapping(_label(sources, bool(overrides)), {r: bvh.names[placed[r]] for r in ROLES})
+                            + "\n  ".join(reading.problems) + f"\nfound: {found_so_far(bvh, reading)}\n"
+                            + _MAP_HINT)
+    joints = {r: bvh.names[reading.placed[r]] for r in ROLES}
+    return JointMapping(_label(joints, set(fixed)), joints, reading.why, reading.notes)
 
 
-def _check_limbs_disjoint(bvh: Bvh, placed: dict[str, int]) -> None:
-    """Each limb hangs in its own subtree, and the head in none of them."""
-    tops = {chain[0]: placed[chain[0]] for chain in CHAINS}
-    for (role_a, a), (role_b, b) in itertools.permutations(tops.items(), 2):
-        if role_a != "head" and (a == b or _is_ancestor(bvh, a, b)):
-            raise JointMapError(f"{bvh.source}: {role_b} ({bvh.names[b]}) lies inside the {role_a} chain "
-                                f"({bvh.names[a]}); the limbs must be separate chains, the head outside them."
-                                f"\n{_MAP_HINT}")
+def _styles(joints: dict[str, str], chain: tuple[str, ...]) -> list[str]:
+    """The named conventions whose names the chain's joints carry."""
+    return [c for c, table in CONVENTIONS.items()
+            if all(_normalized_name(joints[r]) in table[r] for r in chain)]
 
 
-def _label(sources: list[list[str]], overridden: bool) -> str:
-    """The convention every detected limb agrees on (or the mixture), noting a joint map."""
-    if not sources:
+def _label(joints: dict[str, str], fixed: set[str]) -> str:
+    """The named convention every detected limb's names belong to (or the mixture; else the
+    ``detected (left upper arm, left thigh)`` names), noting a joint map."""
+    detected = [[r for r in chain if r not in fixed] for chain in LIMBS]
+    styles = [_styles(joints, tuple(roles)) for roles in detected if roles]
+    if not styles:
         return "joint map"
-    common = [c for c in CONVENTIONS if all(c in s for s in sources)]
-    label = common[0] if common else "mixed: " + " + ".join(dict.fromkeys(s[0] for s in sources))
-    return f"{label} + joint map" if overridden else label
+    common = [c for c in CONVENTIONS if all(c in s for s in styles)]
+    if common:
+        label = common[0]
+    elif all(styles):
+        label = "mixed: " + " + ".join(dict.fromkeys(s[0] for s in styles))
+    else:
+        label = f"detected ({joints['l_upperarm']}, {joints['l_thigh']})"
+    return f"{label} + joint map" if fixed else label
 
 
 def load_joint_map_file(path: str | Path) -> JointMapFile:
@@ -266,15 +230,6 @@ def _indexes(bvh: Bvh, mapping: JointMapping) -> dict[str, int]:
         raise JointMapError(f"{bvh.source}: mapping does not fit this file (joints {missing}, roles "
                             f"{sorted(mapping.joints)})")
     return {r: bvh.index(n) for r, n in mapping.joints.items()}
-
-
-def rest_positions(bvh: Bvh) -> np.ndarray:
-    """Joint positions ``[J, 3]`` (file units) with every rotation identity and every joint at its
-    ``OFFSET`` (position channels zero, or equal to the OFFSET where they replace it)."""
-    pos = np.zeros_like(bvh.offsets)
-    for j, p in enumerate(bvh.parents):
-        pos[j] = bvh.offsets[j] + (pos[p] if p >= 0 else 0.0)
-    return pos
 
 
 def leg_length(bvh: Bvh, mapping: JointMapping) -> float:
@@ -383,5 +338,7 @@ def describe(bvh: Bvh, mapping: JointMapping, unit: str | None = None, up_axis: 
              f"up axis:     {up_axis} ({axis_how})",
              f"leg length:  {leg_length(bvh, mapping) * UNITS[unit]:.3f} m (hip to ankle, rest pose)",
              "roles:"]
-    lines += [f"  {role:<11} {mapping.joints[role]}" for role in ROLES]
-    return "\n".join(lines)
+    width = max(len(n) for n in mapping.joints.values())
+    lines += [f"  {role:<11} {mapping.joints[role]:<{width}}  {mapping.why.get(role, '')}".rstrip()
+              for role in ROLES]
+    return "\n".join(lines + mapping.notes)
