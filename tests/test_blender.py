@@ -42,6 +42,28 @@ def test_blender_imports_the_humanoid_rig_on_its_floor(tmp_path):
     assert {"Hips", "Spine", "Neck", "Head", "LeftHand", "RightFoot", "LeftToeBase", "RightShoulder"} <= set(bones)
 
 
+def test_blender_turns_the_humanoid_feet_and_hands(tmp_path):
+    """Feet and hands turned by their end rotations: Blender puts the toes and hand ends where mocapdb
+    does, and the turned foot's toe bone (along the foot, across the turn's axis) points 40° from
+    where it points unturned."""
+    from blender_check import blender_pose, compare
+
+    rng = np.random.default_rng(3)
+    quats, pos = retarget(rest_positions_m() + rng.normal(scale=0.03, size=(6, 15, 3)) + [0.3, 1.0, -3.0])
+    half = np.radians(40.0) / 2
+    end_quats = np.tile([1.0, 0.0, 0.0, 0.0], (6, 4, 1))
+    end_quats[:, 0] = [np.cos(half), 0.0, np.sin(half), 0.0]   # right foot: 40° about its up
+    end_quats[:, 2] = [np.cos(half), np.sin(half), 0.0, 0.0]   # right hand
+    for name, ends in (("still", None), ("turned", end_quats)):
+        write_bvh(tmp_path / f"{name}.bvh", universal_bvh(quats, pos[:, PELVIS], 30.0, "cm", rig="humanoid",
+                                                          end_quats=ends))
+    assert compare(tmp_path / "turned.bvh", [0, 5]) < 1e-3  # centimetres
+    toe = {name: np.subtract(*blender_pose(tmp_path / f"{name}.bvh", [0])["bones"]["RightToeBase"]["0"][::-1])
+           for name in ("still", "turned")}
+    cosine = toe["still"] @ toe["turned"] / np.linalg.norm(toe["still"]) / np.linalg.norm(toe["turned"])
+    assert np.degrees(np.arccos(cosine)) == pytest.approx(40.0, abs=0.1)
+
+
 @pytest.mark.parametrize("rig", ["universal", "humanoid"])
 def test_blender_finds_no_zero_length_bone(tmp_path, rig):
     from blender_check import INSIDE, run_in_blender
