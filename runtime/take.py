@@ -18,6 +18,9 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    do not move; gaps up to :data:`GAP_S` closed) and it is within
    :attr:`TakeParams.planted_height_m` of the other ankle's height or below it (along the estimated
    up; comparing the two feet of one frame cancels the depth's error, which moves both alike).
+   Where the layout gives a foot's heel and big toe, its phase (:func:`foot_phases`: flat, heel
+   strike, toe-off, in the air) decides instead: a flat foot is planted when it is the lower one
+   or the other foot is off the floor.
 3. **Root path**: one sparse linear least-squares problem over all frames: near the per-frame root
    across the viewing ray (the image fixes it: SD :attr:`TakeParams.root_across_m`) and, much more
    loosely, along it (the depth from the body's size: :attr:`TakeParams.root_depth_m`), smooth
@@ -32,6 +35,9 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    (the root is lifted where one would).
 5. **One world**: every track of a take on one floor, each with its own size
    (:mod:`mocapdb.runtime.world`).
+6. **Feet and hands** (layouts with heels, big toes and knuckles): the humanoid rig's feet and
+   hands turned to the directions the image gives them (:func:`end_rotations`), a planted foot
+   flat on the floor.
 
 Costs O(F) per track (the least-squares system is banded, the re-fit ~70 µs a frame): thousands of
 frames per second.
