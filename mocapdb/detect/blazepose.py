@@ -41,7 +41,7 @@ DETECTION_IOU = 0.3          # detections overlapping a better one by more are m
 REGION_SCALE = 1.25          # a region's side: this × twice the hips-to-head-point distance
 PRESENCE = 0.5               # a landmark run whose person flag is below this has lost its person
 MIN_FILL = 0.5               # a body's landmarks span at least this share of its region's side (else: no body)
-SAME_PERSON_IOU = 0.5        # two followed people whose boxes overlap more are one
+SAME_PERSON_SHARE = 0.5      # two followed people are one when this share of the smaller box lies in the other
 N_LANDMARKS = 33             # the landmarks written (the mediapipe33 layout)
 N_OUTPUT_POINTS = 39         # the model's points: 33 landmarks, then the region points and 4 more
 REGION_POINTS = (33, 34)     # the hips' centre and the point above the head, among the model's points
@@ -149,11 +149,13 @@ def _sigmoid(x: np.ndarray) -> np.ndarray:
 class _Person:
     """One person followed: the region to look in next and the box ``[4]`` (x1, y1, x2, y2 px) the
     body was last seen in (a new detection: the middle of its region); ``followed``: the landmarks
-    found it before (a new detection is not yet)."""
+    found it before (a new detection is not yet); ``trusted``: reported from its first landmark run
+    (found by the coarse pass), else from its second (a small tile's detection, which can be a false one)."""
 
     region: Region
     box: np.ndarray
     followed: bool = False
+    trusted: bool = False
 
 
 def _tile_starts(length_px: int, side_px: float) -> np.ndarray:
@@ -219,7 +221,7 @@ class BlazePose:
         if self._tiles is None or self._tiles_for != (width, height):
             (self._tiles, self._coarse), self._tiles_for = scan_tiles(width, height), (width, height)
         if self._lost or not self.people:
-            self._add_people([r for tile in self._tiles[:self._coarse] for r in self.detect(image, tile)])
+            self._add_people([r for tile in self._tiles[:self._coarse] for r in self.detect(image, tile)], True)
         elif self.frames % self.scan_every == 0:
             self._add_people(self.detect(image, self._tiles[self._next_tile % len(self._tiles)]))
             self._next_tile += 1
@@ -258,7 +260,7 @@ class BlazePose:
         following = region_from_points(frame_xy[REGION_POINTS[0]], frame_xy[REGION_POINTS[1]])
         return points, float(np.ravel(flag)[0]), following
 
-    def _add_people(self, regions: list[Region]) -> None:
+    def _add_people(self, regions: list[Region], trusted: bool = False) -> None:
         """Starts following each detected region whose centre (the hips) is in no followed person's box."""
         for region in regions:
             if self.max_people is not None and len(self.people) >= self.max_people:
@@ -266,13 +268,14 @@ class BlazePose:
             boxes = np.array([p.box for p in self.people]).reshape(-1, 4)
             inside = (boxes[:, :2] <= region.centre).all(axis=1) & (region.centre <= boxes[:, 2:]).all(axis=1)
             if not inside.any():
-                self.people.append(_Person(region, np.concatenate([region.centre - region.side / 4.0,
-                                                                   region.centre + region.side / 4.0])))
+                box = np.concatenate([region.centre - region.side / 4.0, region.centre + region.side / 4.0])
+                self.people.append(_Person(region, box, trusted=trusted))
 
     def _follow(self, image: np.ndarray) -> Detections:
         """One landmark run per followed person; the lost ones (a low flag; for a new detection also
-        landmarks spanning less than :data:`MIN_FILL` of its region: not a body) and duplicates are dropped."""
-        points, flags, regions = [], [], []
+        landmarks spanning less than :data:`MIN_FILL` of its region: not a body) and duplicates are
+        dropped; the people reported: the ones followed before and the trusted new ones."""
+        points, flags, regions, reported = [], [], [], []
         for person in self.people:
             landmarks, flag, following = self.landmarks(image, person.region)
             span = np.ptp(landmarks[:, :2], axis=0).max()
@@ -280,18 +283,29 @@ class BlazePose:
                 points.append(landmarks)
                 flags.append(flag)
                 regions.append(following)
+                reported.append(person.followed or person.trusted)
         self._lost = len(regions) < len(self.people)
         keypoints = np.array(points).reshape(-1, N_LANDMARKS, 3)
         boxes = np.concatenate([keypoints[:, :, :2].min(axis=1), keypoints[:, :, :2].max(axis=1)], axis=1)
         unique = _distinct(boxes, np.array(flags))
         self.people = [_Person(regions[i], boxes[i], True) for i in unique]
-        return Detections(boxes[unique], np.array(flags)[unique], keypoints[unique])
+        shown = unique[np.array(reported, dtype=bool)[unique]] if len(unique) else unique
+        return Detections(boxes[shown], np.array(flags)[shown], keypoints[shown])
+
+
+def _share_of_smaller(boxes: np.ndarray) -> np.ndarray:
+    """``[P, P]``: the share of the smaller of each two boxes (x1, y1, x2, y2) that lies in the other."""
+    low = np.maximum(boxes[:, None, :2], boxes[None, :, :2])
+    high = np.minimum(boxes[:, None, 2:], boxes[None, :, 2:])
+    inter = np.prod(np.clip(high - low, 0.0, None), axis=-1)
+    area = np.prod(np.clip(boxes[:, 2:] - boxes[:, :2], 1e-9, None), axis=-1)
+    return inter / np.minimum(area[:, None], area[None, :])
 
 
 def _distinct(boxes: np.ndarray, scores: np.ndarray) -> np.ndarray:
-    """Indices of the people kept when two followed regions drifted onto one body (boxes overlapping
-    by more than :data:`SAME_PERSON_IOU`): the better flag stays; order kept."""
-    overlaps = box_iou(boxes, boxes) > SAME_PERSON_IOU
+    """Indices of the people kept when two followed regions drifted onto one body (more than
+    :data:`SAME_PERSON_SHARE` of the smaller box inside the other): the better flag stays; order kept."""
+    overlaps = _share_of_smaller(boxes) > SAME_PERSON_SHARE
     keep = np.ones(len(scores), dtype=bool)
     for i in np.argsort(-scores, kind="stable"):
         if keep[i]:

@@ -3,7 +3,7 @@
 ``mocapdb models fetch`` (run by ``tools/setup.sh``) downloads the pinned packages that carry
 MediaPipe's BlazePose TFLite files (Apache-2.0), checks the sha256 of the package and of each file
 taken from it, converts each with :func:`mocapdb.detect.tflite_onnx.convert_tflite` and writes the
-ONNX files with a model card into :func:`models_dir`. Nothing is downloaded at run time:
+ONNX files with a model card, beside the TFLite originals, into :func:`models_dir`. Nothing is downloaded at run time:
 :func:`blazepose_paths` finds the converted files or raises DetectError naming the one command that
 prepares them. Sources and pins: ``data_specs/pose_models.md`` ("BlazePose").
 """
@@ -86,6 +86,11 @@ def onnx_path(model: ModelFile, folder: Path | None = None) -> Path:
     return (folder or models_dir()) / f"{model.stem}.onnx"
 
 
+def tflite_path(model: ModelFile, folder: Path | None = None) -> Path:
+    """The TFLite original of ``model`` kept beside its conversion (the reference the tests check it against)."""
+    return (folder or models_dir()) / Path(model.member).name
+
+
 def blazepose_paths(variant: str = DEFAULT_BLAZEPOSE, folder: Path | None = None) -> tuple[Path, Path]:
     """The converted person detector and ``variant`` landmark model; DetectError naming the command
     that prepares them when they are missing."""
@@ -151,8 +156,8 @@ _DOWNLOADERS: dict[str, Callable[[Package, Path], Path]] = {"pypi": _download_py
 
 
 def _extract(archive: Path, model: ModelFile, into: Path) -> Path:
-    """``model``'s member of the wheel (zip) or tarball, checked against its sha256."""
-    target = into / Path(model.member).name
+    """``model``'s member of the wheel (zip) or tarball, written into ``into`` and checked against its sha256."""
+    target = tflite_path(model, into)
     if archive.suffix == ".whl":
         with zipfile.ZipFile(archive) as wheel:
             target.write_bytes(wheel.read(model.member))
@@ -185,7 +190,7 @@ def fetch_models(variants: tuple[str, ...] = (DEFAULT_BLAZEPOSE,), folder: Path 
             if model.package not in archives:
                 say(f"fetching {model.package.name} {model.package.version} ({model.package.index})")
                 archives[model.package] = _checked_download(model.package, Path(scratch))
-            tflite = _extract(archives[model.package], model, Path(scratch))
+            tflite = _extract(archives[model.package], model, folder)
             say(f"converting {Path(model.member).name} → {onnx_path(model, folder)}")
             partial = onnx_path(model, folder).with_suffix(".onnx.partial")
             convert_tflite(tflite, partial, doc=_card_text(model))
@@ -218,6 +223,6 @@ def _card_text(model: ModelFile) -> str:
 
 def _card_matches(model: ModelFile, folder: Path) -> bool:
     try:
-        return onnx_path(model, folder).is_file() and _card_path(model, folder).read_text() == _card_text(model)
+        return onnx_path(model, folder).is_file() and tflite_path(model, folder).is_file() and _card_path(model, folder).read_text() == _card_text(model)
     except OSError:
         return False
