@@ -223,6 +223,7 @@ def _card_text(model: ModelFile) -> str:
 
 def _card_matches(model: ModelFile, folder: Path) -> bool:
     try:
-        return onnx_path(model, folder).is_file() and tflite_path(model, folder).is_file() and _card_path(model, folder).read_text() == _card_text(model)
+        files = onnx_path(model, folder).is_file() and tflite_path(model, folder).is_file()
+        return files and _card_path(model, folder).read_text() == _card_text(model)
     except OSError:
         return False
