@@ -40,7 +40,7 @@ from mocapdb.builder.tasks import DaskTasks, ProcessTasks, Tasks, connect
 from mocapdb.builder.work import STAGES, WorkArray, WorkFolder
 from mocapdb.core import domains as D
 from mocapdb.core.cameras import DatabaseCamera
-from mocapdb.core.clips import Clip, ClipOptions, clips_from_bvh
+from mocapdb.core.clips import Clip, ClipOptions, clips_from_bvh, joint_map_for
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.formats.bvh import BvhError
 from mocapdb.core.formats.database import DatabaseWriter, check_output_path, output_target, recover_interrupted
@@ -95,7 +95,8 @@ class BuildConfig:
     landmarks: int = 2000
     workers: int = 1
     strict: bool = False
-    joint_map: Path | None = None
+    joint_map: Path | None = None  # for the files no other map covers
+    joint_maps: tuple[tuple[str, Path], ...] = ()  # (glob pattern, map), first match first
     unit: str | None = None
     up_axis: str | None = None
     credit: str | None = None
@@ -107,7 +108,8 @@ class BuildConfig:
 
     def clip_options(self) -> ClipOptions:
         """The options that turn a BVH file into clips (:mod:`mocapdb.core.clips`)."""
-        return ClipOptions(self.fps, self.joint_map, self.unit, self.up_axis, self.credit, self.mirror)
+        return ClipOptions(self.fps, self.joint_map, self.unit, self.up_axis, self.credit, self.mirror,
+                           self.joint_maps)
 
     @property
     def yaws_deg(self) -> np.ndarray:
@@ -154,6 +156,7 @@ class BuildSummary:
     projections: int = 0
     clusters: int = 0
     skipped: list[tuple[str, str]] = field(default_factory=list)
+    rigs: dict[str, int] = field(default_factory=dict)  # files read per detected rig (and map)
     seconds: dict[str, float] = field(default_factory=dict)
     bytes_on_disk: int = 0
     warnings: list[str] = field(default_factory=list)
@@ -169,6 +172,8 @@ class BuildSummary:
         lines = [f"files {self.files}, clips {self.clips} (files split at jumps in the data; {self.mirrored} of them "
                  f"mirrored copies), frames {self.frames}, projections {self.projections}, "
                  f"clusters {self.clusters}, size on disk {self.bytes_on_disk / 1e6:.1f} MB"]
+        if self.rigs:
+            lines.append("files per rig: " + "; ".join(f"{rig} {n}" for rig, n in sorted(self.rigs.items())))
         lines += [f"resumed {stage}: {what}" for stage, what in self.resumed.items()]
         lines += [f"  {stage:<12} {sec:8.2f} s" for stage, sec in self.seconds.items()]
         lines.append(f"  {'total':<12} {sum(self.seconds.values()):8.2f} s")
@@ -227,7 +232,7 @@ def _read_stage(run: _Run, files: list[tuple[Path, Path]]) -> list[WorkArray]:
     order; the clip table and the skipped files go to the stage's record."""
     record = run.work.record("read")
     if "files_done" not in record:
-        record.update(files_done=0, clips=[], skipped=[])
+        record.update(files_done=0, clips=[], skipped=[], rigs={})
         run.work.new_array("positions", np.float32, (N_POINTS, 3))
         run.work.new_array("quaternions", np.float32, (len(RIG_JOINTS), 4))
     arrays = [run.work.array("positions"), run.work.array("quaternions")]
@@ -236,9 +241,12 @@ def _read_stage(run: _Run, files: list[tuple[Path, Path]]) -> list[WorkArray]:
         array.resize(frames)  # what an interrupted run appended after its last commit goes
     jobs = [(path, root, run.config) for path, root in files[record["files_done"]:]]
     bar = progress(total=len(files), initial=record["files_done"], desc="read+retarget", unit="file")
-    for result in run.readers.in_order(_process_one, jobs):
+    for job, result in zip(jobs, run.readers.in_order(_process_one, jobs)):
         if isinstance(result, tuple):
             record["skipped"].append(list(result))
+        else:
+            rig = _rig_of(result[0], joint_map_for(job[0], job[1], run.config.clip_options()))
+            record["rigs"][rig] = record["rigs"].get(rig, 0) + 1
         for clip in result if isinstance(result, list) else []:
             arrays[0].append(clip.positions)
             arrays[1].append(clip.quaternions)
@@ -250,10 +258,16 @@ def _read_stage(run: _Run, files: list[tuple[Path, Path]]) -> list[WorkArray]:
     return arrays
 
 
+def _rig_of(clip: Clip, joint_map: Path | None) -> str:
+    """How a file's rig was read, for the summary: its convention label, and the joint map."""
+    return f"{clip.convention} ({joint_map})" if joint_map else clip.convention
+
+
 def _check_read(record: dict, config: BuildConfig, summary: BuildSummary) -> None:
     """The skipped files into the summary; :class:`BuildError` with ``--strict`` and a skip, or without
     any clip."""
     summary.skipped = [tuple(s) for s in record["skipped"]]
+    summary.rigs = dict(record.get("rigs", {}))
     if summary.skipped and config.strict:
         raise BuildError("--strict: " + "; ".join(f"{p}: {why}" for p, why in summary.skipped))
     if not record["clips"]:
@@ -625,8 +639,9 @@ def _check_before_work(out: str | os.PathLike, config: BuildConfig, summary: Bui
     """Fail in milliseconds, before any file is read, on what would stop the build at the end; then
     clean up after interrupted earlier writes of ``out``. Returns the work folder."""
     config.check()
-    if config.joint_map:
-        load_joint_map_file(config.joint_map)
+    for map_path in [config.joint_map, *(m for _, m in config.joint_maps)]:
+        if map_path:
+            load_joint_map_file(map_path)
     check_output_path(out)
     target = output_target(out)
     work = Path(os.path.abspath(config.work_dir)) if config.work_dir else target.with_name(target.name + ".work")
@@ -650,13 +665,26 @@ def _file_stamp(path: Path) -> list:
     return [str(path), status.st_size, status.st_mtime_ns]
 
 
-def _fingerprints(config: BuildConfig, files: list[tuple[Path, Path]]) -> dict[str, dict]:
-    """What each stage's result depends on (a change restarts the stage and those after it)."""
+def _maps_of(config: BuildConfig, files: list[tuple[Path, Path]]) -> list[Path | None]:
+    """Each file's joint map (:func:`~mocapdb.core.clips.joint_map_for`), every one loaded once:
+    a bad one raises :class:`JointMapError` before any file is read."""
+    options = config.clip_options()
+    maps = [joint_map_for(path, root, options) for path, root in files]
+    for map_path in dict.fromkeys(m for m in maps if m):
+        load_joint_map_file(map_path)
+    return maps
+
+
+def _fingerprints(config: BuildConfig, files: list[tuple[Path, Path]], maps: list[Path | None]) -> dict[str, dict]:
+    """What each stage's result depends on (a change restarts the stage and those after it): for
+    the read, every source and the joint map it is read with, by path, size and mtime."""
     options = asdict(config.clip_options())
     options["joint_map"] = _file_stamp(config.joint_map) if config.joint_map else None
+    options["joint_maps"] = [[pattern, *_file_stamp(m)] for pattern, m in config.joint_maps]
     return {
         "read": {"builder_version": __version__, "options": options,
-                 "sources": [[*_file_stamp(path), str(root)] for path, root in files]},
+                 "sources": [[*_file_stamp(path), str(root), _file_stamp(m) if m else None]
+                             for (path, root), m in zip(files, maps)]},
         "project": {"yaw_step_deg": config.yaw_step_deg, "camera": asdict(config.camera)},
         "embed": {"dims": config.dims, "landmarks": config.landmarks, "seed": config.seed},
         "cluster": {"clusters": config.clusters, "seed": config.seed},
@@ -719,13 +747,14 @@ def build(sources: list[str], out: str | os.PathLike, config: BuildConfig,
     files = find_sources(sources, list(exclude))
     if not files:
         raise BuildError(f"no .bvh file found in {', '.join(sources)}")
+    maps = _maps_of(config, files)
     plan = ChunkPlan(config.limit_mb)
     if plan.below_base:
         summary.warnings.append(f"--memory-limit {config.limit_mb} MB is below what the process itself takes "
                                 "(data_specs/build.md): the build runs in its smallest chunks")
     tasks = DaskTasks(client) if client is not None else connect(config.scheduler) if config.scheduler else None
     try:
-        with WorkFolder(work_dir, _fingerprints(config, files), config.restart) as work:
+        with WorkFolder(work_dir, _fingerprints(config, files, maps), config.restart) as work:
             summary.warnings += work.notes
             run = _Run(config, work, plan, summary, tasks or Tasks(), tasks or ProcessTasks(config.workers))
             try:

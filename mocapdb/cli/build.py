@@ -53,7 +53,14 @@ def add_build_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--strict", action="store_true",
                    help="fail the build when any file is skipped (by default a file that cannot be read, "
                         "mapped or retargeted is skipped and named with the reason)")
-    p.add_argument("--joint-map", type=P.INPUT_FILE, help="TOML file mapping skeleton roles to source joint names")
+    p.add_argument("--joint-map", type=P.INPUT_FILE,
+                   help="TOML file mapping skeleton roles to source joint names, for the files no other map "
+                        "covers (default: every rig is recognised from its joints' names, hierarchy and poses)")
+    p.add_argument("--joint-map-for", nargs=2, action="append", default=[], metavar=("PATTERN", "MAP"),
+                   type=P.TextArg("a glob pattern or a joint-map file"),
+                   help="read the files whose name or path matches PATTERN (a glob, as --exclude) with the "
+                        "joint map MAP (repeatable; the first match wins, before a joint_map.toml beside the "
+                        "files, which applies to its folder and those below, and before --joint-map)")
     p.add_argument("--unit", choices=UNITS, help="length unit of the BVH files (default: detected)")
     p.add_argument("--up-axis", choices=UP_AXES, help="up axis of the BVH files (default: detected)")
     p.add_argument("--credit", type=P.TextArg("a credit text"),
@@ -76,6 +83,7 @@ def run_build(args: argparse.Namespace) -> int:
         clusters=args.clusters, dims=args.dims, seed=args.seed, landmarks=args.landmarks,
         workers=args.workers, strict=args.strict,
         joint_map=Path(args.joint_map) if args.joint_map else None,
+        joint_maps=tuple((pattern, Path(map_path)) for pattern, map_path in args.joint_map_for),
         unit=args.unit, up_axis=args.up_axis, credit=args.credit, mirror=not args.no_mirror,
         memory_limit_mb=args.memory_limit, work_dir=Path(args.work_dir) if args.work_dir else None,
         restart=args.restart, scheduler=args.scheduler)
@@ -97,24 +105,34 @@ def run_build(args: argparse.Namespace) -> int:
 
 def add_inspect_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("inspect", help="show how a BVH file maps onto the universal skeleton",
-                       description="Print a BVH file's detected rig convention, unit, up axis and the "
-                                   "source joint used for each skeleton role.")
+                       description="Print a BVH file's detected rig, unit, up axis and the source joint used "
+                                   "for each skeleton role with the evidence: the words of its name, the "
+                                   "hierarchy (pelvis, chest, head) and the sides in the clip's poses.")
     p.add_argument("bvh", type=P.INPUT_FILE, help="BVH file")
-    p.add_argument("--joint-map", type=P.INPUT_FILE, help="TOML file mapping skeleton roles to source joint names")
+    p.add_argument("--joint-map", type=P.INPUT_FILE,
+                   help="TOML file mapping skeleton roles to source joint names (default: a joint_map.toml "
+                        "beside the file, as `mocapdb build` reads it for a file given alone)")
     p.add_argument("--unit", choices=UNITS, help="length unit (default: detected)")
     p.add_argument("--up-axis", choices=UP_AXES, help="up axis (default: detected)")
     p.set_defaults(run=run_inspect)
 
 
 def run_inspect(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from mocapdb.core.clips import JOINT_MAP_FILE
     from mocapdb.core.formats.bvh import read_bvh
     from mocapdb.core.joint_map import describe, detect_mapping, load_joint_map_file
 
     bvh = read_bvh(args.bvh)
-    overrides = load_joint_map_file(args.joint_map) if args.joint_map else None
+    beside = Path(args.bvh).parent / JOINT_MAP_FILE
+    map_path = args.joint_map or (beside if beside.is_file() else None)
+    overrides = load_joint_map_file(map_path) if map_path else None
     mapping = detect_mapping(bvh, overrides.joints if overrides else None)
     unit = args.unit or (overrides.unit if overrides else None)
     up_axis = args.up_axis or (overrides.up_axis if overrides else None)
+    if map_path:
+        print(f"joint map:   {map_path}" + ("" if args.joint_map else " (beside the file)"))
     print(describe(bvh, mapping, unit, up_axis))
     return 0
 

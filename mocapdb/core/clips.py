@@ -6,6 +6,7 @@ left-right mirror image.
 """
 from __future__ import annotations
 
+import fnmatch
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from mocapdb.core.joint_map import detect_mapping, extract_keypoints, load_joint
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, BONE_LENGTHS_M, KP, mirror_keypoints, resample, retarget
 
 CREDIT_FILE = "CREDIT.txt"
+JOINT_MAP_FILE = "joint_map.toml"  # a joint map beside the sources: for its folder and those below
 MAX_CREDIT_BYTES = MIB  # a licence text
 MIRROR_SUFFIX = "~mirror"  # added to the name of a clip's left-right mirror image
 
@@ -26,11 +28,14 @@ class ClipOptions:
     """How BVH files become clips: the database frame rate and how to read the source rig."""
 
     fps: float = 24.0
-    joint_map: Path | None = None  # TOML file mapping skeleton roles to source joint names
+    joint_map: Path | None = None  # TOML file mapping skeleton roles to source joint names (files no
+    #                                other map covers)
     unit: str | None = None        # source length unit (None: detected)
     up_axis: str | None = None     # source up axis (None: detected)
     credit: str | None = None      # credit text (None: nearest CREDIT.txt)
     mirror: bool = True            # each clip followed by its left-right mirror image
+    joint_maps: tuple[tuple[str, Path], ...] = ()  # (glob pattern, map): the first whose pattern the
+    #                                                file's name or path matches (before joint_map.toml)
 
 
 @dataclass
@@ -49,31 +54,49 @@ class Clip:
     #                                     y up, the lowest ankle ANKLE_HEIGHT_M × its leg / universal leg
 
 
+def _nearest(path: Path, root: Path, name: str) -> Path | None:
+    """The file ``name`` nearest ``path``: in its folder, else the parents' up to its source ``root``."""
+    folder = path.parent
+    while True:
+        candidate = folder / name
+        if candidate.is_file():
+            return candidate
+        if folder == root or folder == folder.parent or root not in folder.parents:
+            return None
+        folder = folder.parent
+
+
 def credit_for(path: Path, root: Path, given: str | None) -> str:
     """``given``, else the nearest CREDIT.txt from the file's folder up to its source root."""
     if given is not None:
         return given
-    folder = path.parent
-    while True:
-        candidate = folder / CREDIT_FILE
-        if candidate.is_file():
-            return read_input_text(candidate, MAX_CREDIT_BYTES, BvhError, "credit text").strip()
-        if folder == root or folder == folder.parent or root not in folder.parents:
-            return ""
-        folder = folder.parent
+    found = _nearest(path, root, CREDIT_FILE)
+    return read_input_text(found, MAX_CREDIT_BYTES, BvhError, "credit text").strip() if found else ""
+
+
+def joint_map_for(path: Path, root: Path, options: ClipOptions) -> Path | None:
+    """The joint map a file is read with: the first of ``options.joint_maps`` whose glob pattern its
+    name or path matches, else the nearest :data:`JOINT_MAP_FILE` from its folder up to its source
+    ``root``, else ``options.joint_map`` (None: detected without a map)."""
+    for pattern, map_path in options.joint_maps:
+        if fnmatch.fnmatch(path.name, pattern) or fnmatch.fnmatch(str(path), pattern):
+            return map_path
+    return _nearest(path, root, JOINT_MAP_FILE) or options.joint_map
 
 
 def clips_from_bvh(path: Path, root: Path, options: ClipOptions) -> list[Clip]:
     """Read, map, split at data jumps, resample and retarget one BVH file.
 
-    Each continuous run (:func:`continuous_runs`) becomes a clip, named after the file, with
-    ``@first-end`` (source frames) added when the file was split. With ``options.mirror`` each
+    The joint map is :func:`joint_map_for`'s. Each continuous run (:func:`continuous_runs`)
+    becomes a clip, named after the file, with ``@first-end`` (source frames) added when the file
+    was split. With ``options.mirror`` each
     clip is followed by its left-right mirror image (:data:`MIRROR_SUFFIX` added to the name),
     retargeted from the mirrored source keypoints. Raises BvhError or JointMapError when the
     file cannot be used, also when a clip would hold a NaN or infinite value.
     """
     bvh = read_bvh(path)
-    overrides = load_joint_map_file(options.joint_map) if options.joint_map else None
+    map_path = joint_map_for(path, root, options)
+    overrides = load_joint_map_file(map_path) if map_path else None
     mapping = detect_mapping(bvh, overrides.joints if overrides else None)
     unit = options.unit or (overrides.unit if overrides else None)
     up_axis = options.up_axis or (overrides.up_axis if overrides else None)
