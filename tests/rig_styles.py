@@ -22,6 +22,7 @@ BODY = [
     ("{side}_toe", "{side}_foot", (0, -6, 13)),
     ("spine1", "pelvis", (0, 10, 0)), ("spine2", "spine1", (0, 12, 0)), ("chest", "spine2", (0, 13, 0)),
     ("neck", "chest", (0, 17, 0)), ("head", "neck", (0, 10, 0)), ("headtop", "head", (0, 18, 0)),
+    ("nose", "head", (0, 2, 10)),
     ("{side}_clavicle", "chest", (3, 12, 0)), ("{side}_upperarm", "{side}_clavicle", (15, 3, 0)),
     ("{side}_upperarm_twist", "{side}_upperarm", (14, 0, 0)), ("{side}_forearm", "{side}_upperarm", (28, 0, 0)),
     ("{side}_forearm_twist", "{side}_forearm", (12, 0, 0)), ("{side}_hand", "{side}_forearm", (25, 0, 0)),
@@ -70,7 +71,7 @@ class Style:
 
 def _style(sides, base=None, pelvis="Hips", hipjoint=None, thigh=None, thigh_twist=None, shin=None,
            shin_twist=None, foot=None, toe=None, spine1="Spine", spine2="Spine1", chest="Spine2", neck="Neck",
-           head="Head", headtop=None, clavicle=None, upperarm=None, upperarm_twist=None, forearm=None,
+           head="Head", headtop=None, nose=None, clavicle=None, upperarm=None, upperarm_twist=None, forearm=None,
            forearm_twist=None, hand=None, finger=None, thumb=None, parents=None, extras=None) -> Style:
     names = {k: v for k, v in locals().items() if k not in ("sides", "parents", "extras")}
     return Style(sides, names, parents or {}, extras or [])

@@ -50,8 +50,16 @@ def test_names_swapped_against_the_poses_are_refused(tmp_path, style):
     assert "found: head" in str(err.value) and "--joint-map" in str(err.value)
 
 
-def _without_toes(style: Style) -> Style:
-    return Style(style.sides, {**style.names, "toe": None, "headtop": None}, style.parents, style.extras)
+def _without_toes(style: Style, nose: str | None = None) -> Style:
+    return Style(style.sides, {**style.names, "toe": None, "headtop": None, "nose": nose}, style.parents,
+                 style.extras)
+
+
+def test_without_toes_the_face_gives_the_facing(tmp_path):
+    style = _without_toes(STYLES["l_prefix"], nose="Nose")
+    assert "sides: facing from the face" in detect_mapping(_written(tmp_path, rig_text(style))).notes[-1]
+    with pytest.raises(JointMapError, match=r"do not match the poses \(facing from the face\)"):
+        detect_mapping(_written(tmp_path, rig_text(style, rename=swapped_sides(style)), "swapped.bvh"))
 
 
 def test_without_toes_or_face_the_arms_and_legs_must_agree(tmp_path):

@@ -207,8 +207,9 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def _facing(bvh: Bvh, pos: np.ndarray, placed: dict[str, int], up: np.ndarray) -> tuple[np.ndarray | None, str]:
-    """The character's forward in each frame ``[F, 3]``, from the toes (the feet's descendants) or
-    else the face (the head's), and which; ``None`` when neither points clearly ahead in most frames."""
+    """The character's forward in each frame ``[F, 3]`` (NaN where unknown), from the toes (the feet's
+    descendants) or else the face (the head's), and which; ``None`` when neither points clearly
+    ahead in most frames."""
     for cue, roles in (("the toes", ("l_foot", "r_foot")), ("the face", ("head",))):
         below = [_descendants(bvh, placed[r]) for r in roles]
         if not all(below):
@@ -216,10 +217,9 @@ def _facing(bvh: Bvh, pos: np.ndarray, placed: dict[str, int], up: np.ndarray) -
         steps = np.stack([pos[:, b].mean(axis=1) - pos[:, placed[r]] for r, b in zip(roles, below)])
         flat = steps - up * np.sum(steps * up, axis=-1, keepdims=True)
         clear = np.linalg.norm(flat, axis=-1) > MIN_FACING_SHARE * np.linalg.norm(steps, axis=-1)
-        agree = np.sum(_unit(flat[0]) * _unit(flat[-1]), axis=-1) > MIN_SIDE_COSINE
-        good = clear.all(axis=0) & agree
-        if good.mean() > 0.5:
-            return np.where(good[:, None], _unit(_unit(flat).sum(axis=0)), np.nan), cue
+        if clear.any(axis=0).mean() > 0.5:
+            ahead = np.sum(np.where(clear[..., None], _unit(flat), 0.0), axis=0)
+            return np.where(clear.any(axis=0)[:, None], _unit(ahead), np.nan), cue
     return None, ""
 
 
