@@ -1,8 +1,12 @@
-"""Benchmark video → 3D: what each step costs, end to end, for each detector path (issue 19, item 5).
+"""Benchmark video → 3D: what each step costs, end to end, for each detector and detector path.
 
-    python tools/bench_video.py VIDEO --model POSE.onnx [--db demo/sample.db] [--frames 400]
+    python tools/bench_video.py VIDEO [--blazepose lite full heavy] [--model POSE.onnx] [--db demo/sample.db]
+                                [--frames 400]
 
-POSE.onnx should be an export with a dynamic input size (``yolo export ... dynamic=True``): the
+BlazePose (the default detector; the variants prepared by `mocapdb models fetch lite full heavy`)
+runs its person detector on a tile scan and one landmark run per person. With ``--model``, a
+YOLO-pose export is measured too. POSE.onnx should be an export with a dynamic input size
+(``yolo export ... dynamic=True``): the
 full-frame runs feed it 640 px, the crops ``--crop-size`` px. For each configuration:
 
 * full: the model on every whole frame at 640 px (what `detect` and `live` did before the fast path);
@@ -39,29 +43,37 @@ sys.path.insert(0, str(ROOT))
 
 from mocapdb.cli.main import parser  # noqa: E402
 from mocapdb.cli.reconstruct import _session, resolve_take  # noqa: E402
-from mocapdb.detect.model import Detections, PoseModel, box_iou  # noqa: E402
-from mocapdb.detect.tracked import FULL_FRAME, FastPath, TrackedDetector  # noqa: E402
+from mocapdb.detect.detectors import open_detector  # noqa: E402
+from mocapdb.detect.model import Detections, box_iou  # noqa: E402
+from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU  # noqa: E402
+from mocapdb.detect.tracked import FULL_FRAME, FastPath  # noqa: E402
 from mocapdb.detect.video import VideoReader  # noqa: E402
 from mocapdb.runtime.video_input import keypoint_frame  # noqa: E402
 
 WARM_UP_FRAMES = 10     # left out of the timings: onnxruntime's first runs, the engine's first frames
 MIN_CONFIDENCE = 0.5    # keypoints compared: confident in both runs
 MIN_IOU = 0.3           # a person of the reference run is compared with the best-overlapping one found
-STAGES = ("decode", "detect full", "detect crop", "detect crop+full", "flow", "engine step", "output")
+STAGES = ("decode", "detect BlazePose", "detect full", "detect crop", "detect crop+full", "flow", "engine step",
+          "output")
 
 
-def configurations(crop_px: int) -> dict[str, tuple[FastPath, list[str]]]:
+def configurations(crop_px: int, variants: list[str], model: str | None) -> dict[str, tuple[FastPath, list[str]]]:
     """Name → (the detector's paths, the same as `live` options)."""
     size = ["--crop-size", str(crop_px)]
-    return {"full 640": (FULL_FRAME, ["--detector", "full"]),
-            "crops": (FastPath(crop_px=crop_px), ["--detector", "crops", *size]),
+    blazepose = {f"BlazePose {v}": (FULL_FRAME, ["--blazepose", v]) for v in variants}
+    if model is None:
+        return blazepose
+    flags = ["--model", model]
+    return blazepose | {
+            "full 640": (FULL_FRAME, ["--detector", "full", *flags]),
+            "crops": (FastPath(crop_px=crop_px), ["--detector", "crops", *size, *flags]),
             "crops + flow/2": (FastPath(crop_px=crop_px, model_every=2),
-                               ["--detector", "crops", *size, "--model-every", "2"])}
+                               ["--detector", "crops", *size, "--model-every", "2", *flags])}
 
 
-def live_args(video: str, model: str, db: str, sink: str, flags: list[str]) -> argparse.Namespace:
+def live_args(video: str, db: str, sink: str, flags: list[str]) -> argparse.Namespace:
     """`mocapdb live` options as its parser reads them, the take resolved from the video."""
-    args = parser().parse_args(["live", "--source", video, "--model", model, "--db", db, "--sink", sink, *flags])
+    args = parser().parse_args(["live", "--source", video, "--db", db, "--sink", sink, *flags])
     resolve_take(args, args.source)
     return args
 
@@ -69,7 +81,8 @@ def live_args(video: str, model: str, db: str, sink: str, flags: list[str]) -> a
 def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[dict, list[Detections], float]:
     """Decode → detect → engine step → output line in one thread: milliseconds per stage, the
     detections of every frame and the frames per second over the timed frames."""
-    detector = TrackedDetector(PoseModel(args.model), fast)
+    detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU, max_people=None,
+                             input_size=DEFAULT_INPUT_SIZE, fast=fast)
     session = _session(args, args.sink, strict=False)
     engine_ms: list[float] = []
     step = session.engine.step
@@ -95,11 +108,12 @@ def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[d
         t1 = time.perf_counter()
         found = detector(frame.image)
         t2 = time.perf_counter()
-        session.handle_frame(keypoint_frame(frame, found), frame.capture_s)
+        session.handle_frame(keypoint_frame(frame, found, detector.keypoint_layout), frame.capture_s)
         t3 = time.perf_counter()
         found_all.append(found)
         if i >= WARM_UP_FRAMES:
-            path = "flow" if detector.last_path == "flow" else f"detect {detector.last_path}"
+            last_path = getattr(detector, "last_path", "BlazePose")
+            path = "flow" if last_path == "flow" else f"detect {last_path}"
             stages["decode"].append((t1 - t0) * 1000.0)
             stages[path].append((t2 - t1) * 1000.0)
             stages["engine step"].append(engine_ms[-1])
@@ -126,10 +140,9 @@ def keypoint_difference(reference: list[Detections], found: list[Detections]) ->
     return np.concatenate(out) * 100.0 if out else np.zeros(0)
 
 
-def live_run(video: str, model: str, db: str, flags: list[str], sink: str) -> dict[str, float]:
-    """The real `mocapdb live --source VIDEO --model M` (a subprocess): its summary's figures."""
-    command = [sys.executable, "-m", "mocapdb", "-q", "live", "--source", video, "--model", model, "--db", db,
-               "--sink", sink, *flags]
+def live_run(video: str, db: str, flags: list[str], sink: str) -> dict[str, float]:
+    """The real `mocapdb live --source VIDEO [flags]` (a subprocess): its summary's figures."""
+    command = [sys.executable, "-m", "mocapdb", "-q", "live", "--source", video, "--db", db, "--sink", sink, *flags]
     err = subprocess.run(command, capture_output=True, text=True, check=True, cwd=ROOT).stderr
     latency = re.search(r"latency p50 ([\d.]+) ms, p99 ([\d.]+) ms; throughput ([\d.]+) frames/s", err)
     video_line = re.search(r"frames read (\d+), detected (\d+), dropped (\d+); detection ([\d.]+) frames/s", err)
@@ -156,7 +169,9 @@ def stage_table(results: dict[str, tuple[dict, float]]) -> list[str]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("video")
-    ap.add_argument("--model", required=True, help="YOLO-pose ONNX export with a dynamic input size")
+    ap.add_argument("--model", help="also a YOLO-pose ONNX export with a dynamic input size")
+    ap.add_argument("--blazepose", nargs="*", default=["full"], metavar="VARIANT",
+                    help="BlazePose variants measured (default full)")
     ap.add_argument("--db", default=str(ROOT / "demo" / "sample.db"))
     ap.add_argument("--frames", type=int, default=400, help="frames of the one-thread runs (default 400)")
     ap.add_argument("--crop-size", type=int, default=256, help="largest crop input side, pixels (default 256)")
@@ -165,12 +180,12 @@ def main() -> int:
     results, detections = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         sink = str(Path(tmp) / "out.jsonl")
-        for name, (fast, flags) in configurations(args.crop_size).items():
-            run_args = live_args(args.video, args.model, args.db, sink, flags)
+        for name, (fast, flags) in configurations(args.crop_size, args.blazepose, args.model).items():
+            run_args = live_args(args.video, args.db, sink, flags)
             stages, found, fps = one_thread(run_args, fast, args.frames)
             results[name], detections[name] = (stages, fps), found
-        live = {name: live_run(args.video, args.model, args.db, flags, sink)
-                for name, (_, flags) in configurations(args.crop_size).items()}
+        live = {name: live_run(args.video, args.db, flags, sink)
+                for name, (_, flags) in configurations(args.crop_size, args.blazepose, args.model).items()}
     reader = VideoReader(args.video)
     first = next(reader.frames()).image
     reader.close()
@@ -178,7 +193,7 @@ def main() -> int:
           f"{WARM_UP_FRAMES} untimed); one thread; (n) frames per stage")
     print("\n".join(stage_table(results)))
     print(f"\n{'2D keypoints vs full 640':24}{'mean %':>10}{'p95 %':>10}{'max %':>10}{'compared':>10}")
-    for name in results:
+    for name in (n for n in results if "full 640" in results and not n.startswith("BlazePose")):
         diff = keypoint_difference(detections["full 640"], detections[name])
         print(f"{name:24}{diff.mean():10.2f}{np.percentile(diff, 95):10.2f}{diff.max():10.2f}{len(diff):10d}")
     print(f"\n{'mocapdb live':24}{'frames/s':>10}{'p50 ms':>10}{'p99 ms':>10}{'read':>8}{'dropped':>9}"

@@ -45,6 +45,8 @@ SAME_PERSON_SHARE = 0.5      # two followed people are one when this share of th
 N_LANDMARKS = 33             # the landmarks written (the mediapipe33 layout)
 N_OUTPUT_POINTS = 39         # the model's points: 33 landmarks, then the region points and 4 more
 REGION_POINTS = (33, 34)     # the hips' centre and the point above the head, among the model's points
+LANDMARK_OUTPUTS = ("Identity", "Identity_1")   # the landmarks and the person flag; the mask, heatmaps and
+                                                # world landmarks are never computed (a third of the cost)
 DEFAULT_SCAN_EVERY = 3       # the person detector runs on one tile of the scan every this many frames
 TILE_OVERLAP = 0.25          # neighbouring tiles of one size share at least this share of their side
 
@@ -193,7 +195,7 @@ class BlazePose:
                  scan_every: int = DEFAULT_SCAN_EVERY, name: str = "BlazePose") -> None:
         self.path = Path(landmark_path)
         self._detector = load_session(Path(detector_path))
-        self._landmarks = load_session(self.path)
+        self._landmarks = load_session(self.path, LANDMARK_OUTPUTS)
         self.max_people, self.scan_every, self.name = max_people, scan_every, name
         self.people: list[_Person] = []
         self.frames, self.seconds, self.detector_runs, self.landmark_runs = 0, 0.0, 0, 0
@@ -252,7 +254,7 @@ class BlazePose:
         crop = cv2.warpAffine(image, forward, (LANDMARK_PX, LANDMARK_PX), flags=cv2.INTER_LINEAR,
                               borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
         blob = (crop[..., ::-1].astype(np.float32) / 255.0)[None]
-        raw, flag = self._landmarks.run(["Identity", "Identity_1"], {self._landmarks.get_inputs()[0].name: blob})[:2]
+        raw, flag = self._landmarks.run(list(LANDMARK_OUTPUTS), {self._landmarks.get_inputs()[0].name: blob})
         self.landmark_runs += 1
         values = raw.reshape(N_OUTPUT_POINTS, 5).astype(np.float64)
         frame_xy = region.to_frame(values[:, :2], LANDMARK_PX)

@@ -174,10 +174,11 @@ def cpu_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def load_session(path: Path) -> Any:
+def load_session(path: Path, outputs: tuple[str, ...] | None = None) -> Any:
     """An onnxruntime CPU session for ``path`` set for this machine (intra-op threads = its cores, not
     spinning when idle; sequential execution; all graph optimisations); DetectError when missing or
-    not loadable."""
+    not loadable. ``outputs``: only the part of the graph these outputs need is loaded (the rest is
+    never computed)."""
     if not path.exists():
         raise DetectError(f"pose model not found: {path}")
     check_readable(path, "pose model")
@@ -192,9 +193,20 @@ def load_session(path: Path) -> Any:
     # idle threads sleep: spinning would take the cores the decoder and the live engine need
     options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     try:
-        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-    except Exception as exc:  # noqa: BLE001 - onnxruntime's exception types share no narrower base
+        model = str(path) if outputs is None else _subgraph(path, outputs)
+        return ort.InferenceSession(model, options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # noqa: BLE001 - onnxruntime's and onnx's exception types share no narrower base
         raise DetectError(f"{path}: not a usable ONNX model ({_first_line(exc)})") from None
+
+
+def _subgraph(path: Path, outputs: tuple[str, ...]) -> bytes:
+    """The serialised part of the model at ``path`` that computes ``outputs`` from its inputs."""
+    import onnx
+    from onnx.utils import Extractor
+
+    model = onnx.load(str(path))
+    inputs = [i.name for i in model.graph.input]
+    return Extractor(model).extract_model(inputs, list(outputs)).SerializeToString()
 
 
 def _check_options(conf: float, iou: float, max_people: int | None, input_size: int) -> None:
