@@ -102,6 +102,7 @@ def _phrases(words: tuple[str, ...]) -> list[tuple[str, ...]]:
     return found
 
 
+@functools.lru_cache(maxsize=4096)
 def read_joint_name(name: str) -> JointWords:
     """The side and part a joint's name says (see the module docstring and the spec)."""
     words = split_words(name)
