@@ -188,3 +188,21 @@ def test_landmarks_follow_a_person_between_frames_without_the_detector():
     assert detector.detector_runs == runs   # followed by its own landmarks
     moves = [np.median(np.linalg.norm(b - a, axis=1)) for a, b in zip(steps, steps[1:])]
     assert max(moves) < 40.0   # pixels per frame at 60 fps: a smooth follow, not a jump to someone else
+
+
+# --- the model store ----------------------------------------------------------------------------------
+
+def test_fetch_refuses_a_package_whose_sha256_is_not_the_pinned_one(tmp_path, monkeypatch):
+    from mocapdb.detect import model_store
+
+    def tampered(package, into):
+        path = into / package.file_name
+        path.write_bytes(b"not the wheel")
+        return path
+
+    monkeypatch.setitem(model_store._DOWNLOADERS, "pypi", tampered)
+    with pytest.raises(DetectError, match="is not the pinned"):
+        model_store.fetch_models(("full",), tmp_path / "models", say=lambda _: None)
+    assert not list((tmp_path / "models").glob("*.onnx"))
+    with pytest.raises(DetectError, match="run `mocapdb models fetch` once"):
+        blazepose_paths("full", tmp_path / "models")

@@ -130,18 +130,12 @@ def add_models_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
                                    "~/.cache/mocapdb/models). list: the models prepared. Nothing is downloaded at "
                                    "run time. Sources and pins: data_specs/pose_models.md.")
     p.add_argument("action", choices=("fetch", "list"))
-    p.add_argument("variants", nargs="*", type=_variant, metavar="VARIANT",
+    # a str default: argparse checks an empty nargs="*" positional's default against the choices
+    p.add_argument("variants", nargs="*", choices=BLAZEPOSE_VARIANTS, default=DEFAULT_BLAZEPOSE, metavar="VARIANT",
                    help=f"landmark models to prepare: {', '.join(BLAZEPOSE_VARIANTS)} (default {DEFAULT_BLAZEPOSE}; "
                         "the person detector always)")
     p.set_defaults(run=run_models)
     return p
-
-
-def _variant(text: str) -> str:
-    """A BlazePose variant name (argparse's ``choices`` refuses an empty ``nargs="*"`` list)."""
-    if text not in BLAZEPOSE_VARIANTS:
-        raise argparse.ArgumentTypeError(f"unknown variant {text!r} (choose from {', '.join(BLAZEPOSE_VARIANTS)})")
-    return text
 
 
 def run_models(args: argparse.Namespace) -> int:
@@ -149,7 +143,7 @@ def run_models(args: argparse.Namespace) -> int:
     from mocapdb.detect.errors import DetectError
     from mocapdb.detect.model_store import blazepose_paths, fetch_models, models_dir
 
-    variants = tuple(args.variants) or (DEFAULT_BLAZEPOSE,)
+    variants = (args.variants,) if isinstance(args.variants, str) else tuple(args.variants)
     if args.action == "fetch":
         paths = fetch_models(variants)
         print(f"BlazePose {', '.join(variants)} ready in {models_dir()} ({len(paths)} models)")
