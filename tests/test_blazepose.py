@@ -206,3 +206,18 @@ def test_fetch_refuses_a_package_whose_sha256_is_not_the_pinned_one(tmp_path, mo
     assert not list((tmp_path / "models").glob("*.onnx"))
     with pytest.raises(DetectError, match="run `mocapdb models fetch` once"):
         blazepose_paths("full", tmp_path / "models")
+
+
+def test_sides_swapped_by_the_model_are_swapped_back():
+    from mocapdb.detect.blazepose import MIRROR, keep_sides
+
+    names = LAYOUTS["mediapipe33"]
+    previous = np.zeros((33, 3))
+    previous[:, 0] = [(-100.0 if n.startswith("left") or n.endswith("_left") else
+                       100.0 if n.startswith("right") or n.endswith("_right") else 0.0) for n in names]
+    previous[:, 1] = np.arange(33) * 10.0
+    moved = previous + [3.0, 2.0, 0.0]
+    assert keep_sides(moved, previous) is moved                   # moved a little: kept
+    swapped = moved[MIRROR]
+    np.testing.assert_array_equal(keep_sides(swapped, previous), moved)   # swapped by the model: back
+    assert names[MIRROR[names.index("left_heel")]] == "right_heel" and MIRROR[0] == 0

@@ -29,6 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 from mocapdb.detect.model import Detections, box_iou, load_session
 
 DETECTOR_PX = 224            # person detector input side, pixels
@@ -158,6 +159,7 @@ class _Person:
     box: np.ndarray
     followed: bool = False
     trusted: bool = False
+    points: np.ndarray | None = None   # [33, 3] the landmarks of the frame before (followed people)
 
 
 def _tile_starts(length_px: int, side_px: float) -> np.ndarray:
@@ -280,6 +282,8 @@ class BlazePose:
         points, flags, regions, reported = [], [], [], []
         for person in self.people:
             landmarks, flag, following = self.landmarks(image, person.region)
+            if person.points is not None:
+                landmarks = keep_sides(landmarks, person.points)
             span = np.ptp(landmarks[:, :2], axis=0).max()
             if flag >= PRESENCE and (person.followed or span >= MIN_FILL * person.region.side):
                 points.append(landmarks)
@@ -290,9 +294,33 @@ class BlazePose:
         keypoints = np.array(points).reshape(-1, N_LANDMARKS, 3)
         boxes = np.concatenate([keypoints[:, :, :2].min(axis=1), keypoints[:, :, :2].max(axis=1)], axis=1)
         unique = _distinct(boxes, np.array(flags))
-        self.people = [_Person(regions[i], boxes[i], True) for i in unique]
+        self.people = [_Person(regions[i], boxes[i], True, points=keypoints[i]) for i in unique]
         shown = unique[np.array(reported, dtype=bool)[unique]] if len(unique) else unique
         return Detections(boxes[shown], np.array(flags)[shown], keypoints[shown])
+
+
+def _mirror_order() -> np.ndarray:
+    """Each mediapipe33 landmark's index in the mirror image (left ↔ right; the nose stays)."""
+    names = LAYOUTS["mediapipe33"]
+    swap = {"left": "right", "right": "left"}
+    mirrored = [n.replace(n.split("_")[0], swap[n.split("_")[0]], 1) if n.split("_")[0] in swap else
+                n.replace("_left", "_right") if n.endswith("_left") else
+                n.replace("_right", "_left") if n.endswith("_right") else n for n in names]
+    return np.array([names.index(m) for m in mirrored])
+
+
+MIRROR = _mirror_order()
+SIDED = np.flatnonzero(MIRROR != np.arange(len(MIRROR)))   # the landmarks that have a mirror twin
+SWAP_RATIO = 0.5   # the sides are swapped back when the swapped landmarks lie this much closer to the last frame's
+
+
+def keep_sides(points: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    """``points [33, 3]`` with left and right exchanged when the model swapped them since ``previous``
+    (a body seen from behind is often read as facing the camera): the swapped landmarks' median
+    distance from the frame before is under :data:`SWAP_RATIO` of the unswapped ones'."""
+    same = np.median(np.linalg.norm(points[SIDED, :2] - previous[SIDED, :2], axis=1))
+    swapped = np.median(np.linalg.norm(points[MIRROR[SIDED], :2] - previous[SIDED, :2], axis=1))
+    return points[MIRROR] if swapped < SWAP_RATIO * same else points
 
 
 def _share_of_smaller(boxes: np.ndarray) -> np.ndarray:
