@@ -15,7 +15,7 @@ import threading
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, NamedTuple
 
-from mocapdb.core.formats.keypoints import KeypointFrame, Person, to_universal
+from mocapdb.core.formats.keypoints import KeypointFrame, Person, to_extremities, to_universal
 from mocapdb.detect.detectors import FrameDetector
 from mocapdb.detect.errors import DetectError
 from mocapdb.detect.model import Detections
@@ -41,7 +41,9 @@ def keypoint_frame(video_frame: VideoFrame, found: Detections, layout: str = "co
     """The people ``found`` (keypoints in ``layout``) in ``video_frame`` as the engine takes them
     (universal keypoints, frame pixels)."""
     points, confidence = to_universal(found.keypoints, layout)
-    people = [Person(p, c) for p, c in zip(points, confidence)]
+    extremities = to_extremities(found.keypoints, layout)   # heels, toes, knuckles (BlazePose), else None
+    people = [Person(p, c, None, None if extremities is None else extremities[i])
+              for i, (p, c) in enumerate(zip(points, confidence))]
     return KeypointFrame(video_frame.index, video_frame.time_s, people, layout)
 
 

@@ -221,3 +221,19 @@ def test_sides_swapped_by_the_model_are_swapped_back():
     swapped = moved[MIRROR]
     np.testing.assert_array_equal(keep_sides(swapped, previous), moved)   # swapped by the model: back
     assert names[MIRROR[names.index("left_heel")]] == "right_heel" and MIRROR[0] == 0
+
+
+def test_live_video_frames_carry_blazepose_feet_and_hands():
+    from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
+    from mocapdb.detect.model import Detections
+    from mocapdb.detect.video import VideoFrame
+    from mocapdb.runtime.video_input import keypoint_frame
+
+    points = np.random.default_rng(1).uniform(10, 500, (2, 33, 3))
+    points[..., 2] = 0.9
+    frame = keypoint_frame(VideoFrame(4, 0.1, 0.0, np.zeros((2, 2, 3), np.uint8)),
+                           Detections(np.zeros((2, 4)), np.ones(2), points), "mediapipe33")
+    heel = LAYOUTS["mediapipe33"].index("left_heel")
+    assert frame.layout == "mediapipe33" and len(frame.people) == 2
+    slot = EXTREMITIES.index("l_heel")
+    np.testing.assert_allclose(frame.people[1].extremities[slot], points[1, heel])
