@@ -1,6 +1,6 @@
 """mocapdb: motion capture from ordinary cameras by retrieval in a database of real motion.
 
-The Python API (README "Python API"); each name is imported on first use, so ``import mocapdb``
+The Python API (docs/api.md); each name is imported on first use, so ``import mocapdb``
 stays light:
 
 * building: :func:`build`, :class:`BuildConfig`, :func:`load_database`;

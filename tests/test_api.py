@@ -1,4 +1,4 @@
-"""The README's Python API example runs as written (outputs redirected to a temporary folder)."""
+"""The Python API example of docs/api.md runs as written (outputs redirected to a temporary folder)."""
 import re
 import subprocess
 import sys
@@ -7,13 +7,13 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _readme_example() -> str:
-    section = (ROOT / "README.md").read_text().split("## Python API", 1)[1]
+def _api_example() -> str:
+    section = (ROOT / "docs" / "api.md").read_text().split("# Python API", 1)[1]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
-def test_readme_api_example_runs(tmp_path):
-    code = _readme_example()
+def test_api_example_runs(tmp_path):
+    code = _api_example()
     assert 'out = Path("demo")' in code
     code = code.replace('out = Path("demo")', f"out = Path({str(tmp_path)!r})")
     run = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=600)

@@ -1,10 +1,11 @@
 """The architecture holds: layers import downwards only, errors is a leaf, the CLI starts light.
 
-Layers (README "Architecture", data_specs/architecture.md):
+Layers (docs/architecture.md, data_specs/architecture.md):
 core → applications (builder, detect, runtime, stereo, render) → evaluation → cli / the public API.
 Within the applications only runtime may use another application (detect: video input).
 """
 import ast
+import os
 import subprocess
 import sys
 import tomllib
@@ -23,12 +24,13 @@ ALLOWED["__main__"] = {"cli"}
 
 
 def _modules() -> dict[str, Path]:
-    """Every module of the installed package ``mocapdb`` (runtime/ is installed as mocapdb.runtime)."""
+    """Every module of the package ``mocapdb``, as a source checkout holds it (``runtime`` through its link)."""
     found = {}
-    for folder, package in ((ROOT / "mocapdb", "mocapdb"), (ROOT / "runtime", "mocapdb.runtime")):
-        for path in folder.rglob("*.py"):
-            parts = path.relative_to(folder).with_suffix("").parts
-            found[".".join((package, *parts))] = path
+    for folder, _, files in os.walk(ROOT / "mocapdb", followlinks=True):
+        for name in files:
+            if name.endswith(".py"):
+                parts = (Path(folder) / name).relative_to(ROOT / "mocapdb").with_suffix("").parts
+                found[".".join(("mocapdb", *parts))] = Path(folder) / name
     return found
 
 
@@ -73,10 +75,14 @@ def test_errors_is_a_leaf():
     assert not [name for _, name in _imports(path, "mocapdb.core.errors") if name.startswith("mocapdb")]
 
 
-def test_runtime_is_installed_inside_the_mocapdb_namespace():
+def test_runtime_imports_as_mocapdb_runtime_without_an_install():
     setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
-    assert setuptools["package-dir"] == {"mocapdb.runtime": "runtime"}
+    assert "package-dir" not in setuptools and (ROOT / "mocapdb" / "runtime").resolve() == ROOT / "runtime"
     assert not [p for p in setuptools["packages"] if not p.startswith("mocapdb")]
+    # -S: no site-packages, so no installed or editable mocapdb: the source checkout alone
+    code = "import mocapdb.runtime as r; print(r.__file__)"
+    out = subprocess.run([sys.executable, "-S", "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0 and out.stdout.strip() == str(ROOT / "mocapdb" / "runtime" / "__init__.py"), out.stderr
     assert set(setuptools["packages"]) == {m.removesuffix(".__init__") for m in _modules() if m.endswith(".__init__")}
 
 

@@ -47,7 +47,7 @@ def choose_kernel_cache() -> str | None:
 
 
 def _kernel_folders() -> list[Path]:
-    """The folders of the kernel modules (``mocapdb.runtime`` is the top-level ``runtime/`` in a source tree)."""
+    """The folders of the kernel modules."""
     return [Path(importlib.util.find_spec(name).origin).parent for name in _KERNEL_PACKAGES]
 
 

@@ -3,7 +3,7 @@
 The method (Yiannakides et al.): K = 500 k-means clusters over ~630,000 projections; a query scores every
 cluster representative, then the members of the i = 5 nearest clusters (10 taken from each). A query costs
 K + i × (members of a searched cluster) Eq. 1 distances, and the clusters a query lands in are the big ones
-(about 4 × the mean N / K). Measured with ``tools/bench_search.py`` (README, "Search at scale"; subject 7
+(about 4 × the mean N / K). Measured with ``tools/bench_search.py`` (docs/benchmarks.md, "Search at scale"; subject 7
 held out, databases at 12°, 3.6° and 1.25° yaw steps, 0.58 M to 5.5 M projections):
 
 * recall@1 against exact search depends on K and i, hardly on N (K 500, i 5: 0.988 clean / 0.954 noisy at
@@ -22,7 +22,7 @@ More clusters cost the build O(N·K) in k-means and the Eq. 1 assignment (``--cl
 at 5.5 M, K 500 212 s), so the builder keeps the method's K 500 and bounds the search one level down
 instead: the search index cuts each cluster into :func:`subclusters_for` sub-clusters of the same 1,260
 projections (O(Σ n_c² / 1,260) to build), and a query searches the few nearest of each searched cluster
-(``runtime/search.py``, README "Search at scale").
+(``runtime/search.py``, docs/benchmarks.md "Search at scale").
 """
 from __future__ import annotations
 
@@ -47,7 +47,8 @@ def subclusters_for(n_members: int) -> int:
 def subclusters_searched_for(n_projections: int) -> int:
     """Default sub-clusters searched per cluster searched, for a database of ``n_projections``: 5 up to the
     method's 630,000, then ``5 · (N / 630,000)^0.25`` rounded (5.5 M: 9; 28 M: 13). Measured with
-    ``tools/bench_search.py`` (README "Search at scale"): noisy recall@1 0.973 at 0.58 M and 0.98 at 28 M."""
+    ``tools/bench_search.py`` (docs/benchmarks.md "Search at scale"): noisy recall@1 0.973 at 0.58 M and
+    0.98 at 28 M."""
     return max(PAPER_CLUSTERS_SEARCHED,
                round(PAPER_CLUSTERS_SEARCHED * (n_projections / (PAPER_CLUSTERS * PROJECTIONS_PER_CLUSTER)) ** 0.25))
 
