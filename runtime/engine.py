@@ -67,8 +67,8 @@ class TrackLimits:
     :class:`EngineStats`.
     """
 
-    max_tracks: int = 32
-    max_new_per_min: int = 120
+    max_tracks: int = D.MAX_TRACKS.default
+    max_new_per_min: int = D.MAX_NEW_TRACKS_PER_MIN.default
 
     def __post_init__(self) -> None:
         D.MAX_TRACKS.check(self.max_tracks, "max_tracks")
@@ -81,17 +81,17 @@ class EngineConfig:
 
     search: str = "clustered"            # "clustered" (the method) or "exact" (brute force)
     n_clusters: int | None = None        # i: clusters searched; None: search_rules.clusters_searched_for(K)
-    per_cluster: int = 10                # j: projections taken from each
-    grid_descents: int = 3               # best candidates moved to better grid neighbours (0: the method's only)
+    per_cluster: int = D.PER_CLUSTER.default  # j: projections taken from each
+    grid_descents: int = D.GRID_DESCENTS.default  # best candidates moved to better grid neighbours (0: none)
     subclusters: int | None = None       # sub-clusters searched per cluster; None: search_rules' for the size
-    window_weights: tuple[float, ...] = (0.4, 0.3, 0.2, 0.1)  # w = 4, most recent first
+    window_weights: tuple[float, ...] = D.WINDOW_WEIGHTS.default  # w = 4, most recent first
     joint_weights: tuple[float, ...] | None = None            # per rig joint; default all 1
-    weight_2d: float = 0.5               # added to Eq. 2: this × the candidate's Eq. 1 distance
+    weight_2d: float = D.WEIGHT_2D.default               # added to Eq. 2: this × the candidate's Eq. 1 distance
     confidence_threshold: float = CONFIDENCE_THRESHOLD
     min_joints: int = 6                  # fewer confident joints: the person is skipped
     focal_px: float = 1000.0             # input camera focal length, pixels
     image_size: tuple[int, int] = (1920, 1080)  # input image width, height in pixels
-    fps: float = 30.0                    # frame rate assumed when frames carry no time
+    fps: float = D.INPUT_FPS_HZ.default  # frame rate assumed when frames carry no time
     max_gap_s: float = 1.0               # a longer jump in time (or frame number / fps) ends every track
     translation: bool = True             # estimate the root translation from the image
     refine_yaw: bool = True              # refine the matched yaw between the database's yaws

@@ -38,8 +38,8 @@ class OneEuroParams:
     * ``d_cutoff_hz = 1.0``: the paper's recommendation for the speed estimate.
     """
 
-    min_cutoff_hz: float = 1.0
-    beta: float = 0.3
+    min_cutoff_hz: float = D.RETRIEVED_MIN_CUTOFF_HZ.default
+    beta: float = D.RETRIEVED_BETA.default
     d_cutoff_hz: float = 1.0
 
     def __post_init__(self) -> None:
@@ -61,7 +61,8 @@ ROOT_DEFAULTS = OneEuroParams(min_cutoff_hz=0.5, beta=1.0, d_cutoff_hz=1.0)
 # fit adds: an 8 Hz floor (β = 2). On held-out basketball (subject 6, 24 fps) with both filters:
 # clean 3.5 cm / 1.3 %, σ 5 px + dropout + swaps 5.6 cm; without the keypoint filter and with a
 # 4 Hz output floor: 3.3 cm / 1.1 % and 6.0 cm.
-REFINED_ROTATION_DEFAULTS = OneEuroParams(min_cutoff_hz=8.0, beta=2.0, d_cutoff_hz=1.0)
+REFINED_ROTATION_DEFAULTS = OneEuroParams(min_cutoff_hz=D.REFINED_MIN_CUTOFF_HZ.default, beta=D.REFINED_BETA.default,
+                                           d_cutoff_hz=1.0)
 REFINED_ROOT_DEFAULTS = OneEuroParams(min_cutoff_hz=8.0, beta=6.0, d_cutoff_hz=1.0)
 
 

@@ -205,9 +205,9 @@ class SessionOptions:
     bvh_dir: Path | None = None
     export: TrackExport = field(default_factory=TrackExport)
     checkpoint_s: float = 30.0
-    max_bvh_files: int = 1000
-    min_track_s: float = 0.5
-    bvh_part_min: float = 10.0
+    max_bvh_files: int = D.MAX_BVH_FILES.default
+    min_track_s: float = D.MIN_TRACK_S.default
+    bvh_part_min: float = D.BVH_PART_MIN.default
     rate_by_arrival: bool = False
     take: TakeParams | None = None  # track files from the whole-take fit (runtime.take); None: per frame
     shared_floor: bool = False      # files written at the end, every track on one floor (runtime.world)

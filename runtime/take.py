@@ -99,7 +99,7 @@ FLOOR_BAND_M = 0.15       # contacts within this of the lowest are on the floor;
 class TakeParams:
     """Whole-take fit settings (see the module docstring); lengths in metres, times in seconds."""
 
-    smoothing_hz: float = 4.0          # zero-phase cut-off of the rotations; 0: not smoothed
+    smoothing_hz: float = D.SMOOTHING_HZ.default          # zero-phase cut-off of the rotations; 0: not smoothed
     pop_frames: int = 5                # running-median window (frames; 1: no pop removal)
     planted_box_per_s: float = 0.25    # image speed of a planted ankle keypoint, box heights per second
     planted_height_m: float = 0.05     # a planted ankle is at most this much above the other

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -27,6 +28,8 @@ HOSTILE_PER_TRACK = ("nan", "=1.7", "-1=1.7", "x=1.7", "1.5=1.7", "1e20=1.7", "2
                      "2==1.7", "")
 FLAGS = (argparse._HelpAction, argparse._VersionAction, argparse._StoreTrueAction, argparse._CountAction,
          argparse._StoreConstAction, argparse._SubParsersAction)
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _commands() -> dict[str, argparse.ArgumentParser]:
@@ -217,3 +220,53 @@ def test_an_output_folder_beside_its_input_is_fine(tmp_path, small_db_path, caps
     args = parser().parse_args(["live", "--source", str(video), "--db", str(small_db_path),
                                 "--bvh-dir", str(tmp_path)])
     check_outputs_apart(command_parser("live"), args)
+
+
+STATED_DEFAULT = re.compile(r"\bdefault:? (-?\d[\d.,]*)")
+
+
+def _stated_defaults() -> list[tuple[str, argparse.Action, str]]:
+    """(command, action, number) for every number a help text states as the default."""
+    out = []
+    for name, p in _commands().items():
+        for a in p._actions:
+            if a.help and a.help is not argparse.SUPPRESS:
+                text = a.help % {"default": a.default, "prog": name}
+                out += [(name, a, m.rstrip(".,")) for m in STATED_DEFAULT.findall(text)]
+    return out
+
+
+def test_help_texts_state_the_declared_defaults():
+    """A default is declared once (a domain's or a named constant) and the help derives it: a help
+    whose parser holds a default says it through %(default)s, and the number it shows is that
+    default; no help text types a default's number by hand (checked in the source below)."""
+    wrong = []
+    for name, a, number in _stated_defaults():
+        if a.default is None:
+            continue   # the default lives elsewhere (a take.json, a rule): derived in the source, below
+        declared = ",".join(map(str, a.default)) if isinstance(a.default, (list, tuple)) else a.default
+        if not _same_number(number, declared):
+            wrong.append(f"{name} {a.option_strings or a.dest}: states default {number}, declares {declared!r}")
+        elif "%(default)s" not in a.help:
+            wrong.append(f"{name} {a.option_strings or a.dest}: states its default by hand, not %(default)s")
+    assert not wrong, "\n".join(wrong)
+
+
+def test_no_help_text_types_a_default_by_hand():
+    """In the parsers' source, no string literal says "default" followed by a number: the number
+    comes from %(default)s or from the constant that declares it (an f-string's field)."""
+    import ast
+
+    typed = []
+    for path in sorted((ROOT / "mocapdb" / "cli").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and STATED_DEFAULT.search(node.value):
+                typed.append(f"{path.name}:{node.lineno}: {node.value.strip()[:80]}")
+    assert not typed, "\n".join(typed)
+
+
+def _same_number(text: str, value: object) -> bool:
+    try:
+        return all(float(t) == float(v) for t, v in zip(text.split(","), str(value).split(","), strict=True))
+    except ValueError:
+        return False

@@ -86,13 +86,13 @@ class BuildError(MocapdbError, RuntimeError):
 class BuildConfig:
     """Parameters of a database build (defaults are the method's)."""
 
-    fps: float = 24.0
-    yaw_step_deg: float = 12.0
+    fps: float = D.DATABASE_FPS_HZ.default
+    yaw_step_deg: float = D.YAW_STEP_DEG.default
     camera: DatabaseCamera = field(default_factory=DatabaseCamera)
-    clusters: int = 500
-    dims: int = 5
+    clusters: int = D.CLUSTERS.default
+    dims: int = D.DIMS.default
     seed: int = 0
-    landmarks: int = 2000
+    landmarks: int = D.LANDMARKS.default
     workers: int = 1
     strict: bool = False
     joint_map: Path | None = None  # for the files no other map covers

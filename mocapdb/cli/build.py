@@ -19,18 +19,23 @@ def add_build_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("sources", nargs="+", type=P.INPUT_ANY, help="BVH files or folders")
     p.add_argument("--out", required=True, type=P.OUTPUT_DIR,
                    help="database directory to write (replaced atomically; a symlink is followed and kept)")
-    p.add_argument("--fps", type=D.FPS_HZ, default=24.0, help="database frame rate in Hz (default 24)")
-    p.add_argument("--yaw-step", type=D.YAW_STEP_DEG, default=12.0,
-                   help="yaw step in degrees; must divide 360 (default 12)")
-    p.add_argument("--camera-height", type=D.CAMERA_HEIGHT_M, default=1.5, metavar="METRES",
-                   help="the database's virtual camera: its height above the floor, metres (default 1.5)")
-    p.add_argument("--camera-distance", type=D.CAMERA_DISTANCE_M, default=4.0, metavar="METRES",
-                   help="the database's virtual camera: its distance to the pelvis, metres (default 4)")
-    p.add_argument("--focal", type=D.FOCAL_PX, default=1000.0, metavar="PX",
-                   help="the database's virtual camera: its focal length in pixels (default 1000)")
-    p.add_argument("--clusters", type=D.CLUSTERS, default=500, help="k-means clusters K (default 500)")
-    p.add_argument("--dims", type=D.DIMS, default=5, help="MDS embedding dimensions (default 5)")
-    p.add_argument("--landmarks", type=D.LANDMARKS, default=2000, help="landmark-MDS landmarks (default 2000)")
+    p.add_argument("--fps", type=D.DATABASE_FPS_HZ, default=D.DATABASE_FPS_HZ.default,
+                   help="database frame rate in Hz (default %(default)s)")
+    p.add_argument("--yaw-step", type=D.YAW_STEP_DEG, default=D.YAW_STEP_DEG.default,
+                   help="yaw step in degrees; must divide 360 (default %(default)s)")
+    p.add_argument("--camera-height", type=D.DATABASE_CAMERA_HEIGHT_M, default=D.DATABASE_CAMERA_HEIGHT_M.default,
+                   metavar="METRES",
+                   help="the database's virtual camera: its height above the floor, metres (default %(default)s)")
+    p.add_argument("--camera-distance", type=D.DATABASE_CAMERA_DISTANCE_M, default=D.DATABASE_CAMERA_DISTANCE_M.default,
+                   metavar="METRES",
+                   help="the database's virtual camera: its distance to the pelvis, metres (default %(default)s)")
+    p.add_argument("--focal", type=D.DATABASE_FOCAL_PX, default=D.DATABASE_FOCAL_PX.default, metavar="PX",
+                   help="the database's virtual camera: its focal length in pixels (default %(default)s)")
+    p.add_argument("--clusters", type=D.CLUSTERS, default=D.CLUSTERS.default,
+                   help="k-means clusters K (default %(default)s)")
+    p.add_argument("--dims", type=D.DIMS, default=D.DIMS.default, help="MDS embedding dimensions (default %(default)s)")
+    p.add_argument("--landmarks", type=D.LANDMARKS, default=D.LANDMARKS.default,
+                   help="landmark-MDS landmarks (default %(default)s)")
     p.add_argument("--seed", type=D.SEED, default=0, help="random seed (the build is deterministic for a seed)")
     p.add_argument("--workers", type=D.WORKERS, default=os.cpu_count() or 1,
                    help="processes reading BVH files (default: one per CPU)")

@@ -43,13 +43,13 @@ def add_detector_options(p: argparse.ArgumentParser, detector: str) -> None:
                             f"(default {detector})")
     group.add_argument("--crop-size", type=D.MODEL_INPUT_PX, default=DEFAULT_CROP_PX, metavar="PX",
                        help="largest model input side in pixels for a crop, rounded up to a multiple of 32 (a model "
-                            f"with a dynamic input size only; default {DEFAULT_CROP_PX})")
+                            "with a dynamic input size only; default %(default)s)")
     group.add_argument("--full-every", type=D.DETECT_EVERY, default=DEFAULT_FULL_EVERY, metavar="N",
-                       help=f"with crops: the whole frame at least every N frames, to find people coming in "
-                            f"(default {DEFAULT_FULL_EVERY})")
-    group.add_argument("--model-every", type=D.MODEL_EVERY, default=1, metavar="N",
+                       help="with crops: the whole frame at least every N frames, to find people coming in "
+                            "(default %(default)s)")
+    group.add_argument("--model-every", type=D.MODEL_EVERY, default=D.MODEL_EVERY.default, metavar="N",
                        help="run the model on every N-th frame only; the frames between get the keypoints carried "
-                            "by optical flow (default 1: the model on every frame)")
+                            "by optical flow (default %(default)s: the model on every frame)")
 
 
 def fast_path(args: argparse.Namespace) -> FastPath:
@@ -75,15 +75,15 @@ def add_detect_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--out", required=True, metavar="DIR", type=P.OUTPUT_DIR,
                    help="folder for the JSON files, written as the video is read (created if missing; an "
                         "earlier detect output there is replaced, a folder holding other files refused)")
-    p.add_argument("--every", type=D.DETECT_EVERY, default=1, metavar="N",
-                   help="detect every N-th frame only (default 1)")
+    p.add_argument("--every", type=D.FRAMES_EVERY, default=D.FRAMES_EVERY.default, metavar="N",
+                   help="detect every N-th frame only (default %(default)s)")
     p.add_argument("--max-people", type=D.MAX_PEOPLE, metavar="N",
                    help="keep the N best-scoring people per frame (default all)")
     p.add_argument("--conf", type=D.CONF, default=DEFAULT_CONF,
-                   help=f"least person score kept (default {DEFAULT_CONF})")
-    p.add_argument("--iou", type=D.IOU, default=DEFAULT_IOU, help=f"NMS IoU threshold (default {DEFAULT_IOU})")
+                   help="least person score kept (default %(default)s)")
+    p.add_argument("--iou", type=D.IOU, default=DEFAULT_IOU, help="NMS IoU threshold (default %(default)s)")
     p.add_argument("--input-size", type=D.MODEL_INPUT_PX, default=DEFAULT_INPUT_SIZE, metavar="PX",
-                   help=f"input side in pixels for models with a dynamic input size (default {DEFAULT_INPUT_SIZE})")
+                   help="input side in pixels for models with a dynamic input size (default %(default)s)")
     add_detector_options(p, "full")
     p.set_defaults(run=run_detect)
     return p

@@ -46,23 +46,24 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
                    help="with --real-take: camera names as in its calibration, e.g. cam_01 cam_03 (default all)")
     p.add_argument("--subjects", type=P.TextArg("a list of subjects"),
                    help="with --leave-one-subject-out: subjects to hold out, e.g. 1,2 (default all)")
-    p.add_argument("--max-clips", type=D.MAX_CLIPS, default=8,
-                   help="with --leave-one-subject-out: clips per subject, evenly spaced (default 8)")
-    p.add_argument("--max-frames", type=D.MAX_FRAMES, default=240,
-                   help="with --leave-one-subject-out: frames per clip from its middle, at 24 fps (default 240)")
-    p.add_argument("--clusters", type=D.CLUSTERS, default=500,
-                   help="with --leave-one-subject-out: k-means K (default 500)")
-    p.add_argument("--landmarks", type=D.LANDMARKS, default=2000,
-                   help="with --leave-one-subject-out: landmark-MDS landmarks (default 2000)")
+    p.add_argument("--max-clips", type=D.MAX_CLIPS, default=D.MAX_CLIPS.default,
+                   help="with --leave-one-subject-out: clips per subject, evenly spaced (default %(default)s)")
+    p.add_argument("--max-frames", type=D.MAX_FRAMES, default=D.MAX_FRAMES.default,
+                   help="with --leave-one-subject-out: frames per clip from its middle, at 24 fps "
+                        "(default %(default)s)")
+    p.add_argument("--clusters", type=D.CLUSTERS, default=D.CLUSTERS.default,
+                   help="with --leave-one-subject-out: k-means K (default %(default)s)")
+    p.add_argument("--landmarks", type=D.LANDMARKS, default=D.LANDMARKS.default,
+                   help="with --leave-one-subject-out: landmark-MDS landmarks (default %(default)s)")
     p.add_argument("--workers", type=D.WORKERS, default=2,
-                   help="with --leave-one-subject-out: processes reading BVH files per build (default 2)")
+                   help="with --leave-one-subject-out: processes reading BVH files per build (default %(default)s)")
     p.add_argument("--out", type=P.OUTPUT,
                    help="also write the JSON report to this file (atomically; an existing file is replaced only "
                         "when it is an earlier report, anything else refused before any work)")
     p.add_argument("--quick", action="store_true",
                    help="one database: two yaws and two scenarios; leave-one-subject-out: 2 clips per "
                         "subject, 120 frames, two scenarios; --world: one take per scenario, 48 frames")
-    p.add_argument("--weight-2d", type=D.WEIGHT_2D, default=0.5, help="as in reconstruct")
+    p.add_argument("--weight-2d", type=D.WEIGHT_2D, default=D.WEIGHT_2D.default, help="as in reconstruct")
     p.add_argument("--search", choices=("clustered", "exact"), default="clustered")
     p.add_argument("--universal-body", action="store_true",
                    help="the engine keeps the universal skeleton's proportions (as before own bodies: for comparison)")

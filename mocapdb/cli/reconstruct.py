@@ -9,6 +9,7 @@ import sys
 from mocapdb.cli import paths as P
 from mocapdb.cli.detect import add_detector_options, add_model_options, fast_path
 from mocapdb.core import domains as D
+from mocapdb.core import search_rules as S
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 
 LOG = logging.getLogger("mocapdb.cli")
@@ -28,7 +29,8 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                    help="keypoint layout of the input (default: detected from the keypoint count; 25 keypoints: "
                         "BODY_25 or BODY_25B by geometry); data_specs/keypoint_formats.md")
     p.add_argument("--fps", type=D.FPS_HZ,
-                   help="input frame rate in Hz when frames carry no time (default 30, with a warning)")
+                   help="input frame rate in Hz when frames carry no time (default: the input folder's take.json, "
+                        f"else {D.INPUT_FPS_HZ.default:g} with a warning)")
     focal = p.add_mutually_exclusive_group()
     focal.add_argument("--focal", type=D.FOCAL_PX, metavar="PX",
                        help="input camera focal length in pixels (default: the input folder's take.json, else a "
@@ -42,33 +44,39 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--search", choices=("clustered", "exact"), default="clustered",
                    help="two-level search (the method) or brute force over every projection")
     p.add_argument("--clusters-searched", type=D.CLUSTERS_SEARCHED,
-                   help="i: nearest clusters searched (default: 5 on the method's 500 clusters, more on a database "
-                        "of more clusters, see mocapdb/core/search_rules.py)")
-    p.add_argument("--per-cluster", type=D.PER_CLUSTER, default=10,
-                   help="j: projections taken per cluster (default 10)")
+                   help=f"i: nearest clusters searched (default: {S.PAPER_CLUSTERS_SEARCHED} on the method's "
+                        f"{S.PAPER_CLUSTERS} clusters, more on a database of more clusters: "
+                        "mocapdb/core/search_rules.py)")
+    p.add_argument("--per-cluster", type=D.PER_CLUSTER, default=D.PER_CLUSTER.default,
+                   help="j: projections taken per cluster (default %(default)s)")
     p.add_argument("--subclusters-searched", type=D.SUBCLUSTERS_SEARCHED, metavar="N",
                    help="the searched clusters' sub-clusters searched, per cluster: their members are those of "
-                        "the N x --clusters-searched sub-clusters with the nearest representatives (default: 5 "
-                        "up to the method's 630,000 projections, more on larger databases, see "
+                        "the N x --clusters-searched sub-clusters with the nearest representatives (default: "
+                        f"{S.PAPER_CLUSTERS_SEARCHED} up to the method's "
+                        f"{S.PAPER_CLUSTERS * S.PROJECTIONS_PER_CLUSTER:,} projections, more on larger databases: "
                         "mocapdb/core/search_rules.py)")
-    p.add_argument("--grid-descents", type=D.GRID_DESCENTS, default=3,
+    p.add_argument("--grid-descents", type=D.GRID_DESCENTS, default=D.GRID_DESCENTS.default,
                    help="the best N candidates each move to a nearer neighbouring frame or yaw while there is one "
-                        "(default 3; 0: the method's candidates only)")
-    p.add_argument("--window-weights", type=D.WINDOW_WEIGHTS, default=(0.4, 0.3, 0.2, 0.1), metavar="LIST",
-                   help="weights of the last w reconstructed frames, most recent first (default 0.4,0.3,0.2,0.1)")
-    p.add_argument("--weight-2d", type=D.WEIGHT_2D, default=0.5,
-                   help="weight of the 2D (Eq. 1) distance added to the temporal cost (default 0.5; 0 is the method)")
+                        "(default %(default)s; 0: the method's candidates only)")
+    p.add_argument("--window-weights", type=D.WINDOW_WEIGHTS, default=D.WINDOW_WEIGHTS.default, metavar="LIST",
+                   help="weights of the last w reconstructed frames, most recent first (default %(default)s)")
+    p.add_argument("--weight-2d", type=D.WEIGHT_2D, default=D.WEIGHT_2D.default,
+                   help="weight of the 2D (Eq. 1) distance added to the temporal cost (default %(default)s; "
+                        "0 is the method)")
     p.add_argument("--min-cutoff", type=D.CUTOFF_HZ,
-                   help="1€ filter min cutoff for rotations, Hz (default 8; 1 with --no-refine)")
-    p.add_argument("--beta", type=D.BETA, help="1€ filter beta for rotations (default 2; 0.3 with --no-refine)")
+                   help=f"1€ filter min cutoff for rotations, Hz (default: {D.REFINED_MIN_CUTOFF_HZ.default:g}; "
+                        f"{D.RETRIEVED_MIN_CUTOFF_HZ.default:g} with --no-refine)")
+    p.add_argument("--beta", type=D.BETA, help=f"1€ filter beta for rotations (default: {D.REFINED_BETA.default:g}; "
+                                               f"{D.RETRIEVED_BETA.default:g} with --no-refine)")
     p.add_argument("--no-refine", action="store_true",
                    help="output the retrieved database pose as it is (the method as published) instead of "
                         "fitting it to the keypoints")
     p.add_argument("--subject-height", type=D.PerTrackArg(D.SUBJECT_HEIGHT_M), metavar="[TRACK=]METRES",
                    action="append", default=[],
                    help="a person's standing height in metres: METRES for everyone (sets the skeleton's size and "
-                        "so the depth; default: 1.75 m in the stream, each person's own from the take's world in "
-                        "the track files), TRACK=METRES for one track of the track files (repeatable, e.g. "
+                        "so the depth; default: the universal skeleton's height in the stream, each person's own "
+                        "from the take's world in the track files), TRACK=METRES for one track of the track files "
+                        "(repeatable, e.g. "
                         "--subject-height 2=1.62 --subject-height 5=1.10)")
     p.add_argument("--camera-height", type=D.CAMERA_HEIGHT_M, metavar="METRES",
                    help="the camera's height above a flat floor the people stand on: each person's size and "
@@ -77,10 +85,10 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                    help="keep the universal skeleton's proportions (default: each track's own bone proportions "
                         "measured from its 2D)")
     p.add_argument("--no-smoothing", action="store_true", help="turn the 1€ filters off")
-    p.add_argument("--lag-frames", type=D.LAG_FRAMES, default=0, metavar="N",
+    p.add_argument("--lag-frames", type=D.LAG_FRAMES, default=D.LAG_FRAMES.default, metavar="N",
                    help="write each frame's line N frames late, every person smoothed over the N frames before "
                         "and after it (--smoothing-hz) instead of by the causal 1€ filters: a latency of N / fps "
-                        "for steadier motion (default 0: causal)")
+                        "for steadier motion (default %(default)s: causal)")
     p.add_argument("--no-translation", action="store_true", help="keep the pelvis at the origin")
     p.add_argument("--no-yaw-refinement", action="store_true", help="keep the database's yaw grid (12° steps)")
     files = p.add_argument_group("track files (data_specs/stream_output.md)")
@@ -98,27 +106,28 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     files.add_argument("--bvh-start", choices=("input", "track"), default="input",
                        help="BVH frame 1: the input's first frame, the track's first pose held until it starts, so "
                             "every BVH lines up with the video (default), or the track's own first frame")
-    files.add_argument("--smoothing-hz", type=D.SMOOTHING_HZ, default=4.0, metavar="HZ",
+    files.add_argument("--smoothing-hz", type=D.SMOOTHING_HZ, default=D.SMOOTHING_HZ.default, metavar="HZ",
                        help="the track files are each track fitted over the whole take: motion slower than HZ "
                             "kept, jitter faster removed, without lag; planted feet held still, no foot below the "
-                            "floor (default 4; 0: no smoothing)")
+                            "floor (default %(default)s; 0: no smoothing)")
     files.add_argument("--per-frame", action="store_true",
                        help="write the track files from the per-frame output (as the stream), not the whole take")
     p.add_argument("--keep-static", action="store_true",
                    help="also write BVH files for tracks whose keypoints never moved (posters, false detections)")
     limits = p.add_argument_group("limits (0: no limit; data_specs/stream_output.md)")
-    limits.add_argument("--max-tracks", type=D.MAX_TRACKS, default=32,
-                        help="tracks alive at once; further detections are not tracked, counted (default 32)")
-    limits.add_argument("--max-new-tracks-per-min", type=D.MAX_NEW_TRACKS_PER_MIN, default=120,
+    limits.add_argument("--max-tracks", type=D.MAX_TRACKS, default=D.MAX_TRACKS.default,
+                        help="tracks alive at once; further detections are not tracked, counted (default %(default)s)")
+    limits.add_argument("--max-new-tracks-per-min", type=D.MAX_NEW_TRACKS_PER_MIN,
+                        default=D.MAX_NEW_TRACKS_PER_MIN.default,
                         help="tracks started per minute (live: of arrival time; reconstruct: of the input's time); "
-                             "further detections wait untracked, counted (default 120)")
-    limits.add_argument("--max-bvh-files", type=D.MAX_BVH_FILES, default=1000,
-                        help="BVH files per run; further tracks stay in the stream only, counted (default 1000)")
-    limits.add_argument("--min-track-s", type=D.MIN_TRACK_S, default=0.5,
-                        help="a track with fewer seconds of BVH frames gets no BVH file, counted (default 0.5)")
-    limits.add_argument("--bvh-part-min", type=D.BVH_PART_MIN, default=10.0,
+                             "further detections wait untracked, counted (default %(default)s)")
+    limits.add_argument("--max-bvh-files", type=D.MAX_BVH_FILES, default=D.MAX_BVH_FILES.default,
+                        help="BVH files per run; further tracks stay in the stream only, counted (default %(default)s)")
+    limits.add_argument("--min-track-s", type=D.MIN_TRACK_S, default=D.MIN_TRACK_S.default,
+                        help="a track with fewer seconds of BVH frames gets no BVH file, counted (default %(default)s)")
+    limits.add_argument("--bvh-part-min", type=D.BVH_PART_MIN, default=D.BVH_PART_MIN.default,
                         help="a longer track is written as track_<id>_part<k>.bvh parts of this many minutes, "
-                             "each as soon as it is complete (default 10)")
+                             "each as soon as it is complete (default %(default)s)")
 
 
 def _is_video(source: str) -> bool:
@@ -365,17 +374,18 @@ def add_live_parser(sub: argparse._SubParsersAction) -> None:
                         "track files is refused: nothing is written over)")
     p.add_argument("--idle-timeout", type=D.IDLE_TIMEOUT_S,
                    help="stop after this many seconds without a message (any source; default: never)")
-    p.add_argument("--client-timeout", type=D.CLIENT_TIMEOUT_S, default=30.0,
+    p.add_argument("--client-timeout", type=D.CLIENT_TIMEOUT_S, default=D.CLIENT_TIMEOUT_S.default,
                    help="tcp:// source: close a client that sends no complete line for this many seconds "
-                        "(default 30)")
-    p.add_argument("--max-clients", type=D.MAX_CLIENTS, default=16,
-                   help="tcp:// source: simultaneous clients; further connections are refused (default 16)")
-    p.add_argument("--max-rate", type=D.MAX_RATE_HZ, default=1000.0,
+                        "(default %(default)s)")
+    p.add_argument("--max-clients", type=D.MAX_CLIENTS, default=D.MAX_CLIENTS.default,
+                   help="tcp:// source: simultaneous clients; further connections are refused (default %(default)s)")
+    p.add_argument("--max-rate", type=D.MAX_RATE_HZ, default=D.MAX_RATE_HZ.default,
                    help="tcp:// and udp:// sources: messages per second per sender address, the excess "
-                        "dropped and counted; 0: no limit (default 1000)")
-    p.add_argument("--buffer", type=D.BUFFER_MESSAGES, default=2,
+                        "dropped and counted; 0: no limit (default %(default)s)")
+    p.add_argument("--buffer", type=D.BUFFER_MESSAGES, default=D.BUFFER_MESSAGES.default,
                    help="messages of a live stream (tcp, udp, stdin) buffered before the oldest is dropped (default "
-                        "2); a folder of frames or a .jsonl file is read at the engine's pace, nothing dropped")
+                        "%(default)s); a folder of frames or a .jsonl file is read at the engine's pace, nothing "
+                        "dropped")
     add_detector_options(p, "crops")
     _add_engine_options(p)
     p.set_defaults(run=run_live)

@@ -34,14 +34,15 @@ def add_render_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--video", type=P.INPUT_FILE, help="the input video, drawn under the skeletons (OpenCV reads it)")
     p.add_argument("--mp4", action="store_true", help="write one MP4 video (mp4v) instead of PNG frames")
     p.add_argument("--focal", type=D.FOCAL_PX, metavar="PX",
-                   help="focal length in pixels as given to reconstruct (default 1000; stereo: camera 1's)")
+                   help="focal length in pixels as given to reconstruct (default: the one the result's header "
+                        f"records; else {D.RENDER_FOCAL_PX.default:g}; stereo: camera 1's)")
     p.add_argument("--image-size", type=D.IMAGE_SIZE, metavar="WxH",
                    help="input image WIDTHxHEIGHT in pixels as given to reconstruct (default: the video's, else "
                         "1920x1080; stereo: camera 1's)")
     p.add_argument("--view", choices=("both", "image", "3d"), default="both",
                    help="image panel, 3D panel, or both side by side (default both)")
-    p.add_argument("--scale", type=D.RENDER_SCALE, default=0.5,
-                   help="output pixels per input pixel (default 0.5)")
+    p.add_argument("--scale", type=D.RENDER_SCALE, default=D.RENDER_SCALE.default,
+                   help="output pixels per input pixel (default %(default)s)")
     p.add_argument("--contact-sheet", type=D.CONTACT_FRAMES, metavar="N",
                    help="write one PNG (--out) holding N evenly spaced frames instead of every frame")
     p.add_argument("--stream", action="store_true",

@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mocapdb.core import domains as D
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.files import MIB, read_input_bytes, read_input_text
 
@@ -68,9 +69,9 @@ class DatabaseCamera:
     image size ``width_px`` × ``height_px`` are pixels. ``geometry.project_views`` projects with it.
     """
 
-    height_m: float = 1.5
-    distance_m: float = 4.0
-    focal_px: float = 1000.0
+    height_m: float = D.DATABASE_CAMERA_HEIGHT_M.default
+    distance_m: float = D.DATABASE_CAMERA_DISTANCE_M.default
+    focal_px: float = D.DATABASE_FOCAL_PX.default
     width_px: int = 1920
     height_px: int = 1080
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import math
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from mocapdb.core.errors import UsageError
 
@@ -33,6 +33,7 @@ class Domain:
     integer: bool = False
     low_open: bool = False
     zero_means: str | None = None  # what 0 means when it is accepted, e.g. "no limit"
+    default: int | float | None = None  # the value when none is given: the parser's and the config's
 
     def describe(self) -> str:
         """``a frame rate in hertz, from 1 to 1000``: the domain in words."""
@@ -112,6 +113,7 @@ class NumberListArg:
     item: Domain
     min_items: int = 1
     max_items: int = 32
+    default: tuple[float, ...] | None = None   # the list when none is given: the parser's and the config's
 
     def check(self, values, name: str) -> tuple[float, ...]:
         """The values as a tuple when they form such a list, else DomainError naming ``name``."""
@@ -173,39 +175,40 @@ TRACK_ID = Domain("a track id", 0, 1_000_000_000, integer=True)
 CAMERA_INDEX = Domain("a camera index", 0, 255, integer=True)
 
 # --- the database build --------------------------------------------------------------------
-YAW_STEP_DEG = Domain("a yaw step in degrees", 0.01, 360)
-CLUSTERS = Domain("a number of k-means clusters", 1, 1_000_000, integer=True)
-DIMS = Domain("a number of embedding dimensions", 1, 100, integer=True)
-LANDMARKS = Domain("a number of MDS landmarks", 2, 10_000_000, integer=True)
+YAW_STEP_DEG = Domain("a yaw step in degrees", 0.01, 360, default=12.0)
+CLUSTERS = Domain("a number of k-means clusters", 1, 1_000_000, integer=True, default=500)
+DIMS = Domain("a number of embedding dimensions", 1, 100, integer=True, default=5)
+LANDMARKS = Domain("a number of MDS landmarks", 2, 10_000_000, integer=True, default=2000)
 SEED = Domain("a random seed", 0, 2**32 - 1, integer=True)
 WORKERS = Domain("a number of worker processes", 1, 256, integer=True)
 MEMORY_LIMIT_MB = Domain("a memory limit in megabytes", 64, 100_000_000, integer=True)
 
 # --- retrieval, refinement and filters -----------------------------------------------------
 CLUSTERS_SEARCHED = Domain("a number of clusters searched", 1, 10_000, integer=True)
-PER_CLUSTER = Domain("a number of projections per cluster", 1, 10_000, integer=True)
+PER_CLUSTER = Domain("a number of projections per cluster", 1, 10_000, integer=True, default=10)
 SUBCLUSTERS_SEARCHED = Domain("a number of sub-clusters searched per cluster", 1, 100_000, integer=True)
 GRID_DESCENTS = Domain("a number of candidates refined by grid descent", 0, 1000, integer=True,
-                       zero_means="none, the clustered search's candidates only")
+                       zero_means="none, the clustered search's candidates only", default=3)
 WINDOW_WEIGHT = Domain("a weight", 0, 1000)
-WINDOW_WEIGHTS = NumberListArg(WINDOW_WEIGHT, min_items=1, max_items=32)
-WEIGHT_2D = Domain("a weight", 0, 1000)
+WINDOW_WEIGHTS = NumberListArg(WINDOW_WEIGHT, min_items=1, max_items=32, default=(0.4, 0.3, 0.2, 0.1))
+WEIGHT_2D = Domain("a weight", 0, 1000, default=0.5)
 CUTOFF_HZ = Domain("a cut-off frequency in hertz", 0, 1000, low_open=True)
 BETA = Domain("a 1€ speed coefficient", 0, 1000)
-SMOOTHING_HZ = Domain("a cut-off frequency in hertz", 0, 1000, zero_means="no smoothing")
-LAG_FRAMES = Domain("a number of frames", 0, 600, integer=True, zero_means="causal, no lag")
+SMOOTHING_HZ = Domain("a cut-off frequency in hertz", 0, 1000, zero_means="no smoothing", default=4.0)
+LAG_FRAMES = Domain("a number of frames", 0, 600, integer=True, zero_means="causal, no lag", default=0)
 
 # --- limits of a run -----------------------------------------------------------------------
-MAX_TRACKS = Domain("a number of tracks", 0, 10_000, integer=True, zero_means="no limit")
-MAX_NEW_TRACKS_PER_MIN = Domain("a number of tracks per minute", 0, 1_000_000, integer=True, zero_means="no limit")
-MAX_BVH_FILES = Domain("a number of files", 0, 1_000_000, integer=True, zero_means="no limit")
-MIN_TRACK_S = Domain("a duration in seconds", 0, 86_400)
-BVH_PART_MIN = Domain("a duration in minutes", 0, 1440, low_open=True)
+MAX_TRACKS = Domain("a number of tracks", 0, 10_000, integer=True, zero_means="no limit", default=32)
+MAX_NEW_TRACKS_PER_MIN = Domain("a number of tracks per minute", 0, 1_000_000, integer=True, zero_means="no limit",
+                                default=120)
+MAX_BVH_FILES = Domain("a number of files", 0, 1_000_000, integer=True, zero_means="no limit", default=1000)
+MIN_TRACK_S = Domain("a duration in seconds", 0, 86_400, default=0.5)
+BVH_PART_MIN = Domain("a duration in minutes", 0, 1440, low_open=True, default=10.0)
 IDLE_TIMEOUT_S = Domain("a duration in seconds", 0, 1_000_000, low_open=True)
-CLIENT_TIMEOUT_S = Domain("a duration in seconds", 0, 86_400, low_open=True)
-MAX_CLIENTS = Domain("a number of clients", 1, 1024, integer=True)
-MAX_RATE_HZ = Domain("a number of messages per second", 0, 1_000_000, zero_means="no limit")
-BUFFER_MESSAGES = Domain("a number of messages", 1, 10_000, integer=True)
+CLIENT_TIMEOUT_S = Domain("a duration in seconds", 0, 86_400, low_open=True, default=30.0)
+MAX_CLIENTS = Domain("a number of clients", 1, 1024, integer=True, default=16)
+MAX_RATE_HZ = Domain("a number of messages per second", 0, 1_000_000, zero_means="no limit", default=1000.0)
+BUFFER_MESSAGES = Domain("a number of messages", 1, 10_000, integer=True, default=2)
 
 # --- detection -----------------------------------------------------------------------------
 DETECT_EVERY = Domain("a number of frames", 1, 10_000, integer=True)
@@ -213,10 +216,26 @@ MAX_PEOPLE = Domain("a number of people", 1, 1000, integer=True)
 CONF = Domain("a score", 0, 1)
 IOU = Domain("an overlap ratio (IoU)", 0, 1, low_open=True)
 MODEL_INPUT_PX = Domain("a model input side in pixels", 32, 4096, integer=True)
-MODEL_EVERY = Domain("a number of frames", 1, 100, integer=True)
+MODEL_EVERY = Domain("a number of frames", 1, 100, integer=True, default=1)
 
 # --- evaluation and pictures ---------------------------------------------------------------
-MAX_CLIPS = Domain("a number of clips", 1, 100_000, integer=True)
-MAX_FRAMES = Domain("a number of frames", 1, 10_000_000, integer=True)
-RENDER_SCALE = Domain("a scale factor", 0, 10, low_open=True)
+MAX_CLIPS = Domain("a number of clips", 1, 100_000, integer=True, default=8)
+MAX_FRAMES = Domain("a number of frames", 1, 10_000_000, integer=True, default=240)
+RENDER_SCALE = Domain("a scale factor", 0, 10, low_open=True, default=0.5)
 CONTACT_FRAMES = Domain("a number of frames", 1, 1000, integer=True)
+
+
+# The database's virtual camera and frame rate (`mocapdb build`, BuildConfig): the shared domains
+# with the builder's defaults (the same domains elsewhere have none of their own).
+DATABASE_FPS_HZ = replace(FPS_HZ, default=24.0)
+DATABASE_FOCAL_PX = replace(FOCAL_PX, default=1000.0)
+DATABASE_CAMERA_HEIGHT_M = replace(CAMERA_HEIGHT_M, default=1.5)
+DATABASE_CAMERA_DISTANCE_M = replace(CAMERA_DISTANCE_M, default=4.0)
+FRAMES_EVERY = replace(DETECT_EVERY, default=1)   # `detect --every`: every frame unless told
+INPUT_FPS_HZ = replace(FPS_HZ, default=30.0)     # input frames that carry no time, nothing else saying (a warning)
+RENDER_FOCAL_PX = replace(FOCAL_PX, default=1000.0)  # `render` of a result whose header records no focal
+# The 1€ filters on joint rotations: after the fit to the image (the default) and without it (--no-refine)
+REFINED_MIN_CUTOFF_HZ = replace(CUTOFF_HZ, default=8.0)
+REFINED_BETA = replace(BETA, default=2.0)
+RETRIEVED_MIN_CUTOFF_HZ = replace(CUTOFF_HZ, default=1.0)
+RETRIEVED_BETA = replace(BETA, default=0.3)

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.builder.pipeline import BuildConfig, build, find_sources
+from mocapdb.core import domains as D
 from mocapdb.core.clips import process_clip
 from mocapdb.core.errors import UsageError
 from mocapdb.core.formats.database import load_database
@@ -60,8 +61,8 @@ DESCRIPTIONS_FILE = "cmu_motion_descriptions.csv"
 
 @dataclass
 class LosoConfig:
-    max_frames: int = 240          # per clip, from its middle (at the database frame rate)
-    max_clips: int = 8             # per subject, evenly spaced in sorted order
+    max_frames: int = D.MAX_FRAMES.default          # per clip, from its middle (at the database frame rate)
+    max_clips: int = D.MAX_CLIPS.default             # per subject, evenly spaced in sorted order
     yaws_per_clip: int = 2
     yaws_deg: tuple[float, ...] = LOSO_YAWS
     subjects: tuple[int, ...] | None = None  # held out in turn; None: every subject

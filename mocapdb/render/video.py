@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mocapdb.core import domains as D
 from mocapdb.core.cameras import CameraModel, camera_from_intrinsics
 from mocapdb.core.outputs import (
     OutputFile,
@@ -42,7 +43,7 @@ from mocapdb.render.results import (
 from mocapdb.render.tracks import FileScene, file_scene, people_at
 
 VIEWS = ("both", "image", "3d")
-DEFAULT_FOCAL = 1000.0           # the defaults of `mocapdb reconstruct`
+DEFAULT_FOCAL = D.RENDER_FOCAL_PX.default   # a result whose header records no focal length
 DEFAULT_IMAGE_SIZE = (1920, 1080)
 MP4_NAME = "render.mp4"
 FRAME_FILES = OutputFiles("render", ("frame_*.png",), "frame_*.png")

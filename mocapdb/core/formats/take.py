@@ -14,6 +14,7 @@ import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from mocapdb.core import domains as D
 from mocapdb.core.errors import MocapdbError, UsageError
 from mocapdb.core.files import read_input_text, write_atomic
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
@@ -26,7 +27,7 @@ MAX_FPS = 10000.0
 MAX_TAKE_BYTES = 1_000_000   # a take description is a few hundred bytes: more is read as broken
 CODEC_BLOCK_PX = 16          # video codecs code whole 16-px blocks: a 1080-line video is 1088 lines, cropped
 LOG = logging.getLogger(__name__)
-DEFAULTS = {"fps": 30.0, "image_size": (1920, 1080)}  # when nothing says otherwise (the focal: below)
+DEFAULTS = {"fps": D.INPUT_FPS_HZ.default, "image_size": (1920, 1080)}  # when nothing says otherwise (the focal: below)
 FULL_FRAME_DIAGONAL_MM = 43.27  # a 36 × 24 mm frame: what "35 mm-equivalent" focal lengths refer to
 DEFAULT_FOCAL_35MM = 26.0       # a typical phone main camera (24–28 mm equivalent), when nothing is given
 
