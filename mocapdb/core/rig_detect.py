@@ -96,7 +96,7 @@ def _above(bvh: Bvh, a: tuple[int, ...], b: tuple[int, ...]) -> bool:
 
 
 def _place_chain(bvh: Bvh, words: list[JointWords], chain: tuple[str, ...], fixed: dict[str, int],
-                 reading: RigReading, allowed: list[int] | None = None) -> None:
+                 reading: RigReading, allowed: set[int] | None = None) -> None:
     """Place ``chain`` (see the module docstring) into ``reading``, or add why it cannot be."""
     options = [[j for j in _candidates(words, r, fixed) if allowed is None or j in allowed] for r in chain]
     combos = [(j,) for j in options[0]]
@@ -146,7 +146,7 @@ def place_roles(bvh: Bvh, fixed: dict[str, int]) -> RigReading:
     for chain in LIMBS:
         _place_chain(bvh, words, chain, fixed, reading)
     tops = [reading.placed[c[0]] for c in LIMBS if c[0] in reading.placed]
-    outside = [j for j in range(len(bvh.names)) if not any(j == t or is_ancestor(bvh, t, j) for t in tops)]
+    outside = {j for j in range(len(bvh.names)) if not any(j == t or is_ancestor(bvh, t, j) for t in tops)}
     _place_chain(bvh, words, ("head",), fixed, reading, allowed=None if "head" in fixed else outside)
     return reading
 
