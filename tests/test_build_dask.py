@@ -83,7 +83,7 @@ def test_a_bad_local_cluster_is_named(scheduler):
 def test_workers_that_cannot_run_the_build_are_named(client, monkeypatch):
     from mocapdb.builder import tasks
 
-    def broken():
+    def broken(modules):
         raise ModuleNotFoundError("No module named 'mocapdb'")
 
     monkeypatch.setattr(tasks, "_prepare_worker", broken)

@@ -92,3 +92,42 @@ def test_help_loads_no_heavy_library():
             "{'numba', 'cv2', 'scipy', 'pyarrow', 'onnxruntime', 'sklearn', 'tqdm', 'matplotlib'}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
     assert out.stdout.strip() == "[]"
+
+
+def _import_graph() -> dict[str, set[str]]:
+    """Module → the mocapdb modules it imports anywhere (top level, in functions, for type checking)."""
+    modules = {m.removesuffix(".__init__"): p for m, p in _modules().items()}
+    graph: dict[str, set[str]] = {m: set() for m in modules}
+    for module, path in _modules().items():
+        source = module.removesuffix(".__init__")
+        for _, name in _imports(path, module):
+            while name and name not in modules:
+                name = name.rpartition(".")[0]
+            if name and name not in (source, "mocapdb"):
+                graph[source].add(name)
+    return graph
+
+
+def test_no_import_circles():
+    """No module reaches itself through imports (Tarjan's strongly connected components)."""
+    graph, index, low, stack, circles = _import_graph(), {}, {}, [], []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = stack[stack.index(v):]
+            del stack[stack.index(v):]
+            if len(component) > 1:
+                circles.append(sorted(component))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    assert not circles, circles

@@ -752,7 +752,9 @@ def build(sources: list[str], out: str | os.PathLike, config: BuildConfig,
     if plan.below_base:
         summary.warnings.append(f"--memory-limit {config.limit_mb} MB is below what the process itself takes "
                                 "(data_specs/build.md): the build runs in its smallest chunks")
-    tasks = DaskTasks(client) if client is not None else connect(config.scheduler) if config.scheduler else None
+    warm = (__name__,)   # a worker imports the build's modules once, not on its first task
+    tasks = (DaskTasks(client, warm=warm) if client is not None
+             else connect(config.scheduler, warm) if config.scheduler else None)
     try:
         with WorkFolder(work_dir, _fingerprints(config, files, maps), config.restart) as work:
             summary.warnings += work.notes

@@ -68,14 +68,16 @@ class ProcessTasks(Tasks):
 
 class DaskTasks(Tasks):
     """Runs jobs on a Dask cluster through ``client`` (a ``dask.distributed.Client``). A client it was
-    given stays open; one :func:`connect` made (and its ``local:N`` cluster) is closed with it."""
+    given stays open; one :func:`connect` made (and its ``local:N`` cluster) is closed with it.
+    ``warm``: modules each worker imports at once (their numba kernels load from their cache), so the
+    first task of a stage does not pay for it."""
 
     remote = True
 
-    def __init__(self, client, cluster=None, owned: bool = False):
+    def __init__(self, client, cluster=None, owned: bool = False, warm: tuple[str, ...] = ()):
         self.client, self.cluster, self.owned = client, cluster, owned
         try:
-            versions = client.run(_prepare_worker)
+            versions = client.run(_prepare_worker, warm)
         except Exception as exc:  # noqa: BLE001 - whatever a worker raised, the build cannot use it
             raise TasksError(f"the Dask workers cannot run mocapdb's build (pip install 'mocapdb[dask]' on each): "
                              f"{type(exc).__name__}: {exc}") from None
@@ -104,9 +106,10 @@ class DaskTasks(Tasks):
             self.cluster.close()
 
 
-def connect(scheduler: str) -> DaskTasks:
+def connect(scheduler: str, warm: tuple[str, ...] = ()) -> DaskTasks:
     """The cluster named by ``scheduler``: ``local:N`` starts a cluster of N worker processes on this
-    machine (one thread each); anything else is a scheduler's address (``tcp://host:8786``)."""
+    machine (one thread each); anything else is a scheduler's address (``tcp://host:8786``); ``warm``:
+    as :class:`DaskTasks`'."""
     try:
         from dask.distributed import Client, LocalCluster
     except ImportError as exc:
@@ -123,7 +126,7 @@ def connect(scheduler: str) -> DaskTasks:
         except (OSError, TimeoutError, ValueError) as exc:
             raise TasksError(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({exc})") from None
     try:
-        return DaskTasks(client, cluster, owned=True)
+        return DaskTasks(client, cluster, owned=True, warm=warm)
     except BaseException:
         client.close()
         if cluster is not None:
@@ -149,10 +152,13 @@ def _windowed(submit: Callable, task: Callable, jobs: list, ahead: int) -> Itera
         yield pending.popleft().result()
 
 
-def _prepare_worker() -> str:
-    """Import the build's modules on a worker (its numba kernels load from their cache), so the first
-    task of a stage does not pay for it; returns the worker's mocapdb version."""
-    import mocapdb.builder.pipeline  # noqa: F401 - imported for its side effect: modules and kernels loaded
+def _prepare_worker(modules: tuple[str, ...]) -> str:
+    """Imports ``modules`` on a worker (their numba kernels load from their cache); returns the
+    worker's mocapdb version."""
+    import importlib
+
+    for name in modules:
+        importlib.import_module(name)
 
     return __version__
 

@@ -11,7 +11,6 @@ Every function is vectorised over leading axes.
 """
 from __future__ import annotations
 
-from functools import cache
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,6 +18,7 @@ from numba import njit
 
 from mocapdb.core.kernels import NORMALISED_HEIGHT as NORMALISED_HEIGHT
 from mocapdb.core.kernels import pose_normalisation_into
+from mocapdb.core.keypoint_order import KP
 
 if TYPE_CHECKING:  # cameras imports cv2 (slow); geometry only needs the camera's fields
     from mocapdb.core.cameras import DatabaseCamera
@@ -185,12 +185,7 @@ def project_views(positions_m: np.ndarray, pelvis_m: np.ndarray, yaws_deg: np.nd
     return project_pinhole(cam, camera.focal_px, camera.center_px)
 
 
-@cache
-def _hips() -> tuple[int, int]:
-    """The right and left hip among the 14 keypoints (their mid-point is a pose's origin)."""
-    from mocapdb.core.skeleton import KP  # not at the top: skeleton imports this module
-
-    return KP["r_hip"], KP["l_hip"]
+HIPS = (KP["r_hip"], KP["l_hip"])   # the right and left hip among the 14 keypoints (their mid-point: a pose's origin)
 
 
 def normalize_pose_2d(points_px: np.ndarray, visible: np.ndarray | None = None
@@ -206,7 +201,7 @@ def normalize_pose_2d(points_px: np.ndarray, visible: np.ndarray | None = None
     pts = np.asarray(points_px, dtype=np.float64)
     if visible is None:
         visible = np.ones(pts.shape[:-1], dtype=np.bool_)
-    r_hip, l_hip = _hips()
+    r_hip, l_hip = HIPS
     if pts.ndim == 2:  # one pose: the runtime's per-frame call, kept lean
         out, origin, scale = _normalize_kernel(pts[None], np.asarray(visible, dtype=np.bool_)[None], r_hip, l_hip)
         return out[0], origin[0], scale[0]

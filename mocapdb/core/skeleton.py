@@ -11,12 +11,8 @@ from numba import njit
 
 from mocapdb.core.geometry import frame_from_axes, matrix_to_quat, quat_to_matrix
 from mocapdb.core.kernels import mat3_mul_into, quat_to_matrix_into
+from mocapdb.core.keypoint_order import KEYPOINTS, KP, N_KEYPOINTS_2D  # noqa: F401 - the order, re-exported
 
-# The 14 keypoints in OpenPose COCO-18 order (its first 14), then the pelvis (mid-hip).
-KEYPOINTS: tuple[str, ...] = (
-    "head", "neck", "r_shoulder", "r_elbow", "r_wrist", "l_shoulder", "l_elbow", "l_wrist",
-    "r_hip", "r_knee", "r_ankle", "l_hip", "l_knee", "l_ankle", "pelvis")
-N_KEYPOINTS_2D = 14
 # Lines drawn between the 14 keypoints in pictures of a pose (pairs of KEYPOINTS indices).
 DRAWING_LINES: tuple[tuple[int, int], ...] = tuple(
     (KEYPOINTS.index(a), KEYPOINTS.index(b)) for a, b in (
@@ -26,7 +22,6 @@ DRAWING_LINES: tuple[tuple[int, int], ...] = tuple(
         ("r_knee", "r_ankle"), ("l_hip", "l_knee"), ("l_knee", "l_ankle")))
 N_POINTS = len(KEYPOINTS)
 PELVIS = KEYPOINTS.index("pelvis")
-KP = {name: i for i, name in enumerate(KEYPOINTS)}
 # Left/right keypoint pairs; the mirror image of a pose swaps them (head, neck, pelvis stay).
 MIRROR_PAIRS: tuple[tuple[str, str], ...] = tuple(
     (f"r_{part}", f"l_{part}") for part in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle"))

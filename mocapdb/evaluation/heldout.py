@@ -8,9 +8,8 @@ and perturbed by detector-like noise, dropout and left/right swaps (:class:`Scen
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,9 +18,7 @@ from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import yaw_matrix
 from mocapdb.core.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS, bone_lengths_m
 from mocapdb.evaluation.bodies import reshape_body, sample_body
-
-if TYPE_CHECKING:
-    from mocapdb.evaluation.reconstruction import EvalConfig
+from mocapdb.runtime.engine import EngineConfig
 
 BODIES = ("universal", "varied")
 SWAP_PAIRS = [(KP[right], KP[left]) for right, left in MIRROR_PAIRS]  # right/left keypoint pairs
@@ -65,6 +62,21 @@ DEFAULT_SCENARIOS = (
     Scenario("varied bodies, sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05,
              body="varied"),
 )
+
+
+@dataclass
+class EvalConfig:
+    """The held-out evaluation: the yaws and scenarios each clip is rendered with, its camera, the engine's settings."""
+
+    yaws_deg: tuple[float, ...] = (6.0, 51.0, 99.0, 141.0, 186.0, 231.0, 279.0, 321.0)  # 3° or 6° off the 12° grid
+    scenarios: tuple[Scenario, ...] = DEFAULT_SCENARIOS
+    fps: float = 24.0
+    camera_distance_m: float = 5.0   # from the clip's mean pelvis (horizontal), at least ...
+    min_clearance_m: float = 3.0     # ... and far enough that every pelvis of the turned clip is this far in front
+    focal_px: float = 1000.0
+    image_size: tuple[int, int] = (1920, 1080)
+    seed: int = 0
+    engine: EngineConfig = field(default_factory=EngineConfig)
 
 
 @dataclass

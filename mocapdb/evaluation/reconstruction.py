@@ -39,8 +39,8 @@ from mocapdb.core.skeleton import (
 )
 from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.heldout import (
-    DEFAULT_SCENARIOS,
     UNIVERSAL_HEIGHT_M,
+    EvalConfig,
     Scenario,
     Truth,
     camera_distance,
@@ -74,19 +74,6 @@ LOG = logging.getLogger(__name__)
 VARIANTS = (("published", False), ("refined", True))  # report name, EngineConfig.refine
 TAKE_VARIANT = "whole take"  # the refined run's tracks through runtime.take.fit_take
 REPORTED = ("published", "refined", TAKE_VARIANT)
-
-
-@dataclass
-class EvalConfig:
-    yaws_deg: tuple[float, ...] = (6.0, 51.0, 99.0, 141.0, 186.0, 231.0, 279.0, 321.0)  # 3° or 6° off the 12° grid
-    scenarios: tuple[Scenario, ...] = DEFAULT_SCENARIOS
-    fps: float = 24.0
-    camera_distance_m: float = 5.0   # from the clip's mean pelvis (horizontal), at least ...
-    min_clearance_m: float = 3.0     # ... and far enough that every pelvis of the turned clip is this far in front
-    focal_px: float = 1000.0
-    image_size: tuple[int, int] = (1920, 1080)
-    seed: int = 0
-    engine: EngineConfig = field(default_factory=EngineConfig)
 
 
 def facing_deg(points: np.ndarray) -> np.ndarray:
