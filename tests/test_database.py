@@ -9,13 +9,14 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from mocapdb.core import files
+from mocapdb.core.files import recover_interrupted
 from mocapdb.core.formats import database
 from mocapdb.core.formats.database import (
     SCHEMA_VERSION,
     DatabaseError,
     MotionDatabase,
     load_database,
-    recover_interrupted,
     write_database,
 )
 
@@ -318,7 +319,7 @@ def test_crash_between_the_renames_is_recovered(db_path):
 
 def test_failure_between_the_renames_restores_the_old_database(db_path, monkeypatch):
     """Without an atomic swap: old aside, new in; a failure in between puts the old back."""
-    monkeypatch.setattr(database, "_exchange", lambda a, b: False)
+    monkeypatch.setattr(files, "_exchange", lambda a, b: False)
     real_rename, calls = os.rename, []
 
     def rename(src, dst):
@@ -338,7 +339,7 @@ def test_failure_between_the_renames_restores_the_old_database(db_path, monkeypa
 
 
 def test_replace_by_renames_without_atomic_swap(db_path, monkeypatch):
-    monkeypatch.setattr(database, "_exchange", lambda a, b: False)
+    monkeypatch.setattr(files, "_exchange", lambda a, b: False)
     write_database(make_db(seed=1), db_path)
     assert os.listdir(db_path.parent) == ["DB"]
     assert_db_equal(make_db(seed=1), load_database(db_path))
@@ -351,8 +352,8 @@ def test_replace_is_an_atomic_swap_where_supported(db_path, monkeypatch):
         swaps.append(real(a, b))
         return swaps[-1]
 
-    real = database._exchange
-    monkeypatch.setattr(database, "_exchange", exchange)
+    real = files._exchange
+    monkeypatch.setattr(files, "_exchange", exchange)
     write_database(make_db(seed=1), db_path)
     if swaps != [True]:
         pytest.skip("no renameat2(RENAME_EXCHANGE) on this system or file system")

@@ -42,8 +42,9 @@ from mocapdb.core import domains as D
 from mocapdb.core.cameras import DatabaseCamera
 from mocapdb.core.clips import Clip, ClipOptions, clips_from_bvh, joint_map_for
 from mocapdb.core.errors import MocapdbError
+from mocapdb.core.files import output_target, recover_interrupted
 from mocapdb.core.formats.bvh import BvhError
-from mocapdb.core.formats.database import DatabaseWriter, check_output_path, output_target, recover_interrupted
+from mocapdb.core.formats.database import DatabaseWriter, check_output_path
 from mocapdb.core.formats.search_index import ARRAYS as INDEX_ARRAYS
 from mocapdb.core.geometry import normalize_pose_2d, project_views
 from mocapdb.core.joint_map import UNITS, UP_AXES, JointMapError, load_joint_map_file

@@ -80,7 +80,7 @@ def run_build(args: argparse.Namespace) -> int:
 
     from mocapdb.builder.pipeline import BuildConfig, BuildError, build
     from mocapdb.core.cameras import DatabaseCamera
-    from mocapdb.core.formats.database import output_target
+    from mocapdb.core.files import output_target
 
     config = BuildConfig(
         fps=args.fps, yaw_step_deg=args.yaw_step,

@@ -1,8 +1,14 @@
-"""Files: atomic writes, inputs read within bounds (regular files of a bounded size) and OS errors
-that name their file."""
+"""Files: atomic writes of files and of whole folders (crash-safe replacement, recovery after a
+write that died), inputs read within bounds (regular files of a bounded size) and OS errors that
+name their file."""
 from __future__ import annotations
 
+import ctypes
+import errno
+import functools
 import os
+import re
+import shutil
 import stat
 from pathlib import Path
 from typing import BinaryIO
@@ -83,3 +89,131 @@ def read_input_text(path: str | os.PathLike, max_bytes: int, error: type[Excepti
     except UnicodeDecodeError as exc:
         line = data[:exc.start].count(b"\n") + 1
         raise error(f"{os.fspath(path)}, line {line}: not UTF-8 text, not a {what}") from None
+
+
+# --- folders written whole: a temporary sibling, then swapped in --------------------------------
+
+def output_target(path: str | os.PathLike) -> Path:
+    """The absolute path a folder write replaces for ``path``: symlinks (also a dangling one at
+    ``path`` itself) are followed, so a linked folder is replaced at its target."""
+    return Path(os.path.realpath(os.path.abspath(path)))
+
+
+def write_synced(file: Path, data: bytes) -> None:
+    """``data`` written to ``file`` and flushed to the disk."""
+    with open(file, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def fsync_dir(directory: Path) -> None:
+    """The folder's entries (renames, new files) flushed to the disk."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def sibling(path: Path, kind: str, pid: int) -> Path:
+    """``.<name>.<kind>-<pid>`` next to ``path``: a folder write's temporary (``tmp``) or set-aside (``old``) folder."""
+    return path.with_name(f".{path.name}.{kind}-{pid}")
+
+
+def replace_folder(tmp: Path, path: Path) -> None:
+    """Move the finished folder ``tmp`` to ``path``, deleting what it replaces; ``path`` is never
+    missing (an atomic swap where the OS has one, else renames :func:`recover_interrupted` undoes)."""
+    if not os.path.lexists(path):
+        os.rename(tmp, path)
+        fsync_dir(path.parent)
+    elif _exchange(tmp, path):  # atomic swap: ``tmp`` now holds the old database
+        fsync_dir(path.parent)
+        shutil.rmtree(tmp, ignore_errors=True)
+    else:
+        _replace_by_renames(tmp, path)
+
+
+def _replace_by_renames(tmp: Path, path: Path) -> None:
+    """Where no atomic swap exists: old aside, new in, old deleted; the old comes back on any failure
+    between the renames (and after a crash there, :func:`recover_interrupted` brings it back)."""
+    old = sibling(path, "old", os.getpid())
+    shutil.rmtree(old, ignore_errors=True)
+    os.rename(path, old)
+    try:
+        os.rename(tmp, path)
+    except BaseException:
+        os.rename(old, path)
+        raise
+    fsync_dir(path.parent)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+_RENAME_EXCHANGE = 2  # linux/fs.h
+_AT_FDCWD = -100
+_NO_EXCHANGE = {errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP}
+
+
+@functools.cache
+def _renameat2():
+    """libc's ``renameat2`` (Linux, glibc ≥ 2.28), or None."""
+    try:
+        return getattr(ctypes.CDLL(None, use_errno=True), "renameat2", None)
+    except OSError:
+        return None
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Atomically swap the existing paths ``a`` and ``b``; False where the OS or file system cannot."""
+    renameat2 = _renameat2()
+    if renameat2 is None:
+        return False
+    if renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in _NO_EXCHANGE:
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def _pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this machine (unknown counts as running)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (OSError, OverflowError):
+        return True
+    return True
+
+
+def _stale_siblings(path: Path) -> list[tuple[str, str]]:
+    """``(folder name, "tmp" | "old")`` of the write folders of ``path`` whose process has ended (or is
+    this one), ``old`` first."""
+    pattern = re.compile(rf"\.{re.escape(path.name)}\.(tmp|old)-(\d+)")
+    try:
+        entries = sorted(os.scandir(path.parent), key=lambda e: e.name)
+    except OSError:
+        return []
+    found = [(e.name, m.group(1), int(m.group(2))) for e in entries
+             if (m := pattern.fullmatch(e.name)) and e.is_dir(follow_symlinks=False)]
+    stale = [(name, kind) for name, kind, pid in found if pid == os.getpid() or not _pid_alive(pid)]
+    return sorted(stale, key=lambda s: s[1] != "old")
+
+
+def recover_interrupted(path: str | os.PathLike) -> list[str]:
+    """Clean up after folder writes to ``path`` that died (killed, power loss): put a set-aside old folder
+    (``.<name>.old-<pid>``) back at ``path`` if ``path`` is missing, and delete the other such
+    folders and the temporary ones (``.<name>.tmp-<pid>``). Only folders of processes no longer
+    running (or of this process) are touched. Returns what was done, one line each."""
+    path = output_target(path)
+    done = []
+    for name, kind in _stale_siblings(path):
+        folder = path.with_name(name)
+        if kind == "old" and not os.path.lexists(path):
+            os.rename(folder, path)
+            done.append(f"restored {path} from {name}, left by an interrupted write")
+        else:
+            shutil.rmtree(folder, ignore_errors=True)
+            done.append(f"removed {name}, left by an interrupted write")
+    return done

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.errors import MocapdbError
+from mocapdb.core.files import recover_interrupted, replace_folder, sibling
 from mocapdb.core.formats.bvh import Bvh, motion_from_rotations
 from mocapdb.core.geometry import quat_to_matrix
 from mocapdb.core.skeleton import (
@@ -315,7 +316,8 @@ def output_folder(out: str | Path, files: OutputFiles = RECONSTRUCT_FILES) -> It
     """
     out = check_output_folder(out, files)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
+    recover_interrupted(out)
+    tmp = sibling(out, "tmp", os.getpid())
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
     try:
@@ -324,11 +326,7 @@ def output_folder(out: str | Path, files: OutputFiles = RECONSTRUCT_FILES) -> It
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    old = out.parent / f".{out.name}.old-{os.getpid()}"
-    if out.exists():
-        out.rename(old)
-    tmp.rename(out)
-    shutil.rmtree(old, ignore_errors=True)
+    replace_folder(tmp, out)
 
 
 def clear_output_folder(out: str | Path, files: OutputFiles) -> Path:

@@ -5,16 +5,12 @@ The builder writes it (:func:`write_database`), the real-time runtime loads it
 """
 from __future__ import annotations
 
-import ctypes
-import errno
-import functools
 import hashlib
 import io
 import json
 import math
 import numbers
 import os
-import re
 import shutil
 from collections.abc import Iterable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -27,7 +23,16 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mocapdb.core.errors import MocapdbError
-from mocapdb.core.files import MIB, read_input_text
+from mocapdb.core.files import (
+    MIB,
+    fsync_dir,
+    output_target,
+    read_input_text,
+    recover_interrupted,
+    replace_folder,
+    sibling,
+    write_synced,
+)
 from mocapdb.core.formats.search_index import ARRAYS as INDEX_ARRAYS
 from mocapdb.core.formats.search_index import SearchIndexArrays, SearchIndexError, index_entry, load_search_index
 from mocapdb.core.formats.search_index import file_name as index_file_name
@@ -284,7 +289,7 @@ class DatabaseWriter:
         self.meta = meta
         self.tables: dict[str, dict] = {}
         self.search_index: dict[str, dict] | None = None
-        self._tmp = _sibling(self.path, "tmp", os.getpid())
+        self._tmp = sibling(self.path, "tmp", os.getpid())
         self._tmp.mkdir()
 
     def __enter__(self) -> DatabaseWriter:
@@ -322,9 +327,10 @@ class DatabaseWriter:
         if self.search_index is not None:
             manifest["search_index"] = self.search_index
         data = json.dumps(manifest, indent=2).encode("utf-8")
-        _write_file(self._tmp / MANIFEST, data)
-        _fsync_dir(self._tmp)
-        _replace(self._tmp, self.path)
+        write_synced(self._tmp / MANIFEST, data)
+        fsync_dir(self._tmp)
+        _check_replaceable(self.path)
+        replace_folder(self._tmp, self.path)
         index = self.search_index or {}
         return len(data) + sum(entry["bytes"] for entry in (*self.tables.values(), *index.values()))
 
@@ -373,12 +379,6 @@ def _check_replaceable(path: Path) -> None:
         f"{path}: exists and is not a mocapdb database (no {MANIFEST} with format {FORMAT!r}); "
         "refusing to replace it: choose another path or remove it yourself"
     )
-
-
-def output_target(path: str | os.PathLike) -> Path:
-    """The absolute path :func:`write_database` writes for ``path``: symlinks (also a dangling one
-    at ``path`` itself) are followed, so a linked database is replaced at its target."""
-    return Path(os.path.realpath(os.path.abspath(path)))
 
 
 def check_output_path(path: str | os.PathLike) -> None:
@@ -455,124 +455,6 @@ def _write_table(batches: Iterable[pa.Table], file: Path) -> dict:
         raw.flush()
         os.fsync(raw.fileno())
     return {"file": file.name, "rows": rows, "bytes": sink.size, "sha256": sink.sha256.hexdigest()}
-
-
-def _write_file(file: Path, data: bytes | pa.Buffer) -> None:
-    with open(file, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-
-
-def _fsync_dir(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _sibling(path: Path, kind: str, pid: int) -> Path:
-    """``.<name>.<kind>-<pid>`` next to ``path``: a write's temporary (``tmp``) or set-aside (``old``) folder."""
-    return path.with_name(f".{path.name}.{kind}-{pid}")
-
-
-def _replace(tmp: Path, path: Path) -> None:
-    """Move the finished ``tmp`` to ``path``, deleting what it replaces; ``path`` is never missing."""
-    _check_replaceable(path)
-    if not os.path.lexists(path):
-        os.rename(tmp, path)
-        _fsync_dir(path.parent)
-    elif _exchange(tmp, path):  # atomic swap: ``tmp`` now holds the old database
-        _fsync_dir(path.parent)
-        shutil.rmtree(tmp, ignore_errors=True)
-    else:
-        _replace_by_renames(tmp, path)
-
-
-def _replace_by_renames(tmp: Path, path: Path) -> None:
-    """Where no atomic swap exists: old aside, new in, old deleted; the old comes back on any failure
-    between the renames (and after a crash there, :func:`recover_interrupted` brings it back)."""
-    old = _sibling(path, "old", os.getpid())
-    shutil.rmtree(old, ignore_errors=True)
-    os.rename(path, old)
-    try:
-        os.rename(tmp, path)
-    except BaseException:
-        os.rename(old, path)
-        raise
-    _fsync_dir(path.parent)
-    shutil.rmtree(old, ignore_errors=True)
-
-
-_RENAME_EXCHANGE = 2  # linux/fs.h
-_AT_FDCWD = -100
-_NO_EXCHANGE = {errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP}
-
-
-@functools.cache
-def _renameat2():
-    """libc's ``renameat2`` (Linux, glibc ≥ 2.28), or None."""
-    try:
-        return getattr(ctypes.CDLL(None, use_errno=True), "renameat2", None)
-    except OSError:
-        return None
-
-
-def _exchange(a: Path, b: Path) -> bool:
-    """Atomically swap the existing paths ``a`` and ``b``; False where the OS or file system cannot."""
-    renameat2 = _renameat2()
-    if renameat2 is None:
-        return False
-    if renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
-        return True
-    err = ctypes.get_errno()
-    if err in _NO_EXCHANGE:
-        return False
-    raise OSError(err, os.strerror(err), str(b))
-
-
-def _pid_alive(pid: int) -> bool:
-    """Whether process ``pid`` runs on this machine (unknown counts as running)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (OSError, OverflowError):
-        return True
-    return True
-
-
-def _stale_siblings(path: Path) -> list[tuple[str, str]]:
-    """``(folder name, "tmp" | "old")`` of the write folders of ``path`` whose process has ended (or is
-    this one), ``old`` first."""
-    pattern = re.compile(rf"\.{re.escape(path.name)}\.(tmp|old)-(\d+)")
-    try:
-        entries = sorted(os.scandir(path.parent), key=lambda e: e.name)
-    except OSError:
-        return []
-    found = [(e.name, m.group(1), int(m.group(2))) for e in entries
-             if (m := pattern.fullmatch(e.name)) and e.is_dir(follow_symlinks=False)]
-    stale = [(name, kind) for name, kind, pid in found if pid == os.getpid() or not _pid_alive(pid)]
-    return sorted(stale, key=lambda s: s[1] != "old")
-
-
-def recover_interrupted(path: str | os.PathLike) -> list[str]:
-    """Clean up after writes to ``path`` that died (killed, power loss): put a set-aside old database
-    (``.<name>.old-<pid>``) back at ``path`` if ``path`` is missing, and delete the other such
-    folders and the temporary ones (``.<name>.tmp-<pid>``). Only folders of processes no longer
-    running (or of this process) are touched. Returns what was done, one line each."""
-    path = output_target(path)
-    done = []
-    for name, kind in _stale_siblings(path):
-        folder = path.with_name(name)
-        if kind == "old" and not os.path.lexists(path):
-            os.rename(folder, path)
-            done.append(f"restored {path} from {name}, left by an interrupted write")
-        else:
-            shutil.rmtree(folder, ignore_errors=True)
-            done.append(f"removed {name}, left by an interrupted write")
-    return done
 
 
 # ----------------------------------------------------------------------------------- loading
