@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from mocapdb.core.signals import install_stop_handlers
+from mocapdb.cli.signals import install_stop_handlers
 from mocapdb.runtime.streams import (
     LiveInput,
     NetworkLimits,

@@ -93,8 +93,8 @@ def run_detect(args: argparse.Namespace) -> int:
     """``mocapdb detect``: 0 on success; DetectError (exit 2) for a user error, also a video file
     that ends before its declared frame count (its frames read are kept); 130 if a video file was
     interrupted before its end."""
+    from mocapdb.cli.signals import install_stop_handlers
     from mocapdb.core.outputs import check_output_folder
-    from mocapdb.core.signals import install_stop_handlers
     from mocapdb.detect.detectors import open_detector
     from mocapdb.detect.errors import DetectError
     from mocapdb.detect.openpose_out import DETECT_FILES, detect_video

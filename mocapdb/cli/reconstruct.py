@@ -397,8 +397,8 @@ def run_live(args: argparse.Namespace) -> int:
     import threading
     from pathlib import Path
 
+    from mocapdb.cli.signals import install_stop_handlers
     from mocapdb.core.outputs import check_no_track_files
-    from mocapdb.core.signals import install_stop_handlers
     from mocapdb.detect.detectors import open_detector
     from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU
     from mocapdb.runtime.session import SinkError, run_live
