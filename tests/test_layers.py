@@ -131,3 +131,18 @@ def test_no_import_circles():
         if v not in index:
             visit(v)
     assert not circles, circles
+
+
+MAX_PUBLIC_METHODS = 12   # a class with more does several jobs
+
+
+def test_no_class_has_more_than_twelve_public_methods():
+    crowded = []
+    for module, path in _modules().items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef):
+                public = [f.name for f in node.body
+                          if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef)) and not f.name.startswith("_")]
+                if len(public) > MAX_PUBLIC_METHODS:
+                    crowded.append(f"{module}.{node.name}: {len(public)} public methods")
+    assert not crowded, crowded
