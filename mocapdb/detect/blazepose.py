@@ -279,7 +279,7 @@ class BlazePose:
         """One landmark run per followed person; the lost ones (a low flag; for a new detection also
         landmarks spanning less than :data:`MIN_FILL` of its region: not a body) and duplicates are
         dropped; the people reported: the ones followed before and the trusted new ones."""
-        points, flags, regions, reported = [], [], [], []
+        points, flags, regions, reported, lost = [], [], [], [], False
         for person in self.people:
             landmarks, flag, following = self.landmarks(image, person.region)
             if person.points is not None:
@@ -290,7 +290,9 @@ class BlazePose:
                 flags.append(flag)
                 regions.append(following)
                 reported.append(person.followed or person.trusted)
-        self._lost = len(regions) < len(self.people)
+            else:
+                lost |= person.followed   # a new detection that is no body is not someone lost
+        self._lost = lost
         keypoints = np.array(points).reshape(-1, N_LANDMARKS, 3)
         boxes = np.concatenate([keypoints[:, :, :2].min(axis=1), keypoints[:, :, :2].max(axis=1)], axis=1)
         unique = _distinct(boxes, np.array(flags))
