@@ -24,21 +24,15 @@ from mocapdb.evaluation.bodies import (
     sample_body,
 )
 from mocapdb.evaluation.heldout import load_heldout, project
-from mocapdb.evaluation.world import (
+from mocapdb.evaluation.world import check_lines, evaluate_world, format_table
+from mocapdb.evaluation.world_scores import TrackFit, floor_errors, match_tracks, ratio_error_pct, score_take
+from mocapdb.evaluation.world_takes import (
     ANKLES,
     BOX_HEIGHT_M,
     PersonSpec,
-    TrackFit,
     WorldConfig,
     WorldScenario,
     build_take,
-    check_lines,
-    evaluate_world,
-    floor_errors,
-    format_table,
-    match_tracks,
-    ratio_error_pct,
-    score_take,
 )
 
 from .conftest import SAMPLE_BVH

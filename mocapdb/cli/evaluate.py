@@ -140,7 +140,8 @@ def _world_report(args: argparse.Namespace, engine: EngineConfig) -> dict:
     from mocapdb.builder.pipeline import find_sources
     from mocapdb.core.errors import UsageError
     from mocapdb.core.formats.database import load_database
-    from mocapdb.evaluation.world import WorldConfig, check_lines, evaluate_world, format_table
+    from mocapdb.evaluation.world import check_lines, evaluate_world, format_table
+    from mocapdb.evaluation.world_takes import WorldConfig
 
     if args.bvh or args.loso or args.real_take or not args.db:
         raise UsageError("--world needs --db and goes without --bvh, --leave-one-subject-out and --real-take")
