@@ -37,7 +37,8 @@ from mocapdb.runtime.lag import FixedLag
 from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source, StreamStats
 from mocapdb.runtime.subject import chosen, join_fragments, main_track
 from mocapdb.runtime.take import TakeParams, fit_take
-from mocapdb.runtime.world import fit_world, track_facts, world_line, world_record
+from mocapdb.runtime.world import fit_world
+from mocapdb.runtime.world_summary import track_facts, world_line, world_record
 
 LOG = logging.getLogger(__name__)
 
@@ -86,7 +87,7 @@ class SessionSummary:
     degenerate: int = 0
     limits: LimitReport = field(default_factory=LimitReport)
     sink_error: str | None = None  # why the sink failed, which stopped the session
-    world_lines: list[str] = field(default_factory=list)  # the take's world and each track file's size (runtime.world)
+    world_lines: list[str] = field(default_factory=list)  # the take's world and each track's size (world_summary)
 
     def add_latency(self, latency_s: float) -> None:
         self.latencies_s.append(latency_s)

@@ -31,7 +31,9 @@ mode (or its given height), standing in the same world where its feet are (above
 box), made smaller where its lowest points would sink below the floor. No scale is negative, no
 stature leaves :data:`HUMAN_STATURE_M`. The plane is then fitted to the floor tracks' scaled
 contacts where they span it (:func:`~mocapdb.runtime.take.floor_plane`) and the estimate made once
-more about it. ``data_specs/world.md`` gives the decisions and their reasons.
+more about it. ``data_specs/world.md`` gives the decisions and their reasons. The stature prior
+and the kinds' likelihoods are :mod:`mocapdb.runtime.stature`; what the summary and ``world.json``
+say of the world, :mod:`mocapdb.runtime.world_summary`.
 
 Costs O(T·H·P) for T tilts, H heights and P people (at most :data:`MAX_FLOOR_POINTS` contacts each):
 tens to hundreds of milliseconds per take, independent of its length (``tools/bench_world.py``).
@@ -41,18 +43,24 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.special import ndtr
 
-from mocapdb.core.anthropometry import STATURE_LOG_MEANS, STATURE_LOG_SDS, STATURE_WEIGHTS
 from mocapdb.core.outputs import TrackRecording
-from mocapdb.core.skeleton import (
-    ANKLE_HEIGHT_M,
-    MEASURED_BONE_NAMES,
-    UNIVERSAL_HEIGHT_M,
-    pose_from_rotations,
-    universal_bone_lengths_m,
-)
+from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M, pose_from_rotations
 from mocapdb.runtime.body_size import TILT_SD_DEG
+from mocapdb.runtime.stature import (
+    FLAT_DENSITY,
+    HUMAN_STATURE_M,
+    P_ELEVATED,
+    P_ON_FLOOR,
+    P_UNRELIABLE,
+    PRIOR_SD,
+    likelihood_table,
+    log_likelihood,
+    posterior_sd,
+    prior_density,
+    prior_mode,
+    stature_prior,
+)
 from mocapdb.runtime.take import (
     ANKLES,
     MIN_FLOOR_SPREAD_M,
@@ -65,11 +73,6 @@ from mocapdb.runtime.take import (
     lowest_level,
 )
 
-HUMAN_STATURE_M = (0.8, 2.3)  # no track is ever made smaller or taller (a 2-year-old to the tallest adults)
-P_ON_FLOOR, P_ELEVATED, P_UNRELIABLE = 0.88, 0.10, 0.02  # prior weights of a track's kinds
-ELEVATED_MIN_LOG = 0.1  # an elevated person's floor-consistent stature overstates it by this (log) at least:
-#                         a step of 15 cm under a camera 1.5 m high
-GIVEN_STATURE_SD = 0.01      # of log stature, a height the user gave
 CONTACT_SD = 0.10            # of log stature, one step's (depth and ankle-height noise), over its steps
 STEP_GRID_M = 0.01           # contacts within this of each other are one step (the whole-take fit anchors a step)
 BASE_SD = 0.03               # of log stature, what more contacts do not remove (the body's own fit)
@@ -80,8 +83,6 @@ MIN_FLOOR_DEPTH = 0.05       # a floor less than this × the person's stature be
 TILT_SD_FIXED_DEG = 0.5      # a tilt's error at least, about an axis a track's contacts span
 TILT_TAIL_SD_DEG, TILT_TAIL_SHARE = 15.0, 0.2  # the tilt prior's heavy tail: bodies' estimates can be far off
 PITCH_SD_MIN_DEG = 5.0  # bodies show the pitch only by their foreshortening, and share its error (the camera's)
-_FLAT = 1.0 / np.log(HUMAN_STATURE_M[1] / HUMAN_STATURE_M[0])  # a flat density over the human range (log)
-_STATURE_GRID = np.linspace(np.log(HUMAN_STATURE_M[0]), np.log(HUMAN_STATURE_M[1]), 400)
 
 
 @dataclass(frozen=True)
@@ -92,7 +93,7 @@ class TrackEvidence:
     :func:`evidence_weight`) and its lower ankle in every frame ``[F, 3]`` (at the nominal size; where
     it has no contact, the floor must still not be above it). Derived once: the contacts on its
     lowest level and all its contacts (each at most :data:`MAX_FLOOR_POINTS`, evenly spaced) and
-    its log-likelihood table (:func:`_log_likelihood`), and its number of steps (distinct contacts:
+    its log-likelihood table (:func:`log_likelihood`), and its number of steps (distinct contacts:
     the whole-take fit holds a planted ankle at one place for its whole contact)."""
 
     track: int
@@ -114,11 +115,11 @@ class TrackEvidence:
         sample = self.contacts_m[::max(len(self.contacts_m) // MAX_FLOOR_POINTS, 1)]
         object.__setattr__(self, "contact_sample_m", sample)
         object.__setattr__(self, "steps", count_steps(self.contacts_m))
-        object.__setattr__(self, "likelihood", _likelihood_table(observation_sd(self), self.prior()))
+        object.__setattr__(self, "likelihood", likelihood_table(observation_sd(self), self.prior()))
 
     def prior(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """This track's stature prior (weights, log means, log SDs): its given height's, or the mixture."""
-        return _components(self.given_stature_m)
+        return stature_prior(self.given_stature_m)
 
 
 MAX_FLOOR_POINTS = 64  # contacts kept per track for the floor's distance under it (a median)
@@ -267,7 +268,7 @@ def _cost(evidence: list[TrackEvidence], normals: np.ndarray, tilts_deg: np.ndar
     heights ``log_h [H]``."""
     cost = np.repeat(tilt_cost(tilts_deg, tilt_sds_deg)[:, None], len(log_h), axis=1)
     for e in evidence:
-        cost -= e.weight * _log_likelihood(_observed_log_stature(e, normals)[:, None] + log_h[None, :], e)
+        cost -= e.weight * log_likelihood(_observed_log_stature(e, normals)[:, None] + log_h[None, :], e.likelihood)
         cost += e.weight * _unevenness(e, normals)[:, None]
     return cost
 
@@ -339,42 +340,6 @@ def observation_sd(e: TrackEvidence) -> float:
     return float(np.sqrt(BASE_SD ** 2 + CONTACT_SD ** 2 / max(e.steps, 1)))
 
 
-def _likelihood_table(sd: float, prior: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
-    """``log p`` of an observed log stature of error ``sd`` under a track's three kinds (module
-    docstring) and its stature ``prior`` (:meth:`TrackEvidence._prior`), over :data:`_LIKELIHOOD_GRID`."""
-    on_floor, smaller = _prior_density(_LIKELIHOOD_GRID, sd, prior)
-    return np.log(P_ON_FLOOR * on_floor + P_ELEVATED * _FLAT * smaller + P_UNRELIABLE * _FLAT)
-
-
-def _log_likelihood(log_stature: np.ndarray, e: TrackEvidence) -> np.ndarray:
-    """``log p(observed log stature)`` of one track (its table, interpolated); the unreliable kind's
-    alone where the floor is not below it (NaN)."""
-    values = np.interp(np.nan_to_num(log_stature, nan=_LIKELIHOOD_GRID[0]), _LIKELIHOOD_GRID, e.likelihood)
-    return np.where(np.isnan(log_stature), np.log(P_UNRELIABLE * _FLAT), values)
-
-
-_LIKELIHOOD_GRID = np.arange(np.log(0.02), np.log(100.0), 0.002)  # log stature (metres)
-
-
-def _prior_density(x: np.ndarray, sd: float, prior: tuple[np.ndarray, np.ndarray, np.ndarray]
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """The stature prior (or the given height) blurred by ``sd`` at log statures ``x``, and its
-    probability of a stature below ``x`` by :data:`ELEVATED_MIN_LOG` at least (an elevated person
-    is smaller than its floor says: it stands on a step or more)."""
-    weights, means, sds = prior
-    total = np.sqrt(sds ** 2 + sd ** 2)
-    z = (x[..., None] - means) / total
-    density = np.sum(weights * np.exp(-0.5 * z ** 2) / (total * np.sqrt(2.0 * np.pi)), axis=-1)
-    return density, np.sum(weights * ndtr(z - ELEVATED_MIN_LOG / total), axis=-1)
-
-
-def _components(given_stature_m: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The stature prior's mixture (weights, log means, log SDs), or the given height's one component."""
-    if given_stature_m is None:
-        return STATURE_WEIGHTS, STATURE_LOG_MEANS, STATURE_LOG_SDS
-    return np.ones(1), np.array([np.log(given_stature_m)]), np.array([GIVEN_STATURE_SD])
-
-
 def _floor_contacts(evidence: list[TrackEvidence], world: World) -> np.ndarray | None:
     """The contacts ``[N, 3]`` of the tracks standing on ``world``'s floor, scaled into it (None: none)."""
     people = _with_people(world, evidence).people
@@ -402,51 +367,25 @@ def person_size(e: TrackEvidence, world: World) -> PersonSize:
     observed = _observed_log_stature(e, world.normal[None])[0] + np.log(world.camera_height_m)
     sd = observation_sd(e)
     if np.isfinite(observed):
-        on_floor, smaller = _prior_density(np.array(observed), sd, e.prior())
-        kinds = {"floor": P_ON_FLOOR * on_floor, "elevated": P_ELEVATED * _FLAT * smaller,
-                 "unreliable": P_UNRELIABLE * _FLAT}
+        on_floor, smaller = prior_density(np.array(observed), sd, e.prior())
+        kinds = {"floor": P_ON_FLOOR * on_floor, "elevated": P_ELEVATED * FLAT_DENSITY * smaller,
+                 "unreliable": P_UNRELIABLE * FLAT_DENSITY}
         kind = max(kinds, key=lambda k: float(kinds[k]))
     else:
         kind = "unreliable"
     if kind != "floor":
         return _prior_size(e, kind, world)
     stature = float(np.clip(np.exp(observed) if e.given_stature_m is None else e.given_stature_m, *HUMAN_STATURE_M))
-    log_sd = _posterior_sd(float(observed), float(np.hypot(sd, world.camera_height_log_sd)), e.prior())
-    source = "given" if e.given_stature_m is not None else "floor" if log_sd < 0.8 * _PRIOR_SD else "prior"
+    log_sd = posterior_sd(float(observed), float(np.hypot(sd, world.camera_height_log_sd)), e.prior())
+    source = "given" if e.given_stature_m is not None else "floor" if log_sd < 0.8 * PRIOR_SD else "prior"
     return PersonSize(e.track, stature, log_sd, "floor", source, stature / e.nominal_stature_m,
                       _feet_above_floor(e, world, stature / e.nominal_stature_m))
-
-
-def _posterior(observed: float, sd: float, prior: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
-    """The stature posterior on :data:`_STATURE_GRID` (normalised): the ``prior`` (weights, log means,
-    log SDs) times the observation ``N(observed, sd)`` (log stature)."""
-    weights, means, sds = prior
-    x = _STATURE_GRID[:, None]
-    prior = np.sum(weights * np.exp(-0.5 * ((x - means) / sds) ** 2) / sds, axis=1)
-    posterior = prior * np.exp(-0.5 * ((_STATURE_GRID - observed) / sd) ** 2)
-    posterior = posterior if np.any(posterior > 0) else prior
-    return posterior / posterior.sum()
-
-
-def _posterior_sd(observed: float, sd: float, prior: tuple[np.ndarray, np.ndarray, np.ndarray]) -> float:
-    """The SD of log stature of :func:`_posterior`."""
-    posterior = _posterior(observed, sd, prior)
-    mean = float(np.sum(posterior * _STATURE_GRID))
-    return float(np.sqrt(np.sum(posterior * (_STATURE_GRID - mean) ** 2)))
-
-
-def _prior_mode(prior: tuple[np.ndarray, np.ndarray, np.ndarray]) -> float:
-    """The stature (metres) a ``prior`` makes most likely."""
-    return float(np.exp(_STATURE_GRID[np.argmax(_posterior(0.0, 1e6, prior))]))
-
-
-_PRIOR_SD = _posterior_sd(0.0, 1e6, _components(None))  # the prior's own spread (of log stature)
 
 
 def _prior_size(e: TrackEvidence, kind: str, world: World | None) -> PersonSize:
     """A track whose size the floor does not give: the prior's mode (or its given height), made
     smaller where that would put its lowest point below the floor (never below the human range)."""
-    stature, log_sd = _prior_mode(e.prior()), _posterior_sd(0.0, 1e6, e.prior())
+    stature, log_sd = prior_mode(e.prior()), posterior_sd(0.0, 1e6, e.prior())
     k = stature / e.nominal_stature_m
     if world is not None and world.floor_known and e.given_stature_m is None:
         touching = _touching_scale(e, world)
@@ -555,103 +494,3 @@ def place_in_world(rec: TrackRecording, world: World) -> TrackRecording:
     lifted = above_floor(root_m, ankles, world.normal, -world.camera_height_m, ANKLE_HEIGHT_M * scale)
     return replace(scaled, root_view_m=list(lifted), scales=[scale] * len(lifted), up_view=world.normal,
                    floor_offset_m=-world.camera_height_m)
-
-
-@dataclass(frozen=True)
-class TrackFacts:
-    """What the summary says of one written track: its stature and leg length (metres), how far
-    from the camera its root is (metres, min and max), whether it stays in front of the camera, and
-    the world's verdict on its size (:class:`PersonSize`)."""
-
-    track: int
-    stature_m: float
-    legs_m: float
-    distance_m: tuple[float, float]
-    in_front: bool
-    size: PersonSize
-
-    @property
-    def flags(self) -> list[str]:
-        """Anything a person cannot be: a size outside the human range, a body at or behind the
-        camera, feet below the floor or standing high above it."""
-        flags = []
-        if not HUMAN_STATURE_M[0] <= round(self.stature_m, 3) <= HUMAN_STATURE_M[1] \
-                or self.size.stature_m in HUMAN_STATURE_M:
-            flags.append(f"SIZE AT OR OUTSIDE THE HUMAN RANGE {HUMAN_STATURE_M[0]}-{HUMAN_STATURE_M[1]} m")
-        if not self.in_front:
-            flags.append("AT OR BEHIND THE CAMERA")
-        feet = self.size.feet_above_floor_m
-        if feet is not None and feet < -FEET_TOLERANCE_M:
-            flags.append(f"FEET {-feet:.2f} m BELOW THE FLOOR")
-        return flags
-
-    def line(self, main: bool = False, written: bool = True) -> str:
-        """One summary line: ``track 3: 1.62 m (±4 %, floor), legs 0.78 m, 4.1-6.3 m away, on the floor``
-        (``track 3 (main)`` for the take's subject; "no files" where ``--people`` left it out)."""
-        size = self.size
-        where = {"floor": "on the floor", "no contacts": "no planted foot (size from the prior)",
-                 "unreliable": "its feet do not fit the floor (size from the prior)"}.get(size.kind)
-        if size.kind == "elevated" or (where is None and size.feet_above_floor_m is not None):
-            where = f"standing {size.feet_above_floor_m:.2f} m above the floor (on something; size from the prior)"
-        source = {"floor": "from the floor", "prior": "the stature prior's: the take cannot fix it",
-                  "given": "given"}[size.source]
-        label = f"track {self.track}" + (" (main)" if main else "") + ("" if written else " (no files: --people)")
-        text = (f"{label}: {self.stature_m:.2f} m (±{100 * (np.exp(size.stature_log_sd) - 1):.0f} %, "
-                f"{source}), legs {self.legs_m:.2f} m, {self.distance_m[0]:.1f}-{self.distance_m[1]:.1f} m away, "
-                f"{where or size.kind}")
-        return text + "".join(f"; {flag}" for flag in self.flags)
-
-
-FEET_TOLERANCE_M = 0.05  # feet this far below the floor are flagged
-_LEGS = [MEASURED_BONE_NAMES.index("thigh"), MEASURED_BONE_NAMES.index("shank")]
-
-
-def track_facts(rec: TrackRecording, world: World) -> TrackFacts:
-    """:class:`TrackFacts` of a track placed in ``world`` (:func:`place_in_world`)."""
-    scale = rec.scales[-1]
-    proportions = universal_bone_lengths_m() if rec.proportions_m is None else rec.proportions_m
-    roots = np.array(rec.motion()[1])
-    distances = np.linalg.norm(roots, axis=1)
-    return TrackFacts(rec.track, UNIVERSAL_HEIGHT_M * scale, float(proportions[_LEGS].sum() * scale),
-                      (float(distances.min()), float(distances.max())), bool(np.all(roots[:, 2] < 0.0)),
-                      world.people[rec.track])
-
-
-UNFIXED_HEIGHT_PCT = 50.0  # a camera height estimated more loosely than this is said not to be fixed
-
-
-def world_line(world: World) -> str:
-    """The summary's line on the world: the camera's height (given, or estimated with its error),
-    pitch and roll."""
-    if not world.floor_known:
-        return "world: no floor found (no planted foot, no --camera-height): each track's size is the prior's"
-    error = 100 * (np.exp(world.camera_height_log_sd) - 1)
-    height = "given" if world.camera_height_given else (
-        f"±{error:.0f} %, from the people's sizes" if error <= UNFIXED_HEIGHT_PCT
-        else f"±{error:.0f} %: not fixed by this take, the people's assumed sizes; --camera-height fixes it")
-    pitch = f"{abs(world.pitch_deg):.1f} deg {'down' if world.pitch_deg >= 0 else 'up'}"
-    return (f"world: camera {world.camera_height_m:.2f} m above the floor ({height}), pitched {pitch}, "
-            f"roll {world.roll_deg:.1f} deg")
-
-
-def world_record(world: World, facts: list[TrackFacts], main: int | None, written: set[int],
-                 joined: dict[int, int] | None = None, files_on_floor: bool = False) -> dict:
-    """``world.json`` (data_specs/world.md): the take's world, its subject and every track's size,
-    floor contact and flags, whether it got files, the tracks joined into others, and whether the
-    files are on the floor (``--floor``) or in the view frame."""
-    camera = {"height_m": _finite(world.camera_height_m), "height_given": world.camera_height_given,
-              "height_log_sd": _finite(world.camera_height_log_sd), "pitch_deg": round(world.pitch_deg, 2),
-              "roll_deg": round(world.roll_deg, 2), "floor_normal_view": [round(float(v), 5) for v in world.normal]}
-    tracks = [{"track": f.track, "main": f.track == main, "written": f.track in written,
-               "stature_m": round(f.stature_m, 3), "stature_log_sd": _finite(f.size.stature_log_sd),
-               "size_from": f.size.source, "kind": f.size.kind, "legs_m": round(f.legs_m, 3),
-               "distance_m": [round(d, 2) for d in f.distance_m], "in_front": f.in_front,
-               "feet_above_floor_m": _finite(f.size.feet_above_floor_m), "flags": f.flags} for f in facts]
-    return {"format": "mocapdb-world", "version": 1, "camera": camera, "main_track": main, "tracks": tracks,
-            "joined": {str(track): into for track, into in (joined or {}).items()},
-            "files": "floor" if files_on_floor else "view"}
-
-
-def _finite(value: float | None, decimals: int = 3) -> float | None:
-    """``value`` rounded, or None when unknown (None, NaN, infinite)."""
-    return None if value is None or not np.isfinite(value) else round(float(value), decimals)

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
+from mocapdb.runtime.stature import HUMAN_STATURE_M
 from mocapdb.runtime.take import floor_plane
-from mocapdb.runtime.world import HUMAN_STATURE_M, TrackEvidence, estimate_world
+from mocapdb.runtime.world import TrackEvidence, estimate_world
 
 
 def _normal(pitch_deg: float) -> np.ndarray:

@@ -21,7 +21,8 @@ from mocapdb.core.formats.take import default_focal_px, read_take
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, KP, UNIVERSAL_HEIGHT_M, pose_from_rotations
 from mocapdb.evaluation.reconstruction import run_sequence
 from mocapdb.runtime.engine import Engine, EngineConfig
-from mocapdb.runtime.world import HUMAN_STATURE_M, fit_world
+from mocapdb.runtime.stature import HUMAN_STATURE_M
+from mocapdb.runtime.world import fit_world
 
 MIN_TRACK_S = 1.0
 FLOOR_TOLERANCE_M = 0.05
