@@ -27,7 +27,7 @@ _API = {
     "BuildConfig": "mocapdb.builder.pipeline",
     "load_database": "mocapdb.core.formats.database",
     "Engine": "mocapdb.runtime.engine",
-    "EngineConfig": "mocapdb.runtime.engine",
+    "EngineConfig": "mocapdb.runtime.engine_config",
     "frames_from_arrays": "mocapdb.core.formats.keypoint_arrays",
     "read_keypoint_file": "mocapdb.core.formats.keypoint_arrays",
     "read_openpose_folder": "mocapdb.core.formats.openpose",

@@ -9,244 +9,34 @@ One code path serves `mocapdb reconstruct` (files) and `mocapdb live` (streams).
 * **camera-aligned frame** (the JSON ``joints``/``root``): x right, y up, z away from the camera
   (the view frame with z negated); the origin is the camera centre when the root translation is
   estimated, otherwise the pelvis.
+
+Its parameters: :mod:`mocapdb.runtime.engine_config`; each track's memory (skeletons, body,
+filters, recording, stillness): :mod:`mocapdb.runtime.track_state`.
 """
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
-from mocapdb.core import domains as D
 from mocapdb.core.formats.database import DatabaseError, MotionDatabase
 from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
-from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame, Person
+from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import matrix_to_quat, normalize_pose_2d, yaw_matrix
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, Match, PersonPose, TrackRecording
 from mocapdb.core.search_rules import clusters_searched_for, subclusters_searched_for
-from mocapdb.core.skeleton import (
-    KP,
-    N_KEYPOINTS_2D,
-    N_RIG_JOINTS,
-    NODE_OFFSETS_M,
-    PELVIS,
-    UNIVERSAL_HEIGHT_M,
-    body_offsets_m,
-    pose_from_rotations,
-    universal_bone_lengths_m,
-)
-from mocapdb.runtime.body_size import BoneLengths, CameraTilt, FloorScale
-from mocapdb.runtime.filters import (
-    REFINED_ROOT_DEFAULTS,
-    REFINED_ROTATION_DEFAULTS,
-    ROOT_DEFAULTS,
-    KeypointFilter,
-    KeypointFilterParams,
-    OneEuroFilter,
-    OneEuroParams,
-    QuaternionOneEuroFilter,
-)
-from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
+from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, UNIVERSAL_HEIGHT_M, pose_from_rotations
+from mocapdb.runtime.engine_config import EngineConfig
+from mocapdb.runtime.refine import JointLimits, Refiner
 from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact, yaw_offset
 from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotations
-from mocapdb.runtime.tracker import Tracker, TrackerConfig, TrackUpdate
+from mocapdb.runtime.track_state import NO_EXTREMITIES, TrackState
+from mocapdb.runtime.tracker import Tracker, TrackUpdate
 
 R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]  # numba freezes them as constants
-# A person's heels, toes and knuckles when its layout has none: all missing
-NO_EXTREMITIES = np.column_stack([np.full((len(EXTREMITIES), 2), np.nan), np.zeros(len(EXTREMITIES))])
-
-
-@dataclass(frozen=True)
-class TrackLimits:
-    """Bounds on the tracking work a stream can cause (0: no limit; data_specs/stream_output.md).
-
-    ``max_tracks``: tracks alive at once, tentative ones included; a further detection starts none.
-    ``max_new_per_min``: tracks confirmed in any 60 s (of :meth:`Engine.step`'s ``now_s``); a
-    further one waits unconfirmed, without output. Detections held back are counted in
-    :class:`EngineStats`.
-    """
-
-    max_tracks: int = D.MAX_TRACKS.default
-    max_new_per_min: int = D.MAX_NEW_TRACKS_PER_MIN.default
-
-    def __post_init__(self) -> None:
-        D.MAX_TRACKS.check(self.max_tracks, "max_tracks")
-        D.MAX_NEW_TRACKS_PER_MIN.check(self.max_new_per_min, "max_new_per_min")
-
-
-@dataclass
-class EngineConfig:
-    """Runtime parameters (defaults: the method's j=10, w=4; i=5 on its K = 500 clusters, more for more clusters)."""
-
-    search: str = "clustered"            # "clustered" (the method) or "exact" (brute force)
-    n_clusters: int | None = None        # i: clusters searched; None: search_rules.clusters_searched_for(K)
-    per_cluster: int = D.PER_CLUSTER.default  # j: projections taken from each
-    grid_descents: int = D.GRID_DESCENTS.default  # best candidates moved to better grid neighbours (0: none)
-    subclusters: int | None = None       # sub-clusters searched per cluster; None: search_rules' for the size
-    window_weights: tuple[float, ...] = D.WINDOW_WEIGHTS.default  # w = 4, most recent first
-    joint_weights: tuple[float, ...] | None = None            # per rig joint; default all 1
-    weight_2d: float = D.WEIGHT_2D.default               # added to Eq. 2: this × the candidate's Eq. 1 distance
-    confidence_threshold: float = CONFIDENCE_THRESHOLD
-    min_joints: int = 6                  # fewer confident joints: the person is skipped
-    focal_px: float = 1000.0             # input camera focal length, pixels
-    image_size: tuple[int, int] = (1920, 1080)  # input image width, height in pixels
-    fps: float = D.INPUT_FPS_HZ.default  # frame rate assumed when frames carry no time
-    max_gap_s: float = 1.0               # a longer jump in time (or frame number / fps) ends every track
-    translation: bool = True             # estimate the root translation from the image
-    refine_yaw: bool = True              # refine the matched yaw between the database's yaws
-    refine: bool = True                  # 2D refinement after retrieval (False: the method as published)
-    refinement: RefineParams = field(default_factory=RefineParams)
-    own_body: bool = True                # estimate each track's bone proportions from its 2D (needs refine)
-    keep_take: bool = False              # recordings keep the per-frame fits and keypoints (whole-take fit)
-    subject_height_m: float | None = None  # the person's height; None: the universal 1.75 m (or from the floor)
-    camera_height_m: float | None = None   # camera above a flat floor: metric depth and size from the feet
-    smoothing: bool = True
-    rotation_filter: OneEuroParams | None = None  # None: the defaults for refined or retrieved poses
-    keypoint_filter: KeypointFilterParams | None = None  # 2D clean-up; None: on when refining
-    root_filter: OneEuroParams | None = None
-    tracker: TrackerConfig = field(default_factory=TrackerConfig)
-    limits: TrackLimits = field(default_factory=TrackLimits)  # read at every step: may be replaced
-
-    def __post_init__(self) -> None:
-        if self.search not in ("clustered", "exact"):
-            raise ValueError(f"search must be 'clustered' or 'exact', not {self.search!r}")
-        if self.rotation_filter is None:
-            self.rotation_filter = REFINED_ROTATION_DEFAULTS if self.refine else OneEuroParams()
-        if self.root_filter is None:
-            self.root_filter = REFINED_ROOT_DEFAULTS if self.refine else ROOT_DEFAULTS
-        if self.keypoint_filter is None and self.refine and self.smoothing:
-            self.keypoint_filter = KeypointFilterParams()
-        self._check_domains()
-        if self.camera_height_m is not None and not self.refine:
-            raise ValueError("a camera height needs the refinement (it levels the floor): drop --no-refine")
-
-    def _check_domains(self) -> None:
-        """Every number given within its domain (:mod:`mocapdb.core.domains`), DomainError otherwise."""
-        D.CLUSTERS_SEARCHED.check_optional(self.n_clusters, "n_clusters")
-        D.PER_CLUSTER.check(self.per_cluster, "per_cluster")
-        D.GRID_DESCENTS.check(self.grid_descents, "grid_descents")
-        D.SUBCLUSTERS_SEARCHED.check_optional(self.subclusters, "subclusters")
-        D.WINDOW_WEIGHTS.check(self.window_weights, "window_weights")
-        D.WEIGHT_2D.check(self.weight_2d, "weight_2d")
-        D.FOCAL_PX.check(self.focal_px, "focal_px")
-        for side in self.image_size:
-            D.IMAGE_SIDE_PX.check(side, "image_size")
-        D.FPS_HZ.check(self.fps, "fps")
-        D.SUBJECT_HEIGHT_M.check_optional(self.subject_height_m, "subject_height_m")
-        D.CAMERA_HEIGHT_M.check_optional(self.camera_height_m, "camera_height_m")
-
-
-class _TrackState:
-    """Per-track memory: last reconstructed skeletons, filters, recording."""
-
-    def __init__(self, track: int, frame: int, config: EngineConfig, window: int):
-        self.history = np.zeros((window, N_RIG_JOINTS, 4))  # last reconstructed rotations, newest first
-        self.n_history = 0
-        self.scale = (config.subject_height_m or UNIVERSAL_HEIGHT_M) / UNIVERSAL_HEIGHT_M  # body size
-        self.bones = BoneLengths() if config.refine and config.own_body else None  # own proportions
-        self.proportions_m = universal_bone_lengths_m()  # bone lengths at 1.75 m stature
-        self.offsets_m = NODE_OFFSETS_M                  # the rig's rest offsets for them
-        self.tilt = CameraTilt()
-        self.keypoints = KeypointFilter(config.keypoint_filter, N_KEYPOINTS_2D) if config.keypoint_filter else None
-        self.stillness = StillnessCheck()
-        self.max_fill = max(int(config.max_gap_s * config.fps), 0)
-        self.floor = None
-        if config.camera_height_m is not None and config.subject_height_m is None:
-            self.floor = FloorScale(config.camera_height_m)
-        self.rotations = QuaternionOneEuroFilter(config.rotation_filter)
-        self.root = OneEuroFilter(config.root_filter)
-        self.recording = TrackRecording(track, frame)
-        self.last_frame = frame - 1
-
-    def remember(self, quats: np.ndarray) -> None:
-        """Push this frame's (unsmoothed) rotations onto the history window."""
-        self.history[1:] = self.history[:-1]
-        self.history[0] = quats
-        self.n_history = min(self.n_history + 1, len(self.history))
-
-    def previous(self, frame: int) -> np.ndarray | None:
-        """The last reconstructed rotations if they belong to the frame just before ``frame``."""
-        return self.history[0] if self.n_history and self.last_frame == frame - 1 else None
-
-    def record(self, frame: int, t_s: float, quats: np.ndarray, root_view: np.ndarray,
-               fit: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
-        """Append this frame, holding the last pose over any frames the track missed; ``fit``: the
-        unfiltered rotations and root, the keypoints ``[14, 3]`` and the heels, toes and knuckles
-        ``[8, 3]`` (x, y px, confidence), kept for the whole-take fit (missed frames get the last fit
-        and no keypoint)."""
-        rec = self.recording
-        if not rec.quaternions:
-            rec.first_frame, rec.first_s = frame, t_s
-        rec.last_s = t_s
-        for _ in range(min(frame - self.last_frame - 1, self.max_fill)):
-            if rec.quaternions:
-                rec.quaternions.append(rec.quaternions[-1])
-                rec.root_view_m.append(rec.root_view_m[-1])
-                rec.scales.append(rec.scales[-1])
-                if fit is not None and rec.keypoints:
-                    rec.fit_quaternions.append(rec.fit_quaternions[-1])
-                    rec.fit_root_view_m.append(rec.fit_root_view_m[-1])
-                    rec.keypoints.append(np.zeros_like(rec.keypoints[-1]))
-                    rec.extremities.append(NO_EXTREMITIES)
-        rec.quaternions.append(quats)
-        rec.root_view_m.append(root_view)
-        rec.scales.append(self.scale)
-        if fit is not None:
-            rec.fit_quaternions.append(fit[0])
-            rec.fit_root_view_m.append(fit[1])
-            rec.keypoints.append(fit[2])
-            rec.extremities.append(fit[3])
-            rec.up_view, rec.up_sd_deg = self.tilt.up, self.tilt.sd_deg
-        rec.proportions_m = self.proportions_m
-        self.last_frame = frame
-
-    def measure_bones(self, points_px: np.ndarray, confidence: np.ndarray, retrieved: np.ndarray,
-                      root_view: np.ndarray, focal_px: float) -> None:
-        """Add one frame to the bone estimate: the retrieved rotations ``[R, 4]`` at the fitted root."""
-        if self.bones is None:
-            return
-        pose = pose_from_rotations(retrieved, root_view, self.scale, self.offsets_m)[0]
-        if self.bones.add(points_px, confidence, pose, focal_px, self.scale):
-            self.proportions_m = self.bones.proportions_m
-            self.offsets_m = body_offsets_m(self.proportions_m)
-
-
 MIN_EXTENT_PX = 4.0  # a person whose confident keypoints span less is skipped (degenerate)
-STATIC_RANGE = 0.05  # a track is static if no keypoint ever moved more than this × its box height
-STATIC_MIN_S = 1.0   # … over at least this long
-
-
-class StillnessCheck:
-    """Whether a track's input keypoints ever moved: per joint, the range of positions seen.
-
-    A detection that never moves nor changes shape (a poster, a statue, a false positive at the
-    image edge) is static when, after :data:`STATIC_MIN_S`, no joint's range of positions exceeds
-    :data:`STATIC_RANGE` of its first box height. (Measured on the bundled Pose2Sim sample: the
-    false detection at the image edge 3.8 %, the balancing person 133 %.)
-    """
-
-    def __init__(self) -> None:
-        self.lo = np.full((N_KEYPOINTS_2D, 2), np.inf)
-        self.hi = np.full((N_KEYPOINTS_2D, 2), -np.inf)
-        self.box_px = 0.0
-        self.first_s: float | None = None
-        self.last_s = 0.0
-
-    def add(self, points_px: np.ndarray, visible: np.ndarray, t_s: float) -> None:
-        if self.first_s is None:
-            self.first_s = t_s
-            self.box_px = float(np.ptp(points_px[visible, 1]))
-        self.last_s = t_s
-        _widen_range(self.lo, self.hi, points_px, visible)
-
-    @property
-    def static(self) -> bool:
-        if self.first_s is None or self.last_s - self.first_s < STATIC_MIN_S:
-            return False
-        seen = np.isfinite(self.lo[:, 0])
-        moved = np.linalg.norm(self.hi[seen] - self.lo[seen], axis=-1).max()
-        return bool(moved <= STATIC_RANGE * max(self.box_px, 1.0))
 
 
 def _extremities(person: Person, threshold: float) -> np.ndarray:
@@ -256,16 +46,6 @@ def _extremities(person: Person, threshold: float) -> np.ndarray:
         return NO_EXTREMITIES
     keep = person.extremities[:, 2] >= threshold
     return np.where(keep[:, None], person.extremities, NO_EXTREMITIES)
-
-
-@njit(cache=True)
-def _widen_range(lo, hi, points, visible) -> None:
-    """Per visible keypoint, stretch ``[lo, hi]`` (per axis) to include ``points``."""
-    for k in range(points.shape[0]):
-        if visible[k]:
-            for a in range(2):
-                lo[k, a] = min(lo[k, a], points[k, a])
-                hi[k, a] = max(hi[k, a], points[k, a])
 
 
 @njit(cache=True)
@@ -335,7 +115,7 @@ class Engine:
         self.tracker = Tracker(cfg.tracker)
         self.refiner = Refiner(cfg.refinement, JointLimits.from_rotations(self.db_quats)) if cfg.refine else None
         self.center_px = (cfg.image_size[0] / 2.0, cfg.image_size[1] / 2.0)
-        self.tracks: dict[int, _TrackState] = {}
+        self.tracks: dict[int, TrackState] = {}
         self.finished: list[TrackRecording] = []
         self.stats = EngineStats()
         self._new_tracks = NewTrackWindow()
@@ -351,7 +131,7 @@ class Engine:
         points = self.index.pose(0).astype(np.float64) * 400.0 + 500.0
         conf = np.ones(N_KEYPOINTS_2D)
         Tracker(self.config.tracker).update(points[None], conf[None], 0.0)
-        state = _TrackState(-1, 0, self.config, len(self.window_weights))
+        state = TrackState(-1, 0, self.config, len(self.window_weights))
         for i in range(2):
             self._person(state, points, conf, NO_EXTREMITIES, i, i / self.config.fps)
 
@@ -384,13 +164,13 @@ class Engine:
         self._recent.append((frame.index, t_s, points, conf, extremities))
         return poses
 
-    def _start(self, track: int, earlier: list[int], frame_index: int) -> _TrackState:
+    def _start(self, track: int, earlier: list[int], frame_index: int) -> TrackState:
         """A track confirmed on frame ``frame_index``, its ``earlier`` detections (the frames before,
         :attr:`TrackUpdate.earlier`) already recorded: its recording starts at its first detection,
         the stream at its confirmation."""
         frames = list(self._recent)[len(self._recent) - len(earlier):] if earlier else []
         first = frames[0][0] if frames else frame_index
-        state = self.tracks[track] = _TrackState(track, first, self.config, len(self.window_weights))
+        state = self.tracks[track] = TrackState(track, first, self.config, len(self.window_weights))
         if self.config.keep_take and self.refiner is not None:
             state.recording.camera_px = (self.config.focal_px, *self.center_px)
         self.stats.tracks_started += 1
@@ -398,7 +178,7 @@ class Engine:
             self._detected(state, points[det], conf[det], extremities[det], index, t_s)
         return state
 
-    def _detected(self, state: _TrackState, points_px: np.ndarray, conf: np.ndarray, extremities: np.ndarray,
+    def _detected(self, state: TrackState, points_px: np.ndarray, conf: np.ndarray, extremities: np.ndarray,
                   frame_index: int, t_s: float) -> PersonPose:
         """The pose of one detection ``[14, 2]`` px (heels, toes, knuckles ``[8, 3]``) of a track, recorded."""
         state.stillness.add(points_px, conf > 0, t_s)
@@ -433,7 +213,7 @@ class Engine:
             return False
         return True
 
-    def _person(self, state: _TrackState, points_px: np.ndarray, confidence: np.ndarray, extremities: np.ndarray,
+    def _person(self, state: TrackState, points_px: np.ndarray, confidence: np.ndarray, extremities: np.ndarray,
                 frame_index: int, t_s: float) -> PersonPose:
         quats, root_view, match = self._retrieve(state, points_px, confidence > 0)
         if self.refiner is not None:
@@ -453,7 +233,7 @@ class Engine:
                           root_view * CAMERA_FROM_VIEW, match, state.scale * UNIVERSAL_HEIGHT_M,
                           state.proportions_m * state.scale)
 
-    def _retrieve(self, state: _TrackState, points_px: np.ndarray,
+    def _retrieve(self, state: TrackState, points_px: np.ndarray,
                   visible: np.ndarray) -> tuple[np.ndarray, np.ndarray, Match]:
         """The method's pose: search, Eq. 2 choice, yaw refinement. Returns its rotations ``[R, 4]``
         (root turned by the yaw), the root seen at the image's size for the track's body scale,
@@ -469,7 +249,7 @@ class Engine:
         clip = int(self.db.frame_clip[f])
         return quats, root_view, Match(self.db.clip_name[clip], int(self.db.frame_index[f]), yaw_deg, float(dist[best]))
 
-    def _fit(self, state: _TrackState, quats: np.ndarray, root_view: np.ndarray, points_px: np.ndarray,
+    def _fit(self, state: TrackState, quats: np.ndarray, root_view: np.ndarray, points_px: np.ndarray,
              confidence: np.ndarray, frame_index: int) -> np.ndarray:
         """Refine ``quats`` (in place) and the root against the keypoints; with a floor, update the
         track's body scale. Returns the root (view frame, metres)."""
@@ -500,7 +280,7 @@ class Engine:
         return search_clustered(self.index, query, visible, self.n_clusters, cfg.per_cluster, cfg.grid_descents,
                                 self.subclusters)
 
-    def _choose(self, state: _TrackState, rows: np.ndarray, dist: np.ndarray) -> int:
+    def _choose(self, state: TrackState, rows: np.ndarray, dist: np.ndarray) -> int:
         """Index into ``rows`` of the candidate to use (Eq. 2, or Eq. 1 at a track's start)."""
         if state.n_history == 0:
             return int(np.argmin(dist))

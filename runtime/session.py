@@ -5,7 +5,7 @@
 Malformed messages are counted by reason and skipped; the summary reports them with frame,
 people and track counts, per-frame latency (p50/p99, from a message's arrival to its output line),
 throughput and what the limits held back. Whatever arrives, memory stays bounded: tracks by
-:class:`~mocapdb.runtime.engine.TrackLimits`, recordings by BVH parts, the summary's lists by caps.
+:class:`~mocapdb.runtime.engine_config.TrackLimits`, recordings by BVH parts, the summary's lists by caps.
 A sink that fails stops the session (:class:`SinkError`); :meth:`Session.finish` still writes
 every BVH file.
 """

@@ -8,7 +8,8 @@ from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import axis_rotation_matrices, yaw_matrix
 from mocapdb.core.skeleton import PELVIS, UNIVERSAL_HEIGHT_M
-from mocapdb.runtime.engine import Engine, EngineConfig
+from mocapdb.runtime.engine import Engine
+from mocapdb.runtime.engine_config import EngineConfig
 
 FOCAL, SIZE = 1000.0, (1920, 1080)
 

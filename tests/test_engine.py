@@ -6,7 +6,8 @@ from mocapdb.core.cameras import DatabaseCamera
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import project_views, quat_geodesic, yaw_matrix
 from mocapdb.core.skeleton import KP, PELVIS
-from mocapdb.runtime.engine import Engine, EngineConfig
+from mocapdb.runtime.engine import Engine
+from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.temporal import temporal_costs
 
 

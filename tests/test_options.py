@@ -111,7 +111,7 @@ def test_domains_hold_the_documented_values():
 def test_the_api_refuses_what_the_cli_refuses():
     """One definition: the config classes check the same domains as the options."""
     from mocapdb.core.domains import DomainError
-    from mocapdb.runtime.engine import EngineConfig, TrackLimits
+    from mocapdb.runtime.engine_config import EngineConfig, TrackLimits
     from mocapdb.runtime.filters import OneEuroParams
     from mocapdb.runtime.session import SessionOptions
     from mocapdb.runtime.streams import NetworkLimits

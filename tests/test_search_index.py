@@ -15,7 +15,8 @@ from mocapdb.builder.pipeline import build
 from mocapdb.core.formats import search_index as S
 from mocapdb.core.formats.database import DatabaseError, load_database
 from mocapdb.core.search_rules import subclusters_for
-from mocapdb.runtime.engine import Engine, EngineConfig
+from mocapdb.runtime.engine import Engine
+from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.search import SearchIndex, search_clustered
 
 from . import test_builder

@@ -3,7 +3,8 @@ import pytest
 
 from mocapdb.core.domains import DomainError
 from mocapdb.core.search_rules import clusters_for, clusters_searched_for, subclusters_for, subclusters_searched_for
-from mocapdb.runtime.engine import Engine, EngineConfig
+from mocapdb.runtime.engine import Engine
+from mocapdb.runtime.engine_config import EngineConfig
 
 
 @pytest.mark.parametrize("projections, clusters", [(1, 1), (300, 300), (100_000, 500), (630_000, 500),

@@ -13,7 +13,8 @@ from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
 from mocapdb.core.formats.trc import read_trc
 from mocapdb.core.geometry import project_views
 from mocapdb.core.skeleton import PELVIS
-from mocapdb.runtime.engine import Engine, EngineConfig
+from mocapdb.runtime.engine import Engine
+from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.session import FrameParser, Session, SessionSummary, run_live, run_offline
 from mocapdb.runtime.streams import StreamStats, open_sink, open_source
 

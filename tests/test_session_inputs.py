@@ -17,7 +17,8 @@ from mocapdb.core.formats.keypoint_layouts import LAYOUTS, SOURCE_INDEX
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import project_views
 from mocapdb.core.skeleton import PELVIS
-from mocapdb.runtime.engine import Engine, EngineConfig, TrackLimits
+from mocapdb.runtime.engine import Engine
+from mocapdb.runtime.engine_config import EngineConfig, TrackLimits
 from mocapdb.runtime.session import FrameParser, InputError, Session, SessionOptions, SessionSummary, SinkError
 from mocapdb.runtime.streams import StreamStats, open_sink
 

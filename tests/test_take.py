@@ -233,7 +233,8 @@ def test_two_people_share_one_floor_and_their_sizes_follow(small_db):
     from mocapdb.core.formats.keypoints import KeypointFrame, Person
     from mocapdb.core.geometry import axis_rotation_matrices, yaw_matrix
     from mocapdb.core.skeleton import PELVIS
-    from mocapdb.runtime.engine import Engine, EngineConfig
+    from mocapdb.runtime.engine import Engine
+    from mocapdb.runtime.engine_config import EngineConfig
     from mocapdb.runtime.take import fit_take
     from mocapdb.runtime.world import estimate_world, place_in_world, track_evidence
 

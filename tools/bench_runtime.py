@@ -36,7 +36,8 @@ from mocapdb.core.formats.database import load_database  # noqa: E402
 from mocapdb.core.formats.keypoints import KeypointFrame  # noqa: E402
 from mocapdb.evaluation.heldout import Scenario, load_heldout, render, view_of  # noqa: E402
 from mocapdb.evaluation.reconstruction import search_benchmark  # noqa: E402
-from mocapdb.runtime.engine import Engine, EngineConfig  # noqa: E402
+from mocapdb.runtime.engine import Engine  # noqa: E402
+from mocapdb.runtime.engine_config import EngineConfig  # noqa: E402
 from mocapdb.runtime.session import FrameParser, Session, SessionOptions, SessionSummary, run_live  # noqa: E402
 from mocapdb.runtime.streams import StreamStats, open_sink, open_source  # noqa: E402
 from mocapdb.runtime.take import TakeParams  # noqa: E402

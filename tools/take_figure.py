@@ -31,7 +31,8 @@ from mocapdb.core.formats.database import load_database  # noqa: E402
 from mocapdb.core.formats.openpose import read_openpose_folder  # noqa: E402
 from mocapdb.core.skeleton import DRAWING_LINES, N_POINTS, swing_matrices  # noqa: E402
 from mocapdb.evaluation.heldout import project  # noqa: E402
-from mocapdb.runtime.engine import Engine, EngineConfig  # noqa: E402
+from mocapdb.runtime.engine import Engine  # noqa: E402
+from mocapdb.runtime.engine_config import EngineConfig  # noqa: E402
 from mocapdb.runtime.take import ANKLES, fit_take, take_joints  # noqa: E402
 
 

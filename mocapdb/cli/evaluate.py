@@ -9,7 +9,7 @@ from mocapdb.cli import paths as P
 from mocapdb.core import domains as D
 
 if TYPE_CHECKING:
-    from mocapdb.runtime.engine import EngineConfig
+    from mocapdb.runtime.engine_config import EngineConfig
 
 REPORT_FORMAT = "mocapdb-eval"  # the first key of an --out report: how a later run knows it may replace it
 
@@ -79,7 +79,7 @@ def run_eval(args: argparse.Namespace) -> int:
     from mocapdb.core.formats.database import load_database
     from mocapdb.core.outputs import check_output_file, output_file
     from mocapdb.evaluation.reconstruction import EvalConfig, evaluate
-    from mocapdb.runtime.engine import EngineConfig
+    from mocapdb.runtime.engine_config import EngineConfig
 
     if not getattr(args, "quiet", False):  # the evaluation's progress lines (info level) are worth seeing on a long run
         logging.getLogger("mocapdb.evaluation").setLevel(min(logging.INFO, logging.getLogger("mocapdb").level))

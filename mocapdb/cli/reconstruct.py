@@ -202,7 +202,8 @@ def _engine(args: argparse.Namespace):
     from mocapdb.core.errors import UsageError
     from mocapdb.core.formats.database import load_database
     from mocapdb.core.formats.take import DEFAULTS, default_focal_px
-    from mocapdb.runtime.engine import Engine, EngineConfig
+    from mocapdb.runtime.engine import Engine
+    from mocapdb.runtime.engine_config import EngineConfig
     from mocapdb.runtime.filters import REFINED_ROTATION_DEFAULTS, OneEuroParams
 
     width, height = args.image_size or DEFAULTS["image_size"]
@@ -233,7 +234,7 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
 
     from mocapdb.core.errors import UsageError
     from mocapdb.core.exports import TrackExport
-    from mocapdb.runtime.engine import TrackLimits
+    from mocapdb.runtime.engine_config import TrackLimits
     from mocapdb.runtime.session import FrameParser, Session, SessionOptions, SessionSummary
     from mocapdb.runtime.streams import StreamStats, open_sink
     from mocapdb.runtime.subject import parse_people

@@ -18,7 +18,7 @@ from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import yaw_matrix
 from mocapdb.core.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS, bone_lengths_m
 from mocapdb.evaluation.bodies import reshape_body, sample_body
-from mocapdb.runtime.engine import EngineConfig
+from mocapdb.runtime.engine_config import EngineConfig
 
 BODIES = ("universal", "varied")
 SWAP_PAIRS = [(KP[right], KP[left]) for right, left in MIRROR_PAIRS]  # right/left keypoint pairs

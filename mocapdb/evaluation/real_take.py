@@ -45,7 +45,8 @@ from mocapdb.core.formats.trc import Trc, read_trc, trc_keypoints
 from mocapdb.core.skeleton import MEASURED_BONE_NAMES, N_KEYPOINTS_2D, N_POINTS, PELVIS, bone_lengths_m
 from mocapdb.evaluation.metrics import foot_height_error_m, foot_skating_mps, pa_mpjpe, planted_feet
 from mocapdb.evaluation.reconstruction import ANKLES, BELOW_HEAD, BODY_BONES, TAKE_VARIANT, variant_config
-from mocapdb.runtime.engine import Engine, EngineConfig
+from mocapdb.runtime.engine import Engine
+from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.take import take_joints
 from mocapdb.runtime.world import fit_takes
 

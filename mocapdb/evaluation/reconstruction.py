@@ -61,7 +61,8 @@ from mocapdb.evaluation.metrics import (
     planted_feet,
     speeds_mps,
 )
-from mocapdb.runtime.engine import Engine, EngineConfig
+from mocapdb.runtime.engine import Engine
+from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.search import search_clustered, search_exact
 from mocapdb.runtime.take import take_joints
 from mocapdb.runtime.world import fit_takes

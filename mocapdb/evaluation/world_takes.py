@@ -17,7 +17,7 @@ from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D, PELVIS, bone_lengths_m, stature_m
 from mocapdb.evaluation.bodies import CHILD_HEIGHT_RANGE_M, HEIGHT_RANGE_M, child_proportions, reshape_body, sample_body
 from mocapdb.evaluation.heldout import Scenario, Truth, camera_to_world, camera_view, project, render
-from mocapdb.runtime.engine import EngineConfig
+from mocapdb.runtime.engine_config import EngineConfig
 
 CAMERA_HEIGHT_RANGE_M = (1.0, 2.0)  # drawn per take
 BOX_HEIGHT_M = 0.4

@@ -1,0 +1,146 @@
+"""One track's memory in the engine: its last skeletons, its body (scale, own proportions, camera
+tilt, floor scale), its filters, its recording, and whether its keypoints ever moved
+(:class:`StillnessCheck`)."""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
+from mocapdb.core.outputs import TrackRecording
+from mocapdb.core.skeleton import (
+    N_KEYPOINTS_2D,
+    N_RIG_JOINTS,
+    NODE_OFFSETS_M,
+    UNIVERSAL_HEIGHT_M,
+    body_offsets_m,
+    pose_from_rotations,
+    universal_bone_lengths_m,
+)
+from mocapdb.runtime.body_size import BoneLengths, CameraTilt, FloorScale
+from mocapdb.runtime.engine_config import EngineConfig
+from mocapdb.runtime.filters import KeypointFilter, OneEuroFilter, QuaternionOneEuroFilter
+
+# A person's heels, toes and knuckles when its layout has none: all missing
+NO_EXTREMITIES = np.column_stack([np.full((len(EXTREMITIES), 2), np.nan), np.zeros(len(EXTREMITIES))])
+
+
+class TrackState:
+    """Per-track memory: last reconstructed skeletons, filters, recording."""
+
+    def __init__(self, track: int, frame: int, config: EngineConfig, window: int):
+        self.history = np.zeros((window, N_RIG_JOINTS, 4))  # last reconstructed rotations, newest first
+        self.n_history = 0
+        self.scale = (config.subject_height_m or UNIVERSAL_HEIGHT_M) / UNIVERSAL_HEIGHT_M  # body size
+        self.bones = BoneLengths() if config.refine and config.own_body else None  # own proportions
+        self.proportions_m = universal_bone_lengths_m()  # bone lengths at 1.75 m stature
+        self.offsets_m = NODE_OFFSETS_M                  # the rig's rest offsets for them
+        self.tilt = CameraTilt()
+        self.keypoints = KeypointFilter(config.keypoint_filter, N_KEYPOINTS_2D) if config.keypoint_filter else None
+        self.stillness = StillnessCheck()
+        self.max_fill = max(int(config.max_gap_s * config.fps), 0)
+        self.floor = None
+        if config.camera_height_m is not None and config.subject_height_m is None:
+            self.floor = FloorScale(config.camera_height_m)
+        self.rotations = QuaternionOneEuroFilter(config.rotation_filter)
+        self.root = OneEuroFilter(config.root_filter)
+        self.recording = TrackRecording(track, frame)
+        self.last_frame = frame - 1
+
+    def remember(self, quats: np.ndarray) -> None:
+        """Push this frame's (unsmoothed) rotations onto the history window."""
+        self.history[1:] = self.history[:-1]
+        self.history[0] = quats
+        self.n_history = min(self.n_history + 1, len(self.history))
+
+    def previous(self, frame: int) -> np.ndarray | None:
+        """The last reconstructed rotations if they belong to the frame just before ``frame``."""
+        return self.history[0] if self.n_history and self.last_frame == frame - 1 else None
+
+    def record(self, frame: int, t_s: float, quats: np.ndarray, root_view: np.ndarray,
+               fit: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
+        """Append this frame, holding the last pose over any frames the track missed; ``fit``: the
+        unfiltered rotations and root, the keypoints ``[14, 3]`` and the heels, toes and knuckles
+        ``[8, 3]`` (x, y px, confidence), kept for the whole-take fit (missed frames get the last fit
+        and no keypoint)."""
+        rec = self.recording
+        if not rec.quaternions:
+            rec.first_frame, rec.first_s = frame, t_s
+        rec.last_s = t_s
+        for _ in range(min(frame - self.last_frame - 1, self.max_fill)):
+            if rec.quaternions:
+                rec.quaternions.append(rec.quaternions[-1])
+                rec.root_view_m.append(rec.root_view_m[-1])
+                rec.scales.append(rec.scales[-1])
+                if fit is not None and rec.keypoints:
+                    rec.fit_quaternions.append(rec.fit_quaternions[-1])
+                    rec.fit_root_view_m.append(rec.fit_root_view_m[-1])
+                    rec.keypoints.append(np.zeros_like(rec.keypoints[-1]))
+                    rec.extremities.append(NO_EXTREMITIES)
+        rec.quaternions.append(quats)
+        rec.root_view_m.append(root_view)
+        rec.scales.append(self.scale)
+        if fit is not None:
+            rec.fit_quaternions.append(fit[0])
+            rec.fit_root_view_m.append(fit[1])
+            rec.keypoints.append(fit[2])
+            rec.extremities.append(fit[3])
+            rec.up_view, rec.up_sd_deg = self.tilt.up, self.tilt.sd_deg
+        rec.proportions_m = self.proportions_m
+        self.last_frame = frame
+
+    def measure_bones(self, points_px: np.ndarray, confidence: np.ndarray, retrieved: np.ndarray,
+                      root_view: np.ndarray, focal_px: float) -> None:
+        """Add one frame to the bone estimate: the retrieved rotations ``[R, 4]`` at the fitted root."""
+        if self.bones is None:
+            return
+        pose = pose_from_rotations(retrieved, root_view, self.scale, self.offsets_m)[0]
+        if self.bones.add(points_px, confidence, pose, focal_px, self.scale):
+            self.proportions_m = self.bones.proportions_m
+            self.offsets_m = body_offsets_m(self.proportions_m)
+
+
+STATIC_RANGE = 0.05  # a track is static if no keypoint ever moved more than this × its box height
+STATIC_MIN_S = 1.0   # … over at least this long
+
+
+class StillnessCheck:
+    """Whether a track's input keypoints ever moved: per joint, the range of positions seen.
+
+    A detection that never moves nor changes shape (a poster, a statue, a false positive at the
+    image edge) is static when, after :data:`STATIC_MIN_S`, no joint's range of positions exceeds
+    :data:`STATIC_RANGE` of its first box height. (Measured on the bundled Pose2Sim sample: the
+    false detection at the image edge 3.8 %, the balancing person 133 %.)
+    """
+
+    def __init__(self) -> None:
+        self.lo = np.full((N_KEYPOINTS_2D, 2), np.inf)
+        self.hi = np.full((N_KEYPOINTS_2D, 2), -np.inf)
+        self.box_px = 0.0
+        self.first_s: float | None = None
+        self.last_s = 0.0
+
+    def add(self, points_px: np.ndarray, visible: np.ndarray, t_s: float) -> None:
+        if self.first_s is None:
+            self.first_s = t_s
+            self.box_px = float(np.ptp(points_px[visible, 1]))
+        self.last_s = t_s
+        _widen_range(self.lo, self.hi, points_px, visible)
+
+    @property
+    def static(self) -> bool:
+        if self.first_s is None or self.last_s - self.first_s < STATIC_MIN_S:
+            return False
+        seen = np.isfinite(self.lo[:, 0])
+        moved = np.linalg.norm(self.hi[seen] - self.lo[seen], axis=-1).max()
+        return bool(moved <= STATIC_RANGE * max(self.box_px, 1.0))
+
+
+@njit(cache=True)
+def _widen_range(lo, hi, points, visible) -> None:
+    """Per visible keypoint, stretch ``[lo, hi]`` (per axis) to include ``points``."""
+    for k in range(points.shape[0]):
+        if visible[k]:
+            for a in range(2):
+                lo[k, a] = min(lo[k, a], points[k, a])
+                hi[k, a] = max(hi[k, a], points[k, a])
