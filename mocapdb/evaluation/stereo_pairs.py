@@ -31,7 +31,7 @@ from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D
 from mocapdb.evaluation.metrics import pa_mpjpe
 from mocapdb.evaluation.real_take import camera_to_trc, trc_to_world, world_to_trc
 from mocapdb.stereo import StereoConfig, StereoError, StereoSummary, run_stereo
-from mocapdb.stereo.people import MIN_SHARED_JOINTS, MIRROR
+from mocapdb.stereo.epipolar_pairs import MIN_SHARED_JOINTS, MIRROR
 from mocapdb.stereo.relative_pose import projection_matrix, rotation_angle_deg
 
 TARGET_MISSING = 0.02   # of the frames where both views see the person (issue 19)

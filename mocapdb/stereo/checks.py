@@ -13,8 +13,10 @@ import numpy as np
 from mocapdb.core.cameras import CameraModel
 from mocapdb.core.skeleton import KEYPOINTS
 from mocapdb.stereo.config import StereoConfig, StereoError
-from mocapdb.stereo.people import Selection, fit_essential, mean_focal, normalised
+from mocapdb.stereo.epipolar_pairs import fit_essential, mean_focal
+from mocapdb.stereo.people import Selection
 from mocapdb.stereo.relative_pose import rotation_angle_deg, sampson_distance
+from mocapdb.stereo.tracks_2d import normalised
 
 # No parallax (checked after stage 1's essential matrix): a single homography maps view 1's
 # keypoints onto view 2's within HOMOGRAPHY_RATIO times the epipolar residual (medians, pixels).

@@ -1,56 +1,49 @@
 """`mocapdb stereo`: which detections of the two views are the same person, frame by frame.
 
-Each view's detections are linked into 2D tracks by proximity (median joint displacement in units
-of the body's box diagonal). Pairs of 2D tracks, one per view, are matched by epipolar consistency
-over the frames they share, under an essential matrix chosen as the one that makes the scene most
-consistent (each of the best-corresponding pairings, and every two, proposes one), then re-fitted to
-every matched person; a still 2D track never pairs with a moving one. Matched 2D tracks chain into
-people (a person keeps its id when one view's 2D track breaks and the other's does not); once linked,
-a noisy frame of theirs is still the person's (:func:`linked_bounds`). A body the detector split in two
-is put back together (:func:`fragments`), one whose left and right it swapped is turned back
-(:func:`unflip`). Detections that match no one are not people: they are reported. Decisions and
-thresholds: ``data_specs/stereo.md``.
+Each view's detections are linked into 2D tracks by proximity (:mod:`mocapdb.stereo.tracks_2d`).
+Pairs of 2D tracks, one per view, are matched by epipolar consistency
+(:mod:`mocapdb.stereo.epipolar_pairs`) over the frames they share, under an essential matrix chosen
+as the one that makes the scene most consistent (each of the best-corresponding pairings, and every
+two, proposes one), then re-fitted to every matched person; a still 2D track never pairs with a
+moving one. Matched 2D tracks chain into people (a person keeps its id when one view's 2D track
+breaks and the other's does not); once linked, a noisy frame of theirs is still the person's
+(:func:`linked_bounds`). A body the detector split in two is put back together (:func:`fragments`),
+one whose left and right it swapped is turned back (:func:`unflip`). Detections that match no one
+are not people: they are reported. Decisions and thresholds: ``data_specs/stereo.md``.
 """
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
 from mocapdb.core.cameras import CameraModel
 from mocapdb.core.formats.keypoints import KeypointFrame
-from mocapdb.core.skeleton import MIRROR_SOURCE, N_KEYPOINTS_2D
+from mocapdb.core.skeleton import N_KEYPOINTS_2D
 from mocapdb.stereo.config import StereoConfig, StereoError
-from mocapdb.stereo.relative_pose import ESSENTIAL_METHOD, sampson_distance
+from mocapdb.stereo.epipolar_pairs import (
+    MAX_EPIPOLAR_PX,
+    MIN_SHARED_JOINTS,
+    MIRROR,
+    STILL_SPREAD,
+    Pairs,
+    all_pairs,
+    fit_essential,
+    mean_focal,
+    measure,
+    pair_correspondences,
+    pairing_groups,
+    spread,
+)
+from mocapdb.stereo.relative_pose import sampson_distance
+from mocapdb.stereo.tracks_2d import Detections, box_diagonal, detections, masked_median
 
-# A pair (person in view 1, person in view 2) of one frame is consistent when at least
-# MIN_SHARED_JOINTS joints are confident in both and the median of their first-order epipolar
-# (Sampson) distances is at most MAX_EPIPOLAR_PX. Distances are measured in undistorted normalised
-# coordinates and multiplied by the mean focal length of the two cameras (≈ pixels). On the
-# Pose2Sim take (f ≈ 1680 px) the true pairs' medians are 2-17 px (median 4-6 px), while a false
-# person paired with the true one in the other view lies 18-300 px off.
-MIN_SHARED_JOINTS = 6
-MAX_EPIPOLAR_PX = 20.0
 # Once two 2D tracks are linked (the same person over time), a frame of theirs is that person within
 # LINKED_SPREAD times the pairing's median distance (at least MAX_EPIPOLAR_PX): a noisier detector
 # spreads the true pairs wider (YOLO11n-pose on the Pose2Sim demo video: medians 10-15 px, the lunge's
 # frames up to 43 px, 3.4 times their pairing's median), while the 2D tracks already say who is who.
 LINKED_SPREAD = 4.0
-# A detector sometimes swaps a body's left and right (a back view; on the demo video camera 1's frame
-# 87, camera 2's frames 10 and 81): the pair of the person's 2D tracks is then inconsistent, and
-# consistent with one detection's left and right swapped. Of its two detections, the one that the swap
-# brings closer to its own 2D track's neighbouring detections is turned back (neither: left as it is).
-MIRROR = MIRROR_SOURCE[:N_KEYPOINTS_2D]  # each keypoint's left-right partner
-# 2D tracks. A detection continues a track when the median displacement of their common confident
-# joints is at most TRACK_STEP box diagonals (of the track's last detection; ≥ 3 common joints), the
-# track was last seen at most TRACK_GAP frames before, and neither has a rival choice within
-# TRACK_AMBIGUITY times that displacement (two people overlapping: their tracks end, new ones start).
-TRACK_STEP = 0.3
-TRACK_GAP = 10
-TRACK_AMBIGUITY = 2.0
-MIN_TRACK_JOINTS = 3
 # Two 2D tracks are the same person when they are consistent in at least MIN_LINK_SHARE of the
 # frames they share with MIN_SHARED_JOINTS joints, and in no frame that either already gives to a
 # better-matching partner. A person needs MIN_PERSON_FRAMES consistent frames.
@@ -62,16 +55,7 @@ MIN_PERSON_FRAMES = 5
 # MIN_FRAGMENT_JOINTS of them, confident in the person's detection of the other view too, lie within
 # MAX_EPIPOLAR_PX of it (median): its joints complete the body (:func:`fragments`).
 MIN_FRAGMENT_JOINTS = 3
-# A 2D track whose joints stay within STILL_SPREAD box diagonals of their mean (median over the joints:
-# a still person, detector noise only) is never the same person as one whose joints move MOVING_SPREAD
-# or more in the other view over the same frames (every joint would have to move along the first
-# camera's rays). Yet an essential matrix fitted to such a pair puts each moving joint on its fixed
-# epipolar line: the Pose2Sim demo video's still woman behind (cameras 1 and 2: 0.005 and 0.011)
-# paired with the performer (0.12-0.15) is consistent in 72-99 of 100 frames under its own matrix.
-STILL_SPREAD = 0.03
-MOVING_SPREAD = 0.06
 SEED_PAIRINGS = 8  # the best-corresponding pairings of 2D tracks whose own essential matrix is tried
-MAX_MATCH_CORRESPONDENCES = 3000  # per essential matrix fitted for matching (the cameras' fit uses all)
 
 
 @dataclass
@@ -87,7 +71,7 @@ class Selection:
     dropped: dict[str, list[int]] = field(default_factory=dict)  # frames with no person at all, by reason
     track: int = 0
     correspondences: int = 0  # joints confident in both views, over the kept frames
-    still: bool = False       # a still person (:data:`STILL_SPREAD` in both views): never the main one
+    still: bool = False       # a still person (STILL_SPREAD in both views): never the main one
 
 
 @dataclass
@@ -101,217 +85,6 @@ class People:
     essential: np.ndarray
 
 
-@dataclass
-class Detections:
-    """One view's people with a confident joint, flattened in frame order."""
-
-    frame: np.ndarray       # [N] frame index
-    points: np.ndarray      # [N, 14, 2] pixels, NaN where missing
-    conf: np.ndarray        # [N, 14]
-    vis: np.ndarray         # [N, 14] confident
-    normalised: np.ndarray  # [N, 14, 2] undistorted normalised coordinates (NaN where missing)
-    track: np.ndarray       # [N] 2D track id within the view
-
-
-@dataclass
-class Pairs:
-    """Every same-frame (view-1, view-2) detection pair and its epipolar distance."""
-
-    i: np.ndarray         # [M] view-1 detection
-    j: np.ndarray         # [M] view-2 detection
-    frame: np.ndarray     # [M]
-    shared: np.ndarray    # [M, 14] joints confident in both
-    distance: np.ndarray  # [M] median Sampson distance (px); inf with fewer than MIN_SHARED_JOINTS shared
-    mirrored: np.ndarray  # [M] the same with view 2's left and right swapped
-    still_moving: np.ndarray  # [M] one of the pair's 2D tracks still, the other moving: never one person
-
-    @property
-    def consistent(self) -> np.ndarray:
-        return self.distance <= MAX_EPIPOLAR_PX
-
-    @property
-    def flipped(self) -> np.ndarray:
-        """``[M]`` pairs consistent only with one detection's left and right swapped."""
-        return ~self.consistent & (self.mirrored <= MAX_EPIPOLAR_PX)
-
-
-# --------------------------------------------------------------------------- detections and 2D tracks
-
-def masked_median(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Median over the last axis of the entries where ``mask``; NaN where there are none."""
-    ordered = np.sort(np.where(mask, values, np.inf), axis=-1)
-    n = mask.sum(axis=-1)
-    lo = np.take_along_axis(ordered, np.maximum((n - 1) // 2, 0)[..., None], -1)[..., 0]
-    hi = np.take_along_axis(ordered, (n // 2)[..., None].clip(0, values.shape[-1] - 1), -1)[..., 0]
-    return np.where(n > 0, 0.5 * (lo + hi), np.nan)
-
-
-def normalised(cam: CameraModel, points: np.ndarray) -> np.ndarray:
-    """Undistorted normalised coordinates of ``[N, 14, 2]`` pixels (NaN stays NaN)."""
-    flat = points.reshape(-1, 2)
-    ok = np.isfinite(flat).all(axis=1)
-    out = np.full_like(flat, np.nan)
-    if ok.any():
-        out[ok] = np.asarray(cam.undistort_normalized(flat[ok])).reshape(-1, 2)
-    return out.reshape(points.shape)
-
-
-def detections(frames: list[KeypointFrame], cam: CameraModel, threshold: float) -> Detections:
-    """Every person of ``frames`` with a confident joint, with its 2D track."""
-    people = [(t, p) for t, f in enumerate(frames) for p in f.people]
-    frame = np.array([t for t, _ in people], dtype=np.int64)
-    points = np.array([p.points_px for _, p in people], dtype=np.float64).reshape(-1, N_KEYPOINTS_2D, 2)
-    conf = np.array([p.confidence for _, p in people], dtype=np.float64).reshape(-1, N_KEYPOINTS_2D)
-    vis = (conf >= threshold) & (conf > 0) & np.isfinite(points).all(axis=-1)
-    keep = vis.any(axis=1)
-    frame, points, conf, vis = frame[keep], points[keep], conf[keep], vis[keep]
-    return Detections(frame, points, conf, vis, normalised(cam, points), track_2d(frame, points, vis))
-
-
-def _box_diagonal(points: np.ndarray, vis: np.ndarray) -> np.ndarray:
-    xy = np.where(vis[..., None], points, np.nan)
-    with np.errstate(invalid="ignore"):
-        diag = np.linalg.norm(np.fmax.reduce(xy, axis=1) - np.fmin.reduce(xy, axis=1), axis=-1)
-    return np.maximum(np.nan_to_num(diag), 1.0)
-
-
-def _step_cost(points: np.ndarray, vis: np.ndarray, size: np.ndarray, prev: np.ndarray,
-               now: np.ndarray) -> np.ndarray:
-    """``[K, D]``: median displacement of the common confident joints from each track's last
-    detection ``prev`` to each detection ``now``, in box diagonals (the larger of the two boxes:
-    a detection with few joints has a small one; inf with too few common joints)."""
-    both = vis[prev][:, None] & vis[now][None]
-    moved = np.linalg.norm(np.nan_to_num(points[prev][:, None] - points[now][None]), axis=-1)
-    cost = masked_median(moved, both) / np.maximum(size[prev][:, None], size[now][None])
-    return np.where(both.sum(axis=-1) >= MIN_TRACK_JOINTS, cost, np.inf)
-
-
-def _contested(near: np.ndarray, axis: int) -> np.ndarray:
-    """Rows (``axis`` 1) or columns (0) whose second-best finite cost is within TRACK_AMBIGUITY of the best."""
-    if near.shape[axis] < 2:
-        return np.zeros(near.shape[1 - axis], dtype=bool)
-    best2 = np.sort(near, axis=axis).take([0, 1], axis=axis)
-    first, second = best2.take(0, axis=axis), best2.take(1, axis=axis)
-    return np.isfinite(second) & (second < TRACK_AMBIGUITY * first)
-
-
-def continuations(cost: np.ndarray, last_seen: np.ndarray) -> tuple[list[tuple[int, int]], np.ndarray]:
-    """(track, detection) pairs continuing tracks, greedily by increasing cost up to TRACK_STEP,
-    and the tracks that end because a choice was contested (a rival nearly as good: two people
-    close together). ``last_seen [K]``: the tracks' last frames; of the tracks near a detection
-    only the most recently seen may take it (an older one is the same person's broken-off track)."""
-    near = np.where(cost <= TRACK_STEP, cost, np.inf)
-    latest = np.max(np.where(np.isfinite(near), last_seen[:, None], -1), axis=0, initial=-1)
-    near[last_seen[:, None] < latest[None]] = np.inf
-    rows, cols = _contested(near, 1), _contested(near, 0)
-    ended = rows | np.isfinite(near[:, cols]).any(axis=1)
-    near[ended], near[:, cols] = np.inf, np.inf
-    pairs: list[tuple[int, int]] = []
-    used_r, used_c = set(), set()
-    for flat in np.argsort(near, axis=None)[:int(np.isfinite(near).sum())]:
-        r, c = (int(v) for v in np.unravel_index(flat, near.shape))
-        if r not in used_r and c not in used_c:
-            pairs.append((r, c))
-            used_r.add(r)
-            used_c.add(c)
-    return pairs, ended
-
-
-def track_2d(frame: np.ndarray, points: np.ndarray, vis: np.ndarray) -> np.ndarray:
-    """2D track id ``[N]`` of every detection (``frame`` sorted), by proximity to the tracks' last detections."""
-    size = _box_diagonal(points, vis)
-    track = np.full(len(frame), -1, dtype=np.int64)
-    last: dict[int, int] = {}  # open track → its latest detection
-    n_tracks = 0
-    for now in np.split(np.arange(len(frame)), np.flatnonzero(np.diff(frame)) + 1):
-        if not len(now):
-            continue
-        last = {k: d for k, d in last.items() if frame[now[0]] - frame[d] <= TRACK_GAP}
-        open_ = np.array(list(last), dtype=np.int64)
-        prev = np.array(list(last.values()), dtype=np.int64)
-        pairs, ended = continuations(_step_cost(points, vis, size, prev, now), frame[prev])
-        for r, c in pairs:
-            track[now[c]] = open_[r]
-            last[int(open_[r])] = int(now[c])
-        for k in open_[ended]:
-            del last[int(k)]
-        for c in np.flatnonzero(track[now] < 0):
-            track[now[c]], last[n_tracks] = n_tracks, int(now[c])
-            n_tracks += 1
-    return track
-
-
-# --------------------------------------------------------------------------- epipolar consistency
-
-def all_pairs(d1: Detections, d2: Detections) -> Pairs:
-    """Every (view-1, view-2) detection pair of the same frame (distances not yet measured)."""
-    by_frame: dict[int, list[int]] = {}
-    for j, f in enumerate(d2.frame.tolist()):
-        by_frame.setdefault(f, []).append(j)
-    ij = np.array([(i, j) for i, f in enumerate(d1.frame.tolist()) for j in by_frame.get(f, [])],
-                  dtype=np.int64).reshape(-1, 2)
-    i, j = ij[:, 0], ij[:, 1]
-    pairs = Pairs(i, j, d1.frame[i], d1.vis[i] & d2.vis[j], np.full(len(i), np.inf), np.full(len(i), np.inf),
-                  np.zeros(len(i), dtype=bool))
-    for rows in _pairing_groups(pairs, d1, d2)[1]:
-        spreads = sorted((spread(d1, pairs.i[rows]), spread(d2, pairs.j[rows])))
-        pairs.still_moving[rows] = spreads[0] < STILL_SPREAD and spreads[1] >= MOVING_SPREAD
-    return pairs
-
-
-def spread(d: Detections, det: np.ndarray) -> float:
-    """How much detections ``det`` (of one 2D track) move: the median over their joints of each one's RMS
-    distance from its mean position, in median box diagonals."""
-    seen = d.vis[det].sum(axis=0) >= 2
-    if not seen.any():
-        return 0.0
-    xy = np.where(d.vis[det][:, seen, None], d.points[det][:, seen], np.nan)
-    rms = np.sqrt(np.nanvar(xy, axis=0).sum(axis=-1))
-    return float(np.median(rms) / np.median(_box_diagonal(d.points[det], d.vis[det])))
-
-
-def measure(pairs: Pairs, d1: Detections, d2: Detections, essential: np.ndarray, focal: float) -> Pairs:
-    """``pairs`` with their median Sampson distances (px) under ``essential``, as detected and with view
-    2's left and right swapped."""
-    n1, n2 = np.nan_to_num(d1.normalised[pairs.i]), np.nan_to_num(d2.normalised[pairs.j])
-    mirrored = d1.vis[pairs.i] & d2.vis[pairs.j][:, MIRROR]
-    return replace(pairs, distance=_median_px(n1, n2, pairs.shared, essential, focal),
-                   mirrored=_median_px(n1, n2[:, MIRROR], mirrored, essential, focal))
-
-
-def _median_px(n1: np.ndarray, n2: np.ndarray, shared: np.ndarray, essential: np.ndarray,
-               focal: float) -> np.ndarray:
-    """Median Sampson distance (px) of the ``shared`` joints of each pair; inf with fewer than MIN_SHARED_JOINTS."""
-    median = masked_median(sampson_distance(essential, n1, n2) * focal, shared)
-    return np.where(shared.sum(axis=1) >= MIN_SHARED_JOINTS, median, np.inf)
-
-
-def fit_essential(n1: np.ndarray, n2: np.ndarray, config: StereoConfig) -> np.ndarray | None:
-    """Essential matrix by RANSAC from normalised correspondences ``[N, 2]`` (None when none fits);
-    at most MAX_MATCH_CORRESPONDENCES of them, evenly spread (matching needs no more)."""
-    step = max(1, int(np.ceil(len(n1) / MAX_MATCH_CORRESPONDENCES)))
-    n1, n2 = n1[::step], n2[::step]
-    essential, _ = cv2.findEssentialMat(n1, n2, np.eye(3), method=ESSENTIAL_METHOD, prob=config.ransac_prob,
-                                        threshold=config.ransac_threshold)
-    return None if essential is None or essential.shape[0] < 3 else essential[:3]
-
-
-def _correspondences(pairs: Pairs, rows: np.ndarray, d1: Detections, d2: Detections) -> tuple[np.ndarray, ...]:
-    shared = pairs.shared[rows]
-    return d1.normalised[pairs.i[rows]][shared], d2.normalised[pairs.j[rows]][shared]
-
-
-# --------------------------------------------------------------------------- 2D tracks → people
-
-def _pairing_groups(pairs: Pairs, d1: Detections, d2: Detections) -> tuple[np.ndarray, list[np.ndarray]]:
-    """The (view-1 2D track, view-2 2D track) pairings ``[K, 2]`` present in ``pairs``, and each one's rows."""
-    n2 = int(d2.track.max(initial=-1)) + 1
-    keys, inverse = np.unique(d1.track[pairs.i] * n2 + d2.track[pairs.j], return_inverse=True)
-    order = np.argsort(inverse, kind="stable")
-    groups = np.split(order, np.cumsum(np.bincount(inverse, minlength=len(keys)))[:-1]) if len(keys) else []
-    return np.stack([keys // max(n2, 1), keys % max(n2, 1)], axis=1), groups
-
-
 def link_tracks(pairs: Pairs, d1: Detections, d2: Detections, n_frames: int) -> set[tuple[int, int]]:
     """The pairings (view-1 2D track, view-2 2D track) that are the same person.
 
@@ -319,7 +92,7 @@ def link_tracks(pairs: Pairs, d1: Detections, d2: Detections, n_frames: int) -> 
     least MIN_LINK_SHARE of the frames it shares with enough joints, and its consistent frames are
     not already given to another partner of either track. A still track never pairs with a moving one.
     """
-    pairings, groups = _pairing_groups(pairs, d1, d2)
+    pairings, groups = pairing_groups(pairs, d1, d2)
     ok, enough = pairs.consistent & ~pairs.still_moving, np.isfinite(pairs.distance)
     good = np.array([ok[g].sum() for g in groups], dtype=np.int64)
     used1 = np.zeros((int(d1.track.max(initial=-1)) + 1, n_frames), dtype=bool)
@@ -355,7 +128,7 @@ def linked_bounds(pairs: Pairs, d1: Detections, d2: Detections, links: set[tuple
     """``[M]`` each pair's epipolar bound (px): for a pairing of linked 2D tracks :data:`LINKED_SPREAD`
     times its median distance, at least :data:`MAX_EPIPOLAR_PX` (that alone for any other pair)."""
     bound = np.full(len(pairs.i), MAX_EPIPOLAR_PX)
-    pairings, groups = _pairing_groups(pairs, d1, d2)
+    pairings, groups = pairing_groups(pairs, d1, d2)
     for (ta, tb), rows in zip(pairings.tolist(), groups):
         finite = pairs.distance[rows][np.isfinite(pairs.distance[rows])]
         if (ta, tb) in links and len(finite):
@@ -391,7 +164,7 @@ def _most_prominent_rows(pairs: Pairs, d1: Detections, d2: Detections) -> np.nda
     (prominence: confident confidences × box diagonal)."""
     top = []
     for d in (d1, d2):
-        prominence = np.where(d.vis, d.conf, 0.0).sum(axis=1) * _box_diagonal(d.points, d.vis)
+        prominence = np.where(d.vis, d.conf, 0.0).sum(axis=1) * box_diagonal(d.points, d.vis)
         order = np.lexsort((-prominence, d.frame))
         top.append(order[np.r_[True, np.diff(d.frame[order]) != 0]] if len(order) else order)
     return np.flatnonzero(np.isin(pairs.i, top[0]) & np.isin(pairs.j, top[1]))
@@ -403,7 +176,7 @@ def seed_rows(pairs: Pairs, d1: Detections, d2: Detections) -> list[np.ndarray]:
     share no 2D track (two people: one person's own matrix may miss the other, e.g. a still one far
     behind, whose own matrix is degenerate), and the frames' most prominent pairs (a fallback when the
     2D tracks are short)."""
-    pairings, groups = _pairing_groups(pairs, d1, d2)
+    pairings, groups = pairing_groups(pairs, d1, d2)
     plausible = [k for k, rows in enumerate(groups) if not pairs.still_moving[rows[0]]]
     counts = np.array([pairs.shared[groups[k]].sum() for k in plausible], dtype=np.int64)
     best = [plausible[k] for k in np.argsort(-counts, kind="stable")[:SEED_PAIRINGS]]
@@ -424,13 +197,13 @@ def seed_essential(pairs: Pairs, d1: Detections, d2: Detections, focal: float, n
     need = max(8, config.min_correspondences)
     best, best_score = None, -1
     for rows in seed_rows(pairs, d1, d2):
-        essential = fit_essential(*_correspondences(pairs, rows, d1, d2), config) \
+        essential = fit_essential(*pair_correspondences(pairs, rows, d1, d2), config) \
             if pairs.shared[rows].sum() >= need else None
         score = -1 if essential is None else _score(*_match(pairs, d1, d2, essential, focal, n_frames)[:2])
         if score > best_score:
             best, best_score = essential, score
     if best is None:
-        counts = [pairs.shared[g].sum() for g in _pairing_groups(pairs, d1, d2)[1]]
+        counts = [pairs.shared[g].sum() for g in pairing_groups(pairs, d1, d2)[1]]
         raise StereoError(f"at most {int(max(counts, default=0))} keypoint correspondences between a person of "
                           f"view 1 and one of view 2 (need {need}), or no essential matrix fits them: too few "
                           "frames or joints seen by both cameras, or the folders are not the same take")
@@ -461,11 +234,6 @@ def match_people(frames1: list[KeypointFrame], frames2: list[KeypointFrame], cam
     return People(persons, dropped, unmatched_lines((d1, d2), used), essential)
 
 
-def mean_focal(cam1: CameraModel, cam2: CameraModel) -> float:
-    """The mean focal length (px) of both cameras: normalised distances × it ≈ pixels."""
-    return float(np.mean([cam1.K[0, 0], cam1.K[1, 1], cam2.K[0, 0], cam2.K[1, 1]]))
-
-
 def _matched(d1: Detections, d2: Detections, focal: float, n_frames: int,
              config: StereoConfig) -> tuple[np.ndarray, Pairs, np.ndarray, np.ndarray]:
     """The essential matrix (seeded, then re-fitted to every matched person when that matches at
@@ -473,7 +241,7 @@ def _matched(d1: Detections, d2: Detections, focal: float, n_frames: int,
     pairs = all_pairs(d1, d2)
     essential = seed_essential(pairs, d1, d2, focal, n_frames, config)
     measured, rows, person = _match(pairs, d1, d2, essential, focal, n_frames)
-    refit = fit_essential(*_correspondences(measured, rows, d1, d2), config) if len(rows) >= 8 else None
+    refit = fit_essential(*pair_correspondences(measured, rows, d1, d2), config) if len(rows) >= 8 else None
     if refit is not None:
         again = _match(pairs, d1, d2, refit, focal, n_frames)
         if _score(*again[:2]) >= _score(measured, rows):
