@@ -10,8 +10,11 @@ import pytest
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.skeleton import DRAWING_LINES, KEYPOINTS, N_POINTS
 from mocapdb.render import draw
+from mocapdb.render.contact_sheet import contact_sheet
+from mocapdb.render.frame_layout import Layout, image_camera
 from mocapdb.render.results import RenderError, read_result
-from mocapdb.render.video import Layout, contact_sheet, image_camera, render_result, render_stereo_plot
+from mocapdb.render.stereo_plot import render_stereo_plot
+from mocapdb.render.video import render_result
 from tests.conftest import SAMPLE_KEYPOINTS
 
 FOCAL, SIZE = 1681.0, (1088, 1920)
@@ -270,11 +273,11 @@ def test_render_takes_the_camera_the_run_recorded(sample_run, capsys):
 
 def test_the_preview_title_names_the_output_not_the_temporary_folder(small_db_path, tmp_path, monkeypatch):
     from mocapdb.cli.main import main
-    from mocapdb.render import video as render_video
+    from mocapdb.render import draw
 
     texts = []
-    real = render_video.draw.put_text
-    monkeypatch.setattr(render_video.draw, "put_text", lambda img, text, *a, **k: (texts.append(text),
+    real = draw.put_text
+    monkeypatch.setattr(draw, "put_text", lambda img, text, *a, **k: (texts.append(text),
                                                                                     real(img, text, *a, **k)))
     out = tmp_path / "rec"
     assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(out), "--fps", "60",
@@ -287,11 +290,11 @@ def test_the_preview_with_floor_draws_the_track_files_on_their_floor(small_db_pa
     # --floor puts the track files on the floor found (levelled, y = 0, the origin under the camera);
     # the preview's 3D view drew the camera-aligned stream whatever --floor said.
     from mocapdb.cli.main import main
-    from mocapdb.render import video as render_video
+    from mocapdb.render import draw
 
     drawn = []
-    real = render_video.draw.draw_skeleton_3d
-    monkeypatch.setattr(render_video.draw, "draw_skeleton_3d", lambda img, view, joints, *a, **k: (
+    real = draw.draw_skeleton_3d
+    monkeypatch.setattr(draw, "draw_skeleton_3d", lambda img, view, joints, *a, **k: (
         drawn.append((joints, view)), real(img, view, joints, *a, **k)))
     out = tmp_path / "rec"
     assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(out), "--fps", "60",

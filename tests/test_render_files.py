@@ -10,6 +10,8 @@ import pytest
 
 from mocapdb.core.skeleton import KEYPOINTS, PELVIS
 from mocapdb.render import draw
+from mocapdb.render.contact_sheet import contact_sheet
+from mocapdb.render.frame_layout import image_camera
 from mocapdb.render.results import read_result
 from mocapdb.render.tracks import (
     WorldFloor,
@@ -19,7 +21,7 @@ from mocapdb.render.tracks import (
     read_track_files,
     read_world,
 )
-from mocapdb.render.video import contact_sheet, image_camera, render_result
+from mocapdb.render.video import render_result
 from tests.conftest import SAMPLE_KEYPOINTS
 from tests.test_render import standing_pose
 

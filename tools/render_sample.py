@@ -42,7 +42,8 @@ def main() -> int:
               str(SAMPLE / "calibration.toml"), "--cameras", "cam_01", "cam_04", "--fps", "60",
               "--camera-distance", "5.24", "--out", str(stereo)])
 
-    from mocapdb.render.video import contact_sheet, render_stereo_plot
+    from mocapdb.render.contact_sheet import contact_sheet
+    from mocapdb.render.stereo_plot import render_stereo_plot
 
     sheet = contact_sheet(recon, SAMPLE / "pose2sim_cam01", ROOT / "docs" / "reconstruct_sample.png", args.frames,
                           focal=FOCAL, image_size=SIZE, tile_height=480,

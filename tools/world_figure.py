@@ -28,9 +28,9 @@ sys.path.insert(0, str(ROOT))
 
 from mocapdb.detect.video import VideoReader  # noqa: E402
 from mocapdb.render import draw  # noqa: E402
+from mocapdb.render.frame_layout import Layout, image_camera, image_panel, panel_3d  # noqa: E402
 from mocapdb.render.results import ResultFrame, TrackPose, load_keypoints, read_result, recorded_camera  # noqa: E402
 from mocapdb.render.tracks import FileScene, file_scene, people_at  # noqa: E402
-from mocapdb.render.video import Layout, image_camera, image_panel, panel_3d  # noqa: E402
 
 BACKGROUND = (8, 8, 8)
 TEXT = (235, 235, 235)

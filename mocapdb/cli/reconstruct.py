@@ -309,12 +309,12 @@ def run_reconstruct(args: argparse.Namespace) -> int:
 
 
 def _preview(args: argparse.Namespace, out_dir) -> None:
-    """OUT/preview.png: a contact sheet of the run (:func:`mocapdb.render.video.contact_sheet`) as
+    """OUT/preview.png: a contact sheet of the run (:func:`mocapdb.render.contact_sheet.contact_sheet`) as
     `mocapdb render` draws it: the track files just written (re-projected, and in 3D on the take's
     floor, labelled with their sizes), or the stream when no track got files (said on stderr)."""
     from pathlib import Path
 
-    from mocapdb.render.video import contact_sheet
+    from mocapdb.render.contact_sheet import contact_sheet
 
     contact_sheet(out_dir, args.input, out_dir / "preview.png", focal=args.focal, image_size=args.image_size,
                   name=str(Path(args.out) / "result.jsonl"),

@@ -58,15 +58,11 @@ def run_render(args: argparse.Namespace) -> int:
 
     from mocapdb.core.errors import UsageError
     from mocapdb.core.formats.take import resolve_camera
+    from mocapdb.render.contact_sheet import contact_sheet
+    from mocapdb.render.frame_layout import image_camera
     from mocapdb.render.results import read_cameras, recorded_camera, result_path
-    from mocapdb.render.video import (
-        DEFAULT_FOCAL,
-        DEFAULT_IMAGE_SIZE,
-        contact_sheet,
-        image_camera,
-        render_result,
-        render_stereo_plot,
-    )
+    from mocapdb.render.stereo_plot import render_stereo_plot
+    from mocapdb.render.video import DEFAULT_FOCAL, DEFAULT_IMAGE_SIZE, render_result
 
     def warn(text: str) -> None:
         print(f"mocapdb render: warning: {text}", file=sys.stderr)
@@ -91,7 +87,7 @@ def run_render(args: argparse.Namespace) -> int:
     elif args.focal is not None or args.image_size is not None or not stereo:
         size = args.image_size
         if size is None and args.video is not None:
-            from mocapdb.render.video import VideoFrames
+            from mocapdb.render.video_io import VideoFrames
 
             v = VideoFrames(args.video)
             size = v.size
