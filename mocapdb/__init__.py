@@ -35,7 +35,7 @@ _API = {
     "Person": "mocapdb.core.formats.keypoints",
     "PersonPose": "mocapdb.core.outputs",
     "fit_takes": "mocapdb.runtime.world",
-    "TakeParams": "mocapdb.runtime.take",
+    "TakeParams": "mocapdb.runtime.take_params",
     "write_tracks": "mocapdb.core.exports",
     "TrackExport": "mocapdb.core.exports",
     "universal_bvh": "mocapdb.core.outputs",

@@ -36,7 +36,8 @@ from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.lag import FixedLag
 from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source, StreamStats
 from mocapdb.runtime.subject import chosen, join_fragments, main_track
-from mocapdb.runtime.take import TakeParams, fit_take
+from mocapdb.runtime.take import fit_take
+from mocapdb.runtime.take_params import TakeParams
 from mocapdb.runtime.world import fit_world
 from mocapdb.runtime.world_summary import track_facts, world_line, world_record
 

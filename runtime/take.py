@@ -39,6 +39,9 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    hands turned to the directions the image gives them (:func:`end_rotations`), a planted foot
    flat on the floor.
 
+The settings: :mod:`mocapdb.runtime.take_params`; the contacts (step 2):
+:mod:`mocapdb.runtime.foot_contacts`; the floor (step 4): :mod:`mocapdb.runtime.contact_floor`.
+
 Costs O(F) per track (the least-squares system is banded, the re-fit ~70 µs a frame): thousands of
 frames per second.
 """
@@ -48,10 +51,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import sparse
-from scipy.ndimage import convolve1d, gaussian_filter1d, median_filter
+from scipy.ndimage import gaussian_filter1d, median_filter
 from scipy.sparse.linalg import spsolve
 
-from mocapdb.core import domains as D
 from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, TrackRecording
 from mocapdb.core.skeleton import (
@@ -69,14 +71,23 @@ from mocapdb.core.skeleton import (
     pose_from_rotations,
     swing_matrices,
 )
+from mocapdb.runtime.contact_floor import above_floor, floor_plane
+from mocapdb.runtime.foot_contacts import (
+    ANKLES,
+    HEELS,
+    INDEX_KNUCKLES,
+    PINKY_KNUCKLES,
+    TOES,
+    box_height_px,
+    foot_phases,
+    interpolated,
+    planted_ankles,
+    true_runs,
+)
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
+from mocapdb.runtime.take_params import TakeParams
 
-ANKLES = (KP["r_ankle"], KP["l_ankle"])
 WRISTS = (KP["r_wrist"], KP["l_wrist"])
-# Rows of the heels, big toes and knuckles (keypoint_layouts.EXTREMITIES order) per foot and hand
-HEELS, TOES, INDEX_KNUCKLES, PINKY_KNUCKLES = (0, 2), (1, 3), (4, 6), (5, 7)
-# Each foot's phase (foot_phases): heel or toe not seen, in the air, heel down alone, flat, toe down alone
-UNSEEN, SWING, HEEL_STRIKE, FLAT, TOE_OFF = -1, 0, 1, 2, 3
 # Each end joint (skeleton.END_JOINTS): the rig joint it hangs from, and its direction at rest (heel →
 # toe forwards, sloping down as on a standing foot; wrist → knuckles along the forearm, as the
 # humanoid rig's hand bones)
@@ -85,38 +96,7 @@ _SLOPE = np.radians(HEEL_TO_TOE_SLOPE_DEG)
 _FOOT_REST = [0.0, -np.sin(_SLOPE), np.cos(_SLOPE)]
 END_REST_DIRECTIONS = np.array([_FOOT_REST, _FOOT_REST, [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
 END_LENGTHS_M = np.array([HEEL_TO_TOE_M, HEEL_TO_TOE_M, HAND_LENGTH_M, HAND_LENGTH_M])  # of a 1.75 m body
-MIN_CONTACT_FRAMES = 3
 MIN_SIGMA_FRAMES = 0.05   # narrower Gaussians (cut-offs above ~3 × the frame rate) leave the rotations as they are
-CONTACT_WINDOW_S = 0.25   # an ankle keypoint's image speed: the slope of a line fitted over this long
-MEDIAN_FRAMES = 5         # an ankle keypoint's image track: the running median over this many frames
-GAP_S = 0.1               # gaps in a contact up to this long are closed (a foot is not lifted and put back so fast)
-MIN_FLOOR_SPREAD_M = 0.3  # RMS extent of the contacts (≈ 1 m end to end) along a direction they fix
-MAX_FLOOR_RMS_M = 0.03    # contacts farther off their plane (RMS) are not one floor: their plane is not trusted
-FLOOR_BAND_M = 0.15       # contacts within this of the lowest are on the floor; higher: steps (risers 15-20 cm)
-
-
-@dataclass(frozen=True)
-class TakeParams:
-    """Whole-take fit settings (see the module docstring); lengths in metres, times in seconds."""
-
-    smoothing_hz: float = D.SMOOTHING_HZ.default          # zero-phase cut-off of the rotations; 0: not smoothed
-    pop_frames: int = 5                # running-median window (frames; 1: no pop removal)
-    planted_box_per_s: float = 0.25    # image speed of a planted ankle keypoint, box heights per second
-    planted_height_m: float = 0.05     # a planted ankle is at most this much above the other
-    root_across_m: float = 0.01        # root across the viewing ray: the image's precision
-    root_depth_m: float = 0.15         # root along the viewing ray: the depth's
-    root_accel_mps2: float = 4.0       # root acceleration SD
-    contact_m: float = 0.005           # a planted ankle's spread over its contact
-    floor: bool = True                 # keep ankles above the floor found from the contacts
-    refit_prior: float = 20.0          # the re-fit's pull to the smoothed pose, × the per-frame fit's (0: none)
-
-    def __post_init__(self) -> None:
-        D.SMOOTHING_HZ.check(self.smoothing_hz, "smoothing_hz")
-        positive = (self.planted_box_per_s, self.planted_height_m, self.root_across_m, self.root_depth_m,
-                    self.root_accel_mps2, self.contact_m)
-        if self.pop_frames < 1 or not all(np.isfinite(v) and v > 0 for v in positive) \
-                or not (np.isfinite(self.refit_prior) and self.refit_prior >= 0):
-            raise ValueError(f"whole-take settings out of range: {self}")
 
 
 @dataclass
@@ -217,61 +197,6 @@ def refit_to_image(quats: np.ndarray, root_m: np.ndarray, keypoints: np.ndarray,
 _NO_LIMITS = JointLimits(np.full((N_RIG_JOINTS, 3), -np.inf), np.full((N_RIG_JOINTS, 3), np.inf))
 
 
-def planted_ankles(keypoints: np.ndarray, ankles_view_m: np.ndarray, up: np.ndarray, fps: float,
-                   params: TakeParams, phases: np.ndarray | None = None) -> np.ndarray:
-    """Which ankles ``[F, 2]`` are planted: still in the image and near the lowest (module docstring).
-    ``keypoints [F, 14, 3]`` (x, y px, confidence), ``ankles_view_m [F, 2, 3]``; ``phases [F, 2]``
-    (:func:`foot_phases`): where a foot's heel and toe are seen, it is planted when flat (both
-    still) instead of when its ankle is still, and, flat while the other foot is not, whatever
-    the heights: it carries the body.
-
-    The image track of each point is first a running median over :data:`MEDIAN_FRAMES` frames of
-    its seen positions, so a detector's single-frame left/right swap or missed keypoint neither
-    moves a planted foot nor splits its contact; gaps of up to :data:`GAP_S` in a contact are closed."""
-    speed, seen = image_speeds(keypoints[:, ANKLES], box_height_px(keypoints), fps)
-    height = ankles_view_m @ up
-    low = height <= height.min(axis=1, keepdims=True) + params.planted_height_m  # the lower foot (or both)
-    still = seen & low & (speed < params.planted_box_per_s)
-    if phases is not None:
-        other = phases[:, ::-1]
-        support = (other != UNSEEN) & (other != FLAT)  # the other foot seen off the floor, or partly
-        still = np.where(phases != UNSEEN, (phases == FLAT) & (low | support), still)
-    planted = _close_gaps(still, int(round(GAP_S * fps)))
-    return _drop_short_runs(planted, MIN_CONTACT_FRAMES)
-
-
-def box_height_px(keypoints: np.ndarray) -> float:
-    """The median height (pixels) of the box around each frame's seen keypoints ``[F, 14, 3]``
-    (1 without any): image speeds are measured in it."""
-    visible = keypoints[..., 2] > 0
-    seen_frames = visible.any(axis=1)  # frames the track missed hold no keypoint
-    ys = np.where(visible, keypoints[..., 1], np.nan)[seen_frames]
-    return float(np.median(np.nanmax(ys, axis=1) - np.nanmin(ys, axis=1))) if len(ys) else 1.0
-
-
-def image_speeds(points: np.ndarray, box_px: float, fps: float) -> tuple[np.ndarray, np.ndarray]:
-    """Image speeds ``[F, K]`` (box heights ``box_px`` per second) of keypoints ``[F, K, 3]`` (x, y px,
-    confidence) and where each is seen ``[F, K]``: the slope of a line fitted over
-    :data:`CONTACT_WINDOW_S` to its running median (:func:`_robust_track_px`)."""
-    px = _robust_track_px(points)
-    half_window = max(int(round(CONTACT_WINDOW_S * fps / 2)), 1)
-    speed = np.linalg.norm(_slope(_interpolated(px), half_window), axis=-1) * fps / max(box_px, 1.0)
-    return speed, np.isfinite(px[..., 0])
-
-
-def foot_phases(extremities: np.ndarray, box_px: float, fps: float, params: TakeParams) -> np.ndarray:
-    """Each foot's phase ``[F, 2]`` (right, left) from its heel and big toe in the image
-    (``extremities [F, 8, 3]``, x px, y px, confidence): :data:`FLAT` when both are still (slower than
-    :attr:`TakeParams.planted_box_per_s` box heights ``box_px`` per second, :func:`image_speeds`),
-    :data:`HEEL_STRIKE` when the heel alone is, :data:`TOE_OFF` when the toe alone is, :data:`SWING`
-    when neither is; :data:`UNSEEN` where either is not seen."""
-    heel_speed, heel_seen = image_speeds(extremities[:, HEELS], box_px, fps)
-    toe_speed, toe_seen = image_speeds(extremities[:, TOES], box_px, fps)
-    heel, toe = heel_speed < params.planted_box_per_s, toe_speed < params.planted_box_per_s
-    phases = np.select([heel & toe, heel, toe], [FLAT, HEEL_STRIKE, TOE_OFF], SWING)
-    return np.where(heel_seen & toe_seen, phases, UNSEEN)
-
-
 def lift_direction(delta_px: np.ndarray, depth_m: np.ndarray, length_m: np.ndarray, focal_px: float,
                    reference: np.ndarray) -> np.ndarray:
     """Unit directions ``[..., 3]`` (view frame: x right, y up, z towards the camera) of segments of
@@ -307,7 +232,7 @@ def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
     depth = -joints[:, list(ANKLES) + list(WRISTS), 2]
     direction = lift_direction(ends - starts, depth, END_LENGTHS_M * scale, focal_px, reference)
     seen = np.isfinite(direction).all(axis=-1)
-    direction = np.where(seen.any(axis=0)[None, :, None], _interpolated(direction), reference)
+    direction = np.where(seen.any(axis=0)[None, :, None], interpolated(direction), reference)
     up = up / np.linalg.norm(up)
     flat = np.concatenate([planted, np.zeros_like(planted)], axis=1)
     forwards = _unit(direction - (direction @ up)[..., None] * up)
@@ -320,64 +245,6 @@ def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
     return matrix_to_quat(np.swapaxes(parents, -1, -2) @ turn @ parents)
 
 
-def _robust_track_px(points: np.ndarray) -> np.ndarray:
-    """Keypoints ``[F, K, 3]`` (x, y px, confidence) as positions ``[F, K, 2]``: per frame the median of
-    the seen positions over the :data:`MEDIAN_FRAMES` frames around it (NaN where none was seen)."""
-    xy = np.where(points[..., 2:] > 0, points[..., :2], np.nan)
-    half = MEDIAN_FRAMES // 2
-    padded = np.concatenate([np.full((half,) + xy.shape[1:], np.nan), xy, np.full((half,) + xy.shape[1:], np.nan)])
-    windows = np.lib.stride_tricks.sliding_window_view(padded, MEDIAN_FRAMES, axis=0)  # [F, K, 2, window]
-    out = np.full(xy.shape, np.nan)
-    some = np.isfinite(windows).any(axis=-1)
-    out[some] = np.nanmedian(windows[some], axis=-1)
-    return out
-
-
-def _interpolated(values: np.ndarray) -> np.ndarray:
-    """``values [F, ...]`` with NaN filled by linear interpolation over frames (edges held; all-NaN
-    series: 0)."""
-    flat = values.reshape(len(values), -1).copy()
-    frames = np.arange(len(values))
-    for column in flat.T:
-        ok = np.isfinite(column)
-        column[~ok] = np.interp(frames[~ok], frames[ok], column[ok]) if ok.any() else 0.0
-    return flat.reshape(values.shape)
-
-
-def _close_gaps(mask: np.ndarray, max_gap: int) -> np.ndarray:
-    """``mask [F, K]`` with gaps of at most ``max_gap`` frames between two runs of True filled."""
-    out = mask.copy()
-    for k in range(mask.shape[1]):
-        runs = _runs(mask[:, k])
-        for (_, stop), (start, _) in zip(runs[:-1], runs[1:]):
-            if start - stop <= max_gap:
-                out[stop:start, k] = True
-    return out
-
-
-def _slope(values: np.ndarray, half: int) -> np.ndarray:
-    """Per frame, the slope (per frame) of the least-squares line through ``values [F, ...]`` over
-    the ``2 half + 1`` frames around it (edges repeated): a derivative that averages out jitter."""
-    offsets = np.arange(-half, half + 1, dtype=np.float64)
-    return convolve1d(values, offsets[::-1] / np.sum(offsets ** 2), axis=0, mode="nearest")
-
-
-def _drop_short_runs(mask: np.ndarray, min_length: int) -> np.ndarray:
-    """``mask [F, K]`` with runs of True shorter than ``min_length`` frames cleared."""
-    out = mask.copy()
-    for k in range(mask.shape[1]):
-        for start, stop in _runs(mask[:, k]):
-            if stop - start < min_length:
-                out[start:stop, k] = False
-    return out
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """``(start, stop)`` of each run of True in a 1-D mask."""
-    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
-
-
 def fit_root_path(root_m: np.ndarray, ankle_offsets_m: np.ndarray, planted: np.ndarray, fps: float,
                   params: TakeParams) -> tuple[np.ndarray, np.ndarray]:
     """The root path ``[F, 3]`` (view frame) of the least-squares problem in the module docstring,
@@ -385,7 +252,7 @@ def fit_root_path(root_m: np.ndarray, ankle_offsets_m: np.ndarray, planted: np.n
     the per-frame roots, ``ankle_offsets_m [F, 2, 3]`` the ankles relative to the root,
     ``planted [F, 2]``."""
     n = len(root_m)
-    contacts = [(k, start, stop) for k in range(planted.shape[1]) for start, stop in _runs(planted[:, k])]
+    contacts = [(k, start, stop) for k in range(planted.shape[1]) for start, stop in true_runs(planted[:, k])]
     n_unknowns = 3 * n + 3 * len(contacts)
     rows, cols, vals, rhs = [], [], [], []
 
@@ -472,7 +339,7 @@ def _contact_targets(planted: np.ndarray, anchors: np.ndarray) -> tuple[np.ndarr
     it) and the target (the contact's anchor, or the nearest contact's)."""
     n = len(planted)
     weight, target = np.zeros(n), np.full((n, 3), np.nan)
-    for start, stop in _runs(planted):
+    for start, stop in true_runs(planted):
         anchor = anchors[start]
         for t in range(max(start - BLEND_FRAMES, 0), min(stop + BLEND_FRAMES, n)):
             gap = max(start - t, t - (stop - 1), 0)
@@ -510,70 +377,6 @@ def _perpendiculars(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     a = np.cross(u, helper)
     a /= np.linalg.norm(a, axis=-1, keepdims=True)
     return a, np.cross(u, a)
-
-
-def floor_plane(ankles_view_m: np.ndarray, planted: np.ndarray, up: np.ndarray,
-                ankle_height_m: float) -> tuple[np.ndarray, float]:
-    """The floor ``normal · p = offset`` (view frame) under the planted ankles ``[F, 2, 3]``, lowered by
-    ``ankle_height_m``. The normal (:func:`_floor_normal`): a plane fitted to the contacts where they
-    lie on one and span about 1 m in two directions; along a straight walk, ``up`` made
-    perpendicular to it; else ``up``. The offset: the median height of the contacts on the lowest
-    level (:func:`_floor_height`; contacts higher up stand on steps or platforms)."""
-    points = ankles_view_m[planted]
-    normal = _floor_normal(points, up / np.linalg.norm(up))
-    return normal, _floor_height(points, normal) - ankle_height_m
-
-
-def _floor_normal(points: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """The floor's unit normal under contacts ``[N, 3]`` (view frame): see :func:`floor_plane`. A
-    plane is trusted only where the contacts lie on it (RMS :data:`MAX_FLOOR_RMS_M`): first all of
-    them, then those on the lowest level along ``up``."""
-    if len(points) < 10:
-        return up
-    for subset in (points, lowest_level(points, up)):
-        plane = coplanar_spread(subset)
-        if plane is None:
-            continue
-        spread, vt = plane
-        if spread[1] >= MIN_FLOOR_SPREAD_M and abs(vt[2] @ up) > 0.8:
-            return vt[2] * np.sign(vt[2] @ up)
-        if spread[0] >= MIN_FLOOR_SPREAD_M and abs(vt[0] @ up) < 0.5:
-            # contacts along one line (a straight walk): the floor contains it; the up estimate keeps
-            # only its tilt about the line
-            normal = up - (up @ vt[0]) * vt[0]
-            return normal / np.linalg.norm(normal)
-    return up
-
-
-def coplanar_spread(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """The RMS extents ``[3]`` and principal directions ``[3, 3]`` (rows) of contacts ``[N, 3]``, or
-    None when they are fewer than 10 or do not lie on one plane (RMS off it over
-    :data:`MAX_FLOOR_RMS_M`)."""
-    if len(points) < 10:
-        return None
-    _, spread, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
-    spread = spread / np.sqrt(len(points))
-    return (spread, vt) if spread[2] <= MAX_FLOOR_RMS_M else None
-
-
-def lowest_level(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """The contacts ``[N, 3]`` within :data:`FLOOR_BAND_M` of the lowest ones along ``normal`` (their
-    5th percentile): those on the floor, not on a step or platform above it."""
-    heights = points @ normal
-    return points[heights <= np.quantile(heights, 0.05) + FLOOR_BAND_M]
-
-
-def _floor_height(points: np.ndarray, normal: np.ndarray) -> float:
-    """The median height along ``normal`` of the contacts ``[N, 3]`` on the lowest level."""
-    return float(np.median(lowest_level(points, normal) @ normal))
-
-
-def above_floor(root_m: np.ndarray, ankle_offsets_m: np.ndarray, normal: np.ndarray, offset: float,
-                 ankle_height_m: float) -> np.ndarray:
-    """Roots lifted along ``normal`` where the lower ankle would sink below the ankle height."""
-    heights = (root_m[:, None] + ankle_offsets_m) @ normal - offset
-    deficit = np.maximum(ankle_height_m - heights.min(axis=1), 0.0)
-    return root_m + deficit[:, None] * normal
 
 
 def _refitted(rec: TrackRecording, quats: list, roots: list, scales: list, up: np.ndarray,

@@ -30,8 +30,8 @@ uncertainty. Each track on the floor then takes its floor-consistent stature; an
 mode (or its given height), standing in the same world where its feet are (above the floor on a
 box), made smaller where its lowest points would sink below the floor. No scale is negative, no
 stature leaves :data:`HUMAN_STATURE_M`. The plane is then fitted to the floor tracks' scaled
-contacts where they span it (:func:`~mocapdb.runtime.take.floor_plane`) and the estimate made once
-more about it. ``data_specs/world.md`` gives the decisions and their reasons. The stature prior
+contacts where they span it (:func:`~mocapdb.runtime.contact_floor.floor_plane`) and the estimate
+made once more about it. ``data_specs/world.md`` gives the decisions and their reasons. The stature prior
 and the kinds' likelihoods are :mod:`mocapdb.runtime.stature`; what the summary and ``world.json``
 say of the world, :mod:`mocapdb.runtime.world_summary`.
 
@@ -47,6 +47,8 @@ import numpy as np
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M, pose_from_rotations
 from mocapdb.runtime.body_size import TILT_SD_DEG
+from mocapdb.runtime.contact_floor import MIN_FLOOR_SPREAD_M, above_floor, coplanar_spread, floor_plane, lowest_level
+from mocapdb.runtime.foot_contacts import ANKLES
 from mocapdb.runtime.stature import (
     FLAT_DENSITY,
     HUMAN_STATURE_M,
@@ -61,17 +63,8 @@ from mocapdb.runtime.stature import (
     prior_mode,
     stature_prior,
 )
-from mocapdb.runtime.take import (
-    ANKLES,
-    MIN_FLOOR_SPREAD_M,
-    TakeParams,
-    TakeResult,
-    above_floor,
-    coplanar_spread,
-    fit_take,
-    floor_plane,
-    lowest_level,
-)
+from mocapdb.runtime.take import TakeResult, fit_take
+from mocapdb.runtime.take_params import TakeParams
 
 CONTACT_SD = 0.10            # of log stature, one step's (depth and ankle-height noise), over its steps
 STEP_GRID_M = 0.01           # contacts within this of each other are one step (the whole-take fit anchors a step)
@@ -349,7 +342,7 @@ def _floor_contacts(evidence: list[TrackEvidence], world: World) -> np.ndarray |
 
 def _plane_normal(contacts: np.ndarray, normal: np.ndarray) -> np.ndarray | None:
     """The floor's normal through ``contacts [N, 3]`` where they fix more than ``normal`` does
-    (:func:`~mocapdb.runtime.take.floor_plane`), else None."""
+    (:func:`~mocapdb.runtime.contact_floor.floor_plane`), else None."""
     fitted = floor_plane(contacts[:, None], np.ones((len(contacts), 1), dtype=bool), normal, 0.0)[0]
     return None if np.allclose(fitted, normal) else fitted
 

@@ -21,20 +21,9 @@ from mocapdb.core.skeleton import (
     RIG_JOINTS,
     global_rotations,
 )
-from mocapdb.runtime.take import (
-    END_PARENTS,
-    END_REST_DIRECTIONS,
-    FLAT,
-    HEEL_STRIKE,
-    SWING,
-    TOE_OFF,
-    UNSEEN,
-    TakeParams,
-    end_rotations,
-    foot_phases,
-    lift_direction,
-    planted_ankles,
-)
+from mocapdb.runtime.foot_contacts import FLAT, HEEL_STRIKE, SWING, TOE_OFF, UNSEEN, foot_phases, planted_ankles
+from mocapdb.runtime.take import END_PARENTS, END_REST_DIRECTIONS, end_rotations, lift_direction
+from mocapdb.runtime.take_params import TakeParams
 
 FPS = 30.0
 MISSING = [np.nan, np.nan, 0.0]

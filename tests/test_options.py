@@ -115,7 +115,7 @@ def test_the_api_refuses_what_the_cli_refuses():
     from mocapdb.runtime.filters import OneEuroParams
     from mocapdb.runtime.session import SessionOptions
     from mocapdb.runtime.streams import NetworkLimits
-    from mocapdb.runtime.take import TakeParams
+    from mocapdb.runtime.take_params import TakeParams
 
     for make in [lambda: EngineConfig(per_cluster=0), lambda: EngineConfig(fps=float("nan")),
                  lambda: EngineConfig(focal_px=1e308), lambda: EngineConfig(window_weights=(0.0, 0.0)),

@@ -375,7 +375,8 @@ def test_checkpoints_leave_out_the_whole_takes_refit_and_the_final_files_have_it
     """A live checkpoint waits in the loop, so it skips the whole take's re-fit to the image (its
     costliest step); the files written when the track ends have it."""
     import mocapdb.runtime.session as session_module
-    from mocapdb.runtime.take import TakeParams, fit_take
+    from mocapdb.runtime.take import fit_take
+    from mocapdb.runtime.take_params import TakeParams
 
     calls = []
 

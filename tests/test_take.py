@@ -5,15 +5,10 @@ import pytest
 
 from mocapdb.core.geometry import quat_geodesic
 from mocapdb.core.skeleton import KP, N_RIG_JOINTS, bone_lengths_m, pose_from_rotations
-from mocapdb.runtime.take import (
-    TakeParams,
-    fit_root_path,
-    floor_plane,
-    plant_feet,
-    planted_ankles,
-    refit_to_image,
-    smooth_rotations,
-)
+from mocapdb.runtime.contact_floor import floor_plane
+from mocapdb.runtime.foot_contacts import planted_ankles
+from mocapdb.runtime.take import fit_root_path, plant_feet, refit_to_image, smooth_rotations
+from mocapdb.runtime.take_params import TakeParams
 
 FPS = 30.0
 

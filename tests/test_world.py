@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
+from mocapdb.runtime.contact_floor import floor_plane
 from mocapdb.runtime.stature import HUMAN_STATURE_M
-from mocapdb.runtime.take import floor_plane
 from mocapdb.runtime.world import TrackEvidence, estimate_world
 
 

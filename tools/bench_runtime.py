@@ -40,7 +40,7 @@ from mocapdb.runtime.engine import Engine  # noqa: E402
 from mocapdb.runtime.engine_config import EngineConfig  # noqa: E402
 from mocapdb.runtime.session import FrameParser, Session, SessionOptions, SessionSummary, run_live  # noqa: E402
 from mocapdb.runtime.streams import StreamStats, open_sink, open_source  # noqa: E402
-from mocapdb.runtime.take import TakeParams  # noqa: E402
+from mocapdb.runtime.take_params import TakeParams  # noqa: E402
 from mocapdb.runtime.world import fit_world  # noqa: E402
 
 DEFAULT_HELDOUT = sorted((ROOT.parent / "shared" / "data" / "cmu_bvh").glob("007_*.bvh"))

@@ -33,7 +33,8 @@ from mocapdb.core.skeleton import DRAWING_LINES, N_POINTS, swing_matrices  # noq
 from mocapdb.evaluation.heldout import project  # noqa: E402
 from mocapdb.runtime.engine import Engine  # noqa: E402
 from mocapdb.runtime.engine_config import EngineConfig  # noqa: E402
-from mocapdb.runtime.take import ANKLES, fit_take, take_joints  # noqa: E402
+from mocapdb.runtime.foot_contacts import ANKLES  # noqa: E402
+from mocapdb.runtime.take import fit_take, take_joints  # noqa: E402
 
 
 def run(args: argparse.Namespace) -> dict:

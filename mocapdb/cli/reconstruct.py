@@ -238,7 +238,7 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
     from mocapdb.runtime.session import FrameParser, Session, SessionOptions, SessionSummary
     from mocapdb.runtime.streams import StreamStats, open_sink
     from mocapdb.runtime.subject import parse_people
-    from mocapdb.runtime.take import TakeParams
+    from mocapdb.runtime.take_params import TakeParams
 
     summary = SessionSummary(stream=StreamStats())
     if bvh_dir is None and getattr(args, "bvh_dir", None):  # live --bvh-dir
