@@ -24,8 +24,8 @@ choose_kernel_cache()  # before any module defines a numba kernel: where numba m
 
 _API = {
     "build": "mocapdb.builder.pipeline",
-    "BuildConfig": "mocapdb.builder.pipeline",
-    "load_database": "mocapdb.core.formats.database",
+    "BuildConfig": "mocapdb.builder.config",
+    "load_database": "mocapdb.core.formats.database_reader",
     "Engine": "mocapdb.runtime.engine",
     "EngineConfig": "mocapdb.runtime.engine_config",
     "frames_from_arrays": "mocapdb.core.formats.keypoint_arrays",

@@ -12,7 +12,8 @@ SAMPLE_KEYPOINTS = ROOT / "data" / "sample_keypoints" / "pose2sim_cam01"
 @pytest.fixture(scope="session")
 def small_db_path(tmp_path_factory):
     """A database of two bundled walking/running clips, built once per test session."""
-    from mocapdb.builder.pipeline import BuildConfig, build
+    from mocapdb.builder.config import BuildConfig
+    from mocapdb.builder.pipeline import build
 
     out = tmp_path_factory.mktemp("small_db") / "db"
     build([str(SAMPLE_BVH / "002_01.bvh"), str(SAMPLE_BVH / "002_03.bvh")], out,
@@ -22,6 +23,6 @@ def small_db_path(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def small_db(small_db_path):
-    from mocapdb.core.formats.database import load_database
+    from mocapdb.core.formats.database_reader import load_database
 
     return load_database(small_db_path)

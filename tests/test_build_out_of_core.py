@@ -13,8 +13,12 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.spatial.distance import cdist
 
-import mocapdb.builder.pipeline as pipeline
-from mocapdb.builder.embedding import (
+import mocapdb.builder.index_stage as index_stage
+import mocapdb.builder.pose_stages as pose_stages
+import mocapdb.builder.read_stage as read_stage
+import mocapdb.builder.run as build_run
+from mocapdb.builder.config import BuildError
+from mocapdb.builder.kmeans import (
     KMEANS_BLOCK_ROWS,
     KMeansBounds,
     kmeans_finish,
@@ -24,7 +28,7 @@ from mocapdb.builder.embedding import (
 from mocapdb.builder.pipeline import build
 from mocapdb.builder.work import STAGES, WorkArray, WorkFolder
 from mocapdb.cli.main import main
-from mocapdb.core.formats.database import load_database
+from mocapdb.core.formats.database_reader import load_database
 
 from . import test_builder
 from .conftest import ROOT, SAMPLE_BVH
@@ -73,9 +77,9 @@ class Interrupt(Exception):
     """Stands for a Ctrl-C or a kill (not an error about the inputs: the work folder stays)."""
 
 
-def _fail_on_call(monkeypatch, name: str, call: int) -> list:
-    """Make ``pipeline.<name>`` raise :class:`Interrupt` on its ``call``-th call; returns the calls."""
-    real, calls = getattr(pipeline, name), []
+def _fail_on_call(monkeypatch, module, name: str, call: int) -> list:
+    """Make ``module.<name>`` raise :class:`Interrupt` on its ``call``-th call; returns the calls."""
+    real, calls = getattr(module, name), []
 
     def wrapper(*args, **kwargs):
         calls.append(1)
@@ -83,27 +87,27 @@ def _fail_on_call(monkeypatch, name: str, call: int) -> list:
             raise Interrupt(name)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(pipeline, name, wrapper)
+    monkeypatch.setattr(module, name, wrapper)
     return calls
 
 
-@pytest.mark.parametrize("stage, function, call, went_on", [
-    ("read", "_process_one", 2, "went on from files done 1"),
-    ("project", "project_frames", 100, "went on from rows done 99"),
-    ("embed", "fit_landmarks", 1, None),
-    ("assign", "assign_to_representatives", 3, "went on from rows done 2,048"),
-    ("index", "gather_group", 20, "went on from columns done 2,334"),  # 8 chunks a group of whole clusters
+@pytest.mark.parametrize("stage, module, function, call, went_on", [
+    ("read", read_stage, "_process_one", 2, "went on from files done 1"),
+    ("project", pose_stages, "project_frames", 100, "went on from rows done 99"),
+    ("embed", pose_stages, "fit_landmarks", 1, None),
+    ("assign", pose_stages, "assign_to_representatives", 3, "went on from rows done 2,048"),
+    ("index", index_stage, "gather_group", 20, "went on from columns done 2,334"),  # 8 chunks a group of clusters
 ])
-def test_an_interrupted_build_goes_on_where_it_stopped(sources, whole, tmp_path, monkeypatch, stage, function,
+def test_an_interrupted_build_goes_on_where_it_stopped(sources, whole, tmp_path, monkeypatch, stage, module, function,
                                                        call, went_on):
-    monkeypatch.setattr(pipeline, "COMMIT_INTERVAL_S", 0.0)  # progress saved after every chunk
+    monkeypatch.setattr(build_run, "COMMIT_INTERVAL_S", 0.0)  # progress saved after every chunk
     out = tmp_path / "db"
     with monkeypatch.context() as patch:
-        _fail_on_call(patch, function, call)
+        _fail_on_call(patch, module, function, call)
         with pytest.raises(Interrupt):
             build([str(sources)], out, _config(memory_limit_mb=TINY_MB))
     assert not out.exists() and (tmp_path / "db.work" / "state.json").is_file()
-    calls = _fail_on_call(monkeypatch, "_process_one", 10**9)  # counts the files read again
+    calls = _fail_on_call(monkeypatch, read_stage, "_process_one", 10**9)  # counts the files read again
     summary = build([str(sources)], out, _config(memory_limit_mb=TINY_MB))
     assert_same_database(whole, out)
     earlier = STAGES[:STAGES.index(stage)]
@@ -115,7 +119,7 @@ def test_an_interrupted_build_goes_on_where_it_stopped(sources, whole, tmp_path,
 
 
 def test_kmeans_goes_on_from_its_last_saved_iteration(sources, whole, tmp_path, monkeypatch):
-    real, seen = pipeline.kmeans_iterate, []
+    real, seen = pose_stages.kmeans_iterate, []
 
     def stop_after_two(points, state, bounds, max_iter, rows, progress, tasks):
         def report(s):
@@ -126,10 +130,10 @@ def test_kmeans_goes_on_from_its_last_saved_iteration(sources, whole, tmp_path, 
         real(points, state, bounds, max_iter, rows, report, tasks)
 
     with monkeypatch.context() as patch:
-        patch.setattr(pipeline, "kmeans_iterate", stop_after_two)
+        patch.setattr(pose_stages, "kmeans_iterate", stop_after_two)
         with pytest.raises(Interrupt):
             build([str(sources)], tmp_path / "db", _config(memory_limit_mb=TINY_MB))
-    monkeypatch.setattr(pipeline, "kmeans_iterate", lambda *a: (seen.append(a[1].iteration), real(*a)))
+    monkeypatch.setattr(pose_stages, "kmeans_iterate", lambda *a: (seen.append(a[1].iteration), real(*a)))
     summary = build([str(sources)], tmp_path / "db", _config(memory_limit_mb=TINY_MB))
     assert seen == [1, 2, 2] and summary.resumed["cluster"] == "went on from iteration 2"
     assert_same_database(whole, tmp_path / "db")
@@ -138,11 +142,12 @@ def test_kmeans_goes_on_from_its_last_saved_iteration(sources, whole, tmp_path, 
 def test_a_killed_build_resumes(sources, whole, tmp_path, capsys):
     """SIGKILL in the middle of the assign stage (no Python clean-up at all, like the OOM killer); a
     state save still under way is lost, so the build goes on from the one before."""
-    code = ("import os, signal, sys\nimport mocapdb.builder.pipeline as p\n"
-            "p.COMMIT_INTERVAL_S = 0.0\nreal, calls = p.assign_to_representatives, []\n"
+    code = ("import os, signal, sys\nimport mocapdb.builder.pipeline as p\nimport mocapdb.builder.pose_stages as s\n"
+            "import mocapdb.builder.run as r\nfrom mocapdb.builder.config import BuildConfig\n"
+            "r.COMMIT_INTERVAL_S = 0.0\nreal, calls = s.assign_to_representatives, []\n"
             "def assign(*a):\n    calls.append(1)\n    if len(calls) == 4:\n"
-            "        os.kill(os.getpid(), signal.SIGKILL)\n    return real(*a)\np.assign_to_representatives = assign\n"
-            f"p.build([sys.argv[1]], sys.argv[2], p.BuildConfig(clusters=20, landmarks=300, workers=1, "
+            "        os.kill(os.getpid(), signal.SIGKILL)\n    return real(*a)\ns.assign_to_representatives = assign\n"
+            f"p.build([sys.argv[1]], sys.argv[2], BuildConfig(clusters=20, landmarks=300, workers=1, "
             f"memory_limit_mb={TINY_MB}))\n")
     done = subprocess.run([sys.executable, "-c", code, str(sources), str(tmp_path / "db")], cwd=ROOT)
     assert done.returncode == -9 and not (tmp_path / "db").exists()
@@ -158,8 +163,8 @@ def test_a_killed_build_resumes(sources, whole, tmp_path, capsys):
 def _interrupted(sources, out, monkeypatch, **config) -> None:
     """A build of ``sources`` stopped in its assign stage, its work folder left behind."""
     with monkeypatch.context() as patch:
-        patch.setattr(pipeline, "COMMIT_INTERVAL_S", 0.0)
-        _fail_on_call(patch, "assign_to_representatives", 2)
+        patch.setattr(build_run, "COMMIT_INTERVAL_S", 0.0)
+        _fail_on_call(patch, pose_stages, "assign_to_representatives", 2)
         with pytest.raises(Interrupt):
             build([str(sources)], out, _config(memory_limit_mb=TINY_MB, **config))
 
@@ -203,7 +208,7 @@ def test_a_work_folder_in_use_or_holding_other_files_is_refused(sources, tmp_pat
         fcntl.flock(lock, fcntl.LOCK_EX)
         with pytest.raises(WorkError, match="another build is using this work folder"):
             build([str(sources)], tmp_path / "db", _config(work_dir=tmp_path / "busy"))
-    with pytest.raises(pipeline.BuildError, match="lies inside the output"):
+    with pytest.raises(BuildError, match="lies inside the output"):
         build([str(sources)], tmp_path / "db", _config(work_dir=tmp_path / "db" / "work"))
     assert sorted(os.listdir(tmp_path)) == ["busy", "mine"]
 
@@ -279,7 +284,8 @@ def test_work_arrays_grow_and_drop_what_was_not_committed(tmp_path):
 
 PEAK_CODE = """
 import resource, sys
-from mocapdb.builder.pipeline import BuildConfig, build
+from mocapdb.builder.config import BuildConfig
+from mocapdb.builder.pipeline import build
 build(sys.argv[1:-2], sys.argv[-2], BuildConfig(yaw_step_deg=float(sys.argv[-1]), clusters=100, landmarks=300,
                                                 workers=1, memory_limit_mb=64))
 print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
@@ -313,14 +319,14 @@ def test_a_new_work_array_leaves_a_hard_link_to_the_old_one_alone(tmp_path):
 
 
 def test_an_index_stage_interrupted_after_its_last_group_goes_on(sources, whole, tmp_path, monkeypatch):
-    real = pipeline._finish_index
+    real = index_stage._finish_index
 
     def finish_then_stop(run, arrays):
         real(run, arrays)
         raise Interrupt("index finished, not yet recorded")
 
     with monkeypatch.context() as patch:
-        patch.setattr(pipeline, "_finish_index", finish_then_stop)
+        patch.setattr(index_stage, "_finish_index", finish_then_stop)
         with pytest.raises(Interrupt):
             build([str(sources)], tmp_path / "db", _config(memory_limit_mb=TINY_MB))
     summary = build([str(sources)], tmp_path / "db", _config(memory_limit_mb=TINY_MB))

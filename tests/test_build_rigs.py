@@ -5,10 +5,12 @@ import shutil
 import numpy as np
 import pytest
 
-from mocapdb.builder.pipeline import BuildConfig, _fingerprints, build, find_sources
+from mocapdb.builder.config import BuildConfig
+from mocapdb.builder.pipeline import _fingerprints, build
+from mocapdb.builder.read_stage import find_sources
 from mocapdb.cli.main import main
 from mocapdb.core.clips import JOINT_MAP_FILE, ClipOptions, joint_map_for
-from mocapdb.core.formats.database import load_database
+from mocapdb.core.formats.database_reader import load_database
 from mocapdb.core.joint_map import JointMapError
 
 from .rig_styles import STYLES, rig_text

@@ -5,16 +5,13 @@ import shutil
 import numpy as np
 import pytest
 
-from mocapdb.builder.pipeline import (
-    BuildConfig,
-    BuildError,
-    build,
-    find_sources,
-)
+from mocapdb.builder.config import BuildConfig, BuildError
+from mocapdb.builder.pipeline import build
+from mocapdb.builder.read_stage import find_sources
 from mocapdb.cli.main import main
 from mocapdb.core.clips import ClipOptions, clips_from_bvh, continuous_runs, process_clip
 from mocapdb.core.domains import DomainError
-from mocapdb.core.formats.database import load_database
+from mocapdb.core.formats.database_reader import load_database
 from mocapdb.core.geometry import normalize_pose_2d, project_views
 from mocapdb.core.skeleton import (
     BONE_LENGTHS_M,
@@ -327,7 +324,8 @@ def test_bad_joint_map_fails_before_any_file_is_read(sources, tmp_path, monkeypa
 def test_database_with_a_nan_is_never_written(built, tmp_path):
     from dataclasses import replace
 
-    from mocapdb.core.formats.database import DatabaseError, write_database
+    from mocapdb.core.formats.database import DatabaseError
+    from mocapdb.core.formats.database_writer import write_database
 
     _, db = built
     positions = db.positions.copy()

@@ -11,14 +11,10 @@ import pytest
 
 from mocapdb.core import files
 from mocapdb.core.files import recover_interrupted
-from mocapdb.core.formats import database
-from mocapdb.core.formats.database import (
-    SCHEMA_VERSION,
-    DatabaseError,
-    MotionDatabase,
-    load_database,
-    write_database,
-)
+from mocapdb.core.formats import database_writer
+from mocapdb.core.formats.database import SCHEMA_VERSION, DatabaseError, MotionDatabase
+from mocapdb.core.formats.database_reader import load_database
+from mocapdb.core.formats.database_writer import write_database
 
 
 def make_db(seed: int = 0, counts=(4, 2, 5), n_rig: int = 3, dims: int = 3,
@@ -142,7 +138,7 @@ def test_replaces_existing_database(db_path):
 
 def test_failed_write_keeps_old_database(db_path, monkeypatch):
     calls = []
-    real_write_table = database._write_table
+    real_write_table = database_writer._write_table
 
     def failing_write_table(table, file):
         calls.append(file.name)
@@ -150,7 +146,7 @@ def test_failed_write_keeps_old_database(db_path, monkeypatch):
             raise OSError("disk full")
         return real_write_table(table, file)
 
-    monkeypatch.setattr(database, "_write_table", failing_write_table)
+    monkeypatch.setattr(database_writer, "_write_table", failing_write_table)
     with pytest.raises(OSError, match="disk full"):
         write_database(make_db(seed=1), db_path)
     assert len(calls) == 3
@@ -282,7 +278,7 @@ def test_non_finite_value_on_load_names_table_and_column(tmp_path, monkeypatch, 
     index, value, table, column, row = NON_FINITE[field]
     db = make_db()
     getattr(db, field)[index] = value
-    monkeypatch.setattr(database, "_check_finite", lambda db: None)  # as a writer without the check would
+    monkeypatch.setattr(database_writer, "_check_finite", lambda db: None)  # as a writer without the check would
     write_database(db, tmp_path / "DB")
     for verify in (True, False):
         with pytest.raises(DatabaseError, match=rf"{table}.parquet: NaN or infinite value in table '{table}', "
@@ -329,7 +325,7 @@ def test_failure_between_the_renames_restores_the_old_database(db_path, monkeypa
             raise OSError("simulated failure")
         real_rename(src, dst)
 
-    monkeypatch.setattr(database.os, "rename", rename)
+    monkeypatch.setattr(database_writer.os, "rename", rename)
     with pytest.raises(OSError, match="simulated failure"):
         write_database(make_db(seed=1), db_path)
     pid = os.getpid()
@@ -394,7 +390,7 @@ def _copy_db(small_db_path, tmp_path):
 
 def test_verify_checks_every_file_and_says_which_is_damaged(small_db_path, tmp_path, capsys):
     from mocapdb.cli.main import main
-    from mocapdb.core.formats.database import verify_database
+    from mocapdb.core.formats.database_reader import verify_database
 
     db = _copy_db(small_db_path, tmp_path)
     report = verify_database(db)
@@ -415,7 +411,8 @@ def test_the_runtime_refuses_a_projections_table_it_does_not_read_when_it_is_gon
         small_db_path, tmp_path, damage):
     """The runtime loads a database without reading its projections table (the search index holds
     what it needs), but a deleted, truncated or other database's table is still refused."""
-    from mocapdb.core.formats.database import DatabaseError, load_database
+    from mocapdb.core.formats.database import DatabaseError
+    from mocapdb.core.formats.database_reader import load_database
 
     db = _copy_db(small_db_path, tmp_path)
     table = db / "projections.parquet"

@@ -8,15 +8,11 @@ from sklearn.cluster import KMeans
 from sklearn.datasets import make_blobs
 from sklearn.metrics import adjusted_rand_score
 
-from mocapdb.builder import embedding
-from mocapdb.builder.embedding import (
-    classical_mds,
-    kmeans,
-    landmark_mds,
-    mean_member_distance,
-    pose_distances,
-    representatives,
-)
+import mocapdb.builder.kmeans as clustering
+import mocapdb.builder.landmark_mds as mds
+from mocapdb.builder.kmeans import kmeans, mean_member_distance, representatives
+from mocapdb.builder.landmark_mds import classical_mds, landmark_mds
+from mocapdb.builder.pose_distance import pose_distances
 
 # Articulated test skeleton in OpenPose order (neck is the root): parent, bone length, rest angle.
 PARENTS = (1, -1, 1, 2, 3, 1, 5, 6, 1, 8, 9, 1, 11, 12)
@@ -87,7 +83,7 @@ def test_landmark_mds_close_to_exact_classical_mds(make_poses, bound):
 def test_landmark_mds_chunks_progress_and_determinism(monkeypatch):
     poses = articulated_poses(2000, np.random.default_rng(2)).astype(np.float32)
     whole = landmark_mds(poses, n_landmarks=200, seed=3)
-    monkeypatch.setattr(embedding, "TRIANGULATE_CHUNK", 300)
+    monkeypatch.setattr(mds, "TRIANGULATE_CHUNK", 300)
     done = []
     chunked = landmark_mds(poses, n_landmarks=200, seed=3, progress=done.append)
     assert done == [300] * 6 + [200]
@@ -141,7 +137,7 @@ def test_empty_cluster_takes_the_farthest_point():
     points = np.array([[0.0, 0.0], [1.0, 0.0], [10.0, 0.0], [0.5, 0.0]])
     labels = np.zeros(4, dtype=np.int32)
     sums, counts = np.array([[11.5, 0.0], [0.0, 0.0]]), np.array([4, 0])
-    new = embedding._update_centroids(points, sums, counts, labels, np.array([[2.0, 0.0], [5.0, 5.0]]))
+    new = clustering._update_centroids(points, sums, counts, labels, np.array([[2.0, 0.0], [5.0, 5.0]]))
     np.testing.assert_allclose(new, [[0.5, 0.0], [10.0, 0.0]])
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mocapdb.builder.pipeline import BuildConfig
+from mocapdb.builder.config import BuildConfig
 from mocapdb.core.clips import ClipOptions, process_clip
 from mocapdb.core.errors import UsageError
 from mocapdb.core.formats.keypoints import KeypointFrame, Person

@@ -90,7 +90,8 @@ def test_every_reader_refuses_special_files_at_once(odd_paths, name, target):
 
 
 def test_the_take_description_and_manifest_refuse_special_files(odd_paths):
-    from mocapdb.core.formats.database import DatabaseError, load_database
+    from mocapdb.core.formats.database import DatabaseError
+    from mocapdb.core.formats.database_reader import load_database
     from mocapdb.core.formats.take import TakeError, read_take
 
     take = odd_paths / "take"

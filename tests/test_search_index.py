@@ -9,11 +9,12 @@ import zlib
 import numpy as np
 import pytest
 
-from mocapdb.builder.embedding import pose_distances
 from mocapdb.builder.index import columns_of, subclusters_of
 from mocapdb.builder.pipeline import build
+from mocapdb.builder.pose_distance import pose_distances
 from mocapdb.core.formats import search_index as S
-from mocapdb.core.formats.database import DatabaseError, load_database
+from mocapdb.core.formats.database import DatabaseError
+from mocapdb.core.formats.database_reader import load_database
 from mocapdb.core.search_rules import subclusters_for
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig

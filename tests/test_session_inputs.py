@@ -12,14 +12,16 @@ import pytest
 from mocapdb.cli.main import main
 from mocapdb.core.cameras import DatabaseCamera
 from mocapdb.core.formats.bvh import read_bvh
-from mocapdb.core.formats.database import load_database
+from mocapdb.core.formats.database_reader import load_database
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS, SOURCE_INDEX
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import project_views
 from mocapdb.core.skeleton import PELVIS
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig, TrackLimits
-from mocapdb.runtime.session import FrameParser, InputError, Session, SessionOptions, SessionSummary, SinkError
+from mocapdb.runtime.session import FrameParser, InputError, Session, SinkError
+from mocapdb.runtime.session_options import SessionOptions
+from mocapdb.runtime.session_summary import SessionSummary
 from mocapdb.runtime.streams import StreamStats, open_sink
 
 from .test_session import _stream_lines
@@ -374,7 +376,7 @@ def test_skip_reasons_are_whole_and_say_where(small_db, tmp_path):
 def test_checkpoints_leave_out_the_whole_takes_refit_and_the_final_files_have_it(small_db, tmp_path, monkeypatch):
     """A live checkpoint waits in the loop, so it skips the whole take's re-fit to the image (its
     costliest step); the files written when the track ends have it."""
-    import mocapdb.runtime.session as session_module
+    import mocapdb.runtime.track_files as track_files_module
     from mocapdb.runtime.take import fit_take
     from mocapdb.runtime.take_params import TakeParams
 
@@ -384,7 +386,7 @@ def test_checkpoints_leave_out_the_whole_takes_refit_and_the_final_files_have_it
         calls.append(params.refit_prior)
         return fit_take(rec, fps, params)
 
-    monkeypatch.setattr(session_module, "fit_take", recording_fit_take)
+    monkeypatch.setattr(track_files_module, "fit_take", recording_fit_take)
     px = _walking_px(small_db, 30)
     summary = SessionSummary(stream=StreamStats())
     engine = Engine(small_db, EngineConfig(fps=24.0, keep_take=True))
@@ -421,12 +423,12 @@ def test_track_files_written_by_the_writer_thread_are_those_written_in_the_loop(
 
 
 def test_a_writer_thread_error_reaches_the_session(small_db, tmp_path, monkeypatch):
-    import mocapdb.runtime.session as session_module
+    import mocapdb.runtime.track_files as track_files_module
 
     def full_disk(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(session_module, "write_track_files", full_disk)
+    monkeypatch.setattr(track_files_module, "write_track_files", full_disk)
     px = _walking_px(small_db, 30)
     session = _session(small_db, tmp_path, bvh_dir=tmp_path, checkpoint_s=0.0, write_in_background=True)
     with pytest.raises(OSError, match="No space left"):  # a checkpoint's error, at a later frame

@@ -14,7 +14,7 @@ from mocapdb.cli.main import main
 from mocapdb.core.cameras import CalibrationError, CameraModel, format_calibration_toml, read_calibration_toml
 from mocapdb.core.clips import ClipOptions, process_clip
 from mocapdb.core.formats.bvh import read_bvh
-from mocapdb.core.formats.database import load_database
+from mocapdb.core.formats.database_reader import load_database
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.formats.take import TakeInfo, write_take
 from mocapdb.core.formats.trc import TrcError, parse_trc, read_trc, trc_keypoints
@@ -24,9 +24,8 @@ from mocapdb.evaluation import stereo as eval_stereo
 from mocapdb.stereo import StereoConfig, StereoError
 from mocapdb.stereo import outputs as stereo_outputs
 from mocapdb.stereo import views as stereo_views
-from mocapdb.stereo.epipolar_pairs import MIRROR
 from mocapdb.stereo.motion import CAMERA_ALIGNED, in_front_check
-from mocapdb.stereo.people import match_people
+from mocapdb.stereo.people import MIRROR, match_people
 from mocapdb.stereo.pipeline import select_people
 from mocapdb.stereo.relative_pose import rotation_angle_deg
 from mocapdb.stereo.views import load_views

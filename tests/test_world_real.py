@@ -20,7 +20,8 @@ PLANTED_MPS = 0.2  # a lower ankle slower than this is planted
 @pytest.fixture(scope="module")
 def sample_db_path(tmp_path_factory):
     """The demo database: every bundled clip (what tools/quickstart.sh builds)."""
-    from mocapdb.builder.pipeline import BuildConfig, build
+    from mocapdb.builder.config import BuildConfig
+    from mocapdb.builder.pipeline import build
 
     out = tmp_path_factory.mktemp("sample_db") / "db"
     build([str(SAMPLE_BVH)], out, BuildConfig(workers=1))
@@ -91,7 +92,7 @@ def test_the_footage_check_passes_real_tracks_and_fails_a_broken_one(sample_db_p
     its size made negative (the failure of issue 27: a body behind the camera) fails."""
     from dataclasses import replace
 
-    from mocapdb.core.formats.database import load_database
+    from mocapdb.core.formats.database_reader import load_database
     from mocapdb.evaluation import real_footage
 
     db = load_database(sample_db_path)

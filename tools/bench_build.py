@@ -33,7 +33,8 @@ DEFAULT_SOURCES = ROOT.parent / "shared" / "data" / "cmu_bvh"
 
 CHILD = """
 import json, resource, sys
-from mocapdb.builder.pipeline import BuildConfig, build
+from mocapdb.builder.config import BuildConfig
+from mocapdb.builder.pipeline import build
 options = {"yaw_step_deg": float(sys.argv[2]), "workers": int(sys.argv[4])}
 if sys.argv[5] != "default":
     options["memory_limit_mb"] = int(sys.argv[5])

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from mocapdb.builder.embedding import kmeans, landmark_mds  # noqa: E402
+from mocapdb.builder.kmeans import kmeans  # noqa: E402
+from mocapdb.builder.landmark_mds import landmark_mds  # noqa: E402
 
 # A standing skeleton in OpenPose order (head, neck, arms, legs): unit height, mid-hip at 0, y down.
 BASE_POSE = np.array([

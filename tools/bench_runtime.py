@@ -32,13 +32,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mocapdb.core.formats.database import load_database  # noqa: E402
+from mocapdb.core.formats.database_reader import load_database  # noqa: E402
 from mocapdb.core.formats.keypoints import KeypointFrame  # noqa: E402
 from mocapdb.evaluation.heldout import Scenario, load_heldout, render, view_of  # noqa: E402
 from mocapdb.evaluation.reconstruction import search_benchmark  # noqa: E402
 from mocapdb.runtime.engine import Engine  # noqa: E402
 from mocapdb.runtime.engine_config import EngineConfig  # noqa: E402
-from mocapdb.runtime.session import FrameParser, Session, SessionOptions, SessionSummary, run_live  # noqa: E402
+from mocapdb.runtime.session import FrameParser, Session, run_live  # noqa: E402
+from mocapdb.runtime.session_options import SessionOptions  # noqa: E402
+from mocapdb.runtime.session_summary import SessionSummary  # noqa: E402
 from mocapdb.runtime.streams import StreamStats, open_sink, open_source  # noqa: E402
 from mocapdb.runtime.take_params import TakeParams  # noqa: E402
 from mocapdb.runtime.world import fit_world  # noqa: E402

@@ -33,7 +33,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mocapdb.core.formats.database import MotionDatabase, load_database  # noqa: E402
+from mocapdb.core.formats.database import MotionDatabase  # noqa: E402
+from mocapdb.core.formats.database_reader import load_database  # noqa: E402
 from mocapdb.core.geometry import normalize_pose_2d  # noqa: E402
 from mocapdb.core.search_rules import PAPER_CLUSTERS_SEARCHED, clusters_searched_for  # noqa: E402
 from mocapdb.evaluation.heldout import Scenario, camera_distance, camera_view, render, scenario_positions  # noqa: E402

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mocapdb.core import domains as D  # noqa: E402
-from mocapdb.core.formats.database import load_database  # noqa: E402
+from mocapdb.core.formats.database_reader import load_database  # noqa: E402
 from mocapdb.core.formats.openpose import read_openpose_folder  # noqa: E402
 from mocapdb.core.skeleton import DRAWING_LINES, N_POINTS, swing_matrices  # noqa: E402
 from mocapdb.evaluation.heldout import project  # noqa: E402

@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from mocapdb.builder.embedding import kmeans, nearest_poses, representatives
+from mocapdb.builder.kmeans import kmeans, representatives
+from mocapdb.builder.pose_distance import nearest_poses
 from mocapdb.core.search_rules import subclusters_for
 
 BYTES_PER_COLUMN = 2 * 14 * 4 + 8  # a group's buffers per column: x and y of 14 joints, the row

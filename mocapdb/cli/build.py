@@ -78,7 +78,8 @@ def add_build_parser(sub: argparse._SubParsersAction) -> None:
 def run_build(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from mocapdb.builder.pipeline import BuildConfig, BuildError, build
+    from mocapdb.builder.config import BuildConfig, BuildError
+    from mocapdb.builder.pipeline import build
     from mocapdb.core.cameras import DatabaseCamera
     from mocapdb.core.files import output_target
 
@@ -155,7 +156,7 @@ def add_verify_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run_verify(args: argparse.Namespace) -> int:
-    from mocapdb.core.formats.database import verify_database
+    from mocapdb.core.formats.database_reader import verify_database
 
     report = verify_database(args.db)
     for what, problem in report:

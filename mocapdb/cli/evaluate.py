@@ -74,9 +74,10 @@ def run_eval(args: argparse.Namespace) -> int:
     import logging
     from dataclasses import replace
 
-    from mocapdb.builder.pipeline import BuildConfig, find_sources
+    from mocapdb.builder.config import BuildConfig
+    from mocapdb.builder.read_stage import find_sources
     from mocapdb.core.errors import UsageError
-    from mocapdb.core.formats.database import load_database
+    from mocapdb.core.formats.database_reader import load_database
     from mocapdb.core.outputs import check_output_file, output_file
     from mocapdb.evaluation.reconstruction import EvalConfig, evaluate
     from mocapdb.runtime.engine_config import EngineConfig
@@ -137,9 +138,9 @@ def run_eval(args: argparse.Namespace) -> int:
 def _world_report(args: argparse.Namespace, engine: EngineConfig) -> dict:
     """``eval --db DB --world HELDOUT...``: the report of :mod:`mocapdb.evaluation.world`, its tables
     and checks printed."""
-    from mocapdb.builder.pipeline import find_sources
+    from mocapdb.builder.read_stage import find_sources
     from mocapdb.core.errors import UsageError
-    from mocapdb.core.formats.database import load_database
+    from mocapdb.core.formats.database_reader import load_database
     from mocapdb.evaluation.world import check_lines, evaluate_world, format_table
     from mocapdb.evaluation.world_takes import WorldConfig
 

@@ -200,7 +200,7 @@ def subject_heights(args: argparse.Namespace) -> dict[int | None, float]:
 
 def _engine(args: argparse.Namespace):
     from mocapdb.core.errors import UsageError
-    from mocapdb.core.formats.database import load_database
+    from mocapdb.core.formats.database_reader import load_database
     from mocapdb.core.formats.take import DEFAULTS, default_focal_px
     from mocapdb.runtime.engine import Engine
     from mocapdb.runtime.engine_config import EngineConfig
@@ -235,7 +235,9 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
     from mocapdb.core.errors import UsageError
     from mocapdb.core.exports import TrackExport
     from mocapdb.runtime.engine_config import TrackLimits
-    from mocapdb.runtime.session import FrameParser, Session, SessionOptions, SessionSummary
+    from mocapdb.runtime.session import FrameParser, Session
+    from mocapdb.runtime.session_options import SessionOptions
+    from mocapdb.runtime.session_summary import SessionSummary
     from mocapdb.runtime.streams import StreamStats, open_sink
     from mocapdb.runtime.subject import parse_people
     from mocapdb.runtime.take_params import TakeParams

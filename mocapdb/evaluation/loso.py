@@ -2,7 +2,7 @@
 
 Subject = the number before the first ``_`` of a BVH file name (``002_05.bvh`` → 2). For each
 subject a database is built from all the other subjects' files with the normal builder (default
-:class:`~mocapdb.builder.pipeline.BuildConfig` except ``workers``, and ``clusters``/``landmarks`` when
+:class:`~mocapdb.builder.config.BuildConfig` except ``workers``, and ``clusters``/``landmarks`` when
 given) into a temporary folder that is removed afterwards, and a bounded sample of the subject's
 own clips is evaluated against it (:mod:`mocapdb.evaluation.reconstruction`: both engine variants on the same
 rendered frames, the database floor of that fold's database):
@@ -31,11 +31,13 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapdb.builder.pipeline import BuildConfig, build, find_sources
+from mocapdb.builder.config import BuildConfig
+from mocapdb.builder.pipeline import build
+from mocapdb.builder.read_stage import find_sources
 from mocapdb.core import domains as D
 from mocapdb.core.clips import process_clip
 from mocapdb.core.errors import UsageError
-from mocapdb.core.formats.database import load_database
+from mocapdb.core.formats.database_reader import load_database
 from mocapdb.evaluation.heldout import Scenario, Truth
 from mocapdb.evaluation.reconstruction import (
     EvalConfig,
