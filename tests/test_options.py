@@ -113,7 +113,7 @@ def test_the_api_refuses_what_the_cli_refuses():
     from mocapdb.core.domains import DomainError
     from mocapdb.runtime.engine_config import EngineConfig, TrackLimits
     from mocapdb.runtime.filters import OneEuroParams
-    from mocapdb.runtime.session import SessionOptions
+    from mocapdb.runtime.session_options import SessionOptions
     from mocapdb.runtime.streams import NetworkLimits
     from mocapdb.runtime.take_params import TakeParams
 

@@ -15,7 +15,8 @@ from mocapdb.core.geometry import project_views
 from mocapdb.core.skeleton import PELVIS
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
-from mocapdb.runtime.session import FrameParser, Session, SessionSummary, run_live, run_offline
+from mocapdb.runtime.session import FrameParser, Session, run_live, run_offline
+from mocapdb.runtime.session_summary import SessionSummary
 from mocapdb.runtime.streams import StreamStats, open_sink, open_source
 
 from .conftest import SAMPLE_KEYPOINTS
