@@ -24,8 +24,9 @@ from mocapdb.evaluation import stereo as eval_stereo
 from mocapdb.stereo import StereoConfig, StereoError
 from mocapdb.stereo import outputs as stereo_outputs
 from mocapdb.stereo import views as stereo_views
+from mocapdb.stereo.epipolar_pairs import MIRROR
 from mocapdb.stereo.motion import CAMERA_ALIGNED, in_front_check
-from mocapdb.stereo.people import MIRROR, match_people
+from mocapdb.stereo.people import match_people
 from mocapdb.stereo.pipeline import select_people
 from mocapdb.stereo.relative_pose import rotation_angle_deg
 from mocapdb.stereo.views import load_views
