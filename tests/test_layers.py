@@ -146,3 +146,12 @@ def test_no_class_has_more_than_twelve_public_methods():
                 if len(public) > MAX_PUBLIC_METHODS:
                     crowded.append(f"{module}.{node.name}: {len(public)} public methods")
     assert not crowded, crowded
+
+
+MAX_MODULE_LINES = 500   # a longer module holds more than one concern
+
+
+def test_no_module_is_longer_than_five_hundred_lines():
+    long = [f"{module}: {n} lines" for module, path in _modules().items()
+            if (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES]
+    assert not long, long
