@@ -4,6 +4,7 @@ sources' joint maps, memory, work folder and scheduler, each checked by its flag
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,7 +24,7 @@ class BuildError(MocapdbError, RuntimeError):
     """A build that cannot go on; the message says why, ``skipped`` names the files skipped before
     it stopped, each with its reason (``(path, reason)`` pairs)."""
 
-    def __init__(self, message: str, skipped: list[tuple[str, str]] = ()):
+    def __init__(self, message: str, skipped: Sequence[tuple[str, str]] = ()):
         super().__init__(message)
         self.skipped = list(skipped)
 

@@ -14,6 +14,7 @@ import argparse
 import math
 import numbers
 from dataclasses import dataclass, replace
+from typing import Any
 
 from mocapdb.core.errors import UsageError
 
@@ -33,7 +34,7 @@ class Domain:
     integer: bool = False
     low_open: bool = False
     zero_means: str | None = None  # what 0 means when it is accepted, e.g. "no limit"
-    default: int | float | None = None  # the value when none is given: the parser's and the config's
+    default: Any = None  # the value (int or float) when none is given: the parser's and the config's
 
     def describe(self) -> str:
         """``a frame rate in hertz, from 1 to 1000``: the domain in words."""
@@ -113,7 +114,7 @@ class NumberListArg:
     item: Domain
     min_items: int = 1
     max_items: int = 32
-    default: tuple[float, ...] | None = None   # the list when none is given: the parser's and the config's
+    default: Any = None   # the tuple of numbers when none is given: the parser's and the config's
 
     def check(self, values, name: str) -> tuple[float, ...]:
         """The values as a tuple when they form such a list, else DomainError naming ``name``."""

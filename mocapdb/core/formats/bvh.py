@@ -368,7 +368,7 @@ def detect_position_mode(bvh: Bvh) -> str:
     """
     votes, found = [], False
     for j in np.flatnonzero(bvh.parents >= 0):
-        columns, axes = _position_channels(bvh, j)
+        columns, axes = _position_channels(bvh, int(j))
         if not columns:
             continue
         found = True
