@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
-from mocapdb.detect.model import Detections, box_iou, load_session
+from mocapdb.detect.model import Detections, box_area, box_intersection, box_iou, load_session
 
 DETECTOR_PX = 224            # person detector input side, pixels
 LANDMARK_PX = 256            # landmark model input side, pixels
@@ -327,11 +327,8 @@ def keep_sides(points: np.ndarray, previous: np.ndarray) -> np.ndarray:
 
 def _share_of_smaller(boxes: np.ndarray) -> np.ndarray:
     """``[P, P]``: the share of the smaller of each two boxes (x1, y1, x2, y2) that lies in the other."""
-    low = np.maximum(boxes[:, None, :2], boxes[None, :, :2])
-    high = np.minimum(boxes[:, None, 2:], boxes[None, :, 2:])
-    inter = np.prod(np.clip(high - low, 0.0, None), axis=-1)
-    area = np.prod(np.clip(boxes[:, 2:] - boxes[:, :2], 1e-9, None), axis=-1)
-    return inter / np.minimum(area[:, None], area[None, :])
+    area = np.maximum(box_area(boxes), 1e-9)
+    return box_intersection(boxes, boxes) / np.minimum(area[:, None], area[None, :])
 
 
 def _distinct(boxes: np.ndarray, scores: np.ndarray) -> np.ndarray:
