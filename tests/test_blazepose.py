@@ -227,7 +227,7 @@ def test_live_video_frames_carry_blazepose_feet_and_hands():
     from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
     from mocapdb.detect.model import Detections
     from mocapdb.detect.video import VideoFrame
-    from mocapdb.runtime.video_input import keypoint_frame
+    from mocapdb.runtime.stream.video_input import keypoint_frame
 
     points = np.random.default_rng(1).uniform(10, 500, (2, 33, 3))
     points[..., 2] = 0.9

@@ -22,8 +22,8 @@ from mocapdb.detect.errors import DetectError
 from mocapdb.detect.model import PoseModel, box_iou, letterbox, nms
 from mocapdb.detect.openpose_out import coco17_to_coco18
 from mocapdb.detect.video import VideoReader
-from mocapdb.runtime.streams import StreamStats
-from mocapdb.runtime.video_input import VideoDetections, open_video_source, run_video
+from mocapdb.runtime.stream.transport import StreamStats
+from mocapdb.runtime.stream.video_input import VideoDetections, open_video_source, run_video
 
 VIDEO_W, VIDEO_H, VIDEO_FRAMES, VIDEO_FPS = 640, 360, 10, 10.0
 SIDE = 320   # model input side: the 640×360 video is scaled by 0.5; YOLO pads 70 px above and below

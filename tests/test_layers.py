@@ -66,6 +66,15 @@ def test_layers_import_downwards_only():
     assert not wrong, "\n".join(wrong)
 
 
+def test_runtime_algorithms_do_not_import_stream_input_and_output():
+    """The engine's algorithms stay apart from sources, sinks, buffering and sessions (runtime/stream/)."""
+    wrong = [f"{path.relative_to(ROOT)}:{line} imports {name}"
+             for module, path in _modules().items()
+             if module.startswith("mocapdb.runtime.") and not module.startswith("mocapdb.runtime.stream")
+             for line, name in _imports(path, module) if name.startswith("mocapdb.runtime.stream")]
+    assert not wrong, "\n".join(wrong)
+
+
 def test_every_module_belongs_to_a_layer():
     assert {_layer(m) for m in _modules()} <= set(ALLOWED)
 

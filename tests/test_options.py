@@ -113,8 +113,8 @@ def test_the_api_refuses_what_the_cli_refuses():
     from mocapdb.core.domains import DomainError
     from mocapdb.runtime.engine_config import EngineConfig, TrackLimits
     from mocapdb.runtime.filters import OneEuroParams
-    from mocapdb.runtime.session_options import SessionOptions
-    from mocapdb.runtime.streams import NetworkLimits
+    from mocapdb.runtime.stream.session_options import SessionOptions
+    from mocapdb.runtime.stream.transport import NetworkLimits
     from mocapdb.runtime.take_params import TakeParams
 
     for make in [lambda: EngineConfig(per_cluster=0), lambda: EngineConfig(fps=float("nan")),

@@ -15,9 +15,9 @@ from mocapdb.core.geometry import project_views
 from mocapdb.core.skeleton import PELVIS
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
-from mocapdb.runtime.session import FrameParser, Session, run_live, run_offline
-from mocapdb.runtime.session_summary import SessionSummary
-from mocapdb.runtime.streams import StreamStats, open_sink, open_source
+from mocapdb.runtime.stream.session import FrameParser, Session, run_live, run_offline
+from mocapdb.runtime.stream.session_summary import SessionSummary
+from mocapdb.runtime.stream.transport import StreamStats, open_sink, open_source
 
 from .conftest import SAMPLE_KEYPOINTS
 
@@ -240,8 +240,8 @@ def test_live_process_whose_stdout_closes_stops_and_still_writes_its_bvh_files(s
 
 def test_live_cli_with_a_failing_sink_exits_non_zero_after_writing_the_bvh_files(small_db, small_db_path, tmp_path,
                                                                                   capsys, monkeypatch):
-    import mocapdb.runtime.streams
-    from mocapdb.runtime.sinks import Sink
+    import mocapdb.runtime.stream.transport
+    from mocapdb.runtime.stream.sinks import Sink
 
     class FullDisk(Sink):
         def __init__(self, stats):
@@ -256,7 +256,7 @@ def test_live_cli_with_a_failing_sink_exits_non_zero_after_writing_the_bvh_files
         def close(self):
             pass
 
-    monkeypatch.setattr(mocapdb.runtime.streams, "open_sink", lambda spec, stats: FullDisk(stats))
+    monkeypatch.setattr(mocapdb.runtime.stream.transport, "open_sink", lambda spec, stats: FullDisk(stats))
     (tmp_path / "in.jsonl").write_text("\n".join(_stream_lines(small_db, 40)) + "\n")
     assert main(["live", "--source", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--fps", "24",
                  "--sink", str(tmp_path / "out.jsonl"), "--bvh-dir", str(tmp_path / "bvh"), "--buffer", "100",

@@ -19,10 +19,10 @@ from mocapdb.core.geometry import project_views
 from mocapdb.core.skeleton import PELVIS
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig, TrackLimits
-from mocapdb.runtime.session import FrameParser, InputError, Session, SinkError
-from mocapdb.runtime.session_options import SessionOptions
-from mocapdb.runtime.session_summary import SessionSummary
-from mocapdb.runtime.streams import StreamStats, open_sink
+from mocapdb.runtime.stream.session import FrameParser, InputError, Session, SinkError
+from mocapdb.runtime.stream.session_options import SessionOptions
+from mocapdb.runtime.stream.session_summary import SessionSummary
+from mocapdb.runtime.stream.transport import StreamStats, open_sink
 
 from .test_session import _stream_lines
 
@@ -200,7 +200,7 @@ def _in_layout(px: np.ndarray, layout: str) -> list:
 
 
 def test_a_stream_whose_layout_changes_keeps_every_frame(small_db, tmp_path, caplog):
-    from mocapdb.runtime.streams import RawMessage
+    from mocapdb.runtime.stream.transport import RawMessage
 
     px = _walking_px(small_db, 150)
     session = _session(small_db, tmp_path, strict=False)
@@ -231,7 +231,7 @@ def _coco17(px: np.ndarray) -> list:
 def _flood(db, n_messages: int, stay: int):
     """Message k brings a new person (walking, ~110 px tall) to one of 64 places far apart; each
     stays ``stay`` frames. Yields ``RawMessage``s, built as they go (no memory of their own)."""
-    from mocapdb.runtime.streams import RawMessage
+    from mocapdb.runtime.stream.transport import RawMessage
 
     walk = _walking_px(db, stay)
     walk = (walk - walk.reshape(-1, 2).mean(axis=0)) * 0.25
@@ -365,7 +365,7 @@ def test_new_tracks_per_minute_count_by_arrival_time_in_live(small_db, tmp_path)
 
 
 def test_skip_reasons_are_whole_and_say_where(small_db, tmp_path):
-    from mocapdb.runtime.streams import RawMessage
+    from mocapdb.runtime.stream.transport import RawMessage
 
     session = _session(small_db, tmp_path)
     session.handle(RawMessage('{"frame": 1, "people": [' + " " * 300 + "x]}", "in.jsonl line 7", 0.0))
@@ -376,7 +376,7 @@ def test_skip_reasons_are_whole_and_say_where(small_db, tmp_path):
 def test_checkpoints_leave_out_the_whole_takes_refit_and_the_final_files_have_it(small_db, tmp_path, monkeypatch):
     """A live checkpoint waits in the loop, so it skips the whole take's re-fit to the image (its
     costliest step); the files written when the track ends have it."""
-    import mocapdb.runtime.track_files as track_files_module
+    import mocapdb.runtime.stream.track_files as track_files_module
     from mocapdb.runtime.take import fit_take
     from mocapdb.runtime.take_params import TakeParams
 
@@ -423,7 +423,7 @@ def test_track_files_written_by_the_writer_thread_are_those_written_in_the_loop(
 
 
 def test_a_writer_thread_error_reaches_the_session(small_db, tmp_path, monkeypatch):
-    import mocapdb.runtime.track_files as track_files_module
+    import mocapdb.runtime.stream.track_files as track_files_module
 
     def full_disk(*args, **kwargs):
         raise OSError(28, "No space left on device")

@@ -11,7 +11,7 @@ import time
 import pytest
 
 from mocapdb.cli.signals import install_stop_handlers
-from mocapdb.runtime.streams import (
+from mocapdb.runtime.stream.transport import (
     LiveInput,
     NetworkLimits,
     RawMessage,
@@ -481,7 +481,7 @@ def test_folder_source_lists_again_only_when_the_folder_changes(tmp_path):
 
 
 def test_folder_source_rescans_a_folder_whose_time_stamp_hides_a_new_file(tmp_path):
-    from mocapdb.runtime.streams import FolderSource
+    from mocapdb.runtime.stream.transport import FolderSource
 
     old_ns = time.time_ns() - 3600 * 10**9
     os.utime(tmp_path, ns=(old_ns, old_ns))

@@ -38,10 +38,10 @@ from mocapdb.evaluation.heldout import Scenario, load_heldout, render, view_of  
 from mocapdb.evaluation.reconstruction import search_benchmark  # noqa: E402
 from mocapdb.runtime.engine import Engine  # noqa: E402
 from mocapdb.runtime.engine_config import EngineConfig  # noqa: E402
-from mocapdb.runtime.session import FrameParser, Session, run_live  # noqa: E402
-from mocapdb.runtime.session_options import SessionOptions  # noqa: E402
-from mocapdb.runtime.session_summary import SessionSummary  # noqa: E402
-from mocapdb.runtime.streams import StreamStats, open_sink, open_source  # noqa: E402
+from mocapdb.runtime.stream.session import FrameParser, Session, run_live  # noqa: E402
+from mocapdb.runtime.stream.session_options import SessionOptions  # noqa: E402
+from mocapdb.runtime.stream.session_summary import SessionSummary  # noqa: E402
+from mocapdb.runtime.stream.transport import StreamStats, open_sink, open_source  # noqa: E402
 from mocapdb.runtime.take_params import TakeParams  # noqa: E402
 from mocapdb.runtime.world import fit_world  # noqa: E402
 

@@ -48,7 +48,7 @@ from mocapdb.detect.model import Detections, box_iou  # noqa: E402
 from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU  # noqa: E402
 from mocapdb.detect.tracked import FULL_FRAME, FastPath  # noqa: E402
 from mocapdb.detect.video import VideoReader  # noqa: E402
-from mocapdb.runtime.video_input import keypoint_frame  # noqa: E402
+from mocapdb.runtime.stream.video_input import keypoint_frame  # noqa: E402
 
 WARM_UP_FRAMES = 10     # left out of the timings: onnxruntime's first runs, the engine's first frames
 MIN_CONFIDENCE = 0.5    # keypoints compared: confident in both runs

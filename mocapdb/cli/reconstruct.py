@@ -132,7 +132,7 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
 
 def _is_video(source: str) -> bool:
     """``live --source`` names a video file or a camera (not a keypoint stream)."""
-    from mocapdb.runtime.video_input import is_video_source
+    from mocapdb.runtime.stream.video_input import is_video_source
 
     return is_video_source(source)
 
@@ -235,10 +235,10 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
     from mocapdb.core.errors import UsageError
     from mocapdb.core.exports import TrackExport
     from mocapdb.runtime.engine_config import TrackLimits
-    from mocapdb.runtime.session import FrameParser, Session
-    from mocapdb.runtime.session_options import SessionOptions
-    from mocapdb.runtime.session_summary import SessionSummary
-    from mocapdb.runtime.streams import StreamStats, open_sink
+    from mocapdb.runtime.stream.session import FrameParser, Session
+    from mocapdb.runtime.stream.session_options import SessionOptions
+    from mocapdb.runtime.stream.session_summary import SessionSummary
+    from mocapdb.runtime.stream.transport import StreamStats, open_sink
     from mocapdb.runtime.subject import parse_people
     from mocapdb.runtime.take_params import TakeParams
 
@@ -340,8 +340,8 @@ def _reconstruct_into(args: argparse.Namespace, out_dir, frames):
     """Run the session into ``out_dir``; returns it (finished) and whether Ctrl-C stopped it early."""
     from mocapdb.core.errors import UsageError
     from mocapdb.core.progress import progress
-    from mocapdb.runtime.session import run_arrays, run_offline
-    from mocapdb.runtime.streams import open_source
+    from mocapdb.runtime.stream.session import run_arrays, run_offline
+    from mocapdb.runtime.stream.transport import open_source
 
     session = _session(args, str(out_dir / "result.jsonl"), strict=True, bvh_dir=out_dir)
     interrupted = False
@@ -404,9 +404,9 @@ def run_live(args: argparse.Namespace) -> int:
     from mocapdb.core.outputs import check_no_track_files
     from mocapdb.detect.detectors import open_detector
     from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU
-    from mocapdb.runtime.session import SinkError, run_live
-    from mocapdb.runtime.streams import NetworkLimits, open_source
-    from mocapdb.runtime.video_input import open_video_source, run_video
+    from mocapdb.runtime.stream.session import SinkError, run_live
+    from mocapdb.runtime.stream.transport import NetworkLimits, open_source
+    from mocapdb.runtime.stream.video_input import open_video_source, run_video
 
     limits = NetworkLimits(args.max_clients, args.client_timeout, args.max_rate)   # checked before any work
     if args.bvh_dir:

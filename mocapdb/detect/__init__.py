@@ -3,7 +3,7 @@
 A video file or a camera is decoded with OpenCV, an ONNX pose model (YOLO-pose or RTMO export) runs
 on each frame with onnxruntime (CPU), and the people found are written as one OpenPose
 ``--write_json`` file per frame in the COCO-18 layout (or handed to the live engine by
-``mocapdb.runtime.video_input``). Modules, each imported on its own (this package imports nothing,
+``mocapdb.runtime.stream.video_input``). Modules, each imported on its own (this package imports nothing,
 so the command-line parser stays fast):
 
 - :mod:`mocapdb.detect.options`: the defaults the command-line parser shows (light);

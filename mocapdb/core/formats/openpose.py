@@ -121,7 +121,7 @@ _DIGIT_RUNS = re.compile(r"([0-9]+)")
 
 def frame_order_key(name: str) -> tuple[int, int, tuple[str | int, ...], str]:
     """Sort key putting keypoint file names (no folder part) in frame order; used by every folder
-    reader (:func:`read_openpose_folder`, the live folder source of ``mocapdb.runtime.sources``).
+    reader (:func:`read_openpose_folder`, the live folder source of ``mocapdb.runtime.stream.sources``).
 
     1. OpenPose names ``<stem>_<frame>_keypoints.json`` (OpenPose writes 12 digits; any count is
        read) come first, by frame number: the number decides, not the stem, so ``b_…2`` is before

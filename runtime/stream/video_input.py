@@ -5,7 +5,7 @@
 frame in a background thread, so detection of the next frame overlaps the engine's retrieval of
 this one. Frames (universal 14 keypoints) wait in a small buffer; when the consumer
 falls behind, the oldest is dropped and counted (``StreamStats.dropped_stale``), as
-:class:`~mocapdb.runtime.buffering.LiveInput` does for messages. Every frame carries the moment it was
+:class:`~mocapdb.runtime.stream.buffering.LiveInput` does for messages. Every frame carries the moment it was
 decoded, so the session's latency is end to end: capture → output line. A file is read as fast as
 detection goes (not paced to its frame rate); a camera paces itself.
 """
@@ -20,11 +20,11 @@ from mocapdb.detect.detectors import FrameDetector
 from mocapdb.detect.errors import DetectError
 from mocapdb.detect.model import Detections
 from mocapdb.detect.video import VideoFrame, VideoReader
-from mocapdb.runtime.buffering import BufferedThread
-from mocapdb.runtime.stream_types import StreamStats
+from mocapdb.runtime.stream.buffering import BufferedThread
+from mocapdb.runtime.stream.messages import StreamStats
 
 if TYPE_CHECKING:
-    from mocapdb.runtime.session import Session
+    from mocapdb.runtime.stream.session import Session
 
 POLL_S = 0.05   # how often the live loop checks ``stop`` while no frame is ready
 KEYPOINT_FILE_SUFFIXES = (".jsonl", ".json", ".ndjson", ".txt")   # a --source file with these is keypoints
@@ -52,7 +52,7 @@ class VideoDetections(BufferedThread[CapturedFrame]):
     (BlazePose or a :class:`~mocapdb.detect.tracked.TrackedDetector`: both follow them across frames).
 
     ``every``: detect every N-th frame only; ``capacity``: frames buffered before the oldest is
-    dropped (see :class:`~mocapdb.runtime.buffering.BufferedThread`). Opening the video happens here
+    dropped (see :class:`~mocapdb.runtime.stream.buffering.BufferedThread`). Opening the video happens here
     (DetectError if it fails); the thread starts at once.
     """
 

@@ -1,4 +1,4 @@
-"""Output sinks for ``mocapdb live`` and ``mocapdb reconstruct`` (see :mod:`mocapdb.runtime.streams`): one
+"""Output sinks for ``mocapdb live`` and ``mocapdb reconstruct`` (see :mod:`mocapdb.runtime.stream.transport`): one
 line per :meth:`Sink.write`; an unreachable consumer is counted, never raised and never waited for.
 
 Choices:
@@ -21,7 +21,7 @@ from collections import deque
 from pathlib import Path
 from typing import Self
 
-from mocapdb.runtime.stream_types import StreamStats, resolve_address
+from mocapdb.runtime.stream.messages import StreamStats, resolve_address
 
 __all__ = ["MAX_DATAGRAM_BYTES", "FileSink", "Sink", "StdoutSink", "TcpSink", "UdpSink"]
 

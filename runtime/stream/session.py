@@ -1,14 +1,14 @@
 """The one loop behind `mocapdb reconstruct` and `mocapdb live`: messages → frames → engine → outputs.
 
 ``reconstruct`` reads every message of a folder or file in order; ``live`` reads through
-:class:`~mocapdb.runtime.streams.LiveInput`, which drops stale messages when the engine falls behind.
+:class:`~mocapdb.runtime.stream.transport.LiveInput`, which drops stale messages when the engine falls behind.
 Malformed messages are counted by reason and skipped; the summary reports them with frame,
 people and track counts, per-frame latency (p50/p99, from a message's arrival to its output line),
 throughput and what the limits held back. Whatever arrives, memory stays bounded: tracks by
 :class:`~mocapdb.runtime.engine_config.TrackLimits`, recordings by BVH parts, the summary's lists by caps.
 A sink that fails stops the session (:class:`SinkError`); :meth:`Session.finish` still writes
-every BVH file. Its options: :mod:`mocapdb.runtime.session_options`; its summary:
-:mod:`mocapdb.runtime.session_summary`; its track files: :mod:`mocapdb.runtime.track_files`.
+every BVH file. Its options: :mod:`mocapdb.runtime.stream.session_options`; its summary:
+:mod:`mocapdb.runtime.stream.session_summary`; its track files: :mod:`mocapdb.runtime.stream.track_files`.
 """
 from __future__ import annotations
 
@@ -26,10 +26,10 @@ from mocapdb.core.progress import compile_notice, kernels_cached
 from mocapdb.runtime import refine
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.lag import FixedLag
-from mocapdb.runtime.session_options import SessionOptions
-from mocapdb.runtime.session_summary import LimitReport, SessionSummary
-from mocapdb.runtime.streams import LiveInput, RawMessage, Sink, Source
-from mocapdb.runtime.track_files import TrackFiles
+from mocapdb.runtime.stream.session_options import SessionOptions
+from mocapdb.runtime.stream.session_summary import LimitReport, SessionSummary
+from mocapdb.runtime.stream.track_files import TrackFiles
+from mocapdb.runtime.stream.transport import LiveInput, RawMessage, Sink, Source
 
 LOG = logging.getLogger(__name__)
 

@@ -1,5 +1,5 @@
-"""Local message sources (see :mod:`mocapdb.runtime.streams`): a folder of ``*.json`` files, a
-``.jsonl``/``.ndjson`` file and standard input. Network sources: :mod:`mocapdb.runtime.net_sources`.
+"""Local message sources (see :mod:`mocapdb.runtime.stream.transport`): a folder of ``*.json`` files, a
+``.jsonl``/``.ndjson`` file and standard input. Network sources: :mod:`mocapdb.runtime.stream.net_sources`.
 
 Choices:
 
@@ -33,8 +33,8 @@ from pathlib import Path
 from typing import Any
 
 from mocapdb.core.formats.openpose import frame_entries, frame_order_key
-from mocapdb.runtime.source_base import READ_BYTES, LineSplitter, Source
-from mocapdb.runtime.stream_types import RawMessage
+from mocapdb.runtime.stream.messages import RawMessage
+from mocapdb.runtime.stream.source_base import READ_BYTES, LineSplitter, Source
 
 __all__ = ["RESCAN_S", "SETTLE_S", "FolderSource", "JsonLinesFileSource", "StdinSource"]
 

@@ -1,11 +1,11 @@
-"""The drop-oldest buffer between a producer thread and the live loop (see :mod:`mocapdb.runtime.streams`).
+"""The drop-oldest buffer between a producer thread and the live loop (see :mod:`mocapdb.runtime.stream.transport`).
 
 :class:`BufferedThread` runs a producer in a background thread behind a small buffer; when the
 consumer falls behind, the oldest item is dropped and counted, so a slow engine skips stale frames
 instead of falling further and further behind. A lossless buffer makes the producer wait instead:
 files already on disk (a folder of frames, a JSON-lines file) are read at the engine's pace and
-none is dropped (:attr:`~mocapdb.runtime.source_base.Source.lossless`). :class:`LiveInput` does
-this for a message source; :class:`~mocapdb.runtime.video_input.VideoDetections` for detected video
+none is dropped (:attr:`~mocapdb.runtime.stream.source_base.Source.lossless`). :class:`LiveInput` does
+this for a message source; :class:`~mocapdb.runtime.stream.video_input.VideoDetections` for detected video
 frames. ``reconstruct``
 iterates its source itself and processes every frame.
 """
@@ -16,8 +16,8 @@ from collections import deque
 from collections.abc import Iterator
 from typing import Generic, Self, TypeVar
 
-from mocapdb.runtime.source_base import Source
-from mocapdb.runtime.stream_types import RawMessage, StreamStats
+from mocapdb.runtime.stream.messages import RawMessage, StreamStats
+from mocapdb.runtime.stream.source_base import Source
 
 __all__ = ["BufferedThread", "LiveInput"]
 

@@ -5,16 +5,16 @@ turn a ``--source``/``--sink`` value into a source or a sink, and every public n
 below is re-exported here.
 
 - Sources yield :class:`RawMessage` texts and never parse them; the caller's parser does. The base
-  class and line splitting: :mod:`~mocapdb.runtime.source_base`; folder, ``.jsonl`` file and stdin:
-  :mod:`~mocapdb.runtime.sources`; TCP and UDP, with what keeps them up whatever one sender does
-  (concurrent clients, timeouts, rate limits): :mod:`~mocapdb.runtime.net_sources`.
-- Sinks (:mod:`~mocapdb.runtime.sinks`) write one line per call.
-- :class:`LiveInput` (:mod:`~mocapdb.runtime.buffering`) runs a source in a background thread
+  class and line splitting: :mod:`~mocapdb.runtime.stream.source_base`; folder, ``.jsonl`` file and stdin:
+  :mod:`~mocapdb.runtime.stream.sources`; TCP and UDP, with what keeps them up whatever one sender does
+  (concurrent clients, timeouts, rate limits): :mod:`~mocapdb.runtime.stream.net_sources`.
+- Sinks (:mod:`~mocapdb.runtime.stream.sinks`) write one line per call.
+- :class:`LiveInput` (:mod:`~mocapdb.runtime.stream.buffering`) runs a source in a background thread
   behind a small drop-oldest buffer, so a slow engine skips stale frames instead of falling further
   and further behind; ``reconstruct`` iterates the source itself and processes every frame.
 - Bad input never raises: oversized messages, non-UTF-8 payloads, messages over a sender's rate,
   folder entries that are not regular files and undelivered output lines are counted in
-  :class:`StreamStats` (:mod:`~mocapdb.runtime.stream_types`) and skipped. Blank messages are
+  :class:`StreamStats` (:mod:`~mocapdb.runtime.stream.messages`) and skipped. Blank messages are
   skipped silently.
 """
 from __future__ import annotations
@@ -22,12 +22,19 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from mocapdb.runtime.buffering import BufferedThread, LiveInput
-from mocapdb.runtime.net_sources import CLIENT_TIMEOUT_S, MAX_CLIENTS, MAX_RATE, NetworkLimits, TcpSource, UdpSource
-from mocapdb.runtime.sinks import MAX_DATAGRAM_BYTES, FileSink, Sink, StdoutSink, TcpSink, UdpSink
-from mocapdb.runtime.source_base import MAX_MESSAGE_BYTES, POLL_S, Source
-from mocapdb.runtime.sources import SETTLE_S, FolderSource, JsonLinesFileSource, StdinSource
-from mocapdb.runtime.stream_types import RawMessage, StreamSpecError, StreamStats, parse_host_port
+from mocapdb.runtime.stream.buffering import BufferedThread, LiveInput
+from mocapdb.runtime.stream.messages import RawMessage, StreamSpecError, StreamStats, parse_host_port
+from mocapdb.runtime.stream.net_sources import (
+    CLIENT_TIMEOUT_S,
+    MAX_CLIENTS,
+    MAX_RATE,
+    NetworkLimits,
+    TcpSource,
+    UdpSource,
+)
+from mocapdb.runtime.stream.sinks import MAX_DATAGRAM_BYTES, FileSink, Sink, StdoutSink, TcpSink, UdpSink
+from mocapdb.runtime.stream.source_base import MAX_MESSAGE_BYTES, POLL_S, Source
+from mocapdb.runtime.stream.sources import SETTLE_S, FolderSource, JsonLinesFileSource, StdinSource
 
 __all__ = ["CLIENT_TIMEOUT_S", "MAX_CLIENTS", "MAX_DATAGRAM_BYTES", "MAX_MESSAGE_BYTES", "MAX_RATE", "POLL_S",
            "SETTLE_S", "BufferedThread", "FileSink", "FolderSource", "JsonLinesFileSource", "LiveInput",

@@ -1,11 +1,11 @@
-"""The base of every message source (see :mod:`mocapdb.runtime.streams`): :class:`Source` and the
+"""The base of every message source (see :mod:`mocapdb.runtime.stream.transport`): :class:`Source` and the
 size-bounded :class:`LineSplitter` that cuts byte streams into messages.
 
 No wait is unbounded: every source looks at its stop flag and its idle timeout at least every
 ``poll_s``, so SIGINT/SIGTERM and ``--idle-timeout`` are honoured whatever the input does.
 ``idle_timeout_s`` counts from the last message passed on (or the start), for every source.
 Blank messages are skipped silently; oversized, non-UTF-8 and rate-limited ones are counted in
-:class:`~mocapdb.runtime.stream_types.StreamStats` and skipped.
+:class:`~mocapdb.runtime.stream.messages.StreamStats` and skipped.
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from typing import Protocol, Self
 
-from mocapdb.runtime.stream_types import RawMessage, StreamStats
+from mocapdb.runtime.stream.messages import RawMessage, StreamStats
 
 __all__ = ["MAX_MESSAGE_BYTES", "POLL_S", "READ_BYTES", "LineSplitter", "Source"]
 

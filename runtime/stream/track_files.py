@@ -15,8 +15,8 @@ from pathlib import Path
 from mocapdb.core.exports import write_track_files
 from mocapdb.core.files import write_atomic
 from mocapdb.core.outputs import TrackRecording
-from mocapdb.runtime.session_options import SessionOptions
-from mocapdb.runtime.session_summary import SessionSummary
+from mocapdb.runtime.stream.session_options import SessionOptions
+from mocapdb.runtime.stream.session_summary import SessionSummary
 from mocapdb.runtime.subject import chosen, join_fragments, main_track
 from mocapdb.runtime.take import fit_take
 from mocapdb.runtime.world import fit_world

@@ -1,4 +1,4 @@
-"""Network message sources: a TCP server and a UDP socket (see :mod:`mocapdb.runtime.streams`),
+"""Network message sources: a TCP server and a UDP socket (see :mod:`mocapdb.runtime.stream.transport`),
 built so that one sender cannot take them down:
 
 - TCP: one thread serves up to ``max_clients`` clients at once through :mod:`selectors` on
@@ -24,8 +24,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from mocapdb.core import domains as D
-from mocapdb.runtime.source_base import READ_BYTES, LineSplitter, Source
-from mocapdb.runtime.stream_types import RawMessage, resolve_address
+from mocapdb.runtime.stream.messages import RawMessage, resolve_address
+from mocapdb.runtime.stream.source_base import READ_BYTES, LineSplitter, Source
 
 __all__ = ["CLIENT_TIMEOUT_S", "MAX_CLIENTS", "MAX_RATE", "NetworkLimits", "TcpSource", "UdpSource"]
 

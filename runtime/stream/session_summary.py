@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapdb.runtime.streams import StreamStats
+from mocapdb.runtime.stream.transport import StreamStats
 
 MAX_LATENCIES = 100_000  # latency percentiles cover at most the last 2 × this many frames
 MAX_REASONS = 50         # distinct malformed-message reasons counted; further ones as "other"

@@ -1,4 +1,4 @@
-"""What sources, buffers and sinks share (see :mod:`mocapdb.runtime.streams`): the message type,
+"""What sources, buffers and sinks share (see :mod:`mocapdb.runtime.stream.transport`): the message type,
 the counters, the spec error and the ``scheme://HOST:PORT`` parsing of network specs."""
 from __future__ import annotations
 
