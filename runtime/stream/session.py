@@ -53,18 +53,19 @@ class FrameParser:
             frame.index = self.next_index
         self.next_index = frame.index + 1
         if frame.people and frame.layout is not None:
-            self._seen(frame)
+            self._seen(frame, frame.layout)
         return frame
 
-    def _seen(self, frame: KeypointFrame) -> None:
-        self.known.setdefault(len(LAYOUTS[frame.layout]), frame.layout)
-        if self.current not in (None, frame.layout):
+    def _seen(self, frame: KeypointFrame, layout: str) -> None:
+        """Note the ``layout`` the people of ``frame`` shared."""
+        self.known.setdefault(len(LAYOUTS[layout]), layout)
+        if self.current not in (None, layout):
             if not self.layout_changes:
                 LOG.warning("the keypoint layout changed from %s to %s (in frame %d); each frame's layout is "
                             "taken from its own keypoint count (further changes are not logged)",
-                            self.current, frame.layout, frame.index)
+                            self.current, layout, frame.index)
             self.layout_changes += 1
-        self.current = frame.layout
+        self.current = layout
 
 
 class InputError(MocapdbError, ValueError):

@@ -10,6 +10,7 @@ import math
 import os
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -48,7 +49,9 @@ def load_database(path: str | os.PathLike, verify_checksums: bool = True, projec
     skip = set() if projections or index_entries is None else {"projections"}
     for table in skip:
         _check_unread(path / manifest["tables"][table]["file"], table, manifest["tables"][table])
-    columns = {col.field: None for table in skip for col in TABLES[table]}
+    # MotionDatabase's fields by name: arrays, lists of text, None for an unread table's (its fields
+    # differ in type, so the mapping's values are Any; MotionDatabase.validate checks them)
+    columns: dict[str, Any] = {col.field: None for table in skip for col in TABLES[table]}
     with ThreadPoolExecutor(max_workers=1) as hasher:  # hashing overlaps Parquet decoding (both release the GIL)
         for table, entry in manifest["tables"].items():
             if table not in skip:
@@ -200,7 +203,9 @@ def _read_table(path: Path, table: str, entry: dict, hasher: ThreadPoolExecutor 
         raise DatabaseError(f"{file}: {data.num_rows} rows, manifest says {entry['rows']}")
     columns = {col.field: _column_to_numpy(data, col, file) for col in TABLES[table]}
     for col in filter(_is_float, TABLES[table]):
-        if (row := nonfinite_row(columns[col.field])) is not None:
+        values = columns[col.field]
+        assert isinstance(values, np.ndarray), f"{col.name}: a float column is read as an array"
+        if (row := nonfinite_row(values)) is not None:
             raise DatabaseError(f"{file}: NaN or infinite value in table {table!r}, column {col.name!r} "
                                 f"(row {row}); the database is damaged: rebuild it")
     return columns

@@ -13,7 +13,7 @@ import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from tokenize import TokenError
-from typing import BinaryIO
+from typing import IO
 
 import numpy as np
 
@@ -61,7 +61,7 @@ def frames_from_arrays(keypoints: np.ndarray, layout: str | None = None,
     extremities = to_extremities(people, layout)
     if extremities is not None:
         extremities = extremities.reshape(n_frames, n_people, -1, 3)
-    present = (conf > 0).any(axis=-1)
+    present = np.any(conf > 0, axis=-1)  # [frames, people]
     return (KeypointFrame(t, frame_time(t, fps), [
         Person(points[t, p], conf[t, p], None, None if extremities is None else extremities[t, p])
         for p in np.flatnonzero(present[t])]) for t in range(n_frames))
@@ -70,7 +70,7 @@ def frames_from_arrays(keypoints: np.ndarray, layout: str | None = None,
 _NPY_HEADERS = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
 
 
-def _read_npy(f: BinaryIO, size: int) -> np.ndarray:
+def _read_npy(f: IO[bytes], size: int) -> np.ndarray:
     """The numeric array in ``.npy`` data ``f`` of ``size`` bytes; the header is checked against
     ``size`` before anything is allocated, and object arrays are refused (never unpickled)."""
     try:

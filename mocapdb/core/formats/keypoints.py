@@ -233,13 +233,13 @@ def build_frame(index: int, time_s: float | None, people: list[RawPerson], layou
                 known: Mapping[int, str] | None = None) -> KeypointFrame:
     """Map every person onto the universal 14: own layout, else ``layout``, else ``known`` (layouts
     already decided, by keypoint count: a stream's earlier frames), else detected by count."""
-    names = [p.layout or layout for p in people]
-    undecided = [p.raw for p, name in zip(people, names) if name is None]
+    given = [p.layout or layout for p in people]
+    undecided = [p.raw for p, name in zip(people, given) if name is None]
     known = known or {}
     detected = {k: known.get(k) or detect_layout(np.stack([r for r in undecided if len(r) == k]))
                 for k in {len(r) for r in undecided}}
-    names = [name or detected[len(p.raw)] for p, name in zip(people, names)]
-    out: list[Person | None] = [None] * len(people)
+    names = [name or detected[len(p.raw)] for p, name in zip(people, given)]
+    out: dict[int, Person] = {}
     for name in dict.fromkeys(names):
         members = [i for i, n in enumerate(names) if n == name]
         wrong = [i for i in members if len(people[i].raw) != len(LAYOUTS[name])]
@@ -251,7 +251,8 @@ def build_frame(index: int, time_s: float | None, people: list[RawPerson], layou
         extremities = to_extremities(raw, name)
         for j, i in enumerate(members):
             out[i] = Person(points[j], conf[j], people[i].person_id, None if extremities is None else extremities[j])
-    return KeypointFrame(index, time_s, out, names[0] if len(set(names)) == 1 else None)
+    return KeypointFrame(index, time_s, [out[i] for i in range(len(people))],
+                         names[0] if len(set(names)) == 1 else None)
 
 
 def check_fps(fps: float | None) -> None:

@@ -11,6 +11,7 @@ import os
 import re
 from collections.abc import Container, Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -30,6 +31,8 @@ from mocapdb.core.formats.keypoints import (
     with_scores,
 )
 from mocapdb.core.formats.take import TAKE_FILE
+
+T = TypeVar("T")
 
 DETECT_FRAMES = 10     # a folder's or file's layout is detected from its first frames holding people
 MAX_INTEGER = 2**53    # frame numbers and person ids lie below this in magnitude (exact in float64 and JSON readers)
@@ -244,9 +247,10 @@ def _mmpose_frame(frame: object, i: int) -> list[RawPerson]:
 def _mmpose_people(obj: dict | list) -> list[list[RawPerson]]:
     """Each frame's people in a parsed MMPose prediction file."""
     if isinstance(obj, dict):
-        obj = obj.get("instance_info")
-        if not isinstance(obj, list):
+        info = obj.get("instance_info")
+        if not isinstance(info, list):
             raise KeypointError("not an MMPose prediction file (no 'instance_info' list)")
+        obj = info
     if obj and isinstance(obj[0], dict) and "instances" in obj[0]:
         return [_mmpose_frame(frame, i) for i, frame in enumerate(obj)]
     return [_raw_people(obj)]  # one image's instances
@@ -269,7 +273,8 @@ def read_mmpose_json(path: str | Path, layout: str | None = None, fps: float | N
         return list(_detected_frames(iter(people), names, optional_layout(layout), fps, None))
 
 
-def _field(obj: dict, key: str, kinds: tuple[type, ...], what: str) -> object:
+def _field(obj: dict, key: str, kinds: tuple[type[T], ...], what: str) -> T | None:
+    """``obj[key]`` if it is one of ``kinds`` (never a bool), None if absent or null."""
     value = obj.get(key)
     if value is not None and (not isinstance(value, kinds) or isinstance(value, bool)):
         raise KeypointError(f"'{key}' must be {what}")
