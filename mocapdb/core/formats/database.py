@@ -12,7 +12,7 @@ import math
 import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, TypeGuard
 
 import numpy as np
 
@@ -138,10 +138,10 @@ class MotionDatabase:
             _check_range("proj_yaw", self.proj_yaw, 0, len(self.meta["yaws_deg"]))
             _check_clusters(self)
         if self.search_index is not None:
-            _check_index(self)
+            _check_index(self, self.search_index)
 
 
-def _is_real(x: object) -> bool:
+def _is_real(x: object) -> TypeGuard[float]:
     return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
 
 
@@ -226,10 +226,9 @@ def _check_clusters(db: MotionDatabase) -> None:
         raise DatabaseError("a cluster's representative projection belongs to another cluster")
 
 
-def _check_index(db: MotionDatabase) -> None:
-    """The search index agrees with the clusters table (sizes, each representative in its cluster's
+def _check_index(db: MotionDatabase, index: SearchIndexArrays) -> None:
+    """The search ``index`` agrees with the clusters table (sizes, each representative in its cluster's
     columns): O(K), nothing of the P columns read but the representatives'."""
-    index = db.search_index
     if db.n_projections != db.n_frames * len(db.meta["yaws_deg"]):
         raise DatabaseError("the search index does not hold one projection per frame and yaw")
     if not np.array_equal(np.diff(index.cluster_start), db.cluster_size):

@@ -177,9 +177,10 @@ def _to_arrow(values: Mapping[str, object], table: str) -> pa.Table:
             array = pa.array(value, pa.string())
         elif col.shape:
             item = pa.field("item", pa.float32(), nullable=False)
+            rows = np.ascontiguousarray(value)
             array = pa.FixedSizeListArray.from_arrays(
-                pa.array(np.ascontiguousarray(value).reshape(-1)),
-                type=pa.list_(item, math.prod(value.shape[1:])),
+                pa.array(rows.reshape(-1)),
+                type=pa.list_(item, math.prod(rows.shape[1:])),
             )
         else:
             array = pa.array(value)

@@ -98,7 +98,7 @@ def load_search_index(path: Path, entries: dict, n_projections: int, n_clusters:
         raise SearchIndexError(f"{path}: the manifest's search index needs the arrays {sorted(ARRAYS)}")
     shapes = {"x": (N_JOINTS_2D, n_projections), "y": (N_JOINTS_2D, n_projections), "rows": (n_projections,),
               "columns": (n_projections,), "cluster_start": (n_clusters + 1,), "cluster_subs": (n_clusters + 1,)}
-    arrays = {}
+    arrays: dict[str, np.ndarray] = {}
     for name, dtype in ARRAYS.items():
         if name == "sub_start":  # S sub-clusters: the last of cluster_subs, read before
             n_subs = int(arrays["cluster_subs"][-1])

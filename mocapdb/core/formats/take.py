@@ -13,6 +13,7 @@ import logging
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TypedDict, TypeVar
 
 from mocapdb.core import domains as D
 from mocapdb.core.errors import MocapdbError, UsageError
@@ -27,7 +28,15 @@ MAX_FPS = 10000.0
 MAX_TAKE_BYTES = 1_000_000   # a take description is a few hundred bytes: more is read as broken
 CODEC_BLOCK_PX = 16          # video codecs code whole 16-px blocks: a 1080-line video is 1088 lines, cropped
 LOG = logging.getLogger(__name__)
-DEFAULTS = {"fps": D.INPUT_FPS_HZ.default, "image_size": (1920, 1080)}  # when nothing says otherwise (the focal: below)
+
+
+class CameraDefaults(TypedDict):
+    fps: float
+    image_size: tuple[int, int]
+
+
+# when nothing says otherwise (the focal: below)
+DEFAULTS: CameraDefaults = {"fps": D.INPUT_FPS_HZ.default, "image_size": (1920, 1080)}
 FULL_FRAME_DIAGONAL_MM = 43.27  # a 36 × 24 mm frame: what "35 mm-equivalent" focal lengths refer to
 DEFAULT_FOCAL_35MM = 26.0       # a typical phone main camera (24–28 mm equivalent), when nothing is given
 
@@ -143,37 +152,51 @@ def resolve_camera(take: TakeInfo | None, take_path: str, fps: float | None = No
     codec block (:data:`CODEC_BLOCK_PX`: a warning, the given size is used); ``given_as`` names where
     a given value came from when it is no option (``{"image_size": "cam_01's size in calib.toml"}``;
     default: the option)."""
-    given = {"fps": fps, "image_size": image_size, "focal_px": focal_px}
-    read = {} if take is None else {"fps": take.fps, "image_size": take.image_size, "focal_px": take.focal_px}
-    values, sources = {}, {}
-    for name, value in given.items():
-        known = read.get(name)
-        origin = (given_as or {}).get(name)
-        if value is not None and known is not None and _codec_padding(value, known):
-            LOG.warning("%s %s and %s (%s) differ by less than a codec block (%d px): the same image, padded "
-                        "or cropped by the video codec; using %s", origin or _option(name), _text(value), take_path,
-                        _text(known), CODEC_BLOCK_PX, _text(value))
-        elif value is not None and known is not None and not _agree(value, known):
-            fix = "correct one of them" if origin else "leave the option out or correct it"
-            raise UsageError(f"{origin or _option(name)} {_text(value)} contradicts {take_path}, which says "
-                             f"{_text(known)}: {fix}")
-        if value is not None:
-            values[name], sources[name] = value, "given"
-        elif known is not None:
-            values[name], sources[name] = known, "read"
-        elif name != "focal_px":
-            values[name], sources[name] = DEFAULTS[name], "default"
-        else:
-            values[name], sources[name] = default_focal_px(tuple(values["image_size"])), "default"
-    return CameraSettings(float(values["fps"]), tuple(values["image_size"]), float(values["focal_px"]), sources)
+    origins = given_as or {}
+    sources: dict[str, str] = {}
+    fps_hz = _resolve("fps", fps, None if take is None else take.fps, take_path, origins, sources)
+    if fps_hz is None:
+        fps_hz, sources["fps"] = DEFAULTS["fps"], "default"
+    size = _resolve("image_size", image_size, None if take is None else take.image_size, take_path, origins, sources)
+    if size is None:
+        size, sources["image_size"] = DEFAULTS["image_size"], "default"
+    width, height = size  # a pair, a list if the TakeInfo was made with one: a tuple below
+    focal = _resolve("focal_px", focal_px, None if take is None else take.focal_px, take_path, origins, sources)
+    if focal is None:
+        focal, sources["focal_px"] = default_focal_px((width, height)), "default"
+    return CameraSettings(float(fps_hz), (width, height), float(focal), sources)
 
 
-def _codec_padding(a: object, b: object) -> bool:
+Setting = TypeVar("Setting", float, tuple[int, int])  # a frame rate or focal length, or an image size
+
+
+def _resolve(name: str, value: Setting | None, known: Setting | None, take_path: str, origins: dict[str, str],
+             sources: dict[str, str]) -> Setting | None:
+    """The given ``value`` (checked against the take description's ``known``), else ``known``, its source
+    noted in ``sources``; None when neither is there."""
+    origin = origins.get(name)
+    if value is not None and known is not None and _codec_padding(value, known):
+        LOG.warning("%s %s and %s (%s) differ by less than a codec block (%d px): the same image, padded "
+                    "or cropped by the video codec; using %s", origin or _option(name), _text(value), take_path,
+                    _text(known), CODEC_BLOCK_PX, _text(value))
+    elif value is not None and known is not None and not _agree(value, known):
+        fix = "correct one of them" if origin else "leave the option out or correct it"
+        raise UsageError(f"{origin or _option(name)} {_text(value)} contradicts {take_path}, which says "
+                         f"{_text(known)}: {fix}")
+    if value is not None:
+        sources[name] = "given"
+        return value
+    if known is not None:
+        sources[name] = "read"
+    return known
+
+
+def _codec_padding(a: Setting, b: Setting) -> bool:
     """Two image sizes (px) that differ, each side by less than :data:`CODEC_BLOCK_PX`."""
     return isinstance(a, tuple) and tuple(a) != tuple(b) and all(abs(x - y) < CODEC_BLOCK_PX for x, y in zip(a, b))
 
 
-def _agree(a: object, b: object) -> bool:
+def _agree(a: Setting, b: Setting) -> bool:
     if isinstance(a, tuple):
         return tuple(a) == tuple(b)
     return math.isclose(float(a), float(b), rel_tol=1e-3)
@@ -183,5 +206,5 @@ def _option(name: str) -> str:
     return {"fps": "--fps", "image_size": "--image-size", "focal_px": "--focal"}[name]
 
 
-def _text(value: object) -> str:
+def _text(value: Setting) -> str:
     return f"{value[0]}x{value[1]}" if isinstance(value, tuple) else f"{float(value):g}"
