@@ -104,7 +104,7 @@ def check_outputs_apart(command: argparse.ArgumentParser, args: argparse.Namespa
     write over what it reads."""
     from mocapdb.core.errors import UsageError
 
-    paths = {"input": [], "output": []}
+    paths: dict[str, list[tuple[str, Path, PathArg]]] = {"input": [], "output": []}
     for action in command._actions:
         if isinstance(action.type, PathArg):
             for value in _values(getattr(args, action.dest, None)):

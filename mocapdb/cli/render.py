@@ -71,7 +71,8 @@ def run_render(args: argparse.Namespace) -> int:
         print(f"mocapdb render: note: {text}", file=sys.stderr)
 
     folder = result_path(args.result).parent
-    stereo = read_cameras(folder) is not None
+    stereo_cameras = read_cameras(folder)  # None: not a `mocapdb stereo` folder
+    stereo = stereo_cameras is not None
     if stereo and args.keypoints is None and args.video is None and args.contact_sheet is None:
         if args.mp4 or Path(args.out).suffix.lower() != ".png":
             raise UsageError(f"{args.result} is a stereo result: its plot is one picture, give --out NAME.png "
@@ -96,10 +97,9 @@ def run_render(args: argparse.Namespace) -> int:
         if args.focal is None and args.keypoints is not None:
             warn(f"no --focal: assuming {DEFAULT_FOCAL:g} px (reconstruct's default); give the value used there")
     if args.contact_sheet is not None:
-        if camera is None:
-            from mocapdb.render.results import read_cameras as _rc
-
-            c = _rc(folder).cameras[0]
+        if camera is None:  # only a stereo result's is left unset above: camera 1's
+            assert stereo_cameras is not None, "a single-camera result's camera is set above"
+            c = stereo_cameras.cameras[0]
             camera = image_camera(float(c.K[0, 0]), c.size)
         out = contact_sheet(args.result, args.keypoints, args.out, args.contact_sheet, focal=float(camera.K[0, 0]),
                             image_size=camera.size, video=args.video, view=args.view, warn=warn, stream=args.stream,

@@ -32,7 +32,7 @@ def install_stop_handlers(stop_event: threading.Event, force_quit: bool = True) 
             noted = True
             os.write(2, STOPPING_NOTE)   # not print(): the handler may interrupt a write to sys.stderr
 
-    previous: dict[int, Callable[..., Any] | int] = {}
+    previous: dict[signal.Signals, Callable[..., Any] | int] = {}
     try:
         for sig in (signal.SIGINT, signal.SIGTERM):
             old = signal.signal(sig, handler)
