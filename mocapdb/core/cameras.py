@@ -345,4 +345,5 @@ def _qca_rotation(transform, where: str) -> np.ndarray:
 
 def intrinsics_only(cam: CameraModel) -> CameraModel:
     """``cam`` with its extrinsics dropped (identity pose): the stereo fit estimates them."""
-    return CameraModel(np.asarray(cam.K), np.asarray(cam.dist), np.eye(3), np.zeros(3), tuple(cam.size), cam.name)
+    width, height = cam.size
+    return CameraModel(np.asarray(cam.K), np.asarray(cam.dist), np.eye(3), np.zeros(3), (width, height), cam.name)

@@ -14,7 +14,7 @@ import argparse
 import math
 import numbers
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Literal, cast, overload
 
 from mocapdb.core.errors import UsageError
 
@@ -51,8 +51,9 @@ class Domain:
             return False
         if not isinstance(value, numbers.Integral) and not math.isfinite(value):  # a huge int is finite
             return False
-        above = value > self.low if self.low_open else value >= self.low
-        return above and value <= self.high
+        number = cast(float, value)  # any Real orders as a float does; typeshed's numbers.Real has no __gt__
+        above = number > self.low if self.low_open else number >= self.low
+        return above and number <= self.high
 
     def check(self, value, name: str):
         """``value`` when the domain holds it, else DomainError naming ``name``."""
@@ -81,6 +82,14 @@ def _number_text(value: float) -> str:
     return f"{value:,.0f}" if float(value).is_integer() and abs(value) >= 10_000 else f"{value:g}"
 
 
+@overload
+def _parse_number(text: str, integer: Literal[True]) -> int | None: ...
+
+
+@overload
+def _parse_number(text: str, integer: bool) -> int | float | None: ...
+
+
 def _parse_number(text: str, integer: bool) -> int | float | None:
     """``text`` as an int (``integer``) or a float; None when it is not one (no ``1e3`` for an int)."""
     try:
@@ -95,8 +104,9 @@ class ImageSizeArg:
 
     def __call__(self, text: str) -> tuple[int, int]:
         parts = text.lower().split("x")
-        sides = [_parse_number(p.strip(), integer=True) for p in parts] if len(parts) == 2 else [None]
-        if any(s is None for s in sides):
+        parsed = [_parse_number(p.strip(), integer=True) for p in parts] if len(parts) == 2 else [None]
+        sides = [s for s in parsed if s is not None]
+        if len(sides) != 2:
             raise argparse.ArgumentTypeError(f"{text!r}: must be WIDTHxHEIGHT in pixels, e.g. 1920x1080")
         if not all(IMAGE_SIDE_PX.accepts(s) for s in sides):
             raise argparse.ArgumentTypeError(f"{text!r}: width and height must each be {IMAGE_SIDE_PX.describe()}")

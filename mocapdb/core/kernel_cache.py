@@ -39,7 +39,8 @@ def choose_kernel_cache() -> str | None:
         return None
     os.environ["NUMBA_CACHE_DIR"] = str(folder)
     if "numba.core.config" in sys.modules:  # read at numba's import: already done
-        sys.modules["numba.core.config"].CACHE_DIR = str(folder)
+        # numba.core.config sets its settings from the environment at run time: mypy sees no CACHE_DIR
+        sys.modules["numba.core.config"].CACHE_DIR = str(folder)  # type: ignore[attr-defined]
     if not existed:  # noted when the folder is made, not on every run of a system-wide install
         why = f"NUMBA_CACHE_DIR {user} and mocapdb's folder are" if user else "mocapdb's folder is"
         _note(f"compiled kernels are cached in {folder} ({why} not writable)")
@@ -48,7 +49,13 @@ def choose_kernel_cache() -> str | None:
 
 def _kernel_folders() -> list[Path]:
     """The folders of the kernel modules."""
-    return [Path(importlib.util.find_spec(name).origin).parent for name in _KERNEL_PACKAGES]
+    folders = []
+    for name in _KERNEL_PACKAGES:
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.origin is None:
+            raise ImportError(f"{name}, a package of mocapdb's kernels, is not installed as a folder of modules")
+        folders.append(Path(spec.origin).parent)
+    return folders
 
 
 def _writable(folder: Path, mode: int = 0o777) -> bool:
@@ -99,7 +106,7 @@ def _compile_uncached() -> None:
         if not self.py_func.__module__.startswith("mocapdb."):
             enable_caching(self)
 
-    Dispatcher.enable_caching = enable_caching_but_mocapdb
+    Dispatcher.enable_caching = enable_caching_but_mocapdb  # type: ignore[method-assign]  # the patch described
 
 
 def _note(text: str) -> None:

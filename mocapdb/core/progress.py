@@ -34,6 +34,8 @@ def progress(iterable: Any = None, **options: Any) -> tqdm:
 def kernels_cached(module: ModuleType) -> bool:
     """Whether numba's on-disk cache holds compiled kernels of ``module`` (``cache=True``): its
     index files beside the source (``__pycache__``) or under ``NUMBA_CACHE_DIR``."""
+    if module.__file__ is None:  # no source file (a namespace package): nothing of it numba could cache
+        return False
     source = Path(module.__file__)
     folders = [source.parent / "__pycache__"]
     if os.environ.get("NUMBA_CACHE_DIR"):

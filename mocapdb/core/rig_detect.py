@@ -99,7 +99,7 @@ def _place_chain(bvh: Bvh, words: list[JointWords], chain: tuple[str, ...], fixe
                  reading: RigReading, allowed: set[int] | None = None) -> None:
     """Place ``chain`` (see the module docstring) into ``reading``, or add why it cannot be."""
     options = [[j for j in _candidates(words, r, fixed) if allowed is None or j in allowed] for r in chain]
-    combos = [(j,) for j in options[0]]
+    combos: list[tuple[int, ...]] = [(j,) for j in options[0]]
     for later in options[1:]:  # each joint a proper ancestor of the next
         combos = [c + (j,) for c in combos for j in later if is_ancestor(bvh, c[-1], j)]
     if not combos:

@@ -80,9 +80,9 @@ def _glued(word: str) -> tuple[str, ...]:
     best: list[tuple[str, ...] | None] = [()] + [None] * len(word)
     for end in range(1, len(word) + 1):
         for start in range(end):
-            head = best[start]
+            head, current = best[start], best[end]
             if head is not None and word[start:end] in VOCABULARY and (
-                    best[end] is None or len(head) + 1 < len(best[end])):
+                    current is None or len(head) + 1 < len(current)):
                 best[end] = (*head, word[start:end])
     return best[-1] or (word,)
 
