@@ -9,8 +9,10 @@ stays light:
   :func:`read_keypoint_file`, :func:`read_openpose_folder`, :class:`KeypointFrame`, :class:`Person`;
 * the whole take: :func:`fit_takes` (:class:`TakeParams`): a take's recordings (``EngineConfig(keep_take=True)``)
   smoothed, feet planted, on one floor: what ``reconstruct`` writes;
-* outputs: :func:`write_tracks` (:class:`TrackExport`: BVH, TRC, CSV, rig, floor), :func:`universal_bvh`,
-  :func:`read_bvh`, :func:`write_bvh`, :func:`frame_line`, :func:`header_line`;
+* motion: :class:`Motion` (rotations and root over frames, the one motion type), :func:`read_motion`
+  (any humanoid BVH as one);
+* outputs: :func:`write_tracks` (:class:`TrackExport`: BVH, TRC, CSV, rig, floor), :func:`write_motion`,
+  :func:`motion_bvh`, :func:`read_bvh`, :func:`write_bvh`, :func:`frame_line`, :func:`header_line`;
 * errors: :class:`MocapdbError`, the base of every error about inputs.
 """
 from __future__ import annotations
@@ -38,7 +40,10 @@ _API = {
     "TakeParams": "mocapdb.runtime.take_params",
     "write_tracks": "mocapdb.core.exports",
     "TrackExport": "mocapdb.core.exports",
-    "universal_bvh": "mocapdb.core.outputs",
+    "motion_bvh": "mocapdb.core.outputs",
+    "Motion": "mocapdb.core.motion",
+    "write_motion": "mocapdb.core.exports",
+    "read_motion": "mocapdb.core.clips",
     "frame_line": "mocapdb.core.outputs",
     "header_line": "mocapdb.core.outputs",
     "read_bvh": "mocapdb.core.formats.bvh",

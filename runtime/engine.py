@@ -296,7 +296,7 @@ class Engine:
 
     def _end(self, track: int) -> None:
         state = self.tracks.pop(track, None)
-        if state is not None and state.recording.quaternions:
+        if state is not None and len(state.recording):
             state.recording.static = state.stillness.static
             self.finished.append(state.recording)
 
@@ -310,7 +310,7 @@ class Engine:
         """The recordings of the tracks still open (``static`` says whether they are so far)."""
         for state in self.tracks.values():
             state.recording.static = state.stillness.static
-        return [s.recording for s in self.tracks.values() if s.recording.quaternions]
+        return [s.recording for s in self.tracks.values() if len(s.recording)]
 
     def cut_recordings(self, max_frames: int) -> list[TrackRecording]:
         """The recordings of open tracks that reached ``max_frames`` frames (``static`` set so far),
@@ -318,7 +318,7 @@ class Engine:
         cut = []
         for state in self.tracks.values():
             rec = state.recording
-            if len(rec.quaternions) >= max_frames:
+            if len(rec) >= max_frames:
                 rec.static = state.stillness.static
                 state.recording = TrackRecording(rec.track, state.last_frame + 1, part=rec.part + 1,
                                                  camera_px=rec.camera_px)

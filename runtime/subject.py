@@ -13,7 +13,9 @@ from dataclasses import replace
 
 import numpy as np
 
+from mocapdb.core.motion import FrameRecorder
 from mocapdb.core.outputs import TrackRecording
+from mocapdb.runtime.track_state import NO_EXTREMITIES
 
 EDGE_WEIGHT = 0.5      # a box at the image's left or right edge counts this much of one in the middle
 MAX_MOTION_BONUS = 1.0  # moving doubles a track's score at most
@@ -21,10 +23,10 @@ PEOPLE_CHOICES = ("main", "all")
 
 
 def subject_score(rec: TrackRecording, image_width_px: float) -> float:
-    """A track's score (module docstring) from its input keypoints (``rec.keypoints``; 0 without)."""
-    if not rec.keypoints:
+    """A track's score (module docstring) from its input keypoints (its ``keypoints`` column; 0 without)."""
+    if not len(rec.column("keypoints")):
         return 0.0
-    points = np.array(rec.keypoints)                                   # [F, K, 3]
+    points = rec.column("keypoints")  # [F, K, 3]
     seen = points[..., 2] > 0
     frames = seen.sum(axis=1) >= 2
     if not frames.any():
@@ -97,12 +99,12 @@ def join_fragments(recordings: list[TrackRecording], fps: float) -> tuple[list[T
 
 def _continues(before: TrackRecording, after: TrackRecording, fps: float) -> bool:
     """Whether ``after`` is ``before``'s person found again (:func:`join_fragments`)."""
-    if before.static or after.static or not before.keypoints or not after.keypoints:
+    if before.static or after.static or not len(before.column("keypoints")) or not len(after.column("keypoints")):
         return False
-    gap = after.first_frame - (before.first_frame + len(before.quaternions))
+    gap = after.first_frame - (before.first_frame + len(before))
     if gap < 0 or gap > MAX_JOIN_GAP_S * fps:
         return False
-    last, first = _box(before.keypoints[::-1]), _box(after.keypoints)
+    last, first = _box(before.column("keypoints")[::-1]), _box(after.column("keypoints"))
     if last is None or first is None:
         return False
     (centre_a, height_a), (centre_b, height_b) = last, first
@@ -111,7 +113,7 @@ def _continues(before: TrackRecording, after: TrackRecording, fps: float) -> boo
     return shift <= MAX_JOIN_SHIFT and ratio <= MAX_JOIN_SIZE_RATIO
 
 
-def _box(keypoints: list[np.ndarray]) -> tuple[np.ndarray, float] | None:
+def _box(keypoints: np.ndarray) -> tuple[np.ndarray, float] | None:
     """Centre (px) and height (px) of the first frame in ``keypoints`` with two keypoints seen."""
     for points in keypoints:
         seen = points[:, 2] > 0
@@ -122,15 +124,13 @@ def _box(keypoints: list[np.ndarray]) -> tuple[np.ndarray, float] | None:
 
 
 def _appended(before: TrackRecording, after: TrackRecording) -> TrackRecording:
-    """``before`` followed by ``after``, the frames between holding ``before``'s last pose."""
-    gap = after.first_frame - (before.first_frame + len(before.quaternions))
-    def held(name: str, empty: bool = False) -> list:
-        values = getattr(before, name)
-        filler = np.zeros_like(values[-1]) if empty else values[-1]
-        return list(values) + [filler] * gap + list(getattr(after, name))
-
-    lists = {name: held(name) for name in ("quaternions", "root_view_m", "scales", "fit_quaternions",
-                                            "fit_root_view_m")}
-    longer = before if len(before.quaternions) >= len(after.quaternions) else after
-    return replace(before, **lists, keypoints=held("keypoints", empty=True), last_s=after.last_s,
+    """``before`` followed by ``after``, the frames between holding ``before``'s last pose and seeing
+    no keypoint, heel, toe or knuckle."""
+    gap = after.first_frame - (before.first_frame + len(before))
+    filler = before.frames.last()
+    filler.update(keypoints=np.zeros_like(filler["keypoints"]), extremities=NO_EXTREMITIES)
+    columns = {name: np.concatenate([before.frames[name], np.repeat(filler[name][None], gap, axis=0),
+                                     after.frames[name]]) for name in before.frames.names()}
+    longer = before if len(before) >= len(after) else after
+    return replace(before, frames=FrameRecorder.of(**columns), last_s=after.last_s,
                    proportions_m=longer.proportions_m, up_view=longer.up_view, up_sd_deg=longer.up_sd_deg)

@@ -55,6 +55,7 @@ from scipy.ndimage import gaussian_filter1d, median_filter
 from scipy.sparse.linalg import spsolve
 
 from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
+from mocapdb.core.motion import Motion
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, TrackRecording
 from mocapdb.core.skeleton import (
     ANKLE_HEIGHT_M,
@@ -117,21 +118,21 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     """The whole-take fit of a recording made with ``EngineConfig.keep_take``; returns a recording
     whose rotations and root are the fitted motion (one body scale, the track's last) and what was
     found. ``fps``: the take's frame rate (Hz)."""
-    if len(rec.fit_quaternions) != len(rec.quaternions) or not rec.keypoints:
+    if not len(rec) or len(rec.column("fit_quaternions")) != len(rec):
         raise ValueError(f"track {rec.track}: no per-frame fits kept (EngineConfig.keep_take)")
-    scales = np.array(rec.scales)
+    scales = rec.scales
     scale = float(scales[-1])
-    quats = smooth_rotations(np.array(rec.fit_quaternions), fps, params)
-    root = np.array(rec.fit_root_view_m) * (scale / scales)[:, None]
-    keypoints = np.array(rec.keypoints)
+    quats = smooth_rotations(rec.column("fit_quaternions"), fps, params)
+    root = rec.column("fit_root_view_m") * (scale / scales)[:, None]
+    keypoints = rec.column("keypoints")
     offsets = None if rec.proportions_m is None else body_offsets_m(rec.proportions_m)
     if params.refit_prior > 0 and rec.camera_px is not None:
         quats = refit_to_image(quats, root, keypoints, scale, offsets, rec.camera_px, params.refit_prior)
         quats = smooth_rotations(quats, fps, replace(params, pop_frames=1))
     up = np.array([0.0, 1.0, 0.0]) if rec.up_view is None else np.asarray(rec.up_view, dtype=np.float64)
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]  # ankles − root
-    extremities = np.array(rec.extremities) if rec.extremities else None
-    ends = extremities is not None and bool((extremities[..., 2] > 0).any()) and rec.camera_px is not None
+    extremities = rec.column("extremities")
+    ends = bool(len(extremities)) and bool((extremities[..., 2] > 0).any()) and rec.camera_px is not None
     phases = foot_phases(extremities, box_height_px(keypoints), fps, params) if ends else None
     planted = planted_ankles(keypoints, root[:, None] + relative, up, fps, params, phases)
     root, anchors = fit_root_path(root, relative, planted, fps, params)
@@ -143,19 +144,21 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
         root = above_floor(root, relative, normal, offset, ANKLE_HEIGHT_M * scale)
     floor_up = up if normal is None else normal
     end_quats = None
-    if ends:
+    if ends and rec.camera_px is not None:
         end_quats = end_rotations(quats, root, scale, offsets, keypoints, extremities, rec.camera_px[0],
                                   planted, floor_up, fps, params)
-    out = _refitted(rec, list(quats), list(root), [scale] * len(root), floor_up, offset, end_quats)
+    motion = Motion(quats, root, fps, "view", rec.first_frame, scale, rec.proportions_m, end_quats)
+    out = replace(rec.with_motion(motion), up_view=floor_up, floor_offset_m=offset)
     return out, TakeResult(planted, (root[:, None] + relative)[planted], normal, offset, phases)
 
 
-def take_joints(fitted: TrackRecording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A fitted track (:func:`fit_takes`) as frame indices ``[F]``, keypoints ``[F, 15, 3]`` and roots
-    ``[F, 3]`` in the camera-aligned frame (metres; as ``PersonPose.joints_m``/``root_m``)."""
-    quats, root_view, scale = fitted.motion()
-    joints_view = pose_from_rotations(quats, root_view, scale, fitted.offsets_m())
-    return fitted.first_frame + np.arange(len(quats)), joints_view * CAMERA_FROM_VIEW, root_view * CAMERA_FROM_VIEW
+def take_joints(fitted: TrackRecording, fps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A fitted track (:func:`fit_takes`) at ``fps`` Hz as frame indices ``[F]``, keypoints
+    ``[F, 15, 3]`` and roots ``[F, 3]`` in the camera-aligned frame (metres; as
+    ``PersonPose.joints_m``/``root_m``)."""
+    motion = fitted.motion(fps)
+    frames = motion.first_frame + np.arange(len(motion))
+    return frames, motion.joints_m() * CAMERA_FROM_VIEW, motion.root_m * CAMERA_FROM_VIEW
 
 
 def smooth_rotations(quats: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:
@@ -254,7 +257,10 @@ def fit_root_path(root_m: np.ndarray, ankle_offsets_m: np.ndarray, planted: np.n
     n = len(root_m)
     contacts = [(k, start, stop) for k in range(planted.shape[1]) for start, stop in true_runs(planted[:, k])]
     n_unknowns = 3 * n + 3 * len(contacts)
-    rows, cols, vals, rhs = [], [], [], []
+    rows: list[np.ndarray] = []
+    cols: list[np.ndarray] = []
+    vals: list[np.ndarray] = []
+    rhs: list[np.ndarray] = []
 
     def add(r_cols: np.ndarray, r_vals: np.ndarray, target: np.ndarray) -> None:
         """Rows ``Σ vals · x[cols] = target`` (``r_cols``, ``r_vals``: [m, terms])."""
@@ -377,11 +383,3 @@ def _perpendiculars(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     a = np.cross(u, helper)
     a /= np.linalg.norm(a, axis=-1, keepdims=True)
     return a, np.cross(u, a)
-
-
-def _refitted(rec: TrackRecording, quats: list, roots: list, scales: list, up: np.ndarray,
-              floor_offset_m: float | None, end_quats: np.ndarray | None) -> TrackRecording:
-    """``rec`` with new motion, floor and end rotations; the per-frame fits (consumed) are not carried over."""
-    return replace(rec, quaternions=quats, root_view_m=roots, scales=scales, fit_quaternions=[],
-                   fit_root_view_m=[], keypoints=[], extremities=[], up_view=up, floor_offset_m=floor_offset_m,
-                   end_quaternions=end_quats)

@@ -64,28 +64,19 @@ class TrackState:
         ``[8, 3]`` (x, y px, confidence), kept for the whole-take fit (missed frames get the last fit
         and no keypoint)."""
         rec = self.recording
-        if not rec.quaternions:
+        if not len(rec):
             rec.first_frame, rec.first_s = frame, t_s
         rec.last_s = t_s
-        for _ in range(min(frame - self.last_frame - 1, self.max_fill)):
-            if rec.quaternions:
-                rec.quaternions.append(rec.quaternions[-1])
-                rec.root_view_m.append(rec.root_view_m[-1])
-                rec.scales.append(rec.scales[-1])
-                if fit is not None and rec.keypoints:
-                    rec.fit_quaternions.append(rec.fit_quaternions[-1])
-                    rec.fit_root_view_m.append(rec.fit_root_view_m[-1])
-                    rec.keypoints.append(np.zeros_like(rec.keypoints[-1]))
-                    rec.extremities.append(NO_EXTREMITIES)
-        rec.quaternions.append(quats)
-        rec.root_view_m.append(root_view)
-        rec.scales.append(self.scale)
+        for _ in range(min(frame - self.last_frame - 1, self.max_fill) if len(rec) else 0):
+            held = rec.frames.last()
+            if "keypoints" in held:
+                held.update(keypoints=np.zeros_like(held["keypoints"]), extremities=NO_EXTREMITIES)
+            rec.frames.append(**held)
+        row: dict[str, np.ndarray | float] = dict(quaternions=quats, root_view_m=root_view, scales=self.scale)
         if fit is not None:
-            rec.fit_quaternions.append(fit[0])
-            rec.fit_root_view_m.append(fit[1])
-            rec.keypoints.append(fit[2])
-            rec.extremities.append(fit[3])
+            row.update(fit_quaternions=fit[0], fit_root_view_m=fit[1], keypoints=fit[2], extremities=fit[3])
             rec.up_view, rec.up_sd_deg = self.tilt.up, self.tilt.sd_deg
+        rec.frames.append(**row)
         rec.proportions_m = self.proportions_m
         self.last_frame = frame
 

@@ -44,8 +44,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from mocapdb.core.motion_ops import scaled_about_origin
 from mocapdb.core.outputs import TrackRecording
-from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M, pose_from_rotations
+from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
 from mocapdb.runtime.body_size import TILT_SD_DEG
 from mocapdb.runtime.contact_floor import MIN_FLOOR_SPREAD_M, above_floor, coplanar_spread, floor_plane, lowest_level
 from mocapdb.runtime.foot_contacts import ANKLES
@@ -185,7 +186,7 @@ def fit_world(recordings: list[TrackRecording], fps: float, params: TakeParams =
     heights = subject_heights_m or {}
     evidence = [track_evidence(rec, result, fps, heights.get(rec.track, heights.get(None))) for rec, result in fits]
     world = estimate_world(evidence, camera_height_m)
-    return [place_in_world(rec, world) for rec, _ in fits], world
+    return [place_in_world(rec, world, fps) for rec, _ in fits], world
 
 
 FULL_WEIGHT_S = 1.0  # a track this long or longer counts as one person's whole evidence
@@ -205,12 +206,12 @@ def track_evidence(rec: TrackRecording, result: TakeResult, fps: float, given_st
     up = result.floor_normal if result.floor_normal is not None else rec.up_view
     up = np.array([0.0, 1.0, 0.0]) if up is None else np.asarray(up, dtype=np.float64)
     up = up / np.linalg.norm(up)
-    quats, root_m, scale = rec.motion()
-    ankles = pose_from_rotations(quats, root_m, scale, rec.offsets_m())[:, list(ANKLES)]
+    motion = rec.motion(fps)
+    ankles = motion.joints_m()[:, list(ANKLES)]
     lower = ankles[np.arange(len(ankles)), np.argmin(ankles @ up, axis=1)]
-    return TrackEvidence(rec.track, UNIVERSAL_HEIGHT_M * scale, result.planted_ankles_m.reshape(-1, 3), up,
+    return TrackEvidence(rec.track, motion.height_m, result.planted_ankles_m.reshape(-1, 3), up,
                          TILT_SD_DEG if rec.up_sd_deg is None else rec.up_sd_deg, given_stature_m,
-                         evidence_weight(len(rec.quaternions) / fps), lower[::max(len(lower) // 256, 1)])
+                         evidence_weight(len(rec) / fps), lower[::max(len(lower) // 256, 1)])
 
 
 def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None = None) -> World:
@@ -223,7 +224,7 @@ def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None 
                         camera_height_m)
     floor_contacts = _floor_contacts(grounded, world)
     refitted = None if floor_contacts is None else _plane_normal(floor_contacts, world.normal)
-    if refitted is not None:
+    if refitted is not None and floor_contacts is not None:
         sds = _tilt_sds([e.contacts_m for e in grounded] + [floor_contacts], tilt_sd)
         world = _grid_world(grounded, refitted, sds, camera_height_m)
     return _with_people(world, evidence)
@@ -429,7 +430,7 @@ def _world_without_contacts(evidence: list[TrackEvidence], camera_height_m: floa
 
 def _mean_up(evidence: list[TrackEvidence]) -> np.ndarray:
     """The tracks' up estimates averaged, each weighted by its contacts (one at least)."""
-    total = sum(max(len(e.contacts_m), 1) * e.up for e in evidence)
+    total = np.sum([max(len(e.contacts_m), 1) * e.up for e in evidence], axis=0)
     return total / np.linalg.norm(total)
 
 
@@ -474,16 +475,16 @@ def _tilt_sds(contacts: list[np.ndarray], tilt_sd_deg: float) -> tuple[float, fl
     return pitch, roll
 
 
-def place_in_world(rec: TrackRecording, world: World) -> TrackRecording:
-    """A whole-take fit scaled about the camera by its :class:`PersonSize` factor (its image
-    unchanged), on the world's floor, its root lifted where an ankle would sink below it (as the
-    whole-take fit does on its own floor); where no floor was found, on its own, if any, scaled."""
+def place_in_world(rec: TrackRecording, world: World, fps: float) -> TrackRecording:
+    """A whole-take fit (at ``fps`` Hz) scaled about the camera by its :class:`PersonSize` factor
+    (its image unchanged), on the world's floor, its root lifted where an ankle would sink below it
+    (as the whole-take fit does on its own floor); where no floor was found, on its own, if any, scaled."""
     k = world.people[rec.track].scale_factor
-    scaled = replace(rec, root_view_m=[r * k for r in rec.root_view_m], scales=[s * k for s in rec.scales])
+    motion = scaled_about_origin(rec.motion(fps), k)
     if not world.floor_known:
-        return replace(scaled, floor_offset_m=None if rec.floor_offset_m is None else k * rec.floor_offset_m)
-    quats, root_m, scale = scaled.motion()
-    ankles = pose_from_rotations(quats, np.zeros_like(root_m), scale, scaled.offsets_m())[:, list(ANKLES)]
-    lifted = above_floor(root_m, ankles, world.normal, -world.camera_height_m, ANKLE_HEIGHT_M * scale)
-    return replace(scaled, root_view_m=list(lifted), scales=[scale] * len(lifted), up_view=world.normal,
+        floor_offset_m = None if rec.floor_offset_m is None else k * rec.floor_offset_m
+        return replace(rec.with_motion(motion), floor_offset_m=floor_offset_m)
+    ankles = replace(motion, root_m=np.zeros_like(motion.root_m)).joints_m()[:, list(ANKLES)]
+    lifted = above_floor(motion.root_m, ankles, world.normal, -world.camera_height_m, ANKLE_HEIGHT_M * motion.scale)
+    return replace(rec.with_motion(replace(motion, root_m=lifted)), up_view=world.normal,
                    floor_offset_m=-world.camera_height_m)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocapdb.core.outputs import TrackRecording
-from mocapdb.core.skeleton import MEASURED_BONE_NAMES, UNIVERSAL_HEIGHT_M, universal_bone_lengths_m
+from mocapdb.core.skeleton import MEASURED_BONE_NAMES
 from mocapdb.runtime.stature import HUMAN_STATURE_M
 from mocapdb.runtime.world import PersonSize, World
 
@@ -66,13 +66,12 @@ FEET_TOLERANCE_M = 0.05  # feet this far below the floor are flagged
 _LEGS = [MEASURED_BONE_NAMES.index("thigh"), MEASURED_BONE_NAMES.index("shank")]
 
 
-def track_facts(rec: TrackRecording, world: World) -> TrackFacts:
-    """:class:`TrackFacts` of a track placed in ``world`` (:func:`place_in_world`)."""
-    scale = rec.scales[-1]
-    proportions = universal_bone_lengths_m() if rec.proportions_m is None else rec.proportions_m
-    roots = np.array(rec.motion()[1])
+def track_facts(rec: TrackRecording, world: World, fps: float) -> TrackFacts:
+    """:class:`TrackFacts` of a track placed in ``world`` (:func:`place_in_world`), at ``fps`` Hz."""
+    motion = rec.motion(fps)
+    roots = motion.root_m
     distances = np.linalg.norm(roots, axis=1)
-    return TrackFacts(rec.track, UNIVERSAL_HEIGHT_M * scale, float(proportions[_LEGS].sum() * scale),
+    return TrackFacts(rec.track, motion.height_m, float(motion.bones_m()[_LEGS].sum()),
                       (float(distances.min()), float(distances.max())), bool(np.all(roots[:, 2] < 0.0)),
                       world.people[rec.track])
 

@@ -1,12 +1,14 @@
 """Blender reads mocapdb's BVH as mocapdb means it, and mocapdb reads Blender's export as Blender
 means it (skipped without Blender: the bpy wheel in $MOCAPDB_BPY_PYTHON, or the blender program)."""
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from mocapdb.core.formats.bvh import write_bvh
-from mocapdb.core.outputs import universal_bvh
+from mocapdb.core.motion import Motion
+from mocapdb.core.outputs import motion_bvh
 from mocapdb.core.skeleton import PELVIS, rest_positions_m, retarget
 
 from .conftest import ROOT
@@ -23,20 +25,20 @@ def test_blender_imports_universal_bvh_with_the_same_joint_positions(tmp_path):
     rng = np.random.default_rng(0)
     points = rest_positions_m() + rng.normal(scale=0.05, size=(20, 15, 3)) + [0.3, 1.0, -2.0]
     quats, pos = retarget(points)
-    write_bvh(tmp_path / "track.bvh", universal_bvh(quats, pos[:, PELVIS], fps=30.0))
+    write_bvh(tmp_path / "track.bvh", motion_bvh(Motion(quats, pos[:, PELVIS], 30.0)))
     assert compare(tmp_path / "track.bvh", [0, 7, 19]) < 1e-5  # metres
 
 
 def test_blender_imports_the_humanoid_rig_on_its_floor(tmp_path):
     from blender_check import blender_pose, compare
 
-    from mocapdb.core.exports import on_floor
+    from mocapdb.core.motion_ops import on_floor
 
     rng = np.random.default_rng(1)
     points = rest_positions_m() + rng.normal(scale=0.05, size=(12, 15, 3)) + [0.3, 1.0, -3.0]
     quats, pos = retarget(points)
-    quats, root = on_floor(quats, pos[:, PELVIS], 1.0)
-    write_bvh(tmp_path / "humanoid.bvh", universal_bvh(quats, root, 30.0, "cm", 1.1, rig="humanoid"))
+    motion = replace(on_floor(Motion(quats, pos[:, PELVIS], 30.0, "view")), scale=1.1)
+    write_bvh(tmp_path / "humanoid.bvh", motion_bvh(motion, "cm", rig="humanoid"))
     assert compare(tmp_path / "humanoid.bvh", [0, 5, 11]) < 1e-3  # centimetres
     bones = blender_pose(tmp_path / "humanoid.bvh", [0])["bones"]
     assert {"Hips", "Spine", "Neck", "Head", "LeftHand", "RightFoot", "LeftToeBase", "RightShoulder"} <= set(bones)
@@ -55,8 +57,8 @@ def test_blender_turns_the_humanoid_feet_and_hands(tmp_path):
     end_quats[:, 0] = [np.cos(half), 0.0, np.sin(half), 0.0]   # right foot: 40° about its up
     end_quats[:, 2] = [np.cos(half), np.sin(half), 0.0, 0.0]   # right hand
     for name, ends in (("still", None), ("turned", end_quats)):
-        write_bvh(tmp_path / f"{name}.bvh", universal_bvh(quats, pos[:, PELVIS], 30.0, "cm", rig="humanoid",
-                                                          end_quats=ends))
+        write_bvh(tmp_path / f"{name}.bvh", motion_bvh(Motion(quats, pos[:, PELVIS], 30.0, end_rotations=ends),
+                                                       "cm", rig="humanoid"))
     assert compare(tmp_path / "turned.bvh", [0, 5]) < 1e-3  # centimetres
     toe = {name: np.subtract(*blender_pose(tmp_path / f"{name}.bvh", [0])["bones"]["RightToeBase"]["0"][::-1])
            for name in ("still", "turned")}
@@ -70,7 +72,7 @@ def test_blender_finds_no_zero_length_bone(tmp_path, rig):
 
     rng = np.random.default_rng(2)
     quats, pos = retarget(rest_positions_m() + rng.normal(scale=0.05, size=(4, 15, 3)) + [0.3, 1.0, -3.0])
-    write_bvh(tmp_path / "track.bvh", universal_bvh(quats, pos[:, PELVIS], 30.0, "cm", rig=rig))
+    write_bvh(tmp_path / "track.bvh", motion_bvh(Motion(quats, pos[:, PELVIS], 30.0), "cm", rig=rig))
     run = run_in_blender(INSIDE, [str(tmp_path / "track.bvh"), "[0]"])
     assert "MOCAPDB" in run.stdout, run.stderr[-2000:]  # imported
     assert "zero length" not in run.stdout + run.stderr  # the importer's warning for a bone without length

@@ -63,7 +63,7 @@ def test_camera_height_measures_the_person_from_the_feet(small_db, pitch, tmp_pa
     assert 1.5 < poses[-1].height_m < 1.74
     (take,) = fit_takes(engine.finish(), 24.0, camera_height_m=1.4)
     assert 1.75 * take.scales[-1] == pytest.approx(1.5, rel=0.05)
-    index, _, roots = take_joints(take)
+    index, _, roots = take_joints(take, 24.0)
     late = index[len(index) // 2:]
     depth = truth[late, PELVIS, 2]
     assert np.median(np.linalg.norm(roots[len(index) // 2:] - truth[late, PELVIS], axis=-1) / depth) < 0.05

@@ -13,6 +13,7 @@ from mocapdb.core.clips import ClipOptions, clips_from_bvh, continuous_runs, pro
 from mocapdb.core.domains import DomainError
 from mocapdb.core.formats.database_reader import load_database
 from mocapdb.core.geometry import normalize_pose_2d, project_views
+from mocapdb.core.motion_ops import mirror_keypoints
 from mocapdb.core.skeleton import (
     BONE_LENGTHS_M,
     KEYPOINTS,
@@ -20,7 +21,6 @@ from mocapdb.core.skeleton import (
     MIRROR_PAIRS,
     PELVIS,
     RIG_JOINTS,
-    mirror_keypoints,
     pose_from_rotations,
 )
 

@@ -67,12 +67,15 @@ def test_write_tracks_leaves_static_tracks_out_as_reconstruct_does(tmp_path):
     import numpy as np
 
     from mocapdb.core.exports import write_tracks
+    from mocapdb.core.motion import FrameRecorder
     from mocapdb.core.outputs import TrackRecording
 
     quats = np.tile([1.0, 0.0, 0.0, 0.0], (11, 1))
     recordings = []
     for track, static in ((0, True), (1, False)):
-        rec = TrackRecording(track, 0, [quats] * 3, [np.array([0.0, 0.0, -4.0])] * 3, [1.0] * 3, static=static)
+        frames = FrameRecorder.of(quaternions=np.stack([quats] * 3), root_view_m=np.tile([0.0, 0.0, -4.0], (3, 1)),
+                                  scales=np.ones(3))
+        rec = TrackRecording(track, 0, frames, static=static)
         recordings.append(rec)
     assert [p.name for p in write_tracks(recordings, tmp_path / "a", 30.0)] == ["track_1.bvh"]
     assert len(write_tracks(recordings, tmp_path / "b", 30.0, keep_static=True)) == 2

@@ -8,12 +8,14 @@ import pytest
 
 from mocapdb.core import exports
 from mocapdb.core.clips import ClipOptions, process_clip
-from mocapdb.core.exports import TrackExport, on_floor, write_track_files
+from mocapdb.core.exports import TrackExport, write_track_files
 from mocapdb.core.formats.bvh import format_bvh, forward_kinematics, read_bvh
 from mocapdb.core.formats.trc import format_trc, read_trc
 from mocapdb.core.geometry import axis_rotation_matrices, matrix_to_quat, quat_mul
 from mocapdb.core.joint_map import detect_mapping
-from mocapdb.core.outputs import TrackRecording, universal_bvh
+from mocapdb.core.motion import FrameRecorder, Motion
+from mocapdb.core.motion_ops import on_floor
+from mocapdb.core.outputs import TrackRecording, motion_bvh
 from mocapdb.core.skeleton import (
     ANKLE_HEIGHT_M,
     HUMANOID_NODE_OF_KEYPOINT,
@@ -45,7 +47,8 @@ def walk():
 
 
 def _recording(quats, root_m, first_frame=0, scale=1.0):
-    return TrackRecording(3, first_frame, list(quats), list(root_m), [scale] * len(quats), first_s=first_frame / 30.0,
+    frames = FrameRecorder.of(quaternions=quats, root_view_m=root_m, scales=np.full(len(quats), scale))
+    return TrackRecording(3, first_frame, frames, first_s=first_frame / 30.0,
                           last_s=(first_frame + len(quats) - 1) / 30.0)
 
 
@@ -61,7 +64,9 @@ def test_floor_levels_a_pitched_camera_and_puts_the_feet_on_y0(walk):
     quats, root, truth = walk
     seen_q, seen_root = _seen_from_a_pitched_camera(quats, root, 12.0, [0.4, -1.3, -5.0])
     assert np.ptp(pose_from_rotations(seen_q, seen_root)[:, KP["r_ankle"], 1]) > 0.3  # tilted: feet not level
-    level_q, level_root = on_floor(seen_q, seen_root, 1.0)
+    level = on_floor(Motion(seen_q, seen_root, 30.0, "view"))
+    level_q, level_root = level.rotations, level.root_m
+    assert level.coordinate_frame == "world"
     joints = pose_from_rotations(level_q, level_root)
     lowest = joints[:, [KP["r_ankle"], KP["l_ankle"]], 1].min(axis=1)
     assert abs(np.percentile(lowest, 5) - ANKLE_HEIGHT_M) < 1e-9
@@ -74,7 +79,8 @@ def test_floor_without_depth_motion_only_shifts(walk):
     quats, root, _ = walk
     still_q = np.repeat(quats[:1], 5, axis=0)  # one pose held: no depth to measure a pitch on
     still_root = np.repeat(root[:1], 5, axis=0) + [0.0, -1.2, -4.0]
-    level_q, level_root = on_floor(still_q, still_root, 1.0)
+    level = on_floor(Motion(still_q, still_root, 30.0, "view"))
+    level_q, level_root = level.rotations, level.root_m
     np.testing.assert_allclose(level_q, still_q)
     np.testing.assert_allclose(np.diff(level_root, axis=0), np.diff(still_root, axis=0))
 
@@ -140,9 +146,9 @@ def test_bvh_from_the_track_start_and_past_the_padding_limit(walk, tmp_path, mon
 
 @pytest.mark.parametrize("lead", [-1, 3])
 def test_bvh_lead_frames_need_a_first_frame(lead):
-    bvh = universal_bvh(np.zeros((0, 11, 4)), np.zeros((0, 3)), 30.0)
+    bvh = motion_bvh(Motion(np.zeros((0, 11, 4)), np.zeros((0, 3)), 30.0))
     if lead < 0:
-        bvh = universal_bvh(np.tile([1.0, 0, 0, 0], (2, 11, 1)), np.zeros((2, 3)), 30.0)
+        bvh = motion_bvh(Motion(np.tile([1.0, 0, 0, 0], (2, 11, 1)), np.zeros((2, 3)), 30.0))
     with pytest.raises(ValueError, match="lead frames"):
         format_bvh(bvh, lead_frames=lead)
 
@@ -169,7 +175,7 @@ def test_opensim_reads_the_trc(tmp_path):
 
 def test_humanoid_rig_has_the_bones_auto_mappers_need_at_the_same_places(walk, tmp_path):
     quats, root, _ = walk
-    universal = forward_kinematics(universal_bvh(quats[:20], root[:20], 30.0, "cm", 1.1))[0]
+    universal = forward_kinematics(motion_bvh(Motion(quats[:20], root[:20], 30.0, scale=1.1), "cm"))[0]
     write_track_files(_recording(quats[:20], root[:20], scale=1.1), tmp_path, "h", 30.0,
                       TrackExport(unit="cm", rig="humanoid"))
     humanoid = read_bvh(tmp_path / "h.bvh")

@@ -11,7 +11,8 @@ from mocapdb.core.formats.keypoint_layouts import EXTREMITIES, LAYOUTS
 from mocapdb.core.formats.keypoints import to_extremities
 from mocapdb.core.formats.openpose import parse_openpose_json
 from mocapdb.core.geometry import quat_to_matrix
-from mocapdb.core.outputs import universal_bvh
+from mocapdb.core.motion import Motion
+from mocapdb.core.outputs import motion_bvh
 from mocapdb.core.skeleton import (
     HAND_LENGTH_M,
     HEEL_TO_TOE_M,
@@ -189,8 +190,8 @@ def test_the_humanoid_bvh_turns_its_feet_and_hands_and_nothing_else():
     end_quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, 4, 1))
     end_quats[:, 0] = [np.cos(angle / 2), 0.0, np.sin(angle / 2), 0.0]     # right foot: 30° about up
     end_quats[:, 3] = [np.cos(angle / 2), 0.0, 0.0, -np.sin(angle / 2)]    # left hand: 30° down
-    still = parse_bvh(format_bvh(universal_bvh(quats, root, FPS, rig="humanoid")))
-    turned = parse_bvh(format_bvh(universal_bvh(quats, root, FPS, rig="humanoid", end_quats=end_quats)))
+    still = parse_bvh(format_bvh(motion_bvh(Motion(quats, root, FPS), rig="humanoid")))
+    turned = parse_bvh(format_bvh(motion_bvh(Motion(quats, root, FPS, end_rotations=end_quats), rig="humanoid")))
     p_still, p_turned = forward_kinematics(still)[0], forward_kinematics(turned)[0]
     moved = np.flatnonzero(np.abs(p_turned - p_still).max(axis=(0, 2)) > 1e-6)
     assert sorted(turned.names[j] for j in moved) == ["LeftHand_End", "RightToeBase", "RightToeBase_End"]

@@ -414,7 +414,8 @@ def test_universal_rig_round_trip(tmp_path, unit):
     """A BVH of mocapdb's own rig (`mocapdb stereo`, `track_*.bvh`) maps back onto the same 15 points."""
     from mocapdb.core.clips import ClipOptions, process_clip
     from mocapdb.core.formats.bvh import write_bvh
-    from mocapdb.core.outputs import universal_bvh
+    from mocapdb.core.motion import Motion
+    from mocapdb.core.outputs import motion_bvh
     from mocapdb.core.skeleton import PELVIS, pose_from_rotations
 
     from .conftest import SAMPLE_BVH
@@ -423,7 +424,7 @@ def test_universal_rig_round_trip(tmp_path, unit):
     quats = clip.quaternions[:40].astype(np.float64)
     expected = pose_from_rotations(quats, clip.positions[:40, PELVIS])
     path = tmp_path / "universal.bvh"
-    write_bvh(path, universal_bvh(quats, expected[:, PELVIS], 30.0, unit))
+    write_bvh(path, motion_bvh(Motion(quats, expected[:, PELVIS], 30.0), unit))
     bvh = read_bvh(path)
     mapping = detect_mapping(bvh)
     assert mapping.convention == "mocapdb_universal"

@@ -444,13 +444,13 @@ def test_a_checkpoint_on_the_writer_thread_is_of_the_track_as_it_was():
     snapshot it is given keeps its frames."""
     from mocapdb.core.outputs import TrackRecording
 
-    rec = TrackRecording(3, 0, quaternions=[np.ones((11, 4))], root_view_m=[np.zeros(3)], scales=[1.0],
-                         fit_quaternions=[np.ones((11, 4))], fit_root_view_m=[np.zeros(3)],
-                         keypoints=[np.ones((14, 3))])
+    row = dict(quaternions=np.ones((11, 4)), root_view_m=np.zeros(3), scales=1.0, fit_quaternions=np.ones((11, 4)),
+               fit_root_view_m=np.zeros(3), keypoints=np.ones((14, 3)), extremities=np.ones((8, 3)))
+    rec = TrackRecording(3, 0)
+    rec.frames.append(**row)
     frozen = rec.snapshot()
-    for name in ("quaternions", "root_view_m", "fit_quaternions", "fit_root_view_m", "keypoints"):
-        getattr(rec, name).append(np.zeros(1))
-    rec.scales.append(2.0)
-    assert [len(getattr(frozen, n)) for n in ("quaternions", "root_view_m", "scales", "fit_quaternions",
-                                               "fit_root_view_m", "keypoints")] == [1] * 6
+    for _ in range(20):  # past the first capacity: the arrays grow
+        rec.frames.append(**{name: np.zeros_like(value) for name, value in row.items()})
+    assert len(rec) == 21 and len(frozen) == 1
+    assert all(np.array_equal(frozen.column(name)[0], value) for name, value in row.items())
     assert frozen.track == 3 and frozen.scales == [1.0]

@@ -4,7 +4,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mocapdb.core.formats.bvh import format_bvh, forward_kinematics, parse_bvh
-from mocapdb.core.outputs import universal_bvh
+from mocapdb.core.motion import Motion
+from mocapdb.core.motion_ops import resample
+from mocapdb.core.outputs import motion_bvh
 from mocapdb.core.skeleton import (
     BONE_LENGTHS_M,
     KP,
@@ -12,7 +14,6 @@ from mocapdb.core.skeleton import (
     PELVIS,
     RIG_JOINTS,
     pose_from_rotations,
-    resample,
     rest_positions_m,
     retarget,
 )
@@ -84,7 +85,7 @@ def test_universal_bvh_reproduces_positions(unit, scale, body):
     pos = pose_from_rotations(quats, pos[:, PELVIS], scale=body)
     np.testing.assert_allclose(np.linalg.norm(pos[:, KP["r_knee"]] - pos[:, KP["r_hip"]], axis=-1),
                                body * BONE_LENGTHS_M["thigh"], atol=1e-9)
-    bvh = parse_bvh(format_bvh(universal_bvh(quats, pos[:, PELVIS], fps=30.0, unit=unit, body_scale=body)))
+    bvh = parse_bvh(format_bvh(motion_bvh(Motion(quats, pos[:, PELVIS], 30.0, scale=body), unit)))
     fk, _ = forward_kinematics(bvh)
     names = ["r_hip", "r_knee", "r_knee_End", "l_elbow_End", "neck_End", "pelvis"]
     points = ["r_hip", "r_knee", "r_ankle", "l_wrist", "head", "pelvis"]

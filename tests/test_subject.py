@@ -4,6 +4,7 @@ import json
 import numpy as np
 import pytest
 
+from mocapdb.core.motion import FrameRecorder
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.runtime.subject import chosen, main_track, parse_people, subject_score
 
@@ -15,7 +16,7 @@ def _track(track: int, centre_x: float, height_px: float, speed_px: float, frame
     x = centre_x + speed_px * t + np.linspace(-0.2, 0.2, 14)[None, :] * height_px
     y = 500.0 + np.linspace(-0.5, 0.5, 14)[None, :] * height_px + 0.0 * t
     keypoints = np.stack([x, y, np.ones_like(x)], axis=-1)
-    return TrackRecording(track=track, first_frame=0, keypoints=list(keypoints))
+    return TrackRecording(track=track, first_frame=0, frames=FrameRecorder.of(keypoints=keypoints))
 
 
 def test_the_score_by_hand():
@@ -72,14 +73,16 @@ def _recorded(track: int, first: int, frames: int, x0: float, speed_px: float = 
     """A track as the engine keeps it for the whole take: ``frames`` entries from input frame ``first``,
     its keypoints' box 300 px tall at ``x0 + speed_px * frame``."""
     rec = _track(track, 0.0, 300.0, speed_px, frames=first + frames)
-    keypoints = rec.keypoints[first:]
+    keypoints = rec.column("keypoints")[first:]
     for k in keypoints:
         k[:, 0] += x0
-    quats = [np.array([[1.0, 0.0, 0.0, 0.0]]) * (track + 1)] * frames
-    roots = [np.array([float(track), 0.0, -5.0])] * frames
-    return TrackRecording(track=track, first_frame=first, quaternions=list(quats), root_view_m=list(roots),
-                          scales=[1.0] * frames, fit_quaternions=list(quats), fit_root_view_m=list(roots),
-                          keypoints=keypoints, first_s=first / 30.0, last_s=(first + frames - 1) / 30.0)
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (frames, 11, 1)) * (track + 1)
+    roots = np.tile([float(track), 0.0, -5.0], (frames, 1))
+    columns = FrameRecorder.of(quaternions=quats, root_view_m=roots, scales=np.ones(frames), fit_quaternions=quats,
+                               fit_root_view_m=roots, keypoints=keypoints,
+                               extremities=np.full((frames, 8, 3), 0.0))
+    return TrackRecording(track=track, first_frame=first, frames=columns, first_s=first / 30.0,
+                          last_s=(first + frames - 1) / 30.0)
 
 
 def test_a_person_lost_and_found_again_is_one_track():
@@ -96,8 +99,8 @@ def test_a_person_lost_and_found_again_is_one_track():
     assert joined == {4: 1}
     assert sorted(t.track for t in tracks) == [1, 7, 9]
     whole = next(t for t in tracks if t.track == 1)
-    assert len(whole.quaternions) == len(whole.keypoints) == len(whole.fit_root_view_m) == 82
+    assert len(whole.quaternions) == len(whole.column("keypoints")) == len(whole.column("fit_root_view_m")) == 82
     np.testing.assert_array_equal(whole.quaternions[45], first.quaternions[-1])   # held over the gap
     np.testing.assert_array_equal(whole.quaternions[60], again.quaternions[8])
-    assert not np.any(whole.keypoints[45][:, 2]) and whole.last_s == again.last_s
+    assert not np.any(whole.column("keypoints")[45][:, 2]) and whole.last_s == again.last_s
     assert join_fragments([first, _recorded(4, 52 + 31, 30, 300.0)], 30.0)[1] == {}  # lost for more than 1 s

@@ -252,7 +252,7 @@ def test_two_people_share_one_floor_and_their_sizes_follow(small_db):
     own = [result.floor_offset_m for _, result in fits]
     assert abs(own[0] - own[1]) > 0.1                    # alone, each stands on a floor of its own
     world = estimate_world([track_evidence(rec, result, 24.0) for rec, result in fits])
-    shared = [place_in_world(rec, world) for rec, _ in fits]
+    shared = [place_in_world(rec, world, 24.0) for rec, _ in fits]
     assert shared[0].floor_offset_m == shared[1].floor_offset_m
     np.testing.assert_allclose(shared[0].up_view, shared[1].up_view)
     heights = {}

@@ -89,9 +89,7 @@ def test_the_bystander_does_not_change_the_subjects_size(sample_db_path, tmp_pat
 
 def test_the_footage_check_passes_real_tracks_and_fails_a_broken_one(sample_db_path, monkeypatch):
     """`eval --world … --videos`: the bundled balancing video's two tracks pass; each of them with
-    its size made negative (the failure of issue 27: a body behind the camera) fails."""
-    from dataclasses import replace
-
+    its root put behind the camera (the failure of issue 27) fails."""
     from mocapdb.core.formats.database_reader import load_database
     from mocapdb.evaluation import real_footage
 
@@ -102,8 +100,9 @@ def test_the_footage_check_passes_real_tracks_and_fails_a_broken_one(sample_db_p
     original = real_footage._track_check
 
     def flipped(rec, kind, fps):
-        return original(replace(rec, root_view_m=[-r for r in rec.root_view_m], scales=[-s for s in rec.scales]),
-                        kind, fps)
+        flipped_motion = rec.motion(fps)
+        flipped_motion.root_m = -flipped_motion.root_m  # behind the camera
+        return original(rec.with_motion(flipped_motion), kind, fps)
 
     monkeypatch.setattr(real_footage, "_track_check", flipped)
     broken = real_footage.check_footage(db, VIDEOS / "video_balancing_cam01")

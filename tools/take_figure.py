@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> dict:
     recordings = {r.track: r for r in engine.finish() if not r.static}
     track = max(recordings, key=lambda t: len(recordings[t].quaternions))
     fitted, result = fit_take(recordings[track], args.fps)
-    index, joints, _ = take_joints(fitted)
+    index, joints, _ = take_joints(fitted, args.fps)
     whole = np.full((len(frames), N_POINTS, 3), np.nan)
     whole[index] = joints
     people = [f.people for f in frames]

@@ -9,13 +9,16 @@ from __future__ import annotations
 import fnmatch
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from mocapdb.core.files import MIB, read_input_text
 from mocapdb.core.formats.bvh import BvhError, read_bvh
 from mocapdb.core.joint_map import detect_mapping, extract_keypoints, load_joint_map_file
-from mocapdb.core.skeleton import ANKLE_HEIGHT_M, BONE_LENGTHS_M, KP, mirror_keypoints, resample, retarget
+from mocapdb.core.motion import Motion
+from mocapdb.core.motion_ops import mirror_keypoints, resample
+from mocapdb.core.skeleton import ANKLE_HEIGHT_M, BONE_LENGTHS_M, KP, PELVIS, retarget
 
 CREDIT_FILE = "CREDIT.txt"
 JOINT_MAP_FILE = "joint_map.toml"  # a joint map beside the sources: for its folder and those below
@@ -40,18 +43,25 @@ class ClipOptions:
 
 @dataclass
 class Clip:
-    """One source clip on the universal skeleton at the database frame rate."""
+    """One source clip on the universal skeleton at the database frame rate: its :class:`Motion`
+    (world frame, the universal body, float32) and where it came from."""
 
     name: str
     source: str
     source_fps: float
     convention: str
     credit: str
-    quaternions: np.ndarray  # [F, R, 4]
-    positions: np.ndarray    # [F, 15, 3] metres, y up, floor at y = 0
+    motion: Motion
+    positions: np.ndarray    # [F, 15, 3] the motion's joints (forward kinematics, float32): metres, y up,
+    #                          floor at y = 0
     mirrored: bool = False   # the left-right mirror image of the captured motion
     source_m: np.ndarray | None = None  # [F, 15, 3] the source's own joints (its bone lengths), metres,
     #                                     y up, the lowest ankle ANKLE_HEIGHT_M × its leg / universal leg
+
+    @property
+    def quaternions(self) -> np.ndarray:
+        """The rig joints' local rotations ``[F, R, 4]`` (the motion's)."""
+        return self.motion.rotations
 
 
 def _nearest(path: Path, root: Path, name: str) -> Path | None:
@@ -106,7 +116,8 @@ def clips_from_bvh(path: Path, root: Path, options: ClipOptions) -> list[Clip]:
         raise BvhError(f"{path}: no stretch of {MIN_RUN_S} s without a jump in the data")
     credit = credit_for(path, root, options.credit)
     whole = len(runs) == 1 and runs[0] == slice(0, len(points))
-    origin = dict(source=str(path), source_fps=bvh.fps, convention=mapping.convention, credit=credit)
+    origin: dict[str, Any] = dict(fps=options.fps, source=str(path), source_fps=bvh.fps, convention=mapping.convention,
+                  credit=credit)
     clips = []
     for run in runs:
         name = path.stem if whole else f"{path.stem}@{run.start}-{run.stop}"
@@ -126,16 +137,27 @@ def process_clip(path: Path, root: Path, options: ClipOptions) -> Clip:
     return max(clips_from_bvh(path, root, replace(options, mirror=False)), key=lambda c: len(c.positions))
 
 
-def _clip(name: str, points: np.ndarray, *, source: str, source_fps: float, convention: str, credit: str,
+def read_motion(path: str | Path, fps: float = 24.0) -> Motion:
+    """The motion of a BVH file of any humanoid rig on the universal skeleton: its longest stretch
+    without a jump in the data, resampled to ``fps`` Hz, retargeted (the universal body, world
+    frame, the floor at y = 0), as the builder reads it. The counterpart of
+    :func:`mocapdb.core.exports.write_motion`. Raises BvhError or JointMapError when the file
+    cannot be used."""
+    path = Path(path)
+    return process_clip(path, path.parent, ClipOptions(fps=fps)).motion
+
+
+def _clip(name: str, points: np.ndarray, *, fps: float, source: str, source_fps: float, convention: str, credit: str,
           mirrored: bool = False) -> Clip:
-    """Retarget resampled source keypoints (metres, y up) and put the floor at y = 0."""
+    """Retarget resampled source keypoints (metres, y up, at ``fps`` Hz) and put the floor at y = 0."""
     scale = leg_scale(points)
     quats, positions = retarget(points * scale)
     positions[..., 1] -= _lowest_ankle(positions) - ANKLE_HEIGHT_M
     source_m = points.copy()
     source_m[..., 1] -= _lowest_ankle(points) - ANKLE_HEIGHT_M / scale
-    return Clip(name, source, source_fps, convention, credit, quats.astype(np.float32),
-                positions.astype(np.float32), mirrored, source_m.astype(np.float32))
+    motion = Motion(quats.astype(np.float32), positions[:, PELVIS].astype(np.float32), fps)
+    return Clip(name, source, source_fps, convention, credit, motion, positions.astype(np.float32), mirrored,
+                source_m.astype(np.float32))
 
 
 def _lowest_ankle(points: np.ndarray) -> float:

@@ -89,7 +89,7 @@ CONVENTIONS: dict[str, dict[str, tuple[str, ...]]] = {
                                      ("cc_base_{s}_calf",), ("cc_base_{s}_foot",)),
     "makehuman_cmu": _convention(("l", "r"), ("head",), ("{s}shldr",), ("{s}forearm",), ("{s}hand",),
                                  ("{s}thigh",), ("{s}shin",), ("{s}foot",)),
-    # mocapdb's own rig (``universal_bvh``: `mocapdb stereo`, `track_*.bvh`): the nose, wrists and
+    # mocapdb's own rig (``motion_bvh``: `mocapdb stereo`, `track_*.bvh`): the nose, wrists and
     # ankles are End Sites, and the head role is the nose End Site itself.
     UNIVERSAL_CONVENTION: _convention(("l", "r"), (UNIVERSAL_NOSE,), ("{s}_shoulder",), ("{s}_elbow",),
                                       ("{s}_elbow_end",), ("{s}_hip",), ("{s}_knee",), ("{s}_knee_end",)),
@@ -165,7 +165,7 @@ def detect_mapping(bvh: Bvh, overrides: dict[str, str] | None = None) -> JointMa
     own = {} if overrides else _universal_joints(bvh)
     reading = place_roles(bvh, own or fixed)
     if own:
-        reading.why = dict.fromkeys(ROLES, "mocapdb's own rig (universal_bvh)")
+        reading.why = dict.fromkeys(ROLES, "mocapdb's own rig (motion_bvh)")
     if not reading.problems:
         check_structure(bvh, reading.placed, reading)
     if not reading.problems:

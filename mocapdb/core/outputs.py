@@ -16,6 +16,7 @@ from mocapdb.core.errors import MocapdbError
 from mocapdb.core.files import recover_interrupted, replace_folder, sibling
 from mocapdb.core.formats.bvh import Bvh, motion_from_rotations
 from mocapdb.core.geometry import quat_to_matrix
+from mocapdb.core.motion import FrameRecorder, Motion
 from mocapdb.core.skeleton import (
     END_JOINTS,
     END_SITES,
@@ -54,26 +55,31 @@ class PersonPose:
     joints_m: np.ndarray     # [15, 3] camera-aligned frame, metres (KEYPOINTS order)
     quaternions: np.ndarray  # [R, 4] local rotations; the root's is relative to the view frame
     root_m: np.ndarray       # [3] pelvis, camera-aligned frame, metres
-    match: Match
+    match: Match | None      # None: no database match (stereo)
     height_m: float = UNIVERSAL_HEIGHT_M  # the body's standing height (the skeleton's scale)
     bones_m: np.ndarray | None = None     # [8] its MEASURED_BONE_NAMES lengths (None: the universal body's)
 
 
+MOTION_COLUMNS = ("quaternions", "root_view_m", "scales")  # every recorded frame's (TrackRecording.frames)
+FIT_COLUMNS = ("fit_quaternions", "fit_root_view_m", "keypoints", "extremities")  # with EngineConfig.keep_take
+
+
 @dataclass
 class TrackRecording:
-    """What a track produced, for its BVH: one entry per frame from its first to its last."""
+    """What a track produced, for its files: one row per frame from its first to its last.
+
+    ``frames`` (:class:`~mocapdb.core.motion.FrameRecorder`) holds per frame the rotations
+    ``quaternions [R, 4]`` (view frame), ``root_view_m [3]`` and the body scale ``scales`` (height /
+    1.75 m) estimated so far; with ``EngineConfig.keep_take`` also what the whole-take fit needs:
+    the unfiltered per-frame fit ``fit_quaternions``/``fit_root_view_m``, the input ``keypoints
+    [14, 3]`` and ``extremities [8, 3]`` (heels, toes, knuckles; x, y px, confidence).
+    :meth:`motion` gives the track as a :class:`~mocapdb.core.motion.Motion`.
+    """
 
     track: int
     first_frame: int
-    quaternions: list[np.ndarray] = field(default_factory=list)  # [R, 4] view frame
-    root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] view frame
-    scales: list[float] = field(default_factory=list)            # body scale (height / 1.75 m)
+    frames: FrameRecorder = field(default_factory=FrameRecorder)
     proportions_m: np.ndarray | None = None  # [8] its bone lengths at 1.75 m stature (None: universal)
-    # What the whole-take fit needs (EngineConfig.keep_take; empty otherwise), one entry per frame:
-    fit_quaternions: list[np.ndarray] = field(default_factory=list)  # [R, 4] the per-frame fit, unfiltered
-    fit_root_view_m: list[np.ndarray] = field(default_factory=list)  # [3] its root (view frame)
-    keypoints: list[np.ndarray] = field(default_factory=list)        # [14, 3] the input: x, y px, confidence
-    extremities: list[np.ndarray] = field(default_factory=list)      # [8, 3] its heels, toes, knuckles (same form)
     camera_px: tuple[float, float, float] | None = None  # the pinhole they were fitted with: focal, cx, cy (px)
     up_view: np.ndarray | None = None  # the world's up in the view frame (the camera's tilt estimate)
     up_sd_deg: float | None = None     # that estimate's error (degrees; runtime.body_size.CameraTilt.sd_deg)
@@ -86,31 +92,56 @@ class TrackRecording:
     first_s: float = 0.0  # input time of the first and the last recorded frame
     last_s: float = 0.0
 
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def column(self, name: str) -> np.ndarray:
+        """The recorded values of ``name`` (:data:`MOTION_COLUMNS`, :data:`FIT_COLUMNS`) frame by frame;
+        empty when not recorded (no frame yet, or the fits without ``keep_take``)."""
+        return self.frames[name] if name in self.frames else np.zeros(0)
+
+    @property
+    def quaternions(self) -> np.ndarray:
+        """``[F, R, 4]`` the rotations as streamed (view frame)."""
+        return self.column("quaternions")
+
+    @property
+    def root_view_m(self) -> np.ndarray:
+        """``[F, 3]`` the root as streamed (view frame, metres)."""
+        return self.column("root_view_m")
+
+    @property
+    def scales(self) -> np.ndarray:
+        """``[F]`` the body scale estimated at each frame."""
+        return self.column("scales")
+
+    def with_motion(self, motion: Motion) -> TrackRecording:
+        """This track with ``motion`` (view frame) as its frames; the per-frame fits (consumed by the
+        whole-take fit) are not carried over."""
+        scales = np.full(len(motion), motion.scale)
+        frames = FrameRecorder.of(quaternions=motion.rotations, root_view_m=motion.root_m, scales=scales)
+        return replace(self, frames=frames, end_quaternions=motion.end_rotations)
+
     def snapshot(self) -> TrackRecording:
-        """A copy whose per-frame lists stay as they are now while the track records on (for a
-        thread that writes the track's files meanwhile); the frames' arrays are shared, not copied."""
-        lists = ("quaternions", "root_view_m", "scales", "fit_quaternions", "fit_root_view_m", "keypoints",
-                 "extremities")
-        return replace(self, **{name: list(getattr(self, name)) for name in lists})
+        """A copy whose frames stay as they are now while the track records on (for a thread that
+        writes the track's files meanwhile); the recorded arrays are shared, not copied."""
+        return replace(self, frames=self.frames.snapshot())
 
     def duration_s(self, fps: float) -> float:
         """Input time from the first recorded frame to the last, plus one frame (``1 / fps``)."""
         return self.last_s - self.first_s + 1.0 / fps
 
-    def motion(self) -> tuple[np.ndarray, np.ndarray, float]:
-        """Rotations ``[F, R, 4]``, root ``[F, 3]`` and the one body scale of the track's BVH.
+    def motion(self, fps: float) -> Motion:
+        """The track as a motion in the view frame at ``fps`` Hz, with one body: the last scale.
 
         The image fixes a body only up to a scale about the camera centre, so where the scale
         estimate changed during the track (``--camera-height``) each frame's root is moved to
         the track's final scale: the BVH keeps one skeleton and still matches the image.
         """
-        scales = np.array(self.scales)
+        scales = self.scales
         final = float(scales[-1])
-        return np.array(self.quaternions), np.array(self.root_view_m) * (final / scales)[:, None], final
-
-    def offsets_m(self) -> np.ndarray | None:
-        """The rig's rest offsets for the track's own body (``skeleton.body_offsets_m``; None: universal)."""
-        return None if self.proportions_m is None else body_offsets_m(self.proportions_m)
+        return Motion(self.quaternions, self.root_view_m * (final / scales)[:, None], fps, "view", self.first_frame,
+                      final, self.proportions_m, self.end_quaternions)
 
 
 BVH_ROTATION_CHANNELS = ["Zrotation", "Yrotation", "Xrotation"]
@@ -152,33 +183,28 @@ def _with_root_tail(names: list[str], parents: np.ndarray, offsets_m: np.ndarray
             sources + [None], np.append(end_site, True))
 
 
-def universal_bvh(quats: np.ndarray, pelvis_m: np.ndarray, fps: float, unit: str = "m",
-                  body_scale: float = 1.0, rig: str = "universal", proportions_m: np.ndarray | None = None,
-                  end_quats: np.ndarray | None = None) -> Bvh:
-    """A BVH of the universal skeleton: root position and every joint's rotation per frame.
+def motion_bvh(motion: Motion, unit: str = "m", rig: str = "universal") -> Bvh:
+    """A motion as a BVH: the root's position and every joint's rotation per frame.
 
-    ``quats [F, 11, 4]`` are the rig joints' local rotations (:data:`RIG_JOINTS` order) and
-    ``pelvis_m [F, 3]`` the root; ``unit`` is the BVH's length unit (``"m"`` or ``"cm"``);
-    ``body_scale`` multiplies every bone (a subject's height / :data:`UNIVERSAL_HEIGHT_M`) of the
-    body whose bone lengths at 1.75 m are ``proportions_m [8]`` (None: the universal body).
-    ``rig="humanoid"`` adds head, clavicle, hand, foot and toe bones under Mixamo's names
-    (:data:`HUMANOID_NODES`); the joints of both rigs are at the same places. Its feet and hands
-    turn by ``end_quats [F, 4, 4]`` (local rotations, :data:`END_JOINTS` order; None: they do not
-    turn); the universal rig has no such joints.
+    ``unit`` is the BVH's length unit (``"m"`` or ``"cm"``); every bone is the motion's body's
+    (its proportions times its scale). ``rig="humanoid"`` adds head, clavicle, hand, foot and toe
+    bones under Mixamo's names (:data:`HUMANOID_NODES`); the joints of both rigs are at the same
+    places, and its feet and hands turn by the motion's ``end_rotations`` (None: they do not turn);
+    the universal rig has no such joints.
     """
     scale = BVH_UNITS[unit]
-    names, parents, offsets_m, sources, end_site = _with_root_tail(*_rig_table(rig, proportions_m))
+    names, parents, offsets_m, sources, end_site = _with_root_tail(*_rig_table(rig, motion.proportions_m))
     channels = [([] if end else BVH_ROTATION_CHANNELS.copy()) for end in end_site]
     channels[0] = ["Xposition", "Yposition", "Zposition"] + BVH_ROTATION_CHANNELS
-    skeleton = Bvh(names, parents, offsets_m * (scale * body_scale), channels, end_site, 1.0 / fps,
-                   np.zeros((quats.shape[0], 0)))
-    local = np.broadcast_to(np.eye(3), (quats.shape[0], len(names), 3, 3)).copy()
+    skeleton = Bvh(names, parents, offsets_m * (scale * motion.scale), channels, end_site, 1.0 / motion.fps,
+                   np.zeros((len(motion), 0)))
+    local = np.broadcast_to(np.eye(3), (len(motion), len(names), 3, 3)).copy()
     turning = [i for i, source in enumerate(sources) if source in RIG_JOINTS]
-    local[:, turning] = quat_to_matrix(quats[:, [RIG_JOINTS.index(sources[i]) for i in turning]])
+    local[:, turning] = quat_to_matrix(motion.rotations[:, [RIG_JOINTS.index(sources[i]) for i in turning]])
     ends = [i for i, source in enumerate(sources) if source in END_JOINTS]
-    if end_quats is not None and ends:
-        local[:, ends] = quat_to_matrix(end_quats[:, [END_JOINTS.index(sources[i]) for i in ends]])
-    skeleton.motion = motion_from_rotations(skeleton, local, pelvis_m * scale)
+    if motion.end_rotations is not None and ends:
+        local[:, ends] = quat_to_matrix(motion.end_rotations[:, [END_JOINTS.index(sources[i]) for i in ends]])
+    skeleton.motion = motion_from_rotations(skeleton, local, motion.root_m * scale)
     return skeleton
 
 
@@ -224,8 +250,11 @@ def _rounded(values: np.ndarray, decimals: int) -> list:
     """Nested lists of rounded values; NaN (a value not measured) becomes null."""
     values = np.asarray(values, dtype=np.float64)
     rounded = np.round(values, decimals)
-    if np.isnan(values).any():
-        return np.where(np.isnan(values), None, rounded).tolist()
+    missing = np.isnan(values)
+    if missing.any():
+        with_nulls = rounded.astype(object)
+        with_nulls[missing] = None
+        return with_nulls.tolist()
     return rounded.tolist()
 
 

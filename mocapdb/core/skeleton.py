@@ -357,28 +357,6 @@ def global_rotations(quats: np.ndarray) -> np.ndarray:
     return out
 
 
-def mirror_keypoints(points: np.ndarray) -> np.ndarray:
-    """The left-right mirror image of keypoints ``[..., 15, 3]`` (KEYPOINTS order): x negated
-    (reflection in the y-z plane) and every :data:`MIRROR_PAIRS` pair swapped. Its own inverse."""
-    mirrored = points[..., MIRROR_SOURCE, :].copy()
-    mirrored[..., 0] *= -1
-    return mirrored
-
-
-def resample(points: np.ndarray, source_fps: float, target_fps: float) -> np.ndarray:
-    """Linear resampling of ``[F, ...]`` samples from ``source_fps`` to ``target_fps`` (Hz).
-
-    Sample k sits at time k / target_fps; samples past the last source frame are not made.
-    """
-    n_src = points.shape[0]
-    duration = (n_src - 1) / source_fps
-    t = np.arange(int(np.floor(duration * target_fps + 1e-9)) + 1) * (source_fps / target_fps)
-    i0 = np.minimum(np.floor(t).astype(np.int64), n_src - 1)
-    i1 = np.minimum(i0 + 1, n_src - 1)
-    w = (t - i0).reshape((-1,) + (1,) * (points.ndim - 1))
-    return points[i0] * (1.0 - w) + points[i1] * w
-
-
 _BONE_PAIRS = [[(KP[a], KP[b]) for a, b in pairs] for pairs in MEASURED_BONES.values()]
 
 

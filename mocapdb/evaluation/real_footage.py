@@ -18,7 +18,8 @@ from mocapdb.core.exports import track_motion
 from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.openpose import read_openpose_folder
 from mocapdb.core.formats.take import default_focal_px, read_take
-from mocapdb.core.skeleton import ANKLE_HEIGHT_M, KP, UNIVERSAL_HEIGHT_M, pose_from_rotations
+from mocapdb.core.outputs import TrackRecording
+from mocapdb.core.skeleton import ANKLE_HEIGHT_M, KP, UNIVERSAL_HEIGHT_M
 from mocapdb.evaluation.reconstruction import run_sequence
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
@@ -44,18 +45,20 @@ def check_footage(db: MotionDatabase, folder: str | Path, engine: EngineConfig =
                      camera_height_m=None)
     run = run_sequence(Engine(db, config), list(read_openpose_folder(folder, fps=take.fps)))
     recordings = [r for r in run.recordings if not r.static and r.duration_s(take.fps) >= MIN_TRACK_S]
-    fitted, world = fit_world(recordings, take.fps) if recordings else ([], None)
-    tracks = [_track_check(rec, world.people[rec.track].kind, take.fps) for rec in fitted]
+    tracks = []
+    if recordings:
+        fitted, world = fit_world(recordings, take.fps)
+        tracks = [_track_check(rec, world.people[rec.track].kind, take.fps) for rec in fitted]
     return {"folder": str(folder), "fps": take.fps, "image_size": list(take.image_size), "focal_px": focal,
             "tracks": tracks, "passed": sum(t["ok"] for t in tracks)}
 
 
-def _track_check(rec, kind: str, fps: float) -> dict:
+def _track_check(rec: TrackRecording, kind: str, fps: float) -> dict:
     """The checks of one fitted track (module docstring), from its files' joints on the floor."""
-    quats, root_m, scale = track_motion(rec, floor=True)
-    joints = pose_from_rotations(quats, root_m, scale, rec.offsets_m())
-    view_root = np.array(rec.motion()[1])
-    ankles = joints[:, _ANKLES]
+    on_the_floor = track_motion(rec, fps, floor=True)
+    scale = on_the_floor.scale
+    view_root = rec.motion(fps).root_m
+    ankles = on_the_floor.joints_m()[:, _ANKLES]
     lower = ankles[np.arange(len(ankles)), np.argmin(ankles[..., 1], axis=1)]
     speed = np.linalg.norm(np.gradient(lower, axis=0), axis=1) * fps
     gaps = lower[speed < PLANTED_MPS, 1] - ANKLE_HEIGHT_M * scale
@@ -65,7 +68,7 @@ def _track_check(rec, kind: str, fps: float) -> dict:
     gap_p95 = float(np.percentile(np.abs(gaps), 95)) if len(gaps) else float("nan")
     on_floor = bool(len(gaps)) and gap_p95 <= FLOOR_TOLERANCE_M
     standing_on_something = kind != "floor" and bool(len(gaps)) and float(np.median(gaps)) > -FLOOR_TOLERANCE_M
-    return {"track": rec.track, "frames": len(quats), "stature_m": stature, "in_front": in_front,
+    return {"track": rec.track, "frames": len(on_the_floor), "stature_m": stature, "in_front": in_front,
             "planted_frames": int(len(gaps)), "gap_median_m": float(np.median(gaps)) if len(gaps) else None,
             "gap_p95_m": gap_p95 if len(gaps) else None, "kind": kind,
             "ok": bool(human and in_front and (on_floor or standing_on_something))}

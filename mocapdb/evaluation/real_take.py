@@ -176,7 +176,7 @@ def run_camera(db: MotionDatabase, frames: list[KeypointFrame], config: EngineCo
     whole = None
     if config.keep_take:
         fitted = fit_takes([recordings[track]], config.fps, camera_height_m=config.camera_height_m)[0]
-        index, take_joints_m, _ = take_joints(fitted)
+        index, take_joints_m, _ = take_joints(fitted, config.fps)
         keep = (index >= 0) & (index < len(frames))
         whole = empty.copy()
         whole[index[keep]] = take_joints_m[keep]

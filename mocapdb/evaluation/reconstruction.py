@@ -125,7 +125,7 @@ def whole_take_run(run: EngineRun, n_frames: int, fps: float, camera_height_m: f
     root = np.full((n_frames, 3), np.nan)
     t0 = time.perf_counter()
     for rec in fit_takes(run.recordings, fps, camera_height_m=camera_height_m):
-        frames, rec_joints, rec_root = take_joints(rec)
+        frames, rec_joints, rec_root = take_joints(rec, fps)
         keep = (frames >= 0) & (frames < n_frames)
         joints[frames[keep]], root[frames[keep]] = rec_joints[keep], rec_root[keep]
     return EngineRun(joints, root, np.full_like(joints, np.nan), time.perf_counter() - t0, run.recordings)

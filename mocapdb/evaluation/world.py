@@ -15,6 +15,7 @@ import logging
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -41,13 +42,13 @@ TARGET_ROOT_PCT = 10.0          # nothing given: median root error, % of the dis
 TARGET_CHILD_PCT = 10.0         # the child's stature error, both modes
 
 
-def track_fit(rec: TrackRecording, fitted: TrackRecording) -> TrackFit:
+def track_fit(rec: TrackRecording, fitted: TrackRecording, fps: float) -> TrackFit:
     """A track as the engine recorded it (``rec``: its input keypoints) and as the whole-take world
-    fitted it (``fitted``)."""
-    frames, joints, root = take_joints(fitted)
+    fitted it (``fitted``); ``fps``: the take's frame rate (Hz)."""
+    frames, joints, root = take_joints(fitted, fps)
     up = None if fitted.up_view is None else np.asarray(fitted.up_view, dtype=np.float64)
     return TrackFit(rec.track, frames, joints, root, UNIVERSAL_HEIGHT_M * float(fitted.scales[-1]), up,
-                    fitted.floor_offset_m, np.array(rec.keypoints).reshape(-1, N_KEYPOINTS_2D, 3), rec.static)
+                    fitted.floor_offset_m, rec.column("keypoints").reshape(-1, N_KEYPOINTS_2D, 3), rec.static)
 
 
 def run_take(db: MotionDatabase, take: WorldTake, camera_height_m: float | None,
@@ -64,7 +65,7 @@ def run_take(db: MotionDatabase, take: WorldTake, camera_height_m: float | None,
     t1 = time.perf_counter()
     fitted = fit_takes(recordings, config.fps, camera_height_m=camera_height_m)
     t2 = time.perf_counter()
-    return [track_fit(rec, fit) for rec, fit in zip(recordings, fitted)], t1 - t0, t2 - t1
+    return [track_fit(rec, fit, config.fps) for rec, fit in zip(recordings, fitted)], t1 - t0, t2 - t1
 
 
 def run_takes(db: MotionDatabase, takes: list[WorldTake], config: WorldConfig) -> dict[str, list[dict]]:
@@ -154,6 +155,7 @@ def check_lines(report: dict) -> list[str]:
     """A PASS/FAIL line per target of issue 27 (over every scenario's takes of the mode named)."""
     given, nothing = report["overall"]["camera_height_given"], report["overall"]["nothing_given"]
     both = [(given, "camera height given"), (nothing, "nothing given")]
+    checks: list[tuple[str, Any, float, str]]
     checks = [(f"{label}: tracks outside the human range {HUMAN_STATURE_RANGE_M[0]}-{HUMAN_STATURE_RANGE_M[1]} m",
                r["out_of_range_tracks"], 0, "tracks") for r, label in both]
     checks += [(f"{label}: implausible tracks (size, behind the camera, soles > 5 cm under its own floor)",

@@ -4,7 +4,7 @@ Each person is triangulated with the cameras of the reconstruction and given its
 consistency (:func:`person_points`), checked to be in front of the cameras (:func:`in_front_check`),
 then turned into output form (:func:`to_motion`): pelvis, gaps filled, metres, one levelled y-up
 world for everyone (the main person's, :class:`World`), inverse kinematics on the universal rig
-(:func:`mocapdb.core.skeleton.retarget`).
+(:func:`mocapdb.core.motion_ops.from_points`): a :class:`~mocapdb.core.motion.Motion` in that world.
 """
 from __future__ import annotations
 
@@ -15,7 +15,9 @@ import numpy as np
 from mocapdb.core.cameras import CameraModel
 from mocapdb.core.clips import leg_scale
 from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
-from mocapdb.core.skeleton import KP, N_RIG_JOINTS, PELVIS, head_from_torso, retarget, swing_matrices
+from mocapdb.core.motion import Motion
+from mocapdb.core.motion_ops import from_points
+from mocapdb.core.skeleton import KP, N_RIG_JOINTS, PELVIS, head_from_torso, swing_matrices
 from mocapdb.stereo.bone_lengths import RIGID_BONES, refine_bone_lengths
 from mocapdb.stereo.checks import BEHIND_REFUSED, BEHIND_WARNED, behind_cameras, behind_message
 from mocapdb.stereo.config import RESULT_FILE, StereoConfig, StereoError, StereoResult
@@ -115,18 +117,23 @@ class World:
 
 
 @dataclass
-class Motion:
-    """One person's reconstruction in output form (metres)."""
+class StereoPerson:
+    """One person's reconstruction in output form (metres): its motion in the levelled world (what
+    its BVH holds) and what the stream writes per frame, in camera 1's camera-aligned frame."""
 
     track: int
+    motion: Motion | None       # world frame (levelled, y up); None: no skeleton fitted (joints only, no BVH)
     joints_aligned: np.ndarray  # [T, 15, 3] camera-aligned frame of camera 1, NaN where not measured
     present: np.ndarray         # [T] the person is written for the frame
-    quats_view: np.ndarray      # [T, R, 4] local rotations, root relative to the view frame (NaN: no skeleton)
-    quats_world: np.ndarray     # [T, R, 4] the same, root relative to the levelled BVH world
+    quats_view: np.ndarray      # [T, R, 4] the motion's rotations, the root's relative to the view frame
+    #                             (NaN: no skeleton)
     pelvis_aligned: np.ndarray  # [T, 3] the (gap-filled) pelvis, camera-aligned frame
-    pelvis_world: np.ndarray    # [T, 3] the same in the BVH world
-    fitted: bool                # the skeleton was fitted (else: joints only, no BVH)
     warnings: list[str]         # what the inverse kinematics had to assume
+
+    @property
+    def fitted(self) -> bool:
+        """Whether the skeleton was fitted (else: joints only, no BVH)."""
+        return self.motion is not None
 
 
 def make_world(points: np.ndarray, valid: np.ndarray, filled: np.ndarray, scaled: bool) -> World:
@@ -139,41 +146,41 @@ def make_world(points: np.ndarray, valid: np.ndarray, filled: np.ndarray, scaled
 
 
 def to_motion(points_m: np.ndarray, valid14: np.ndarray, fps: float, scaled: bool, track: int = 0,
-              world: World | None = None) -> tuple[Motion, World]:
+              world: World | None = None) -> tuple[StereoPerson, World]:
     """Metres, pelvis, gap filling, levelling and inverse kinematics on the universal rig.
 
     ``points_m [T, 14, 3]``, ``valid14 [T, 14]``; ``world`` None: made from this person (the main one).
     """
     points, valid = with_pelvis(points_m, valid14 & np.isfinite(points_m).all(axis=-1))
-    present = valid.any(axis=1)
+    present = np.asarray(valid.any(axis=1))
     if not present.any():
         raise StereoError(f"track {track}: no frame could be reconstructed")
     filled = fill_gaps(points, valid, round(MAX_GAP_S * fps))
     require_joints(filled)
     world = world or make_world(points, valid, filled, scaled)
     warnings: list[str] = []
-    quats_world, _ = retarget(complete_head(world.scale * filled @ world.bvh_from_camera.T, warnings))
+    motion, _ = from_points(complete_head(world.scale * filled @ world.bvh_from_camera.T, warnings), fps)
     level = world.bvh_from_camera @ VIEW_FRAME  # VIEW_FRAME is its own inverse
-    quats_view = quats_world.copy()
-    quats_view[:, 0] = matrix_to_quat(level.T @ quat_to_matrix(quats_world[:, 0]))
+    quats_view = motion.rotations.copy()
+    quats_view[:, 0] = matrix_to_quat(level.T @ quat_to_matrix(motion.rotations[:, 0]))
     pelvis = world.scale * filled[:, PELVIS]
-    return Motion(track, world.scale * points @ CAMERA_ALIGNED, present, quats_view, quats_world,
-                  pelvis @ CAMERA_ALIGNED, pelvis @ world.bvh_from_camera.T, True, warnings), world
+    motion.root_m = pelvis @ world.bvh_from_camera.T
+    return StereoPerson(track, motion, world.scale * points @ CAMERA_ALIGNED, present, quats_view,
+                        pelvis @ CAMERA_ALIGNED, warnings), world
 
 
-def joints_only(points_m: np.ndarray, valid14: np.ndarray, track: int, world: World, why: str) -> Motion:
+def joints_only(points_m: np.ndarray, valid14: np.ndarray, track: int, world: World, why: str) -> StereoPerson:
     """A person the skeleton cannot be fitted to: measured joints only (no rotations, no BVH)."""
     points, valid = with_pelvis(points_m, valid14 & np.isfinite(points_m).all(axis=-1))
     nan_quats = np.full((len(points), N_RIG_JOINTS, 4), np.nan)
     pelvis = world.scale * points[:, PELVIS]
-    return Motion(track, world.scale * points @ CAMERA_ALIGNED, valid.any(axis=1), nan_quats, nan_quats,
-                  pelvis @ CAMERA_ALIGNED, pelvis @ world.bvh_from_camera.T, False,
-                  [f"{why}: no BVH, joints only in {RESULT_FILE}"])
+    return StereoPerson(track, None, world.scale * points @ CAMERA_ALIGNED, np.asarray(valid.any(axis=1)), nan_quats,
+                        pelvis @ CAMERA_ALIGNED, [f"{why}: no BVH, joints only in {RESULT_FILE}"])
 
 
 def people_motions(people: People, result: StereoResult, cam1: CameraModel, cam2: CameraModel,
-                   config: StereoConfig, fps: float) -> tuple[list[Motion], World]:
-    """Every person's Motion in one world (the main person's: levelling, and the scale without a
+                   config: StereoConfig, fps: float) -> tuple[list[StereoPerson], World]:
+    """Every person's reconstruction in one world (the main person's: levelling, and the scale without a
     camera distance), each triangulated with the cameras of ``result``. A person other than the
     main one whose skeleton cannot be fitted keeps its joints (warning)."""
     main_points, main_valid = person_points(result, people.persons[0], cam1, cam2, config)

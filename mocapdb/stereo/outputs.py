@@ -15,7 +15,7 @@ import numpy as np
 from mocapdb.core.cameras import CameraModel, format_calibration_toml
 from mocapdb.core.files import os_error_message, write_atomic
 from mocapdb.core.formats.bvh import write_bvh
-from mocapdb.core.outputs import PersonPose, frame_line, header_line, output_folder, universal_bvh
+from mocapdb.core.outputs import PersonPose, frame_line, header_line, motion_bvh, output_folder
 from mocapdb.stereo.config import (
     CALIBRATION_FILE,
     CAMERAS_FILE,
@@ -25,7 +25,7 @@ from mocapdb.stereo.config import (
     StereoResult,
     bvh_name,
 )
-from mocapdb.stereo.motion import Motion, World
+from mocapdb.stereo.motion import StereoPerson, World
 from mocapdb.stereo.people import People, listed_frames
 from mocapdb.stereo.relative_pose import rotation_angle_deg
 
@@ -71,7 +71,7 @@ class StereoSummary:
         return "\n".join(lines)
 
 
-def result_text(motions: list[Motion], fps: float) -> str:
+def result_text(motions: list[StereoPerson], fps: float) -> str:
     """``result.jsonl``: the header line, then one line per frame with every person present."""
     lines = [header_line(fps)]
     for t in range(len(motions[0].present)):
@@ -87,7 +87,7 @@ def _camera_record(cam: CameraModel, rotation: np.ndarray, translation: np.ndarr
             "dist": np.asarray(cam.dist).ravel().tolist(), "R": rotation.tolist(), "t": translation.tolist()}
 
 
-def track_records(people: People, motions: list[Motion]) -> list[dict]:
+def track_records(people: People, motions: list[StereoPerson]) -> list[dict]:
     """Per person: track id, frames written, first and last, joints seen by both views, BVH file."""
     records = []
     for person, m in zip(people.persons, motions):
@@ -133,7 +133,7 @@ def calibration_text(cam1: CameraModel, cam2: CameraModel, result: StereoResult,
                                             f"({world.scale_source}).")
 
 
-def write_outputs(out_dir: str | Path, motions: list[Motion], world: World, cameras_json: str,
+def write_outputs(out_dir: str | Path, motions: list[StereoPerson], world: World, cameras_json: str,
                   fps: float, calibration_toml: str) -> list[Path]:
     """Write ``result.jsonl``, ``cameras.json`` (the text ``cameras_json``), ``calibration.toml`` (the
     text ``calibration_toml``) and the BVH of every fitted person as the folder ``out_dir``; the paths
@@ -148,8 +148,8 @@ def write_outputs(out_dir: str | Path, motions: list[Motion], world: World, came
             write_atomic(tmp / CAMERAS_FILE, cameras_json)
             write_atomic(tmp / CALIBRATION_FILE, calibration_toml)
             for m in motions:
-                if m.fitted:
-                    write_bvh(tmp / bvh_name(m.track), universal_bvh(m.quats_world, m.pelvis_world, fps))
+                if m.motion is not None:
+                    write_bvh(tmp / bvh_name(m.track), motion_bvh(m.motion))
     except OSError as exc:
         raise StereoError(os_error_message(exc, out, "write the output")) from None
     return [out / name for name in names]

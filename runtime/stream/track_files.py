@@ -99,7 +99,7 @@ class TrackFiles:
                                   self.options.subject_heights_m)
         main = main_track(recordings, 2.0 * recordings[0].camera_px[1] if recordings[0].camera_px else 1.0)
         written = {rec.track for rec in chosen(fitted, self.options.people, main)}
-        facts = [track_facts(rec, world) for rec in fitted]
+        facts = [track_facts(rec, world, self.fps) for rec in fitted]
         self.summary.world_lines = [world_line(world)] + [f.line(f.track == main, f.track in written) for f in facts]
         self.summary.world_lines += [f"track {track} joined into track {into} (one person lost and found again)"
                                      for track, into in joined.items()]
@@ -129,12 +129,12 @@ class TrackFiles:
             self._run(self._save, rec.snapshot() if queued else rec, name, final)
 
     def _sharing_floor(self, rec: TrackRecording) -> bool:
-        return self.options.shared_floor and self.options.take is not None and bool(rec.keypoints)
+        return self.options.shared_floor and self.options.take is not None and len(rec.column("keypoints")) > 0
 
     def _save(self, rec: TrackRecording, name: str, final: bool = True) -> None:
         """``rec``'s files: the whole take when kept. A checkpoint (not ``final``: the live loop waits
         for it) leaves out the whole take's re-fit to the image, its costliest step."""
-        if self.options.take is not None and rec.keypoints:
+        if self.options.take is not None and len(rec.column("keypoints")):
             params = self.options.take if final else replace(self.options.take, refit_prior=0.0)
             rec, _ = fit_take(rec, self.fps, params)
         self._write_files(rec, name)
