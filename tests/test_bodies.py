@@ -86,7 +86,7 @@ def test_sampled_bodies_follow_the_documented_distribution():
 
 
 def test_varied_scenario_draws_one_body_per_clip_and_yaw(source_walk):
-    truth = Truth("walk", np.zeros((len(source_walk), 11, 4)), source_walk, (6.0, 51.0), source_walk)
+    truth = Truth("walk", source_walk, (6.0, 51.0), source_walk)
     clean = Scenario("v", body="varied")
     pitched = Scenario("p", body="varied", pitch_deg=15.0)
     a, ha = scenario_positions(truth, clean, 0, 0, seed=3)

@@ -100,8 +100,8 @@ def test_floor_is_zero_for_a_database_frame_turned_and_moved(walk_and_dance, yaw
 
 
 def test_floor_of_a_given_height_is_against_the_database_at_that_size(walk_and_dance, small_db):
-    truths = [Truth("dance", np.zeros((0, 1, 4)), walk_and_dance[1][::10]),
-              Truth("from the database", np.zeros((0, 1, 4)), small_db.positions[::25].astype(np.float64))]
+    truths = [Truth("dance", walk_and_dance[1][::10]),
+              Truth("from the database", small_db.positions[::25].astype(np.float64))]
     tall, given, unknown = (Scenario("a"), Scenario("b", subject_height_m=1.55, height_given=True),
                             Scenario("c", subject_height_m=1.55))
     floors = compute_floors(small_db, truths, (tall, given, unknown), EvalConfig(yaws_deg=(6.0,)))

@@ -81,10 +81,10 @@ class EvalConfig:
 
 @dataclass
 class Truth:
-    """A held-out clip on the universal skeleton."""
+    """A held-out clip's joints on the universal skeleton: what errors are measured against (its
+    motion is only rendered: :attr:`positions` are the clip's forward kinematics)."""
 
     name: str
-    quaternions: np.ndarray  # [F, R, 4]
     positions: np.ndarray    # [F, 15, 3] world, floor at 0
     yaws_deg: tuple[float, ...] | None = None  # this clip's yaws; None: EvalConfig.yaws_deg
     source_m: np.ndarray | None = None  # [F, 15, 3] the source skeleton's own joints (Clip.source_m)
@@ -93,8 +93,7 @@ class Truth:
 def load_heldout(paths: list[Path], fps: float) -> list[Truth]:
     """Retarget held-out BVH files exactly as the builder does."""
     config = ClipOptions(fps=fps)
-    return [Truth(c.name, c.quaternions.astype(np.float64), c.positions.astype(np.float64),
-                  source_m=c.source_m.astype(np.float64))
+    return [Truth(c.name, c.positions.astype(np.float64), source_m=c.source_m.astype(np.float64))
             for c in (process_clip(p, p.parent, config) for p in paths)]
 
 

@@ -140,8 +140,7 @@ def sample_truths(files: list[Path], config: LosoConfig) -> list[Truth]:
         stop = min(n, start + config.max_frames)
         yaws = tuple(config.yaws_deg[(config.yaws_per_clip * i + j) % len(config.yaws_deg)]
                      for j in range(config.yaws_per_clip))
-        truths.append(Truth(clip.name, clip.quaternions[start:stop].astype(np.float64),
-                            clip.positions[start:stop].astype(np.float64), yaws,
+        truths.append(Truth(clip.name, clip.positions[start:stop].astype(np.float64), yaws,
                             clip.source_m[start:stop].astype(np.float64)))
     return truths
 
