@@ -94,14 +94,14 @@ def index_stage(run: BuildRun) -> list[WorkArray]:
                        ("index_subs_of", "clusters_done")):
         arrays[name].resize(record[done])  # what an interrupted run appended after its last commit goes
     keypoints, sorted_columns = run.work.array("keypoints_2d"), run.work.array("index_sorted")
-    outputs = {"cluster_start": run.work.load("index_cluster_start"),
-               "representatives": run.work.load("representatives"), **arrays}
+    cluster_start = run.work.load("index_cluster_start")
+    outputs = {"cluster_start": cluster_start, "representatives": run.work.load("representatives"), **arrays}
     chunk = run.plan.rows(INDEX_BYTES_PER_ROW, MIN_CHUNK_ROWS)
     group_bytes = min(run.plan.budget_bytes, INDEX_GROUP_BYTES_MAX) - chunk * INDEX_BYTES_PER_ROW
     group = max(MIN_CHUNK_ROWS, group_bytes // BYTES_PER_COLUMN)
     bar = progress(total=n, initial=record["columns_done"], desc="index", unit="projection")
-    for c0, c1 in _cluster_groups(outputs["cluster_start"], record["clusters_done"], group):
-        lo, hi = int(outputs["cluster_start"][c0]), int(outputs["cluster_start"][c1])
+    for c0, c1 in _cluster_groups(cluster_start, record["clusters_done"], group):
+        lo, hi = int(cluster_start[c0]), int(cluster_start[c1])
         buffers = np.empty((14, hi - lo), np.float32), np.empty((14, hi - lo), np.float32), np.empty(hi - lo, np.int64)
         for start, stop in row_ranges(n, chunk):
             gather_group(keypoints[start:stop], sorted_columns[start:stop], start, lo, hi, *buffers)

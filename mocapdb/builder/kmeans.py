@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Generic, TypeVar
 
 import numpy as np
 from numba import njit, prange
@@ -221,20 +222,23 @@ def _update_centroids(points, sums: np.ndarray, counts: np.ndarray, labels, old:
     return new
 
 
+Rows = TypeVar("Rows")  # numpy arrays or the build's work arrays
+
+
 @dataclass
-class KMeansBounds:
+class KMeansBounds(Generic[Rows]):
     """Per point: its cluster and Hamerly's bounds; numpy arrays or the build's work arrays (anything
     sliced by row ranges into writable arrays). Any content will do while the bounds are unknown."""
 
-    labels: np.ndarray  # int32 [N]
-    upper: np.ndarray   # float64 [N]
-    lower: np.ndarray   # float64 [N]
+    labels: Rows  # int32 [N]
+    upper: Rows   # float64 [N]
+    lower: Rows   # float64 [N]
 
     FIELDS = (("labels", np.int32), ("upper", np.float64), ("lower", np.float64))
 
     @classmethod
-    def in_memory(cls, n: int) -> KMeansBounds:
-        return cls(*(np.zeros(n, dtype=dtype) for _, dtype in cls.FIELDS))
+    def in_memory(cls, n: int) -> KMeansBounds[np.ndarray]:
+        return KMeansBounds(*(np.zeros(n, dtype=dtype) for _, dtype in cls.FIELDS))
 
 
 @dataclass
@@ -345,7 +349,9 @@ def kmeans_finish(points, state: KMeansState, bounds: KMeansBounds, chunk_rows: 
     """The final assignment of every point to ``state.centroids`` (into ``bounds.labels``) and each
     cluster's representative: int64 ``[k]`` index of the member nearest its centroid (lowest index on
     ties; −1 for an empty cluster), streamed like :func:`kmeans_iterate`."""
-    return _lloyd_pass(points, state, bounds, chunk_rows, tasks or Tasks(), members=True)[2]
+    representatives = _lloyd_pass(points, state, bounds, chunk_rows, tasks or Tasks(), members=True)[2]
+    assert representatives is not None, "a pass with members gives the representatives"
+    return representatives
 
 
 def kmeans(points: np.ndarray, k: int, seed: int = 0, max_iter: int = 50, tol: float = 1e-4,

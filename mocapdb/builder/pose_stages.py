@@ -82,7 +82,7 @@ def embed_stage(run: BuildRun) -> list[WorkArray]:
     return [embedding]
 
 
-def _kmeans_bounds(run: BuildRun, n: int, fresh: bool) -> KMeansBounds:
+def _kmeans_bounds(run: BuildRun, n: int, fresh: bool) -> KMeansBounds[WorkArray]:
     """The labels and bounds of every point: new arrays, or an interrupted run's (any content will do)."""
     names = [(f"kmeans_{name}", dtype) for name, dtype in KMeansBounds.FIELDS]
     if fresh or not all((run.work.path / f"{name}.npy").is_file() for name, _ in names):

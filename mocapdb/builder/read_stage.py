@@ -5,6 +5,7 @@ folder's frame arrays; a bad file is skipped with its reason, never the end of a
 from __future__ import annotations
 
 import fnmatch
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ from mocapdb.core.progress import progress
 from mocapdb.core.skeleton import N_POINTS, RIG_JOINTS
 
 
-def find_sources(sources: list[str], exclude: list[str] = ()) -> list[tuple[Path, Path]]:
+def find_sources(sources: list[str], exclude: Sequence[str] = ()) -> list[tuple[Path, Path]]:
     """BVH files named or found (recursively) under ``sources``, minus ``exclude`` glob patterns.
 
     Returns sorted ``(file, source_root)`` pairs; a pattern matches the file name or its path.

@@ -12,6 +12,7 @@ import os
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
+from typing import Protocol
 
 from mocapdb import __version__
 from mocapdb.core.errors import MocapdbError
@@ -141,9 +142,15 @@ def _local_workers(scheduler: str) -> int:
     return int(count)
 
 
-def _windowed(submit: Callable, task: Callable, jobs: list, ahead: int) -> Iterator:
+class _Future(Protocol):
+    """What ``submit`` gives: a concurrent.futures or a Dask future."""
+
+    def result(self) -> object: ...
+
+
+def _windowed(submit: Callable[[Callable, object], _Future], task: Callable, jobs: list, ahead: int) -> Iterator:
     """Results of ``submit(task, job)`` futures in the jobs' order, at most ``ahead`` in flight."""
-    pending = deque()
+    pending: deque[_Future] = deque()
     for job in jobs:
         pending.append(submit(task, job))
         if len(pending) >= ahead:
@@ -169,5 +176,6 @@ def _on_worker(task: Callable, job: object) -> object:
     from dask.distributed import get_worker
 
     threads = getattr(get_worker().state, "nthreads", None) or os.cpu_count() or 1
-    numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+    # numba.config sets NUMBA_NUM_THREADS from the environment at run time: mypy sees no such attribute
+    numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))  # type: ignore[attr-defined]
     return task(job)

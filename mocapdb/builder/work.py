@@ -12,6 +12,7 @@ import stat
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 
@@ -150,7 +151,7 @@ class WorkFolder:
         self.restart = restart
         self.state: dict = {}
         self.notes: list[str] = []  # what was found and done, for the build's summary
-        self._lock = None
+        self._lock: TextIO | None = None   # both while the folder is open (the with statement)
         self._saver: ThreadPoolExecutor | None = None
         self._saves: list[Future] = []
         self.last_commit = time.monotonic()  # when commit() was last called
@@ -160,12 +161,13 @@ class WorkFolder:
             raise WorkError(f"{self.path}: exists and is not a build's work folder (no {LOCK_FILE} file); "
                             "choose another --work-dir")
         self.path.mkdir(parents=True, exist_ok=True)
-        self._lock = open(self.path / LOCK_FILE, "a")
+        lock = open(self.path / LOCK_FILE, "a")
         try:
-            fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            self._lock.close()
+            lock.close()
             raise WorkError(f"{self.path}: another build is using this work folder") from None
+        self._lock = lock
         self.state = self._load()
         self._saver = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mocapdb-work-state")
         return self
@@ -174,8 +176,15 @@ class WorkFolder:
         try:
             self.wait()
         finally:
-            self._saver.shutdown()
-            self._lock.close()
+            lock, saver = self._opened()
+            saver.shutdown()
+            lock.close()
+
+    def _opened(self) -> tuple[TextIO, ThreadPoolExecutor]:
+        """The lock file and the state's saver of the open folder."""
+        if self._lock is None or self._saver is None:
+            raise RuntimeError(f"{self.path}: the work folder is not open (use it in a with statement)")
+        return self._lock, self._saver
 
     def _load(self) -> dict:
         fresh = {"format": WORK_FORMAT, "fingerprints": self.fingerprints, "stages": {}}
@@ -212,7 +221,7 @@ class WorkFolder:
         for done in [s for s in self._saves if s.done()]:
             self._saves.remove(done)
             done.result()
-        self._saves.append(self._saver.submit(self._save, arrays, json.dumps(self.state, indent=1)))
+        self._saves.append(self._opened()[1].submit(self._save, arrays, json.dumps(self.state, indent=1)))
 
     def _save(self, arrays: tuple[WorkArray, ...], state: str) -> None:
         for array in arrays:
