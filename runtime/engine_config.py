@@ -82,6 +82,11 @@ class EngineConfig:
         if self.camera_height_m is not None and not self.refine:
             raise ValueError("a camera height needs the refinement (it levels the floor): drop --no-refine")
 
+    @property
+    def center_px(self) -> tuple[float, float]:
+        """The image's centre (pixels), taken as the camera's principal point."""
+        return self.image_size[0] / 2.0, self.image_size[1] / 2.0
+
     def _check_domains(self) -> None:
         """Every number given within its domain (:mod:`mocapdb.core.domains`), DomainError otherwise."""
         D.CLUSTERS_SEARCHED.check_optional(self.n_clusters, "n_clusters")

@@ -7,8 +7,12 @@ from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import project_views, quat_geodesic, yaw_matrix
 from mocapdb.core.skeleton import KP, PELVIS
 from mocapdb.runtime.engine import Engine
-from mocapdb.runtime.engine_config import EngineConfig
+from mocapdb.runtime.engine_config import EngineConfig, TrackLimits
+from mocapdb.runtime.frame_people import FramePeople, usable_people
+from mocapdb.runtime.pose_pipeline import PosePipeline
 from mocapdb.runtime.temporal import temporal_costs
+from mocapdb.runtime.track_book import TrackBook
+from mocapdb.runtime.track_state import NO_EXTREMITIES, TrackState
 
 
 def _db_views(db, clip: int, yaw_index: int, camera: DatabaseCamera, turn_deg: float = 0.0):
@@ -74,6 +78,48 @@ def test_people_with_too_few_joints_are_skipped(small_db):
     conf[:3] = 0.9
     assert engine.step(KeypointFrame(0, None, [Person(np.zeros((14, 2)), conf)])) == []
     assert engine.stats.skipped_people == 1
+
+
+def test_the_pose_pipeline_alone_gives_the_engines_poses(small_db):
+    """One track's frames through the pose pipeline and its own memory: the engine's poses and recording."""
+    camera = DatabaseCamera(**small_db.meta["camera"])
+    frames, _, _ = _db_views(small_db, clip=1, yaw_index=7, camera=camera, turn_deg=3.0)
+    config = EngineConfig(fps=24.0, focal_px=camera.focal_px, image_size=(camera.width_px, camera.height_px))
+    engine = Engine(small_db, config)
+    streamed = [p for f in frames for p in engine.step(f)]
+    pipeline = PosePipeline(small_db, config)
+    state = TrackState(0, 0, config, len(config.window_weights))
+    alone = [pipeline.pose(state, usable_people(f, config).detection(0)) for f in frames]
+    assert len(streamed) == len(frames) - 1  # the engine reports a track from its confirmation
+    for got, want in zip(alone[1:], streamed):
+        np.testing.assert_array_equal(got.joints_m, want.joints_m)
+        np.testing.assert_array_equal(got.quaternions, want.quaternions)
+        assert got.match == want.match
+    (recording,) = engine.finish()
+    np.testing.assert_array_equal(np.array(state.recording.quaternions), np.array(recording.quaternions))
+
+
+def _crowd(frame: int, n: int, t_s: float | None = None) -> FramePeople:
+    """``n`` people standing side by side, 300 px apart, in frame ``frame`` (24 fps)."""
+    shape = np.column_stack([np.tile([0.0, 40.0, 80.0], 5)[:14], np.repeat(np.arange(5) * 50.0, 3)[:14]])
+    points = np.stack([shape + [300.0 * k + 100.0, 200.0] for k in range(n)])
+    return FramePeople(frame, frame / 24.0 if t_s is None else t_s, points, np.full((n, 14), 0.9),
+                       np.repeat(NO_EXTREMITIES[None], n, axis=0))
+
+
+def test_the_track_book_holds_its_limits_without_a_database():
+    book = TrackBook(EngineConfig(fps=24.0, limits=TrackLimits(max_tracks=2, max_new_per_min=0)))
+    seen = [book.update(_crowd(i, 5)) for i in range(4)]
+    assert seen[0] == [] and [len(s) for s in seen[1:]] == [2, 2, 2]
+    assert [[d.frame_index for d in s.earlier] for s in seen[1]] == [[0], [0]]  # confirmed with frame 0
+    assert all(s.earlier == [] for s in seen[2])
+    assert sorted(book.tracks) == [0, 1] and book.counts.over_max_tracks == 3 * 4
+    assert book.update(_crowd(4, 5, t_s=10.0)) == [] and book.counts.gaps == 1 and not book.tracks
+
+    book = TrackBook(EngineConfig(fps=24.0, limits=TrackLimits(max_tracks=0, max_new_per_min=1)))
+    assert [len(book.update(_crowd(i, 3))) for i in range(3)] == [0, 1, 1]
+    assert book.counts.tracks_started == 1 and book.counts.over_max_new > 0
+    assert len(book.update(_crowd(3, 3), now_s=61.0)) == 2  # a minute on: one more
 
 
 def test_temporal_costs_match_numpy_reference():

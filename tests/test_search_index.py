@@ -69,10 +69,10 @@ def test_the_runtime_loads_no_projections_and_matches_the_same(whole):  # noqa: 
     for row in rows:
         query = full.keypoints_2d[row].astype(np.float64) + rng.normal(0, 0.01, (14, 2))
         visible = np.ones(14, dtype=bool)
-        found = [engine._search(query, visible) for engine in engines]
+        found = [engine.pipeline.search(query, visible) for engine in engines]
         np.testing.assert_array_equal(found[0][0], found[1][0])
         np.testing.assert_array_equal(found[0][1], found[1][1])
-    np.testing.assert_array_equal(engines[1].index.pose(int(rows[0])), full.keypoints_2d[rows[0]])
+    np.testing.assert_array_equal(engines[1].pipeline.index.pose(int(rows[0])), full.keypoints_2d[rows[0]])
 
 
 def test_a_damaged_index_file_is_found_by_its_blocks(whole, tmp_path):  # noqa: F811
@@ -104,7 +104,7 @@ def test_a_database_without_an_index_still_runs(whole, tmp_path):  # noqa: F811
     index = SearchIndex.from_database(old)  # sorted here: one sub-cluster per cluster
     np.testing.assert_array_equal(index.x, _sorted_here(load_database(whole)).x)
     np.testing.assert_array_equal(index.sub_start, index.cluster_start)
-    assert Engine(old, EngineConfig(refine=False)).index.n_yaws == len(old.meta["yaws_deg"])
+    assert Engine(old, EngineConfig(refine=False)).pipeline.index.n_yaws == len(old.meta["yaws_deg"])
 
 
 def test_block_digests_cover_the_file_in_blocks(tmp_path, monkeypatch):

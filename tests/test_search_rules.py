@@ -41,10 +41,10 @@ def test_rules_never_shrink():
 
 def test_engine_searches_the_rules_clusters_unless_told(small_db):
     assert EngineConfig().n_clusters is None
-    assert Engine(small_db).n_clusters == clusters_searched_for(small_db.n_clusters)
-    assert Engine(small_db, EngineConfig(n_clusters=7)).n_clusters == 7
-    assert Engine(small_db).subclusters == subclusters_searched_for(small_db.n_projections)
-    assert Engine(small_db, EngineConfig(subclusters=2)).subclusters == 2
+    assert Engine(small_db).pipeline.n_clusters == clusters_searched_for(small_db.n_clusters)
+    assert Engine(small_db, EngineConfig(n_clusters=7)).pipeline.n_clusters == 7
+    assert Engine(small_db).pipeline.subclusters == subclusters_searched_for(small_db.n_projections)
+    assert Engine(small_db, EngineConfig(subclusters=2)).pipeline.subclusters == 2
 
 
 @pytest.mark.parametrize("field, value", [("n_clusters", 0), ("grid_descents", -1), ("grid_descents", 1001),

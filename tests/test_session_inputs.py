@@ -257,7 +257,7 @@ def test_a_flood_of_new_people_makes_bounded_tracks_files_and_memory(small_db, t
         session.handle(message)
         if k == 1000:
             rss_1000 = _rss_bytes()
-        assert len(engine.tracks) <= 8 and len(engine.tracker._tracks.ids) <= 8
+        assert len(engine.book.tracks) <= 8 and len(engine.book.tracker._tracks.ids) <= 8
     minutes = (time.monotonic() - start) / 60.0
     growth = _rss_bytes() - rss_1000
     summary = session.finish()

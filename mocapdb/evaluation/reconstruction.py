@@ -429,13 +429,14 @@ def search_benchmark(engine: Engine, people: list[Person], threshold: float) -> 
         query, _, scale = normalize_pose_2d(person.points_px, vis)
         if scale > 0:
             prepared.append((query, vis))
-    search_clustered(engine.index, *prepared[0], descents=cfg.grid_descents)
-    search_exact(engine.index, *prepared[0])
+    index = engine.pipeline.index
+    search_clustered(index, *prepared[0], descents=cfg.grid_descents)
+    search_exact(index, *prepared[0])
     t0 = time.perf_counter()
-    clustered = [search_clustered(engine.index, q, v, engine.n_clusters, cfg.per_cluster,
+    clustered = [search_clustered(index, q, v, engine.pipeline.n_clusters, cfg.per_cluster,
                                   cfg.grid_descents)[0] for q, v in prepared]
     t1 = time.perf_counter()
-    exact = [search_exact(engine.index, q, v, 1)[0][0] for q, v in prepared]
+    exact = [search_exact(index, q, v, 1)[0][0] for q, v in prepared]
     t2 = time.perf_counter()
     recall = float(np.mean([e in c for c, e in zip(clustered, exact)]))
     return {"queries": len(prepared), "recall_at_1": round(recall, 4),
