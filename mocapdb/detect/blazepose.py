@@ -176,7 +176,7 @@ def scan_tiles(width_px: int, height_px: int) -> tuple[np.ndarray, int]:
     make the coarse pass: the whole frame (centred, padded), squares of its shorter side, then
     squares of half that (people a few hundred pixels tall)."""
     longer, shorter = max(width_px, height_px), min(width_px, height_px)
-    tiles = [((width_px - longer) / 2.0, (height_px - longer) / 2.0, longer)]
+    tiles: list[tuple[float, float, float]] = [((width_px - longer) / 2.0, (height_px - longer) / 2.0, longer)]
     counts = []
     for side in (shorter, shorter / 2.0):
         xs, ys = _tile_starts(width_px, side), _tile_starts(height_px, side)

@@ -20,7 +20,9 @@ class FrameDetector(Protocol):
     """A detector run on the consecutive frames of one video."""
 
     keypoint_layout: str
-    path: Path
+
+    @property
+    def path(self) -> Path: ...
 
     @property
     def fps(self) -> float: ...

@@ -14,6 +14,7 @@ Decisions: ``data_specs/pose_models.md`` ("BlazePose").
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -45,7 +46,7 @@ class _Graph:
         self.count += 1
         return f"{hint}__{self.count}"
 
-    def constant(self, array: np.ndarray, hint: str) -> str:
+    def constant(self, array: np.ndarray | np.generic, hint: str) -> str:
         from onnx import numpy_helper
         name = self.fresh(hint)
         self.initializers.append(numpy_helper.from_array(np.ascontiguousarray(array), name))
@@ -154,6 +155,14 @@ class _Reader:
         self.constants[index] = array
         return array
 
+    def weights(self, index: int, what: str) -> np.ndarray:
+        """The value of constant tensor ``index``, ``what`` an operator reads (ConversionError if computed)."""
+        array = self.constant(index)
+        if array is None:
+            raise ConversionError(f"{what} of a computed tensor {self.tensor(index).Name().decode()} "
+                                  "(only constant ones are handled)")
+        return array
+
     def operators(self):
         for i in range(self.graph.OperatorsLength()):
             op = self.graph.Operators(i)
@@ -165,8 +174,8 @@ class _Reader:
 
 # --- operators ------------------------------------------------------------------------------------
 
-def _same_pads(size_hw: tuple[int, int], kernel_hw: tuple[int, int], stride_hw: tuple[int, int],
-               dilation_hw: tuple[int, int] = (1, 1)) -> list[int]:
+def _same_pads(size_hw: Sequence[int], kernel_hw: Sequence[int], stride_hw: Sequence[int],
+               dilation_hw: Sequence[int] = (1, 1)) -> list[int]:
     """ONNX pads [top, left, bottom, right] of TFLite's SAME padding (the extra pixel after)."""
     before, after = [], []
     for size, k, s, d in zip(size_hw, kernel_hw, stride_hw, dilation_hw):
@@ -225,12 +234,13 @@ class _Converter:
 
     def _conv_2d(self, op, inputs, output) -> None:
         o = _options(op, "Conv2DOptions")
-        weights = self.r.constant(inputs[1]).astype(np.float32).transpose(0, 3, 1, 2)   # [O, I, kh, kw]
+        weights = self.r.weights(inputs[1], "CONV_2D weights").astype(np.float32)
+        weights = weights.transpose(0, 3, 1, 2)   # [O, I, kh, kw]
         self._conv(op, inputs, output, weights, 1, o)
 
     def _depthwise_conv_2d(self, op, inputs, output) -> None:
         o = _options(op, "DepthwiseConv2DOptions")
-        weights = self.r.constant(inputs[1]).astype(np.float32)    # [1, kh, kw, C·m]
+        weights = self.r.weights(inputs[1], "DEPTHWISE_CONV_2D weights").astype(np.float32)  # [1, kh, kw, C·m]
         weights = weights.transpose(3, 0, 1, 2)                      # [C·m, 1, kh, kw]
         self._conv(op, inputs, output, weights, self.r.shape(inputs[0])[3], o)
 
@@ -241,7 +251,7 @@ class _Converter:
         pads = _same_pads(size_hw, kernel_hw, stride_hw, dilation_hw) if o.Padding() == _SAME else [0, 0, 0, 0]
         args = [self.value(inputs[0]), self.g.constant(weights, "w")]
         if len(inputs) > 2 and inputs[2] >= 0:
-            args.append(self.g.constant(self.r.constant(inputs[2]).astype(np.float32), "b"))
+            args.append(self.g.constant(self.r.weights(inputs[2], "a convolution's bias").astype(np.float32), "b"))
         conv = self.g.node("Conv", args, "conv", kernel_shape=list(kernel_hw), strides=list(stride_hw),
                            dilations=list(dilation_hw), pads=pads, group=group)
         self.names[output] = self.activate(conv, o.FusedActivationFunction(), self.out_name(output))
@@ -272,7 +282,7 @@ class _Converter:
         self.names[output] = self.g.node("Sigmoid", [self.value(inputs[0])], "sigmoid", self.out_name(output))
 
     def _pad(self, op, inputs, output) -> None:
-        paddings = self.r.constant(inputs[1]).astype(np.int64)       # [rank, 2] before/after per dim
+        paddings = self.r.weights(inputs[1], "PAD paddings").astype(np.int64)  # [rank, 2] before/after per dim
         if len(paddings) == 4:
             paddings = paddings[list(NHWC_TO_NCHW)]
         pads = np.concatenate([paddings[:, 0], paddings[:, 1]])
@@ -283,7 +293,7 @@ class _Converter:
         o = _options(op, "ResizeBilinearOptions")
         mode = "align_corners" if o.AlignCorners() else "half_pixel" if o.HalfPixelCenters() else "asymmetric"
         n, _, _, c = self.r.shape(inputs[0])
-        height, width = (int(v) for v in self.r.constant(inputs[1]))
+        height, width = (int(v) for v in self.r.weights(inputs[1], "RESIZE_BILINEAR size"))
         sizes = self.g.constant(np.array([n, c, height, width], dtype=np.int64), "sizes")
         self.names[output] = self.g.node("Resize", [self.value(inputs[0]), "", "", sizes], "resize",
                                          self.out_name(output), mode="linear",

@@ -112,7 +112,8 @@ def carry_keypoints(previous_gray: np.ndarray, gray: np.ndarray, keypoints: np.n
     frame ``gray`` by pyramidal Lucas–Kanade optical flow; a point the flow loses keeps its place
     with confidence 0."""
     points = np.ascontiguousarray(keypoints[..., :2].reshape(-1, 1, 2), dtype=np.float32)
-    moved, status, _ = cv2.calcOpticalFlowPyrLK(previous_gray, gray, points, None,
+    # cv2's stubs want an array for nextPts; None has OpenCV allocate it
+    moved, status, _ = cv2.calcOpticalFlowPyrLK(previous_gray, gray, points, None,  # type: ignore[call-overload]
                                                 winSize=(FLOW_WINDOW_PX, FLOW_WINDOW_PX), maxLevel=FLOW_LEVELS)
     moved = moved.reshape(keypoints.shape[:2] + (2,))
     found = status.reshape(keypoints.shape[:2]).astype(bool) & np.isfinite(moved).all(axis=-1)
@@ -185,14 +186,16 @@ class TrackedDetector:
         frame, previous, previous_gray = self.frames, self._previous, self._gray
         if self.fast.model_every > 1:
             self._gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-        seen = previous is not None and len(previous.scores) > 0
-        if seen and previous_gray is not None and frame - self._last_model < self.fast.model_every:
-            return _carry(previous, carry_keypoints(previous_gray, self._gray, previous.keypoints)), "flow"
+        gray = self._gray
+        seen = previous if previous is not None and len(previous.scores) > 0 else None  # the last frame's people
+        if (seen is not None and previous_gray is not None and gray is not None
+                and frame - self._last_model < self.fast.model_every):
+            return _carry(seen, carry_keypoints(previous_gray, gray, seen.keypoints)), "flow"
         self._last_model = frame
         path = "full"
-        if self.fast.crops and seen and frame - self._last_full < self.fast.full_every:
-            found = self._crop(image, previous.boxes)
-            if len(found.scores) >= len(previous.scores):
+        if self.fast.crops and seen is not None and frame - self._last_full < self.fast.full_every:
+            found = self._crop(image, seen.boxes)
+            if len(found.scores) >= len(seen.scores):
                 return found, "crop"
             path = "crop+full"
         self._last_full = frame

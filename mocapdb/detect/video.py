@@ -22,7 +22,9 @@ from mocapdb.detect.errors import DetectError, check_readable
 class VideoFrame(NamedTuple):
     """One decoded frame."""
 
-    index: int             # frame number in the video (camera: since opening), from 0
+    # frame number in the video (camera: since opening), from 0; a field named like tuple.index, which mypy
+    # refuses in a NamedTuple (attribute access gives the field)
+    index: int  # type: ignore[assignment]
     time_s: float | None   # seconds since the first frame (video timestamps, else index / fps)
     capture_s: float       # time.monotonic() when it was decoded
     image: np.ndarray      # [H, W, 3] uint8 BGR
@@ -46,10 +48,10 @@ class VideoReader:
 
     def __init__(self, source: str | int) -> None:
         self.is_camera = isinstance(source, int)
-        self.name = f"camera{source}" if self.is_camera else Path(source).stem
+        self.name = f"camera{source}" if isinstance(source, int) else Path(source).stem
         self.label = f"camera {source}" if self.is_camera else str(source)
         self.ended = False
-        if not self.is_camera:
+        if not isinstance(source, int):
             if not Path(source).exists():
                 raise DetectError(f"video not found: {source}")
             check_readable(Path(source), "video")
