@@ -65,9 +65,9 @@ def _posterior(observed: float, sd: float, prior: tuple[np.ndarray, np.ndarray, 
     log SDs) times the observation ``N(observed, sd)`` (log stature)."""
     weights, means, sds = prior
     x = _STATURE_GRID[:, None]
-    prior = np.sum(weights * np.exp(-0.5 * ((x - means) / sds) ** 2) / sds, axis=1)
-    posterior = prior * np.exp(-0.5 * ((_STATURE_GRID - observed) / sd) ** 2)
-    posterior = posterior if np.any(posterior > 0) else prior
+    density = np.sum(weights * np.exp(-0.5 * ((x - means) / sds) ** 2) / sds, axis=1)  # the prior's, on the grid
+    posterior = density * np.exp(-0.5 * ((_STATURE_GRID - observed) / sd) ** 2)
+    posterior = posterior if np.any(posterior > 0) else density
     return posterior / posterior.sum()
 
 

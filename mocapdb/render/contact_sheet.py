@@ -39,7 +39,8 @@ def contact_sheet(result_dir: str | Path, keypoints: str | Path | list | None, o
     if n < 1:
         raise RenderError(f"a contact sheet needs at least 1 frame, not {n}")
     check_output_file(out_png, PNG_FILE)
-    camera = image_camera(float(focal), tuple(image_size))
+    width, height = image_size  # a pair, a list too
+    camera = image_camera(float(focal), (width, height))
     frames_in = VideoFrames(video) if video is not None else None
     try:
         full_h = camera.size[1] * (1 + 2 * 0.06)

@@ -46,8 +46,8 @@ class RenderSummary:
 
 
 def _check_keypoint_extent(keypoints: list, camera: CameraModel, warn: Callable[[str], None]) -> None:
-    pts = [p.points_px[p.confidence > 0] for k in keypoints for p in k.people]
-    pts = np.concatenate(pts) if pts else np.zeros((0, 2))
+    seen = [p.points_px[p.confidence > 0] for k in keypoints for p in k.people]
+    pts = np.concatenate(seen) if seen else np.zeros((0, 2))
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     if len(pts):
         hi = np.percentile(pts, 99, axis=0)

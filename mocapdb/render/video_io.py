@@ -74,7 +74,7 @@ def mp4_path(out: str | Path) -> Path:
 
 @contextmanager
 def frame_sink(out: Path, mp4: bool, fps: float, size: tuple[int, int]
-                ) -> Iterator[Callable[[int, np.ndarray], None]]:
+                ) -> Iterator[Callable[[int, np.ndarray], object]]:
     """``write(index, image)`` for the frames: PNG files in a folder that replaces ``out`` whole, or
     one MP4 (:func:`mp4_path`) at ``fps`` Hz of frames ``size`` px; either only when the block ends
     normally."""
@@ -83,7 +83,7 @@ def frame_sink(out: Path, mp4: bool, fps: float, size: tuple[int, int]
             yield lambda index, img: write_png(tmp / f"frame_{index:06d}.png", img)
         return
     with output_file(mp4_path(out), MP4_FILE) as tmp:
-        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*"mp4v"), fps, size)
         try:
             if not writer.isOpened():
                 raise RenderError(f"{mp4_path(out)}: OpenCV cannot write an MP4 (mp4v) video here")

@@ -134,8 +134,9 @@ def check_synchronised(person: Selection, cam1: CameraModel, cam2: CameraModel, 
               for cam, x, c in ((cam1, person.x1, person.c1), (cam2, person.x2, person.c2)))
     focal_px = mean_focal(cam1, cam2)
     base = offset_distance(n1, n2, 0, focal_px, config)
-    shifted = {k: offset_distance(n1, n2, k, focal_px, config) for k in SYNC_OFFSETS} if base else {}
-    shifted = {k: d for k, d in shifted.items() if d is not None}
+    if not base:  # no distance as given: nothing to compare the shifted views with
+        return
+    shifted = {k: d for k in SYNC_OFFSETS if (d := offset_distance(n1, n2, k, focal_px, config)) is not None}
     best = min(shifted, key=shifted.__getitem__, default=None)
     if best is not None and shifted[best] < SYNC_RATIO * base:
         raise StereoError(

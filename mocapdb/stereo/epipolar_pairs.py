@@ -69,8 +69,8 @@ class Pairs:
 def all_pairs(d1: Detections, d2: Detections) -> Pairs:
     """Every (view-1, view-2) detection pair of the same frame (distances not yet measured)."""
     by_frame: dict[int, list[int]] = {}
-    for j, f in enumerate(d2.frame.tolist()):
-        by_frame.setdefault(f, []).append(j)
+    for row, f in enumerate(d2.frame.tolist()):
+        by_frame.setdefault(f, []).append(row)
     ij = np.array([(i, j) for i, f in enumerate(d1.frame.tolist()) for j in by_frame.get(f, [])],
                   dtype=np.int64).reshape(-1, 2)
     i, j = ij[:, 0], ij[:, 1]

@@ -135,7 +135,7 @@ def track_2d(frame: np.ndarray, points: np.ndarray, vis: np.ndarray) -> np.ndarr
             last[int(open_[r])] = int(now[c])
         for k in open_[ended]:
             del last[int(k)]
-        for c in np.flatnonzero(track[now] < 0):
-            track[now[c]], last[n_tracks] = n_tracks, int(now[c])
+        for unmatched in np.flatnonzero(track[now] < 0):
+            track[now[unmatched]], last[n_tracks] = n_tracks, int(now[unmatched])
             n_tracks += 1
     return track
