@@ -24,6 +24,9 @@ from mocapdb.runtime.world_summary import track_facts, world_line, world_record
 
 LOG = logging.getLogger(__name__)
 
+# A writer thread's job: an operation and its arguments; None ends the thread
+WriteJob = tuple[Callable[..., object], tuple[object, ...]]
+
 
 def track_stem(track: int, part: int | None) -> str:
     """``track_<id>``, or ``track_<id>_part<k>`` for part k (from 1) of a split track: the name of
@@ -47,7 +50,7 @@ class TrackFiles:
         self._paths: set[Path] = set()  # written
         self._waiting: list[tuple[TrackRecording, str]] = []
         self._held: list[tuple[TrackRecording, str]] = []  # final files held for the shared floor
-        self._jobs: queue.Queue | None = None
+        self._jobs: queue.Queue[WriteJob | None] | None = None
         self._writer: threading.Thread | None = None
         self._error: BaseException | None = None
 
@@ -93,6 +96,8 @@ class TrackFiles:
     def _write_world(self, held: list[tuple[TrackRecording, str]]) -> None:
         """The held recordings as one take: fragments of one person joined, one world, its subject;
         the files of the tracks ``--people`` asks for, the summary's lines and ``world.json``."""
+        if self.options.take is None:
+            raise RuntimeError("recordings held for the shared floor without a whole-take fit (options.take)")
         names = {rec.track: name for rec, name in held}
         recordings, joined = join_fragments([rec for rec, _ in held], self.fps)  # with their input keypoints
         fitted, world = fit_world(recordings, self.fps, self.options.take, self.options.camera_height_m,
@@ -140,6 +145,8 @@ class TrackFiles:
         self._write_files(rec, name)
 
     def _write_files(self, rec: TrackRecording, name: str) -> None:
+        if self.options.bvh_dir is None:
+            raise RuntimeError(f"no folder (options.bvh_dir) to write {name}'s files in")
         paths = write_track_files(rec, self.options.bvh_dir, name, self.fps, self.options.export)
         self._names.add(name)
         for path in paths:
@@ -147,7 +154,7 @@ class TrackFiles:
                 self._paths.add(path)
                 self.summary.bvh_files.append(path)
 
-    def _run(self, operation: Callable, *args) -> None:
+    def _run(self, operation: Callable[..., object], *args: object) -> None:
         """``operation(*args)`` now, or queued for the writer thread (``write_in_background``)."""
         if not self.options.write_in_background:
             operation(*args)
@@ -155,14 +162,21 @@ class TrackFiles:
         self._raise_error()
         if self._writer is None:
             self._jobs = queue.Queue()
-            self._writer = threading.Thread(target=self._write_jobs, name="mocapdb-track-files", daemon=True)
+            self._writer = threading.Thread(target=self._write_jobs, args=(self._jobs,), name="mocapdb-track-files",
+                                            daemon=True)
             self._writer.start()
-        self._jobs.put((operation, args))
+        self._writer_jobs().put((operation, args))
 
-    def _write_jobs(self) -> None:
+    def _writer_jobs(self) -> queue.Queue[WriteJob | None]:
+        """The writer thread's queue (made with the thread)."""
+        if self._jobs is None:
+            raise RuntimeError("the writer thread runs without its queue")
+        return self._jobs
+
+    def _write_jobs(self, jobs: queue.Queue[WriteJob | None]) -> None:
         """The writer thread: queued operations in order until ``None``; after an error, the rest are
         skipped (the error is raised in the session's thread)."""
-        while (job := self._jobs.get()) is not None:
+        while (job := jobs.get()) is not None:
             if self._error is None:
                 try:
                     job[0](*job[1])
@@ -172,7 +186,7 @@ class TrackFiles:
     def drain(self) -> None:
         """Wait for the writer thread's queued operations; raise the first error it met."""
         if self._writer is not None:
-            self._jobs.put(None)
+            self._writer_jobs().put(None)
             self._writer.join()
             self._writer = None
         self._raise_error()
