@@ -157,12 +157,16 @@ def body_up(joints: np.ndarray) -> np.ndarray:
 def basis_with_up(up: np.ndarray) -> np.ndarray:
     """Rows: scene right, up, forward (camera-aligned coordinates) with the given up, forward as
     near the camera's +z as possible: the scene frame of :class:`View3D`."""
-    up = _unit(np.asarray(up, dtype=np.float64))
-    fwd = _unit(np.array([0.0, 0.0, 1.0]) - up[2] * up)
-    right = np.cross(up, fwd)
+    unit_up = _unit(np.asarray(up, dtype=np.float64))
+    if unit_up is None:
+        raise ValueError(f"no up direction in {up!r}")
+    fwd = _unit(np.array([0.0, 0.0, 1.0]) - unit_up[2] * unit_up)
+    if fwd is None:
+        raise ValueError("up along the camera's z: no forward direction for the scene")
+    right = np.cross(unit_up, fwd)
     if right[0] < 0:
         right = -right
-    return np.stack([right, up, fwd])
+    return np.stack([right, unit_up, fwd])
 
 
 @dataclass

@@ -174,7 +174,10 @@ def _draw_camera(panel: np.ndarray, layout: Layout) -> None:
     """The camera of the track files' floor as a small frustum with its height, and a line down
     to the floor under it; only when it falls inside the floor grid."""
     view, scene = layout.view3d, layout.scene
-    centre = scene.camera_scene
+    if scene is None or scene.camera_scene is None or scene.camera_axes is None or scene.world is None \
+            or scene.world.height_m is None:
+        raise RuntimeError("the camera is drawn only on the track files' floor (its centre, axes and height)")
+    centre, height_m = scene.camera_scene, scene.world.height_m
     if np.max(np.abs(view.scene(centre)[[0, 2]] - view.centre)) > view.half_extent:
         return
     cam = layout.camera
@@ -183,5 +186,5 @@ def _draw_camera(panel: np.ndarray, layout: Layout) -> None:
     px, _ = view.project(np.array([centre, foot]), panel.shape[1::-1])
     cv2.line(panel, draw._pt(px[0]), draw._pt(px[1]), (150, 150, 150), 1, cv2.LINE_AA)
     draw.draw_camera_3d(panel, view, centre, scene.camera_axes, fov, 0.08 * view.half_extent, (200, 200, 200), "")
-    draw.put_text(panel, f"camera {scene.world.height_m:.2f} m up", (int(px[1][0]), int(px[1][1]) + 16),
+    draw.put_text(panel, f"camera {height_m:.2f} m up", (int(px[1][0]), int(px[1][1]) + 16),
                   0.3 + panel.shape[0] / 2400, (200, 200, 200), anchor="centre")

@@ -179,7 +179,7 @@ def read_cameras(folder: str | Path) -> StereoCameras | None:
         return None
     try:
         obj = json.loads(read_input_text(path, MAX_CAMERAS_BYTES, RenderError, "stereo cameras file"))
-        cams = []
+        cams: list[CameraModel] = []
         for c in obj["cameras"]:
             K = np.array(c["K"], dtype=np.float64)
             R = np.array(c["R"], dtype=np.float64)

@@ -57,6 +57,8 @@ class WorldFloor:
 
     def level(self) -> np.ndarray:
         """``L [3, 3]``: the view frame turned so that the floor's normal is +y (exports.on_floor)."""
+        if self.normal_view is None:
+            raise ValueError("world.json found no floor: no floor frame to turn the view to")
         return swing_matrices(self.normal_view, _Y)
 
     def to_floor(self, view: np.ndarray) -> np.ndarray:
@@ -179,7 +181,7 @@ def read_track_files(folder: str | Path, stream: ResultStream) -> list[TrackFile
     its BVH, whose frames are placed by the stream (the files end on the track's last frame in the
     stream); frames before the track's first in the stream, less one (a padded BVH's held pose),
     are left out. Tracks the stream does not hold are left out."""
-    seen = {}
+    seen: dict[int, tuple[int, int]] = {}  # track: its first and last frame in the stream
     for frame in stream.frames:
         for p in frame.people:
             lo, hi = seen.get(p.track, (frame.index, frame.index))
@@ -295,11 +297,13 @@ class FileScene:
 def where_text(facts: dict) -> str:
     """Where a track stands, from its ``world.json`` facts: "on the floor", "1.9 m above the floor
     (on something)", ..."""
-    feet = facts.get("feet_above_floor_m")
+    feet, kind = facts.get("feet_above_floor_m"), facts.get("kind")
+    if not isinstance(kind, str):
+        return ""
     above = f"{feet:.1f} m above the floor" if isinstance(feet, (int, float)) else "above the floor"
     return {"floor": "on the floor", "elevated": f"{above} (on something)",
             "unreliable": f"feet do not fit the floor ({above})" if isinstance(feet, (int, float)) and feet > 0.1
-            else "feet do not fit the floor", "no contacts": "no planted foot"}.get(facts.get("kind"), "")
+            else "feet do not fit the floor", "no contacts": "no planted foot"}.get(kind, "")
 
 
 def track_texts(track: int, facts: dict | None, main: bool) -> tuple[str, str]:
