@@ -447,7 +447,7 @@ def test_engine_commands_verify_checksums_unless_no_verify(small_db_path, tmp_pa
         with pytest.raises(DatabaseError, match=r"checksum mismatch: .*frames.parquet .*--no-verify to load it"):
             _engine(args)
         args = cli.parser().parse_args([*command, "--db", str(db), "--no-verify"])
-        assert _engine(args).db.n_frames == load_database(small_db_path).n_frames
+        assert _engine(args).pipeline.db.n_frames == load_database(small_db_path).n_frames
 
 
 def test_a_build_with_every_source_skipped_names_each_reason(tmp_path, capsys):
