@@ -141,7 +141,7 @@ def quat_geodesic(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(dot, 0.0, 1.0))
 
 
-def yaw_matrix(yaw_deg: np.ndarray) -> np.ndarray:
+def yaw_matrix(yaw_deg: float | np.ndarray) -> np.ndarray:
     """Rotations ``[..., 3, 3]`` about the vertical (y) axis by ``yaw_deg`` degrees (right-handed)."""
     return axis_rotation_matrices("Y", np.radians(np.asarray(yaw_deg, dtype=np.float64)))
 

@@ -256,7 +256,10 @@ def _global_rotations(points: np.ndarray) -> dict[str, np.ndarray]:
         secondary = _reject(bend, primary) + FALLBACK_WEIGHT * _unit(_reject(carried, primary))
         glob[joint] = frame_from_axes(primary, secondary) @ frame_from_axes(prim_rest, sec_rest).T
     for joint, pair in _HINGE_JOINTS.items():
-        parent = glob[RIG_NODES[NODE_NAMES.index(joint)][1]]
+        parent_name = RIG_NODES[NODE_NAMES.index(joint)][1]
+        if parent_name is None:
+            raise ValueError(f"the hinge joint {joint} has no parent in RIG_NODES")
+        parent = glob[parent_name]
         rest_dir = _unit(NODE_OFFSETS_M[NODE_NAMES.index(pair[1])])
         glob[joint] = swing_matrices(parent @ rest_dir, _direction(points, pair)) @ parent
     return glob

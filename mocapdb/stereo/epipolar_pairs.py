@@ -119,7 +119,8 @@ def fit_essential(n1: np.ndarray, n2: np.ndarray, config: StereoConfig) -> np.nd
     return None if essential is None or essential.shape[0] < 3 else essential[:3]
 
 
-def pair_correspondences(pairs: Pairs, rows: np.ndarray, d1: Detections, d2: Detections) -> tuple[np.ndarray, ...]:
+def pair_correspondences(pairs: Pairs, rows: np.ndarray, d1: Detections,
+                         d2: Detections) -> tuple[np.ndarray, np.ndarray]:
     shared = pairs.shared[rows]
     return d1.normalised[pairs.i[rows]][shared], d2.normalised[pairs.j[rows]][shared]
 

@@ -229,9 +229,9 @@ def match_people(frames1: list[KeypointFrame], frames2: list[KeypointFrame], cam
     dropped = dropped_frames(n_frames, d1, d2, measured, kept)
     for k, sel in enumerate(persons):
         sel.track, sel.dropped = k, dropped
-    used = tuple(np.concatenate([chosen, *map(np.asarray, found.values())]).astype(np.int64)
-                 for chosen, found in zip((i, j), pieces))
-    return People(persons, dropped, unmatched_lines((d1, d2), used), essential)
+    used1, used2 = (np.concatenate([chosen, *map(np.asarray, found.values())]).astype(np.int64)
+                    for chosen, found in zip((i, j), pieces))
+    return People(persons, dropped, unmatched_lines((d1, d2), (used1, used2)), essential)
 
 
 def _matched(d1: Detections, d2: Detections, focal: float, n_frames: int,

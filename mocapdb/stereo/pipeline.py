@@ -57,9 +57,9 @@ def estimate_cameras(people: People, cam1: CameraModel, cam2: CameraModel, confi
     the people stacked one after the other along time (one essential matrix and one ellipsoid
     per bone type for all; each person's stage 3 is
     :func:`mocapdb.stereo.motion.person_points`)."""
-    stacked = [np.concatenate([getattr(p, name) for p in people.persons]) for name in ("x1", "c1", "x2", "c2")]
+    x1, c1, x2, c2 = (np.concatenate([getattr(p, name) for p in people.persons]) for name in ("x1", "c1", "x2", "c2"))
     person = np.concatenate([np.full(len(p.kept), k) for k, p in enumerate(people.persons)])
-    return reconstruct(*stacked, cam1, cam2, config, person=person)
+    return reconstruct(x1, c1, x2, c2, cam1, cam2, config, person=person)
 
 
 def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, cam2: CameraModel,
