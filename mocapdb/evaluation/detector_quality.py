@@ -86,9 +86,10 @@ def read_views(folders: list[Path]) -> tuple[list[list[KeypointFrame]], list[lis
     if len(set(counts.values())) > 1:
         raise UsageError(f"the cameras' frame counts differ ({counts}): the frames must correspond one to one")
     layouts = {f.layout for view in frames for f in view if f.people}
-    if len(layouts) != 1 or None in layouts:
+    layout = next(iter(layouts)) if len(layouts) == 1 else None
+    if layout is None:
         raise UsageError(f"the folders {', '.join(counts)} do not hold one keypoint layout ({layouts})")
-    return frames, raw, layouts.pop()
+    return frames, raw, layout
 
 
 def choose_people(frames: list[list[KeypointFrame]], cams: list[CameraModel], confidence: float
@@ -170,14 +171,15 @@ def quality(det: Detections, cams: list[CameraModel], confidence: float) -> tupl
     body = [det.joints.index(j) for j in BODY_JOINTS]
     feet = [i for i, j in enumerate(det.joints) if j in FOOT_JOINTS]
     views = np.isfinite(px).sum(axis=0)
+    per_camera: dict[str, dict] = {}
     report = {"layout": det.layout, "joints": {j: _stats(px[..., i], pct[..., i]) | {
         "mean_views": float(views[..., i][views[..., i] >= 2].mean()) if (views[..., i] >= 2).any() else None}
         for i, j in enumerate(det.joints)},
         "body": _stats(px[..., body], pct[..., body]), "feet": _stats(px[..., feet], pct[..., feet]) if feet else None,
         "frames_triangulated": int(np.isfinite(joints_m[:, body]).all(axis=-1).any(axis=-1).sum()),
-        "frames": int(px.shape[1]), "cameras": {}}
+        "frames": int(px.shape[1]), "cameras": per_camera}
     for v, cam in enumerate(cams):
-        report["cameras"][cam.name] = _stats(px[v][:, body], pct[v][:, body]) | {
+        per_camera[cam.name] = _stats(px[v][:, body], pct[v][:, body]) | {
             "mean_offset_px": np.nanmean(offset[v][:, body].reshape(-1, 2), axis=0).tolist(),
             "jitter_px_per_frame2": jitter_px(det.points_px[v][:, body]),
             "frames_with_person": int((det.confidence[v] > 0).any(axis=-1).sum()),
@@ -290,22 +292,23 @@ def evaluate(detectors: dict[str, list[Path]], cams: list[CameraModel], fps: flo
     """Every detector (name → one keypoint folder per camera of ``cams``, camera 1 first) scored
     (:func:`quality`); with a database ``db`` also camera 1 reconstructed into ``work/<name>`` and
     its motion scored (:func:`motion_figures`)."""
-    report = {"fps": fps, "confidence": confidence, "cameras": [c.name for c in cams], "detectors": {}}
+    per_detector: dict[str, dict] = {}
+    report = {"fps": fps, "confidence": confidence, "cameras": [c.name for c in cams], "detectors": per_detector}
     triangulated: dict[str, tuple[np.ndarray, tuple[str, ...]]] = {}
     for name, folders in detectors.items():
         det = read_detections(folders, cams, confidence)
         entry, joints_m = quality(det, cams, confidence)
-        report["detectors"][name] = entry
+        per_detector[name] = entry
         triangulated[name] = (joints_m, det.joints)
-    reference = min(report["detectors"], key=lambda n: report["detectors"][n]["body"]["median_px"] or np.inf)
+    reference = min(per_detector, key=lambda n: per_detector[n]["body"]["median_px"] or np.inf)
     planted = planted_reference(*triangulated[reference], fps)
     report["planted_from"] = {"detector": reference, "ankle_frames": int(planted.sum())}
     for name, folders in detectors.items():
         joints_m, names = triangulated[name]
         body = low_pass(joints_m[:, [names.index(j) for j in BODY_JOINTS]], fps)
-        report["detectors"][name]["triangulation_acceleration_mps2"] = acceleration_mps2(body, fps)
+        per_detector[name]["triangulation_acceleration_mps2"] = acceleration_mps2(body, fps)
         if db is not None and work is not None:
             reconstruct(folders[0], db, work / name, cams[0], fps)
-            report["detectors"][name]["reconstruction"] = motion_figures(
+            per_detector[name]["reconstruction"] = motion_figures(
                 main_track_joints(work / name, len(joints_m)), planted, fps)
     return report

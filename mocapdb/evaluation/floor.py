@@ -72,9 +72,9 @@ class FloorIndex:
         rel = rel - rel[:, PELVIS:PELVIS + 1]
         n = len(rel)
         chunks = max(1, -(-n // CHUNK))
-        cols = np.zeros((chunks * CHUNK, 3 * N_JOINTS), dtype=np.float32)
-        cols[:n] = np.concatenate([rel[..., 1], rel[..., 0], rel[..., 2]], axis=1)
-        cols = cols.reshape(chunks, CHUNK, 3 * N_JOINTS).transpose(0, 2, 1)
+        rows = np.zeros((chunks * CHUNK, 3 * N_JOINTS), dtype=np.float32)  # one database frame a row
+        rows[:n] = np.concatenate([rel[..., 1], rel[..., 0], rel[..., 2]], axis=1)
+        cols = rows.reshape(chunks, CHUNK, 3 * N_JOINTS).transpose(0, 2, 1)
         norm2 = np.full(chunks * CHUNK, _PAD, dtype=np.float32)
         norm2[:n] = np.sum(rel ** 2, axis=(1, 2))
         return cls(by=np.ascontiguousarray(cols[:, :N_JOINTS]), bxz=np.ascontiguousarray(cols[:, N_JOINTS:]),

@@ -89,12 +89,24 @@ class Truth:
     yaws_deg: tuple[float, ...] | None = None  # this clip's yaws; None: EvalConfig.yaws_deg
     source_m: np.ndarray | None = None  # [F, 15, 3] the source skeleton's own joints (Clip.source_m)
 
+    def source_joints(self) -> np.ndarray:
+        """:attr:`source_m`, which the world takes render; ValueError when this truth has none
+        (:func:`load_heldout` gives them)."""
+        if self.source_m is None:
+            raise ValueError(f"held-out clip {self.name}: no source skeleton joints (source_m)")
+        return self.source_m
+
 
 def load_heldout(paths: list[Path], fps: float) -> list[Truth]:
     """Retarget held-out BVH files exactly as the builder does."""
     config = ClipOptions(fps=fps)
-    return [Truth(c.name, c.positions.astype(np.float64), source_m=c.source_m.astype(np.float64))
-            for c in (process_clip(p, p.parent, config) for p in paths)]
+    truths = []
+    for path in paths:
+        c = process_clip(path, path.parent, config)
+        if c.source_m is None:
+            raise ValueError(f"{path}: retargeted without the source skeleton's own joints")
+        truths.append(Truth(c.name, c.positions.astype(np.float64), source_m=c.source_m.astype(np.float64)))
+    return truths
 
 
 def scenario_positions(truth: Truth, scenario: Scenario, clip_index: int, yaw_index: int,

@@ -99,7 +99,8 @@ def group_by_subject(files: list[Path]) -> dict[int, list[Path]]:
         raise UsageError(f"--leave-one-subject-out needs files named SUBJECT_TRIAL.bvh (e.g. 002_05.bvh); "
                          f"no subject number in {', '.join(f.name for f in unnamed[:5])}")
     for f in sorted(files):
-        groups.setdefault(subject_of(f), []).append(f)
+        if (subject := subject_of(f)) is not None:  # every file has one (checked above)
+            groups.setdefault(subject, []).append(f)
     return dict(sorted(groups.items()))
 
 
@@ -122,6 +123,12 @@ def load_descriptions(sources: list[str]) -> dict[tuple[int, int], str]:
     return out
 
 
+def _description(descriptions: dict[tuple[int, int], str], subject: int, path: Path) -> str:
+    """The motion description of one of ``subject``'s files (:func:`load_descriptions`), else ""."""
+    trial = trial_of(path)
+    return "" if trial is None else descriptions.get((subject, trial), "")
+
+
 def evenly_spaced(items: list, n: int) -> list:
     """At most ``n`` of ``items``, evenly spaced, first and last included."""
     if len(items) <= n:
@@ -135,6 +142,8 @@ def sample_truths(files: list[Path], config: LosoConfig) -> list[Truth]:
     clip_config = replace(config.build.clip_options(), fps=config.eval.fps)
     for i, path in enumerate(evenly_spaced(sorted(files), config.max_clips)):
         clip = process_clip(path, path.parent, clip_config)
+        if clip.source_m is None:
+            raise ValueError(f"{path}: retargeted without the source skeleton's own joints")
         n = len(clip.positions)
         start = max(0, (n - config.max_frames) // 2)
         stop = min(n, start + config.max_frames)
@@ -166,7 +175,7 @@ def leave_one_subject_out(sources: list[str], config: LosoConfig, log=_stderr) -
     folds = []
     for subject in subjects:
         truths = sample_truths(groups[subject], config)
-        motions = list(dict.fromkeys(descriptions.get((subject, trial_of(f)), "")
+        motions = list(dict.fromkeys(_description(descriptions, subject, f)
                                      for f in evenly_spaced(groups[subject], config.max_clips)))
         train = [str(f) for s, files in groups.items() if s != subject for f in files]
         with tempfile.TemporaryDirectory(prefix=f"mocapdb-loso-{subject}-") as tmp:
@@ -185,7 +194,8 @@ def leave_one_subject_out(sources: list[str], config: LosoConfig, log=_stderr) -
         for total, result in zip(overall, results):
             total.extend(result)
         fold = {"subject": subject, "motion": "; ".join(m for m in motions if m),
-                "clips": [{"name": t.name, "frames": len(t.positions), "yaws_deg": list(t.yaws_deg)} for t in truths],
+                "clips": [{"name": t.name, "frames": len(t.positions), "yaws_deg": list(t.yaws_deg or [])}
+                          for t in truths],  # sample_truths gives every clip its yaws
                 "truth_frames": int(sum(len(t.positions) for t in truths)),
                 "database": database, "build_seconds": round(t1 - t0, 2), "floor_seconds": round(t2 - t1, 2),
                 "eval_seconds": round(t3 - t2, 2), "scenarios": [r.report() for r in results]}

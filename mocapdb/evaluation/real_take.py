@@ -148,7 +148,8 @@ def engine_config(base: EngineConfig, cam: CameraModel, fps: float, refine: bool
     """``base`` for ``cam`` (its focal length and image size, ``fps`` Hz) as variant ``refine``
     (:func:`~mocapdb.evaluation.reconstruction.variant_config`), with ``camera_height`` (metres) or
     not; the refined variant keeps its per-frame fits for the whole take."""
-    cfg = replace(base, fps=fps, focal_px=focal_px(cam), image_size=tuple(cam.size), camera_height_m=None)
+    cfg = replace(base, fps=fps, focal_px=focal_px(cam), image_size=(cam.size[0], cam.size[1]),
+                  camera_height_m=None)
     return replace(variant_config(cfg, refine), camera_height_m=camera_height, keep_take=refine)
 
 
@@ -245,13 +246,15 @@ def evaluate_real_take(db: MotionDatabase, folder: str | Path, base: EngineConfi
     its height (m), focal length (px), :func:`pinhole_offset` and ``runs[variant][size mode]``."""
     take = load_take(folder, cameras)
     base = base or EngineConfig()
+    per_camera: dict[str, dict] = {}
     report = {"take": str(folder), "frames": len(take.truth), "fps": take.fps, "floor_y_m": take.floor_y_m,
-              "axes": "TRC (X, Y, Z) = calibration world (Y, Z, X): y up", "cameras": {}}
+              "axes": "TRC (X, Y, Z) = calibration world (Y, Z, X): y up", "cameras": per_camera}
     for name, cam in take.cameras.items():
         height = camera_height_m(cam, take.floor_y_m)
-        entry = report["cameras"][name] = {
+        runs: dict[str, dict[str, dict]] = {}  # variant: size mode: figures
+        per_camera[name] = {
             "camera_height_m": height, "focal_px": focal_px(cam),
-            "pinhole_offset": pinhole_offset(cam, trc_to_world(take.truth[:, :N_KEYPOINTS_2D])), "runs": {}}
+            "pinhole_offset": pinhole_offset(cam, trc_to_world(take.truth[:, :N_KEYPOINTS_2D])), "runs": runs}
         centre = world_to_trc(cam.center_m)
         for variant, mode, refine, given in RUNS:
             config = engine_config(base, cam, take.fps, refine, height if given else None)
@@ -261,7 +264,7 @@ def evaluate_real_take(db: MotionDatabase, folder: str | Path, base: EngineConfi
             for label, points in outputs:
                 result = score(camera_to_trc(points, cam), take.truth, centre, take.fps)
                 result["body_height_m"] = body_height
-                entry["runs"].setdefault(label, {})[mode] = result
+                runs.setdefault(label, {})[mode] = result
     return report
 
 

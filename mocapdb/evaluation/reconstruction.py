@@ -18,7 +18,7 @@ import logging
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypedDict, cast
 
 import numpy as np
 
@@ -234,7 +234,8 @@ class VariantStats:
         self.skate.append(foot_skating_mps(pred_w[:, ANKLES], planted, fps))
         self.foot_height.append(foot_height_error_m(pred_w[:, ANKLES], true_w[:, ANKLES], planted))
         pred_speed, true_speed = speeds_mps(pred_w, fps), speeds_mps(true_w, fps)
-        pop = ((pred_speed > MAX_HUMAN_SPEED_MPS) & (true_speed <= MAX_HUMAN_SPEED_MPS)).any(axis=1)
+        # numpy's stubs give .any(axis=...) as a scalar or an array: over axis 1 of [F, J] it is an array
+        pop = cast(np.ndarray, ((pred_speed > MAX_HUMAN_SPEED_MPS) & (true_speed <= MAX_HUMAN_SPEED_MPS)).any(axis=1))
         self.pops.append(pop[ok])
 
     def extend(self, other: VariantStats) -> None:
@@ -371,10 +372,17 @@ def compute_floors(db: MotionDatabase, truths: list[Truth], scenarios: tuple[Sce
     return floors
 
 
+class _DefaultFilters(TypedDict):
+    """EngineConfig's filters left to their defaults (None: chosen by ``refine``)."""
+    rotation_filter: None
+    root_filter: None
+    keypoint_filter: None
+
+
 def variant_config(base: EngineConfig, refine: bool) -> EngineConfig:
     """``base`` with ``refine`` set. 1€ filters left at their defaults follow the variant (the engine
     picks different defaults for refined and retrieved poses); filters set explicitly are kept."""
-    defaults = dict(rotation_filter=None, root_filter=None, keypoint_filter=None)  # chosen per variant
+    defaults = _DefaultFilters(rotation_filter=None, root_filter=None, keypoint_filter=None)  # chosen per variant
     if base == replace(base, **defaults):
         return replace(base, refine=refine, **defaults)
     return replace(base, refine=refine)

@@ -17,6 +17,7 @@ import itertools
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TypedDict
 
 import numpy as np
 
@@ -56,7 +57,17 @@ TARGET_ROTATION_DEG = 3.0
 TARGET_SPEED_S = 2.0        # a 1,000-frame sequence
 SPEED_FRAMES = 1000
 
-ABLATION = {  # Table 2: label → StereoConfig changes
+class StereoChanges(TypedDict, total=False):
+    """The :class:`StereoConfig` fields an ablation variant changes."""
+    epsilon: float
+    delta: float
+    gamma: float
+    max_rounds: int
+    bone_rounds: int
+    noise_correction: bool
+
+
+ABLATION: dict[str, StereoChanges] = {  # Table 2: label → StereoConfig changes
     "ElliPose (ε 0.025, δ 0.2, γ 0.2, m 5)": {},
     "ε 0.01": {"epsilon": 0.01},
     "no ellipsoid correction": {"max_rounds": 0},

@@ -108,7 +108,8 @@ def score_pair(name: str, folders: tuple[Path, Path], cams: tuple[CameraModel, C
     try:
         summary, joints, estimated_R = run_pair(folders, cams, config, fps, len(frames[0]))
     except StereoError as exc:
-        return PairRow(name, int(both_see.sum()), 0, 0, 0, 0, 0, None, *[float("nan")] * 4, refused=str(exc))
+        nan = float("nan")
+        return PairRow(name, int(both_see.sum()), 0, 0, 0, 0, 0, None, nan, nan, nan, nan, refused=str(exc))
     written = np.isfinite(joints[:, :N_KEYPOINTS_2D]).all(axis=-1)               # [T, 14]
     present = written.any(axis=1)
     lost = both & present[:, None] & ~written
@@ -125,7 +126,8 @@ def run_pair(folders: tuple[Path, Path], cams: tuple[CameraModel, CameraModel], 
     folder: its summary, the main person's joints (:func:`main_person_joints`) and camera 2's estimated R."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out"
-        summary = run_stereo(*folders, *(intrinsics_only(c) for c in cams), config, fps, out)
+        summary = run_stereo(folders[0], folders[1], intrinsics_only(cams[0]), intrinsics_only(cams[1]), config, fps,
+                             out)
         cameras = json.loads((out / "cameras.json").read_text())["cameras"]
         return summary, main_person_joints(out, n_frames), np.array(cameras[1]["R"])
 
@@ -159,7 +161,8 @@ def all_pairs(folder: Path) -> list[PairRow]:
     truth = trc_keypoints(trc)
     rows = []
     for a, b in itertools.combinations(sorted(cams), 2):
-        folders = tuple(folder / "openpose_body25b" / f"cam{n[-2:]}_json" for n in (a, b))
+        views = folder / "openpose_body25b"
+        folders = (views / f"cam{a[-2:]}_json", views / f"cam{b[-2:]}_json")
         rows.append(score_pair(f"{a}–{b}", folders, (cams[a], cams[b]), truth, trc.rate_hz))
     return rows
 

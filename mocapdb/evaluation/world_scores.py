@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from itertools import combinations
+from typing import cast
 
 import numpy as np
 
@@ -104,7 +105,8 @@ def track_flags(fit: TrackFit, camera: Camera, person: TruePerson | None, fps: f
     if person is not None:
         world = camera_to_world(person.cam_m[:, ANKLES], camera.height_m, 0.0, camera.pitch_deg)
         index = np.clip(fit.frames, 0, len(world) - 1)
-        planted = planted_feet(world, fps).any(axis=1)[index]
+        # numpy's stubs give .any(axis=...) as a scalar or an array: over axis 1 of [F, 2] it is an array
+        planted = cast(np.ndarray, planted_feet(world, fps).any(axis=1))[index]
     lo, hi = HUMAN_STATURE_RANGE_M
     flags = (not lo <= fit.stature_m <= hi, bool((fit.root_m[:, 2] <= 0.0).any()),
              bool(_median(fitted[planted]) < -FLOOR_TOLERANCE_M), bool(_median(true[planted]) < -FLOOR_TOLERANCE_M))
@@ -176,7 +178,7 @@ def _person_entry(take: WorldTake, index: int, fits: list[TrackFit], owners: lis
     return entry
 
 
-def _median(values: np.ndarray) -> float:
+def _median(values: np.ndarray | list[float]) -> float:
     values = np.asarray(values, dtype=np.float64)
     values = values[np.isfinite(values)]
     return float(np.median(values)) if len(values) else float("nan")

@@ -187,7 +187,7 @@ def person_view(truth: Truth, spec: PersonSpec, lengths_m: np.ndarray, n_frames:
     """A person's joints ``[n_frames, 15, 3]`` in the camera-aligned frame: the clip's middle frames
     (still: its :func:`still_frame` held) on the body ``lengths_m``, standing ``support_m`` up,
     turned to its heading and placed (:func:`placement`)."""
-    source = truth.source_m
+    source = truth.source_joints()
     if spec.still:
         segment = source[np.full(n_frames, still_frame(source))]
     else:
@@ -212,16 +212,16 @@ def build_take(truths: list[Truth], scenario: WorldScenario, scenario_index: int
     jitter and noise."""
     rng = np.random.default_rng((config.seed, scenario_index, repeat))
     camera = Camera(float(rng.uniform(*CAMERA_HEIGHT_RANGE_M)), scenario.pitch_deg)
-    long_clips = [t for t in truths if len(t.source_m) >= config.frames]
-    walkers = long_clips or sorted(truths, key=lambda t: -len(t.source_m))
-    n_frames = min(config.frames, min(len(t.source_m) for t in walkers))
+    long_clips = [t for t in truths if len(t.source_joints()) >= config.frames]
+    walkers = long_clips or sorted(truths, key=lambda t: -len(t.source_joints()))
+    n_frames = min(config.frames, min(len(t.source_joints()) for t in walkers))
     noise = Scenario(scenario.name, noise_px=scenario.noise_px, dropout=scenario.dropout, swap=scenario.swap)
     people = []
     for i, spec in enumerate(scenario.people):
         pool = truths if spec.still else walkers
         truth = pool[(scenario_index + repeat * len(scenario.people) + i) % len(pool)]
         spec = _jittered(spec, rng) if config.jitter else spec
-        lengths = body_lengths_m(truth.source_m, spec.kind, rng)
+        lengths = body_lengths_m(truth.source_joints(), spec.kind, rng)
         cam = person_view(truth, spec, lengths, n_frames, camera, config.focal_px, config.image_size)
         rendered = render(cam, noise, config.focal_px, config.image_size,
                           np.random.default_rng((config.seed, scenario_index, repeat, i)))
