@@ -18,7 +18,7 @@ import logging
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, TypedDict, cast
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -372,19 +372,12 @@ def compute_floors(db: MotionDatabase, truths: list[Truth], scenarios: tuple[Sce
     return floors
 
 
-class _DefaultFilters(TypedDict):
-    """EngineConfig's filters left to their defaults (None: chosen by ``refine``)."""
-    rotation_filter: None
-    root_filter: None
-    keypoint_filter: None
-
-
 def variant_config(base: EngineConfig, refine: bool) -> EngineConfig:
     """``base`` with ``refine`` set. 1€ filters left at their defaults follow the variant (the engine
     picks different defaults for refined and retrieved poses); filters set explicitly are kept."""
-    defaults = _DefaultFilters(rotation_filter=None, root_filter=None, keypoint_filter=None)  # chosen per variant
-    if base == replace(base, **defaults):
-        return replace(base, refine=refine, **defaults)
+    # None: the filter chosen per variant
+    if base == replace(base, rotation_filter=None, root_filter=None, keypoint_filter=None):
+        return replace(base, refine=refine, rotation_filter=None, root_filter=None, keypoint_filter=None)
     return replace(base, refine=refine)
 
 
