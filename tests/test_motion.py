@@ -132,3 +132,10 @@ def test_a_motion_written_as_bvh_reads_back_as_the_same_motion(tmp_path):
     again = read_motion(path, fps=24.0)
     assert len(again) == len(motion) and again.coordinate_frame == "world" and again.fps == 24.0
     np.testing.assert_allclose(again.joints_m(), motion.joints_m(), atol=1e-4)  # metres
+
+
+def test_a_track_recording_names_its_columns():
+    rec = TrackRecording(1, 0)
+    assert len(rec) == 0 and rec.column("keypoints").size == 0  # not recorded yet: empty
+    with pytest.raises(KeyError, match="records no 'keypoint'"):
+        rec.column("keypoint")

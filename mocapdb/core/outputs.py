@@ -97,7 +97,10 @@ class TrackRecording:
 
     def column(self, name: str) -> np.ndarray:
         """The recorded values of ``name`` (:data:`MOTION_COLUMNS`, :data:`FIT_COLUMNS`) frame by frame;
-        empty when not recorded (no frame yet, or the fits without ``keep_take``)."""
+        empty when not recorded (no frame yet, or the fits without ``keep_take``); KeyError for
+        another name."""
+        if name not in MOTION_COLUMNS + FIT_COLUMNS:
+            raise KeyError(f"a track records no {name!r}: one of {', '.join(MOTION_COLUMNS + FIT_COLUMNS)}")
         return self.frames[name] if name in self.frames else np.zeros(0)
 
     @property
