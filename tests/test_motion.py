@@ -53,6 +53,9 @@ def test_a_recorder_refuses_a_frame_with_other_names_and_columns_of_other_length
         recorder.append(a=1.0)
     with pytest.raises(ValueError, match="different lengths"):
         FrameRecorder.of(a=np.zeros(3), b=np.zeros(4))
+    empty = FrameRecorder.of(a=np.zeros((0, 2)))  # no rows yet: appending still grows it
+    empty.append(a=np.ones(2))
+    np.testing.assert_array_equal(empty["a"], [[1.0, 1.0]])
 
 
 def test_a_motion_checks_its_shapes_frame_and_body():

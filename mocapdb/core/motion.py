@@ -142,7 +142,7 @@ class FrameRecorder:
             if name not in self._arrays:
                 self._arrays[name] = np.empty((8,) + value.shape, dtype=value.dtype)
             elif self._count == len(self._arrays[name]):
-                grown = np.empty((2 * self._count,) + value.shape, dtype=self._arrays[name].dtype)
+                grown = np.empty((max(2 * self._count, 8),) + value.shape, dtype=self._arrays[name].dtype)
                 grown[:self._count] = self._arrays[name]
                 self._arrays[name] = grown
             self._arrays[name][self._count] = value
