@@ -44,6 +44,8 @@ def test_a_snapshot_stays_as_it_was_while_the_recorder_grows():
         recorder.append(x=np.full(3, float(i)))
     assert len(snapshot) == 1 and len(recorder) == 50
     np.testing.assert_array_equal(snapshot["x"], np.zeros((1, 3)))
+    snapshot.append(x=np.full(3, -1.0))  # never into the rows the recorder holds
+    np.testing.assert_array_equal(recorder["x"][1], np.ones(3))
 
 
 def test_a_recorder_refuses_a_frame_with_other_names_and_columns_of_other_lengths():

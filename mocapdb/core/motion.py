@@ -153,7 +153,9 @@ class FrameRecorder:
         return {name: values[self._count - 1].copy() for name, values in self._arrays.items()}
 
     def snapshot(self) -> FrameRecorder:
-        """A recorder of the rows so far that later appends to this one leave unchanged."""
+        """A recorder of the rows so far that later appends to this one leave unchanged. It shares
+        their memory; its arrays end at its last row, so an append to it moves it to new arrays."""
         copy = FrameRecorder()
-        copy._arrays, copy._count = dict(self._arrays), self._count
+        copy._arrays = {name: values[:self._count] for name, values in self._arrays.items()}
+        copy._count = self._count
         return copy
