@@ -4,7 +4,6 @@ against its domain (:mod:`mocapdb.core.domains`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import overload
 
 from mocapdb.core import domains as D
 from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD
@@ -37,36 +36,6 @@ class TrackLimits:
         D.MAX_NEW_TRACKS_PER_MIN.check(self.max_new_per_min, "max_new_per_min")
 
 
-class _ChosenByRefine:
-    """An :class:`EngineConfig` filter field read as :class:`OneEuroParams`: given, or (``None``) the
-    defaults for refined or retrieved poses, chosen by ``refine`` when the field is set (``refine``
-    comes first in the dataclass's fields, so ``__init__`` sets it before). A data descriptor
-    (dataclass "descriptor-typed field"): ``__init__`` and assignments take ``OneEuroParams | None``,
-    reads give ``OneEuroParams``; the class-level default is ``None``."""
-
-    def __init__(self, refined: OneEuroParams, retrieved: OneEuroParams) -> None:
-        self.refined, self.retrieved = refined, retrieved
-        self.name = ""
-
-    def __set_name__(self, owner: type, name: str) -> None:
-        self.name = name
-
-    @overload
-    def __get__(self, config: None, owner: type | None = None) -> None: ...
-    @overload
-    def __get__(self, config: EngineConfig, owner: type | None = None) -> OneEuroParams: ...
-    def __get__(self, config: EngineConfig | None, owner: type | None = None) -> OneEuroParams | None:
-        if config is None:
-            return None  # the dataclass field's default: choose by refine
-        params: OneEuroParams = config.__dict__[self.name]
-        return params
-
-    def __set__(self, config: EngineConfig, params: OneEuroParams | None) -> None:
-        if params is None:
-            params = self.refined if config.refine else self.retrieved
-        config.__dict__[self.name] = params
-
-
 @dataclass
 class EngineConfig:
     """Runtime parameters (defaults: the method's j=10, w=4; i=5 on its K = 500 clusters, more for more clusters)."""
@@ -94,21 +63,32 @@ class EngineConfig:
     subject_height_m: float | None = None  # the person's height; None: the universal 1.75 m (or from the floor)
     camera_height_m: float | None = None   # camera above a flat floor: metric depth and size from the feet
     smoothing: bool = True
-    # None: the defaults for refined or retrieved poses (read: always the parameters)
-    rotation_filter: _ChosenByRefine = _ChosenByRefine(REFINED_ROTATION_DEFAULTS, OneEuroParams())
+    rotation_filter: OneEuroParams | None = None  # None: the defaults for refined or retrieved poses
     keypoint_filter: KeypointFilterParams | None = None  # 2D clean-up; None: on when refining
-    root_filter: _ChosenByRefine = _ChosenByRefine(REFINED_ROOT_DEFAULTS, ROOT_DEFAULTS)
+    root_filter: OneEuroParams | None = None
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     limits: TrackLimits = field(default_factory=TrackLimits)  # read at every step: may be replaced
 
     def __post_init__(self) -> None:
         if self.search not in ("clustered", "exact"):
             raise ValueError(f"search must be 'clustered' or 'exact', not {self.search!r}")
+        self.rotation_filter, self.root_filter = self.one_euro_params()
         if self.keypoint_filter is None and self.refine and self.smoothing:
             self.keypoint_filter = KeypointFilterParams()
         self._check_domains()
         if self.camera_height_m is not None and not self.refine:
             raise ValueError("a camera height needs the refinement (it levels the floor): drop --no-refine")
+
+    def one_euro_params(self) -> tuple[OneEuroParams, OneEuroParams]:
+        """The 1€ parameters of the rotations and of the root: as given, else the defaults for
+        refined or retrieved poses (``__post_init__`` fills the fields with them)."""
+        rotation = self.rotation_filter
+        if rotation is None:
+            rotation = REFINED_ROTATION_DEFAULTS if self.refine else OneEuroParams()
+        root = self.root_filter
+        if root is None:
+            root = REFINED_ROOT_DEFAULTS if self.refine else ROOT_DEFAULTS
+        return rotation, root
 
     @property
     def center_px(self) -> tuple[float, float]:

@@ -42,8 +42,9 @@ class TrackState:
         self.floor = None
         if config.camera_height_m is not None and config.subject_height_m is None:
             self.floor = FloorScale(config.camera_height_m)
-        self.rotations = QuaternionOneEuroFilter(config.rotation_filter)
-        self.root = OneEuroFilter(config.root_filter)
+        rotation_params, root_params = config.one_euro_params()
+        self.rotations = QuaternionOneEuroFilter(rotation_params)
+        self.root = OneEuroFilter(root_params)
         self.recording = TrackRecording(track, frame)
         self.last_frame = frame - 1
 
