@@ -89,7 +89,8 @@ class PosePipeline:
         joints_view = pose_from_rotations(quats[None], root_view[None], state.scale, state.offsets_m)[0]
         return PersonPose(state.recording.track, joints_view * CAMERA_FROM_VIEW, quats,
                           root_view * CAMERA_FROM_VIEW, match, state.scale * UNIVERSAL_HEIGHT_M,
-                          state.proportions_m * state.scale)
+                          state.proportions_m * state.scale, up_view=state.tilt.up,
+                          keypoints_px=np.column_stack([d.points_px, d.confidence]), extremities_px=d.extremities)
 
     def _retrieve(self, state: TrackState, points_px: np.ndarray,
                   visible: np.ndarray) -> tuple[np.ndarray, np.ndarray, Match]:

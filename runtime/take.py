@@ -136,7 +136,8 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     phases = foot_phases(extremities, box_height_px(keypoints), fps, params) if ends else None
     planted = planted_ankles(keypoints, root[:, None] + relative, up, fps, params, phases)
     root, anchors = fit_root_path(root, relative, planted, fps, params)
-    quats = plant_feet(quats, root, scale, offsets, planted, anchors)
+    weights, targets = contact_targets(planted, anchors)
+    quats = plant_feet(quats, root, scale, offsets, weights, targets)
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]
     normal, offset = None, None
     if params.floor and planted.any():
@@ -307,15 +308,15 @@ BLEND_FRAMES = 3  # frames over which a foot eases into and out of its contact
 
 
 def plant_feet(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
-               planted: np.ndarray, anchors_m: np.ndarray) -> np.ndarray:
+               weights: np.ndarray, targets_m: np.ndarray) -> np.ndarray:
     """``quats [F, R, 4]`` with each leg's hip and knee turned (two-bone IK, the knee kept in its
-    bending plane) so that a planted ankle reaches its anchor ``anchors_m [F, 2, 3]`` (view frame),
-    eased in and out over :data:`BLEND_FRAMES` frames around each contact."""
+    bending plane) so that an ankle moves towards its target ``targets_m [F, 2, 3]`` (view frame;
+    right, left) by its weight ``weights [F, 2]`` (0: not at all, 1: onto it)."""
     quats = quats.copy()
     offsets = NODE_OFFSETS_M if offsets_m is None else offsets_m
     pelvis_rot = quat_to_matrix(quats[:, 0])
     for k, side in enumerate(("r", "l")):
-        weight, target = _contact_targets(planted[:, k], anchors_m[:, k])
+        weight, target = weights[:, k], targets_m[:, k]
         active = weight > 0
         if not active.any():
             continue
@@ -340,18 +341,19 @@ def plant_feet(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: n
     return quats
 
 
-def _contact_targets(planted: np.ndarray, anchors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per frame the IK weight (1 in a contact, easing to 0 over :data:`BLEND_FRAMES` frames around
-    it) and the target (the contact's anchor, or the nearest contact's)."""
+def contact_targets(planted: np.ndarray, anchors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame and foot the IK weight ``[F, 2]`` (1 in a contact, easing to 0 over
+    :data:`BLEND_FRAMES` frames around it) and the target ``[F, 2, 3]`` (the contact's anchor, or the
+    nearest contact's) of ``planted [F, 2]`` and the planted frames' ``anchors [F, 2, 3]``."""
     n = len(planted)
-    weight, target = np.zeros(n), np.full((n, 3), np.nan)
-    for start, stop in true_runs(planted):
-        anchor = anchors[start]
-        for t in range(max(start - BLEND_FRAMES, 0), min(stop + BLEND_FRAMES, n)):
-            gap = max(start - t, t - (stop - 1), 0)
-            w = 1.0 - gap / (BLEND_FRAMES + 1)
-            if w > weight[t]:
-                weight[t], target[t] = w, anchor
+    weight, target = np.zeros(planted.shape), np.full(planted.shape + (3,), np.nan)
+    for k in range(planted.shape[1]):
+        for start, stop in true_runs(planted[:, k]):
+            for t in range(max(start - BLEND_FRAMES, 0), min(stop + BLEND_FRAMES, n)):
+                gap = max(start - t, t - (stop - 1), 0)
+                w = 1.0 - gap / (BLEND_FRAMES + 1)
+                if w > weight[t, k]:
+                    weight[t, k], target[t, k] = w, anchors[start, k]
     return weight, target
 
 

@@ -7,7 +7,7 @@ from mocapdb.core.geometry import quat_geodesic
 from mocapdb.core.skeleton import KP, N_RIG_JOINTS, bone_lengths_m, pose_from_rotations
 from mocapdb.runtime.contact_floor import floor_plane
 from mocapdb.runtime.foot_contacts import planted_ankles
-from mocapdb.runtime.take import fit_root_path, plant_feet, refit_to_image, smooth_rotations
+from mocapdb.runtime.take import contact_targets, fit_root_path, plant_feet, refit_to_image, smooth_rotations
 from mocapdb.runtime.take_params import TakeParams
 
 FPS = 30.0
@@ -79,7 +79,7 @@ def test_leg_ik_puts_a_planted_ankle_on_its_anchor_and_keeps_the_bones():
     planted[2:9, 0] = True
     anchors = np.full((n, 2, 3), np.nan)
     anchors[planted[:, 0], 0] = anchor
-    out = plant_feet(quats, root, 1.0, None, planted, anchors)
+    out = plant_feet(quats, root, 1.0, None, *contact_targets(planted, anchors))
     fixed = pose_from_rotations(out, root)
     np.testing.assert_allclose(fixed[2:9, KP["r_ankle"]], np.broadcast_to(anchor, (7, 3)), atol=1e-6)
     np.testing.assert_allclose(bone_lengths_m(fixed), bone_lengths_m(joints), atol=1e-9)

@@ -86,9 +86,14 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                         "measured from its 2D)")
     p.add_argument("--no-smoothing", action="store_true", help="turn the 1€ filters off")
     p.add_argument("--lag-frames", type=D.LAG_FRAMES, default=D.LAG_FRAMES.default, metavar="N",
-                   help="write each frame's line N frames late, every person smoothed over the N frames before "
-                        "and after it (--smoothing-hz) instead of by the causal 1€ filters: a latency of N / fps "
-                        "for steadier motion (default %(default)s: causal)")
+                   help="the stream's lag: each frame's line written N frames late, through the online whole take "
+                        "(planted feet locked, the root carried by them, speed limits, the size settled) with "
+                        "rotations smoothed over the N frames before and after it (--smoothing-hz) instead of by "
+                        "the causal 1€ filters: a latency of N / fps for steadier motion (default %(default)s: "
+                        "causal; data_specs/stream_output.md)")
+    p.add_argument("--per-frame-stream", action="store_true",
+                   help="write the stream as the per-frame engine gives it, without the online whole take "
+                        "(no foot locking, no speed limits; no --lag-frames)")
     p.add_argument("--no-translation", action="store_true", help="keep the pelvis at the origin")
     p.add_argument("--no-yaw-refinement", action="store_true", help="keep the database's yaw grid (12° steps)")
     files = p.add_argument_group("track files (data_specs/stream_output.md)")
@@ -256,13 +261,15 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
                                  take=None if args.per_frame else TakeParams(smoothing_hz=args.smoothing_hz),
                                  shared_floor=strict, camera_height_m=args.camera_height,
                                  subject_heights_m=subject_heights(args),
-                                 lag_frames=args.lag_frames, camera_sources=getattr(args, "camera_sources", {}),
+                                 lag_frames=args.lag_frames, online_take=not args.per_frame_stream,
+                                 camera_sources=getattr(args, "camera_sources", {}),
                                  people=parse_people(getattr(args, "people", "all")))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     engine = _engine(args)
     engine.config.limits = limits
-    return Session(engine, open_sink(sink_spec, summary.stream), FrameParser(args.keypoints), summary, options)
+    sink = open_sink(sink_spec, summary.stream, getattr(args, "vmc_track", None))
+    return Session(engine, sink, FrameParser(args.keypoints), summary, options)
 
 
 def add_reconstruct_parser(sub: argparse._SubParsersAction) -> None:
@@ -371,7 +378,12 @@ def add_live_parser(sub: argparse._SubParsersAction) -> None:
                         "video file or a camera index (digits), whose people BlazePose (or --model) detects")
     add_model_options(p)
     p.add_argument("--sink", default="-", type=P.STREAM_SINK,
-                   help="'-' (stdout), a file, tcp://HOST:PORT or udp://HOST:PORT")
+                   help="'-' (stdout), a file, tcp://HOST:PORT or udp://HOST:PORT: the JSON lines; or one person's "
+                        "avatar as OSC over UDP: vmc://HOST[:PORT] (the VMC protocol: VSeeFace, Warudo, VNyan, "
+                        "EVMC4U; port 39539 by default) or vrchat://HOST[:PORT] (VRChat's OSC trackers; port 9000 by "
+                        "default); docs/guide_avatars.md")
+    p.add_argument("--vmc-track", type=D.TRACK_ID, metavar="ID",
+                   help="vmc:// sink: the track to send (default: the main one, kept while it is in the frame)")
     p.add_argument("--bvh-dir", type=P.OUTPUT,
                    help="folder for the tracks' BVH files, written as tracks end (a folder already holding "
                         "track files is refused: nothing is written over)")
@@ -405,10 +417,11 @@ def run_live(args: argparse.Namespace) -> int:
     from mocapdb.detect.detectors import open_detector
     from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU
     from mocapdb.runtime.stream.session import SinkError, run_live
-    from mocapdb.runtime.stream.transport import NetworkLimits, open_source
+    from mocapdb.runtime.stream.transport import NetworkLimits, check_sink, open_source
     from mocapdb.runtime.stream.video_input import open_video_source, run_video
 
     limits = NetworkLimits(args.max_clients, args.client_timeout, args.max_rate)   # checked before any work
+    check_sink(args.sink, args.vmc_track)
     if args.bvh_dir:
         check_no_track_files(args.bvh_dir)
     resolve_take(args, args.source)

@@ -58,6 +58,11 @@ class PersonPose:
     match: Match | None      # None: no database match (stereo)
     height_m: float = UNIVERSAL_HEIGHT_M  # the body's standing height (the skeleton's scale)
     bones_m: np.ndarray | None = None     # [8] its MEASURED_BONE_NAMES lengths (None: the universal body's)
+    up_view: np.ndarray | None = None     # [3] the world's up in the view frame, unit (None: not estimated)
+    floor_offset_m: float | None = None   # the floor under the person: up_view · p = this (view frame, metres)
+    contacts: tuple[bool, bool] | None = None  # (right, left) foot planted (None: not estimated)
+    keypoints_px: np.ndarray | None = None     # [14, 3] the keypoints it was fitted to (x, y px, confidence)
+    extremities_px: np.ndarray | None = None   # [8, 3] its heels, toes, knuckles (x, y px, confidence; 0: unseen)
 
 
 MOTION_COLUMNS = ("quaternions", "root_view_m", "scales")  # every recorded frame's (TrackRecording.frames)
@@ -274,7 +279,21 @@ def person_record(pose: PersonPose) -> dict:
         "height": round(pose.height_m, 3),
         "bones": dict(zip(MEASURED_BONE_NAMES, _rounded(_bones_m(pose), 4))),
         "match": match,
+        **_online_fields(pose),
     }
+
+
+def _online_fields(pose: PersonPose) -> dict:
+    """What the online whole take adds to a person's record: the feet planted, the world's up and the
+    floor (view frame), where known."""
+    fields: dict = {}
+    if pose.contacts is not None:
+        fields["contacts"] = [bool(c) for c in pose.contacts]
+    if pose.up_view is not None:
+        fields["up"] = _rounded(pose.up_view, 5)
+    if pose.floor_offset_m is not None:
+        fields["floor"] = round(float(pose.floor_offset_m), 4)
+    return fields
 
 
 def _bones_m(pose: PersonPose) -> np.ndarray:
@@ -291,10 +310,11 @@ def frame_line(frame_index: int, time_s: float, poses: list[PersonPose]) -> str:
 
 
 def header_line(fps: float, image_size: tuple[int, int] | None = None, focal_px: float | None = None,
-                sources: dict[str, str] | None = None) -> str:
-    """The first line of a result stream: format, version, joint and rotation orders, units, and the
+                sources: dict[str, str] | None = None, lag_frames: int | None = None) -> str:
+    """The first line of a result stream: format, version, joint and rotation orders, units, the
     camera the run assumed (fps, image size, focal length in pixels, and where each came from:
-    given, read from the take description, or default)."""
+    given, read from the take description, or default) and, for a stream through the online whole
+    take, its lag (frames; None: the per-frame stream)."""
     body = {"format": STREAM_FORMAT, "version": STREAM_VERSION, "fps": fps,
             "joints": list(KEYPOINTS), "rotations": list(RIG_JOINTS), "units": "m",
             "coordinate_frame": "camera-aligned: x right, y up, z away from the camera"}
@@ -304,6 +324,10 @@ def header_line(fps: float, image_size: tuple[int, int] | None = None, focal_px:
         body["focal_px"] = float(focal_px)
     if sources:
         body["camera_sources"] = dict(sources)
+    body["stream"] = "per-frame" if lag_frames is None else "online-take"
+    if lag_frames is not None:
+        body["lag_frames"] = int(lag_frames)
+        body["lag_s"] = round(lag_frames / fps, 6)
     return json.dumps(body, separators=(",", ":"))
 
 

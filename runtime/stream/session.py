@@ -21,11 +21,11 @@ from pathlib import Path
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.formats.keypoints import LAYOUTS, KeypointError, KeypointFrame
 from mocapdb.core.formats.openpose import parse_stream_line
-from mocapdb.core.outputs import frame_line, header_line
+from mocapdb.core.outputs import header_line
 from mocapdb.core.progress import compile_notice, kernels_cached
 from mocapdb.runtime import refine
 from mocapdb.runtime.engine import Engine
-from mocapdb.runtime.lag import FixedLag
+from mocapdb.runtime.online_take import OnlineParams, OnlineTake
 from mocapdb.runtime.stream.session_options import SessionOptions
 from mocapdb.runtime.stream.session_summary import LimitReport, SessionSummary
 from mocapdb.runtime.stream.track_files import TrackFiles
@@ -92,15 +92,16 @@ class Session:
                                      self.options.min_track_s)
         self._fps_warned = self.options.fps_given
         self._first_frame = True
-        self.lag = None
-        if self.options.lag_frames:
-            take = self.options.take
-            self.lag = FixedLag(self.options.lag_frames, engine.config.fps, take.smoothing_hz if take else 4.0)
-        # (the stream with a lag smooths as the track files do: their --smoothing-hz, 4 Hz without them)
+        self.online = None
+        if self.options.online_take:
+            take = self.options.take  # the stream smooths as the track files do: their --smoothing-hz
+            smoothing_hz = take.smoothing_hz if take and take.smoothing_hz > 0 else OnlineParams.smoothing_hz
+            self.online = OnlineTake(engine.config.fps, OnlineParams(self.options.lag_frames, smoothing_hz))
         self.started = self._checkpointed = time.perf_counter()
         try:
             config = engine.config
-            self._emit(header_line(config.fps, config.image_size, config.focal_px, self.options.camera_sources))
+            self._emit(header_line(config.fps, config.image_size, config.focal_px, self.options.camera_sources,
+                                   self.options.lag_frames if self.online else None))
         except SinkError:
             self._close_sink()
             raise
@@ -134,17 +135,27 @@ class Session:
         self._bvhs()
 
     def _write_frame(self, index: int, time_s: float, poses: list) -> None:
-        """The frame's line, or, with a lag, the lines now due (:class:`~mocapdb.runtime.lag.FixedLag`)."""
-        due = [(index, time_s, poses)] if self.lag is None else self.lag.push(index, time_s, poses)
+        """The frame's people, or, through the online take, those now due
+        (:class:`~mocapdb.runtime.online_take.OnlineTake`)."""
+        due = [(index, time_s, poses)] if self.online is None else self.online.push(index, time_s, poses)
         for frame_index, frame_s, people in due:
-            self._emit(frame_line(frame_index, frame_s, people))
+            self._emit_frame(frame_index, frame_s, people)
 
     def _emit(self, line: str) -> None:
         try:
             self.sink.write(line)
         except OSError as exc:
-            self.summary.sink_error = self.summary.sink_error or str(exc) or type(exc).__name__
-            raise SinkError(f"the sink failed: {self.summary.sink_error}") from exc
+            self._sink_failed(exc)
+
+    def _emit_frame(self, frame_index: int, time_s: float, people: list) -> None:
+        try:
+            self.sink.write_frame(frame_index, time_s, people)
+        except OSError as exc:
+            self._sink_failed(exc)
+
+    def _sink_failed(self, exc: OSError) -> None:
+        self.summary.sink_error = self.summary.sink_error or str(exc) or type(exc).__name__
+        raise SinkError(f"the sink failed: {self.summary.sink_error}") from exc
 
     def _bvhs(self) -> None:
         """Ended tracks' files, full parts of long ones; every ``checkpoint_s``, the open ones so far."""
@@ -186,9 +197,9 @@ class Session:
         if bvh_dir is not None:
             self.options.bvh_dir = Path(bvh_dir)
         try:
-            if self.lag is not None and self.summary.sink_error is None:
-                for frame_index, frame_s, people in self.lag.flush():
-                    self._emit(frame_line(frame_index, frame_s, people))
+            if self.online is not None and self.summary.sink_error is None:
+                for frame_index, frame_s, people in self.online.flush():
+                    self._emit_frame(frame_index, frame_s, people)
             self.engine.finish()
             for rec in sorted(self.engine.pop_finished(), key=lambda r: r.track):
                 self.files.ended(rec)

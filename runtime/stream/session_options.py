@@ -38,7 +38,8 @@ class SessionOptions:
     rate_by_arrival: bool = False
     take: TakeParams | None = None  # track files from the whole-take fit (runtime.take); None: per frame
     shared_floor: bool = False      # files written at the end, every track on one floor (runtime.world)
-    lag_frames: int = 0             # stream lines written this many frames late, smoothed (runtime.lag)
+    lag_frames: int = 0             # stream lines written this many frames late (runtime.online_take)
+    online_take: bool = True        # the stream through the online whole take; False: as the engine gives it
     camera_sources: dict[str, str] = field(default_factory=dict)  # where fps, image size, focal came from
     camera_height_m: float | None = None  # the shared floor's distance below the camera, when known
     subject_heights_m: dict[int | None, float] = field(default_factory=dict)  # track (None: all) → stature
@@ -50,4 +51,6 @@ class SessionOptions:
         D.MIN_TRACK_S.check(self.min_track_s, "min_track_s")
         D.BVH_PART_MIN.check(self.bvh_part_min, "bvh_part_min")
         D.LAG_FRAMES.check(self.lag_frames, "lag_frames")
+        if self.lag_frames and not self.online_take:
+            raise ValueError("a lag (lag_frames) needs the online take: the per-frame stream has none")
         D.CAMERA_HEIGHT_M.check_optional(self.camera_height_m, "camera_height_m")

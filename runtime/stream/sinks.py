@@ -21,6 +21,7 @@ from collections import deque
 from pathlib import Path
 from typing import Self
 
+from mocapdb.core.outputs import PersonPose, frame_line
 from mocapdb.runtime.stream.messages import StreamStats, resolve_address
 
 __all__ = ["MAX_DATAGRAM_BYTES", "FileSink", "Sink", "StdoutSink", "TcpSink", "UdpSink"]
@@ -40,6 +41,11 @@ class Sink(ABC):
         if "\n" in line:
             raise ValueError("a sink line must not contain a newline")
         self._put(line + "\n")
+
+    def write_frame(self, frame_index: int, time_s: float, people: list[PersonPose]) -> None:
+        """Writes one frame's people; the line sinks write its JSON line (:func:`frame_line`), the
+        avatar sinks (:mod:`mocapdb.runtime.stream.osc_sinks`) send it in their protocol."""
+        self.write(frame_line(frame_index, time_s, people))
 
     @abstractmethod
     def _put(self, text: str) -> None:

@@ -1,0 +1,238 @@
+"""The live stream against the whole take on a real video (issue 35): what ``mocapdb live`` sends,
+frame by frame, scored beside the track files, at several lags.
+
+The reference is the same detector's keypoints on every camera of a calibrated take, triangulated
+(:mod:`mocapdb.evaluation.detector_quality`: the main person, DLT over the views that see a joint).
+The first camera is run alone through the engine as ``live`` runs it (:class:`~mocapdb.runtime.engine.Engine`
+then :class:`~mocapdb.runtime.online_take.OnlineTake`, frame by frame), its output taken to the
+calibration's world by that camera's extrinsics. Variants: the per-frame stream (before the online
+take: the engine's causal 1€ output), the online take at each lag ``L``, and the whole take (the
+track files: :func:`~mocapdb.runtime.world.fit_takes`).
+
+Figures, over the main track (the longest that is not static):
+
+- **acceleration**: ``|p[t+1] − 2 p[t] + p[t−1]|`` of the 15 output joints in the world (mm/frame²),
+  mean and 95th percentile;
+- **fastest joint**: the largest frame-to-frame speed of any joint (m/s);
+- **planted feet**: where the triangulation's ankles are planted (low-passed at
+  :data:`~mocapdb.evaluation.detector_quality.LOW_PASS_HZ`, :func:`~mocapdb.evaluation.metrics.planted_feet`),
+  the output ankles' horizontal speed (cm/s, mean) and their 3D displacement per frame (mm/frame,
+  mean: the foot sliding WHAM and GVHMR report, on the reference's contact frames);
+- **MPJPE** and **PA-MPJPE** (cm) over the 12 joints from shoulders to ankles, pelvis-centred (the
+  hips' midpoint) in the world (the camera's extrinsics align them; PA: per frame);
+- **latency added**: the lag (``L / fps``) plus the engine's and the online take's compute per frame
+  (the detector's not included), p50 and p99 (ms).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from mocapdb.core.cameras import CameraModel, read_calibration_toml
+from mocapdb.core.errors import UsageError
+from mocapdb.core.formats.database import MotionDatabase
+from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame
+from mocapdb.core.formats.openpose import read_openpose_folder
+from mocapdb.core.skeleton import KP, N_POINTS
+from mocapdb.evaluation.detector_quality import low_pass, read_detections, residuals
+from mocapdb.evaluation.metrics import pa_mpjpe, planted_feet
+from mocapdb.evaluation.real_take import Y_DOWN, focal_px
+from mocapdb.runtime.engine import Engine
+from mocapdb.runtime.engine_config import EngineConfig
+from mocapdb.runtime.online_take import OnlineParams, OnlineTake
+from mocapdb.runtime.take import take_joints
+from mocapdb.runtime.world import fit_takes
+
+SCORED = ("r_shoulder", "l_shoulder", "r_elbow", "l_elbow", "r_wrist", "l_wrist",
+          "r_hip", "l_hip", "r_knee", "l_knee", "r_ankle", "l_ankle")
+PER_FRAME, WHOLE_TAKE = "per-frame stream (before)", "whole take (track files)"
+LAGS = (0, 3, 6)
+# The issue's targets (on the balancing take, camera 1): lag → (acceleration mm/frame², fastest m/s,
+# planted cm/s, MPJPE over the whole take's in cm (None: not set))
+TARGETS = {6: (4.0, 8.0, 10.0, 1.0), 0: (10.0, 12.0, 25.0, None)}
+
+
+def reference_joints(folders: list[Path], cams: list[CameraModel], confidence: float = CONFIDENCE_THRESHOLD
+                     ) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The main person's joints ``[T, J, 3]`` (world, metres; NaN where fewer than two views saw one)
+    triangulated from one keypoint folder per camera, and their names."""
+    det = read_detections(folders, cams, confidence)
+    joints_m, _, _ = residuals(det, cams, confidence)
+    return joints_m, det.joints
+
+
+def camera_to_world(points_m: np.ndarray, cam: CameraModel) -> np.ndarray:
+    """Camera-aligned points ``[..., 3]`` (x right, y up, z away, metres) in the calibration's world."""
+    return (np.asarray(points_m, dtype=np.float64) * Y_DOWN - cam.t) @ cam.R
+
+
+def run_variants(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig, lags: tuple[int, ...],
+                 smoothing_hz: float = OnlineParams.smoothing_hz) -> dict[str, dict]:
+    """Each variant's main-track joints ``[T, 15, 3]`` (camera-aligned, NaN where none) and per-frame
+    compute times (s): the per-frame stream and the whole take from one run, the online take at each lag."""
+    out: dict[str, dict] = {}
+    per_frame, times, recordings = _run(db, frames, replace(config, keep_take=True), None)
+    track = _main_track(per_frame, recordings)
+    out[PER_FRAME] = {"joints": per_frame.get(track, _empty(len(frames))), "compute_s": times, "lag": 0}
+    whole = _empty(len(frames))
+    if track is not None:
+        fitted = fit_takes([recordings[track]], config.fps)[0]
+        index, joints, _ = take_joints(fitted, config.fps)
+        keep = (index >= 0) & (index < len(frames))
+        whole[index[keep]] = joints[keep]
+    out[WHOLE_TAKE] = {"joints": whole, "compute_s": None, "lag": None}
+    for lag in lags:
+        online = OnlineTake(config.fps, OnlineParams(lag, smoothing_hz))
+        joints, times, _ = _run(db, frames, replace(config, smoothing=lag == 0, keep_take=False), online)
+        out[f"online take, L = {lag}"] = {"joints": joints.get(track, _empty(len(frames))), "compute_s": times,
+                                          "lag": lag}
+    return out
+
+
+def _run(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig, online: OnlineTake | None
+         ) -> tuple[dict[int, np.ndarray], np.ndarray, dict]:
+    """Every frame through the engine (and ``online``): each track's joints, each frame's compute
+    time (s) and the recordings."""
+    engine = Engine(db, config)
+    joints: dict[int, np.ndarray] = {}
+    times = np.zeros(len(frames))
+    position = {frame.index: i for i, frame in enumerate(frames)}
+    for i, frame in enumerate(frames):
+        start = time.perf_counter()
+        poses = engine.step(frame)
+        due = [(frame.index, 0.0, poses)] if online is None else online.push(frame.index, 0.0, poses)
+        times[i] = time.perf_counter() - start
+        _store(joints, due, position, len(frames))
+    if online is not None:
+        _store(joints, online.flush(), position, len(frames))
+    recordings = {r.track: r for r in engine.finish()}
+    return joints, times, recordings
+
+
+def _store(joints: dict[int, np.ndarray], due: list, position: dict[int, int], n: int) -> None:
+    for index, _, people in due:
+        for pose in people:
+            joints.setdefault(pose.track, _empty(n))[position[index]] = pose.joints_m
+
+
+def _main_track(joints: dict[int, np.ndarray], recordings: dict) -> int | None:
+    """The longest track that is not static."""
+    moving = [t for t in joints if t in recordings and not recordings[t].static]
+    return max(moving, key=lambda t: int(np.isfinite(joints[t][:, 0, 0]).sum())) if moving else None
+
+
+def _empty(n: int) -> np.ndarray:
+    return np.full((n, N_POINTS, 3), np.nan)
+
+
+def score(pred_world: np.ndarray, truth: np.ndarray, names: tuple[str, ...], planted: np.ndarray, fps: float) -> dict:
+    """Figures (module docstring) of ``pred_world [T, 15, 3]`` against ``truth [T, J, 3]`` (world,
+    metres; joints ``names``) with the reference's ``planted [T, 2]`` ankles."""
+    acc = 1000 * np.linalg.norm(pred_world[2:] - 2 * pred_world[1:-1] + pred_world[:-2], axis=-1)
+    speed = np.linalg.norm(np.diff(pred_world, axis=0), axis=-1) * fps
+    ankles = pred_world[:, [KP["r_ankle"], KP["l_ankle"]]]
+    step = np.diff(ankles, axis=0)
+    both = planted[1:] & planted[:-1] & np.isfinite(step).all(axis=-1)
+    horizontal = np.linalg.norm(step[..., [0, 1]], axis=-1)[both] * fps   # the world is z-up
+    pred = pred_world[:, [KP[j] for j in SCORED]]
+    true = truth[:, [names.index(j) for j in SCORED]]
+    hips = [SCORED.index("r_hip"), SCORED.index("l_hip")]
+    ok = np.isfinite(pred).all(axis=(1, 2)) & np.isfinite(true).all(axis=(1, 2))
+    p = pred[ok] - pred[ok][:, hips].mean(axis=1, keepdims=True)
+    t = true[ok] - true[ok][:, hips].mean(axis=1, keepdims=True)
+    return {"frames_with_output": int(np.isfinite(pred_world).all(axis=(1, 2)).sum()),
+            "acceleration_mm_per_frame2": _finite_mean(acc), "acceleration_p95_mm_per_frame2": _finite_pct(acc, 95),
+            "fastest_joint_mps": float(np.nanmax(speed)) if np.isfinite(speed).any() else float("nan"),
+            "planted_feet_cm_per_s": _finite_mean(100 * horizontal),
+            "foot_sliding_mm_per_frame": _finite_mean(1000 * np.linalg.norm(step, axis=-1)[both]),
+            "planted_ankle_frames": int(both.sum()),
+            "mpjpe_cm": _finite_mean(100 * np.linalg.norm(p - t, axis=-1)),
+            "pa_mpjpe_cm": _finite_mean(100 * pa_mpjpe(p, t)) if len(p) else float("nan")}
+
+
+def _finite_mean(values: np.ndarray) -> float:
+    v = values[np.isfinite(values)]
+    return float(v.mean()) if v.size else float("nan")
+
+
+def _finite_pct(values: np.ndarray, q: float) -> float:
+    v = values[np.isfinite(values)]
+    return float(np.percentile(v, q)) if v.size else float("nan")
+
+
+def evaluate_live(db: MotionDatabase, folders: list[Path], calibration: Path, lags: tuple[int, ...] = LAGS,
+                  base: EngineConfig | None = None) -> dict:
+    """The live evaluation (module docstring) of ``folders`` (one keypoint folder per camera, in the
+    calibration's camera order by name; the first is run) against their triangulation: a JSON-able dict."""
+    cams_by_name = read_calibration_toml(calibration)
+    if len(folders) < 2:
+        raise UsageError("--live needs at least two cameras' keypoint folders: the first is run, all are triangulated")
+    if len(folders) > len(cams_by_name):
+        raise UsageError(f"{len(folders)} keypoint folders but {calibration} has {len(cams_by_name)} cameras")
+    cams = [cams_by_name[name] for name in sorted(cams_by_name)[:len(folders)]]
+    frames = list(read_openpose_folder(folders[0]))
+    if not frames:
+        raise UsageError(f"{folders[0]}: no frames")
+    fps = _fps(folders[0])
+    truth, names = reference_joints(folders, cams)
+    planted = planted_feet(low_pass(truth[:, [names.index("r_ankle"), names.index("l_ankle")]][..., [1, 2, 0]], fps),
+                           fps)
+    cam = cams[0]
+    config = replace(base or EngineConfig(), fps=fps, focal_px=focal_px(cam), image_size=(cam.size[0], cam.size[1]))
+    report: dict = {"camera": cam.name, "fps": fps, "frames": len(frames), "cameras_triangulated": len(cams),
+                    "planted_ankle_frames": int(planted.sum()), "variants": {}}
+    for name, run in run_variants(db, frames, config, lags).items():
+        figures = score(camera_to_world(run["joints"], cam), truth, names, planted, fps)
+        if run["compute_s"] is not None:
+            added = 1000 * (run["lag"] / fps + run["compute_s"])
+            figures |= {"lag_frames": run["lag"], "latency_p50_ms": float(np.percentile(added, 50)),
+                        "latency_p99_ms": float(np.percentile(added, 99))}
+        report["variants"][name] = figures
+    return report
+
+
+def _fps(folder: Path) -> float:
+    from mocapdb.core.formats.take import read_take
+
+    take = read_take(folder)
+    if take is None or take.fps is None:
+        raise UsageError(f"{folder}: no take.json with the frame rate (write the keypoints with `mocapdb detect`)")
+    return float(take.fps)
+
+
+def format_table(report: dict) -> str:
+    """The report as a markdown table, a row per variant."""
+    lines = ["| variant | acceleration mm/frame² (p95) | fastest joint m/s | planted feet cm/s | foot sliding mm/frame "
+             "| MPJPE cm | PA cm | latency added p50 / p99 ms |", "|---|---|---|---|---|---|---|---|"]
+    for name, r in report["variants"].items():
+        latency = "–" if "latency_p50_ms" not in r else f"{r['latency_p50_ms']:.1f} / {r['latency_p99_ms']:.1f}"
+        lines.append(f"| {name} | {r['acceleration_mm_per_frame2']:.1f} ({r['acceleration_p95_mm_per_frame2']:.1f}) | "
+                     f"{r['fastest_joint_mps']:.1f} | {r['planted_feet_cm_per_s']:.1f} | "
+                     f"{r['foot_sliding_mm_per_frame']:.2f} | {r['mpjpe_cm']:.1f} | {r['pa_mpjpe_cm']:.1f} | {latency} |")
+    lines += ["", f"{report['camera']} alone ({report['frames']} frames at {report['fps']:g} fps) against the "
+                  f"{report['cameras_triangulated']}-camera triangulation of the same detector; "
+                  f"{report['planted_ankle_frames']} planted ankle-frames in the reference."]
+    return "\n".join(lines)
+
+
+def check_lines(report: dict) -> list[str]:
+    """PASS/FAIL per target of :data:`TARGETS` for the lags evaluated."""
+    variants = report["variants"]
+    whole = variants[WHOLE_TAKE]["mpjpe_cm"]
+    lines = []
+    for lag, (acc, fastest, planted, mpjpe_over) in TARGETS.items():
+        r = variants.get(f"online take, L = {lag}")
+        if r is None:
+            continue
+        checks = [("acceleration", r["acceleration_mm_per_frame2"], acc, "mm/frame²"),
+                  ("fastest joint", r["fastest_joint_mps"], fastest, "m/s"),
+                  ("planted feet", r["planted_feet_cm_per_s"], planted, "cm/s")]
+        if mpjpe_over is not None:
+            checks.append(("MPJPE", r["mpjpe_cm"], whole + mpjpe_over, "cm (the whole take's + 1)"))
+        for label, value, target, unit in checks:
+            ok = bool(np.isfinite(value) and value <= target)
+            lines.append(f"{'PASS' if ok else 'FAIL'}  L = {lag}: {label} {value:.2f} ≤ {target:.2f} {unit}")
+    return lines

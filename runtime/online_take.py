@@ -1,0 +1,324 @@
+"""The online whole take: the whole-take fit's ideas (:mod:`mocapdb.runtime.take`) in the live loop,
+per track, at a fixed lag of ``L`` frames (``--lag-frames``; 0 allowed: causal).
+
+When frame ``t`` arrives, frame ``t − L`` is written, each person in it through these steps
+(:class:`OnlineTrack`; settings :class:`OnlineParams`):
+
+1. **Rotations and root, smoothed over the window.** ``L = 0``: the engine's causal 1€ filters
+   (as the stream without a lag). ``L > 0``: the filters are off, and the per-frame fits of frames
+   ``t − 2L … t`` give a zero-phase Gaussian mean (cut-off ``smoothing_hz``, as the whole take's;
+   quaternions sign-aligned to the centre frame, then normalised).
+2. **Foot contacts with hysteresis.** Each foot's image speed (box heights per second: the slope of
+   a line fitted to its keypoints over the frames around it, at most :data:`CONTACT_WINDOW_S` and
+   only as far ahead as the lag reaches) is its heel's and big toe's, the faster of the two, where
+   the layout gives them, else its ankle's. A foot is planted when it is slower than
+   ``planted_box_per_s`` and within ``planted_height_m`` of the lower ankle (along the track's
+   estimated up), and stays planted until it is faster than ``release_factor`` times that, or rises
+   ``release_factor`` times that height above the other foot.
+3. **The root carried by the planted foot.** When a foot is planted its ankle's place becomes its
+   anchor; while a foot is planted the root is where its anchor puts it (both planted: the mean),
+   blended in and out with the feet's IK weights (a foot planted or lifted never makes the root
+   jump); the difference to the per-frame root is kept as a correction that fades with time
+   constant ``settle_s`` once no foot carries the body. A planted anchor follows
+   the per-frame evidence at most ``anchor_follow_mps``: a depth error cannot hold it forever, and
+   it slides no faster than that.
+4. **A planted foot locked in place**: the legs turned by the whole take's two-bone IK
+   (:func:`~mocapdb.runtime.take.plant_feet`) onto their anchors, the weight blended in and out over
+   ``blend_s``. The floor (reported, not enforced) is the running median of the anchors' heights
+   less the ankle's height above the sole.
+5. **Per-joint speed limits**: no rig joint turns faster than its limit (:data:`JOINT_SPEED_DEG_S`,
+   degrees per second; the local rotation is slerped back towards the previous frame's) and the
+   root moves no faster than ``root_speed_mps``.
+6. **The body's size settled online** (:meth:`OnlineTake.settle_size`): the world's scale factor of
+   a track (:mod:`mocapdb.runtime.world`, computed away from the loop) is approached at most
+   ``size_rate_per_s`` (log scale per second), the person scaled about the camera (the image does
+   not change), so the size never jumps.
+
+Each extra frame of lag widens the smoothing towards its full window and lets the contacts see
+further ahead. Cost: O(window) per person and frame (a few forward kinematics and one two-leg IK).
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose
+from mocapdb.core.skeleton import ANKLE_HEIGHT_M, RIG_JOINTS, UNIVERSAL_HEIGHT_M, body_offsets_m, pose_from_rotations
+from mocapdb.runtime.filters import ROOT_DEFAULTS, OneEuroFilter
+from mocapdb.runtime.foot_contacts import ANKLES, CONTACT_WINDOW_S, HEELS, TOES
+from mocapdb.runtime.take import plant_feet
+
+Frame = tuple[int, float, list[PersonPose]]  # frame index, time (s), the people in it
+
+# The fastest each rig joint's local rotation may turn (degrees per second): above what people do
+# (knee and elbow extension in kicking and throwing reach 1,500-2,300 °/s, the trunk 600-1,000 °/s),
+# below a retrieval's one-frame pop (a 90° flip in 1/60 s is 5,400 °/s).
+JOINT_SPEED_DEG_S = {"pelvis": 900.0, "spine": 900.0, "neck": 900.0, "r_hip": 1400.0, "l_hip": 1400.0,
+                     "r_knee": 2000.0, "l_knee": 2000.0, "r_shoulder": 1800.0, "l_shoulder": 1800.0,
+                     "r_elbow": 2300.0, "l_elbow": 2300.0}
+FLOOR_SAMPLES = 31  # the floor: the median height of this many last anchors
+
+
+@dataclass(frozen=True)
+class OnlineParams:
+    """The online whole take's settings (module docstring); lengths in metres, times in seconds."""
+
+    lag_frames: int = 0
+    smoothing_hz: float = 4.0
+    planted_box_per_s: float = 0.25
+    release_factor: float = 2.0
+    planted_height_m: float = 0.05
+    blend_s: float = 0.08
+    settle_s: float = 0.4
+    anchor_follow_mps: float = 0.02
+    root_speed_mps: float = 6.0
+    size_rate_per_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        positive = (self.smoothing_hz, self.planted_box_per_s, self.planted_height_m, self.blend_s, self.settle_s,
+                    self.root_speed_mps, self.size_rate_per_s)
+        if self.lag_frames < 0 or self.release_factor < 1 or self.anchor_follow_mps < 0 \
+                or not all(np.isfinite(v) and v > 0 for v in positive):
+            raise ValueError(f"online take settings out of range: {self}")
+
+
+class OnlineTake:
+    """Frames in, the same frames out ``lag_frames`` later, every person through the online whole
+    take (module docstring). ``fps``: the input's frame rate (Hz)."""
+
+    def __init__(self, fps: float, params: OnlineParams = OnlineParams()):
+        if not fps > 0:
+            raise ValueError("the online take needs a positive frame rate")
+        self.fps, self.params = float(fps), params
+        self.lag = params.lag_frames
+        self.frames: deque[Frame] = deque()
+        self.tracks: dict[int, OnlineTrack] = {}
+
+    def push(self, index: int, time_s: float, poses: list[PersonPose]) -> list[Frame]:
+        """Add one frame; returns the frames now due (at most one)."""
+        self.frames.append((index, time_s, poses))
+        for pose in poses:
+            if pose.track not in self.tracks:
+                self.tracks[pose.track] = OnlineTrack(self.fps, self.params)
+            self.tracks[pose.track].add(index, pose)
+        if len(self.frames) <= self.lag:
+            return []
+        return [self._due()]
+
+    def flush(self) -> list[Frame]:
+        """The frames not yet written (the last ``lag_frames`` at the end of the input)."""
+        out = []
+        while self.frames:
+            out.append(self._due())
+        return out
+
+    def settle_size(self, track: int, factor: float) -> None:
+        """The world's scale factor for ``track`` (its stature over the one it is fitted with now),
+        approached at ``size_rate_per_s``."""
+        if track in self.tracks and np.isfinite(factor) and factor > 0:
+            self.tracks[track].size_target = float(factor)
+
+    def _due(self) -> Frame:
+        index, time_s, poses = self.frames.popleft()
+        people = [self.tracks[p.track].output(index, p) for p in poses]
+        horizon = index - 4 * int(self.fps)  # a track unseen for 4 s has ended: forget it
+        for track in [t for t, state in self.tracks.items() if state.last_index < horizon]:
+            del self.tracks[track]
+        return index, time_s, people
+
+
+@dataclass
+class _Feet:
+    """The contact state of both feet (right, left)."""
+
+    planted: np.ndarray = field(default_factory=lambda: np.zeros(2, dtype=bool))
+    weight: np.ndarray = field(default_factory=lambda: np.zeros(2))   # IK weight, 0 … 1
+    anchor: np.ndarray = field(default_factory=lambda: np.full((2, 3), np.nan))  # view frame, metres
+    heights: deque = field(default_factory=lambda: deque(maxlen=FLOOR_SAMPLES))  # anchors' heights along up
+
+
+class OnlineTrack:
+    """One track's online whole take: its recent per-frame poses and what the steps carry over."""
+
+    def __init__(self, fps: float, params: OnlineParams):
+        self.fps, self.params = fps, params
+        self.sigma_frames = fps / (2.0 * np.pi * params.smoothing_hz)
+        self.half_window = max(int(round(CONTACT_WINDOW_S * fps / 2)), 1)
+        self.recent: dict[int, PersonPose] = {}
+        self.boxes: deque[float] = deque(maxlen=int(2 * fps))
+        self.last_index = -1
+        self.feet = _Feet()
+        self.correction = np.zeros(3)       # output root − per-frame root (view frame, metres)
+        self.previous: tuple[int, np.ndarray, np.ndarray] | None = None  # index, rotations, root of the last output
+        self.distance = OneEuroFilter(ROOT_DEFAULTS)  # the root's distance from the camera (metres)
+        self.size, self.size_target = 1.0, 1.0
+        self.max_turn = np.radians([JOINT_SPEED_DEG_S[j] for j in RIG_JOINTS]) / fps  # radians per frame
+
+    def add(self, index: int, pose: PersonPose) -> None:
+        """One frame's per-frame pose of the track."""
+        self.recent[index] = pose
+        self.last_index = index
+        if pose.keypoints_px is not None:
+            seen = pose.keypoints_px[pose.keypoints_px[:, 2] > 0, 1]
+            if len(seen) > 1:
+                self.boxes.append(float(np.ptp(seen)))
+        oldest = index - 2 * max(self.params.lag_frames, self.half_window) - 1
+        for old in [i for i in self.recent if i < oldest]:
+            del self.recent[old]
+
+    def output(self, index: int, pose: PersonPose) -> PersonPose:
+        """The pose of frame ``index`` (whose per-frame pose is ``pose``) through the steps."""
+        p = self.params
+        dt = 1.0 / self.fps
+        scale = pose.height_m / UNIVERSAL_HEIGHT_M
+        offsets = None if pose.bones_m is None else body_offsets_m(pose.bones_m / scale)
+        quats, evidence_root = self._smoothed(index, pose)
+        evidence_root = self._steady_depth(index, evidence_root)
+        up = np.array([0.0, 1.0, 0.0]) if pose.up_view is None else np.asarray(pose.up_view, dtype=np.float64)
+        ankles = pose_from_rotations(quats[None], np.zeros((1, 3)), scale, offsets)[0, list(ANKLES)]
+        self._contacts(index, ankles @ up, scale)
+        root = self._carried_root(evidence_root, ankles, up, scale, dt)
+        quats, root = self._speed_limited(index, quats, root)
+        feet = self.feet
+        if feet.weight.any():
+            quats = plant_feet(quats[None], root[None], scale, offsets, feet.weight[None], feet.anchor[None])[0]
+        self.previous = (index, quats, root)
+        self.size *= float(np.exp(np.clip(np.log(self.size_target / self.size), -p.size_rate_per_s * dt,
+                                          p.size_rate_per_s * dt)))
+        k = self.size
+        joints = pose_from_rotations(quats[None], (root * k)[None], scale * k, offsets)[0]
+        floor = None if not feet.heights else k * (float(np.median(feet.heights)) - ANKLE_HEIGHT_M * scale)
+        return replace(pose, joints_m=joints * CAMERA_FROM_VIEW, quaternions=quats, root_m=root * k * CAMERA_FROM_VIEW,
+                       height_m=pose.height_m * k, bones_m=None if pose.bones_m is None else pose.bones_m * k,
+                       up_view=up, floor_offset_m=floor, contacts=(bool(feet.planted[0]), bool(feet.planted[1])))
+
+    def _smoothed(self, index: int, pose: PersonPose) -> tuple[np.ndarray, np.ndarray]:
+        """Step 1: the rotations ``[R, 4]`` and root ``[3]`` (view frame) of frame ``index``."""
+        lag = self.params.lag_frames
+        if lag == 0:
+            return pose.quaternions, pose.root_m * CAMERA_FROM_VIEW
+        near = [i for i in range(index - lag, index + lag + 1) if i in self.recent]
+        q = np.array([self.recent[i].quaternions for i in near])
+        q = np.where((np.sum(q * pose.quaternions, axis=-1) < 0)[..., None], -q, q)
+        w = np.exp(-0.5 * ((np.array(near) - index) / self.sigma_frames) ** 2)
+        mean_q = np.tensordot(w, q, axes=1)
+        mean_q /= np.linalg.norm(mean_q, axis=-1, keepdims=True)
+        roots = np.array([self.recent[i].root_m for i in near]) * CAMERA_FROM_VIEW
+        return mean_q, w @ roots / w.sum()
+
+    def _steady_depth(self, index: int, root: np.ndarray) -> np.ndarray:
+        """Step 1's root with its distance from the camera 1€-filtered (:data:`ROOT_DEFAULTS`): the
+        image fixes the root across the viewing ray, the body's size only loosely along it."""
+        distance = float(np.linalg.norm(root))
+        if distance <= 0:
+            return root
+        return root * (float(self.distance(np.array([distance]), index / self.fps)[0]) / distance)
+
+    def _contacts(self, index: int, ankle_heights_m: np.ndarray, scale: float) -> None:
+        """Step 2: each foot planted or not at frame ``index`` (hysteresis)."""
+        p, feet = self.params, self.feet
+        speed = self._foot_speeds(index)
+        lowest = ankle_heights_m.min()
+        for k in range(2):
+            above = ankle_heights_m[k] - lowest
+            if feet.planted[k]:
+                release = speed[k] > p.release_factor * p.planted_box_per_s \
+                    or above > p.release_factor * p.planted_height_m * scale
+                feet.planted[k] = not release
+            else:
+                feet.planted[k] = speed[k] < p.planted_box_per_s and above <= p.planted_height_m * scale
+
+    def _foot_speeds(self, index: int) -> np.ndarray:
+        """Each foot's image speed ``[2]`` (box heights per second; inf where not seen) at frame
+        ``index``: its heel's and toe's (the faster), else its ankle's."""
+        h = self.half_window
+        near = [i for i in range(index - h, index + min(h, self.params.lag_frames) + 1)
+                if i in self.recent and self.recent[i].keypoints_px is not None]
+        if len(near) < 3:
+            return np.full(2, np.inf)
+        points = np.array([_foot_points(self.recent[i]) for i in near])     # [n, 6, 3]: ankles, heels, toes
+        speeds = _slopes(np.array(near, dtype=np.float64), points) * self.fps / max(np.median(self.boxes), 1.0)
+        ends = np.maximum(speeds[[2, 3]], speeds[[4, 5]])
+        return np.where(np.isfinite(ends), ends, speeds[[0, 1]])
+
+    def _carried_root(self, evidence_root: np.ndarray, ankles: np.ndarray, up: np.ndarray, scale: float,
+                      dt: float) -> np.ndarray:
+        """Step 3: the root (view frame) carried by the planted feet; anchors set and followed."""
+        p, feet = self.params, self.feet
+        free = evidence_root + self.correction
+        for k in range(2):
+            if feet.planted[k] and feet.weight[k] == 0.0:   # a new contact: its anchor where the ankle is
+                feet.anchor[k] = free + ankles[k]
+                feet.heights.append(float(feet.anchor[k] @ up))
+        feet.weight = np.clip(feet.weight + np.where(feet.planted, dt, -dt) / p.blend_s, 0.0, 1.0)
+        carrying = feet.weight > 0
+        if not carrying.any():
+            self.correction *= np.exp(-dt / p.settle_s)
+            return evidence_root + self.correction
+        w = feet.weight[carrying]
+        carried = w @ (feet.anchor[carrying] - ankles[carrying]) / w.sum()
+        share = float(w.max())
+        root = (1.0 - share) * free + share * carried
+        self.correction = root - evidence_root
+        planted = np.flatnonzero(feet.planted)
+        step = evidence_root + ankles[planted] - feet.anchor[planted]
+        length = np.linalg.norm(step, axis=-1, keepdims=True)
+        feet.anchor[planted] += step * np.minimum(1.0, p.anchor_follow_mps * dt / np.maximum(length, 1e-12))
+        return root
+
+    def _speed_limited(self, index: int, quats: np.ndarray, root: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Step 5: ``quats`` and ``root`` moved from the previous output no faster than the limits."""
+        previous = self.previous
+        if previous is not None and 0 < index - previous[0] <= 2:
+            frames = index - previous[0]
+            prev_q, prev_root = previous[1], previous[2]
+            dots = np.sum(prev_q * quats, axis=-1)
+            quats = np.where((dots < 0)[:, None], -quats, quats)
+            angle = 2.0 * np.arccos(np.clip(np.abs(dots), 0.0, 1.0))
+            share = np.minimum(1.0, self.max_turn * frames / np.maximum(angle, 1e-12))
+            quats = _slerp(prev_q, quats, share)
+            root = prev_root + _clamped(root - prev_root, self.params.root_speed_mps * frames / self.fps)
+        return quats, root
+
+
+def _clamped(v: np.ndarray, limit: float) -> np.ndarray:
+    """``v`` shortened to length ``limit`` if longer."""
+    length = float(np.linalg.norm(v))
+    return v * (limit / length) if length > limit else v
+
+
+def _foot_points(pose: PersonPose) -> np.ndarray:
+    """``[6, 3]`` the right and left ankle, heel and big toe of a pose's keypoints (x, y px, confidence)."""
+    kp = pose.keypoints_px
+    ends = pose.extremities_px
+    assert kp is not None
+    feet = np.zeros((4, 3)) if ends is None else ends[[HEELS[0], HEELS[1], TOES[0], TOES[1]]]
+    return np.vstack([kp[list(ANKLES)], feet])
+
+
+def _slopes(frames: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Per point of ``points [n, K, 3]`` (x, y px, confidence) over ``frames [n]``, the speed (px per
+    frame) of the least-squares line through its seen positions; inf with fewer than 3."""
+    seen = (points[..., 2] > 0).astype(np.float64)                       # [n, K]
+    count = seen.sum(axis=0)
+    t_mean = (seen * frames[:, None]).sum(axis=0) / np.maximum(count, 1)
+    dt = (frames[:, None] - t_mean) * seen                              # [n, K]
+    xy_mean = (seen[..., None] * points[..., :2]).sum(axis=0) / np.maximum(count, 1)[:, None]
+    cov = (dt[..., None] * (points[..., :2] - xy_mean)).sum(axis=0)     # [K, 2]
+    var = (dt ** 2).sum(axis=0)
+    speed = np.linalg.norm(cov, axis=-1) / np.maximum(var, 1e-12)
+    return np.where(count >= 3, speed, np.inf)
+
+
+def _slerp(a: np.ndarray, b: np.ndarray, share: np.ndarray) -> np.ndarray:
+    """Per row the rotation ``share`` of the way from unit quaternion ``a [R, 4]`` to ``b`` (same hemisphere)."""
+    dot = np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)
+    theta = np.arccos(dot)
+    small = theta < 1e-6
+    sin = np.where(small, 1.0, np.sin(theta))
+    wa = np.where(small, 1.0 - share, np.sin((1.0 - share) * theta) / sin)
+    wb = np.where(small, share, np.sin(share * theta) / sin)
+    out = wa[:, None] * a + wb[:, None] * b
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
