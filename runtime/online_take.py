@@ -4,10 +4,12 @@ per track, at a fixed lag of ``L`` frames (``--lag-frames``; 0 allowed: causal).
 When frame ``t`` arrives, frame ``t − L`` is written, each person in it through these steps
 (:class:`OnlineTrack`; settings :class:`OnlineParams`):
 
-1. **Rotations and root, smoothed over the window.** ``L = 0``: the engine's causal 1€ filters
-   (as the stream without a lag). ``L > 0``: the filters are off, and the per-frame fits of frames
-   ``t − 2L … t`` give a zero-phase Gaussian mean (cut-off ``smoothing_hz``, as the whole take's;
-   quaternions sign-aligned to the centre frame, then normalised).
+1. **Rotations and root, smoothed over the window.** The engine's own 1€ filters are off (the
+   per-frame fits come in). ``L = 0``: the rotations through a causal 1€ filter
+   (``causal_rotations``: a still joint smoothed below 0.5 Hz). ``L > 0``: the per-frame fits of
+   frames ``t − 2L … t`` give a zero-phase Gaussian mean (cut-off ``smoothing_hz``, as the whole
+   take's; quaternions sign-aligned to the centre frame, then normalised). The root's distance
+   from the camera is 1€-filtered (:data:`~mocapdb.runtime.filters.ROOT_DEFAULTS`) either way.
 2. **Foot contacts with hysteresis.** Each foot's image speed (box heights per second: the slope of
    a line fitted to its keypoints over the frames around it, at most :data:`CONTACT_WINDOW_S` and
    only as far ahead as the lag reaches) is its heel's and big toe's, the faster of the two, where
@@ -29,10 +31,9 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
 5. **Per-joint speed limits**: no rig joint turns faster than its limit (:data:`JOINT_SPEED_DEG_S`,
    degrees per second; the local rotation is slerped back towards the previous frame's) and the
    root moves no faster than ``root_speed_mps``.
-6. **The body's size settled online** (:meth:`OnlineTake.settle_size`): the world's scale factor of
-   a track (:mod:`mocapdb.runtime.world`, computed away from the loop) is approached at most
-   ``size_rate_per_s`` (log scale per second), the person scaled about the camera (the image does
-   not change), so the size never jumps.
+The body's size is the engine's per frame (its own proportions, settling as they are measured;
+1.75 m tall unless ``--subject-height`` or ``--camera-height``): the world's size of each person
+(:mod:`mocapdb.runtime.world`) reaches the track files only.
 
 Each extra frame of lag widens the smoothing towards its full window and lets the contacts see
 further ahead. Cost: O(window) per person and frame (a few forward kinematics and one two-leg IK).
@@ -46,7 +47,7 @@ import numpy as np
 
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, RIG_JOINTS, UNIVERSAL_HEIGHT_M, body_offsets_m, pose_from_rotations
-from mocapdb.runtime.filters import ROOT_DEFAULTS, OneEuroFilter
+from mocapdb.runtime.filters import ROOT_DEFAULTS, OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
 from mocapdb.runtime.foot_contacts import ANKLES, CONTACT_WINDOW_S, HEELS, TOES
 from mocapdb.runtime.take import plant_feet
 
@@ -58,6 +59,10 @@ Frame = tuple[int, float, list[PersonPose]]  # frame index, time (s), the people
 JOINT_SPEED_DEG_S = {"pelvis": 900.0, "spine": 900.0, "neck": 900.0, "r_hip": 1400.0, "l_hip": 1400.0,
                      "r_knee": 2000.0, "l_knee": 2000.0, "r_shoulder": 1800.0, "l_shoulder": 1800.0,
                      "r_elbow": 2300.0, "l_elbow": 2300.0}
+# The causal stream's rotation filter (L = 0): the 1€ filter of retrieved poses (runtime.filters) with
+# its still-joint cut-off halved: the online take's jitter is what an avatar shows, its lag (about 0.3 s
+# at rest, less in motion) what a causal stream pays
+CAUSAL_ROTATIONS = OneEuroParams(min_cutoff_hz=0.5, beta=0.3)
 FLOOR_SAMPLES = 31  # the floor: the median height of this many last anchors
 
 
@@ -67,6 +72,7 @@ class OnlineParams:
 
     lag_frames: int = 0
     smoothing_hz: float = 4.0
+    causal_rotations: OneEuroParams = CAUSAL_ROTATIONS
     planted_box_per_s: float = 0.25
     release_factor: float = 2.0
     planted_height_m: float = 0.05
@@ -74,11 +80,10 @@ class OnlineParams:
     settle_s: float = 0.4
     anchor_follow_mps: float = 0.02
     root_speed_mps: float = 6.0
-    size_rate_per_s: float = 0.1
 
     def __post_init__(self) -> None:
         positive = (self.smoothing_hz, self.planted_box_per_s, self.planted_height_m, self.blend_s, self.settle_s,
-                    self.root_speed_mps, self.size_rate_per_s)
+                    self.root_speed_mps)
         if self.lag_frames < 0 or self.release_factor < 1 or self.anchor_follow_mps < 0 \
                 or not all(np.isfinite(v) and v > 0 for v in positive):
             raise ValueError(f"online take settings out of range: {self}")
@@ -114,12 +119,6 @@ class OnlineTake:
             out.append(self._due())
         return out
 
-    def settle_size(self, track: int, factor: float) -> None:
-        """The world's scale factor for ``track`` (its stature over the one it is fitted with now),
-        approached at ``size_rate_per_s``."""
-        if track in self.tracks and np.isfinite(factor) and factor > 0:
-            self.tracks[track].size_target = float(factor)
-
     def _due(self) -> Frame:
         index, time_s, poses = self.frames.popleft()
         people = [self.tracks[p.track].output(index, p) for p in poses]
@@ -145,7 +144,7 @@ class OnlineTrack:
     def __init__(self, fps: float, params: OnlineParams):
         self.fps, self.params = fps, params
         self.sigma_frames = fps / (2.0 * np.pi * params.smoothing_hz)
-        self.half_window = max(int(round(CONTACT_WINDOW_S * fps / 2)), 1)
+        self.half_window = max(round(CONTACT_WINDOW_S * fps / 2), 1)
         self.recent: dict[int, PersonPose] = {}
         self.boxes: deque[float] = deque(maxlen=int(2 * fps))
         self.last_index = -1
@@ -153,7 +152,7 @@ class OnlineTrack:
         self.correction = np.zeros(3)       # output root − per-frame root (view frame, metres)
         self.previous: tuple[int, np.ndarray, np.ndarray] | None = None  # index, rotations, root of the last output
         self.distance = OneEuroFilter(ROOT_DEFAULTS)  # the root's distance from the camera (metres)
-        self.size, self.size_target = 1.0, 1.0
+        self.rotations = QuaternionOneEuroFilter(params.causal_rotations)  # the causal stream's (L = 0)
         self.max_turn = np.radians([JOINT_SPEED_DEG_S[j] for j in RIG_JOINTS]) / fps  # radians per frame
 
     def add(self, index: int, pose: PersonPose) -> None:
@@ -170,7 +169,6 @@ class OnlineTrack:
 
     def output(self, index: int, pose: PersonPose) -> PersonPose:
         """The pose of frame ``index`` (whose per-frame pose is ``pose``) through the steps."""
-        p = self.params
         dt = 1.0 / self.fps
         scale = pose.height_m / UNIVERSAL_HEIGHT_M
         offsets = None if pose.bones_m is None else body_offsets_m(pose.bones_m / scale)
@@ -185,20 +183,16 @@ class OnlineTrack:
         if feet.weight.any():
             quats = plant_feet(quats[None], root[None], scale, offsets, feet.weight[None], feet.anchor[None])[0]
         self.previous = (index, quats, root)
-        self.size *= float(np.exp(np.clip(np.log(self.size_target / self.size), -p.size_rate_per_s * dt,
-                                          p.size_rate_per_s * dt)))
-        k = self.size
-        joints = pose_from_rotations(quats[None], (root * k)[None], scale * k, offsets)[0]
-        floor = None if not feet.heights else k * (float(np.median(feet.heights)) - ANKLE_HEIGHT_M * scale)
-        return replace(pose, joints_m=joints * CAMERA_FROM_VIEW, quaternions=quats, root_m=root * k * CAMERA_FROM_VIEW,
-                       height_m=pose.height_m * k, bones_m=None if pose.bones_m is None else pose.bones_m * k,
+        joints = pose_from_rotations(quats[None], root[None], scale, offsets)[0]
+        floor = float(np.median(feet.heights)) - ANKLE_HEIGHT_M * scale if feet.heights else None
+        return replace(pose, joints_m=joints * CAMERA_FROM_VIEW, quaternions=quats, root_m=root * CAMERA_FROM_VIEW,
                        up_view=up, floor_offset_m=floor, contacts=(bool(feet.planted[0]), bool(feet.planted[1])))
 
     def _smoothed(self, index: int, pose: PersonPose) -> tuple[np.ndarray, np.ndarray]:
         """Step 1: the rotations ``[R, 4]`` and root ``[3]`` (view frame) of frame ``index``."""
         lag = self.params.lag_frames
         if lag == 0:
-            return pose.quaternions, pose.root_m * CAMERA_FROM_VIEW
+            return self.rotations(pose.quaternions, index / self.fps), pose.root_m * CAMERA_FROM_VIEW
         near = [i for i in range(index - lag, index + lag + 1) if i in self.recent]
         q = np.array([self.recent[i].quaternions for i in near])
         q = np.where((np.sum(q * pose.quaternions, axis=-1) < 0)[..., None], -q, q)

@@ -1,54 +1,73 @@
-"""The fixed lag of the stream: every frame out once, in order, L frames late, smoothed around it."""
+"""The online whole take: every frame out once, in order, L frames late; smoothed around it; a planted
+foot held where it was put down while the per-frame root wanders in depth; pops held to the speed limits."""
 import json
 
 import numpy as np
 import pytest
 
-from mocapdb.core.outputs import Match, PersonPose
-from mocapdb.core.skeleton import N_RIG_JOINTS, bone_lengths_m, universal_bone_lengths_m
-from mocapdb.runtime.lag import FixedLag
+from mocapdb.core.geometry import quat_geodesic
+from mocapdb.core.outputs import CAMERA_FROM_VIEW, Match, PersonPose
+from mocapdb.core.skeleton import KP, N_RIG_JOINTS, RIG_JOINTS, bone_lengths_m, pose_from_rotations, \
+    universal_bone_lengths_m
+from mocapdb.runtime.online_take import JOINT_SPEED_DEG_S, OnlineParams, OnlineTake
 
 MATCH = Match("clip", 0, 0.0, 0.1)
+FOCAL, CENTRE = 1000.0, np.array([540.0, 960.0])
 
 
-def _pose(track: int, root: np.ndarray, angle: float = 0.0) -> PersonPose:
+def _keypoints(joints_cam: np.ndarray) -> np.ndarray:
+    """The 14 body keypoints ``[14, 3]`` (pixels, confidence 1) of camera-aligned joints ``[15, 3]``."""
+    px = FOCAL * joints_cam[:14, :2] / joints_cam[:14, 2:] * [1.0, -1.0] + CENTRE
+    return np.column_stack([px, np.ones(14)])
+
+
+def _pose(track: int, root: np.ndarray, angle: float = 0.0, keypoints: np.ndarray | None = None,
+          image: bool = True) -> PersonPose:
+    """A person at ``root`` (camera-aligned), the left hip turned by ``angle``; its keypoints those of the
+    pose (or ``keypoints``; none without ``image``: no contacts can be seen)."""
     quats = np.tile([1.0, 0.0, 0.0, 0.0], (N_RIG_JOINTS, 1))
     quats[3] = [np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)]
-    return PersonPose(track, np.zeros((15, 3)), quats, np.asarray(root, dtype=np.float64), MATCH,
-                      1.75, universal_bone_lengths_m())
+    root = np.asarray(root, dtype=np.float64)
+    joints = pose_from_rotations(quats[None], (root * CAMERA_FROM_VIEW)[None])[0] * CAMERA_FROM_VIEW
+    return PersonPose(track, joints, quats, root, MATCH, 1.75, universal_bone_lengths_m(),
+                      keypoints_px=None if not image else _keypoints(joints) if keypoints is None else keypoints)
 
 
 def test_frames_come_out_once_in_order_lag_frames_late():
-    lag = FixedLag(3, fps=30.0)
+    take = OnlineTake(30.0, OnlineParams(lag_frames=3))
     out = []
     for t in range(10):
-        due = lag.push(t, t / 30.0, [_pose(0, [0.0, 0.0, 5.0])])
+        due = take.push(t, t / 30.0, [_pose(0, [0.0, 0.0, 5.0])])
         assert [f[0] for f in due] == ([t - 3] if t >= 3 else [])
         out += due
-    out += lag.flush()
+    out += take.flush()
     assert [f[0] for f in out] == list(range(10))
-    short = FixedLag(5, fps=30.0)
+    short = OnlineTake(30.0, OnlineParams(lag_frames=5))
     assert short.push(0, 0.0, []) == [] and [f[0] for f in short.flush()] == [0]  # fewer frames than the lag
+    causal = OnlineTake(30.0)
+    assert [f[0] for f in causal.push(0, 0.0, [_pose(0, [0.0, 0.0, 5.0])])] == [0]
 
 
 def test_smoothing_is_centred_calms_jitter_and_keeps_each_person_apart():
+    """The smoothing alone (no keypoints: no contacts)."""
     rng = np.random.default_rng(0)
     n, fps = 120, 30.0
     truth = np.column_stack([np.linspace(-1, 1, n), np.zeros(n), np.full(n, 5.0)])   # a steady walk
     noisy = truth + rng.normal(scale=0.03, size=truth.shape)
-    lag = FixedLag(6, fps)
+    take = OnlineTake(fps, OnlineParams(lag_frames=6))
     out = []
     for t in range(n):
-        people = [_pose(0, noisy[t], 0.3 * np.sin(t / 10)), _pose(1, [2.0, 0.0, 6.0])]
+        people = [_pose(0, noisy[t], 0.3 * np.sin(t / 10), image=False), _pose(1, [2.0, 0.0, 6.0], image=False)]
         if t % 4 == 0:
             people = people[:1]  # person 1 missed in some frames
-        out += lag.push(t, t / fps, people)
-    out += lag.flush()
+        out += take.push(t, t / fps, people)
+    out += take.flush()
     roots = np.array([f[2][0].root_m for f in out])
-    assert np.abs(roots - truth)[10:-10].mean() < 0.5 * np.abs(noisy - truth)[10:-10].mean()
+    assert np.abs(roots - truth)[10:-10].mean() < 0.6 * np.abs(noisy - truth)[10:-10].mean()  # depth: causal 1€
     assert abs(np.mean((roots - truth)[10:-10, 0])) < 0.005   # no lag: no trailing offset along the walk
     other = [p for f in out for p in f[2] if p.track == 1]
-    np.testing.assert_allclose([p.root_m for p in other], np.broadcast_to([2.0, 0.0, 6.0], (len(other), 3)))
+    np.testing.assert_allclose([p.root_m for p in other], np.broadcast_to([2.0, 0.0, 6.0], (len(other), 3)),
+                               atol=1e-9)
     # the joints are the person's skeleton at the smoothed pose: its bones, its root
     pose = out[50][2][0]
     np.testing.assert_allclose(pose.joints_m[14], pose.root_m, atol=1e-12)
@@ -56,26 +75,78 @@ def test_smoothing_is_centred_calms_jitter_and_keeps_each_person_apart():
     np.testing.assert_allclose(np.linalg.norm(pose.quaternions, axis=-1), 1.0)
 
 
-def test_reconstruct_with_a_lag_writes_every_frame_steadier(small_db_path, tmp_path):
+@pytest.mark.parametrize("lag", [0, 6])
+def test_a_still_foot_is_planted_and_held_while_the_depth_wanders(lag):
+    """A person standing still: the image (keypoints) does not move, the per-frame root wanders 10 cm
+    in depth (a body-size error). The planted ankles stay put within millimetres; the per-frame
+    ankles move with the root. The foot lifts off (contacts end) when its keypoint moves."""
+    fps, n = 60.0, 240
+    depth = 4.0 + 0.1 * np.sin(np.arange(n) / 7.0)
+    still = _pose(0, [0.0, 0.0, 4.0]).keypoints_px
+    take = OnlineTake(fps, OnlineParams(lag_frames=lag))
+    out = []
+    for t in range(n):
+        kp = still.copy()
+        if t >= 180:   # the right foot lifted and carried forward: its ankle keypoint moves 5 px a frame
+            kp[KP["r_ankle"], 1] -= 5.0 * (t - 179)
+        out += take.push(t, t / fps, [_pose(0, [0.0, 0.0, depth[t]], keypoints=kp)])
+    out += take.flush()
+    ankles = np.array([f[2][0].joints_m[[KP["r_ankle"], KP["l_ankle"]]] for f in out])
+    contacts = np.array([f[2][0].contacts for f in out])
+    assert contacts[30:170].all()                                      # both planted while still
+    steady = ankles[30:170]
+    speed = np.linalg.norm(np.diff(steady, axis=0), axis=-1) * fps
+    assert speed.max() <= OnlineParams.anchor_follow_mps + 1e-9          # sliding no faster than the anchors follow …
+    assert np.abs(steady - steady[0]).max() < 0.02                      # … and within 2 cm
+    per_frame = np.array([[0.0, 0.0, d] for d in depth])
+    assert np.ptp(per_frame[30:170, 2]) > 0.15                          # … while the evidence moved 20 cm
+    assert not contacts[200:, 0].any() and contacts[200:, 1].all()     # the lifted foot released, the other not
+    assert out[100][2][0].floor_offset_m is not None
+
+
+def test_a_pop_is_held_to_the_joint_speed_limit():
+    fps = 60.0
+    take = OnlineTake(fps)
+    out = []
+    for t in range(30):
+        angle = np.pi / 2 if t == 15 else 0.0   # one frame's retrieval flips the left hip by 90°
+        out += take.push(t, t / fps, [_pose(0, [0.0, 0.0, 4.0], angle)])
+    quats = np.array([f[2][0].quaternions for f in out])
+    turn_deg = np.degrees(2 * quat_geodesic(quats[1:], quats[:-1]))    # per frame, per joint
+    limit = np.array([JOINT_SPEED_DEG_S[j] for j in RIG_JOINTS]) / fps
+    assert (turn_deg <= limit + 1e-6).all()
+    assert turn_deg[:, RIG_JOINTS.index("l_hip")].max() < 90.0 / 2
+
+
+@pytest.mark.parametrize("bad", [dict(lag_frames=-1), dict(smoothing_hz=0.0), dict(release_factor=0.5),
+                                 dict(root_speed_mps=float("nan"))])
+def test_online_take_refuses_bad_settings(bad):
+    with pytest.raises(ValueError):
+        OnlineParams(**bad)
+    with pytest.raises(ValueError):
+        OnlineTake(0.0)
+
+
+def test_reconstruct_stream_through_the_online_take_is_steadier_and_says_its_lag(small_db_path, tmp_path):
     from mocapdb.cli.main import main
 
     from .conftest import SAMPLE_KEYPOINTS
 
     common = [str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--fps", "60", "--image-size", "1088x1920",
               "--focal", "1681", "--per-frame"]
-    joints = {}
-    for lag in (0, 8):
-        out = tmp_path / f"lag{lag}"
-        assert main(["reconstruct", *common, "--out", str(out), "--lag-frames", str(lag)]) == 0
-        lines = [json.loads(x) for x in (out / "result.jsonl").read_text().splitlines()[1:]]
+    joints, headers = {}, {}
+    for name, flags in (("per-frame", ["--per-frame-stream"]), ("lag8", ["--lag-frames", "8"])):
+        out = tmp_path / name
+        assert main(["reconstruct", *common, "--out", str(out), *flags]) == 0
+        text = (out / "result.jsonl").read_text().splitlines()
+        headers[name] = json.loads(text[0])
+        lines = [json.loads(x) for x in text[1:]]
         assert [x["frame"] for x in lines] == sorted(x["frame"] for x in lines) and len(lines) == 100
-        joints[lag] = np.array([p["joints"] for x in lines for p in x["people"] if p["track"] == 1])
-    accel = {lag: np.linalg.norm(np.diff(j, 2, axis=0), axis=-1).mean() for lag, j in joints.items()}
-    assert accel[8] < 0.5 * accel[0]
+        joints[name] = np.array([p["joints"] for x in lines for p in x["people"] if p["track"] == 1])
+    accel = {name: np.linalg.norm(np.diff(j, 2, axis=0), axis=-1).mean() for name, j in joints.items()}
+    assert accel["lag8"] < 0.5 * accel["per-frame"]
+    assert headers["lag8"]["stream"] == "online-take" and headers["lag8"]["lag_frames"] == 8
+    assert headers["per-frame"]["stream"] == "per-frame" and "lag_frames" not in headers["per-frame"]
     assert main(["reconstruct", *common, "--out", str(tmp_path / "bad"), "--lag-frames", "-1"]) == 2
-
-
-@pytest.mark.parametrize("bad", [(-1, 30.0, 4.0), (3, 0.0, 4.0), (3, 30.0, -1.0)])
-def test_fixed_lag_refuses_bad_settings(bad):
-    with pytest.raises(ValueError):
-        FixedLag(*bad)
+    assert main(["reconstruct", *common, "--out", str(tmp_path / "bad2"), "--lag-frames", "3",
+                 "--per-frame-stream"]) == 2

@@ -226,7 +226,7 @@ def _engine(args: argparse.Namespace):
                               refine_yaw=not args.no_yaw_refinement, refine=not args.no_refine,
                               subject_height_m=subject_heights(args).get(None),
                               camera_height_m=args.camera_height,
-                              smoothing=not args.no_smoothing and not args.lag_frames,
+                              smoothing=not args.no_smoothing and args.per_frame_stream,
                               own_body=not args.universal_body,
                               rotation_filter=rotation_filter, keep_take=not args.per_frame)
     except ValueError as exc:

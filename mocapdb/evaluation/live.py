@@ -70,7 +70,7 @@ def camera_to_world(points_m: np.ndarray, cam: CameraModel) -> np.ndarray:
 
 
 def run_variants(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig, lags: tuple[int, ...],
-                 smoothing_hz: float = OnlineParams.smoothing_hz) -> dict[str, dict]:
+                 params: OnlineParams | None = None) -> dict[str, dict]:
     """Each variant's main-track joints ``[T, 15, 3]`` (camera-aligned, NaN where none) and per-frame
     compute times (s): the per-frame stream and the whole take from one run, the online take at each lag."""
     out: dict[str, dict] = {}
@@ -85,8 +85,8 @@ def run_variants(db: MotionDatabase, frames: list[KeypointFrame], config: Engine
         whole[index[keep]] = joints[keep]
     out[WHOLE_TAKE] = {"joints": whole, "compute_s": None, "lag": None}
     for lag in lags:
-        online = OnlineTake(config.fps, OnlineParams(lag, smoothing_hz))
-        joints, times, _ = _run(db, frames, replace(config, smoothing=lag == 0, keep_take=False), online)
+        online = OnlineTake(config.fps, replace(params or OnlineParams(), lag_frames=lag))
+        joints, times, _ = _run(db, frames, replace(config, smoothing=False, keep_take=False), online)
         out[f"online take, L = {lag}"] = {"joints": joints.get(track, _empty(len(frames))), "compute_s": times,
                                           "lag": lag}
     return out
@@ -205,16 +205,16 @@ def _fps(folder: Path) -> float:
 
 def format_table(report: dict) -> str:
     """The report as a markdown table, a row per variant."""
-    lines = ["| variant | acceleration mm/frame² (p95) | fastest joint m/s | planted feet cm/s | foot sliding mm/frame "
-             "| MPJPE cm | PA cm | latency added p50 / p99 ms |", "|---|---|---|---|---|---|---|---|"]
+    lines = [("| variant | acceleration mm/frame² (p95) | fastest joint m/s | planted feet cm/s | foot sliding mm/frame "
+              "| MPJPE cm | PA cm | latency added p50 / p99 ms |"), "|---|---|---|---|---|---|---|---|"]
     for name, r in report["variants"].items():
         latency = "–" if "latency_p50_ms" not in r else f"{r['latency_p50_ms']:.1f} / {r['latency_p99_ms']:.1f}"
         lines.append(f"| {name} | {r['acceleration_mm_per_frame2']:.1f} ({r['acceleration_p95_mm_per_frame2']:.1f}) | "
                      f"{r['fastest_joint_mps']:.1f} | {r['planted_feet_cm_per_s']:.1f} | "
                      f"{r['foot_sliding_mm_per_frame']:.2f} | {r['mpjpe_cm']:.1f} | {r['pa_mpjpe_cm']:.1f} | {latency} |")
-    lines += ["", f"{report['camera']} alone ({report['frames']} frames at {report['fps']:g} fps) against the "
-                  f"{report['cameras_triangulated']}-camera triangulation of the same detector; "
-                  f"{report['planted_ankle_frames']} planted ankle-frames in the reference."]
+    lines += ["", (f"{report['camera']} alone ({report['frames']} frames at {report['fps']:g} fps) against the "
+                   f"{report['cameras_triangulated']}-camera triangulation of the same detector; "
+                   f"{report['planted_ankle_frames']} planted ankle-frames in the reference.")]
     return "\n".join(lines)
 
 
