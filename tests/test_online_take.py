@@ -150,3 +150,30 @@ def test_reconstruct_stream_through_the_online_take_is_steadier_and_says_its_lag
     assert main(["reconstruct", *common, "--out", str(tmp_path / "bad"), "--lag-frames", "-1"]) == 2
     assert main(["reconstruct", *common, "--out", str(tmp_path / "bad2"), "--lag-frames", "3",
                  "--per-frame-stream"]) == 2
+
+
+def test_eval_live_scores_the_stream_beside_the_whole_take(small_db_path, capsys):
+    """`mocapdb eval --live` on the bundled take's two cameras: every variant scored, the online take
+    steadier and its feet stiller than the per-frame stream, the latency the lag plus the compute."""
+    from mocapdb.cli.main import main
+
+    from .conftest import SAMPLE_KEYPOINTS
+
+    folders = [str(SAMPLE_KEYPOINTS), str(SAMPLE_KEYPOINTS.parent / "pose2sim_cam04")]
+    calibration = str(SAMPLE_KEYPOINTS.parent / "calibration.toml")
+    args = ["eval", "--db", str(small_db_path), "--live", *folders, "--calibration", calibration,
+            "--cameras", "cam_01", "cam_04", "--fps", "60", "--lags", "0,6"]
+    assert main(args) == 0
+    table = capsys.readouterr().out
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+            for line in table.splitlines() if line.startswith("| ") and "variant" not in line}
+    assert set(rows) == {"per-frame stream (before)", "whole take (track files)", "online take, L = 0",
+                         "online take, L = 6"}
+    accel = {name: float(cells[0].split()[0]) for name, cells in rows.items()}
+    planted = {name: float(cells[2]) for name, cells in rows.items()}
+    assert accel["online take, L = 6"] < accel["online take, L = 0"] < accel["per-frame stream (before)"]
+    assert planted["online take, L = 0"] < 0.5 * planted["per-frame stream (before)"]
+    latency_p50 = float(rows["online take, L = 6"][6].split("/")[0])
+    assert 100.0 <= latency_p50 < 150.0                                    # 6 frames at 60 fps, plus the compute
+    assert main([*args[:-2], "--lags", "0,x"]) == 2
+    assert main(["eval", "--db", str(small_db_path), "--live", *folders]) == 2   # no calibration

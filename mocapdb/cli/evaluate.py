@@ -33,6 +33,16 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--real-take", metavar="FOLDER", type=P.INPUT_DIR,
                    help="a Pose2Sim take (calibration.toml, triangulated_4cam.trc, openpose_body25b/camNN_json): "
                         "run each camera alone through the engine (needs --db) and score it against the TRC")
+    p.add_argument("--live", nargs="+", type=P.INPUT_DIR, metavar="KEYPOINTS",
+                   help="keypoint folders of one take's calibrated cameras (`mocapdb detect` of each video, in the "
+                        "calibration's camera order): the first run alone as `live` runs it, the stream at each "
+                        "--lags lag and the per-frame stream beside the whole take, against all cameras' "
+                        "triangulation (needs --db and --calibration; table on stdout)")
+    p.add_argument("--calibration", type=P.INPUT_FILE, metavar="TOML",
+                   help="with --live: the cameras' calibration (Pose2Sim/OpenCV calibration.toml)")
+    p.add_argument("--fps", type=D.FPS_HZ, help="with --live: the frame rate (Hz) where the folders have no take.json")
+    p.add_argument("--lags", type=P.TextArg("a list of lags"), default="0,3,6", metavar="LIST",
+                   help="with --live: the stream's lags in frames, comma-separated (default %(default)s)")
     p.add_argument("--videos", nargs="+", type=P.INPUT_DIR, metavar="KEYPOINTS",
                    help="with --world: keypoint folders of real videos (a detector's output with its take.json, "
                         "e.g. data/sample_keypoints/video_*) reconstructed as `reconstruct --floor` does, every track "
@@ -43,7 +53,8 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
                         "the engine and the whole-take world with the camera height given and not; stature, root and "
                         "floor errors and implausible tracks against the truth (needs --db)")
     p.add_argument("--cameras", nargs="+", type=P.TextArg("a camera name"), metavar="NAME",
-                   help="with --real-take: camera names as in its calibration, e.g. cam_01 cam_03 (default all)")
+                   help="with --real-take: camera names as in its calibration, e.g. cam_01 cam_03 (default all); "
+                        "with --live: the calibration's camera of each keypoint folder (default its first ones)")
     p.add_argument("--subjects", type=P.TextArg("a list of subjects"),
                    help="with --leave-one-subject-out: subjects to hold out, e.g. 1,2 (default all)")
     p.add_argument("--max-clips", type=D.MAX_CLIPS, default=D.MAX_CLIPS.default,
@@ -90,9 +101,13 @@ def run_eval(args: argparse.Namespace) -> int:
     engine = EngineConfig(weight_2d=args.weight_2d, search=args.search, own_body=not args.universal_body)
     if args.videos and not args.world:
         raise UsageError("--videos goes with --world")
-    if args.cameras and not args.real_take:
-        raise UsageError("--cameras goes with --real-take")
-    if args.world:
+    if args.cameras and not (args.real_take or args.live):
+        raise UsageError("--cameras goes with --real-take or --live")
+    if (args.calibration or args.fps or args.lags != "0,3,6") and not args.live:
+        raise UsageError("--calibration, --fps and --lags go with --live")
+    if args.live:
+        report = _live_report(args, engine)
+    elif args.world:
         report = _world_report(args, engine)
     elif args.real_take:
         from mocapdb.evaluation.real_take import check_lines, evaluate_real_take, format_table
@@ -133,6 +148,31 @@ def run_eval(args: argparse.Namespace) -> int:
         with output_file(args.out, _report_file()) as tmp:
             tmp.write_text(_report_json({"format": REPORT_FORMAT, **report}) + "\n", encoding="utf-8")
     return 0
+
+
+def _live_report(args: argparse.Namespace, engine: EngineConfig) -> dict:
+    """``eval --db DB --live KEYPOINTS... --calibration TOML``: the report of
+    :mod:`mocapdb.evaluation.live`, its table and checks printed."""
+    from pathlib import Path
+
+    from mocapdb.core.errors import UsageError
+    from mocapdb.core.formats.database_reader import load_database
+    from mocapdb.evaluation.live import check_lines, evaluate_live, format_table
+
+    if args.bvh or args.loso or args.real_take or args.world or not args.db or not args.calibration:
+        raise UsageError("--live needs --db and --calibration and goes without --bvh, --leave-one-subject-out, "
+                         "--real-take and --world")
+    try:
+        lags = tuple(int(v) for v in args.lags.split(","))
+    except ValueError:
+        raise UsageError(f"--lags takes frame counts separated by commas, e.g. 0,3,6 (got {args.lags!r})") from None
+    for lag in lags:
+        D.LAG_FRAMES.check(lag, "--lags")
+    report = evaluate_live(load_database(args.db), [Path(f) for f in args.live], Path(args.calibration), lags, engine,
+                           args.cameras, args.fps)
+    report["checks"] = check_lines(report)
+    print(format_table(report) + "\n\n" + "\n".join(report["checks"]))
+    return report
 
 
 def _world_report(args: argparse.Namespace, engine: EngineConfig) -> dict:

@@ -164,19 +164,22 @@ def _finite_pct(values: np.ndarray, q: float) -> float:
 
 
 def evaluate_live(db: MotionDatabase, folders: list[Path], calibration: Path, lags: tuple[int, ...] = LAGS,
-                  base: EngineConfig | None = None) -> dict:
-    """The live evaluation (module docstring) of ``folders`` (one keypoint folder per camera, in the
-    calibration's camera order by name; the first is run) against their triangulation: a JSON-able dict."""
+                  base: EngineConfig | None = None, names: list[str] | None = None, fps: float | None = None) -> dict:
+    """The live evaluation (module docstring) of ``folders`` (one keypoint folder per camera: the
+    calibration's cameras ``names``, default its first ones by name; the first is run) against their
+    triangulation: a JSON-able dict. ``fps``: the frame rate where the first folder has no take.json."""
     cams_by_name = read_calibration_toml(calibration)
+    names = list(names or sorted(cams_by_name)[:len(folders)])
     if len(folders) < 2:
         raise UsageError("--live needs at least two cameras' keypoint folders: the first is run, all are triangulated")
-    if len(folders) > len(cams_by_name):
-        raise UsageError(f"{len(folders)} keypoint folders but {calibration} has {len(cams_by_name)} cameras")
-    cams = [cams_by_name[name] for name in sorted(cams_by_name)[:len(folders)]]
-    frames = list(read_openpose_folder(folders[0]))
+    if len(names) != len(folders) or any(n not in cams_by_name for n in names):
+        raise UsageError(f"{len(folders)} keypoint folders need as many cameras of {calibration} "
+                         f"({', '.join(sorted(cams_by_name))}); got {', '.join(names) or 'none'}")
+    cams = [cams_by_name[name] for name in names]
+    fps = _fps(folders[0], fps)
+    frames = list(read_openpose_folder(folders[0], fps=fps))
     if not frames:
         raise UsageError(f"{folders[0]}: no frames")
-    fps = _fps(folders[0])
     truth, names = reference_joints(folders, cams)
     planted = planted_feet(low_pass(truth[:, [names.index("r_ankle"), names.index("l_ankle")]][..., [1, 2, 0]], fps),
                            fps)
@@ -194,12 +197,15 @@ def evaluate_live(db: MotionDatabase, folders: list[Path], calibration: Path, la
     return report
 
 
-def _fps(folder: Path) -> float:
+def _fps(folder: Path, given: float | None) -> float:
+    """The frame rate (Hz): ``given``, else the folder's take.json's."""
     from mocapdb.core.formats.take import read_take
 
     take = read_take(folder)
+    if given is not None:
+        return float(given)
     if take is None or take.fps is None:
-        raise UsageError(f"{folder}: no take.json with the frame rate (write the keypoints with `mocapdb detect`)")
+        raise UsageError(f"{folder}: no take.json with the frame rate: give --fps")
     return float(take.fps)
 
 
