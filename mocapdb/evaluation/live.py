@@ -39,7 +39,7 @@ from mocapdb.core.formats.openpose import read_openpose_folder
 from mocapdb.core.skeleton import KP, N_POINTS
 from mocapdb.evaluation.detector_quality import low_pass, read_detections, residuals
 from mocapdb.evaluation.metrics import pa_mpjpe, planted_feet
-from mocapdb.evaluation.real_take import Y_DOWN, focal_px
+from mocapdb.evaluation.real_take import Y_DOWN, focal_px, world_to_trc
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.online_take import OnlineParams, OnlineTake
@@ -76,18 +76,18 @@ def run_variants(db: MotionDatabase, frames: list[KeypointFrame], config: Engine
     out: dict[str, dict] = {}
     per_frame, times, recordings = _run(db, frames, replace(config, keep_take=True), None)
     track = _main_track(per_frame, recordings)
-    out[PER_FRAME] = {"joints": per_frame.get(track, _empty(len(frames))), "compute_s": times, "lag": 0}
+    out[PER_FRAME] = {"joints": _track_joints(per_frame, track, len(frames)), "compute_s": times, "lag": 0}
     whole = _empty(len(frames))
     if track is not None:
         fitted = fit_takes([recordings[track]], config.fps)[0]
-        index, joints, _ = take_joints(fitted, config.fps)
+        index, take_joints_m, _ = take_joints(fitted, config.fps)
         keep = (index >= 0) & (index < len(frames))
-        whole[index[keep]] = joints[keep]
+        whole[index[keep]] = take_joints_m[keep]
     out[WHOLE_TAKE] = {"joints": whole, "compute_s": None, "lag": None}
     for lag in lags:
         online = OnlineTake(config.fps, replace(params or OnlineParams(), lag_frames=lag))
         joints, times, _ = _run(db, frames, replace(config, smoothing=False, keep_take=False), online)
-        out[f"online take, L = {lag}"] = {"joints": joints.get(track, _empty(len(frames))), "compute_s": times,
+        out[f"online take, L = {lag}"] = {"joints": _track_joints(joints, track, len(frames)), "compute_s": times,
                                           "lag": lag}
     return out
 
@@ -110,6 +110,11 @@ def _run(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig, 
         _store(joints, online.flush(), position, len(frames))
     recordings = {r.track: r for r in engine.finish()}
     return joints, times, recordings
+
+
+def _track_joints(joints: dict[int, np.ndarray], track: int | None, n: int) -> np.ndarray:
+    """``track``'s joints ``[n, 15, 3]`` (all NaN without it)."""
+    return joints[track] if track is not None and track in joints else _empty(n)
 
 
 def _store(joints: dict[int, np.ndarray], due: list, position: dict[int, int], n: int) -> None:
@@ -180,15 +185,15 @@ def evaluate_live(db: MotionDatabase, folders: list[Path], calibration: Path, la
     frames = list(read_openpose_folder(folders[0], fps=fps))
     if not frames:
         raise UsageError(f"{folders[0]}: no frames")
-    truth, names = reference_joints(folders, cams)
-    planted = planted_feet(low_pass(truth[:, [names.index("r_ankle"), names.index("l_ankle")]][..., [1, 2, 0]], fps),
-                           fps)
+    truth, joint_names = reference_joints(folders, cams)
+    ankles = [joint_names.index("r_ankle"), joint_names.index("l_ankle")]
+    planted = planted_feet(low_pass(world_to_trc(truth[:, ankles]), fps), fps)  # it takes y up
     cam = cams[0]
     config = replace(base or EngineConfig(), fps=fps, focal_px=focal_px(cam), image_size=(cam.size[0], cam.size[1]))
     report: dict = {"camera": cam.name, "fps": fps, "frames": len(frames), "cameras_triangulated": len(cams),
                     "planted_ankle_frames": int(planted.sum()), "variants": {}}
     for name, run in run_variants(db, frames, config, lags).items():
-        figures = score(camera_to_world(run["joints"], cam), truth, names, planted, fps)
+        figures = score(camera_to_world(run["joints"], cam), truth, joint_names, planted, fps)
         if run["compute_s"] is not None:
             added = 1000 * (run["lag"] / fps + run["compute_s"])
             figures |= {"lag_frames": run["lag"], "latency_p50_ms": float(np.percentile(added, 50)),
