@@ -15,12 +15,13 @@ from pathlib import Path
 
 from mocapdb.core.files import file_kind
 
-STREAM_PREFIXES = ("tcp://", "udp://")
+STREAM_PREFIXES = ("tcp://", "udp://", "vmc://", "vrchat://")
 MAX_TEXT_CHARS = 4096
 
 
 def is_stream_spec(text: str) -> bool:
-    """``-`` (stdin/stdout), a ``tcp://``/``udp://`` address or a camera index: not a path."""
+    """``-`` (stdin/stdout), a ``tcp://``/``udp://`` address (``vmc://``/``vrchat://``: sinks), or a camera
+    index: not a path."""
     return text == "-" or text.startswith(STREAM_PREFIXES) or text.isdigit()
 
 
@@ -29,7 +30,7 @@ class PathArg:
     """A path option. ``role`` "input": it must exist, as a regular file or a folder (``kind``
     "file", "dir" or "any"); "output": anything but an existing special file (a FIFO, a device, a
     socket), ``kind`` "dir" for a folder the run replaces as a whole. ``streams``: ``-``,
-    ``tcp://``, ``udp://`` and a camera index are taken as they are."""
+    ``tcp://``, ``udp://``, ``vmc://``, ``vrchat://`` and a camera index are taken as they are."""
 
     role: str
     kind: str = "any"

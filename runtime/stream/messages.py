@@ -57,15 +57,18 @@ class RawMessage:
     arrival_s: float   # time.monotonic() when read
 
 
-def parse_host_port(spec: str) -> tuple[str, int]:
-    """HOST and PORT of ``scheme://HOST:PORT``; StreamSpecError if either is missing."""
+def parse_host_port(spec: str, default_port: int | None = None) -> tuple[str, int]:
+    """HOST and PORT of ``scheme://HOST:PORT`` (``scheme://HOST`` too with a ``default_port``);
+    StreamSpecError if either is missing or the port is not one."""
     parts = urlsplit(spec)
+    form = f"{parts.scheme}://HOST" + ("[:PORT]" if default_port is not None else ":PORT")
     try:
         port = parts.port
     except ValueError:
-        port = None
+        raise StreamSpecError(f"{spec}: expected {form}, PORT from 0 to 65535") from None
+    port = default_port if port is None else port
     if not parts.hostname or port is None:
-        raise StreamSpecError(f"{spec}: expected {parts.scheme}://HOST:PORT")
+        raise StreamSpecError(f"{spec}: expected {form}")
     return parts.hostname, port
 
 

@@ -8,7 +8,8 @@ below is re-exported here.
   class and line splitting: :mod:`~mocapdb.runtime.stream.source_base`; folder, ``.jsonl`` file and stdin:
   :mod:`~mocapdb.runtime.stream.sources`; TCP and UDP, with what keeps them up whatever one sender does
   (concurrent clients, timeouts, rate limits): :mod:`~mocapdb.runtime.stream.net_sources`.
-- Sinks (:mod:`~mocapdb.runtime.stream.sinks`) write one line per call.
+- Sinks (:mod:`~mocapdb.runtime.stream.sinks`) write one line per call; the avatar sinks
+  (:mod:`~mocapdb.runtime.stream.osc_sinks`) send one person per frame as OSC (VMC protocol, VRChat).
 - :class:`LiveInput` (:mod:`~mocapdb.runtime.stream.buffering`) runs a source in a background thread
   behind a small drop-oldest buffer, so a slow engine skips stale frames instead of falling further
   and further behind; ``reconstruct`` iterates the source itself and processes every frame.
@@ -32,6 +33,7 @@ from mocapdb.runtime.stream.net_sources import (
     TcpSource,
     UdpSource,
 )
+from mocapdb.runtime.stream.osc_sinks import VMC_PORT, VRCHAT_PORT, VmcSink, VrchatSink
 from mocapdb.runtime.stream.sinks import MAX_DATAGRAM_BYTES, FileSink, Sink, StdoutSink, TcpSink, UdpSink
 from mocapdb.runtime.stream.source_base import MAX_MESSAGE_BYTES, POLL_S, Source
 from mocapdb.runtime.stream.sources import SETTLE_S, FolderSource, JsonLinesFileSource, StdinSource
@@ -39,7 +41,8 @@ from mocapdb.runtime.stream.sources import SETTLE_S, FolderSource, JsonLinesFile
 __all__ = ["CLIENT_TIMEOUT_S", "MAX_CLIENTS", "MAX_DATAGRAM_BYTES", "MAX_MESSAGE_BYTES", "MAX_RATE", "POLL_S",
            "SETTLE_S", "BufferedThread", "FileSink", "FolderSource", "JsonLinesFileSource", "LiveInput",
            "NetworkLimits", "RawMessage", "Sink", "Source", "StdinSource", "StdoutSink", "StreamSpecError",
-           "StreamStats", "TcpSink", "TcpSource", "UdpSink", "UdpSource", "open_sink", "open_source"]
+           "StreamStats", "TcpSink", "TcpSource", "UdpSink", "UdpSource", "VmcSink", "VrchatSink", "check_sink",
+           "open_sink", "open_source"]
 
 
 def open_source(spec: str, *, stats: StreamStats | None = None, follow: bool = False,
@@ -70,9 +73,22 @@ def open_source(spec: str, *, stats: StreamStats | None = None, follow: bool = F
         f"{spec}: not a folder, a .jsonl/.ndjson file, '-', tcp://HOST:PORT or udp://HOST:PORT")
 
 
-def open_sink(spec: str, stats: StreamStats | None = None) -> Sink:
+def check_sink(spec: str, vmc_track: int | None = None) -> None:
+    """StreamSpecError when the options of :func:`open_sink` do not go together (before any work)."""
+    if vmc_track is not None and not spec.startswith("vmc://"):
+        raise StreamSpecError(f"--vmc-track {vmc_track} needs a vmc://HOST[:PORT] sink, not {spec}")
+
+
+def open_sink(spec: str, stats: StreamStats | None = None, vmc_track: int | None = None) -> Sink:
     """The sink named by ``spec``: ``-`` (stdout), ``tcp://HOST:PORT`` (connect to a listening
-    consumer), ``udp://HOST:PORT`` or a file path."""
+    consumer), ``udp://HOST:PORT``, ``vmc://HOST[:PORT]`` (an avatar in the VMC protocol, port 39539 by
+    default; ``vmc_track``: the track it follows, default the main one), ``vrchat://HOST[:PORT]``
+    (VRChat's OSC trackers, port 9000 by default) or a file path."""
+    check_sink(spec, vmc_track)
+    if spec.startswith("vmc://"):
+        return VmcSink(*parse_host_port(spec, VMC_PORT), stats, vmc_track)
+    if spec.startswith("vrchat://"):
+        return VrchatSink(*parse_host_port(spec, VRCHAT_PORT), stats)
     if spec == "-":
         return StdoutSink(stats)
     if spec.startswith("tcp://"):

@@ -1,0 +1,146 @@
+"""A stream pose as a Unity humanoid avatar's: the bones of Unity's ``HumanBodyBones`` that the VMC
+protocol and VRChat's OSC trackers name, in Unity's left-handed, y-up frame (contract:
+``data_specs/avatar_protocols.md``).
+
+The avatar is the humanoid rig of BVH export (:data:`~mocapdb.core.skeleton.HUMANOID_NODES`, its
+bones at this person's proportions and height) under Unity's names. Its rest pose is a T-pose facing
+Unity's +z, the identity of every local rotation (as in a VRM-normalised model).
+
+Frames:
+
+- **levelled**: the view frame turned by the smallest rotation that takes the world's up (``up_view``)
+  to +y, so the avatar stands upright however the camera is pitched or rolled;
+- **Unity world**: the levelled frame with x negated (a change of handedness, not a mirror image: a
+  person facing the camera gives an avatar facing +z, their right hand at +x as an avatar's is), y
+  measured from the floor (``up · p = floor_offset_m``), the origin moved to ``origin_m``.
+
+A point ``p`` (view frame) is ``S L p − (0, floor, 0) − origin`` with ``S = diag(−1, 1, 1)``, ``L``
+the levelling; a global rotation ``G`` (rest → view) is ``S L G S``; a local rotation ``R`` is
+``S R S``: the quaternion ``(w, x, y, z)`` becomes ``(w, x, −y, −z)``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from mocapdb.core.geometry import matrix_to_euler, matrix_to_quat, quat_mul
+from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose, _rig_table
+from mocapdb.core.skeleton import (
+    ANKLE_HEIGHT_M,
+    KP,
+    RIG_JOINTS,
+    UNIVERSAL_HEIGHT_M,
+    rig_globals_into,
+    swing_matrices,
+)
+
+__all__ = ["ROOT_QUAT", "UNITY_BONES", "UNITY_PARENTS", "VIEW_UP", "AvatarPose", "ankle_floor_m", "avatar_pose",
+           "level_rotation", "unity_euler_deg", "unity_points"]
+
+# Unity's name for each humanoid rig bone (Mixamo's names; the ``_End`` sites are no bones)
+_UNITY_NAME = {"Hips": "Hips", "Spine": "Spine", "Spine1": "Chest", "Neck": "Neck", "Head": "Head",
+               **{f"{side}{mixamo}": f"{side}{unity}" for side in ("Left", "Right") for mixamo, unity in (
+                   ("UpLeg", "UpperLeg"), ("Leg", "LowerLeg"), ("Foot", "Foot"), ("ToeBase", "Toes"),
+                   ("Shoulder", "Shoulder"), ("Arm", "UpperArm"), ("ForeArm", "LowerArm"), ("Hand", "Hand"))}}
+_NAMES, _PARENTS, _, _SOURCES, _END_SITE = _rig_table("humanoid")
+_BONE_NODES = np.flatnonzero(~_END_SITE)                     # the humanoid nodes that are bones
+UNITY_BONES: tuple[str, ...] = tuple(_UNITY_NAME[_NAMES[i]] for i in _BONE_NODES)  # parents before children
+UNITY_PARENTS = np.array([-1 if _PARENTS[i] < 0 else int(np.flatnonzero(_BONE_NODES == _PARENTS[i])[0])
+                          for i in _BONE_NODES])              # index in UNITY_BONES of each bone's parent
+# each humanoid node's row in the rig quaternions (RIG_JOINTS order), -1: no rotation of its own
+_NODE_JOINT = np.array([RIG_JOINTS.index(s) if s in RIG_JOINTS else -1 for s in _SOURCES])
+_TURNING = np.flatnonzero(_NODE_JOINT[_BONE_NODES] >= 0)      # bones (UNITY_BONES index) that turn
+_ROWS = _NODE_JOINT[_BONE_NODES[_TURNING]]                    # their rows in the rig quaternions
+_FLOOR_PLANE = np.array([1.0, 0.0, 1.0])                      # a point's projection on the floor (y = 0)
+_MIRROR = np.array([-1.0, 1.0, 1.0])                         # S: levelled (right-handed) ↔ Unity (left-handed)
+_QUAT_MIRROR = np.array([1.0, 1.0, -1.0, -1.0])              # S R S on a quaternion (w, x, y, z)
+VIEW_UP = np.array([0.0, 1.0, 0.0])                          # the up assumed when none was estimated
+ROOT_QUAT = np.array([1.0, 0.0, 0.0, 0.0])                   # the root transform's rotation: identity, always
+
+
+@dataclass(frozen=True)
+class AvatarPose:
+    """One person's avatar in the Unity world frame (metres; quaternions ``(w, x, y, z)``), bones in
+    :data:`UNITY_BONES` order. The root transform stands on the floor under the pelvis with rotation
+    :data:`ROOT_QUAT`; every bone's local position is its T-pose offset from its parent on this body
+    (the Hips': from the root, so its height is the pelvis's above the floor) and its local rotation is
+    relative to the T-pose."""
+
+    root_m: np.ndarray       # [3] the root transform's position: the pelvis's floor point (y = 0)
+    local_m: np.ndarray      # [B, 3] local positions
+    local_quats: np.ndarray  # [B, 4] local rotations
+    world_m: np.ndarray      # [B, 3] bone positions (the joint each bone turns about)
+    world_rot: np.ndarray    # [B, 3, 3] global rotations (identity in the T-pose)
+
+    def is_finite(self) -> bool:
+        """Whether every value is a finite number."""
+        return all(bool(np.isfinite(a).all()) for a in (self.root_m, self.local_m, self.local_quats, self.world_m,
+                                                              self.world_rot))
+
+
+def level_rotation(up_view: np.ndarray) -> np.ndarray:
+    """``[3, 3]`` the smallest rotation taking ``up_view`` (unit, view frame) to +y."""
+    return _levelling(tuple(float(u) for u in up_view))[0]
+
+
+@lru_cache(maxsize=16)
+def _levelling(up_view: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`level_rotation` as a matrix and a quaternion; an up seen again costs nothing."""
+    level = swing_matrices(np.array(up_view), VIEW_UP)
+    return level, matrix_to_quat(level)
+
+
+def unity_points(points_view: np.ndarray, up_view: np.ndarray, floor_offset_m: float,
+                 origin_m: np.ndarray | None = None) -> np.ndarray:
+    """Points ``[..., 3]`` (view frame, metres) in the Unity world frame: levelled, x negated, y above
+    the floor ``up_view · p = floor_offset_m``, less ``origin_m`` ([3], a Unity floor point)."""
+    out = np.asarray(points_view, dtype=np.float64) @ (level_rotation(up_view).T * _MIRROR)
+    out[..., 1] -= floor_offset_m
+    return out if origin_m is None else out - origin_m
+
+
+def ankle_floor_m(pose: PersonPose, up_view: np.ndarray) -> float:
+    """This frame's guess at the floor, ``up_view · p`` (view frame, metres) of the floor under the lower
+    ankle: its height less the ankle's own above the floor (:data:`ANKLE_HEIGHT_M` at the body's scale)."""
+    ankles_view = pose.joints_m[[KP["r_ankle"], KP["l_ankle"]]] * CAMERA_FROM_VIEW
+    return float(np.min(ankles_view @ up_view)) - ANKLE_HEIGHT_M * pose.height_m / UNIVERSAL_HEIGHT_M
+
+
+@lru_cache(maxsize=8)
+def _rest_offsets_m(proportions: tuple[float, ...] | None) -> np.ndarray:
+    """The humanoid rig's rest offsets ``[N, 3]`` (metres, 1.75 m stature) for bone lengths ``proportions``."""
+    return _rig_table("humanoid", None if proportions is None else np.array(proportions))[2]
+
+
+def avatar_pose(pose: PersonPose, up_view: np.ndarray, floor_offset_m: float,
+                origin_m: np.ndarray | None = None) -> AvatarPose:
+    """The avatar of ``pose`` standing on the floor ``up_view · p = floor_offset_m`` (view frame,
+    metres; ``up_view`` unit), positions less ``origin_m`` ([3], Unity world; None: the origin is the
+    floor point under the camera)."""
+    scale = pose.height_m / UNIVERSAL_HEIGHT_M
+    proportions = None if pose.bones_m is None else tuple(float(b) for b in pose.bones_m / scale)
+    offsets = _rest_offsets_m(proportions)
+    n = len(_NAMES)
+    g_rot, g_pos = np.empty((n, 3, 3)), np.empty((n, 3))
+    pelvis_view = pose.root_m * CAMERA_FROM_VIEW
+    rig_globals_into(np.ascontiguousarray(pose.quaternions, dtype=np.float64), pelvis_view, scale, _PARENTS,
+                     offsets, _NODE_JOINT, np.empty((3, 3)), g_rot, g_pos)
+    level, level_quat = _levelling(tuple(float(u) for u in up_view))
+    world_rot = (_MIRROR[:, None] * level) @ g_rot[_BONE_NODES] * _MIRROR   # S L G S
+    world_m = unity_points(g_pos[_BONE_NODES], up_view, floor_offset_m, origin_m)
+    local_m = offsets[_BONE_NODES] * (scale * _MIRROR)
+    local_m[0] = (0.0, world_m[0, 1], 0.0)
+    local_quats = np.tile(ROOT_QUAT, (len(_BONE_NODES), 1))
+    local_quats[_TURNING] = pose.quaternions[_ROWS]
+    local_quats[0] = quat_mul(level_quat, local_quats[0])
+    local_quats *= _QUAT_MIRROR
+    return AvatarPose(world_m[0] * _FLOOR_PLANE, local_m, local_quats, world_m, world_rot)
+
+
+def unity_euler_deg(rotations: np.ndarray) -> np.ndarray:
+    """Unity's Euler angles ``[..., 3]`` (x, y, z, degrees) of rotation matrices ``[..., 3, 3]``: turned
+    about z, then x, then y (world axes), ``R = Ry Rx Rz``."""
+    yxz = matrix_to_euler(rotations, "YXZ")
+    return yxz[..., [1, 0, 2]]
