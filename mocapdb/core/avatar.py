@@ -36,7 +36,7 @@ from mocapdb.core.skeleton import (
     swing_matrices,
 )
 
-__all__ = ["ROOT_QUAT", "UNITY_BONES", "UNITY_PARENTS", "VIEW_UP", "AvatarPose", "ankle_floor_m", "avatar_pose",
+__all__ = ["ROOT_QUAT", "UNITY_BONES", "VIEW_UP", "AvatarPose", "ankle_floor_m", "avatar_pose",
            "level_rotation", "unity_euler_deg", "unity_points"]
 
 # Unity's name for each humanoid rig bone (Mixamo's names; the ``_End`` sites are no bones)
@@ -47,8 +47,6 @@ _UNITY_NAME = {"Hips": "Hips", "Spine": "Spine", "Spine1": "Chest", "Neck": "Nec
 _NAMES, _PARENTS, _, _SOURCES, _END_SITE = _rig_table("humanoid")
 _BONE_NODES = np.flatnonzero(~_END_SITE)                     # the humanoid nodes that are bones
 UNITY_BONES: tuple[str, ...] = tuple(_UNITY_NAME[_NAMES[i]] for i in _BONE_NODES)  # parents before children
-UNITY_PARENTS = np.array([-1 if _PARENTS[i] < 0 else int(np.flatnonzero(_BONE_NODES == _PARENTS[i])[0])
-                          for i in _BONE_NODES])              # index in UNITY_BONES of each bone's parent
 # each humanoid node's row in the rig quaternions (RIG_JOINTS order), -1: no rotation of its own
 _NODE_JOINT = np.array([RIG_JOINTS.index(s) if s in RIG_JOINTS else -1 for s in _SOURCES])
 _TURNING = np.flatnonzero(_NODE_JOINT[_BONE_NODES] >= 0)      # bones (UNITY_BONES index) that turn
@@ -76,8 +74,8 @@ class AvatarPose:
 
     def is_finite(self) -> bool:
         """Whether every value is a finite number."""
-        return all(bool(np.isfinite(a).all()) for a in (self.root_m, self.local_m, self.local_quats, self.world_m,
-                                                              self.world_rot))
+        arrays = (self.root_m, self.local_m, self.local_quats, self.world_m, self.world_rot)
+        return all(bool(np.isfinite(a).all()) for a in arrays)
 
 
 def level_rotation(up_view: np.ndarray) -> np.ndarray:
