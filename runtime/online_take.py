@@ -26,8 +26,8 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    it slides no faster than that.
 4. **A planted foot locked in place**: the legs turned by the whole take's two-bone IK
    (:func:`~mocapdb.runtime.take.plant_feet`) onto their anchors, the weight blended in and out over
-   ``blend_s``. The floor (reported, not enforced) is the running median of the anchors' heights
-   less the ankle's height above the sole.
+   ``blend_s``. The floor (reported, not enforced) is the median height of the last anchors along
+   the track's current up, less the ankle's height above the sole.
 5. **Per-joint speed limits**: no rig joint turns faster than its limit (:data:`JOINT_SPEED_DEG_S`,
    degrees per second; the local rotation is slerped back towards the previous frame's) and the
    root moves no faster than ``root_speed_mps``.
@@ -135,7 +135,7 @@ class _Feet:
     planted: np.ndarray = field(default_factory=lambda: np.zeros(2, dtype=bool))
     weight: np.ndarray = field(default_factory=lambda: np.zeros(2))   # IK weight, 0 … 1
     anchor: np.ndarray = field(default_factory=lambda: np.full((2, 3), np.nan))  # view frame, metres
-    heights: deque = field(default_factory=lambda: deque(maxlen=FLOOR_SAMPLES))  # anchors' heights along up
+    placed: deque = field(default_factory=lambda: deque(maxlen=FLOOR_SAMPLES))  # the last anchors [3] (view frame)
 
 
 class OnlineTrack:
@@ -184,7 +184,7 @@ class OnlineTrack:
             quats = plant_feet(quats[None], root[None], scale, offsets, feet.weight[None], feet.anchor[None])[0]
         self.previous = (index, quats, root)
         joints = pose_from_rotations(quats[None], root[None], scale, offsets)[0]
-        floor = float(np.median(feet.heights)) - ANKLE_HEIGHT_M * scale if feet.heights else None
+        floor = float(np.median(np.array(feet.placed) @ up)) - ANKLE_HEIGHT_M * scale if feet.placed else None
         return replace(pose, joints_m=joints * CAMERA_FROM_VIEW, quaternions=quats, root_m=root * CAMERA_FROM_VIEW,
                        up_view=up, floor_offset_m=floor, contacts=(bool(feet.planted[0]), bool(feet.planted[1])))
 
@@ -245,7 +245,7 @@ class OnlineTrack:
         for k in range(2):
             if feet.planted[k] and feet.weight[k] == 0.0:   # a new contact: its anchor where the ankle is
                 feet.anchor[k] = free + ankles[k]
-                feet.heights.append(float(feet.anchor[k] @ up))
+                feet.placed.append(feet.anchor[k].copy())
         feet.weight = np.clip(feet.weight + np.where(feet.planted, dt, -dt) / p.blend_s, 0.0, 1.0)
         carrying = feet.weight > 0
         if not carrying.any():

@@ -7,8 +7,14 @@ import pytest
 
 from mocapdb.core.geometry import quat_geodesic
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, Match, PersonPose
-from mocapdb.core.skeleton import KP, N_RIG_JOINTS, RIG_JOINTS, bone_lengths_m, pose_from_rotations, \
-    universal_bone_lengths_m
+from mocapdb.core.skeleton import (
+    KP,
+    N_RIG_JOINTS,
+    RIG_JOINTS,
+    bone_lengths_m,
+    pose_from_rotations,
+    universal_bone_lengths_m,
+)
 from mocapdb.runtime.online_take import JOINT_SPEED_DEG_S, OnlineParams, OnlineTake
 
 MATCH = Match("clip", 0, 0.0, 0.1)

@@ -16,6 +16,7 @@ from mocapdb.core.skeleton import PELVIS
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.stream.session import FrameParser, Session, run_live, run_offline
+from mocapdb.runtime.stream.session_options import SessionOptions
 from mocapdb.runtime.stream.session_summary import SessionSummary
 from mocapdb.runtime.stream.transport import StreamStats, open_sink, open_source
 
@@ -45,7 +46,8 @@ def test_offline_session_outputs_and_bvh_agree(small_db, tmp_path):
     (tmp_path / "in.jsonl").write_text("\n".join(lines) + "\n")
     summary = SessionSummary(stream=StreamStats())
     engine = Engine(small_db, EngineConfig(fps=24.0))
-    session = Session(engine, open_sink(str(tmp_path / "out.jsonl"), summary.stream), FrameParser(), summary)
+    session = Session(engine, open_sink(str(tmp_path / "out.jsonl"), summary.stream), FrameParser(), summary,
+                      SessionOptions(online_take=False))  # the per-frame stream, as the per-frame track files
     run_offline(session, open_source(str(tmp_path / "in.jsonl"), stats=summary.stream))
     session.finish(tmp_path)
     assert summary.frames == 30 and sum(summary.malformed.values()) == 2
@@ -256,7 +258,7 @@ def test_live_cli_with_a_failing_sink_exits_non_zero_after_writing_the_bvh_files
         def close(self):
             pass
 
-    monkeypatch.setattr(mocapdb.runtime.stream.transport, "open_sink", lambda spec, stats: FullDisk(stats))
+    monkeypatch.setattr(mocapdb.runtime.stream.transport, "open_sink", lambda spec, stats, *vmc_track: FullDisk(stats))
     (tmp_path / "in.jsonl").write_text("\n".join(_stream_lines(small_db, 40)) + "\n")
     assert main(["live", "--source", str(tmp_path / "in.jsonl"), "--db", str(small_db_path), "--fps", "24",
                  "--sink", str(tmp_path / "out.jsonl"), "--bvh-dir", str(tmp_path / "bvh"), "--buffer", "100",

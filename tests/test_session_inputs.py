@@ -328,6 +328,9 @@ class _FailingSink:
         if self.n < 0:
             raise OSError(28, "No space left on device")
 
+    def write_frame(self, frame_index: int, time_s: float, people: list) -> None:
+        self.write("a frame")
+
     def close(self) -> None:
         self.closed = True
         raise OSError(28, "No space left on device")  # the flush at close fails too
