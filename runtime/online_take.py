@@ -8,8 +8,10 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    per-frame fits come in). ``L = 0``: the rotations through a causal 1€ filter
    (``causal_rotations``: a still joint smoothed below 0.5 Hz). ``L > 0``: the per-frame fits of
    frames ``t − 2L … t`` give a zero-phase Gaussian mean (cut-off ``smoothing_hz``, as the whole
-   take's; quaternions sign-aligned to the centre frame, then normalised). The root's distance
-   from the camera is 1€-filtered (:data:`~mocapdb.runtime.filters.ROOT_DEFAULTS`) either way.
+   take's; quaternions sign-aligned to the centre frame, then normalised); the per-frame roots the
+   same Gaussian mean. The root then passes the whole take's root model as a causal Kalman filter
+   (:class:`~mocapdb.runtime.root_filter.RootFilter`: precise across the viewing ray, loose along
+   it, smooth; a pop's pull capped) either way.
 2. **Foot contacts with hysteresis.** Each foot's image speed (box heights per second: the slope of
    a line fitted to its keypoints over the frames around it, at most :data:`CONTACT_WINDOW_S` and
    only as far ahead as the lag reaches) is its heel's and big toe's, the faster of the two, where
@@ -19,8 +21,8 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    ``release_factor`` times that height above the other foot.
 3. **The root carried by the planted foot.** When a foot is planted its ankle's place becomes its
    anchor; while a foot is planted the root is where its anchor puts it (both planted: the mean),
-   blended in and out with the feet's IK weights (a foot planted or lifted never makes the root
-   jump); the difference to the per-frame root is kept as a correction that fades with time
+   blended in and out with the feet's IK weights (rising and falling over ``blend_s``, eased by a
+   smoothstep: a foot planted or lifted never makes the root jump); the difference to the per-frame root is kept as a correction that fades with time
    constant ``settle_s`` once no foot carries the body. A planted anchor follows
    the per-frame evidence at most ``anchor_follow_mps``: a depth error cannot hold it forever, and
    it slides no faster than that.
@@ -47,8 +49,9 @@ import numpy as np
 
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, RIG_JOINTS, UNIVERSAL_HEIGHT_M, body_offsets_m, pose_from_rotations
-from mocapdb.runtime.filters import ROOT_DEFAULTS, OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
+from mocapdb.runtime.filters import OneEuroParams, QuaternionOneEuroFilter
 from mocapdb.runtime.foot_contacts import ANKLES, CONTACT_WINDOW_S, HEELS, TOES
+from mocapdb.runtime.root_filter import RootFilter
 from mocapdb.runtime.take import plant_feet
 
 Frame = tuple[int, float, list[PersonPose]]  # frame index, time (s), the people in it
@@ -133,7 +136,8 @@ class _Feet:
     """The contact state of both feet (right, left)."""
 
     planted: np.ndarray = field(default_factory=lambda: np.zeros(2, dtype=bool))
-    weight: np.ndarray = field(default_factory=lambda: np.zeros(2))   # IK weight, 0 … 1
+    progress: np.ndarray = field(default_factory=lambda: np.zeros(2))  # into the contact, 0 … 1, linear in time
+    weight: np.ndarray = field(default_factory=lambda: np.zeros(2))    # IK weight: the progress eased (smoothstep)
     anchor: np.ndarray = field(default_factory=lambda: np.full((2, 3), np.nan))  # view frame, metres
     placed: deque = field(default_factory=lambda: deque(maxlen=FLOOR_SAMPLES))  # the last anchors [3] (view frame)
 
@@ -151,7 +155,7 @@ class OnlineTrack:
         self.feet = _Feet()
         self.correction = np.zeros(3)       # output root − per-frame root (view frame, metres)
         self.previous: tuple[int, np.ndarray, np.ndarray] | None = None  # index, rotations, root of the last output
-        self.distance = OneEuroFilter(ROOT_DEFAULTS)  # the root's distance from the camera (metres)
+        self.root = RootFilter(fps)  # the whole take's root model, causal
         self.rotations = QuaternionOneEuroFilter(params.causal_rotations)  # the causal stream's (L = 0)
         self.max_turn = np.radians([JOINT_SPEED_DEG_S[j] for j in RIG_JOINTS]) / fps  # radians per frame
 
@@ -172,8 +176,8 @@ class OnlineTrack:
         dt = 1.0 / self.fps
         scale = pose.height_m / UNIVERSAL_HEIGHT_M
         offsets = None if pose.bones_m is None else body_offsets_m(pose.bones_m / scale)
-        quats, evidence_root = self._smoothed(index, pose)
-        evidence_root = self._steady_depth(index, evidence_root)
+        quats = self._smoothed(index, pose)
+        evidence_root = self._smoothed_root(index)
         up = np.array([0.0, 1.0, 0.0]) if pose.up_view is None else np.asarray(pose.up_view, dtype=np.float64)
         ankles = pose_from_rotations(quats[None], np.zeros((1, 3)), scale, offsets)[0, list(ANKLES)]
         self._contacts(index, ankles @ up, scale)
@@ -188,27 +192,26 @@ class OnlineTrack:
         return replace(pose, joints_m=joints * CAMERA_FROM_VIEW, quaternions=quats, root_m=root * CAMERA_FROM_VIEW,
                        up_view=up, floor_offset_m=floor, contacts=(bool(feet.planted[0]), bool(feet.planted[1])))
 
-    def _smoothed(self, index: int, pose: PersonPose) -> tuple[np.ndarray, np.ndarray]:
-        """Step 1: the rotations ``[R, 4]`` and root ``[3]`` (view frame) of frame ``index``."""
+    def _smoothed(self, index: int, pose: PersonPose) -> np.ndarray:
+        """Step 1: the rotations ``[R, 4]`` of frame ``index``."""
         lag = self.params.lag_frames
         if lag == 0:
-            return self.rotations(pose.quaternions, index / self.fps), pose.root_m * CAMERA_FROM_VIEW
+            return self.rotations(pose.quaternions, index / self.fps)
         near = [i for i in range(index - lag, index + lag + 1) if i in self.recent]
         q = np.array([self.recent[i].quaternions for i in near])
         q = np.where((np.sum(q * pose.quaternions, axis=-1) < 0)[..., None], -q, q)
         w = np.exp(-0.5 * ((np.array(near) - index) / self.sigma_frames) ** 2)
         mean_q = np.tensordot(w, q, axes=1)
-        mean_q /= np.linalg.norm(mean_q, axis=-1, keepdims=True)
-        roots = np.array([self.recent[i].root_m for i in near]) * CAMERA_FROM_VIEW
-        return mean_q, w @ roots / w.sum()
+        return mean_q / np.linalg.norm(mean_q, axis=-1, keepdims=True)
 
-    def _steady_depth(self, index: int, root: np.ndarray) -> np.ndarray:
-        """Step 1's root with its distance from the camera 1€-filtered (:data:`ROOT_DEFAULTS`): the
-        image fixes the root across the viewing ray, the body's size only loosely along it."""
-        distance = float(np.linalg.norm(root))
-        if distance <= 0:
-            return root
-        return root * (float(self.distance(np.array([distance]), index / self.fps)[0]) / distance)
+    def _smoothed_root(self, index: int) -> np.ndarray:
+        """Step 1's root ``[3]`` (view frame) of frame ``index``: the window's Gaussian mean through
+        the root filter."""
+        lag = self.params.lag_frames
+        near = [i for i in range(index - lag, index + lag + 1) if i in self.recent]
+        w = np.exp(-0.5 * ((np.array(near) - index) / self.sigma_frames) ** 2)
+        mean = w @ np.array([self.recent[i].root_m for i in near]) * CAMERA_FROM_VIEW / w.sum()
+        return self.root(index, mean)
 
     def _contacts(self, index: int, ankle_heights_m: np.ndarray, scale: float) -> None:
         """Step 2: each foot planted or not at frame ``index`` (hysteresis)."""
@@ -243,10 +246,11 @@ class OnlineTrack:
         p, feet = self.params, self.feet
         free = evidence_root + self.correction
         for k in range(2):
-            if feet.planted[k] and feet.weight[k] == 0.0:   # a new contact: its anchor where the ankle is
+            if feet.planted[k] and feet.progress[k] == 0.0:   # a new contact: its anchor where the ankle is
                 feet.anchor[k] = free + ankles[k]
                 feet.placed.append(feet.anchor[k].copy())
-        feet.weight = np.clip(feet.weight + np.where(feet.planted, dt, -dt) / p.blend_s, 0.0, 1.0)
+        feet.progress = np.clip(feet.progress + np.where(feet.planted, dt, -dt) / p.blend_s, 0.0, 1.0)
+        feet.weight = feet.progress ** 2 * (3.0 - 2.0 * feet.progress)
         carrying = feet.weight > 0
         if not carrying.any():
             self.correction *= np.exp(-dt / p.settle_s)
