@@ -9,7 +9,8 @@ calibration's world by that camera's extrinsics. Variants: the per-frame stream 
 take: the engine's causal 1€ output), the online take at each lag ``L``, and the whole take (the
 track files: :func:`~mocapdb.runtime.world.fit_takes`).
 
-Figures, over the main track (the longest that is not static):
+Figures, over the main track (the longest that is not static), beside the published method (the
+per-frame engine without its 2D refinement) and the database floor (:func:`floor_cm`):
 
 - **acceleration**: ``|p[t+1] − 2 p[t] + p[t−1]|`` of the 15 output joints in the world (mm/frame²),
   mean and 95th percentile;
@@ -38,6 +39,7 @@ from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame
 from mocapdb.core.formats.openpose import read_openpose_folder
 from mocapdb.core.skeleton import KP, N_POINTS
 from mocapdb.evaluation.detector_quality import low_pass, read_detections, residuals
+from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.metrics import pa_mpjpe, planted_feet
 from mocapdb.evaluation.real_take import Y_DOWN, focal_px, world_to_trc
 from mocapdb.runtime.engine import Engine
@@ -49,6 +51,7 @@ from mocapdb.runtime.world import fit_takes
 SCORED = ("r_shoulder", "l_shoulder", "r_elbow", "l_elbow", "r_wrist", "l_wrist",
           "r_hip", "l_hip", "r_knee", "l_knee", "r_ankle", "l_ankle")
 PER_FRAME, WHOLE_TAKE = "per-frame stream (before)", "whole take (track files)"
+PUBLISHED = "published method (per-frame, no refinement)"
 LAGS = (0, 3, 6)
 # The issue's targets (on the balancing take, camera 1): lag → (acceleration mm/frame², fastest m/s,
 # planted cm/s, MPJPE over the whole take's in cm (None: not set))
@@ -72,8 +75,12 @@ def camera_to_world(points_m: np.ndarray, cam: CameraModel) -> np.ndarray:
 def run_variants(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig, lags: tuple[int, ...],
                  params: OnlineParams | None = None) -> dict[str, dict]:
     """Each variant's main-track joints ``[T, 15, 3]`` (camera-aligned, NaN where none) and per-frame
-    compute times (s): the per-frame stream and the whole take from one run, the online take at each lag."""
+    compute times (s): the published method (the per-frame engine without its 2D refinement), the
+    per-frame stream and the whole take from one run, the online take at each lag."""
     out: dict[str, dict] = {}
+    published, times, recordings = _run(db, frames, replace(config, refine=False), None)
+    out[PUBLISHED] = {"joints": _track_joints(published, _main_track(published, recordings), len(frames)),
+                      "compute_s": times, "lag": 0}
     per_frame, times, recordings = _run(db, frames, replace(config, keep_take=True), None)
     track = _main_track(per_frame, recordings)
     out[PER_FRAME] = {"joints": _track_joints(per_frame, track, len(frames)), "compute_s": times, "lag": 0}
@@ -158,6 +165,32 @@ def score(pred_world: np.ndarray, truth: np.ndarray, names: tuple[str, ...], pla
             "pa_mpjpe_cm": _finite_mean(100 * pa_mpjpe(p, t)) if len(p) else float("nan")}
 
 
+def floor_cm(db: MotionDatabase, truth: np.ndarray, names: tuple[str, ...]) -> float:
+    """The database floor (:mod:`~mocapdb.evaluation.floor`) of the scored joints, hips-centred, mean
+    over the frames where the reference has them all (cm): the best database pose under the best
+    vertical turn, at the database's size (the engine's 1.75 m). ``truth [T, J, 3]``: world, metres.
+
+    The floor's 15 keypoints are the 12 scored ones and, in the pelvis, neck and head slots, the
+    hips' midpoint (on both sides: the centre, and no distance), so its mean over 15 joints is 12/15
+    of the mean over the scored ones."""
+    true = world_to_trc(truth[:, [names.index(j) for j in SCORED]])            # y up
+    true = true[np.isfinite(true).all(axis=(1, 2))]
+    if not len(true):
+        return float("nan")
+    truth15 = _scored_as_keypoints(true)
+    base = _scored_as_keypoints(db.positions[:, [KP[j] for j in SCORED]])
+    floor = database_floor(FloorIndex.from_positions(base), truth15).mpjpe_m
+    return float(100 * floor.mean() * N_POINTS / len(SCORED))
+
+
+def _scored_as_keypoints(scored: np.ndarray) -> np.ndarray:
+    """``[T, 12, 3]`` scored joints as ``[T, 15, 3]`` keypoints, the hips' midpoint in the others' slots."""
+    out = np.repeat(scored[:, [SCORED.index("r_hip")]] * 0.5 + scored[:, [SCORED.index("l_hip")]] * 0.5,
+                    N_POINTS, axis=1)
+    out[:, [KP[j] for j in SCORED]] = scored
+    return out
+
+
 def _finite_mean(values: np.ndarray) -> float:
     v = values[np.isfinite(values)]
     return float(v.mean()) if v.size else float("nan")
@@ -191,7 +224,8 @@ def evaluate_live(db: MotionDatabase, folders: list[Path], calibration: Path, la
     cam = cams[0]
     config = replace(base or EngineConfig(), fps=fps, focal_px=focal_px(cam), image_size=(cam.size[0], cam.size[1]))
     report: dict = {"camera": cam.name, "fps": fps, "frames": len(frames), "cameras_triangulated": len(cams),
-                    "planted_ankle_frames": int(planted.sum()), "variants": {}}
+                    "planted_ankle_frames": int(planted.sum()), "variants": {},
+                    "database_floor_mpjpe_cm": floor_cm(db, truth, joint_names)}
     for name, run in run_variants(db, frames, config, lags).items():
         figures = score(camera_to_world(run["joints"], cam), truth, joint_names, planted, fps)
         if run["compute_s"] is not None:
@@ -227,7 +261,9 @@ def format_table(report: dict) -> str:
                      f"{latency} |")
     lines += ["", (f"{report['camera']} alone ({report['frames']} frames at {report['fps']:g} fps) against the "
                    f"{report['cameras_triangulated']}-camera triangulation of the same detector; "
-                   f"{report['planted_ankle_frames']} planted ankle-frames in the reference.")]
+                   f"{report['planted_ankle_frames']} planted ankle-frames in the reference. Database floor "
+                   f"(the best database pose under the best vertical turn, same joints, hips-centred): MPJPE "
+                   f"{report['database_floor_mpjpe_cm']:.1f} cm.")]
     return "\n".join(lines)
 
 
