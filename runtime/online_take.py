@@ -24,8 +24,8 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    blended in and out with the feet's IK weights (rising and falling over ``blend_s``, eased by a
    smoothstep: a foot planted or lifted never makes the root jump); the difference to the
    per-frame root is kept as a correction that fades with time constant ``settle_s`` once no foot
-   carries the body. A planted anchor follows the per-frame evidence at most ``anchor_follow_mps``: a depth error cannot hold it forever, and
-   it slides no faster than that.
+   carries the body. A planted anchor follows the per-frame evidence at most
+   ``anchor_follow_mps``: a depth error cannot hold it forever, and it slides no faster than that.
 4. **A planted foot locked in place**: the legs turned by the whole take's two-bone IK
    (:func:`~mocapdb.runtime.take.plant_feet`) onto their anchors, the weight blended in and out over
    ``blend_s``. The floor (reported, not enforced) is the median height of the last anchors along
