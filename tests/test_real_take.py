@@ -117,6 +117,10 @@ def test_real_take_command_on_one_camera(small_db_path, tmp_path, capsys):
         assert r["frames_with_output"] > 50
         assert all(np.isfinite([r["mpjpe_cm"], r["pa_mpjpe_cm"], r["root_error_m"], r["root_error_pct_distance"],
                                 r["bone_length_cm"]["mean_error_7"]]))
+    camera = report["cameras"]["cam_01"]["world_camera"]
+    assert abs(camera["truth"]["height_m"] - 1.90) < 0.02 and abs(camera["truth"]["pitch_deg"] - 23.1) < 0.2
+    assert np.isfinite([camera["height_error_pct"], camera["pitch_error_deg"], camera["roll_error_deg"]]).all()
+    assert "world camera: height off" in printed and "| cam_01 | " in printed.split("The world's camera")[1]
     assert main(["eval", "--db", str(small_db_path), "--real-take", str(TAKE), "--bvh", str(tmp_path)]) == 2
     assert "--real-take" in capsys.readouterr().err
 

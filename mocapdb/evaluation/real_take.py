@@ -45,6 +45,7 @@ from mocapdb.core.formats.trc import Trc, read_trc, trc_keypoints
 from mocapdb.core.skeleton import MEASURED_BONE_NAMES, N_KEYPOINTS_2D, N_POINTS, PELVIS, bone_lengths_m
 from mocapdb.evaluation.metrics import foot_height_error_m, foot_skating_mps, pa_mpjpe, planted_feet
 from mocapdb.evaluation.reconstruction import ANKLES, BELOW_HEAD, BODY_BONES, TAKE_VARIANT, variant_config
+from mocapdb.evaluation.world_camera import camera_checks, format_rows, score_camera, summary_lines, world_of_frames
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.take import take_joints
@@ -255,6 +256,8 @@ def evaluate_real_take(db: MotionDatabase, folder: str | Path, base: EngineConfi
         per_camera[name] = {
             "camera_height_m": height, "focal_px": focal_px(cam),
             "pinhole_offset": pinhole_offset(cam, trc_to_world(take.truth[:, :N_KEYPOINTS_2D])), "runs": runs}
+        world = world_of_frames(db, take.frames[name], engine_config(base, cam, take.fps, True))
+        per_camera[name]["world_camera"] = score_camera(world, cam)
         centre = world_to_trc(cam.center_m)
         for variant, mode, refine, given in RUNS:
             config = engine_config(base, cam, take.fps, refine, height if given else None)
@@ -301,7 +304,9 @@ def format_table(report: dict) -> str:
                         for c, e in report["cameras"].items())
     lines += ["", (f"Floor at TRC y = {report['floor_y_m']:.3f} m. The engine's pinhole (centred principal point, "
                    f"no distortion) against the calibration, median over the TRC keypoints: {offsets}.")]
-    return "\n".join(lines)
+    cameras = {c: e["world_camera"] for c, e in report["cameras"].items()}
+    lines += ["", "The world's camera (nothing given; truth: the calibration, floor z = 0):", ""]
+    return "\n".join(lines + format_rows(cameras) + [""] + summary_lines(cameras))
 
 
 def check_lines(report: dict) -> list[str]:
@@ -327,4 +332,4 @@ def check_lines(report: dict) -> list[str]:
             lines.append(f"{'PASS' if ok else 'FAIL'}  {variant}, {mode.replace('_', ' ')}: {label} {_cell(mean, 2)} "
                          f"{unit} ≤ {target:g} {unit} (mean of {len(runs)} cameras; worst {runs[worst][0]} "
                          f"{_cell(values[worst], 2)})")
-    return lines
+    return lines + camera_checks({c: e["world_camera"] for c, e in report["cameras"].items()})

@@ -1,0 +1,108 @@
+"""The world's camera against a calibration (issue 36): the height, pitch and roll the one-camera
+world (:func:`~mocapdb.runtime.world.fit_world`) reports, scored against the calibrated camera.
+
+Truth. A Pose2Sim calibration's world is z up, metres, its floor the plane ``z = 0`` where the
+people stand. The camera's height is its centre's ``z``; its pitch and roll are those of the
+floor's normal seen from the camera, with the same definitions as :class:`~mocapdb.runtime.world.World`
+(the normal in the view frame, x right, y up, z towards the camera: pitch ``atan2(n_z, n_y)``,
+positive looking down; roll ``atan2(−n_x, n_y)``, positive when the world's up leans to the
+image's left).
+
+Scores per camera: the height's error (% of the truth; the world's reported ±2 SD interval and
+whether the truth lies in it), the pitch's and roll's errors (degrees).
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from mocapdb.core.cameras import CameraModel
+from mocapdb.core.formats.database import MotionDatabase
+from mocapdb.core.formats.keypoints import KeypointFrame
+from mocapdb.runtime.engine import Engine
+from mocapdb.runtime.engine_config import EngineConfig
+from mocapdb.runtime.world import World, fit_world
+
+VIEW_FROM_OPENCV = np.array([1.0, -1.0, -1.0])  # OpenCV camera axes (x right, y down, z forward) → view frame
+# Issue 36's targets over the cameras of a take, each run alone: height off (% of the truth) and pitch
+# off (degrees), median and worst; and every true height inside the reported ±2 SD
+TARGET_HEIGHT_PCT = (10.0, 25.0)
+TARGET_PITCH_DEG = (3.0, 8.0)
+
+
+def true_camera(cam: CameraModel, floor_z_m: float = 0.0) -> dict[str, float]:
+    """The calibrated camera's height above the floor ``z = floor_z_m`` (metres), pitch and roll
+    (degrees; module docstring)."""
+    normal = cam.R[:, 2] * VIEW_FROM_OPENCV         # the world's up (+z) in the view frame
+    return {"height_m": float(cam.center_m[2] - floor_z_m),
+            "pitch_deg": float(np.degrees(np.arctan2(normal[2], normal[1]))),
+            "roll_deg": float(np.degrees(np.arctan2(-normal[0], normal[1])))}
+
+
+def world_of_frames(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig) -> World:
+    """The world one camera's ``frames`` give, every track of them (as ``reconstruct`` finds it)."""
+    engine = Engine(db, replace(config, keep_take=True))
+    for frame in frames:
+        engine.step(frame)
+    return fit_world(engine.finish(), config.fps, camera_height_m=config.camera_height_m)[1]
+
+
+def score_camera(world: World, cam: CameraModel, floor_z_m: float = 0.0) -> dict:
+    """The world's camera against ``cam``'s (module docstring): a JSON-able dict."""
+    truth = true_camera(cam, floor_z_m)
+    sd = float(world.camera_height_log_sd)
+    low, high = (world.camera_height_m * np.exp(-2 * sd), world.camera_height_m * np.exp(2 * sd)) \
+        if np.isfinite(sd) else (float("nan"), float("nan"))
+    return {"truth": truth,
+            "world": {"height_m": float(world.camera_height_m), "height_log_sd": sd,
+                      "height_2sd_m": [float(low), float(high)], "pitch_deg": world.pitch_deg,
+                      "roll_deg": world.roll_deg, "floor_found": world.floor_known},
+            "height_error_pct": float(100 * (world.camera_height_m / truth["height_m"] - 1)),
+            "height_inside_2sd": bool(low <= truth["height_m"] <= high),
+            "pitch_error_deg": float(world.pitch_deg - truth["pitch_deg"]),
+            "roll_error_deg": float(world.roll_deg - truth["roll_deg"])}
+
+
+def summary_lines(scores: dict[str, dict]) -> list[str]:
+    """Median and worst of the cameras' errors, and how many truths lie inside the ±2 SD."""
+    if not scores:
+        return []
+    height = np.abs([s["height_error_pct"] for s in scores.values()])
+    pitch = np.abs([s["pitch_error_deg"] for s in scores.values()])
+    roll = np.abs([s["roll_error_deg"] for s in scores.values()])
+    inside = sum(s["height_inside_2sd"] for s in scores.values())
+    return [f"World camera over {len(scores)} cameras: height off {np.median(height):.0f} % (median; worst "
+            f"{height.max():.0f} %), pitch off {np.median(pitch):.1f}° (worst {pitch.max():.1f}°), roll off "
+            f"{np.median(roll):.1f}° (worst {roll.max():.1f}°); true height inside the reported ±2 SD: "
+            f"{inside} of {len(scores)}."]
+
+
+def format_rows(scores: dict[str, dict]) -> list[str]:
+    """A markdown table, a row per camera."""
+    lines = ["| camera | height: world (±2 SD) / truth | off | pitch: world / truth | roll: world / truth |",
+             "|---|---|---|---|---|"]
+    for name, s in scores.items():
+        w, t = s["world"], s["truth"]
+        lo, hi = w["height_2sd_m"]
+        lines.append(f"| {name} | {w['height_m']:.2f} m ({lo:.2f}–{hi:.2f}) / {t['height_m']:.2f} m | "
+                     f"{s['height_error_pct']:+.0f} % | {w['pitch_deg']:.1f}° / {t['pitch_deg']:.1f}° | "
+                     f"{w['roll_deg']:.1f}° / {t['roll_deg']:.1f}° |")
+    return lines
+
+
+def camera_checks(scores: dict[str, dict]) -> list[str]:
+    """PASS/FAIL lines of the targets (:data:`TARGET_HEIGHT_PCT`, :data:`TARGET_PITCH_DEG`, the ±2 SD)."""
+    if not scores:
+        return []
+    lines = []
+    for label, key, unit, (median_max, worst_max) in (("height off", "height_error_pct", "%", TARGET_HEIGHT_PCT),
+                                                      ("pitch off", "pitch_error_deg", "°", TARGET_PITCH_DEG)):
+        errors = np.abs([s[key] for s in scores.values()])
+        for what, value, target in (("median", np.median(errors), median_max), ("worst", errors.max(), worst_max)):
+            lines.append(f"{'PASS' if value <= target else 'FAIL'}  world camera: {label} {value:.1f}{unit} ≤ "
+                         f"{target:g}{unit} ({what} of {len(errors)} cameras)")
+    inside = sum(s["height_inside_2sd"] for s in scores.values())
+    lines.append(f"{'PASS' if inside == len(scores) else 'FAIL'}  world camera: true height inside the reported "
+                 f"±2 SD on {inside} of {len(scores)} cameras")
+    return lines

@@ -1,0 +1,46 @@
+"""The calibrated camera's height, pitch and roll (evaluation.world_camera) against cameras built by hand."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from mocapdb.core.cameras import CameraModel
+from mocapdb.evaluation.world_camera import camera_checks, score_camera, true_camera
+from mocapdb.runtime.world import World
+
+
+def _camera(height_m: float, pitch_deg: float, roll_deg: float, yaw_deg: float = 30.0) -> CameraModel:
+    """An OpenCV camera at ``height_m`` above z = 0, facing ``yaw_deg`` round the vertical, looking
+    ``pitch_deg`` down and rolled ``roll_deg`` (the world's up leaning to the image's left)."""
+    # camera axes in the world when level and facing +y: x right = +x, y down = −z, z forward = +y
+    level = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])        # rows: camera axes
+    yaw = Rotation.from_euler("z", yaw_deg, degrees=True).as_matrix()
+    # pitch down: turn about the camera's x axis; roll: about its optical axis (z)
+    pitch = Rotation.from_euler("x", pitch_deg, degrees=True).as_matrix()
+    roll = Rotation.from_euler("z", -roll_deg, degrees=True).as_matrix()
+    r = roll @ pitch @ level @ yaw.T
+    centre = np.array([2.0, -3.0, height_m])
+    return CameraModel(np.eye(3), np.zeros(4), r, -r @ centre, (1920, 1080))
+
+
+@pytest.mark.parametrize("pitch, roll", [(0.0, 0.0), (23.0, 0.0), (-10.0, 0.0), (15.0, 12.0), (20.0, -26.0)])
+def test_the_true_camera_is_the_one_built(pitch, roll):
+    """Rolled about its optical axis after pitching, the floor's normal in the view frame is
+    (sin r cos p, cos r cos p, sin p) up to the sign of x: the roll is r, the pitch atan(tan p / cos r)."""
+    truth = true_camera(_camera(1.9, pitch, roll))
+    assert truth["height_m"] == pytest.approx(1.9)
+    p, r = np.radians(pitch), np.radians(roll)
+    assert truth["pitch_deg"] == pytest.approx(np.degrees(np.arctan2(np.sin(p), np.cos(r) * np.cos(p))), abs=1e-9)
+    assert truth["roll_deg"] == pytest.approx(roll, abs=1e-9)
+
+
+def test_a_world_is_scored_against_the_calibration():
+    cam = _camera(2.0, 20.0, 0.0)
+    normal = np.array([0.0, np.cos(np.radians(25.0)), np.sin(np.radians(25.0))])   # 25° down, no roll
+    world = World(normal, camera_height_m=1.4, camera_height_log_sd=0.2, camera_height_given=False)
+    score = score_camera(world, cam)
+    assert score["height_error_pct"] == pytest.approx(-30.0)
+    assert score["pitch_error_deg"] == pytest.approx(5.0)
+    assert score["roll_error_deg"] == pytest.approx(0.0, abs=1e-9)
+    assert score["height_inside_2sd"]          # 1.4 m · e^0.4 = 2.09 m ≥ 2 m
+    lines = camera_checks({"a": score})
+    assert [line.split()[0] for line in lines] == ["FAIL", "FAIL", "FAIL", "PASS", "PASS"]
