@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocapdb.core.outputs import TrackRecording
-from mocapdb.core.skeleton import MEASURED_BONE_NAMES
+from mocapdb.core.skeleton import MEASURED_BONE_NAMES, swing_matrices
 from mocapdb.runtime.stature import HUMAN_STATURE_M
 from mocapdb.runtime.world import PersonSize, World
 
@@ -106,9 +106,20 @@ def world_record(world: World, facts: list[TrackFacts], main: int | None, writte
                "size_from": f.size.source, "kind": f.size.kind, "legs_m": round(f.legs_m, 3),
                "distance_m": [round(d, 2) for d in f.distance_m], "in_front": f.in_front,
                "feet_above_floor_m": _finite(f.size.feet_above_floor_m), "flags": f.flags} for f in facts]
+    if files_on_floor and world.floor_known:
+        camera |= files_camera_pose(world)
     return {"format": "mocapdb-world", "version": 1, "camera": camera, "main_track": main, "tracks": tracks,
             "joined": {str(track): into for track, into in (joined or {}).items()},
             "files": "floor" if files_on_floor else "view"}
+
+
+def files_camera_pose(world: World) -> dict:
+    """Where the camera is in the track files on the floor (:func:`~mocapdb.core.motion_ops.on_floor`,
+    y up, the origin on the floor under the camera): ``position_m`` and ``view_to_files`` (the
+    rotation taking view-frame vectors, x right, y up, z towards the camera, to the files' frame)."""
+    level = swing_matrices(world.normal / np.linalg.norm(world.normal), np.array([0.0, 1.0, 0.0]))
+    return {"position_m": [0.0, round(float(world.camera_height_m), 4), 0.0],
+            "view_to_files": np.round(level, 6).tolist()}
 
 
 def _finite(value: float | None, decimals: int = 3) -> float | None:

@@ -175,14 +175,15 @@ def test_files_that_do_not_line_up_with_the_stream_are_not_drawn(tmp_path):
 
 @pytest.fixture(scope="module")
 def two_runs(tmp_path_factory, small_db_path):
-    """The bundled Pose2Sim take reconstructed with and without --floor (CSV and BVH files)."""
+    """The bundled Pose2Sim take reconstructed on the floor (the default) and in the view frame
+    (--view-frame; CSV and BVH files)."""
     from mocapdb.cli.main import main
 
     root = tmp_path_factory.mktemp("files")
     common = [str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--fps", "60", "--image-size", "1088x1920",
               "--focal", "1681", "--format", "csv,bvh"]
-    assert main(["reconstruct", *common, "--out", str(root / "floor"), "--floor"]) == 0
-    assert main(["reconstruct", *common, "--out", str(root / "view")]) == 0
+    assert main(["reconstruct", *common, "--out", str(root / "floor")]) == 0
+    assert main(["reconstruct", *common, "--out", str(root / "view"), "--view-frame"]) == 0
     return root / "floor", root / "view"
 
 
@@ -190,10 +191,14 @@ def test_the_floor_files_go_back_to_the_camera_within_a_millimetre(two_runs):
     floor, view = two_runs
     world = read_world(floor)
     worlds = [json.loads((folder / "world.json").read_text()) for folder in (floor, view)]
-    assert [w.pop("files") for w in worlds] == ["floor", "view"] and worlds[0] == worlds[1]
+    assert [w.pop("files") for w in worlds] == ["floor", "view"]
+    pose = {key: worlds[0]["camera"].pop(key) for key in ("position_m", "view_to_files")}
+    assert worlds[0] == worlds[1]
     on_floor = read_csv_joints(floor / "track_1.csv")[1]
     in_view = read_csv_joints(view / "track_1.csv")[1]
     assert np.abs(world.to_view(on_floor) - in_view).max() < 1e-3   # world.json's 5 decimals of the normal
+    # the camera's pose in world.json takes the view-frame files onto the floor files
+    assert np.abs(in_view @ np.array(pose["view_to_files"]).T + pose["position_m"] - on_floor).max() < 1e-3
     assert np.abs(in_view[:, PELVIS, 2]).min() > 1.0                 # not trivially close: metres from the camera
     for folder, expected in ((floor, "floor"), (view, "view")):
         stream = read_result(folder)
@@ -216,9 +221,9 @@ def test_the_bvh_gives_the_csv_joints(two_runs):
     assert np.array_equal(from_bvh[0].frames, frames) and np.abs(from_bvh[0].joints - csv).max() < 1e-4
 
 
-def test_without_floor_the_3d_view_still_stands_the_files_on_the_take_floor(two_runs, tmp_path, monkeypatch):
-    """reconstruct without --floor writes view-frame files; the picture puts them on world.json's
-    floor, where the --floor run's own files (exports.on_floor) stand."""
+def test_in_the_view_frame_the_3d_view_still_stands_the_files_on_the_take_floor(two_runs, tmp_path, monkeypatch):
+    """reconstruct --view-frame writes view-frame files; the picture puts them on world.json's
+    floor, where the default run's own files (exports.on_floor) stand."""
     floor, view = two_runs
     drawn = record_drawing(monkeypatch)
     contact_sheet(view, SAMPLE_KEYPOINTS, tmp_path / "sheet.png", n=3, focal=1681, image_size=(1088, 1920),

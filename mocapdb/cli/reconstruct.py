@@ -104,9 +104,14 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
                        help="BVH rig: mocapdb's 11 joints (what `mocapdb build` reads back exactly), or humanoid: "
                             "with head, clavicle, hand, foot and toe bones under Mixamo names for Unity Humanoid, "
                             "HumanIK and Blender (default universal)")
-    files.add_argument("--floor", action="store_true",
-                       help="put each track on a floor estimated from its feet: camera pitch levelled, feet on "
-                            "y = 0, the pelvis starting above the origin (default: the camera is the origin)")
+    frame = files.add_mutually_exclusive_group()
+    frame.add_argument("--floor", dest="view_frame", action="store_false", default=False,
+                       help="the track files stand on the world's floor: levelled, feet on y = 0 (y up), "
+                            "every track in one world, the origin on the floor under the camera, the camera's pose "
+                            "in world.json (the default)")
+    frame.add_argument("--view-frame", action="store_true",
+                       help="the track files in the camera's view frame instead: the camera at the origin, "
+                            "looking along -z (what versions before 2026-11-28 wrote without --floor)")
     files.add_argument("--bvh-unit", choices=("m", "cm"), default="m", help="length unit of the BVH files (default m)")
     files.add_argument("--bvh-start", choices=("input", "track"), default="input",
                        help="BVH frame 1: the input's first frame, the track's first pose held until it starts, so "
@@ -253,7 +258,7 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
     try:  # checked before the database is loaded
         limits = TrackLimits(args.max_tracks, args.max_new_tracks_per_min)
         export = TrackExport(tuple(f.strip().lower() for f in args.format.split(",") if f.strip()), args.bvh_unit,
-                             args.rig, args.floor, pad_to_input=args.bvh_start == "input")
+                             args.rig, not args.view_frame, pad_to_input=args.bvh_start == "input")
         options = SessionOptions(strict=strict, fps_given=args.fps is not None, keep_static=args.keep_static,
                                  bvh_dir=bvh_dir, export=export, max_bvh_files=args.max_bvh_files,
                                  min_track_s=args.min_track_s, bvh_part_min=args.bvh_part_min,
