@@ -8,7 +8,8 @@ the highest joint named as a head outside the limbs. Then the topology is checke
 at a pelvis, the arms at a chest that does not hold the legs, the head hangs from the chest) and
 the sides against the poses (left limbs on the character's left, given its facing from the
 toes or the face, in frames of the clip: a rig's offsets alone need not be a pose). Nothing is
-guessed: every doubt is a problem, named. Rules: ``data_specs/joint_conventions.md``,
+guessed: every doubt about a placement is a problem, named; the sides the names give stand
+unless the poses clearly contradict them. Rules: ``data_specs/joint_conventions.md``,
 "Recognition".
 """
 from __future__ import annotations
@@ -32,7 +33,8 @@ LIMBS: tuple[tuple[str, ...], ...] = (
 CHAINS: tuple[tuple[str, ...], ...] = (("head",), *LIMBS)
 PART_TEXT = {"upperarm": "upper arm", "forearm": "forearm", "hand": "hand", "thigh": "thigh", "shin": "shin",
              "foot": "foot", "head": "head"}
-MIN_SIDE_COSINE = 0.5    # left − right must lie within 60° of the character's left (or of the other pair's)
+MIN_SIDE_COSINE = 0.5    # left − right within 60° of the character's left (or of the other pair's): the
+                         # poses agree with the names; within 60° of its right: they contradict them
 MIN_FACING_SHARE = 0.25  # a facing cue's horizontal part, at least this share of its length
 SIDE_FRAMES = 60         # frames (spread over the clip) in which the sides are checked
 
@@ -231,32 +233,53 @@ def _side_cosine(pos: np.ndarray, placed: dict[str, int], part: str, axis: np.nd
     return float(np.nanmedian(np.sum(across * _unit(axis), axis=-1)))
 
 
+def _clip_up(pos: np.ndarray, placed: dict[str, int]) -> np.ndarray:
+    """The clip's up ``[3]``: the median over frames of mid feet → mid upper arms. The legs keep it near
+    the vertical when the trunk leans (each frame's hips → shoulders leans with the trunk and turns
+    toes pointing down into the facing)."""
+    top = pos[:, [placed["l_upperarm"], placed["r_upperarm"]]].mean(axis=1)
+    feet = pos[:, [placed["l_foot"], placed["r_foot"]]].mean(axis=1)
+    return _unit(np.median(_unit(top - feet), axis=0))
+
+
+def _side_note(what: str, cosine: float) -> str:
+    if cosine >= MIN_SIDE_COSINE:
+        return f"left {what} on the character's left (cosine {cosine:.2f})"
+    return f"left {what} from its name, the poses cannot tell (cosine {cosine:.2f})"
+
+
+def _check_arms_against_legs(pos: np.ndarray, placed: dict[str, int], reading: RigReading) -> None:
+    """With no facing: a problem when the left arm and the left leg lie clearly on opposite sides."""
+    cosine = _side_cosine(pos, placed, "upperarm", pos[:, placed["l_thigh"]] - pos[:, placed["r_thigh"]])
+    if cosine <= -MIN_SIDE_COSINE:
+        reading.problems.append(f"the poses put the left arm and the left leg on opposite sides "
+                                f"(cosine {cosine:.2f}): the names of one pair are swapped")
+    else:
+        checked = "so only checked that" if cosine >= MIN_SIDE_COSINE else "and the poses cannot tell whether"
+        reading.notes.append(f"sides: from the names; no toes or face show the facing, {checked} the left arm "
+                             f"and the left leg lie on the same side (cosine {cosine:.2f})")
+
+
 def check_sides(bvh: Bvh, placed: dict[str, int], trusted: set[str], reading: RigReading) -> None:
     """Left limbs on the character's left in the clip's poses (pairs with a ``trusted`` top are not
-    checked): a note, or a problem when the names contradict the poses or they cannot tell."""
+    checked). The names placed every limb unambiguously, so they stand unless the poses clearly
+    contradict them: a problem for a named left clearly on the right (cosine at most
+    −:data:`MIN_SIDE_COSINE`), a note otherwise, saying where the poses cannot tell."""
     pairs = [p for p in ("upperarm", "thigh") if not {f"l_{p}", f"r_{p}"} & trusted]
     if not pairs:
         return
     pos = _posed(bvh)
-    up = _unit(pos[:, [placed["l_upperarm"], placed["r_upperarm"]]].mean(axis=1)
-               - pos[:, [placed["l_thigh"], placed["r_thigh"]]].mean(axis=1))
+    up = _clip_up(pos, placed)
     forward, cue = _facing(bvh, pos, placed, up)
-    what = {"upperarm": "arm", "thigh": "leg"}
     if forward is None:
-        cosine = _side_cosine(pos, placed, "upperarm", pos[:, placed["l_thigh"]] - pos[:, placed["r_thigh"]])
-        if cosine < MIN_SIDE_COSINE:
-            reading.problems.append(f"the poses put the left arm and the left leg on opposite sides "
-                                    f"(cosine {cosine:.2f}): the names of one pair are swapped")
-        else:
-            reading.notes.append("sides: from the names; no toes or face show the facing, so only checked that "
-                                 f"the left arm and the left leg lie on the same side (cosine {cosine:.2f})")
+        _check_arms_against_legs(pos, placed, reading)
         return
+    what = {"upperarm": "arm", "thigh": "leg"}
     cosines = {p: _side_cosine(pos, placed, p, np.cross(up, forward)) for p in pairs}
-    wrong = [f"the {what[p]} named left lies on the character's "
-             f"{'right' if c < 0 else 'neither side'} (cosine {c:.2f})" for p, c in cosines.items()
-             if c < MIN_SIDE_COSINE]
+    wrong = [f"the {what[p]} named left lies on the character's right (cosine {c:.2f})" for p, c in cosines.items()
+             if c <= -MIN_SIDE_COSINE]
     if wrong:
         reading.problems.append(f"left and right do not match the poses (facing from {cue}): " + "; ".join(wrong))
     else:
-        reading.notes.append(f"sides: facing from {cue}; " + ", ".join(
-            f"left {what[p]} on the character's left (cosine {c:.2f})" for p, c in cosines.items()))
+        reading.notes.append(f"sides: facing from {cue}; " + ", ".join(_side_note(what[p], c)
+                                                                      for p, c in cosines.items()))
