@@ -7,8 +7,8 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
 1. **Rotations and root, smoothed over the window.** The engine's own 1€ filters are off (the
    per-frame fits come in). ``L = 0``: the rotations through a causal 1€ filter
    (``causal_rotations``: a still joint smoothed below 0.5 Hz). ``L > 0``: the per-frame fits of
-   frames ``t − 2L … t`` give a zero-phase Gaussian mean (cut-off ``smoothing_hz``, as the whole
-   take's; quaternions sign-aligned to the centre frame, then normalised); the per-frame roots the
+   frames ``t − 2L … t`` give a zero-phase Gaussian mean (the whole take's response: it smooths twice
+   at ``smoothing_hz``, before and after its re-fit, so one Gaussian √2 as wide; quaternions sign-aligned to the centre frame, then normalised); the per-frame roots the
    same Gaussian mean. The root then passes the whole take's root model as a causal Kalman filter
    (:class:`~mocapdb.runtime.root_filter.RootFilter`: precise across the viewing ray, loose along
    it, smooth; a pop's pull capped) either way.
@@ -147,7 +147,8 @@ class OnlineTrack:
 
     def __init__(self, fps: float, params: OnlineParams):
         self.fps, self.params = fps, params
-        self.sigma_frames = fps / (2.0 * np.pi * params.smoothing_hz)
+        # the whole take smooths twice at smoothing_hz (before and after its re-fit): one Gaussian √2 as wide
+        self.sigma_frames = np.sqrt(2.0) * fps / (2.0 * np.pi * params.smoothing_hz)
         self.half_window = max(round(CONTACT_WINDOW_S * fps / 2), 1)
         self.recent: dict[int, PersonPose] = {}
         self.boxes: deque[float] = deque(maxlen=int(2 * fps))
