@@ -8,10 +8,11 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    per-frame fits come in). ``L = 0``: the rotations through a causal 1€ filter
    (``causal_rotations``: a still joint smoothed below 0.5 Hz). ``L > 0``: the per-frame fits of
    frames ``t − 2L … t`` give a zero-phase Gaussian mean (the whole take's response: it smooths twice
-   at ``smoothing_hz``, before and after its re-fit, so one Gaussian √2 as wide; quaternions sign-aligned to the centre frame, then normalised); the per-frame roots the
-   same Gaussian mean. The root then passes the whole take's root model as a causal Kalman filter
-   (:class:`~mocapdb.runtime.root_filter.RootFilter`: precise across the viewing ray, loose along
-   it, smooth; a pop's pull capped) either way.
+   at ``smoothing_hz``, before and after its re-fit, so one Gaussian √2 as wide; quaternions
+   sign-aligned to the centre frame, then normalised); the per-frame roots the same Gaussian mean.
+   The root then passes the whole take's root model as a causal Kalman filter
+   (:class:`~mocapdb.runtime.root_filter.RootFilter`: precise across the viewing ray, loose along it,
+   smooth; a pop's pull capped) either way.
 2. **Foot contacts with hysteresis.** Each foot's image speed (box heights per second: the slope of
    a line fitted to its keypoints over the frames around it, at most :data:`CONTACT_WINDOW_S` and
    only as far ahead as the lag reaches) is its heel's and big toe's, the faster of the two, where
