@@ -16,6 +16,14 @@ estimates so far (jumps and frames with both feet off the floor are a minority),
 the people's heights by how far the camera's tilt error can move it (:class:`FloorScale`), and
 clipped to bodies 0.5–2.5 m tall. Assumes a level floor, at least one foot on it most of the time, and a
 camera roll/pitch that does not change during the track.
+
+One body (:class:`BoneLengths`) serves the 2D fit and the files: their rotations are the fit's, and
+only the fit's skeleton gives back the joints the stream sent. It takes what the keypoints
+consistently measure, which is the input's convention whether anatomy agrees or not (mocap hip-joint
+centres 0.09–0.10 m apart, against the universal skeleton's 0.20 m).
+The exception is a bone of the stature chain (thigh, shank, torso, neck→nose): the proportions are
+rescaled to the assumed stature through that chain, so an implausible one there would resize every
+other bone; such a bone is not believed (a head-top keypoint; ``data_specs/stream_output.md``).
 """
 from __future__ import annotations
 
@@ -171,11 +179,11 @@ class BoneLengths:
     :data:`SAMPLE_SD`, and is rescaled to 1.75 m stature: the body's size stays what the track
     assumes (a given height, the floor, or 1.75 m); only its proportions are measured.
 
-    A median is judged as a proportion first (:func:`believed_bones`): one further from the prior's
-    than its people's, joint conventions' and own spread allow (a head keypoint on top of the
-    head: neck→nose 1.6×) is not believed and gets no weight, so the prior's value stands for that
-    bone and it does not shrink the rest through the stature (``data_specs/stream_output.md``, "The
-    person's own body").
+    A median of the stature chain (:data:`SIZE_BONES`) is judged as a proportion first
+    (:func:`believed_bones`): one further from the prior's than its people's, joint conventions' and
+    own spread allow (a head keypoint on top of the head: neck→nose 1.6×) is not believed and gets
+    no weight, so the prior's value stands for that bone and it does not shrink the rest through the
+    stature. Other bones are always believed (module docstring, "One body").
     """
 
     IN_PLANE = 0.9
@@ -220,18 +228,22 @@ class BoneLengths:
 PLAUSIBLE_SD = 3.0    # a bone's proportion further from the prior's than this many SDs is not believed
 CONVENTION_SD = 0.10  # log length: where skeletons and detectors put a joint (CMU's shank: +0.20 at one stature)
 MIN_OTHERS = 3        # measured other bones needed to judge a bone's proportion
+# The bones judged: the stature chain, through which a bone sets every other bone's size. Widths and
+# arm bones set no other bone's length; whatever they measure is the input's convention.
+SIZE_BONES = stature_m(np.eye(len(MEASURED_BONE_NAMES))) > 0
 
 
 def believed_bones(medians: np.ndarray, precision: np.ndarray) -> np.ndarray:
     """Per bone ``[8]``, whether its median log factor (``medians``, weight ``precision``: 0 when
-    unmeasured) is believed: measured, and its proportion (the median minus the body's common
-    size, the median of the other measured bones' medians) within :data:`PLAUSIBLE_SD` SDs of the
-    prior's. The SD is that of the bone minus the others' mean when each bone varies as people do
-    (``PROPORTION_COVARIANCE``), by joint conventions (:data:`CONVENTION_SD`) and by its median's
-    error (``1 / precision``). Bones with fewer than :data:`MIN_OTHERS` measured others are believed."""
+    unmeasured) is believed: measured, and, for :data:`SIZE_BONES`, its proportion (the median minus
+    the body's common size, the median of the other measured bones' medians) within
+    :data:`PLAUSIBLE_SD` SDs of the prior's. The SD is that of the bone minus the others' mean when
+    each bone varies as people do (``PROPORTION_COVARIANCE``), by joint conventions
+    (:data:`CONVENTION_SD`) and by its median's error (``1 / precision``). Bones with fewer than
+    :data:`MIN_OTHERS` measured others are believed."""
     measured = precision > 0
     others = measured[None, :] & ~np.eye(len(medians), dtype=bool)
-    judged = measured & (others.sum(axis=1) >= MIN_OTHERS)
+    judged = measured & SIZE_BONES & (others.sum(axis=1) >= MIN_OTHERS)
     believed = measured.copy()
     if not judged.any():
         return believed

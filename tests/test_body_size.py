@@ -7,7 +7,7 @@ from mocapdb.core.exports import write_tracks
 from mocapdb.core.formats.bvh import forward_kinematics, read_bvh
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import axis_rotation_matrices, yaw_matrix
-from mocapdb.core.skeleton import PELVIS, UNIVERSAL_HEIGHT_M
+from mocapdb.core.skeleton import KP, PELVIS, UNIVERSAL_HEIGHT_M
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 
@@ -132,15 +132,25 @@ def test_tilt_error_grows_with_the_frames_disagreement():
 
 
 def _filled(log_factors, n=None):
-    """A BoneLengths whose every bone holds ``n`` (default all) samples of ``log_factors [8]``; a NaN: none."""
+    """A BoneLengths whose bones hold ``n`` (a count, or one per bone; default all) samples of
+    ``log_factors [8]``; a NaN: none."""
     from mocapdb.runtime.body_size import BoneLengths
 
     bones = BoneLengths()
-    n = bones.CAPACITY if n is None else n
+    counts = np.broadcast_to(bones.CAPACITY if n is None else n, len(log_factors))
     for b, value in enumerate(log_factors):
         if np.isfinite(value):
-            bones.samples[b, :n], bones.counts[b] = value, n
+            bones.samples[b, :counts[b]], bones.counts[b] = value, counts[b]
     return bones
+
+
+def _head_on_top(world_m, neck_nose_m):
+    """Joints ``[F, 15, 3]`` with the head keypoint where a head-top detector puts it: ``neck_nose_m``
+    straight above the neck (along pelvis→neck)."""
+    up = world_m[:, KP["neck"]] - world_m[:, PELVIS]
+    out = world_m.copy()
+    out[:, KP["head"]] = world_m[:, KP["neck"]] + neck_nose_m * up / np.linalg.norm(up, axis=-1, keepdims=True)
+    return out
 
 
 def test_a_head_top_keypoint_is_not_believed_and_does_not_shrink_the_body(monkeypatch):
@@ -188,14 +198,11 @@ def test_a_head_top_detector_keeps_the_legs_through_the_engine(small_db):
     """A walk rendered twice, the head keypoint once at the nose and once on top of the head (straight
     above the neck, 1.6 × neck→nose): the track's thigh and shank come out the same (they were 6 %
     shorter when the head-top bone was believed)."""
-    from mocapdb.core.skeleton import KP, MEASURED_BONE_NAMES, universal_bone_lengths_m
+    from mocapdb.core.skeleton import MEASURED_BONE_NAMES, universal_bone_lengths_m
 
     first, n = small_db.clip_first_frame[0], small_db.clip_n_frames[0]
     world = small_db.positions[first:first + n].astype(np.float64)
-    up = world[:, KP["neck"]] - world[:, PELVIS]
-    head_top = world.copy()
-    head_top[:, KP["head"]] = world[:, KP["neck"]] + 1.6 * universal_bone_lengths_m()[-1] * up / np.linalg.norm(
-        up, axis=-1, keepdims=True)
+    head_top = _head_on_top(world, 1.6 * universal_bone_lengths_m()[-1])
     legs = [MEASURED_BONE_NAMES.index("thigh"), MEASURED_BONE_NAMES.index("shank")]
     found = []
     for body in (world, head_top):
