@@ -72,6 +72,16 @@ class CameraTilt:
         norm = np.linalg.norm(self.up_sum)
         return self.up_sum / norm if norm > 0 else np.array([0.0, 1.0, 0.0])
 
+    @property
+    def roll_rad(self) -> float:
+        """The camera's roll this estimate gives (radians; positive when the world's up leans to the
+        image's left, as :attr:`~mocapdb.runtime.world.World.roll_deg`), shrunk towards 0 by the least
+        error of the estimate (:data:`TILT_SD_DEG`): a roll within it is taken as none (shrinking by the
+        frames' spread, :attr:`sd_deg`, gave back most of the gain on the real take)."""
+        up = self.up
+        roll = float(np.arctan2(-up[0], up[1]))
+        return float(np.sign(roll) * max(abs(roll) - np.radians(TILT_SD_DEG), 0.0))
+
     def tilt_root(self, root_upright: np.ndarray, out: np.ndarray) -> None:
         """``out`` = the upright root quaternion turned by the estimated tilt (view frame)."""
         _tilt_into(self.up_sum, root_upright, self._scratch[0], out)

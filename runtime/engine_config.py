@@ -56,6 +56,7 @@ class EngineConfig:
     max_gap_s: float = 1.0               # a longer jump in time (or frame number / fps) ends every track
     translation: bool = True             # estimate the root translation from the image
     refine_yaw: bool = True              # refine the matched yaw between the database's yaws
+    upright_search: bool = True          # search the keypoints turned upright by the track's roll estimate
     refine: bool = True                  # 2D refinement after retrieval (False: the method as published)
     refinement: RefineParams = field(default_factory=RefineParams)
     own_body: bool = True                # estimate each track's bone proportions from its 2D (needs refine)

@@ -96,7 +96,10 @@ class PosePipeline:
                   visible: np.ndarray) -> tuple[np.ndarray, np.ndarray, Match]:
         """The method's pose: search, Eq. 2 choice, yaw refinement. Returns its rotations ``[R, 4]``
         (root turned by the yaw), the root seen at the image's size for the track's body scale,
-        and the match."""
+        and the match. The database's projections are upright: a rolled camera's keypoints are first
+        turned upright about the mid-hip by the track's roll estimate (:func:`upright_px`)."""
+        if self.config.upright_search:
+            points_px = upright_px(points_px, visible, state.tilt.roll_rad)
         query, _, _ = normalize_pose_2d(points_px, visible)
         rows, dist = self.search(query, visible)
         best = self._choose(state, rows, dist)
@@ -146,6 +149,18 @@ class PosePipeline:
         """Pelvis position in the view frame for a 1.75 m body, from the image by a pinhole model."""
         return root_from_image(self.db.positions[frame], yaw_deg, points_px, visible,
                                self.config.focal_px, *self.config.center_px)
+
+
+def upright_px(points_px: np.ndarray, visible: np.ndarray, roll_rad: float) -> np.ndarray:
+    """Keypoints ``[14, 2]`` (pixels, y down) turned about their mid-hip (the visible hips', else the
+    visible points' mean) so that a world up leaning ``roll_rad`` to the image's left (the camera's
+    roll, as :attr:`~mocapdb.runtime.world.World.roll_deg`) points up the image."""
+    if roll_rad == 0.0 or not visible.any():
+        return points_px
+    hips = [k for k in (R_HIP, L_HIP) if visible[k]]
+    centre = points_px[hips].mean(axis=0) if hips else points_px[visible].mean(axis=0)
+    c, s = np.cos(roll_rad), np.sin(roll_rad)
+    return (points_px - centre) @ np.array([[c, s], [-s, c]]) + centre
 
 
 def _check_frame_major(db: MotionDatabase) -> None:

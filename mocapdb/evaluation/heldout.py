@@ -36,6 +36,7 @@ class Scenario:
     dropout: float = 0.0        # probability that a keypoint is missing
     swap: float = 0.0           # probability per frame that left and right are swapped
     pitch_deg: float = 0.0      # camera tilted down by this angle about its x axis
+    roll_deg: float = 0.0       # then rolled about its optical axis: the world's up leans this far to the image's left
     subject_height_m: float = UNIVERSAL_HEIGHT_M  # truth scaled by this / 1.75 before rendering
     height_given: bool = False  # the engine is told subject_height_m (EngineConfig.subject_height_m)
     body: str = "universal"     # "universal": the retargeted clip; "varied": its source joints on a
@@ -56,6 +57,7 @@ DEFAULT_SCENARIOS = (
     Scenario("clean, camera 2.2 m", camera_height_m=2.2),
     Scenario("sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05),
     Scenario("clean, camera 1.5 m pitched 15 deg", pitch_deg=15.0),
+    Scenario("clean, camera 1.5 m pitched 15 deg, rolled 30 deg", pitch_deg=15.0, roll_deg=30.0),
     Scenario("clean, subject 1.55 m, height given", subject_height_m=1.55, height_given=True),
     Scenario("varied bodies, clean, camera 1.5 m", body="varied"),
     Scenario("varied bodies, clean, pitched 15 deg", pitch_deg=15.0, body="varied"),
@@ -143,12 +145,22 @@ def camera_distance(positions: np.ndarray, yaw_deg: float, config: EvalConfig) -
 
 
 def camera_view(positions: np.ndarray, yaw_deg: float, height_m: float, distance_m: float,
-                pitch_deg: float = 0.0) -> np.ndarray:
+                pitch_deg: float = 0.0, roll_deg: float = 0.0) -> np.ndarray:
     """World points ``[F, J, 3]`` in the camera-aligned frame (x right, y up, z away from the camera):
     turned by ``yaw_deg`` about the clip's mean pelvis, seen by a camera ``distance_m`` in front of
-    it (along +z) at ``height_m`` above the floor, looking along −z and tilted down by ``pitch_deg``."""
+    it (along +z) at ``height_m`` above the floor, looking along −z, tilted down by ``pitch_deg`` and
+    rolled by ``roll_deg`` (:func:`_rolled`)."""
     centre = positions[:, PELVIS].mean(axis=0) * [1, 0, 1]
-    return _pitched((positions - centre) @ yaw_matrix(yaw_deg).T - [0.0, height_m, distance_m], pitch_deg)
+    turned = (positions - centre) @ yaw_matrix(yaw_deg).T - [0.0, height_m, distance_m]
+    return _rolled(_pitched(turned, pitch_deg), roll_deg)
+
+
+def _rolled(cam_points: np.ndarray, roll_deg: float) -> np.ndarray:
+    """Camera-aligned points of a camera rolled by ``roll_deg`` about its optical axis: the world's up
+    then leans that far to the image's left (as ``World.roll_deg``); negative ``roll_deg`` undoes it."""
+    c, s = np.cos(np.radians(roll_deg)), np.sin(np.radians(roll_deg))
+    x, y, z = cam_points[..., 0], cam_points[..., 1], cam_points[..., 2]
+    return np.stack([c * x - s * y, s * x + c * y, z], axis=-1)
 
 
 def _pitched(points: np.ndarray, pitch_deg: float) -> np.ndarray:
@@ -159,11 +171,12 @@ def _pitched(points: np.ndarray, pitch_deg: float) -> np.ndarray:
     return np.stack([x, c * y - s * z, -s * y - c * z], axis=-1)
 
 
-def camera_to_world(cam_points: np.ndarray, height_m: float, distance_m: float, pitch_deg: float = 0.0) -> np.ndarray:
+def camera_to_world(cam_points: np.ndarray, height_m: float, distance_m: float, pitch_deg: float = 0.0,
+                    roll_deg: float = 0.0) -> np.ndarray:
     """The inverse of :func:`camera_view` up to the clip's turn and centre: camera-aligned points →
     the turned world (y up, metres above the floor; x-z horizontal, about the floor point under the
     clip's mean pelvis)."""
-    return _pitched(cam_points, pitch_deg) + [0.0, height_m, distance_m]
+    return _pitched(_rolled(cam_points, -roll_deg), pitch_deg) + [0.0, height_m, distance_m]
 
 
 def view_of(truth: Truth, yaw_deg: float, height_m: float, distance_m: float, pitch_deg: float = 0.0) -> np.ndarray:

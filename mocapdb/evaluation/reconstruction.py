@@ -160,9 +160,10 @@ class View:
     camera_height_m: float
     distance_m: float
     pitch_deg: float
+    roll_deg: float = 0.0
 
     def world(self, cam_points: np.ndarray) -> np.ndarray:
-        return camera_to_world(cam_points, self.camera_height_m, self.distance_m, self.pitch_deg)
+        return camera_to_world(cam_points, self.camera_height_m, self.distance_m, self.pitch_deg, self.roll_deg)
 
 
 BELOW_HEAD = np.array([k for k in range(N_POINTS) if k not in (KP["head"], PELVIS)])  # the 13 joints scored
@@ -401,8 +402,9 @@ def evaluate_scenario(db: MotionDatabase, truths: list[Truth], scenario: Scenari
         for j, yaw in enumerate(truth.yaws_deg or config.yaws_deg):
             positions, height = scenario_positions(truth, scenario, i, j, config.seed)
             distance = camera_distance(positions, yaw, config)
-            view = View(camera_view(positions, yaw, scenario.camera_height_m, distance, scenario.pitch_deg),
-                        scenario.camera_height_m, distance, scenario.pitch_deg)
+            view = View(camera_view(positions, yaw, scenario.camera_height_m, distance, scenario.pitch_deg,
+                                    scenario.roll_deg), scenario.camera_height_m, distance, scenario.pitch_deg,
+                        scenario.roll_deg)
             frames = render(view.cam, scenario, config.focal_px, config.image_size, rng)
             floor = floors[floor_key(i, j, scenario)]
             for name, refine in VARIANTS:
