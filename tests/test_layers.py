@@ -1,8 +1,10 @@
 """The architecture holds: layers import downwards only, errors is a leaf, the CLI starts light.
 
 Layers (docs/architecture.md, data_specs/architecture.md):
-core → applications (builder, detect, runtime, stereo, render) → evaluation → cli / the public API.
-Within the applications only runtime may use another application (detect: video input).
+core → applications (builder, detect, runtime, stereo, render) → evaluation, view → cli / the public API.
+Within the applications only runtime may use another application (detect: video input); the viewer
+(view: the page of `mocapdb view` and `live --view`) shows what render reads and runtime streams, and
+only the CLI imports it.
 """
 import ast
 import os
@@ -18,8 +20,9 @@ APPLICATIONS = {"builder": set(), "detect": set(), "runtime": {"detect"}, "stere
 ALLOWED = {"core": {"core"}}
 ALLOWED |= {app: {"core", app} | uses for app, uses in APPLICATIONS.items()}
 ALLOWED["evaluation"] = {"core", "evaluation", *APPLICATIONS}
-ALLOWED["cli"] = {"core", "evaluation", "cli", *APPLICATIONS}
-ALLOWED["__init__"] = ALLOWED["cli"] - {"cli"}  # the public API (mocapdb/__init__.py)
+ALLOWED["view"] = {"core", "render", "runtime", "view"}
+ALLOWED["cli"] = {"core", "evaluation", "view", "cli", *APPLICATIONS}
+ALLOWED["__init__"] = ALLOWED["cli"] - {"cli", "view"}  # the public API (mocapdb/__init__.py)
 ALLOWED["__main__"] = {"cli"}
 
 

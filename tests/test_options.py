@@ -47,8 +47,11 @@ def _name(action: argparse.Action) -> str:
 
 
 def _run(command: str, action: argparse.Action, value: str, capsys) -> tuple[int, str]:
-    nargs = action.nargs if isinstance(action.nargs, int) else 1
-    code = main([command, *(_name(action), *[value] * nargs)])
+    if action.nargs == "?":  # an optional value (live --view [PORT]): a dash-led one after a space is the next option
+        code = main([command, f"{_name(action)}={value}"])
+    else:
+        nargs = action.nargs if isinstance(action.nargs, int) else 1
+        code = main([command, *(_name(action), *[value] * nargs)])
     return code, capsys.readouterr().err
 
 

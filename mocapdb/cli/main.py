@@ -10,13 +10,14 @@ import logging
 import sys
 
 from mocapdb import __version__
-from mocapdb.cli import build, detect, evaluate, reconstruct, render, stereo
+from mocapdb.cli import build, detect, evaluate, reconstruct, render, stereo, view
 from mocapdb.cli.paths import check_outputs_apart
 from mocapdb.core.errors import MocapdbError
 
 COMMANDS = (build.add_build_parser, build.add_inspect_parser, build.add_verify_parser,
             reconstruct.add_reconstruct_parser, reconstruct.add_live_parser, evaluate.add_eval_parser,
-            detect.add_detect_parser, detect.add_models_parser, stereo.add_stereo_parser, render.add_render_parser)
+            detect.add_detect_parser, detect.add_models_parser, stereo.add_stereo_parser, render.add_render_parser,
+            view.add_view_parser)
 
 
 class _Parser(argparse.ArgumentParser):

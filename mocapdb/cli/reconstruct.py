@@ -8,6 +8,7 @@ import sys
 
 from mocapdb.cli import paths as P
 from mocapdb.cli.detect import add_detector_options, add_model_options, fast_path
+from mocapdb.cli.view import add_page_options, open_page
 from mocapdb.core import domains as D
 from mocapdb.core import search_rules as S
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
@@ -239,7 +240,7 @@ def _engine(args: argparse.Namespace):
     return Engine(load_database(args.db, verify_checksums=not args.no_verify, projections=False), config)
 
 
-def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=None):
+def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=None, page=None):
     from pathlib import Path
 
     from mocapdb.core.errors import UsageError
@@ -248,7 +249,7 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
     from mocapdb.runtime.stream.session import FrameParser, Session
     from mocapdb.runtime.stream.session_options import SessionOptions
     from mocapdb.runtime.stream.session_summary import SessionSummary
-    from mocapdb.runtime.stream.transport import StreamStats, open_sink
+    from mocapdb.runtime.stream.transport import StreamStats, TeeSink, open_sink
     from mocapdb.runtime.subject import parse_people
     from mocapdb.runtime.take_params import TakeParams
 
@@ -274,6 +275,8 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
     engine = _engine(args)
     engine.config.limits = limits
     sink = open_sink(sink_spec, summary.stream, getattr(args, "vmc_track", None))
+    if page is not None:  # live --view: the page's sink beside the command's own
+        sink = TeeSink([sink, page])
     return Session(engine, sink, FrameParser(args.keypoints), summary, options)
 
 
@@ -406,6 +409,7 @@ def add_live_parser(sub: argparse._SubParsersAction) -> None:
                    help="messages of a live stream (tcp, udp, stdin) buffered before the oldest is dropped (default "
                         "%(default)s); a folder of frames or a .jsonl file is read at the engine's pace, nothing "
                         "dropped")
+    add_page_options(p, "--view")
     add_detector_options(p, "crops")
     _add_engine_options(p)
     p.set_defaults(run=run_live)
@@ -430,7 +434,20 @@ def run_live(args: argparse.Namespace) -> int:
     if args.bvh_dir:
         check_no_track_files(args.bvh_dir)
     resolve_take(args, args.source)
-    session = _session(args, args.sink, strict=False)
+    server = feed = None
+    if args.view is not None:  # the page first: its address is printed before the database loads
+        from mocapdb.view.live import LiveFeed, PageSink
+        from mocapdb.view.server import ViewServer
+
+        feed = LiveFeed()
+        server = ViewServer(args.view, feed=feed)
+        open_page(server.url, args, "live")
+    try:
+        session = _session(args, args.sink, strict=False, page=None if feed is None else PageSink(feed))
+    except BaseException:
+        if server is not None:
+            server.close()
+        raise
     stop, video = threading.Event(), None
     with install_stop_handlers(stop, force_quit=False):
         try:
@@ -446,8 +463,14 @@ def run_live(args: argparse.Namespace) -> int:
         except SinkError:
             pass  # recorded in the summary; reported below
         finally:
-            summary = session.finish(Path(args.bvh_dir) if args.bvh_dir else None)
+            try:
+                summary = session.finish(Path(args.bvh_dir) if args.bvh_dir else None)
+            finally:
+                if server is not None:
+                    server.close()
         print(summary.report(), file=sys.stderr)
+        if feed is not None:
+            print(feed.report(), file=sys.stderr)
         if source_line := summary.stream.source_report():
             print(source_line, file=sys.stderr)
         if video is not None:

@@ -219,6 +219,7 @@ IDLE_TIMEOUT_S = Domain("a duration in seconds", 0, 1_000_000, low_open=True)
 CLIENT_TIMEOUT_S = Domain("a duration in seconds", 0, 86_400, low_open=True, default=30.0)
 MAX_CLIENTS = Domain("a number of clients", 1, 1024, integer=True, default=16)
 MAX_RATE_HZ = Domain("a number of messages per second", 0, 1_000_000, zero_means="no limit", default=1000.0)
+VIEW_PORT = Domain("a TCP port", 0, 65_535, integer=True, zero_means="any free port", default=0)
 BUFFER_MESSAGES = Domain("a number of messages", 1, 10_000, integer=True, default=2)
 
 # --- detection -----------------------------------------------------------------------------

@@ -15,7 +15,7 @@ from mocapdb.render.results import RenderError, read_cameras, read_result
 from mocapdb.render.video_io import PNG_FILE, write_png
 
 
-def _stereo_basis(cams) -> np.ndarray | None:
+def stereo_basis(cams) -> np.ndarray | None:
     """Camera-aligned (camera 1) → scene axes (x right, y up, z forward) from ``bvh_from_camera1``."""
     if cams.bvh_from_camera1 is None:
         return None
@@ -38,7 +38,7 @@ def render_stereo_plot(stereo_dir: str | Path, out_png: str | Path, panel: int =
     flip = np.diag([1.0, -1.0, 1.0])   # OpenCV camera-1 axes ↔ camera-aligned axes
     centres = np.array([flip @ c.center_m for c in cams.cameras])
     joints = stream.all_joints()
-    basis = _stereo_basis(cams)
+    basis = stereo_basis(cams)
     top = draw.fit_view(joints, basis, centres, azimuth_deg=0.0, elevation_deg=90.0)
     oblique = draw.fit_view(joints, basis, centres, azimuth_deg=-35.0, elevation_deg=25.0)
     spread = top.half_extent

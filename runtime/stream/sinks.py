@@ -24,7 +24,7 @@ from typing import Self
 from mocapdb.core.outputs import PersonPose, frame_line
 from mocapdb.runtime.stream.messages import StreamStats, resolve_address
 
-__all__ = ["MAX_DATAGRAM_BYTES", "FileSink", "Sink", "StdoutSink", "TcpSink", "UdpSink"]
+__all__ = ["MAX_DATAGRAM_BYTES", "FileSink", "Sink", "StdoutSink", "TcpSink", "TeeSink", "UdpSink"]
 
 MAX_DATAGRAM_BYTES = 60_000   # longest UDP sink datagram; longer lines are dropped
 
@@ -60,6 +60,34 @@ class Sink(ABC):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class TeeSink(Sink):
+    """Every line and frame to each of ``sinks`` in turn (each in its own way: a line sink its JSON
+    line, an avatar sink its protocol); counts in the first one's stats. :meth:`close` closes them
+    all, then raises the first error any raised."""
+
+    def __init__(self, sinks: list[Sink]) -> None:
+        super().__init__(sinks[0].stats)
+        self.sinks = sinks
+
+    def _put(self, text: str) -> None:
+        for sink in self.sinks:
+            sink.write(text[:-1])
+
+    def write_frame(self, frame_index: int, time_s: float, people: list[PersonPose]) -> None:
+        for sink in self.sinks:
+            sink.write_frame(frame_index, time_s, people)
+
+    def close(self) -> None:
+        errors = []
+        for sink in self.sinks:
+            try:
+                sink.close()
+            except OSError as exc:
+                errors.append(exc)
+        if errors:
+            raise errors[0]
 
 
 class StdoutSink(Sink):

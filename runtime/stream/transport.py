@@ -34,15 +34,15 @@ from mocapdb.runtime.stream.net_sources import (
     UdpSource,
 )
 from mocapdb.runtime.stream.osc_sinks import VMC_PORT, VRCHAT_PORT, VmcSink, VrchatSink
-from mocapdb.runtime.stream.sinks import MAX_DATAGRAM_BYTES, FileSink, Sink, StdoutSink, TcpSink, UdpSink
+from mocapdb.runtime.stream.sinks import MAX_DATAGRAM_BYTES, FileSink, Sink, StdoutSink, TcpSink, TeeSink, UdpSink
 from mocapdb.runtime.stream.source_base import MAX_MESSAGE_BYTES, POLL_S, Source
 from mocapdb.runtime.stream.sources import SETTLE_S, FolderSource, JsonLinesFileSource, StdinSource
 
 __all__ = ["CLIENT_TIMEOUT_S", "MAX_CLIENTS", "MAX_DATAGRAM_BYTES", "MAX_MESSAGE_BYTES", "MAX_RATE", "POLL_S",
            "SETTLE_S", "BufferedThread", "FileSink", "FolderSource", "JsonLinesFileSource", "LiveInput",
            "NetworkLimits", "RawMessage", "Sink", "Source", "StdinSource", "StdoutSink", "StreamSpecError",
-           "StreamStats", "TcpSink", "TcpSource", "UdpSink", "UdpSource", "VmcSink", "VrchatSink", "check_sink",
-           "open_sink", "open_source"]
+           "StreamStats", "TcpSink", "TcpSource", "TeeSink", "UdpSink", "UdpSource", "VmcSink", "VrchatSink",
+           "check_sink", "open_sink", "open_source"]
 
 
 def open_source(spec: str, *, stats: StreamStats | None = None, follow: bool = False,

@@ -1,0 +1,231 @@
+"""`mocapdb view` and `live --view` (issue 38): the page in a real browser (Debian's Chromium, headless,
+through Playwright), the server's limits, the live sink that never waits for a page."""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mocapdb.core.outputs import PersonPose
+from mocapdb.render.tracks import read_csv_joints
+from mocapdb.runtime.stream.sinks import FileSink, TeeSink
+from mocapdb.view.live import QUEUE_FRAMES, LiveFeed, PageSink
+from mocapdb.view.server import ViewServer
+from mocapdb.view.take import open_take
+from tests.conftest import ROOT, SAMPLE_KEYPOINTS
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+STATIC = ROOT / "mocapdb" / "view" / "static"
+SAMPLE = ["--fps", "60", "--image-size", "1088x1920", "--focal", "1681"]
+FRAME_K = 57
+
+
+@pytest.fixture(scope="module")
+def take_folder(tmp_path_factory, small_db_path) -> Path:
+    """The bundled Pose2Sim take reconstructed with the small database (CSV and BVH track files)."""
+    from mocapdb.cli.main import main
+
+    out = tmp_path_factory.mktemp("view") / "take"
+    assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), *SAMPLE, "--format", "csv,bvh",
+                 "--out", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Headless Chromium from Debian's packages (never a browser Playwright would download)."""
+    if CHROMIUM is None:
+        pytest.skip("no chromium on PATH (apt-get install chromium): the page is not tested in a browser")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
+    with sync_api.sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=CHROMIUM, args=["--enable-unsafe-swiftshader"])
+        yield chromium
+        chromium.close()
+
+
+def open_page(browser, url: str):
+    """A page at ``url`` and the list its console errors and uncaught exceptions go to."""
+    page = browser.new_page(viewport={"width": 1400, "height": 800})
+    errors: list[str] = []
+    page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url)
+    return page, errors
+
+
+def variance_of(png: bytes) -> float:
+    import cv2
+
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_GRAYSCALE)
+    return float(img.astype(np.float64).var())
+
+
+def test_three_js_is_bundled_as_pinned_and_installed_with_the_package():
+    for line in (STATIC / "three" / "SHA256SUMS").read_text().splitlines():
+        digest, name = line.split()
+        assert hashlib.sha256((STATIC / "three" / name).read_bytes()).hexdigest() == digest, name
+    doc = (ROOT / "data_specs" / "viewer.md").read_text()
+    assert all(line.split()[0] in doc for line in (STATIC / "three" / "SHA256SUMS").read_text().splitlines())
+    data = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["mocapdb.view"]
+    assert set(data) >= {"static/*.html", "static/*.js", "static/three/*"}
+
+
+def test_the_page_shows_the_take_and_the_track_files_joints(browser, take_folder, tmp_path):
+    world = json.loads((take_folder / "world.json").read_text())
+    main_track = world["main_track"]
+    frames, joints = read_csv_joints(take_folder / f"track_{main_track}.csv")
+    server = ViewServer(0, take=open_take(take_folder, SAMPLE_KEYPOINTS), folder=take_folder)
+    try:
+        start = time.perf_counter()
+        page, errors = open_page(browser, server.url)
+        page.wait_for_function("window.mocapdbViewer && window.mocapdbViewer.ready === true", timeout=30_000)
+        load_s = time.perf_counter() - start
+        canvas = page.locator("#scene canvas").screenshot()
+        assert variance_of(canvas) > 20, "the 3D view is blank"
+        assert variance_of(page.locator("#image").screenshot()) > 20, "the image panel is blank"
+        # scrub to frame k with the slider, as a user drags it
+        page.evaluate(f"""() => {{ const s = document.getElementById('scrub');
+                                   s.value = {FRAME_K}; s.dispatchEvent(new Event('input')); }}""")
+        page.wait_for_function(f"window.mocapdbViewer.frame() === {FRAME_K}")
+        drawn = np.array(page.evaluate(f"window.mocapdbViewer.pose({main_track})"), dtype=np.float64)
+        expected = joints[list(frames).index(FRAME_K)]
+        assert np.abs(drawn - expected).max() < 1e-3, "the 3D view does not draw the track file's joints"
+        assert f"frame {FRAME_K}" in page.text_content("#frame-label")
+        assert page.text_content("#tracks").count("m ±") >= 1   # each person's stature ± its spread
+        page.screenshot(path=str(tmp_path / "take.png"))
+        # hide the person: nothing drawn for it
+        page.locator(f"#tracks input[data-track='{main_track}']").uncheck()
+        assert page.evaluate(f"window.mocapdbViewer.pose({main_track})") is None
+        page.locator(f"#tracks input[data-track='{main_track}']").check()
+        # play from the start at the take's rate
+        page.evaluate("window.mocapdbViewer.seek(0)")
+        page.click("#play")
+        time.sleep(1.0)
+        stats = page.evaluate("window.mocapdbViewer.stats()")
+        links = page.eval_on_selector_all("#files a", "as => as.map(a => a.textContent)")
+        assert {"world.json", f"track_{main_track}.bvh", f"track_{main_track}.csv"} <= set(links)
+        with urllib.request.urlopen(server.url + "files/world.json") as answer:
+            assert json.loads(answer.read())["main_track"] == main_track
+        assert not errors, errors
+        print(f"\nview: page ready in {load_s * 1000:.0f} ms (the page's own clock: {stats['loadMs']:.0f} ms); "
+              f"played {stats['playFrames']} frames in {stats['playSeconds']:.2f} s: {stats['playFps']:.1f} "
+              f"frames/s (the take: 60)")
+        assert stats["playFps"] > 5
+    finally:
+        server.close()
+
+
+def test_the_stereo_output_shows_both_cameras(browser, tmp_path):
+    from mocapdb.cli.main import main
+
+    out = tmp_path / "stereo"
+    assert main(["stereo", str(SAMPLE_KEYPOINTS), str(SAMPLE_KEYPOINTS.parent / "pose2sim_cam04"), "--calibration",
+                 str(SAMPLE_KEYPOINTS.parent / "calibration.toml"), "--cameras", "cam_01", "cam_04", "--fps", "60",
+                 "--camera-distance", "5.24", "--out", str(out)]) == 0
+    take = open_take(out)
+    assert take.meta["kind"] == "stereo" and [c["name"] for c in take.meta["cameras"]] == ["cam_01", "cam_04"]
+    centres = [np.array(c["position"]) for c in take.meta["cameras"]]
+    assert np.linalg.norm(centres[1] - centres[0]) == pytest.approx(5.24, abs=0.01)
+    server = ViewServer(0, take=take, folder=out)
+    try:
+        page, errors = open_page(browser, server.url)
+        page.wait_for_function("window.mocapdbViewer && window.mocapdbViewer.ready === true", timeout=30_000)
+        assert variance_of(page.locator("#scene canvas").screenshot()) > 20
+        assert not errors, errors
+    finally:
+        server.close()
+
+
+def _get(url: str, host: str | None = None) -> int:
+    request = urllib.request.Request(url, headers={"Host": host} if host else {})
+    try:
+        with urllib.request.urlopen(request) as answer:
+            return answer.status
+    except urllib.error.HTTPError as exc:
+        return exc.code
+
+
+def test_the_server_answers_the_loopback_only_and_serves_only_the_listed_files(take_folder):
+    server = ViewServer(0, take=open_take(take_folder), folder=take_folder)
+    try:
+        url = server.url
+        assert server.url.startswith("http://127.0.0.1:")
+        assert _get(url) == 200 and _get(url + "static/three/OrbitControls.js") == 200
+        assert _get(url + "files/world.json") == 200
+        assert _get(url + "files/..%2Fworld.json") == 404 and _get(url + "static/../take.py") == 404
+        assert _get(url + "files/take.json") == 404                       # not a file the run wrote
+        assert _get(url, host="example.com") == 403                      # a page elsewhere rebinding its name
+        with urllib.request.urlopen(url + "api/frames?from=10&count=3") as answer:
+            frames = json.loads(answer.read())
+        assert [f["frame"] for f in frames] == [10, 11, 12]
+    finally:
+        server.close()
+
+
+def _pose(track: int) -> PersonPose:
+    joints = np.zeros((15, 3)) + [0.0, 0.0, 4.0]
+    return PersonPose(track, joints, np.zeros((11, 4)), joints[14], None)
+
+
+def test_the_live_sink_never_waits_for_a_page_and_counts_what_it_drops(tmp_path):
+    feed = LiveFeed()
+    slow = feed.subscribe()   # a page that never reads
+    sink = TeeSink([FileSink(tmp_path / "out.jsonl"), PageSink(feed)])
+    sink.write('{"format": "mocapdb-stream", "version": 2, "fps": 30.0, "image_size": [640, 480], "focal_px": 500}')
+    start = time.perf_counter()
+    for k in range(500):
+        sink.write_frame(k, k / 30, [_pose(1)])
+    per_frame_us = (time.perf_counter() - start) / 500 * 1e6
+    sink.close()
+    assert slow is not None and len(slow.queue) == QUEUE_FRAMES
+    assert feed.frames == 500 and feed.dropped == 500 + 2 - QUEUE_FRAMES   # the header and the end queued too
+    assert len((tmp_path / "out.jsonl").read_text().splitlines()) == 501   # the command's own sink has every line
+    assert per_frame_us < 1000, per_frame_us
+    print(f"\nview: the page sink takes {per_frame_us:.0f} µs a frame (JSON line to a file included)")
+
+
+def test_the_live_page_receives_the_frames_of_a_running_live(browser, small_db_path, tmp_path):
+    source = tmp_path / "incoming"
+    source.mkdir()
+    command = [sys.executable, "-m", "mocapdb", "live", "--source", str(source), "--db", str(small_db_path), *SAMPLE,
+               "--sink", str(tmp_path / "out.jsonl"), "--view", "0", "--no-browser", "--idle-timeout", "60"]
+    live = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        line = live.stderr.readline()
+        match = re.search(r"the page is at (http://127\.0\.0\.1:\d+/)", line)
+        assert match, line
+        page, errors = open_page(browser, match[1])
+        page.wait_for_function("window.mocapdbViewer && window.mocapdbViewer.ready === true", timeout=30_000)
+        files = sorted(SAMPLE_KEYPOINTS.glob("*.json"))
+        for f in files:   # a detector writing frames at about 60 fps
+            shutil.copy(f, source / (f.name + ".part"))
+            os.replace(source / (f.name + ".part"), source / f.name)
+            time.sleep(1 / 60)
+        page.wait_for_function("window.mocapdbViewer.stats().received >= 30", timeout=60_000)
+        time.sleep(1.0)
+        stats = page.evaluate("window.mocapdbViewer.stats()")
+        assert variance_of(page.locator("#scene canvas").screenshot()) > 20
+        assert "frames/s" in page.text_content("#status") and "latency" in page.text_content("#status")
+        page.screenshot(path=str(tmp_path / "live.png"))
+        assert not errors, errors
+    finally:
+        live.send_signal(signal.SIGINT)
+        _, err = live.communicate(timeout=120)
+    assert live.returncode == 0, err
+    report = re.search(r"view: 1 page\(s\) watched, (\d+) frame\(s\) sent, (\d+) dropped", err)
+    assert report and int(report[1]) >= stats["received"], err
+    print(f"\nview: live page received {stats['received']} of {len(files)} frames, {stats['fps']:.1f} frames/s, "
+          f"latency {stats['latencyMs']:.0f} ms (engine's write to the page), {report[2]} dropped")
