@@ -6,7 +6,7 @@ import { OrbitControls } from 'three/addons/OrbitControls.js';
 const CHUNK = 60;            // frames fetched per request
 const VIDEO_AHEAD = 4;       // video frames fetched ahead while playing
 const EVERYWHERE = new THREE.Sphere(new THREE.Vector3(), 1e4);   // a fixed bound: never computed from NaN
-const LABEL_HEIGHT = 0.028;  // 3D labels: a share of the view's height
+const LABEL_HEIGHT = 0.024;  // 3D labels: a share of the view's height
 const INPUT_COLOUR = '#969696';
 const $ = (id) => document.getElementById(id);
 
@@ -168,7 +168,7 @@ class Scene3D {
     const away = from.clone().sub(target).setY(0);
     if (away.lengthSq() < 1e-6) away.set(0, 0, 1);
     away.normalize().applyAxisAngle(new THREE.Vector3(0, 1, 0), 0.7);
-    const distance = 1.1 * radius / Math.sin(THREE.MathUtils.degToRad(this.camera.fov / 2));
+    const distance = 1.3 * radius / Math.sin(THREE.MathUtils.degToRad(this.camera.fov / 2));
     const direction = away.multiplyScalar(Math.cos(Math.PI / 6)).setY(Math.sin(Math.PI / 6));
     this.camera.position.copy(target).addScaledVector(direction, distance);
     this.controls.target.copy(target);
@@ -221,9 +221,9 @@ class ImagePanel {
       this.bones(p.px, colour, this.width);
       const head = p.px[0][0] !== null ? p.px[0] : p.px[1];
       if (head[0] === null) continue;
-      ctx.font = `600 ${Math.round(this.width * 9)}px system-ui, sans-serif`;
+      ctx.font = `600 ${Math.round(this.width * 6)}px system-ui, sans-serif`;
       const x = Math.max(0, Math.min(head[0] - 20, this.canvas.width - ctx.measureText(label).width));
-      const y = Math.max(this.width * 9, head[1] - 24);
+      const y = Math.max(this.width * 6, head[1] - 24);
       ctx.lineWidth = this.width * 1.5;
       ctx.strokeStyle = 'black';
       ctx.strokeText(label, x, y);
