@@ -402,9 +402,8 @@ def evaluate_scenario(db: MotionDatabase, truths: list[Truth], scenario: Scenari
         for j, yaw in enumerate(truth.yaws_deg or config.yaws_deg):
             positions, height = scenario_positions(truth, scenario, i, j, config.seed)
             distance = camera_distance(positions, yaw, config)
-            view = View(camera_view(positions, yaw, scenario.camera_height_m, distance, scenario.pitch_deg,
-                                    scenario.roll_deg), scenario.camera_height_m, distance, scenario.pitch_deg,
-                        scenario.roll_deg)
+            camera = (scenario.camera_height_m, distance, scenario.pitch_deg, scenario.roll_deg)
+            view = View(camera_view(positions, yaw, *camera), *camera)
             frames = render(view.cam, scenario, config.focal_px, config.image_size, rng)
             floor = floors[floor_key(i, j, scenario)]
             for name, refine in VARIANTS:
