@@ -66,6 +66,16 @@ def open_page(browser, url: str):
     return page, errors
 
 
+def page_address(process: subprocess.Popen) -> re.Match:
+    """The page's address a command prints on stderr (after any warnings)."""
+    lines = []
+    while len(lines) < 20 and (line := process.stderr.readline()):
+        lines.append(line)
+        if match := re.search(r"the page is at (http://127\.0\.0\.1:\d+/)", line):
+            return match
+    raise AssertionError("".join(lines))
+
+
 def variance_of(png: bytes) -> float:
     import cv2
 
@@ -79,6 +89,8 @@ def test_three_js_is_bundled_as_pinned_and_installed_with_the_package():
         assert hashlib.sha256((STATIC / "three" / name).read_bytes()).hexdigest() == digest, name
     doc = (ROOT / "data_specs" / "viewer.md").read_text()
     assert all(line.split()[0] in doc for line in (STATIC / "three" / "SHA256SUMS").read_text().splitlines())
+    page = (STATIC / "index.html").read_text() + (STATIC / "viewer.js").read_text()
+    assert not re.search(r"https?://", page), "the page fetches nothing from elsewhere"
     data = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["mocapdb.view"]
     assert set(data) >= {"static/*.html", "static/*.js", "static/three/*"}
 
@@ -204,9 +216,7 @@ def test_the_live_page_receives_the_frames_of_a_running_live(browser, small_db_p
                "--sink", str(tmp_path / "out.jsonl"), "--view", "0", "--no-browser", "--idle-timeout", "60"]
     live = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
-        line = live.stderr.readline()
-        match = re.search(r"the page is at (http://127\.0\.0\.1:\d+/)", line)
-        assert match, line
+        match = page_address(live)
         page, errors = open_page(browser, match[1])
         page.wait_for_function("window.mocapdbViewer && window.mocapdbViewer.ready === true", timeout=30_000)
         files = sorted(SAMPLE_KEYPOINTS.glob("*.json"))
@@ -229,3 +239,17 @@ def test_the_live_page_receives_the_frames_of_a_running_live(browser, small_db_p
     assert report and int(report[1]) >= stats["received"], err
     print(f"\nview: live page received {stats['received']} of {len(files)} frames, {stats['fps']:.1f} frames/s, "
           f"latency {stats['latencyMs']:.0f} ms (engine's write to the page), {report[2]} dropped")
+
+
+def test_the_view_command_serves_until_interrupted(take_folder):
+    view = subprocess.Popen([sys.executable, "-m", "mocapdb", "view", str(take_folder), "--keypoints",
+                             str(SAMPLE_KEYPOINTS), "--no-browser"], stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        match = page_address(view)
+        with urllib.request.urlopen(match[1] + "api/take") as answer:
+            meta = json.loads(answer.read())
+        assert meta["kind"] == "take" and meta["keypoints"] and len(meta["frames"]) == 100
+    finally:
+        view.send_signal(signal.SIGINT)
+        _, err = view.communicate(timeout=60)
+    assert view.returncode == 0, err
