@@ -213,7 +213,7 @@ def test_the_live_page_receives_the_frames_of_a_running_live(browser, small_db_p
     source = tmp_path / "incoming"
     source.mkdir()
     command = [sys.executable, "-m", "mocapdb", "live", "--source", str(source), "--db", str(small_db_path), *SAMPLE,
-               "--sink", str(tmp_path / "out.jsonl"), "--view", "0", "--no-browser", "--idle-timeout", "60"]
+               "--sink", str(tmp_path / "out.jsonl"), "--view", "0", "--no-browser", "--idle-timeout", "180"]
     live = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
         match = page_address(live)
@@ -224,7 +224,7 @@ def test_the_live_page_receives_the_frames_of_a_running_live(browser, small_db_p
             shutil.copy(f, source / (f.name + ".part"))
             os.replace(source / (f.name + ".part"), source / f.name)
             time.sleep(1 / 60)
-        page.wait_for_function("window.mocapdbViewer.stats().received >= 30", timeout=60_000)
+        page.wait_for_function("window.mocapdbViewer.stats().received >= 30", timeout=150_000)
         time.sleep(1.0)
         stats = page.evaluate("window.mocapdbViewer.stats()")
         assert variance_of(page.locator("#scene canvas").screenshot()) > 20
