@@ -144,13 +144,16 @@ class PersonSize:
 @dataclass(frozen=True)
 class World:
     """A take's world: the floor ``normal · p = −camera_height_m`` (view frame, metres), the camera
-    height's error (SD of its log; 0 when given) and every track's :class:`PersonSize`."""
+    height's error (SD of its log; 0 when given), every track's :class:`PersonSize` and the pitch's
+    and roll's errors (degrees; NaN where no grid was searched)."""
 
     normal: np.ndarray
     camera_height_m: float
     camera_height_log_sd: float
     camera_height_given: bool
     people: dict[int, PersonSize] = field(default_factory=dict)
+    pitch_sd_deg: float = float("nan")   # the pitch's and roll's errors (posterior SDs over the tilt grid)
+    roll_sd_deg: float = float("nan")
 
     @property
     def floor_known(self) -> bool:
@@ -220,12 +223,14 @@ def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None 
     if not grounded:
         return _world_without_contacts(evidence, camera_height_m)
     tilt_sd = _tilt_sd_deg(grounded)
-    world = _grid_world(grounded, _mean_up(grounded), _tilt_sds([e.contacts_m for e in grounded], tilt_sd),
-                        camera_height_m)
+    own = [ContactSet(e.contacts_m, e.steps, DEPTH_SD_REL) for e in grounded]
+    world = _grid_world(grounded, _mean_up(grounded), _tilt_sds(own, tilt_sd), camera_height_m)
     floor_contacts = _floor_contacts(grounded, world)
     refitted = None if floor_contacts is None else _plane_normal(floor_contacts, world.normal)
     if refitted is not None and floor_contacts is not None:
-        sds = _tilt_sds([e.contacts_m for e in grounded] + [floor_contacts], tilt_sd)
+        # everyone's contacts together: each track's depth error is one error, shared by its contacts
+        together = ContactSet(floor_contacts, _floor_track_count(grounded, world), DEPTH_SD_REL)
+        sds = _tilt_sds(own + [together], tilt_sd)
         world = _grid_world(grounded, refitted, sds, camera_height_m)
     return _with_people(world, evidence)
 
@@ -239,10 +244,12 @@ def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg:
     height and a pitch trade; then the height's spread at the best tilt."""
     given = None if camera_height_m is None else np.array([np.log(camera_height_m)])
     tilt, log_h = np.zeros(2), _LOG_HEIGHTS[::COARSE_HEIGHT_STRIDE] if given is None else given
+    tilt_sd = None
     for step, half_width, log_h_window in TILT_PASSES:
         offsets = np.arange(-half_width, half_width + 1e-9, step)
         tilts = tilt + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
         cost = _cost(evidence, _tilted_normals(normal, tilts), tilts, tilt_sds_deg, log_h)
+        tilt_sd = _tilt_spread_deg(tilts, cost) if tilt_sd is None else tilt_sd   # the widest grid's
         t, h = np.unravel_index(int(np.argmin(cost)), cost.shape)
         tilt = tilts[t]
         if given is None:
@@ -253,7 +260,19 @@ def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg:
     posterior = np.exp(-(cost - cost.min()))
     mean = np.sum(posterior * log_h) / np.sum(posterior)
     sd = float(np.sqrt(np.sum(posterior * (log_h - mean) ** 2) / np.sum(posterior)))
-    return World(best[0], float(np.exp(log_h[np.argmin(cost)])), sd, given is not None)
+    return World(best[0], float(np.exp(log_h[np.argmin(cost)])), sd, given is not None,
+                 pitch_sd_deg=tilt_sd[0], roll_sd_deg=tilt_sd[1])
+
+
+def _tilt_spread_deg(tilts_deg: np.ndarray, cost: np.ndarray) -> tuple[float, float]:
+    """The posterior SDs of pitch and roll (degrees) over a tilt grid ``[T, 2]`` and its ``−log``
+    posterior ``cost [T, H]`` (heights marginalised). At least the grid's own step over √12."""
+    weight = np.exp(-(cost - cost.min())).sum(axis=1)
+    weight /= weight.sum()
+    mean = weight @ tilts_deg
+    sd = np.sqrt(weight @ (tilts_deg - mean) ** 2)
+    step = TILT_PASSES[0][0] / np.sqrt(12.0)
+    return float(max(sd[0], step)), float(max(sd[1], step))
 
 
 def _cost(evidence: list[TrackEvidence], normals: np.ndarray, tilts_deg: np.ndarray,
@@ -332,6 +351,12 @@ def observation_sd(e: TrackEvidence) -> float:
     """The error (SD of log stature) of a track's floor-consistent stature at a known floor:
     :data:`BASE_SD` and :data:`CONTACT_SD` over its steps."""
     return float(np.sqrt(BASE_SD ** 2 + CONTACT_SD ** 2 / max(e.steps, 1)))
+
+
+def _floor_track_count(evidence: list[TrackEvidence], world: World) -> int:
+    """How many tracks stand on ``world``'s floor."""
+    people = _with_people(world, evidence).people
+    return sum(people[e.track].kind == "floor" for e in evidence)
 
 
 def _floor_contacts(evidence: list[TrackEvidence], world: World) -> np.ndarray | None:
@@ -449,25 +474,37 @@ def _spans_floor(contacts: np.ndarray) -> bool:
                 >= MIN_FLOOR_SPREAD_M)
 
 
-def _tilt_sds(contacts: list[np.ndarray], tilt_sd_deg: float) -> tuple[float, float]:
+@dataclass(frozen=True)
+class ContactSet:
+    """Contacts ``[N, 3]`` (view frame, metres) that may fix the floor's tilt: how many independent
+    errors they carry (a track's steps; one per track where several tracks' contacts are pooled) and
+    each one's relative error (of the contact's height below the camera: the depth's, and the
+    size's where tracks are pooled)."""
+
+    points_m: np.ndarray
+    independent: int
+    relative_error: float
+
+
+def _tilt_sds(contacts: list[ContactSet], tilt_sd_deg: float) -> tuple[float, float]:
     """The pitch and roll errors (degrees): ``tilt_sd_deg`` (the tracks' estimates combined; the
     pitch's at least :data:`PITCH_SD_MIN_DEG`: the people of one take share its error, so more of
-    them do not average it away), or less about an axis some set of contacts ``[N, 3]`` fixes (they
-    lie on one plane spanning about 1 m both ways, or along a line running mostly in depth: the
-    pitch, or mostly across: the roll): the standard error of a plane's tilt fitted to them (their
-    RMS off it over their RMS extent along the axis and the root of their steps), at least
-    :data:`TILT_SD_FIXED_DEG`."""
+    them do not average it away), or less about an axis some set of contacts fixes (they lie on one
+    plane spanning about 1 m both ways, or along a line running mostly in depth: the pitch, or
+    mostly across: the roll): the standard error of a plane's tilt fitted to them (their RMS off it,
+    or their relative error times their height below the camera when larger, over their RMS extent
+    along the axis and the root of their independent errors), at least :data:`TILT_SD_FIXED_DEG`."""
     pitch, roll = max(tilt_sd_deg, PITCH_SD_MIN_DEG), tilt_sd_deg
-    for points in contacts:
-        plane = coplanar_spread(points)
+    for c in contacts:
+        plane = coplanar_spread(c.points_m)
         if plane is None:
             continue
         spread, vt = plane
-        steps = count_steps(points)
+        off_plane = max(spread[2], c.relative_error * abs(float(c.points_m.mean(axis=0) @ vt[2])))
         for axis in (0, 1):
             if spread[axis] < MIN_FLOOR_SPREAD_M:
                 continue
-            sd = max(TILT_SD_FIXED_DEG, float(np.degrees(spread[2] / (spread[axis] * np.sqrt(steps)))))
+            sd = max(TILT_SD_FIXED_DEG, float(np.degrees(off_plane / (spread[axis] * np.sqrt(c.independent)))))
             if abs(vt[axis, 2]) >= 0.7:
                 pitch = min(pitch, sd)
             if abs(vt[axis, 0]) >= 0.7:

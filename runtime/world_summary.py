@@ -89,8 +89,13 @@ def world_line(world: World) -> str:
         f"±{error:.0f} %, from the people's sizes" if error <= UNFIXED_HEIGHT_PCT
         else f"±{error:.0f} %: not fixed by this take, the people's assumed sizes; --camera-height fixes it")
     pitch = f"{abs(world.pitch_deg):.1f} deg {'down' if world.pitch_deg >= 0 else 'up'}"
-    return (f"world: camera {world.camera_height_m:.2f} m above the floor ({height}), pitched {pitch}, "
-            f"roll {world.roll_deg:.1f} deg")
+    return (f"world: camera {world.camera_height_m:.2f} m above the floor ({height}), pitched {pitch}"
+            f"{_sd_text(world.pitch_sd_deg)}, roll {world.roll_deg:.1f} deg{_sd_text(world.roll_sd_deg)}")
+
+
+def _sd_text(sd_deg: float) -> str:
+    """`` (±x deg)``, or nothing where the error is unknown."""
+    return f" (±{sd_deg:.1f} deg)" if np.isfinite(sd_deg) else ""
 
 
 def world_record(world: World, facts: list[TrackFacts], main: int | None, written: set[int],
@@ -100,7 +105,9 @@ def world_record(world: World, facts: list[TrackFacts], main: int | None, writte
     files are on the floor (``--floor``) or in the view frame."""
     camera = {"height_m": _finite(world.camera_height_m), "height_given": world.camera_height_given,
               "height_log_sd": _finite(world.camera_height_log_sd), "pitch_deg": round(world.pitch_deg, 2),
-              "roll_deg": round(world.roll_deg, 2), "floor_normal_view": [round(float(v), 5) for v in world.normal]}
+              "roll_deg": round(world.roll_deg, 2), "pitch_sd_deg": _finite(world.pitch_sd_deg, 2),
+              "roll_sd_deg": _finite(world.roll_sd_deg, 2),
+              "floor_normal_view": [round(float(v), 5) for v in world.normal]}
     tracks = [{"track": f.track, "main": f.track == main, "written": f.track in written,
                "stature_m": round(f.stature_m, 3), "stature_log_sd": _finite(f.size.stature_log_sd),
                "size_from": f.size.source, "kind": f.size.kind, "legs_m": round(f.legs_m, 3),

@@ -3,7 +3,7 @@
 A **take** is a handful of held-out clips (``data_specs/evaluation_split.md``) rendered together by
 one pinhole camera (:mod:`mocapdb.evaluation.world_takes`: scenarios, bodies, placement, noise).
 Each take runs through the engine (:class:`~mocapdb.runtime.engine.Engine`, ``keep_take``) and the
-whole-take world (:func:`mocapdb.runtime.world.fit_takes`) twice (:data:`MODES`): with the camera
+whole-take world (:func:`mocapdb.runtime.world.fit_world`) twice (:data:`MODES`): with the camera
 height given and with nothing given (:func:`run_take`). Its tracks are scored against its people
 (:mod:`mocapdb.evaluation.world_scores`: matching, stature, root and floor errors, plausibility
 flags, pair stature ratios). This module holds the run (:func:`evaluate_world`), its report's
@@ -24,11 +24,12 @@ from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.progress import progress
 from mocapdb.core.skeleton import N_KEYPOINTS_2D
 from mocapdb.evaluation.heldout import UNIVERSAL_HEIGHT_M, load_heldout
+from mocapdb.evaluation.world_camera import score_world_camera, summary_lines
 from mocapdb.evaluation.world_scores import HUMAN_STATURE_RANGE_M, IMPLAUSIBLE, TrackFit, by_role, score_take, summarise
 from mocapdb.evaluation.world_takes import CAMERA_HEIGHT_RANGE_M, WorldConfig, WorldTake, build_take
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.take import take_joints
-from mocapdb.runtime.world import fit_takes
+from mocapdb.runtime.world import World, fit_world
 
 LOG = logging.getLogger(__name__)
 
@@ -52,9 +53,9 @@ def track_fit(rec: TrackRecording, fitted: TrackRecording, fps: float) -> TrackF
 
 
 def run_take(db: MotionDatabase, take: WorldTake, camera_height_m: float | None,
-             config: WorldConfig) -> tuple[list[TrackFit], float, float]:
+             config: WorldConfig) -> tuple[list[TrackFit], World, float, float]:
     """The take through the engine and the whole-take world (``camera_height_m`` given or None):
-    every track (static ones too), and the seconds of each."""
+    every track (static ones too), the world, and the seconds of each."""
     engine_config = replace(config.engine, fps=config.fps, focal_px=config.focal_px, image_size=config.image_size,
                             keep_take=True, camera_height_m=camera_height_m)
     engine = Engine(db, engine_config)
@@ -63,9 +64,9 @@ def run_take(db: MotionDatabase, take: WorldTake, camera_height_m: float | None,
         engine.step(frame)
     recordings = engine.finish()
     t1 = time.perf_counter()
-    fitted = fit_takes(recordings, config.fps, camera_height_m=camera_height_m)
+    fitted, world = fit_world(recordings, config.fps, camera_height_m=camera_height_m)
     t2 = time.perf_counter()
-    return [track_fit(rec, fit, config.fps) for rec, fit in zip(recordings, fitted)], t1 - t0, t2 - t1
+    return [track_fit(rec, fit, config.fps) for rec, fit in zip(recordings, fitted)], world, t1 - t0, t2 - t1
 
 
 def run_takes(db: MotionDatabase, takes: list[WorldTake], config: WorldConfig) -> dict[str, list[dict]]:
@@ -75,8 +76,10 @@ def run_takes(db: MotionDatabase, takes: list[WorldTake], config: WorldConfig) -
     results: dict[str, list[dict]] = {mode: [] for mode, _ in MODES}
     for take in takes:
         for mode, given in MODES:
-            fits, engine_s, world_s = run_take(db, take, take.camera.height_m if given else None, config)
+            fits, world, engine_s, world_s = run_take(db, take, take.camera.height_m if given else None, config)
             result = score_take(take, fits, config)
+            result["camera"] = score_world_camera(world, {"height_m": take.camera.height_m,
+                                                          "pitch_deg": take.camera.pitch_deg, "roll_deg": 0.0})
             results[mode].append({**result, "mode": mode, "engine_seconds": engine_s, "world_seconds": world_s})
             LOG.info(f"world: {take.scenario.name} #{take.repeat + 1}, {mode.replace('_', ' ')}: {len(fits)} "
                      f"tracks for {len(take.people)} people, engine {engine_s:.1f} s, world {world_s:.2f} s")
@@ -104,6 +107,7 @@ def evaluate_world(db: MotionDatabase, heldout: list[Path], config: WorldConfig)
         "summary": [{"scenario": s.name, "mode": mode, **summarise([t for t in takes if t["scenario"] == s.name])}
                     for s in config.scenarios for mode, takes in results.items()],
         "overall": {mode: summarise(results[mode]) for mode, _ in MODES},
+        "world_camera": {mode: [t["camera"] for t in results[mode]] for mode, _ in MODES},
         "by_role": {mode: by_role(results[mode]) for mode, _ in MODES},
         "takes": every,
         "seconds": {"engine": sum(t["engine_seconds"] for t in every), "world": sum(t["world_seconds"] for t in every),
@@ -134,7 +138,8 @@ def format_table(report: dict) -> str:
             lines.append(f"| {role} | {_mode_label(mode)} | {r['people']} ({r['missed']}) | "
                          f"{_cell(r['stature_error_pct']['median'])} / {_cell(r['stature_error_pct']['max'])} % | "
                          f"{_cell(r['root_error_m'], 2)} m | {_cell(r['root_error_pct'])} % |")
-    return "\n".join(lines)
+    takes = {f"take {i}": score for i, score in enumerate(report["world_camera"]["nothing_given"])}
+    return "\n".join(lines + ["", "Nothing given: " + summary_lines(takes)[0]])
 
 
 def _mode_label(mode: str) -> str:

@@ -50,18 +50,26 @@ def world_of_frames(db: MotionDatabase, frames: list[KeypointFrame], config: Eng
 
 def score_camera(world: World, cam: CameraModel, floor_z_m: float = 0.0) -> dict:
     """The world's camera against ``cam``'s (module docstring): a JSON-able dict."""
-    truth = true_camera(cam, floor_z_m)
+    return score_world_camera(world, true_camera(cam, floor_z_m))
+
+
+def score_world_camera(world: World, truth: dict[str, float]) -> dict:
+    """The world's camera against a true one (``height_m``, ``pitch_deg``, ``roll_deg``): its errors
+    and whether the truth lies inside the reported ±2 SD of each."""
     sd = float(world.camera_height_log_sd)
     low, high = (world.camera_height_m * np.exp(-2 * sd), world.camera_height_m * np.exp(2 * sd)) \
         if np.isfinite(sd) else (float("nan"), float("nan"))
     return {"truth": truth,
             "world": {"height_m": float(world.camera_height_m), "height_log_sd": sd,
                       "height_2sd_m": [float(low), float(high)], "pitch_deg": world.pitch_deg,
-                      "roll_deg": world.roll_deg, "floor_found": world.floor_known},
+                      "pitch_sd_deg": world.pitch_sd_deg, "roll_deg": world.roll_deg,
+                      "roll_sd_deg": world.roll_sd_deg, "floor_found": world.floor_known},
             "height_error_pct": float(100 * (world.camera_height_m / truth["height_m"] - 1)),
             "height_inside_2sd": bool(low <= truth["height_m"] <= high),
             "pitch_error_deg": float(world.pitch_deg - truth["pitch_deg"]),
-            "roll_error_deg": float(world.roll_deg - truth["roll_deg"])}
+            "pitch_inside_2sd": bool(abs(world.pitch_deg - truth["pitch_deg"]) <= 2 * world.pitch_sd_deg),
+            "roll_error_deg": float(world.roll_deg - truth["roll_deg"]),
+            "roll_inside_2sd": bool(abs(world.roll_deg - truth["roll_deg"]) <= 2 * world.roll_sd_deg)}
 
 
 def summary_lines(scores: dict[str, dict]) -> list[str]:
@@ -71,23 +79,23 @@ def summary_lines(scores: dict[str, dict]) -> list[str]:
     height = np.abs([s["height_error_pct"] for s in scores.values()])
     pitch = np.abs([s["pitch_error_deg"] for s in scores.values()])
     roll = np.abs([s["roll_error_deg"] for s in scores.values()])
-    inside = sum(s["height_inside_2sd"] for s in scores.values())
-    return [f"World camera over {len(scores)} cameras: height off {np.median(height):.0f} % (median; worst "
+    inside = [sum(s[f"{what}_inside_2sd"] for s in scores.values()) for what in ("height", "pitch", "roll")]
+    return [f"World camera over {len(scores)} cameras (takes): height off {np.median(height):.0f} % (median; worst "
             f"{height.max():.0f} %), pitch off {np.median(pitch):.1f}° (worst {pitch.max():.1f}°), roll off "
-            f"{np.median(roll):.1f}° (worst {roll.max():.1f}°); true height inside the reported ±2 SD: "
-            f"{inside} of {len(scores)}."]
+            f"{np.median(roll):.1f}° (worst {roll.max():.1f}°); the truth inside the reported ±2 SD: height "
+            f"{inside[0]}, pitch {inside[1]}, roll {inside[2]} of {len(scores)}."]
 
 
 def format_rows(scores: dict[str, dict]) -> list[str]:
     """A markdown table, a row per camera."""
-    lines = ["| camera | height: world (±2 SD) / truth | off | pitch: world / truth | roll: world / truth |",
+    lines = ["| camera | height: world (±2 SD) / truth | off | pitch: world ± SD / truth | roll: world ± SD / truth |",
              "|---|---|---|---|---|"]
     for name, s in scores.items():
         w, t = s["world"], s["truth"]
         lo, hi = w["height_2sd_m"]
         lines.append(f"| {name} | {w['height_m']:.2f} m ({lo:.2f}–{hi:.2f}) / {t['height_m']:.2f} m | "
-                     f"{s['height_error_pct']:+.0f} % | {w['pitch_deg']:.1f}° / {t['pitch_deg']:.1f}° | "
-                     f"{w['roll_deg']:.1f}° / {t['roll_deg']:.1f}° |")
+                     f"{s['height_error_pct']:+.0f} % | {w['pitch_deg']:.1f}° ± {w['pitch_sd_deg']:.1f} / "
+                     f"{t['pitch_deg']:.1f}° | {w['roll_deg']:.1f}° ± {w['roll_sd_deg']:.1f} / {t['roll_deg']:.1f}° |")
     return lines
 
 
