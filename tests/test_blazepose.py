@@ -237,3 +237,44 @@ def test_live_video_frames_carry_blazepose_feet_and_hands():
     assert frame.layout == "mediapipe33" and len(frame.people) == 2
     slot = EXTREMITIES.index("l_heel")
     np.testing.assert_allclose(frame.people[1].extremities[slot], points[1, heel])
+
+
+def test_world_landmarks_metric_hip_centred_and_along_the_image_axes():
+    """The landmark model's world head (``Identity_4``, [1, 117]) on the balancing take: 33 points per
+    person in metres, origin at the hips' centre, x and y turned with the region onto the image's axes
+    (the subject leans in camera 1's image: the crop is turned ~35°); the 2D are those of a run without it."""
+    frames = _frames(BALANCING, tuple(range(12)))
+    with_world, without = BlazePose(*_prepared("full")), BlazePose(*_prepared("full"), world_landmarks=False)
+    for image in frames:
+        found, plain = with_world(image), without(image)
+    assert plain.world is None and found.world.shape == (len(found.scores), 33, 3)
+    np.testing.assert_array_equal(found.keypoints, plain.keypoints)
+    names = LAYOUTS["mediapipe33"]
+    hips = [names.index("left_hip"), names.index("right_hip")]
+    main = int(np.argmax(np.ptp(found.keypoints[:, :, 1], axis=1)))   # the subject: the tallest in the image
+    world, points = found.world[main], found.keypoints[main, :, :2]
+    assert np.linalg.norm(world[hips].mean(axis=0)) < 0.02
+    reach = world[names.index("nose")] - world[[names.index("left_ankle"), names.index("right_ankle")]].mean(axis=0)
+    assert 1.2 < np.linalg.norm(reach) < 1.9 and reach[1] < -0.8   # metres; the nose above the ankles: y down
+    offsets = points - points[hips].mean(axis=0)
+    far = np.linalg.norm(offsets, axis=1) > 100
+    norms = np.linalg.norm(offsets, axis=1) * np.linalg.norm(world[:, :2], axis=1)
+    cosine = np.sum(offsets * world[:, :2], axis=1) / norms
+    assert np.median(cosine[far]) > 0.95   # the image's directions, not the upright crop's
+
+
+def test_world_landmarks_change_sides_with_the_landmarks_and_reach_live_frames():
+    from mocapdb.detect.blazepose import IDENTITY, MIRROR, side_order
+    from mocapdb.detect.model import Detections
+    from mocapdb.detect.video import VideoFrame
+    from mocapdb.runtime.stream.video_input import keypoint_frame
+
+    previous = np.random.default_rng(2).uniform(0, 500, (33, 3))
+    assert side_order(previous[MIRROR], previous) is MIRROR and side_order(previous + 1.0, previous) is IDENTITY
+    points = np.random.default_rng(1).uniform(10, 500, (2, 33, 3))
+    world = np.random.default_rng(4).uniform(-0.5, 0.5, (2, 33, 3))
+    frame = keypoint_frame(VideoFrame(4, 0.1, 0.0, np.zeros((2, 2, 3), np.uint8)),
+                           Detections(np.zeros((2, 4)), np.ones(2), points, world), "mediapipe33")
+    np.testing.assert_allclose(frame.people[1].world_m[10], world[1, LAYOUTS["mediapipe33"].index("right_ankle")])
+    with pytest.raises(ValueError, match="COCO-17"):
+        openpose_json(np.zeros((1, 17, 3)), "coco17", np.zeros((1, 17, 3)))

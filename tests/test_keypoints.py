@@ -792,3 +792,34 @@ def test_keypoint_files_must_be_regular(tmp_path, name):
     os.mkfifo(tmp_path / name)
     with pytest.raises(KeypointError, match=f"{name}: a FIFO"):
         read_keypoint_file(tmp_path / name)
+
+
+def test_world_landmarks_round_trip_and_people_without_them(tmp_path):
+    """BlazePose's world landmarks as `detect` writes them (`pose_world_landmarks_3d`) read back on the
+    universal 14; a person without them, and every other layout, has none; bad ones are refused."""
+    from mocapdb.detect.openpose_out import openpose_json as detect_json
+
+    people = np.stack([raw_person("mediapipe33")] * 2)
+    world = np.random.default_rng(3).uniform(-0.8, 0.8, (2, 33, 3))
+    body = json.loads(detect_json(people, "mediapipe33", world))
+    assert len(body["people"][0]["pose_world_landmarks_3d"]) == 99
+    del body["people"][1]["pose_world_landmarks_3d"]
+    (tmp_path / "v_000000000000_keypoints.json").write_text(json.dumps(body))
+    (frame,) = read_openpose_folder(tmp_path)
+    got, index = frame.people[0].world_m, ORDERS["mediapipe33"].index
+    for k, concept in enumerate(UNIVERSAL):
+        if concept is not None:
+            np.testing.assert_allclose(got[k], world[0, index(concept)], atol=5e-5)   # written to 0.1 mm
+    np.testing.assert_allclose(got[KP["neck"]], (got[KP["r_shoulder"]] + got[KP["l_shoulder"]]) / 2)
+    assert frame.people[1].world_m is None
+    assert parse_openpose_json(openpose_json([raw_person("coco17")]), 0).people[0].world_m is None
+    nested = {"keypoints": people[0].tolist(), "pose_world_landmarks_3d": world[0].tolist()}
+    np.testing.assert_allclose(parse_stream_line(json.dumps({"people": [nested]})).people[0].world_m, got, atol=5e-5)
+    empty = {"keypoints": people[0].tolist(), "pose_world_landmarks_3d": []}   # Pose2Sim's empty fields: none
+    assert parse_stream_line(json.dumps({"people": [empty]})).people[0].world_m is None
+    for bad, reason in ((world[0, :5].tolist(), "holds 15 values; 33 keypoints need 99"),
+                        ((world[0] * 1000).tolist(), "beyond 100 m"), ("x", "non-numeric")):
+        line = json.dumps({"people": [{"keypoints": people[0].tolist(), "pose_world_landmarks_3d": bad}]})
+        with pytest.raises(KeypointError, match=reason) as err:
+            parse_stream_line(line)
+        assert ": " not in str(err.value) and len(str(err.value)) <= 120

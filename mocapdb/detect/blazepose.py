@@ -7,8 +7,9 @@ Two ONNX models converted from MediaPipe's TFLite files (:mod:`mocapdb.detect.mo
   (:func:`region_from_points`): a square, rotated so the body stands upright, 1.25 × the body's
   reach on each side;
 - the **landmark model** (256 × 256, lite, full or heavy): in a person's region, 33 landmarks
-  (x, y px, depth, visibility, presence), a flag that a person is there, and two more points (the
-  hips' centre and the head's) that give the region of the next frame.
+  (x, y px, depth, visibility, presence), a flag that a person is there, two more points (the
+  hips' centre and the head's) that give the region of the next frame, and the **world landmarks**:
+  the 33 landmarks in metres, 3D, origin at the hips' centre (:func:`world_from_output`).
 
 :class:`BlazePose` runs them on consecutive frames: each person's region follows its own landmarks
 from frame to frame. The detector runs on squares of the frame (:func:`scan_tiles`: the whole frame,
@@ -17,7 +18,9 @@ the first frame and after someone is lost or while nobody is followed, and other
 every ``scan_every`` frames in turn. A detection outside every followed region starts a new person.
 Output: :class:`~mocapdb.detect.model.Detections` with 33 keypoints per person in the
 ``mediapipe33`` layout (``data_specs/keypoint_formats.md``), the landmark's visibility as its
-confidence. Pre- and post-processing, and the figures they come from: ``data_specs/pose_models.md``.
+confidence, and their world landmarks ``[P, 33, 3]`` (metres; x right, y down along the image's
+axes, z away from the camera; origin at the hips' centre: MediaPipe's ``pose_world_landmarks``). Pre- and
+post-processing, and the figures they come from: ``data_specs/pose_models.md``.
 """
 from __future__ import annotations
 
@@ -46,8 +49,10 @@ SAME_PERSON_SHARE = 0.5      # two followed people are one when this share of th
 N_LANDMARKS = 33             # the landmarks written (the mediapipe33 layout)
 N_OUTPUT_POINTS = 39         # the model's points: 33 landmarks, then the region points and 4 more
 REGION_POINTS = (33, 34)     # the hips' centre and the point above the head, among the model's points
-LANDMARK_OUTPUTS = ("Identity", "Identity_1")   # the landmarks and the person flag; the mask, heatmaps and
-                                                # world landmarks are never computed (a third of the cost)
+LANDMARK_OUTPUTS = ("Identity", "Identity_1")   # the landmarks and the person flag; the mask and the
+                                                # heatmaps are never computed (a third of the cost)
+WORLD_OUTPUT = "Identity_4"  # the world landmarks [1, 117]: the 39 points' (x, y, z), metres, in the crop's
+                             # axes (one 1 × 1 convolution more than the landmarks: no measurable cost)
 DEFAULT_SCAN_EVERY = 3       # the person detector runs on one tile of the scan every this many frames
 TILE_OVERLAP = 0.25          # neighbouring tiles of one size share at least this share of their side
 
@@ -189,15 +194,18 @@ class BlazePose:
     """BlazePose on the consecutive frames of one video → :class:`~mocapdb.detect.model.Detections`
     (module docstring). ``detector_path`` and ``landmark_path``: the converted ONNX models;
     ``max_people``: the people followed at most; ``scan_every``: the detector's schedule (frames).
-    ``fps`` is the rate sustained (frames per second of detection time)."""
+    ``fps`` is the rate sustained (frames per second of detection time). ``world_landmarks``: compute
+    the world landmarks too (:attr:`Detections.world <mocapdb.detect.model.Detections>`; else None)."""
 
     keypoint_layout = "mediapipe33"
 
     def __init__(self, detector_path: Path, landmark_path: Path, *, max_people: int | None = None,
-                 scan_every: int = DEFAULT_SCAN_EVERY, name: str = "BlazePose") -> None:
+                 scan_every: int = DEFAULT_SCAN_EVERY, name: str = "BlazePose", world_landmarks: bool = True) -> None:
         self.path = Path(landmark_path)
         self._detector = load_session(Path(detector_path))
-        self._landmarks = load_session(self.path, LANDMARK_OUTPUTS)
+        self._outputs = LANDMARK_OUTPUTS + ((WORLD_OUTPUT,) if world_landmarks else ())
+        self._landmarks = load_session(self.path, self._outputs)
+        self.world_landmarks = world_landmarks
         self.max_people, self.scan_every, self.name = max_people, scan_every, name
         self.people: list[_Person] = []
         self.frames, self.seconds, self.detector_runs, self.landmark_runs = 0, 0.0, 0, 0
@@ -249,20 +257,22 @@ class BlazePose:
         points = points / scale + tile[:2]
         return [region_from_points(p[0], p[1]) for p in points]
 
-    def landmarks(self, image: np.ndarray, region: Region) -> tuple[np.ndarray, float, Region]:
+    def landmarks(self, image: np.ndarray, region: Region
+                  ) -> tuple[np.ndarray, float, Region, np.ndarray | None]:
         """The landmark model in ``region`` of ``image`` (uint8 BGR): points ``[33, 3]`` (x, y frame px,
-        visibility), the person flag (0–1) and the region of the next frame."""
+        visibility), the person flag (0–1), the region of the next frame and the world landmarks
+        ``[33, 3]`` (:func:`world_from_output`; None unless computed)."""
         forward = region.to_input(LANDMARK_PX)
         crop = cv2.warpAffine(image, forward, (LANDMARK_PX, LANDMARK_PX), flags=cv2.INTER_LINEAR,
                               borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
         blob = (crop[..., ::-1].astype(np.float32) / 255.0)[None]
-        raw, flag = self._landmarks.run(list(LANDMARK_OUTPUTS), {self._landmarks.get_inputs()[0].name: blob})
+        raw, flag, *world = self._landmarks.run(list(self._outputs), {self._landmarks.get_inputs()[0].name: blob})
         self.landmark_runs += 1
         values = raw.reshape(N_OUTPUT_POINTS, 5).astype(np.float64)
         frame_xy = region.to_frame(values[:, :2], LANDMARK_PX)
         points = np.concatenate([frame_xy[:N_LANDMARKS], _sigmoid(values[:N_LANDMARKS, 3:4])], axis=1)
         following = region_from_points(frame_xy[REGION_POINTS[0]], frame_xy[REGION_POINTS[1]])
-        return points, float(np.ravel(flag)[0]), following
+        return points, float(np.ravel(flag)[0]), following, world_from_output(world[0], region) if world else None
 
     def _add_people(self, regions: list[Region], trusted: bool = False) -> None:
         """Starts following each detected region whose centre (the hips) is in no followed person's box."""
@@ -279,14 +289,16 @@ class BlazePose:
         """One landmark run per followed person; the lost ones (a low flag; for a new detection also
         landmarks spanning less than :data:`MIN_FILL` of its region: not a body) and duplicates are
         dropped; the people reported: the ones followed before and the trusted new ones."""
-        points, flags, regions, reported, lost = [], [], [], [], False
+        points, worlds, flags, regions, reported, lost = [], [], [], [], [], False
         for person in self.people:
-            landmarks, flag, following = self.landmarks(image, person.region)
+            landmarks, flag, following, world = self.landmarks(image, person.region)
             if person.points is not None:
-                landmarks = keep_sides(landmarks, person.points)
+                order = side_order(landmarks, person.points)
+                landmarks, world = landmarks[order], None if world is None else world[order]
             span = np.ptp(landmarks[:, :2], axis=0).max()
             if flag >= PRESENCE and (person.followed or span >= MIN_FILL * person.region.side):
                 points.append(landmarks)
+                worlds.append(world)
                 flags.append(flag)
                 regions.append(following)
                 reported.append(person.followed or person.trusted)
@@ -298,7 +310,21 @@ class BlazePose:
         unique = _distinct(boxes, np.array(flags))
         self.people = [_Person(regions[i], boxes[i], True, points=keypoints[i]) for i in unique]
         shown = unique[np.array(reported, dtype=bool)[unique]] if len(unique) else unique
-        return Detections(boxes[shown], np.array(flags)[shown], keypoints[shown])
+        world = np.array(worlds).reshape(-1, N_LANDMARKS, 3)[shown] if self.world_landmarks else None
+        return Detections(boxes[shown], np.array(flags)[shown], keypoints[shown], world)
+
+
+def world_from_output(raw: np.ndarray, region: Region) -> np.ndarray:
+    """The landmark model's world output (``[1, 117]``: 39 points' x, y, z in metres, in the crop's
+    axes, origin at the hips' centre) → the 33 landmarks ``[33, 3]`` in the frame's axes: x, y turned
+    by the region's rotation (as MediaPipe's ``WorldLandmarkProjectionCalculator``), so x points right
+    and y down along the image's axes; z (away from the camera) unchanged."""
+    values = np.asarray(raw, dtype=np.float64).reshape(N_OUTPUT_POINTS, 3)[:N_LANDMARKS]
+    cos, sin = math.cos(region.rotation), math.sin(region.rotation)
+    turned = values.copy()
+    turned[:, 0] = cos * values[:, 0] - sin * values[:, 1]
+    turned[:, 1] = sin * values[:, 0] + cos * values[:, 1]
+    return turned
 
 
 def _mirror_order() -> np.ndarray:
@@ -320,9 +346,19 @@ def keep_sides(points: np.ndarray, previous: np.ndarray) -> np.ndarray:
     """``points [33, 3]`` with left and right exchanged when the model swapped them since ``previous``
     (a body seen from behind is often read as facing the camera): the swapped landmarks' median
     distance from the frame before is under :data:`SWAP_RATIO` of the unswapped ones'."""
+    order = side_order(points, previous)
+    return points if order is IDENTITY else points[order]
+
+
+IDENTITY = np.arange(len(MIRROR))
+
+
+def side_order(points: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    """The order putting ``points [33, ≥2]`` on the sides of ``previous`` (:func:`keep_sides`):
+    :data:`MIRROR` when the model swapped them, else :data:`IDENTITY` (the same for the world landmarks)."""
     same = np.median(np.linalg.norm(points[SIDED, :2] - previous[SIDED, :2], axis=1))
     swapped = np.median(np.linalg.norm(points[MIRROR[SIDED], :2] - previous[SIDED, :2], axis=1))
-    return points[MIRROR] if swapped < SWAP_RATIO * same else points
+    return MIRROR if swapped < SWAP_RATIO * same else IDENTITY
 
 
 def _share_of_smaller(boxes: np.ndarray) -> np.ndarray:

@@ -168,7 +168,10 @@ class Detections(NamedTuple):
 
     boxes: np.ndarray      # [P, 4] x1, y1, x2, y2
     scores: np.ndarray     # [P]
-    keypoints: np.ndarray  # [P, 17, 3] x, y, confidence in the COCO-17 order
+    keypoints: np.ndarray  # [P, K, 3] x, y, confidence in the detector's layout (COCO-17, BlazePose's 33)
+    # [P, K, 3] the model's own 3D of the keypoints (BlazePose's world landmarks: metres, x right and y down
+    # along the image's axes, z away from the camera, origin at the hips' centre); None when it gives none
+    world: np.ndarray | None = None
 
 
 def _first_line(exc: Exception) -> str:

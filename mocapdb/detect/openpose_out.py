@@ -25,6 +25,7 @@ import numpy as np
 
 from mocapdb.core.files import os_error_message, write_atomic
 from mocapdb.core.formats.keypoints import LAYOUTS
+from mocapdb.core.formats.openpose import WORLD_FIELD
 from mocapdb.core.formats.take import TAKE_FILE, TakeInfo, write_take
 from mocapdb.core.outputs import OutputFiles, clear_output_folder
 from mocapdb.core.progress import progress
@@ -72,10 +73,12 @@ def written_layout(layout: str) -> str:
     return "coco18" if layout == "coco17" else layout
 
 
-def openpose_json(keypoints: np.ndarray, layout: str = "coco17") -> str:
+def openpose_json(keypoints: np.ndarray, layout: str = "coco17", world: np.ndarray | None = None) -> str:
     """One OpenPose ``--write_json`` frame (version 1.3) for people ``[P, K, 3]`` in ``layout``:
     COCO-17 becomes COCO-18 (:func:`coco17_to_coco18`), other layouts (BlazePose's 33) stay; non-finite
-    points become (0, 0, 0), "not found"."""
+    points become (0, 0, 0), "not found". ``world [P, K, 3]`` (metres; BlazePose's world landmarks) is
+    written as each person's :data:`WORLD_FIELD`, ``[x0, y0, z0, x1, ...]`` to 0.1 mm (a person whose
+    world landmarks are not all finite gets none)."""
     size = len(LAYOUTS[layout])
     rows = np.asarray(keypoints, dtype=np.float64).reshape(-1, size, 3)
     rows = coco17_to_coco18(rows) if layout == "coco17" else \
@@ -83,6 +86,12 @@ def openpose_json(keypoints: np.ndarray, layout: str = "coco17") -> str:
     rows = np.concatenate([np.round(rows[..., :2], 2), np.round(rows[..., 2:], 4)], axis=-1)
     people = [{"person_id": [-1], "pose_keypoints_2d": person.ravel().tolist(), "face_keypoints_2d": [],
                "hand_left_keypoints_2d": [], "hand_right_keypoints_2d": []} for person in rows]
+    if world is not None:
+        if layout == "coco17":
+            raise ValueError("world landmarks are written for layouts written as they are, not COCO-17")
+        for person, points in zip(people, np.asarray(world, dtype=np.float64).reshape(-1, size, 3)):
+            if np.isfinite(points).all():
+                person[WORLD_FIELD] = np.round(points, 4).ravel().tolist()
     return json.dumps({"version": 1.3, "people": people})
 
 
@@ -136,7 +145,7 @@ def detect_video(reader: VideoReader, model: FrameDetector, out_dir: Path, every
             found = model(frame.image)
             path = out_dir / frame_file_name(reader.name, frame.index)
             try:
-                write_atomic(path, openpose_json(found.keypoints, model.keypoint_layout))
+                write_atomic(path, openpose_json(found.keypoints, model.keypoint_layout, found.world))
             except OSError as exc:
                 raise DetectError(os_error_message(exc, path, "write the keypoints")) from None
             summary.people.append(len(found.scores))

@@ -15,7 +15,7 @@ import threading
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, NamedTuple
 
-from mocapdb.core.formats.keypoints import KeypointFrame, Person, to_extremities, to_universal
+from mocapdb.core.formats.keypoints import KeypointFrame, Person, to_extremities, to_universal, to_universal_world
 from mocapdb.detect.detectors import FrameDetector
 from mocapdb.detect.errors import DetectError
 from mocapdb.detect.model import Detections
@@ -39,10 +39,11 @@ class CapturedFrame(NamedTuple):
 
 def keypoint_frame(video_frame: VideoFrame, found: Detections, layout: str = "coco17") -> KeypointFrame:
     """The people ``found`` (keypoints in ``layout``) in ``video_frame`` as the engine takes them
-    (universal keypoints, frame pixels)."""
+    (universal keypoints, frame pixels; the detector's world landmarks when it gives them)."""
     points, confidence = to_universal(found.keypoints, layout)
     extremities = to_extremities(found.keypoints, layout)   # heels, toes, knuckles (BlazePose), else None
-    people = [Person(p, c, None, None if extremities is None else extremities[i])
+    world = None if found.world is None else to_universal_world(found.world, layout)
+    people = [Person(p, c, None, None if extremities is None else extremities[i], None if world is None else world[i])
               for i, (p, c) in enumerate(zip(points, confidence))]
     return KeypointFrame(video_frame.index, video_frame.time_s, people, layout)
 

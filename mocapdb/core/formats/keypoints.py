@@ -32,6 +32,7 @@ UPPER_NECK_SPAN_HEAD_TOP = (0.05, 0.9)  # and of the way mid-shoulder → head t
 LAYOUT_VOTE_RATIO = 3  # the winning layout needs more than this times the loser's votes
 NORMALISED_EXTENT = 2.0  # a MediaPipe person whose points all lie within this of 0 is not in pixels
 MAX_POSITION_PX = 1e6    # |x|, |y| of a finite keypoint at most this (30 times the largest image side)
+MAX_WORLD_M = 100.0      # |x|, |y|, |z| of a finite world landmark at most this (metres from the hips)
 
 
 class KeypointError(MocapdbError, ValueError):
@@ -47,6 +48,10 @@ class Person:
     # [8, 3] heels, big toes and knuckles (EXTREMITIES order): x px, y px, confidence (0 and NaN
     # position = missing); None when the layout has none of them
     extremities: np.ndarray | None = None
+    # [14, 3] the detector's own 3D of the 14 keypoints (BlazePose's world landmarks): metres, origin at
+    # the hips' centre, x right and y down along the image's axes, z away from the camera; NaN where it
+    # has none; None when the input carries none (data_specs/keypoint_formats.md, "World landmarks")
+    world_m: np.ndarray | None = None
 
 
 @dataclass
@@ -62,6 +67,7 @@ class RawPerson(NamedTuple):
     raw: np.ndarray      # [K, 3] x, y, confidence in the source layout
     person_id: int | None
     layout: str | None   # the person's own layout, if the input names one
+    world: np.ndarray | None = None   # [K, 3] world landmarks (metres; NaN: none) in the source layout, if given
 
 
 def visible(person: Person, threshold: float = CONFIDENCE_THRESHOLD) -> np.ndarray:
@@ -142,6 +148,31 @@ def to_extremities(raw: np.ndarray, layout: str) -> np.ndarray | None:
         return None
     points, conf = _picked(np.asarray(raw, dtype=np.float64), EXTREMITY_INDEX[layout])
     return np.concatenate([points, conf[..., None]], axis=-1)
+
+
+def to_universal_world(world: np.ndarray, layout: str) -> np.ndarray:
+    """World landmarks ``[P, K, 3]`` (metres) in ``layout`` (checked) on the universal 14 ``[P, 14, 3]``:
+    NaN where the layout has no such point or the value is not finite; the neck is the shoulders'
+    mid-point when both are there, else the layout's own neck."""
+    index = np.array(SOURCE_INDEX[layout])
+    world = np.asarray(world, dtype=np.float64)
+    picked = world[:, np.maximum(index, 0)]
+    ok = np.isfinite(picked).all(axis=-1) & (index >= 0)
+    out = np.where(ok[..., None], picked, np.nan)
+    mid = 0.5 * (out[:, KP["r_shoulder"]] + out[:, KP["l_shoulder"]])
+    out[:, KP["neck"]] = np.where(np.isfinite(mid).all(axis=-1, keepdims=True), mid, out[:, KP["neck"]])
+    return out
+
+
+def check_world(values: np.ndarray, count: int, what: str) -> np.ndarray:
+    """A person's world landmarks (``[x0, y0, z0, ...]`` or ``[[x, y, z], ...]``, metres) for ``count``
+    keypoints as ``[count, 3]``; non-finite values mark missing points; KeypointError when the size
+    is not the keypoints' or a value lies beyond :data:`MAX_WORLD_M`."""
+    if values.size != 3 * count or (values.ndim == 2 and values.shape[1] != 3) or values.ndim > 2:
+        raise KeypointError(f"{what} holds {values.size} values; {count} keypoints need {3 * count} (x, y, z each)")
+    if np.any(np.isfinite(values) & (np.abs(values) > MAX_WORLD_M)):
+        raise KeypointError(f"{what} has a value beyond {MAX_WORLD_M:g} m from the hips")
+    return values.reshape(count, 3)
 
 
 def _refuse_normalised(raw: np.ndarray) -> None:
@@ -250,7 +281,9 @@ def build_frame(index: int, time_s: float | None, people: list[RawPerson], layou
         points, conf = to_universal(raw, name)
         extremities = to_extremities(raw, name)
         for j, i in enumerate(members):
-            out[i] = Person(points[j], conf[j], people[i].person_id, None if extremities is None else extremities[j])
+            world = people[i].world
+            out[i] = Person(points[j], conf[j], people[i].person_id, None if extremities is None else extremities[j],
+                            None if world is None else to_universal_world(world[None], name)[0])
     return KeypointFrame(index, time_s, [out[i] for i in range(len(people))],
                          names[0] if len(set(names)) == 1 else None)
 

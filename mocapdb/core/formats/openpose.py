@@ -22,6 +22,7 @@ from mocapdb.core.formats.keypoints import (
     RawPerson,
     build_frame,
     check_fps,
+    check_world,
     detect_layout,
     error_source,
     frame_time,
@@ -33,6 +34,8 @@ from mocapdb.core.formats.keypoints import (
 from mocapdb.core.formats.take import TAKE_FILE
 
 T = TypeVar("T")
+
+WORLD_FIELD = "pose_world_landmarks_3d"   # a person's world landmarks (metres), flat or [[x, y, z], ...]
 
 DETECT_FRAMES = 10     # a folder's or file's layout is detected from its first frames holding people
 MAX_INTEGER = 2**53    # frame numbers and person ids lie below this in magnitude (exact in float64 and JSON readers)
@@ -93,7 +96,11 @@ def _raw_person(obj: object, i: int) -> RawPerson:
         raw = flat.reshape(-1, 3)
     else:
         raise KeypointError(f"person {i} has neither 'keypoints' nor 'pose_keypoints_2d'")
-    return RawPerson(raw, _person_id(obj.get("id", obj.get("person_id"))), optional_layout(obj.get("layout")))
+    given, world = obj.get(WORLD_FIELD), None
+    if given is not None and given != []:   # absent, null or [] (as Pose2Sim's empty fields): none
+        what = f"person {i} {WORLD_FIELD}"
+        world = check_world(numeric(given, what), len(raw), what)
+    return RawPerson(raw, _person_id(obj.get("id", obj.get("person_id"))), optional_layout(obj.get("layout")), world)
 
 
 def _raw_people(obj: dict | list) -> list[RawPerson]:
