@@ -187,3 +187,45 @@ def test_eval_live_scores_the_stream_beside_the_whole_take(small_db_path, capsys
     assert 100.0 <= latency_p50 < 150.0                                    # 6 frames at 60 fps, plus the compute
     assert main([*args[:-2], "--lags", "0,x"]) == 2
     assert main(["eval", "--db", str(small_db_path), "--live", *folders]) == 2   # no calibration
+
+
+def test_eval_live_scores_world_landmarks_as_the_others(small_db, tmp_path):
+    """Keypoints that carry world landmarks get the "BlazePose world landmarks (raw)" row, scored as the
+    other variants: here the reference itself, put in camera 1's frame (y down, hips-centred) on every
+    person of camera 1's files, scores ~0; motion figures are not given (no root). The person is the
+    one the main track follows: a second person's landmarks (another pose) are not taken."""
+    from mocapdb.core.cameras import read_calibration_toml
+    from mocapdb.core.formats.keypoint_layouts import SOURCE_INDEX
+    from mocapdb.evaluation.live import SCORED, WORLD_LANDMARKS, evaluate_live, reference_joints
+
+    from .conftest import SAMPLE_KEYPOINTS
+
+    folders = [SAMPLE_KEYPOINTS, SAMPLE_KEYPOINTS.parent / "pose2sim_cam04"]
+    calibration = SAMPLE_KEYPOINTS.parent / "calibration.toml"
+    cams = read_calibration_toml(calibration)
+    cam = cams["cam_01"]
+    truth, names = reference_joints(folders, [cam, cams["cam_04"]])
+    hips = truth[:, [names.index("r_hip"), names.index("l_hip")]].mean(axis=1, keepdims=True)
+    in_camera = (truth - hips) @ cam.R.T   # the world's axes → the OpenCV camera's (x right, y down, z away)
+    body25b = SOURCE_INDEX["body25b"]
+    copy = tmp_path / "cam01"
+    copy.mkdir()
+    files = sorted(SAMPLE_KEYPOINTS.glob("*.json"))
+    for t, path in enumerate(files):
+        frame = json.loads(path.read_text())
+        for i, person in enumerate(frame["people"]):
+            world = np.zeros((25, 3))
+            for joint in SCORED:
+                world[body25b[KP[joint]]] = in_camera[t, names.index(joint)]
+            if not np.isfinite(world).all():
+                continue
+            if i > 0:
+                world = world[:, [1, 0, 2]]   # someone else: another pose
+            person["pose_world_landmarks_3d"] = world.ravel().tolist() if len(person["pose_keypoints_2d"]) else []
+        (copy / path.name).write_text(json.dumps(frame))
+    report = evaluate_live(small_db, [copy, folders[1]], calibration, (0,),
+                           names=["cam_01", "cam_04"], fps=60.0)
+    row = report["variants"][WORLD_LANDMARKS]
+    assert row["mpjpe_cm"] < 0.05 and row["pa_mpjpe_cm"] < 0.05 and row["frames_with_output"] > 0.8 * len(files)
+    assert np.isnan(row["acceleration_mm_per_frame2"]) and np.isnan(row["planted_feet_cm_per_s"])
+    assert list(report["variants"])[:2] == ["published method (per-frame, no refinement)", WORLD_LANDMARKS]

@@ -7,7 +7,10 @@ The first camera is run alone through the engine as ``live`` runs it (:class:`~m
 then :class:`~mocapdb.runtime.online_take.OnlineTake`, frame by frame), its output taken to the
 calibration's world by that camera's extrinsics. Variants: the per-frame stream (before the online
 take: the engine's causal 1€ output), the online take at each lag ``L``, and the whole take (the
-track files: :func:`~mocapdb.runtime.world.fit_takes`).
+track files: :func:`~mocapdb.runtime.world.fit_takes`). When the keypoints carry the detector's own 3D
+(BlazePose's world landmarks, ``data_specs/keypoint_formats.md``), they are scored too as a peer
+(:data:`WORLD_LANDMARKS`): per frame, those of the person the main track follows (the nearest in the
+image to its keypoints), hips-centred and without a root, so only MPJPE and PA are given for them.
 
 Figures, over the main track (the longest that is not static), beside the published method (the
 per-frame engine without its 2D refinement) and the database floor (:func:`floor_cm`):
@@ -37,7 +40,7 @@ from mocapdb.core.errors import UsageError
 from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame
 from mocapdb.core.formats.openpose import read_openpose_folder
-from mocapdb.core.skeleton import KP, N_POINTS
+from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D, N_POINTS
 from mocapdb.evaluation.detector_quality import low_pass, read_detections, residuals
 from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.metrics import pa_mpjpe, planted_feet
@@ -52,6 +55,9 @@ SCORED = ("r_shoulder", "l_shoulder", "r_elbow", "l_elbow", "r_wrist", "l_wrist"
           "r_hip", "l_hip", "r_knee", "l_knee", "r_ankle", "l_ankle")
 PER_FRAME, WHOLE_TAKE = "per-frame stream (before)", "whole take (track files)"
 PUBLISHED = "published method (per-frame, no refinement)"
+WORLD_LANDMARKS = "BlazePose world landmarks (raw)"
+MOTION_FIGURES = ("acceleration_mm_per_frame2", "acceleration_p95_mm_per_frame2", "fastest_joint_mps",
+                  "planted_feet_cm_per_s", "foot_sliding_mm_per_frame")   # not given for a pose without a root
 LAGS = (0, 3, 6)
 # The issue's targets (on the balancing take, camera 1): lag → (acceleration mm/frame², fastest m/s,
 # planted cm/s, MPJPE over the whole take's in cm (None: not set))
@@ -76,13 +82,18 @@ def run_variants(db: MotionDatabase, frames: list[KeypointFrame], config: Engine
                  params: OnlineParams | None = None) -> dict[str, dict]:
     """Each variant's main-track joints ``[T, 15, 3]`` (camera-aligned, NaN where none) and per-frame
     compute times (s): the published method (the per-frame engine without its 2D refinement), the
-    per-frame stream and the whole take from one run, the online take at each lag."""
+    per-frame stream and the whole take from one run, the online take at each lag; the detector's
+    world landmarks (:func:`world_landmark_joints`) when the frames carry them."""
     out: dict[str, dict] = {}
-    published, times, recordings = _run(db, frames, replace(config, refine=False), None)
+    published, times, recordings, _ = _run(db, frames, replace(config, refine=False), None)
     out[PUBLISHED] = {"joints": _track_joints(published, _main_track(published, recordings), len(frames)),
                       "compute_s": times, "lag": 0}
-    per_frame, times, recordings = _run(db, frames, replace(config, keep_take=True), None)
+    per_frame, times, recordings, keypoints = _run(db, frames, replace(config, keep_take=True), None)
     track = _main_track(per_frame, recordings)
+    if any(p.world_m is not None for frame in frames for p in frame.people):
+        followed = keypoints[track] if track in keypoints else np.full((len(frames), N_KEYPOINTS_2D, 3), np.nan)
+        out[WORLD_LANDMARKS] = {"joints": world_landmark_joints(frames, followed), "compute_s": None, "lag": None,
+                                "root": False}
     out[PER_FRAME] = {"joints": _track_joints(per_frame, track, len(frames)), "compute_s": times, "lag": 0}
     whole = _empty(len(frames))
     if track is not None:
@@ -93,18 +104,19 @@ def run_variants(db: MotionDatabase, frames: list[KeypointFrame], config: Engine
     out[WHOLE_TAKE] = {"joints": whole, "compute_s": None, "lag": None}
     for lag in lags:
         online = OnlineTake(config.fps, replace(params or OnlineParams(), lag_frames=lag))
-        joints, times, _ = _run(db, frames, replace(config, smoothing=False, keep_take=False), online)
+        joints, times, _, _ = _run(db, frames, replace(config, smoothing=False, keep_take=False), online)
         out[f"online take, L = {lag}"] = {"joints": _track_joints(joints, track, len(frames)), "compute_s": times,
                                           "lag": lag}
     return out
 
 
 def _run(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig, online: OnlineTake | None
-         ) -> tuple[dict[int, np.ndarray], np.ndarray, dict]:
+         ) -> tuple[dict[int, np.ndarray], np.ndarray, dict, dict[int, np.ndarray]]:
     """Every frame through the engine (and ``online``): each track's joints, each frame's compute
-    time (s) and the recordings."""
+    time (s), the recordings and each track's keypoints ``[T, 14, 3]`` (x px, y px, confidence)."""
     engine = Engine(db, config)
     joints: dict[int, np.ndarray] = {}
+    keypoints: dict[int, np.ndarray] = {}
     times = np.zeros(len(frames))
     position = {frame.index: i for i, frame in enumerate(frames)}
     for i, frame in enumerate(frames):
@@ -112,11 +124,11 @@ def _run(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig, 
         poses = engine.step(frame)
         due = [(frame.index, 0.0, poses)] if online is None else online.push(frame.index, 0.0, poses)
         times[i] = time.perf_counter() - start
-        _store(joints, due, position, len(frames))
+        _store(joints, keypoints, due, position, len(frames))
     if online is not None:
-        _store(joints, online.flush(), position, len(frames))
+        _store(joints, keypoints, online.flush(), position, len(frames))
     recordings = {r.track: r for r in engine.finish()}
-    return joints, times, recordings
+    return joints, times, recordings, keypoints
 
 
 def _track_joints(joints: dict[int, np.ndarray], track: int | None, n: int) -> np.ndarray:
@@ -124,10 +136,34 @@ def _track_joints(joints: dict[int, np.ndarray], track: int | None, n: int) -> n
     return joints[track] if track is not None and track in joints else _empty(n)
 
 
-def _store(joints: dict[int, np.ndarray], due: list, position: dict[int, int], n: int) -> None:
+def _store(joints: dict[int, np.ndarray], keypoints: dict[int, np.ndarray], due: list, position: dict[int, int],
+           n: int) -> None:
     for index, _, people in due:
         for pose in people:
             joints.setdefault(pose.track, _empty(n))[position[index]] = pose.joints_m
+            keypoints.setdefault(pose.track, np.full((n, N_KEYPOINTS_2D, 3), np.nan))[position[index]] = \
+                pose.keypoints_px
+
+
+def world_landmark_joints(frames: list[KeypointFrame], followed_px: np.ndarray) -> np.ndarray:
+    """The detector's world landmarks of the followed person as output joints ``[T, 15, 3]``
+    (camera-aligned: x right, y up, z away; hips-centred, the pelvis the hips' mid-point; NaN where
+    none): per frame, the person of ``frames[t]`` nearest in the image (median over the keypoints
+    both have) to ``followed_px [T, 14, 3]`` (the track's keypoints, x px, y px, confidence)."""
+    out = _empty(len(frames))
+    for t, frame in enumerate(frames):
+        track = followed_px[t, :, :2]
+        people = [p for p in frame.people if p.world_m is not None]
+        if not people or not np.isfinite(track).any():
+            continue
+        gaps = [np.nanmedian(np.linalg.norm(p.points_px - track, axis=-1)) if
+                (np.isfinite(p.points_px) & np.isfinite(track)).all(axis=-1).any() else np.inf for p in people]
+        if not np.isfinite(min(gaps)):
+            continue
+        world = people[int(np.argmin(gaps))].world_m
+        out[t, :N_KEYPOINTS_2D] = world * Y_DOWN
+        out[t, KP["pelvis"]] = (out[t, KP["r_hip"]] + out[t, KP["l_hip"]]) / 2.0
+    return out
 
 
 def _main_track(joints: dict[int, np.ndarray], recordings: dict) -> int | None:
@@ -228,6 +264,8 @@ def evaluate_live(db: MotionDatabase, folders: list[Path], calibration: Path, la
                     "database_floor_mpjpe_cm": floor_cm(db, truth, joint_names)}
     for name, run in run_variants(db, frames, config, lags).items():
         figures = score(camera_to_world(run["joints"], cam), truth, joint_names, planted, fps)
+        if not run.get("root", True):
+            figures |= dict.fromkeys(MOTION_FIGURES, float("nan"))
         if run["compute_s"] is not None:
             added = 1000 * (run["lag"] / fps + run["compute_s"])
             figures |= {"lag_frames": run["lag"], "latency_p50_ms": float(np.percentile(added, 50)),
@@ -255,16 +293,21 @@ def format_table(report: dict) -> str:
     lines = [header, "|---|---|---|---|---|---|---|---|"]
     for name, r in report["variants"].items():
         latency = "–" if "latency_p50_ms" not in r else f"{r['latency_p50_ms']:.1f} / {r['latency_p99_ms']:.1f}"
-        lines.append(f"| {name} | {r['acceleration_mm_per_frame2']:.1f} ({r['acceleration_p95_mm_per_frame2']:.1f}) | "
-                     f"{r['fastest_joint_mps']:.1f} | {r['planted_feet_cm_per_s']:.1f} | "
-                     f"{r['foot_sliding_mm_per_frame']:.2f} | {r['mpjpe_cm']:.1f} | {r['pa_mpjpe_cm']:.1f} | "
-                     f"{latency} |")
+        acceleration = "–" if not np.isfinite(r["acceleration_mm_per_frame2"]) else \
+            f"{r['acceleration_mm_per_frame2']:.1f} ({r['acceleration_p95_mm_per_frame2']:.1f})"
+        lines.append(f"| {name} | {acceleration} | {_cell(r['fastest_joint_mps'])} | "
+                     f"{_cell(r['planted_feet_cm_per_s'])} | {_cell(r['foot_sliding_mm_per_frame'], 2)} | "
+                     f"{_cell(r['mpjpe_cm'])} | {_cell(r['pa_mpjpe_cm'])} | {latency} |")
     lines += ["", (f"{report['camera']} alone ({report['frames']} frames at {report['fps']:g} fps) against the "
                    f"{report['cameras_triangulated']}-camera triangulation of the same detector; "
                    f"{report['planted_ankle_frames']} planted ankle-frames in the reference. Database floor "
                    f"(the best database pose under the best vertical turn, same joints, hips-centred): MPJPE "
                    f"{report['database_floor_mpjpe_cm']:.1f} cm.")]
     return "\n".join(lines)
+
+
+def _cell(value: float, digits: int = 1) -> str:
+    return f"{value:.{digits}f}" if np.isfinite(value) else "–"
 
 
 def check_lines(report: dict) -> list[str]:
