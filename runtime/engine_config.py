@@ -48,6 +48,8 @@ class EngineConfig:
     window_weights: tuple[float, ...] = D.WINDOW_WEIGHTS.default  # w = 4, most recent first
     joint_weights: tuple[float, ...] | None = None            # per rig joint; default all 1
     weight_2d: float = D.WEIGHT_2D.default               # added to Eq. 2: this × the candidate's Eq. 1 distance
+    world_prior: float = 0.0             # added too: this × the candidate's disagreement with the detector's
+                                         # world landmarks (runtime/world_prior.py); 0: not used
     confidence_threshold: float = CONFIDENCE_THRESHOLD
     min_joints: int = 6                  # fewer confident joints: the person is skipped
     focal_px: float = 1000.0             # input camera focal length, pixels
@@ -104,6 +106,7 @@ class EngineConfig:
         D.SUBCLUSTERS_SEARCHED.check_optional(self.subclusters, "subclusters")
         D.WINDOW_WEIGHTS.check(self.window_weights, "window_weights")
         D.WEIGHT_2D.check(self.weight_2d, "weight_2d")
+        D.WEIGHT_2D.check(self.world_prior, "world_prior")
         D.FOCAL_PX.check(self.focal_px, "focal_px")
         for side in self.image_size:
             D.IMAGE_SIDE_PX.check(side, "image_size")

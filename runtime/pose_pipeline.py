@@ -24,6 +24,7 @@ from mocapdb.runtime.refine import JointLimits, Refiner
 from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact, yaw_offset
 from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotations
 from mocapdb.runtime.track_state import NO_EXTREMITIES, TrackState
+from mocapdb.runtime.world_prior import candidate_costs, database_bones, temporal_weights, world_bones
 
 R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]  # numba freezes them as constants
 
@@ -49,6 +50,7 @@ class PosePipeline:
             raise ValueError(f"joint_weights needs {N_RIG_JOINTS} values, got {len(weights)}")
         self.joint_weights = np.asarray(weights, dtype=np.float64)
         self.refiner = Refiner(config.refinement, JointLimits.from_rotations(self.db_quats)) if config.refine else None
+        self.db_bones = database_bones(db.positions) if config.world_prior > 0 else None
 
     def warm_up(self, points_px: np.ndarray, confidence: np.ndarray) -> None:
         """Run every compiled kernel on a pose ``[14, 2]`` px (two frames of a throw-away track)."""
@@ -73,7 +75,7 @@ class PosePipeline:
 
     def _person(self, state: TrackState, d: Detection) -> PersonPose:
         """Retrieve, refine, smooth and record one detection (its keypoints already cleaned)."""
-        quats, root_view, match = self._retrieve(state, d.points_px, d.confidence > 0)
+        quats, root_view, match = self._retrieve(state, d.points_px, d.confidence > 0, self._world_term(state, d))
         if self.refiner is not None:
             root_view = self._fit(self.refiner, state, quats, root_view, d)
         if not self.config.translation:
@@ -92,9 +94,21 @@ class PosePipeline:
                           state.proportions_m * state.scale, up_view=state.tilt.up,
                           keypoints_px=np.column_stack([d.points_px, d.confidence]), extremities_px=d.extremities)
 
-    def _retrieve(self, state: TrackState, points_px: np.ndarray,
-                  visible: np.ndarray) -> tuple[np.ndarray, np.ndarray, Match]:
-        """The method's pose: search, Eq. 2 choice, yaw refinement. Returns its rotations ``[R, 4]``
+    def _world_term(self, state: TrackState, d: Detection) -> tuple[np.ndarray, np.ndarray] | None:
+        """The detector's world bones and their weights (:mod:`mocapdb.runtime.world_prior`), the
+        weights times :attr:`EngineConfig.world_prior`; None when not used or not given."""
+        if self.db_bones is None or d.world_m is None:
+            return None
+        cfg = self.config
+        bones, weights = world_bones(d.world_m, d.points_px, d.confidence, state.tilt.up, cfg.focal_px, cfg.center_px)
+        previous = state.world_bones if state.world_frame == d.frame_index - 1 else None
+        state.world_bones, state.world_frame = bones, d.frame_index
+        return bones, cfg.world_prior * weights * temporal_weights(bones, previous)
+
+    def _retrieve(self, state: TrackState, points_px: np.ndarray, visible: np.ndarray,
+                  world: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, Match]:
+        """The method's pose: search, Eq. 2 choice (with ``world``, the world bones and their weights:
+        plus the candidates' disagreement with them), yaw refinement. Returns its rotations ``[R, 4]``
         (root turned by the yaw), the root seen at the image's size for the track's body scale,
         and the match. The database's projections are upright: a rolled camera's keypoints are first
         turned upright about the mid-hip by the track's roll estimate (:func:`upright_px`)."""
@@ -102,7 +116,11 @@ class PosePipeline:
             points_px = upright_px(points_px, visible, state.tilt.roll_rad)
         query, _, _ = normalize_pose_2d(points_px, visible)
         rows, dist = self.search(query, visible)
-        best = self._choose(state, rows, dist)
+        extra = None
+        if world is not None and self.db_bones is not None:
+            frames = rows // self.n_yaws
+            extra = candidate_costs(self.db_bones, frames, self.yaws_deg[rows % self.n_yaws], world[0], world[1])
+        best = self._choose(state, rows, dist, extra)
         row = int(rows[best])
         f, v = divmod(row, self.n_yaws)  # rows are frame-major
         yaw_deg = self._refined_yaw(f, v, query, visible)
@@ -136,14 +154,16 @@ class PosePipeline:
             return float(self.yaws_deg[yaw])
         return float(self.yaws_deg[yaw]) + yaw_offset(self.index, frame, yaw, self.yaws_deg, query, visible)
 
-    def _choose(self, state: TrackState, rows: np.ndarray, dist: np.ndarray) -> int:
-        """Index into ``rows`` of the candidate to use (Eq. 2, or Eq. 1 at a track's start)."""
+    def _choose(self, state: TrackState, rows: np.ndarray, dist: np.ndarray, extra: np.ndarray | None = None) -> int:
+        """Index into ``rows`` of the candidate to use (Eq. 2, or Eq. 1 at a track's start), ``extra``
+        (per candidate) added."""
+        added = 0.0 if extra is None else extra
         if state.n_history == 0:
-            return int(np.argmin(dist))
+            return int(np.argmin(dist + added))
         costs = temporal_costs(self.db_quats, self.clip_first, self.yaw_quats, rows // self.n_yaws,
                                rows % self.n_yaws, state.history, state.n_history,
                                self.window_weights, self.joint_weights)
-        return int(np.argmin(costs + self.config.weight_2d * dist))
+        return int(np.argmin(costs + self.config.weight_2d * dist + added))
 
     def _root_view(self, frame: int, yaw_deg: float, points_px: np.ndarray, visible: np.ndarray) -> np.ndarray:
         """Pelvis position in the view frame for a 1.75 m body, from the image by a pinhole model."""

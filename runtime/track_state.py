@@ -47,6 +47,8 @@ class TrackState:
         self.root = OneEuroFilter(root_params)
         self.recording = TrackRecording(track, frame)
         self.last_frame = frame - 1
+        self.world_bones: np.ndarray | None = None   # the detector's world bones of the last frame that had them
+        self.world_frame = -2                        # … and that frame
 
     def remember(self, quats: np.ndarray) -> None:
         """Push this frame's (unsmoothed) rotations onto the history window."""

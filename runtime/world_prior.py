@@ -1,0 +1,94 @@
+"""The detector's own 3D as a second prior beside retrieval (issue 37, item 1): the retrieved
+candidates re-ranked by how well their bones point where the detector's world landmarks point.
+
+BlazePose's world landmarks (``Person.world_m``: metres, hips-centred, x right and y down along the
+image's axes, z away from the camera; ``data_specs/keypoint_formats.md``) are put in the frame the
+database's views live in: the view frame (x right, y up, z towards the camera), first turned from
+the image's axes onto the ray from the camera through the hips (the model saw a crop along that
+ray), then levelled by the track's tilt estimate (the database's camera looks level).
+
+Each candidate (a database frame at one of its yaws) costs ``Σ_b w_b (1 − cos(d_b, e_b)) / B`` over
+the ``B`` limb, girdle and trunk bones :data:`BONES`: ``d_b`` the candidate's bone direction turned by
+its yaw, ``e_b`` the world landmarks', ``w_b`` = ``EngineConfig.world_prior`` × the smaller 2D
+confidence of the bone's ends × its agreement with the world landmarks of the frame before
+(:func:`temporal_weights`: a bone that flips from one frame to the next, as a left/right or
+front/back swap of the model does, counts little). The choice adds this cost to its own
+(:meth:`~mocapdb.runtime.pose_pipeline.PosePipeline._choose`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mocapdb.core.geometry import yaw_matrix
+from mocapdb.core.skeleton import KP
+
+BONES = tuple((KP[a], KP[b]) for a, b in (
+    ("r_shoulder", "r_elbow"), ("r_elbow", "r_wrist"), ("l_shoulder", "l_elbow"), ("l_elbow", "l_wrist"),
+    ("r_hip", "r_knee"), ("r_knee", "r_ankle"), ("l_hip", "l_knee"), ("l_knee", "l_ankle"),
+    ("r_shoulder", "l_shoulder"), ("r_hip", "l_hip"), ("pelvis", "neck")))
+_FROM, _TO = np.array([b[0] for b in BONES]), np.array([b[1] for b in BONES])
+VIEW_FROM_IMAGE_AXES = np.array([1.0, -1.0, -1.0])   # (x right, y down, z away) → view (y up, z towards)
+Y_AXIS, Z_AXIS = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+FLIP_COS = 0.5      # a bone turned by more than 60° since the frame before counts (almost) nothing
+
+
+def unit(vectors: np.ndarray) -> np.ndarray:
+    """``vectors [..., 3]`` normalised (NaN where zero or not finite)."""
+    norm = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(norm > 1e-9, vectors / norm, np.nan)
+
+
+def database_bones(positions_m: np.ndarray) -> np.ndarray:
+    """Every database frame's bone directions ``[F, B, 3]`` (unit, the database's upright frame,
+    before any yaw) from its keypoints ``[F, 15, 3]``."""
+    return unit(positions_m[:, _TO] - positions_m[:, _FROM]).astype(np.float32)
+
+
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation ``[3, 3]`` taking the unit vector ``a`` to the unit vector ``b``."""
+    axis = np.cross(a, b)
+    s, c = float(np.linalg.norm(axis)), float(a @ b)
+    if s < 1e-9:
+        return np.eye(3)
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + k + k @ k * ((1.0 - c) / s**2)
+
+
+def world_bones(world_m: np.ndarray, points_px: np.ndarray, confidence: np.ndarray, up_view: np.ndarray,
+                focal_px: float, center_px: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """The world landmarks' bone directions ``[B, 3]`` in the levelled view frame (module docstring)
+    and each bone's confidence ``[B]`` (the smaller 2D confidence of its ends; 0 where a direction is
+    missing). ``world_m [14, 3]`` (image axes), the keypoints ``[14, 2]`` px and confidences ``[14]``
+    (0: missing), the track's up ``[3]`` (view frame), the camera's focal and principal point (px)."""
+    joints = np.vstack([world_m, 0.5 * (world_m[KP["r_hip"]] + world_m[KP["l_hip"]])])   # + the pelvis
+    conf = np.append(confidence, min(confidence[KP["r_hip"]], confidence[KP["l_hip"]]))
+    hips = [k for k in (KP["r_hip"], KP["l_hip"]) if confidence[k] > 0]
+    if hips:
+        centre = points_px[hips].mean(axis=0)
+        ray = np.array([(centre[0] - center_px[0]) / focal_px, (centre[1] - center_px[1]) / focal_px, 1.0])
+        joints = joints @ rotation_between(Z_AXIS, ray / np.linalg.norm(ray)).T
+    view = joints * VIEW_FROM_IMAGE_AXES @ rotation_between(up_view / np.linalg.norm(up_view), Y_AXIS).T
+    bones = unit(view[_TO] - view[_FROM])
+    weights = np.minimum(conf[_FROM], conf[_TO])
+    ok = np.isfinite(bones).all(axis=-1)
+    return np.where(ok[:, None], bones, 0.0), np.where(ok, weights, 0.0)
+
+
+def temporal_weights(bones: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
+    """Per bone, how far this frame's world bone ``[B, 3]`` agrees with the frame before's (1: the
+    same; falling to 0 as it turns past :data:`FLIP_COS`); all 1 without a frame before."""
+    if previous is None:
+        return np.ones(len(bones))
+    cos = np.sum(bones * previous, axis=-1)
+    return np.clip((cos - FLIP_COS) / (1.0 - FLIP_COS), 0.0, 1.0) ** 0.5
+
+
+def candidate_costs(db_bones: np.ndarray, frames: np.ndarray, yaws_deg: np.ndarray, bones: np.ndarray,
+                    weights: np.ndarray) -> np.ndarray:
+    """Each candidate's disagreement ``[N]`` with the world bones ``[B, 3]``, ``Σ_b w_b (1 − cos_b) / B``
+    for the ``weights [B]``: database frames ``frames [N]`` turned by ``yaws_deg [N]``."""
+    turned = np.einsum("nab,nkb->nka", yaw_matrix(yaws_deg), db_bones[frames].astype(np.float64))
+    cos = np.nan_to_num(np.einsum("nka,ka->nk", turned, bones), nan=1.0)
+    return ((1.0 - cos) @ weights) / len(weights)
+
