@@ -24,8 +24,8 @@ and ``log h`` (or ``h`` given). Each track is one of three kinds (Bayesian model
 
 The cost sums each track's ``−log`` mixture (weighted by its length up to 1 s:
 :func:`evidence_weight`), the flatness of its contacts under each floor (:func:`_unevenness`) and
-the tilt prior (:func:`tilt_cost`: the bodies' tilt estimate with a heavy tail, tighter about an
-axis the contacts fix); the grid's minimum is the world, its spread the camera height's
+the tilt prior (:func:`~mocapdb.runtime.world_tilt.tilt_cost`: the bodies' tilt estimate with a
+heavy tail, tighter about an axis the contacts fix); the grid's minimum is the world, its spread the camera height's
 uncertainty. Each track on the floor then takes its floor-consistent stature; any other the prior's
 mode (or its given height), standing in the same world where its feet are (above the floor on a
 box), made smaller where its lowest points would sink below the floor. No scale is negative, no
@@ -48,7 +48,7 @@ from mocapdb.core.motion_ops import scaled_about_origin
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
 from mocapdb.runtime.body_size import TILT_SD_DEG
-from mocapdb.runtime.contact_floor import MIN_FLOOR_SPREAD_M, above_floor, coplanar_spread, floor_plane, lowest_level
+from mocapdb.runtime.contact_floor import MIN_FLOOR_SPREAD_M, above_floor, floor_plane, lowest_level
 from mocapdb.runtime.foot_contacts import ANKLES
 from mocapdb.runtime.stature import (
     FLAT_DENSITY,
@@ -66,6 +66,7 @@ from mocapdb.runtime.stature import (
 )
 from mocapdb.runtime.take import TakeResult, fit_take
 from mocapdb.runtime.take_params import TakeParams
+from mocapdb.runtime.world_tilt import ContactSet, tilt_cost, tilt_sds, tilt_spread_deg, tilted_normals
 
 CONTACT_SD = 0.10            # of log stature, one step's (depth and ankle-height noise), over its steps
 STEP_GRID_M = 0.01           # contacts within this of each other are one step (the whole-take fit anchors a step)
@@ -74,9 +75,6 @@ TILT_RANGE_DEG = 20.0        # the grid's pitch and roll search about the tracks
 LOG_HEIGHT_STEP = 0.01       # the camera-height grid's step (log metres)
 CAMERA_HEIGHT_RANGE_M = (0.1, 60.0)
 MIN_FLOOR_DEPTH = 0.05       # a floor less than this × the person's stature below the camera: not under them
-TILT_SD_FIXED_DEG = 0.5      # a tilt's error at least, about an axis a track's contacts span
-TILT_TAIL_SD_DEG, TILT_TAIL_SHARE = 15.0, 0.2  # the tilt prior's heavy tail: bodies' estimates can be far off
-PITCH_SD_MIN_DEG = 5.0  # bodies show the pitch only by their foreshortening, and share its error (the camera's)
 
 
 @dataclass(frozen=True)
@@ -223,14 +221,14 @@ def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None 
     if not grounded:
         return _world_without_contacts(evidence, camera_height_m)
     tilt_sd = _tilt_sd_deg(grounded)
-    own = [ContactSet(e.contacts_m, e.steps, DEPTH_SD_REL) for e in grounded]
-    world = _grid_world(grounded, _mean_up(grounded), _tilt_sds(own, tilt_sd), camera_height_m)
+    own = [ContactSet(e.contacts_m, e.steps, 0.0) for e in grounded]   # a track's depth errors show as scatter
+    world = _grid_world(grounded, _mean_up(grounded), tilt_sds(own, tilt_sd), camera_height_m)
     floor_contacts = _floor_contacts(grounded, world)
     refitted = None if floor_contacts is None else _plane_normal(floor_contacts, world.normal)
     if refitted is not None and floor_contacts is not None:
         # everyone's contacts together: each track's depth error is one error, shared by its contacts
         together = ContactSet(floor_contacts, _floor_track_count(grounded, world), DEPTH_SD_REL)
-        sds = _tilt_sds(own + [together], tilt_sd)
+        sds = tilt_sds(own + [together], tilt_sd)
         world = _grid_world(grounded, refitted, sds, camera_height_m)
     return _with_people(world, evidence)
 
@@ -244,17 +242,17 @@ def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg:
     height and a pitch trade; then the height's spread at the best tilt."""
     given = None if camera_height_m is None else np.array([np.log(camera_height_m)])
     tilt, log_h = np.zeros(2), _LOG_HEIGHTS[::COARSE_HEIGHT_STRIDE] if given is None else given
-    tilt_sd = None
-    for step, half_width, log_h_window in TILT_PASSES:
+    tilt_sd = (np.nan, np.nan)
+    for n, (step, half_width, log_h_window) in enumerate(TILT_PASSES):
         offsets = np.arange(-half_width, half_width + 1e-9, step)
         tilts = tilt + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
-        cost = _cost(evidence, _tilted_normals(normal, tilts), tilts, tilt_sds_deg, log_h)
-        tilt_sd = _tilt_spread_deg(tilts, cost) if tilt_sd is None else tilt_sd   # the widest grid's
+        cost = _cost(evidence, tilted_normals(normal, tilts), tilts, tilt_sds_deg, log_h)
+        tilt_sd = tilt_spread_deg(tilts, cost, step) if n == 0 else tilt_sd   # the widest grid's
         t, h = np.unravel_index(int(np.argmin(cost)), cost.shape)
         tilt = tilts[t]
         if given is None:
             log_h = _LOG_HEIGHTS[np.abs(_LOG_HEIGHTS - log_h[h]) <= log_h_window]
-    best = _tilted_normals(normal, tilt[None])
+    best = tilted_normals(normal, tilt[None])
     log_h = _LOG_HEIGHTS if given is None else given
     cost = _cost(evidence, best, tilt[None], tilt_sds_deg, log_h)[0]
     posterior = np.exp(-(cost - cost.min()))
@@ -262,17 +260,6 @@ def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg:
     sd = float(np.sqrt(np.sum(posterior * (log_h - mean) ** 2) / np.sum(posterior)))
     return World(best[0], float(np.exp(log_h[np.argmin(cost)])), sd, given is not None,
                  pitch_sd_deg=tilt_sd[0], roll_sd_deg=tilt_sd[1])
-
-
-def _tilt_spread_deg(tilts_deg: np.ndarray, cost: np.ndarray) -> tuple[float, float]:
-    """The posterior SDs of pitch and roll (degrees) over a tilt grid ``[T, 2]`` and its ``−log``
-    posterior ``cost [T, H]`` (heights marginalised). At least the grid's own step over √12."""
-    weight = np.exp(-(cost - cost.min())).sum(axis=1)
-    weight /= weight.sum()
-    mean = weight @ tilts_deg
-    sd = np.sqrt(weight @ (tilts_deg - mean) ** 2)
-    step = TILT_PASSES[0][0] / np.sqrt(12.0)
-    return float(max(sd[0], step)), float(max(sd[1], step))
 
 
 def _cost(evidence: list[TrackEvidence], normals: np.ndarray, tilts_deg: np.ndarray,
@@ -307,35 +294,11 @@ def _unevenness(e: TrackEvidence, normals: np.ndarray) -> np.ndarray:
     return np.log1p(0.5 * residual ** 2).mean(axis=0) * e.steps
 
 
-def tilt_cost(tilts_deg: np.ndarray, sds_deg: tuple[float, float]) -> np.ndarray:
-    """``−log`` prior ``[T]`` of tilt corrections ``[T, 2]`` (pitch, roll; degrees) about the bodies'
-    estimate, per axis a mixture: its error ``sds_deg`` (weight 1 − :data:`TILT_TAIL_SHARE`) and a
-    wide tail (:data:`TILT_TAIL_SD_DEG`): a body shows the camera's pitch only by its foreshortening,
-    so its estimate is now and then far off (16° on a real take's bystander), and then the floor
-    under several people overrules it. No tail where contacts fix the axis to :data:`TILT_SD_FIXED_DEG`."""
-    sds = np.asarray(sds_deg)
-    tail = np.where(sds > TILT_SD_FIXED_DEG, TILT_TAIL_SHARE, 0.0)  # none about an axis the contacts fix
-    narrow = np.log1p(-tail) - 0.5 * (tilts_deg / sds) ** 2 - np.log(sds)
-    with np.errstate(divide="ignore"):
-        wide = np.log(tail) - 0.5 * (tilts_deg / TILT_TAIL_SD_DEG) ** 2 - np.log(TILT_TAIL_SD_DEG)
-    return -np.sum(np.logaddexp(narrow, wide), axis=1)
-
-
 # Each tilt grid's step and half width (degrees) and the log camera heights searched by the next one
 # about this one's minimum: a pitch change of δ moves a person Z metres away by δ Z / h, up to ~0.4 in log.
 TILT_PASSES = ((2.0, TILT_RANGE_DEG, 0.5), (0.5, 3.0, 0.15), (0.1, 0.75, 0.15))
 COARSE_HEIGHT_STRIDE = 4  # the coarse pass takes every 4th height of the grid
 _LOG_HEIGHTS = np.arange(np.log(CAMERA_HEIGHT_RANGE_M[0]), np.log(CAMERA_HEIGHT_RANGE_M[1]), LOG_HEIGHT_STEP)
-
-
-def _tilted_normals(normal: np.ndarray, tilts_deg: np.ndarray) -> np.ndarray:
-    """``normal`` turned about the camera's x axis by each pitch, then about its viewing axis by each
-    roll (``tilts_deg [T, 2]``): ``[T, 3]``."""
-    pitch, roll = np.radians(tilts_deg[:, 0]), np.radians(tilts_deg[:, 1])
-    c, s = np.cos(pitch), np.sin(pitch)
-    x, y, z = np.full_like(c, normal[0]), c * normal[1] - s * normal[2], s * normal[1] + c * normal[2]
-    c, s = np.cos(roll), np.sin(roll)
-    return np.stack([c * x - s * y, s * x + c * y, z], axis=1)
 
 
 def _observed_log_stature(e: TrackEvidence, normals: np.ndarray) -> np.ndarray:
@@ -472,44 +435,6 @@ def _spans_floor(contacts: np.ndarray) -> bool:
         return False
     return bool(np.linalg.svd(contacts - contacts.mean(axis=0), compute_uv=False)[0] / np.sqrt(len(contacts))
                 >= MIN_FLOOR_SPREAD_M)
-
-
-@dataclass(frozen=True)
-class ContactSet:
-    """Contacts ``[N, 3]`` (view frame, metres) that may fix the floor's tilt: how many independent
-    errors they carry (a track's steps; one per track where several tracks' contacts are pooled) and
-    each one's relative error (of the contact's height below the camera: the depth's, and the
-    size's where tracks are pooled)."""
-
-    points_m: np.ndarray
-    independent: int
-    relative_error: float
-
-
-def _tilt_sds(contacts: list[ContactSet], tilt_sd_deg: float) -> tuple[float, float]:
-    """The pitch and roll errors (degrees): ``tilt_sd_deg`` (the tracks' estimates combined; the
-    pitch's at least :data:`PITCH_SD_MIN_DEG`: the people of one take share its error, so more of
-    them do not average it away), or less about an axis some set of contacts fixes (they lie on one
-    plane spanning about 1 m both ways, or along a line running mostly in depth: the pitch, or
-    mostly across: the roll): the standard error of a plane's tilt fitted to them (their RMS off it,
-    or their relative error times their height below the camera when larger, over their RMS extent
-    along the axis and the root of their independent errors), at least :data:`TILT_SD_FIXED_DEG`."""
-    pitch, roll = max(tilt_sd_deg, PITCH_SD_MIN_DEG), tilt_sd_deg
-    for c in contacts:
-        plane = coplanar_spread(c.points_m)
-        if plane is None:
-            continue
-        spread, vt = plane
-        off_plane = max(spread[2], c.relative_error * abs(float(c.points_m.mean(axis=0) @ vt[2])))
-        for axis in (0, 1):
-            if spread[axis] < MIN_FLOOR_SPREAD_M:
-                continue
-            sd = max(TILT_SD_FIXED_DEG, float(np.degrees(off_plane / (spread[axis] * np.sqrt(c.independent)))))
-            if abs(vt[axis, 2]) >= 0.7:
-                pitch = min(pitch, sd)
-            if abs(vt[axis, 0]) >= 0.7:
-                roll = min(roll, sd)
-    return pitch, roll
 
 
 def place_in_world(rec: TrackRecording, world: World, fps: float) -> TrackRecording:

@@ -48,12 +48,12 @@ def test_a_world_is_scored_against_the_calibration():
 
 def test_the_tilts_spread_is_the_posteriors_sd():
     """A Gaussian posterior over the tilt grid (SD 4° in pitch, 6° in roll, any height) gives those SDs."""
-    from mocapdb.runtime.world import _tilt_spread_deg
+    from mocapdb.runtime.world_tilt import tilt_spread_deg
 
     offsets = np.arange(-20.0, 20.0 + 1e-9, 2.0)
     tilts = np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
     cost = (0.5 * (tilts[:, 0] / 4.0) ** 2 + 0.5 * (tilts[:, 1] / 6.0) ** 2)[:, None].repeat(3, axis=1)
-    pitch_sd, roll_sd = _tilt_spread_deg(tilts, cost)
+    pitch_sd, roll_sd = tilt_spread_deg(tilts, cost, 2.0)
     assert pitch_sd == pytest.approx(4.0, rel=0.02) and roll_sd == pytest.approx(6.0, rel=0.05)
     flat_top = np.where(np.abs(tilts).max(axis=1) == 0, 0.0, 50.0)[:, None]   # all mass on one grid point
-    assert _tilt_spread_deg(tilts, flat_top) == pytest.approx((2.0 / np.sqrt(12), 2.0 / np.sqrt(12)))
+    assert tilt_spread_deg(tilts, flat_top, 2.0) == pytest.approx((2.0 / np.sqrt(12), 2.0 / np.sqrt(12)))

@@ -1,0 +1,89 @@
+"""The camera tilt's prior in the one-camera world (:mod:`mocapdb.runtime.world`): how far the
+bodies' estimate of the pitch and roll may be off (:func:`tilt_cost`), how tightly contacts that
+span the floor fix it (:func:`tilt_sds`), the tilted floor normals of the grid
+(:func:`tilted_normals`) and the posterior spread over that grid (:func:`tilt_spread_deg`).
+``data_specs/world.md`` gives the decisions."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapdb.runtime.contact_floor import MIN_FLOOR_SPREAD_M, coplanar_spread
+
+TILT_SD_FIXED_DEG = 0.5      # a tilt's error at least, about an axis a track's contacts span
+TILT_TAIL_SD_DEG, TILT_TAIL_SHARE = 15.0, 0.2  # the tilt prior's heavy tail: bodies' estimates can be far off
+PITCH_SD_MIN_DEG = 5.0  # bodies show the pitch only by their foreshortening, and share its error (the camera's)
+
+
+def tilt_cost(tilts_deg: np.ndarray, sds_deg: tuple[float, float]) -> np.ndarray:
+    """``−log`` prior ``[T]`` of tilt corrections ``[T, 2]`` (pitch, roll; degrees) about the bodies'
+    estimate, per axis a mixture: its error ``sds_deg`` (weight 1 − :data:`TILT_TAIL_SHARE`) and a
+    wide tail (:data:`TILT_TAIL_SD_DEG`): a body shows the camera's pitch only by its foreshortening,
+    so its estimate is now and then far off (16° on a real take's bystander), and then the floor
+    under several people overrules it. No tail where contacts fix the axis to :data:`TILT_SD_FIXED_DEG`."""
+    sds = np.asarray(sds_deg)
+    tail = np.where(sds > TILT_SD_FIXED_DEG, TILT_TAIL_SHARE, 0.0)  # none about an axis the contacts fix
+    narrow = np.log1p(-tail) - 0.5 * (tilts_deg / sds) ** 2 - np.log(sds)
+    with np.errstate(divide="ignore"):
+        wide = np.log(tail) - 0.5 * (tilts_deg / TILT_TAIL_SD_DEG) ** 2 - np.log(TILT_TAIL_SD_DEG)
+    return -np.sum(np.logaddexp(narrow, wide), axis=1)
+
+
+def tilted_normals(normal: np.ndarray, tilts_deg: np.ndarray) -> np.ndarray:
+    """``normal`` turned about the camera's x axis by each pitch, then about its viewing axis by each
+    roll (``tilts_deg [T, 2]``): ``[T, 3]``."""
+    pitch, roll = np.radians(tilts_deg[:, 0]), np.radians(tilts_deg[:, 1])
+    c, s = np.cos(pitch), np.sin(pitch)
+    x, y, z = np.full_like(c, normal[0]), c * normal[1] - s * normal[2], s * normal[1] + c * normal[2]
+    c, s = np.cos(roll), np.sin(roll)
+    return np.stack([c * x - s * y, s * x + c * y, z], axis=1)
+
+
+def tilt_spread_deg(tilts_deg: np.ndarray, cost: np.ndarray, grid_step_deg: float) -> tuple[float, float]:
+    """The posterior SDs of pitch and roll (degrees) over a tilt grid ``[T, 2]`` and its ``−log``
+    posterior ``cost [T, H]`` (heights marginalised). At least the grid's step ``grid_step_deg`` over √12."""
+    weight = np.exp(-(cost - cost.min())).sum(axis=1)
+    weight /= weight.sum()
+    mean = weight @ tilts_deg
+    sd = np.sqrt(weight @ (tilts_deg - mean) ** 2)
+    step = grid_step_deg / np.sqrt(12.0)
+    return float(max(sd[0], step)), float(max(sd[1], step))
+
+
+@dataclass(frozen=True)
+class ContactSet:
+    """Contacts ``[N, 3]`` (view frame, metres) that may fix the floor's tilt: how many independent
+    errors they carry (a track's steps; one per track where several tracks' contacts are pooled) and
+    each one's relative error (of the contact's height below the camera: the depth's, and the
+    size's where tracks are pooled)."""
+
+    points_m: np.ndarray
+    independent: int
+    relative_error: float
+
+
+def tilt_sds(contacts: list[ContactSet], tilt_sd_deg: float) -> tuple[float, float]:
+    """The pitch and roll errors (degrees): ``tilt_sd_deg`` (the tracks' estimates combined; the
+    pitch's at least :data:`PITCH_SD_MIN_DEG`: the people of one take share its error, so more of
+    them do not average it away), or less about an axis some set of contacts fixes (they lie on one
+    plane spanning about 1 m both ways, or along a line running mostly in depth: the pitch, or
+    mostly across: the roll): the standard error of a plane's tilt fitted to them (their RMS off it,
+    or their relative error times their height below the camera when larger, over their RMS extent
+    along the axis and the root of their independent errors), at least :data:`TILT_SD_FIXED_DEG`."""
+    pitch, roll = max(tilt_sd_deg, PITCH_SD_MIN_DEG), tilt_sd_deg
+    for c in contacts:
+        plane = coplanar_spread(c.points_m)
+        if plane is None:
+            continue
+        spread, vt = plane
+        off_plane = max(spread[2], c.relative_error * abs(float(c.points_m.mean(axis=0) @ vt[2])))
+        for axis in (0, 1):
+            if spread[axis] < MIN_FLOOR_SPREAD_M:
+                continue
+            sd = max(TILT_SD_FIXED_DEG, float(np.degrees(off_plane / (spread[axis] * np.sqrt(c.independent)))))
+            if abs(vt[axis, 2]) >= 0.7:
+                pitch = min(pitch, sd)
+            if abs(vt[axis, 0]) >= 0.7:
+                roll = min(roll, sd)
+    return pitch, roll
