@@ -20,11 +20,21 @@ from mocapdb.core.search_rules import clusters_searched_for, subclusters_searche
 from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, UNIVERSAL_HEIGHT_M, pose_from_rotations
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.frame_people import Detection
-from mocapdb.runtime.refine import JointLimits, Refiner
+from mocapdb.runtime.refine import JointLimits, Refiner, WorldBones
 from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact, yaw_offset
 from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotations
 from mocapdb.runtime.track_state import NO_EXTREMITIES, TrackState
-from mocapdb.runtime.world_prior import candidate_costs, database_bones, temporal_weights, world_bones
+from mocapdb.runtime.world_prior import (
+    FIT_BONES,
+    FIT_END,
+    FIT_START,
+    NO_FIT_BONES,
+    candidate_costs,
+    database_bones,
+    level,
+    view_joints,
+    weighted_bones,
+)
 
 R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]  # numba freezes them as constants
 
@@ -50,7 +60,9 @@ class PosePipeline:
             raise ValueError(f"joint_weights needs {N_RIG_JOINTS} values, got {len(weights)}")
         self.joint_weights = np.asarray(weights, dtype=np.float64)
         self.refiner = Refiner(config.refinement, JointLimits.from_rotations(self.db_quats)) if config.refine else None
-        self.db_bones = database_bones(db.positions) if config.world_prior > 0 else None
+        # the detector's world landmarks go with the refinement: without it the engine is the published method
+        self.db_bones = database_bones(db.positions) if config.world_prior > 0 and config.refine else None
+        self.world_fit = config.refinement.world if config.refine else 0.0
 
     def warm_up(self, points_px: np.ndarray, confidence: np.ndarray) -> None:
         """Run every compiled kernel on a pose ``[14, 2]`` px (two frames of a throw-away track)."""
@@ -75,15 +87,17 @@ class PosePipeline:
 
     def _person(self, state: TrackState, d: Detection) -> PersonPose:
         """Retrieve, refine, smooth and record one detection (its keypoints already cleaned)."""
-        quats, root_view, match = self._retrieve(state, d.points_px, d.confidence > 0, self._world_term(state, d))
+        rerank, fit_world = self._world(state, d)
+        quats, root_view, match = self._retrieve(state, d.points_px, d.confidence > 0, rerank)
         if self.refiner is not None:
-            root_view = self._fit(self.refiner, state, quats, root_view, d)
+            root_view = self._fit(self.refiner, state, quats, root_view, d, fit_world)
         if not self.config.translation:
             root_view = np.zeros(3)
         state.remember(quats)
         fit = None
         if self.config.keep_take:
-            fit = (quats.copy(), root_view.copy(), np.column_stack([d.points_px, d.confidence]), d.extremities)
+            bones = NO_FIT_BONES if fit_world is None else np.column_stack([fit_world.directions, fit_world.weights])
+            fit = (quats.copy(), root_view.copy(), np.column_stack([d.points_px, d.confidence]), d.extremities, bones)
         if self.config.smoothing:
             quats = state.rotations(quats, d.t_s)
             root_view = state.root(root_view, d.t_s)
@@ -94,16 +108,26 @@ class PosePipeline:
                           state.proportions_m * state.scale, up_view=state.tilt.up,
                           keypoints_px=np.column_stack([d.points_px, d.confidence]), extremities_px=d.extremities)
 
-    def _world_term(self, state: TrackState, d: Detection) -> tuple[np.ndarray, np.ndarray] | None:
-        """The detector's world bones and their weights (:mod:`mocapdb.runtime.world_prior`), the
-        weights times :attr:`EngineConfig.world_prior`; None when not used or not given."""
-        if self.db_bones is None or d.world_m is None:
-            return None
-        cfg = self.config
-        bones, weights = world_bones(d.world_m, d.points_px, d.confidence, state.tilt.up, cfg.focal_px, cfg.center_px)
-        previous = state.world_bones if state.world_frame == d.frame_index - 1 else None
-        state.world_bones, state.world_frame = bones, d.frame_index
-        return bones, cfg.world_prior * weights * temporal_weights(bones, previous)
+    def _world(self, state: TrackState, d: Detection
+               ) -> tuple[tuple[np.ndarray, np.ndarray] | None, WorldBones | None]:
+        """The detector's 3D of ``d`` (:mod:`mocapdb.runtime.world_prior`) as the retrieval's world
+        bones and weights (levelled by the track's tilt; None unless ``world_prior``) and the fit's
+        (the view frame; None unless ``refinement.world``); each bone weighted by its confidence, its
+        agreement with the frame before and the weight asked for."""
+        if (self.db_bones is None and self.world_fit <= 0) or d.world_m is None:
+            return None, None
+        joints, conf = view_joints(d.world_m, d.points_px, d.confidence, self.config.focal_px, self.config.center_px)
+        previous = state.world_joints if state.world_frame == d.frame_index - 1 else None
+        state.world_joints, state.world_frame = joints, d.frame_index
+        rerank = fit = None
+        if self.db_bones is not None:
+            up = state.tilt.up
+            bones, weights = weighted_bones(level(joints, up), conf, None if previous is None else level(previous, up))
+            rerank = bones, self.config.world_prior * weights
+        if self.world_fit > 0:
+            bones, weights = weighted_bones(joints, conf, previous, FIT_BONES)
+            fit = WorldBones(FIT_START, FIT_END, bones, self.world_fit * weights)
+        return rerank, fit
 
     def _retrieve(self, state: TrackState, points_px: np.ndarray, visible: np.ndarray,
                   world: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, Match]:
@@ -130,15 +154,15 @@ class PosePipeline:
         return quats, root_view, Match(self.db.clip_name[clip], int(self.db.frame_index[f]), yaw_deg, float(dist[best]))
 
     def _fit(self, refiner: Refiner, state: TrackState, quats: np.ndarray, root_view: np.ndarray,
-             d: Detection) -> np.ndarray:
-        """Refine ``quats`` (in place) and the root against the keypoints; with a floor, update the
-        track's body scale. Returns the root (view frame, metres)."""
+             d: Detection, world: WorldBones | None = None) -> np.ndarray:
+        """Refine ``quats`` (in place) and the root against the keypoints (and ``world``'s bones);
+        with a floor, update the track's body scale. Returns the root (view frame, metres)."""
         focal_px = self.config.focal_px
         upright_root = quats[0].copy()
         state.tilt.tilt_root(upright_root, quats[0])
         retrieved = quats.copy()
         refiner(quats, root_view, state.scale, d.points_px, d.confidence, retrieved,
-                state.previous(d.frame_index), focal_px, self.config.center_px, state.offsets_m)
+                state.previous(d.frame_index), focal_px, self.config.center_px, state.offsets_m, world)
         state.tilt.update(quats[0], upright_root)
         state.measure_bones(d.points_px, d.confidence, retrieved, root_view, focal_px)
         if state.floor is not None:

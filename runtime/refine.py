@@ -14,10 +14,17 @@ rotations in radians::
                                                      order the image cannot (λ_root for the root)
   + λ_prev Σ_j ‖log(p_j⁻¹ q_j)‖²                    near the track's previous refined pose p
   + λ_limit Σ_{j≠root} Σ_a d(log(q_j)_a, [lo, hi])²  inside the joint limits (:class:`JointLimits`)
+  + Σ_b w_b ρ_w(‖u_b − e_b‖²)                       bones u_b along the detector's own 3D e_b (optional)
 
 ``π`` is the pinhole camera at the view frame's origin looking along −z. ``ρ(s) = s c²/(s + c²)``
 (Geman–McClure, ``c`` = :attr:`RefineParams.robust_scale`): a keypoint far off (a left/right swap,
 a hand found on the background) costs at most ``c²`` and stops pulling its limb.
+
+The last term is given per call (:class:`WorldBones`; none by default): unit directions ``e_b`` of
+bones between two of the 14 keypoints in the view frame (the detector's world landmarks,
+:mod:`mocapdb.runtime.world_prior`) with weights ``w_b``; ``u_b`` is the fitted bone's direction;
+``ρ_w`` is Geman–McClure at :attr:`RefineParams.world_scale`, so a bone the detector got the wrong
+way round (a left/right or front/back swap) stops pulling once it is far off.
 
 Levenberg–Marquardt with analytic Jacobians and IRLS weights for a fixed number of iterations,
 in one numba kernel that allocates nothing (:class:`Refiner` owns the work arrays). A keypoint
@@ -66,16 +73,38 @@ class RefineParams:
     previous: float = 0.002        # λ_prev: near the track's previous refined pose
     limits: float = 1.0            # λ_limit: outside the joint limits
     damping: float = 1e-3          # initial Levenberg–Marquardt damping (relative to the diagonal)
+    world: float = 0.01            # λ_w: the detector's world bones (× each bone's weight; 0: not used)
+    world_scale: float = 1.0       # c_w: a world bone's direction error (chord: 1 = 60°) where ρ_w is half its cap
 
     def __post_init__(self) -> None:
-        if self.iterations < 0 or self.robust_scale <= 0:
-            raise ValueError(f"iterations must be >= 0 and robust_scale positive: {self}")
-        if min(self.prior_root, self.prior_joint, self.previous, self.limits, self.damping) < 0:
+        if self.iterations < 0 or self.robust_scale <= 0 or self.world_scale <= 0:
+            raise ValueError(f"iterations must be >= 0, robust_scale and world_scale positive: {self}")
+        if min(self.prior_root, self.prior_joint, self.previous, self.limits, self.damping, self.world) < 0:
             raise ValueError(f"refinement weights must be non-negative: {self}")
 
     def as_array(self) -> np.ndarray:
         return np.array([self.robust_scale, self.prior_root, self.prior_joint, self.previous,
-                         self.limits, self.damping])
+                         self.limits, self.damping, self.world_scale])
+
+
+@dataclass(frozen=True)
+class WorldBones:
+    """Bones ``start → end`` (indices among the 14 keypoints, ``[B]`` each) with the directions the
+    detector's 3D gives them, ``directions [B, 3]`` (unit, view frame), and their weights ``[B]`` (0:
+    not used)."""
+
+    start: np.ndarray
+    end: np.ndarray
+    directions: np.ndarray
+    weights: np.ndarray
+
+    def as_tuple(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return (np.ascontiguousarray(self.start, dtype=np.int64), np.ascontiguousarray(self.end, dtype=np.int64),
+                np.ascontiguousarray(self.directions, dtype=np.float64),
+                np.ascontiguousarray(self.weights, dtype=np.float64))
+
+
+NO_WORLD = WorldBones(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0)).as_tuple()
 
 
 @dataclass(frozen=True)
@@ -140,21 +169,23 @@ class Refiner:
                     np.empty((N_PARAMS, N_PARAMS)), np.empty((N_PARAMS, N_PARAMS)), np.empty(N_PARAMS),
                     np.empty(N_PARAMS), np.empty((N_RIG_JOINTS, 4)), np.empty(3), np.empty(3),
                     np.empty((3, 3)), np.empty((MAX_CHAIN + 1, 2, 3)), np.empty(MAX_CHAIN + 1, dtype=np.int64),
-                    np.empty(4))
+                    np.empty(4), np.empty((2 * MAX_CHAIN, 3, 3)), np.empty(2 * MAX_CHAIN, dtype=np.int64),
+                    np.empty(3))
 
     def __call__(self, quats: np.ndarray, root_m: np.ndarray, scale: float, points_px: np.ndarray,
                  confidence: np.ndarray, prior: np.ndarray, previous: np.ndarray | None,
-                 focal_px: float, center_px: tuple[float, float], offsets_m: np.ndarray | None = None) -> float:
+                 focal_px: float, center_px: tuple[float, float], offsets_m: np.ndarray | None = None,
+                 world: WorldBones | None = None) -> float:
         """Refine ``quats [R, 4]`` and ``root_m [3]`` (view frame) in place against ``points_px
         [14, 2]`` weighted by ``confidence [14]`` (0: not seen), on the body of rest offsets
-        ``offsets_m`` (``skeleton.body_offsets_m``; default the universal body) times ``scale``.
-        Returns the final cost."""
+        ``offsets_m`` (``skeleton.body_offsets_m``; default the universal body) times ``scale``, and
+        ``world``'s bone directions when given. Returns the final cost."""
         has_previous = previous is not None
         rig = _RIG if offsets_m is None else (_RIG[0], offsets_m) + _RIG[2:]
         return _refine(quats, root_m, float(scale), points_px, confidence, _box_height(points_px, confidence),
                        prior, previous if has_previous else prior, has_previous, float(focal_px),
                        float(center_px[0]), float(center_px[1]), self._params, self.params.iterations,
-                       self.limits.lo, self.limits.hi, rig, self._ws)
+                       self.limits.lo, self.limits.hi, rig, NO_WORLD if world is None else world.as_tuple(), self._ws)
 
 
 def _box_height(points_px: np.ndarray, confidence: np.ndarray) -> float:
@@ -164,16 +195,16 @@ def _box_height(points_px: np.ndarray, confidence: np.ndarray) -> float:
 
 @njit(cache=True, nogil=True)  # the live writer thread re-fits whole takes beside the stream
 def _refine(quats, root, scale, points, conf, box_h, prior, prev, has_prev, focal, cx, cy,
-            params, iterations, lo, hi, rig, ws):
+            params, iterations, lo, hi, rig, world, ws):
     hess, damped, grad, step, q_trial, root_trial = ws[3], ws[4], ws[5], ws[6], ws[7], ws[8]
     mu = params[5]
     cost = _cost(quats, root, scale, points, conf, box_h, prior, prev, has_prev, focal, cx, cy,
-                 params, lo, hi, rig, ws)
+                 params, lo, hi, rig, world, ws)
     stale = True
     for _ in range(iterations):
         if stale:
             _linearise(quats, root, scale, points, conf, box_h, prior, prev, has_prev, focal, cx, cy,
-                       params, lo, hi, rig, ws)
+                       params, lo, hi, rig, world, ws)
             stale = False
         damped[:] = hess
         for i in range(N_PARAMS):
@@ -187,7 +218,7 @@ def _refine(quats, root, scale, points, conf, box_h, prior, prev, has_prev, foca
             quat_exp_into(step[3 + 3 * j:6 + 3 * j], ws[13])
             quat_mul_into(quats[j], ws[13], q_trial[j])
         trial = _cost(q_trial, root_trial, scale, points, conf, box_h, prior, prev, has_prev, focal, cx, cy,
-                      params, lo, hi, rig, ws)
+                      params, lo, hi, rig, world, ws)
         if trial < cost:
             quats[:] = q_trial
             root[:] = root_trial
@@ -212,7 +243,8 @@ def _reprojection(g_pos, node, point, focal, cx, cy, box_h):
 
 
 @njit(cache=True)
-def _cost(quats, root, scale, points, conf, box_h, prior, prev, has_prev, focal, cx, cy, params, lo, hi, rig, ws):
+def _cost(quats, root, scale, points, conf, box_h, prior, prev, has_prev, focal, cx, cy, params, lo, hi, rig, world,
+          ws):
     parents, offsets, node_joint, kp_node, _, _ = rig
     g_rot, g_pos, local, v = ws[0], ws[1], ws[2], ws[9]
     rig_globals_into(quats, root, scale, parents, offsets, node_joint, local, g_rot, g_pos)
@@ -238,7 +270,23 @@ def _cost(quats, root, scale, points, conf, box_h, prior, prev, has_prev, focal,
             for a in range(3):
                 d = _outside(v[a], lo[j, a], hi[j, a])
                 total += params[4] * d * d
+    cw2 = params[6] * params[6]
+    starts, ends, directions, weights = world
+    for b in range(weights.shape[0]):
+        if weights[b] <= 0.0:
+            continue
+        s, _ = _bone_residual(g_pos, kp_node[starts[b]], kp_node[ends[b]], directions[b], ws[16])
+        total += weights[b] * s * cw2 / (s + cw2)
     return total
+
+
+@njit(cache=True)
+def _bone_residual(g_pos, start, end, direction, r):
+    """``r`` = the unit bone ``start → end`` (nodes) minus ``direction``; returns ``(‖r‖², length)``."""
+    bx, by, bz = g_pos[end, 0] - g_pos[start, 0], g_pos[end, 1] - g_pos[start, 1], g_pos[end, 2] - g_pos[start, 2]
+    length = max(np.sqrt(bx * bx + by * by + bz * bz), 1e-9)
+    r[0], r[1], r[2] = bx / length - direction[0], by / length - direction[1], bz / length - direction[2]
+    return r[0] * r[0] + r[1] * r[1] + r[2] * r[2], length
 
 
 @njit(cache=True)
@@ -252,7 +300,8 @@ def _outside(value, lo, hi):
 
 
 @njit(cache=True)
-def _linearise(quats, root, scale, points, conf, box_h, prior, prev, has_prev, focal, cx, cy, params, lo, hi, rig, ws):
+def _linearise(quats, root, scale, points, conf, box_h, prior, prev, has_prev, focal, cx, cy, params, lo, hi, rig,
+               world, ws):
     """Gauss–Newton normal equations ``ws[3] (H)``, ``ws[5] (g)`` at the current pose (IRLS weights)."""
     parents, offsets, node_joint, kp_node, kp_chain, joint_node = rig
     g_rot, g_pos, local, hess, grad = ws[0], ws[1], ws[2], ws[3], ws[5]
@@ -290,6 +339,71 @@ def _linearise(quats, root, scale, points, conf, box_h, prior, prev, has_prev, f
                     grad[col + r] += params[4] * jr[a, r] * d
                     for c in range(3):
                         hess[col + r, col + c] += params[4] * jr[a, r] * jr[a, c]
+    _linearise_world(g_rot, g_pos, kp_node, kp_chain, joint_node, params[6], world, ws)
+
+
+@njit(cache=True)
+def _linearise_world(g_rot, g_pos, kp_node, kp_chain, joint_node, scale_w, world, ws):
+    """The world bones' terms added to ``ws[3] (H)``, ``ws[5] (g)`` (IRLS weights of ρ_w): the unit
+    bone ``u = b / |b|`` moves by ``(I − u uᵀ) db / |b|``, ``db`` = the end's motion minus the start's."""
+    hess, grad, blocks, cols, r = ws[3], ws[5], ws[14], ws[15], ws[16]
+    cw2 = scale_w * scale_w
+    starts, ends, directions, weights = world
+    for b in range(weights.shape[0]):
+        if weights[b] <= 0.0:
+            continue
+        start, end = kp_node[starts[b]], kp_node[ends[b]]
+        s, length = _bone_residual(g_pos, start, end, directions[b], r)
+        ux = (g_pos[end, 0] - g_pos[start, 0]) / length
+        uy = (g_pos[end, 1] - g_pos[start, 1]) / length
+        uz = (g_pos[end, 2] - g_pos[start, 2]) / length
+        w = weights[b] * cw2 * cw2 / ((s + cw2) * (s + cw2))
+        n = 0
+        for side in range(2):   # joints above the end move it (+), joints above the start move it (−)
+            k, other = (ends[b], starts[b]) if side == 0 else (starts[b], ends[b])
+            node = end if side == 0 else start
+            sign = 1.0 if side == 0 else -1.0
+            for i in range(kp_chain.shape[1]):
+                j = kp_chain[k, i]
+                if j < 0:
+                    break
+                if _in_chain(kp_chain[other], j):
+                    if side == 1:
+                        continue   # above both: counted once, with the whole bone as its lever
+                    node_from = start
+                else:
+                    node_from = joint_node[j]
+                ex = g_pos[node, 0] - g_pos[node_from, 0]
+                ey = g_pos[node, 1] - g_pos[node_from, 1]
+                ez = g_pos[node, 2] - g_pos[node_from, 2]
+                jn = joint_node[j]
+                for c in range(3):
+                    gx, gy, gz = g_rot[jn, 0, c], g_rot[jn, 1, c], g_rot[jn, 2, c]
+                    mx = sign * (gy * ez - gz * ey) / length
+                    my = sign * (gz * ex - gx * ez) / length
+                    mz = sign * (gx * ey - gy * ex) / length
+                    dot = ux * mx + uy * my + uz * mz
+                    blocks[n, 0, c], blocks[n, 1, c], blocks[n, 2, c] = mx - dot * ux, my - dot * uy, mz - dot * uz
+                cols[n] = 3 + 3 * j
+                n += 1
+        for bi in range(n):
+            ci = cols[bi]
+            for rr in range(3):
+                grad[ci + rr] += w * (blocks[bi, 0, rr] * r[0] + blocks[bi, 1, rr] * r[1] + blocks[bi, 2, rr] * r[2])
+                for bj in range(n):
+                    cj = cols[bj]
+                    for c in range(3):
+                        hess[ci + rr, cj + c] += w * (blocks[bi, 0, rr] * blocks[bj, 0, c] +
+                                                      blocks[bi, 1, rr] * blocks[bj, 1, c] +
+                                                      blocks[bi, 2, rr] * blocks[bj, 2, c])
+
+
+@njit(cache=True)
+def _in_chain(chain, j):
+    for i in range(chain.shape[0]):
+        if chain[i] == j:
+            return True
+    return False
 
 
 @njit(cache=True)

@@ -129,6 +129,8 @@ def _appended(before: TrackRecording, after: TrackRecording) -> TrackRecording:
     gap = after.first_frame - (before.first_frame + len(before))
     filler = before.frames.last()
     filler.update(keypoints=np.zeros_like(filler["keypoints"]), extremities=NO_EXTREMITIES)
+    if "world_bones" in filler:
+        filler["world_bones"] = np.zeros_like(filler["world_bones"])
     columns = {name: np.concatenate([before.frames[name], np.repeat(filler[name][None], gap, axis=0),
                                      after.frames[name]]) for name in before.frames.names()}
     longer = before if len(before) >= len(after) else after

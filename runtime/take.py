@@ -85,8 +85,9 @@ from mocapdb.runtime.foot_contacts import (
     planted_ankles,
     true_runs,
 )
-from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
+from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner, WorldBones
 from mocapdb.runtime.take_params import TakeParams
+from mocapdb.runtime.world_prior import FIT_END, FIT_START
 
 WRISTS = (KP["r_wrist"], KP["l_wrist"])
 # Each end joint (skeleton.END_JOINTS): the rig joint it hangs from, and its direction at rest (heel →
@@ -127,7 +128,9 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     keypoints = rec.column("keypoints")
     offsets = None if rec.proportions_m is None else body_offsets_m(rec.proportions_m)
     if params.refit_prior > 0 and rec.camera_px is not None:
-        quats = refit_to_image(quats, root, keypoints, scale, offsets, rec.camera_px, params.refit_prior)
+        world = rec.column("world_bones")
+        quats = refit_to_image(quats, root, keypoints, scale, offsets, rec.camera_px, params.refit_prior,
+                               world * [1.0, 1.0, 1.0, params.refit_world] if len(world) else None)
         quats = smooth_rotations(quats, fps, replace(params, pop_frames=1))
     up = np.array([0.0, 1.0, 0.0]) if rec.up_view is None else np.asarray(rec.up_view, dtype=np.float64)
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]  # ankles − root
@@ -177,14 +180,17 @@ def smooth_rotations(quats: np.ndarray, fps: float, params: TakeParams) -> np.nd
 
 
 def refit_to_image(quats: np.ndarray, root_m: np.ndarray, keypoints: np.ndarray, scale: float,
-                   offsets_m: np.ndarray | None, camera_px: tuple[float, float, float], prior: float) -> np.ndarray:
+                   offsets_m: np.ndarray | None, camera_px: tuple[float, float, float], prior: float,
+                   world_bones: np.ndarray | None = None) -> np.ndarray:
     """``quats [F, R, 4]`` (smoothed) fitted again to each frame's keypoints ``[F, 14, 3]`` on the
     track's final body (``scale``, ``offsets_m``): the per-frame refinement
     (:class:`~mocapdb.runtime.refine.Refiner`) with the smoothed pose as its prior, ``prior`` times
     the per-frame weights, no previous pose and no joint limits (the smoothed pose keeps within
     them). The per-frame fits were made on the body known so far; this fits the one body of the
     whole take. ``root_m [F, 3]``: the roots (view frame, metres; only the starting point);
-    ``camera_px``: focal, principal point (pixels). Frames without keypoints are kept."""
+    ``camera_px``: focal, principal point (pixels); ``world_bones [F, B, 4]``: the detector's world
+    bones each frame's fit used (direction, weight: :data:`~mocapdb.runtime.world_prior.FIT_BONES`),
+    used again. Frames without keypoints are kept."""
     per_frame = RefineParams()
     refiner = Refiner(replace(per_frame, prior_root=prior * per_frame.prior_root, previous=0.0, limits=0.0,
                               prior_joint=prior * per_frame.prior_joint), _NO_LIMITS)
@@ -193,8 +199,11 @@ def refit_to_image(quats: np.ndarray, root_m: np.ndarray, keypoints: np.ndarray,
     points = np.ascontiguousarray(keypoints[..., :2])
     confidence = np.ascontiguousarray(keypoints[..., 2])
     for f in np.flatnonzero((confidence > 0).any(axis=1)):
+        world = None
+        if world_bones is not None and (world_bones[f, :, 3] > 0).any():
+            world = WorldBones(FIT_START, FIT_END, world_bones[f, :, :3], world_bones[f, :, 3])
         refiner(out[f], root_m[f].copy(), scale, points[f], confidence[f], quats[f], None, focal_px, (cx, cy),
-                offsets_m)
+                offsets_m, world)
     return out
 
 

@@ -47,8 +47,8 @@ class TrackState:
         self.root = OneEuroFilter(root_params)
         self.recording = TrackRecording(track, frame)
         self.last_frame = frame - 1
-        self.world_bones: np.ndarray | None = None   # the detector's world bones of the last frame that had them
-        self.world_frame = -2                        # … and that frame
+        self.world_joints: np.ndarray | None = None   # the detector's 3D (view frame) of the last frame with it
+        self.world_frame = -2                         # … and that frame
 
     def remember(self, quats: np.ndarray) -> None:
         """Push this frame's (unsmoothed) rotations onto the history window."""
@@ -61,11 +61,12 @@ class TrackState:
         return self.history[0] if self.n_history and self.last_frame == frame - 1 else None
 
     def record(self, frame: int, t_s: float, quats: np.ndarray, root_view: np.ndarray,
-               fit: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
+               fit: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
         """Append this frame, holding the last pose over any frames the track missed; ``fit``: the
-        unfiltered rotations and root, the keypoints ``[14, 3]`` and the heels, toes and knuckles
-        ``[8, 3]`` (x, y px, confidence), kept for the whole-take fit (missed frames get the last fit
-        and no keypoint)."""
+        unfiltered rotations and root, the keypoints ``[14, 3]``, the heels, toes and knuckles
+        ``[8, 3]`` (x, y px, confidence) and the world bones the fit used ``[B, 4]`` (direction,
+        weight; :data:`~mocapdb.runtime.world_prior.FIT_BONES`), kept for the whole-take fit (missed
+        frames get the last fit and no keypoint nor world bone)."""
         rec = self.recording
         if not len(rec):
             rec.first_frame, rec.first_s = frame, t_s
@@ -73,11 +74,13 @@ class TrackState:
         for _ in range(min(frame - self.last_frame - 1, self.max_fill) if len(rec) else 0):
             held = rec.frames.last()
             if "keypoints" in held:
-                held.update(keypoints=np.zeros_like(held["keypoints"]), extremities=NO_EXTREMITIES)
+                held.update(keypoints=np.zeros_like(held["keypoints"]), extremities=NO_EXTREMITIES,
+                            world_bones=np.zeros_like(held["world_bones"]))
             rec.frames.append(**held)
         row: dict[str, np.ndarray | float] = dict(quaternions=quats, root_view_m=root_view, scales=self.scale)
         if fit is not None:
-            row.update(fit_quaternions=fit[0], fit_root_view_m=fit[1], keypoints=fit[2], extremities=fit[3])
+            row.update(fit_quaternions=fit[0], fit_root_view_m=fit[1], keypoints=fit[2], extremities=fit[3],
+                       world_bones=fit[4])
             rec.up_view, rec.up_sd_deg = self.tilt.up, self.tilt.sd_deg
         rec.frames.append(**row)
         rec.proportions_m = self.proportions_m

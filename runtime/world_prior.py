@@ -1,19 +1,24 @@
 """The detector's own 3D as a second prior beside retrieval (issue 37, item 1): the retrieved
-candidates re-ranked by how well their bones point where the detector's world landmarks point.
+candidates re-ranked by how well their bones point where the detector's world landmarks point, and
+the 2D fit pulled towards those directions.
 
 BlazePose's world landmarks (``Person.world_m``: metres, hips-centred, x right and y down along the
-image's axes, z away from the camera; ``data_specs/keypoint_formats.md``) are put in the frame the
-database's views live in: the view frame (x right, y up, z towards the camera), first turned from
-the image's axes onto the ray from the camera through the hips (the model saw a crop along that
-ray), then levelled by the track's tilt estimate (the database's camera looks level).
+image's axes, z away from the camera; ``data_specs/keypoint_formats.md``) are put in the view frame
+(x right, y up, z towards the camera), turned from the image's axes onto the ray from the camera
+through the hips (the model saw a crop along that ray): :func:`view_joints`.
 
-Each candidate (a database frame at one of its yaws) costs ``Σ_b w_b (1 − cos(d_b, e_b)) / B`` over
-the ``B`` limb, girdle and trunk bones :data:`BONES`: ``d_b`` the candidate's bone direction turned by
-its yaw, ``e_b`` the world landmarks', ``w_b`` = ``EngineConfig.world_prior`` × the smaller 2D
-confidence of the bone's ends × its agreement with the world landmarks of the frame before
-(:func:`temporal_weights`: a bone that flips from one frame to the next, as a left/right or
-front/back swap of the model does, counts little). The choice adds this cost to its own
-(:meth:`~mocapdb.runtime.pose_pipeline.PosePipeline._choose`).
+**Re-ranking** (``EngineConfig.world_prior``): levelled by the track's tilt (the database's camera
+looks level, :func:`level`), each candidate (a database frame at one of its yaws) costs
+``Σ_b w_b (1 − cos(d_b, e_b)) / B`` over the ``B`` limb, girdle and trunk bones :data:`BONES`:
+``d_b`` the candidate's bone direction turned by its yaw, ``e_b`` the world landmarks', ``w_b`` =
+``world_prior`` × the smaller 2D confidence of the bone's ends × its agreement with the world
+landmarks of the frame before (:func:`temporal_weights`: a bone that flips from one frame to the
+next, as a left/right or front/back swap of the model does, counts little). The choice adds this
+cost to its own (:meth:`~mocapdb.runtime.pose_pipeline.PosePipeline._choose`).
+
+**The fit** (``RefineParams.world``): the bones :data:`FIT_BONES` (between two of the 14 keypoints)
+in the view frame, with the same kind of weights, become the refinement's world term
+(:class:`~mocapdb.runtime.refine.WorldBones`); the recording keeps them for the whole take's re-fit.
 """
 from __future__ import annotations
 
@@ -27,6 +32,11 @@ BONES = tuple((KP[a], KP[b]) for a, b in (
     ("r_hip", "r_knee"), ("r_knee", "r_ankle"), ("l_hip", "l_knee"), ("l_knee", "l_ankle"),
     ("r_shoulder", "l_shoulder"), ("r_hip", "l_hip"), ("pelvis", "neck")))
 _FROM, _TO = np.array([b[0] for b in BONES]), np.array([b[1] for b in BONES])
+# The bones the 2D fit turns towards them: between two of the 14 keypoints (the fit's residuals are
+# on keypoints): the limbs, the girdles and the trunk's sides.
+FIT_BONES = BONES[:-1] + ((KP["r_hip"], KP["r_shoulder"]), (KP["l_hip"], KP["l_shoulder"]))
+FIT_START, FIT_END = np.array([b[0] for b in FIT_BONES]), np.array([b[1] for b in FIT_BONES])
+NO_FIT_BONES = np.zeros((len(FIT_BONES), 4))   # a frame's recorded world bones when it has none (weights 0)
 VIEW_FROM_IMAGE_AXES = np.array([1.0, -1.0, -1.0])   # (x right, y down, z away) → view (y up, z towards)
 Y_AXIS, Z_AXIS = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
 FLIP_COS = 0.5      # a bone turned by more than 60° since the frame before counts (almost) nothing
@@ -55,24 +65,44 @@ def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.eye(3) + k + k @ k * ((1.0 - c) / s**2)
 
 
-def world_bones(world_m: np.ndarray, points_px: np.ndarray, confidence: np.ndarray, up_view: np.ndarray,
-                focal_px: float, center_px: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """The world landmarks' bone directions ``[B, 3]`` in the levelled view frame (module docstring)
-    and each bone's confidence ``[B]`` (the smaller 2D confidence of its ends; 0 where a direction is
-    missing). ``world_m [14, 3]`` (image axes), the keypoints ``[14, 2]`` px and confidences ``[14]``
-    (0: missing), the track's up ``[3]`` (view frame), the camera's focal and principal point (px)."""
-    joints = np.vstack([world_m, 0.5 * (world_m[KP["r_hip"]] + world_m[KP["l_hip"]])])   # + the pelvis
+def view_joints(world_m: np.ndarray, points_px: np.ndarray, confidence: np.ndarray, focal_px: float,
+                center_px: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """The world landmarks ``[14, 3]`` (image axes, hips-centred) as 15 joints ``[15, 3]`` in the view
+    frame (the pelvis the hips' mid-point), turned onto the ray through the keypoints' hips, and their
+    confidences ``[15]`` (the keypoints' ``confidence [14]``, 0: missing; the pelvis: the smaller
+    hip's). ``points_px [14, 2]``; the camera's focal and principal point (px)."""
+    joints = np.vstack([world_m, 0.5 * (world_m[KP["r_hip"]] + world_m[KP["l_hip"]])])
     conf = np.append(confidence, min(confidence[KP["r_hip"]], confidence[KP["l_hip"]]))
     hips = [k for k in (KP["r_hip"], KP["l_hip"]) if confidence[k] > 0]
     if hips:
         centre = points_px[hips].mean(axis=0)
         ray = np.array([(centre[0] - center_px[0]) / focal_px, (centre[1] - center_px[1]) / focal_px, 1.0])
         joints = joints @ rotation_between(Z_AXIS, ray / np.linalg.norm(ray)).T
-    view = joints * VIEW_FROM_IMAGE_AXES @ rotation_between(up_view / np.linalg.norm(up_view), Y_AXIS).T
-    bones = unit(view[_TO] - view[_FROM])
-    weights = np.minimum(conf[_FROM], conf[_TO])
-    ok = np.isfinite(bones).all(axis=-1)
-    return np.where(ok[:, None], bones, 0.0), np.where(ok, weights, 0.0)
+    return joints * VIEW_FROM_IMAGE_AXES, conf
+
+
+def bone_directions(joints: np.ndarray, conf: np.ndarray, bones: tuple[tuple[int, int], ...] = BONES
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions ``[B, 3]`` of ``bones`` (start, end among ``joints [15, 3]``) and their
+    confidences ``[B]`` (the smaller of the ends' ``conf``); a missing direction: 0 and 0."""
+    start, end = np.array([b[0] for b in bones]), np.array([b[1] for b in bones])
+    directions = unit(joints[end] - joints[start])
+    ok = np.isfinite(directions).all(axis=-1)
+    return np.where(ok[:, None], directions, 0.0), np.where(ok, np.minimum(conf[start], conf[end]), 0.0)
+
+
+def level(joints: np.ndarray, up_view: np.ndarray) -> np.ndarray:
+    """View-frame ``joints [..., 3]`` turned so the world's up as seen, ``up_view [3]``, points up."""
+    return joints @ rotation_between(up_view / np.linalg.norm(up_view), Y_AXIS).T
+
+
+def world_bones(world_m: np.ndarray, points_px: np.ndarray, confidence: np.ndarray, up_view: np.ndarray,
+                focal_px: float, center_px: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """The world landmarks' :data:`BONES` ``[B, 3]`` in the levelled view frame (module docstring) and
+    their confidences ``[B]`` (:func:`view_joints`, :func:`level`, :func:`bone_directions`); the track's
+    up ``up_view [3]`` (view frame)."""
+    joints, conf = view_joints(world_m, points_px, confidence, focal_px, center_px)
+    return bone_directions(level(joints, up_view), conf)
 
 
 def temporal_weights(bones: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
@@ -82,6 +112,16 @@ def temporal_weights(bones: np.ndarray, previous: np.ndarray | None) -> np.ndarr
         return np.ones(len(bones))
     cos = np.sum(bones * previous, axis=-1)
     return np.clip((cos - FLIP_COS) / (1.0 - FLIP_COS), 0.0, 1.0) ** 0.5
+
+
+def weighted_bones(joints: np.ndarray, conf: np.ndarray, previous: np.ndarray | None,
+                   bones: tuple[tuple[int, int], ...] = BONES) -> tuple[np.ndarray, np.ndarray]:
+    """``bones``' directions ``[B, 3]`` among ``joints [15, 3]`` and their weights ``[B]``: the ends'
+    confidence (``conf [15]``) × the agreement with the same bones of ``previous [15, 3]`` (the frame
+    before's joints in the same frame, or None)."""
+    directions, weights = bone_directions(joints, conf, bones)
+    before = None if previous is None else bone_directions(previous, np.ones(len(previous)), bones)[0]
+    return directions, weights * temporal_weights(directions, before)
 
 
 def candidate_costs(db_bones: np.ndarray, frames: np.ndarray, yaws_deg: np.ndarray, bones: np.ndarray,

@@ -93,13 +93,30 @@ def test_cholesky_solve_matches_numpy():
     assert not cholesky_solve_into(-np.eye(36), b, 36, x)
 
 
-def _cost_and_gradient(refiner, quats, root, points, conf, prior, prev):
+def _cost_and_gradient(refiner, quats, root, points, conf, prior, prev, world=refine.NO_WORLD):
     """The kernel's cost and its Gauss–Newton gradient (half the cost's gradient)."""
     args = (1.0, points, conf, refine._box_height(points, conf), prior, prev, True, FOCAL, *CENTER,
-            refiner._params, refiner.limits.lo, refiner.limits.hi, refine._RIG, refiner._ws)
+            refiner._params, refiner.limits.lo, refiner.limits.hi, refine._RIG, world, refiner._ws)
     cost = refine._cost(quats, root, *args)
     refine._linearise(quats, root, *args)
     return cost, refiner._ws[5].copy()
+
+
+def _numeric_gradient(refiner, quats, root, points, conf, prior, prev, world=refine.NO_WORLD, eps=1e-6):
+    """The cost's gradient by forward differences: the root, then each joint's increment δ."""
+    cost = _cost_and_gradient(refiner, quats, root, points, conf, prior, prev, world)[0]
+    numeric = np.empty(refine.N_PARAMS)
+    for i in range(refine.N_PARAMS):
+        q, r = quats.copy(), root.copy()
+        if i < 3:
+            r[i] += eps
+        else:
+            j, c = divmod(i - 3, 3)
+            delta = np.zeros(3)
+            delta[c] = eps
+            q[j] = quat_mul(q[j], _quat(delta))
+        numeric[i] = (_cost_and_gradient(refiner, q, r, points, conf, prior, prev, world)[0] - cost) / eps
+    return numeric
 
 
 def test_analytic_gradient_matches_finite_differences(pose, limits):
@@ -113,19 +130,56 @@ def test_analytic_gradient_matches_finite_differences(pose, limits):
     refiner = Refiner(RefineParams(), limits)
     root = ROOT + [0.1, -0.05, 0.3]
     cost, grad = _cost_and_gradient(refiner, quats, root, points, conf, prior, prev)
-    eps = 1e-6
-    numeric = np.empty(refine.N_PARAMS)
-    for i in range(refine.N_PARAMS):
-        q, r = quats.copy(), root.copy()
-        if i < 3:
-            r[i] += eps
-        else:
-            j, c = divmod(i - 3, 3)
-            delta = np.zeros(3)
-            delta[c] = eps
-            q[j] = quat_mul(q[j], _quat(delta))
-        numeric[i] = (_cost_and_gradient(refiner, q, r, points, conf, prior, prev)[0] - cost) / eps
+    numeric = _numeric_gradient(refiner, quats, root, points, conf, prior, prev)
     np.testing.assert_allclose(2.0 * grad, numeric, atol=2e-5 * np.abs(numeric).max())
+
+
+def _world_bones(truth_joints, weights):
+    """The limb, girdle and side bones of ``truth_joints [15, 3]`` (view frame) as the fit's world bones."""
+    pairs = [("r_shoulder", "r_elbow"), ("r_elbow", "r_wrist"), ("l_shoulder", "l_elbow"), ("l_elbow", "l_wrist"),
+             ("r_hip", "r_knee"), ("r_knee", "r_ankle"), ("l_hip", "l_knee"), ("l_knee", "l_ankle"),
+             ("r_shoulder", "l_shoulder"), ("r_hip", "l_hip"), ("r_hip", "r_shoulder"), ("l_hip", "l_shoulder")]
+    start, end = np.array([KP[a] for a, _ in pairs]), np.array([KP[b] for _, b in pairs])
+    bones = truth_joints[end] - truth_joints[start]
+    return refine.WorldBones(start, end, bones / np.linalg.norm(bones, axis=-1, keepdims=True),
+                             np.asarray(weights, dtype=np.float64))
+
+
+def test_analytic_gradient_of_the_world_bones_matches_finite_differences(pose, no_limits):
+    # World bones of another pose (some bones far off: robust), no other term.
+    quats = _perturbed(pose, 0.3, seed=3)
+    other = _perturbed(pose, 0.8, seed=11)
+    world = _world_bones(pose_from_rotations(other[None], ROOT[None])[0], np.linspace(0.2, 3.0, 12)).as_tuple()
+    _, points = _render(pose)
+    refiner = Refiner(RefineParams(prior_root=0.0, prior_joint=0.0, previous=0.0, world_scale=0.4), no_limits)
+    off = np.zeros(14)
+    root = ROOT + [0.1, -0.05, 0.3]
+    cost, grad = _cost_and_gradient(refiner, quats, root, points, off, quats, quats, world)
+    assert cost > 0.1
+    numeric = _numeric_gradient(refiner, quats, root, points, off, quats, quats, world)
+    np.testing.assert_allclose(2.0 * grad, numeric, atol=2e-5 * np.abs(numeric).max())
+
+
+def test_world_bones_decide_the_depth_order_the_image_cannot(no_limits):
+    # Arms stretched forward; the fit starts from arms stretched backward (the same image, nearly):
+    # the image alone keeps them back, the detector's 3D brings them forward.
+    q = np.zeros((11, 4))
+    q[:, 0] = 1.0
+    forward, backward = q.copy(), q.copy()
+    for side, sign in (("r_shoulder", 1.0), ("l_shoulder", -1.0)):
+        forward[RIG_JOINTS.index(side)] = _quat(np.array([0.0, sign * np.radians(80.0), 0.0]))
+        backward[RIG_JOINTS.index(side)] = _quat(np.array([0.0, -sign * np.radians(80.0), 0.0]))
+    truth, points = _render(forward)
+    world = _world_bones(truth, np.ones(12))
+    runs = {}
+    for name, given in (("image", None), ("image and world", world)):
+        quats, root = backward.copy(), ROOT.copy()
+        Refiner(RefineParams(iterations=10, world_scale=2.0), no_limits)(quats, root, 1.0, points, np.ones(14),
+                                                                         backward, None, FOCAL, CENTER, world=given)
+        runs[name] = pose_from_rotations(quats[None], root[None])[0]
+    assert runs["image"][KP["r_wrist"], 2] < runs["image"][KP["neck"], 2]   # still behind
+    assert runs["image and world"][KP["r_wrist"], 2] > runs["image and world"][KP["neck"], 2] + 0.3
+    assert _relative_error_m(runs["image and world"], truth) < 0.03
 
 
 def test_a_rendered_pose_is_recovered_from_a_neighbouring_pose(small_db, pose, no_limits):

@@ -7,6 +7,7 @@ from mocapdb.core.geometry import yaw_matrix
 from mocapdb.core.skeleton import KP, PELVIS
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
+from mocapdb.runtime.refine import RefineParams
 from mocapdb.runtime.world_prior import (
     BONES,
     VIEW_FROM_IMAGE_AXES,
@@ -61,9 +62,10 @@ def test_a_bone_that_flips_between_frames_counts_little():
     assert (temporal_weights(now, None) == 1.0).all()
 
 
-def test_the_engine_uses_them_only_when_asked(small_db):
-    """With the prior on, the engine's choices move towards the pose the world landmarks show (here
-    another moment than the keypoints'); off (the default) or without world landmarks, nothing changes."""
+def test_the_engine_uses_them_only_when_given_and_refining(small_db):
+    """The retrieval's choices move towards the pose the world landmarks show (here another moment
+    than the keypoints'); without world landmarks, with the prior at 0 or without the refinement (the
+    published method), nothing changes."""
     yaws = np.asarray(small_db.meta["yaws_deg"], dtype=np.float64)
     db_bones = database_bones(small_db.positions)
     frames, shown = [], []
@@ -75,20 +77,59 @@ def test_the_engine_uses_them_only_when_asked(small_db):
                                  (SIZE[0] / 2, SIZE[1] / 2))[0])
     plain = [KeypointFrame(f.index, f.time_s, [Person(f.people[0].points_px, f.people[0].confidence)])
              for f in frames]
-    common = dict(focal_px=FOCAL, image_size=SIZE, fps=30.0, refine=False, smoothing=False)
+    common = dict(focal_px=FOCAL, image_size=SIZE, fps=30.0, smoothing=False, refinement=RefineParams(world=0.0))
 
     def run(config, given):
         engine = Engine(small_db, config)
-        return [p.match for f in given for p in engine.step(f)]
+        return [(p.match, p.joints_m.round(9).tolist()) for f in given for p in engine.step(f)]
 
-    def disagreement(matches):
+    def disagreement(outputs):
         clips = np.array(small_db.clip_name)[small_db.frame_clip]
+        matches = [m for m, _ in outputs]
         rows = [int(np.flatnonzero((clips == m.clip) & (small_db.frame_index == m.frame))[0]) for m in matches]
         return np.mean([candidate_costs(db_bones, np.array([r]), np.array([m.yaw_deg]), b, np.ones(len(BONES)))[0]
                         for r, m, b in zip(rows, matches, shown[-len(matches):])])
 
-    off = run(EngineConfig(**common), frames)
-    assert off == run(EngineConfig(**common), plain) == run(EngineConfig(world_prior=10.0, **common), plain)
-    on = run(EngineConfig(world_prior=10.0, **common), frames)
+    off = run(EngineConfig(world_prior=0.0, **common), frames)
+    assert off == run(EngineConfig(**common), plain)
+    published = dict(common, refine=False)
+    assert run(EngineConfig(**published), frames) == run(EngineConfig(**published), plain)
+    on = run(EngineConfig(**common), frames)   # world_prior: its default
     assert len(on) == len(off) > 0 and on != off
     assert disagreement(on) < 0.8 * disagreement(off)
+
+
+def test_the_fit_turns_bones_towards_them_and_the_whole_take_keeps_them(small_db):
+    """The 2D fit's world term (``RefineParams.world``): the per-frame output nearer the world
+    landmarks' bones; the recording keeps the weighted bones (``world_bones``) and the whole take's
+    re-fit uses them again (``TakeParams.refit_world``)."""
+    from mocapdb.runtime.take_params import TakeParams
+    from mocapdb.runtime.world import fit_takes
+    from mocapdb.runtime.world_prior import FIT_BONES, bone_directions
+
+    yaws = np.asarray(small_db.meta["yaws_deg"], dtype=np.float64)
+    frames, truth = [], []
+    for i in range(20):
+        px, _ = _seen(small_db, 100 + 2 * i, yaws[5])
+        _, world = _seen(small_db, 108 + 2 * i, yaws[5])   # another moment: the image cannot make them agree
+        frames.append(KeypointFrame(i, i / 30.0, [Person(px, np.full(14, 0.9), None, None, world)]))
+        truth.append(world)
+    common = dict(focal_px=FOCAL, image_size=SIZE, fps=30.0, world_prior=0.0, keep_take=True)
+
+    def run(weight):
+        engine = Engine(small_db, EngineConfig(refinement=RefineParams(world=weight), **common))
+        joints = [p.joints_m for f in frames for p in engine.step(f)]
+        return np.array(joints), engine.finish()[0]
+
+    def disagreement(joints):
+        seen = [bone_directions(j * [1.0, 1.0, -1.0], np.ones(15), FIT_BONES)[0] for j in joints]   # camera → view
+        wanted = [bone_directions(w * [1.0, -1.0, -1.0], np.ones(14), FIT_BONES)[0] for w in truth[-len(joints):]]
+        return float(np.mean([1.0 - np.sum(a * b, axis=-1) for a, b in zip(seen, wanted)]))
+
+    plain, plain_rec = run(0.0)
+    pulled, rec = run(0.05)
+    assert disagreement(pulled) < 0.7 * disagreement(plain)
+    assert (plain_rec.column("world_bones")[..., 3] == 0).all() and (rec.column("world_bones")[..., 3] > 0).any()
+    kept = fit_takes([rec], 30.0)[0].quaternions
+    dropped = fit_takes([rec], 30.0, TakeParams(refit_world=0.0))[0].quaternions
+    assert not np.allclose(kept, dropped)

@@ -66,7 +66,8 @@ class PersonPose:
 
 
 MOTION_COLUMNS = ("quaternions", "root_view_m", "scales")  # every recorded frame's (TrackRecording.frames)
-FIT_COLUMNS = ("fit_quaternions", "fit_root_view_m", "keypoints", "extremities")  # with EngineConfig.keep_take
+FIT_COLUMNS = ("fit_quaternions", "fit_root_view_m", "keypoints", "extremities",  # with EngineConfig.keep_take
+               "world_bones")
 
 
 @dataclass
@@ -77,7 +78,9 @@ class TrackRecording:
     ``quaternions [R, 4]`` (view frame), ``root_view_m [3]`` and the body scale ``scales`` (height /
     1.75 m) estimated so far; with ``EngineConfig.keep_take`` also what the whole-take fit needs:
     the unfiltered per-frame fit ``fit_quaternions``/``fit_root_view_m``, the input ``keypoints
-    [14, 3]`` and ``extremities [8, 3]`` (heels, toes, knuckles; x, y px, confidence).
+    [14, 3]`` and ``extremities [8, 3]`` (heels, toes, knuckles; x, y px, confidence), and the
+    detector's world bones the fit was turned towards ``world_bones [B, 4]`` (unit direction in the
+    view frame, weight; weight 0: none; ``runtime/world_prior.py``).
     :meth:`motion` gives the track as a :class:`~mocapdb.core.motion.Motion`.
     """
 
