@@ -87,7 +87,7 @@ from mocapdb.runtime.foot_contacts import (
 )
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner, WorldBones
 from mocapdb.runtime.take_params import TakeParams
-from mocapdb.runtime.world_prior import FIT_END, FIT_START
+from mocapdb.runtime.world_prior import FIT_END, FIT_START, track_up
 
 WRISTS = (KP["r_wrist"], KP["l_wrist"])
 # Each end joint (skeleton.END_JOINTS): the rig joint it hangs from, and its direction at rest (heel →
@@ -132,7 +132,7 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
         quats = refit_to_image(quats, root, keypoints, scale, offsets, rec.camera_px, params.refit_prior,
                                world * [1.0, 1.0, 1.0, params.refit_world] if len(world) else None)
         quats = smooth_rotations(quats, fps, replace(params, pop_frames=1))
-    up = np.array([0.0, 1.0, 0.0]) if rec.up_view is None else np.asarray(rec.up_view, dtype=np.float64)
+    up = track_up(rec)[0]
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]  # ankles − root
     extremities = rec.column("extremities")
     ends = bool(len(extremities)) and bool((extremities[..., 2] > 0).any()) and rec.camera_px is not None

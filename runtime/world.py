@@ -47,7 +47,6 @@ import numpy as np
 from mocapdb.core.motion_ops import scaled_about_origin
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
-from mocapdb.runtime.body_size import TILT_SD_DEG
 from mocapdb.runtime.contact_floor import MIN_FLOOR_SPREAD_M, above_floor, floor_plane, lowest_level
 from mocapdb.runtime.foot_contacts import ANKLES
 from mocapdb.runtime.stature import (
@@ -66,6 +65,7 @@ from mocapdb.runtime.stature import (
 )
 from mocapdb.runtime.take import TakeResult, fit_take
 from mocapdb.runtime.take_params import TakeParams
+from mocapdb.runtime.world_prior import track_up
 from mocapdb.runtime.world_tilt import ContactSet, tilt_cost, tilt_sds, tilt_spread_deg, tilted_normals
 
 CONTACT_SD = 0.10            # of log stature, one step's (depth and ankle-height noise), over its steps
@@ -204,14 +204,14 @@ def track_evidence(rec: TrackRecording, result: TakeResult, fps: float, given_st
                    ) -> TrackEvidence:
     """A whole-take fit's :class:`TrackEvidence` (no contacts: an empty ``contacts_m``); ``fps``:
     the take's frame rate (Hz)."""
-    up = result.floor_normal if result.floor_normal is not None else rec.up_view
-    up = np.array([0.0, 1.0, 0.0]) if up is None else np.asarray(up, dtype=np.float64)
-    up = up / np.linalg.norm(up)
+    up, up_sd = track_up(rec)
+    if result.floor_normal is not None:   # the whole take's floor: its contacts', or this up
+        up = result.floor_normal / np.linalg.norm(result.floor_normal)
     motion = rec.motion(fps)
     ankles = motion.joints_m()[:, list(ANKLES)]
     lower = ankles[np.arange(len(ankles)), np.argmin(ankles @ up, axis=1)]
     return TrackEvidence(rec.track, motion.height_m, result.planted_ankles_m.reshape(-1, 3), up,
-                         TILT_SD_DEG if rec.up_sd_deg is None else rec.up_sd_deg, given_stature_m,
+                         up_sd, given_stature_m,
                          evidence_weight(len(rec) / fps), lower[::max(len(lower) // 256, 1)])
 
 

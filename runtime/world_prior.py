@@ -25,7 +25,9 @@ from __future__ import annotations
 import numpy as np
 
 from mocapdb.core.geometry import yaw_matrix
-from mocapdb.core.skeleton import KP
+from mocapdb.core.outputs import TrackRecording
+from mocapdb.core.skeleton import BONE_LENGTHS_M, KP
+from mocapdb.runtime.body_size import TILT_SD_DEG
 
 BONES = tuple((KP[a], KP[b]) for a, b in (
     ("r_shoulder", "r_elbow"), ("r_elbow", "r_wrist"), ("l_shoulder", "l_elbow"), ("l_elbow", "l_wrist"),
@@ -132,3 +134,43 @@ def candidate_costs(db_bones: np.ndarray, frames: np.ndarray, yaws_deg: np.ndarr
     cos = np.nan_to_num(np.einsum("nka,ka->nk", turned, bones), nan=1.0)
     return ((1.0 - cos) @ weights) / len(weights)
 
+
+# The standing body's ankle → shoulder chain among FIT_BONES (index, universal length in metres, sign:
+# −1 where the bone points down it): the thighs and shanks, then the trunk's sides (hip → shoulder).
+_L = BONE_LENGTHS_M
+_HIP_TO_SHOULDER_M = float(np.hypot(_L["torso"], _L["half_shoulder_width"] - _L["half_hip_width"]))
+VERTICAL_CHAIN = ((4, _L["thigh"] / 2, -1.0), (6, _L["thigh"] / 2, -1.0), (5, _L["shin"] / 2, -1.0),
+                  (7, _L["shin"] / 2, -1.0), (10, _HIP_TO_SHOULDER_M / 2, 1.0), (11, _HIP_TO_SHOULDER_M / 2, 1.0))
+MIN_VERTICAL_FRAMES = 10   # fewer frames with the whole chain seen: no estimate
+
+
+def body_vertical(world_bones: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The world's up as the detector's 3D shows it (view frame, unit) and its error (degrees), from a
+    track's recorded world bones ``[F, len(FIT_BONES), 4]`` (direction, weight): per frame the
+    ankles' mid-point → the shoulders' mid-point of a standing body (:data:`VERTICAL_CHAIN`), their
+    median over the frames that see the whole chain, the error their RMS angle about it, at least
+    :data:`~mocapdb.runtime.body_size.TILT_SD_DEG`. None below :data:`MIN_VERTICAL_FRAMES` frames."""
+    index = [i for i, _, _ in VERTICAL_CHAIN]
+    seen = (world_bones[:, index, 3] > 0).all(axis=1)
+    if seen.sum() < MIN_VERTICAL_FRAMES:
+        return None
+    chain = np.zeros((int(seen.sum()), 3))
+    for i, length, sign in VERTICAL_CHAIN:
+        chain += sign * length * world_bones[seen, i, :3]
+    verticals = unit(chain)
+    up = unit(np.median(verticals, axis=0))
+    spread = float(np.degrees(np.sqrt(np.mean(np.arccos(np.clip(verticals @ up, -1.0, 1.0)) ** 2))))
+    return up, max(TILT_SD_DEG, spread)
+
+
+def track_up(rec: TrackRecording) -> tuple[np.ndarray, float]:
+    """A track's estimate of the world's up (view frame, unit) and its error (degrees): the body's
+    vertical in the detector's 3D where the keypoints carry it (:func:`body_vertical`: the model
+    sees the body's lean whatever the database holds), else the fit's tilt estimate
+    (:class:`~mocapdb.runtime.body_size.CameraTilt`)."""
+    bones = rec.column("world_bones") if len(rec) else np.zeros((0, len(FIT_BONES), 4))
+    vertical = body_vertical(bones) if len(bones) else None
+    if vertical is not None:
+        return vertical
+    up = np.array([0.0, 1.0, 0.0]) if rec.up_view is None else np.asarray(rec.up_view, dtype=np.float64)
+    return up / np.linalg.norm(up), TILT_SD_DEG if rec.up_sd_deg is None else rec.up_sd_deg

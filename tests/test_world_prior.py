@@ -1,6 +1,7 @@
 """The detector's world landmarks as a prior beside retrieval: their axes brought to the database's
 views, the candidates' disagreement with them, their weight across frames, and the engine's choice."""
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import yaw_matrix
@@ -133,3 +134,37 @@ def test_the_fit_turns_bones_towards_them_and_the_whole_take_keeps_them(small_db
     kept = fit_takes([rec], 30.0)[0].quaternions
     dropped = fit_takes([rec], 30.0, TakeParams(refit_world=0.0))[0].quaternions
     assert not np.allclose(kept, dropped)
+
+
+def _standing_bones(up: np.ndarray, frames: int, lean_sd_deg: float = 0.0, seed: int = 0) -> np.ndarray:
+    """Recorded world bones ``[F, 12, 4]`` of a body standing along ``up`` (view frame): legs straight
+    down it, the trunk's sides up it, each frame leaning by up to ``lean_sd_deg``; weights 1."""
+    from mocapdb.runtime.world_prior import FIT_BONES
+
+    rng = np.random.default_rng(seed)
+    out = np.zeros((frames, len(FIT_BONES), 4))
+    for f in range(frames):
+        lean = Rotation.from_rotvec(np.radians(lean_sd_deg) * rng.normal(size=3)).as_matrix()
+        u = lean @ up
+        out[f, [4, 5, 6, 7], :3] = -u            # hip → knee → ankle: down
+        out[f, [10, 11], :3] = u                 # hip → shoulder: up
+        out[f, :, 3] = 1.0
+    return out
+
+
+def test_the_body_vertical_is_the_standing_bodys_up():
+    """A body standing along an up pitched 20° and rolled −10° (as the camera sees it) gives that up;
+    frames that lean about it widen the error; too few frames give none."""
+    from mocapdb.runtime.body_size import TILT_SD_DEG
+    from mocapdb.runtime.world_prior import MIN_VERTICAL_FRAMES, body_vertical
+
+    p, r = np.radians(20.0), np.radians(-10.0)
+    up = np.array([np.sin(r) * np.cos(p) * -1.0, np.cos(r) * np.cos(p), np.sin(p)])
+    found, sd = body_vertical(_standing_bones(up, 40))
+    assert np.degrees(np.arccos(np.clip(found @ up, -1, 1))) < 1e-6 and sd == TILT_SD_DEG
+    found, sd = body_vertical(_standing_bones(up, 400, lean_sd_deg=5.0))
+    assert np.degrees(np.arccos(found @ up)) < 1.5 and 5.0 < sd < 12.0
+    assert body_vertical(_standing_bones(up, MIN_VERTICAL_FRAMES - 1)) is None
+    unseen = _standing_bones(up, 40)
+    unseen[:, 5, 3] = 0.0                        # a shank never seen: no whole chain
+    assert body_vertical(unseen) is None
