@@ -39,6 +39,8 @@ class RootFilter:
         """The root ``[3]`` (view frame, metres) of frame ``index`` given its per-frame root ``root_m
         [3]`` and the frames before (indices must increase)."""
         z = np.asarray(root_m, dtype=np.float64)
+        if not np.isfinite(z).all():   # nothing to learn from: the state stays as it was
+            return z.copy()
         noise = self._measurement_noise(z)
         last = self.last
         if last is None or (index - last[0]) * self.dt > RESTART_GAP_S:

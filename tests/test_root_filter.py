@@ -61,3 +61,12 @@ def test_a_gap_restarts_the_path_at_the_new_measurement():
         root_filter(i, np.array([0.0, 0.0, -3.0]))
     later = int(20 + RESTART_GAP_S * FPS + 2)
     assert np.allclose(root_filter(later, np.array([1.0, 0.0, -5.0])), [1.0, 0.0, -5.0])
+
+
+def test_a_non_finite_root_leaves_the_state_as_it_was():
+    _, measured = _walk(60, seed=3)
+    clean, poked = RootFilter(FPS), RootFilter(FPS)
+    a = [clean(i, measured[i]) for i in range(60) if i != 30]
+    b = [poked(i, measured[i]) if i != 30 else poked(i, np.array([np.nan, 0.0, -4.0])) for i in range(60)]
+    assert not np.isfinite(b[30]).all()
+    assert np.allclose(np.array(a), np.array(b[:30] + b[31:]))
