@@ -8,8 +8,8 @@ floor's normal seen from the camera, with the same definitions as :class:`~mocap
 positive looking down; roll ``atan2(−n_x, n_y)``, positive when the world's up leans to the
 image's left).
 
-Scores per camera: the height's error (% of the truth; the world's reported ±2 SD interval and
-whether the truth lies in it), the pitch's and roll's errors (degrees).
+Scores per camera: the height's error (% of the truth), the pitch's and roll's errors (degrees),
+and for each whether the truth lies inside the world's reported ±2 SD.
 """
 from __future__ import annotations
 
