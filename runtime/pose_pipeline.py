@@ -30,6 +30,7 @@ from mocapdb.runtime.world_prior import (
     FIT_START,
     NO_FIT_BONES,
     candidate_costs,
+    chain_verticals,
     database_bones,
     level,
     view_joints,
@@ -88,6 +89,8 @@ class PosePipeline:
     def _person(self, state: TrackState, d: Detection) -> PersonPose:
         """Retrieve, refine, smooth and record one detection (its keypoints already cleaned)."""
         rerank, fit_world = self._world(state, d)
+        if fit_world is not None:
+            state.verticals.extend(chain_verticals(np.column_stack([fit_world.directions, fit_world.weights])[None]))
         quats, root_view, match = self._retrieve(state, d.points_px, d.confidence > 0, rerank)
         if self.refiner is not None:
             root_view = self._fit(self.refiner, state, quats, root_view, d, fit_world)
@@ -105,7 +108,7 @@ class PosePipeline:
         joints_view = pose_from_rotations(quats[None], root_view[None], state.scale, state.offsets_m)[0]
         return PersonPose(state.recording.track, joints_view * CAMERA_FROM_VIEW, quats,
                           root_view * CAMERA_FROM_VIEW, match, state.scale * UNIVERSAL_HEIGHT_M,
-                          state.proportions_m * state.scale, up_view=state.tilt.up,
+                          state.proportions_m * state.scale, up_view=state.up,
                           keypoints_px=np.column_stack([d.points_px, d.confidence]), extremities_px=d.extremities)
 
     def _world(self, state: TrackState, d: Detection

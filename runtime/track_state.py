@@ -3,6 +3,8 @@ tilt, floor scale), its filters, its recording, and whether its keypoints ever m
 (:class:`StillnessCheck`)."""
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 from numba import njit
 
@@ -20,6 +22,7 @@ from mocapdb.core.skeleton import (
 from mocapdb.runtime.body_size import BoneLengths, CameraTilt, FloorScale
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.filters import KeypointFilter, OneEuroFilter, QuaternionOneEuroFilter
+from mocapdb.runtime.world_prior import MIN_VERTICAL_FRAMES, VERTICAL_WINDOW_S
 
 # A person's heels, toes and knuckles when its layout has none: all missing
 NO_EXTREMITIES = np.column_stack([np.full((len(EXTREMITIES), 2), np.nan), np.zeros(len(EXTREMITIES))])
@@ -49,6 +52,19 @@ class TrackState:
         self.last_frame = frame - 1
         self.world_joints: np.ndarray | None = None   # the detector's 3D (view frame) of the last frame with it
         self.world_frame = -2                         # … and that frame
+        # the body's vertical in the detector's 3D over the last frames (view frame): the stream's up
+        self.verticals: deque[np.ndarray] = deque(maxlen=max(int(VERTICAL_WINDOW_S * config.fps), 1))
+
+    @property
+    def up(self) -> np.ndarray:
+        """The world's up in the view frame as this track shows it now: the median of the body's
+        recent verticals in the detector's 3D (:func:`~mocapdb.runtime.world_prior.chain_verticals`)
+        once there are :data:`~mocapdb.runtime.world_prior.MIN_VERTICAL_FRAMES`, else the fit's tilt
+        estimate."""
+        if len(self.verticals) < MIN_VERTICAL_FRAMES:
+            return self.tilt.up
+        median = np.median(np.array(self.verticals), axis=0)
+        return median / np.linalg.norm(median)
 
     def remember(self, quats: np.ndarray) -> None:
         """Push this frame's (unsmoothed) rotations onto the history window."""

@@ -142,6 +142,17 @@ _HIP_TO_SHOULDER_M = float(np.hypot(_L["torso"], _L["half_shoulder_width"] - _L[
 VERTICAL_CHAIN = ((4, _L["thigh"] / 2, -1.0), (6, _L["thigh"] / 2, -1.0), (5, _L["shin"] / 2, -1.0),
                   (7, _L["shin"] / 2, -1.0), (10, _HIP_TO_SHOULDER_M / 2, 1.0), (11, _HIP_TO_SHOULDER_M / 2, 1.0))
 MIN_VERTICAL_FRAMES = 10   # fewer frames with the whole chain seen: no estimate
+VERTICAL_WINDOW_S = 2.0    # the stream's up: the median of the body's verticals over this many seconds
+
+
+def chain_verticals(world_bones: np.ndarray) -> np.ndarray:
+    """Per frame of ``world_bones [F, len(FIT_BONES), 4]`` (direction, weight) that sees the whole
+    :data:`VERTICAL_CHAIN`, the unit direction ankles' mid-point → shoulders' mid-point ``[F', 3]``."""
+    seen = (world_bones[:, [i for i, _, _ in VERTICAL_CHAIN], 3] > 0).all(axis=1)
+    chain = np.zeros((int(seen.sum()), 3))
+    for i, length, sign in VERTICAL_CHAIN:
+        chain += sign * length * world_bones[seen, i, :3]
+    return unit(chain)
 
 
 def body_vertical(world_bones: np.ndarray) -> tuple[np.ndarray, float] | None:
@@ -150,14 +161,9 @@ def body_vertical(world_bones: np.ndarray) -> tuple[np.ndarray, float] | None:
     ankles' mid-point → the shoulders' mid-point of a standing body (:data:`VERTICAL_CHAIN`), their
     median over the frames that see the whole chain, the error their RMS angle about it, at least
     :data:`~mocapdb.runtime.body_size.TILT_SD_DEG`. None below :data:`MIN_VERTICAL_FRAMES` frames."""
-    index = [i for i, _, _ in VERTICAL_CHAIN]
-    seen = (world_bones[:, index, 3] > 0).all(axis=1)
-    if seen.sum() < MIN_VERTICAL_FRAMES:
+    verticals = chain_verticals(world_bones)
+    if len(verticals) < MIN_VERTICAL_FRAMES:
         return None
-    chain = np.zeros((int(seen.sum()), 3))
-    for i, length, sign in VERTICAL_CHAIN:
-        chain += sign * length * world_bones[seen, i, :3]
-    verticals = unit(chain)
     up = unit(np.median(verticals, axis=0))
     spread = float(np.degrees(np.sqrt(np.mean(np.arccos(np.clip(verticals @ up, -1.0, 1.0)) ** 2))))
     return up, max(TILT_SD_DEG, spread)

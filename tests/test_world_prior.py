@@ -1,6 +1,7 @@
 """The detector's world landmarks as a prior beside retrieval: their axes brought to the database's
 views, the candidates' disagreement with them, their weight across frames, and the engine's choice."""
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
@@ -168,3 +169,32 @@ def test_the_body_vertical_is_the_standing_bodys_up():
     unseen = _standing_bones(up, 40)
     unseen[:, 5, 3] = 0.0                        # a shank never seen: no whole chain
     assert body_vertical(unseen) is None
+
+
+def test_the_streams_up_follows_the_bodys_vertical_in_the_detectors_3d(small_db):
+    """The same keypoints with world landmarks as a level camera and as one pitched 20° sees them:
+    after a few frames the stream's up (``PersonPose.up_view``) differs by the 20°, about the camera's
+    x axis; without world landmarks it is the fit's tilt estimate, the same in both."""
+    yaws = np.asarray(small_db.meta["yaws_deg"], dtype=np.float64)
+    pitch = np.radians(20.0)
+    turn = Rotation.from_rotvec([pitch, 0.0, 0.0]).as_matrix()   # the world's up, seen pitched: y → (0, cos, sin)
+    common = dict(focal_px=FOCAL, image_size=SIZE, fps=30.0, smoothing=False)
+
+    def last_up(tilted: bool, landmarks: bool = True) -> np.ndarray:
+        engine = Engine(small_db, EngineConfig(**common))
+        up = None
+        for i in range(30):
+            px, world = _seen(small_db, 100 + i, yaws[5])
+            world = (world * VIEW_FROM_IMAGE_AXES @ (turn.T if tilted else np.eye(3))) * VIEW_FROM_IMAGE_AXES
+            person = Person(px, np.full(14, 0.9), None, None, world if landmarks else None)
+            poses = engine.step(KeypointFrame(i, i / 30.0, [person]))
+            up = poses[0].up_view if poses else up
+        assert up is not None
+        return up
+
+    level, pitched = last_up(False), last_up(True)
+    angle = np.degrees(np.arccos(np.clip(level @ pitched, -1.0, 1.0)))
+    assert angle == pytest.approx(20.0, abs=1.0)
+    turned_deg = np.degrees(np.arctan2(pitched[2], pitched[1]) - np.arctan2(level[2], level[1]))
+    assert turned_deg == pytest.approx(20.0, abs=1.0)
+    assert np.allclose(last_up(False, landmarks=False), last_up(True, landmarks=False))
