@@ -223,11 +223,9 @@ def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None 
     tilt_sd = _tilt_sd_deg(grounded)
     own = [ContactSet(e.contacts_m, e.steps, 0.0) for e in grounded]   # a track's depth errors show as scatter
     world = _grid_world(grounded, _mean_up(grounded), tilt_sds(own, tilt_sd), camera_height_m)
-    floor_contacts = _floor_contacts(grounded, world)
-    refitted = None if floor_contacts is None else _plane_normal(floor_contacts, world.normal)
-    if refitted is not None and floor_contacts is not None:
-        # everyone's contacts together: each track's depth error is one error, shared by its contacts
-        together = ContactSet(floor_contacts, _floor_track_count(grounded, world), DEPTH_SD_REL)
+    together = _floor_contacts(grounded, world)
+    refitted = None if together is None else _plane_normal(together.points_m, world.normal)
+    if refitted is not None and together is not None:
         sds = tilt_sds(own + [together], tilt_sd)
         world = _grid_world(grounded, refitted, sds, camera_height_m)
     return _with_people(world, evidence)
@@ -316,17 +314,12 @@ def observation_sd(e: TrackEvidence) -> float:
     return float(np.sqrt(BASE_SD ** 2 + CONTACT_SD ** 2 / max(e.steps, 1)))
 
 
-def _floor_track_count(evidence: list[TrackEvidence], world: World) -> int:
-    """How many tracks stand on ``world``'s floor."""
-    people = _with_people(world, evidence).people
-    return sum(people[e.track].kind == "floor" for e in evidence)
-
-
-def _floor_contacts(evidence: list[TrackEvidence], world: World) -> np.ndarray | None:
-    """The contacts ``[N, 3]`` of the tracks standing on ``world``'s floor, scaled into it (None: none)."""
+def _floor_contacts(evidence: list[TrackEvidence], world: World) -> ContactSet | None:
+    """The contacts of the tracks standing on ``world``'s floor, scaled into it, pooled (None: none):
+    each track's depth error is one error, shared by all its contacts."""
     people = _with_people(world, evidence).people
     points = [people[e.track].scale_factor * e.contacts_m for e in evidence if people[e.track].kind == "floor"]
-    return np.concatenate(points) if points else None
+    return ContactSet(np.concatenate(points), len(points), DEPTH_SD_REL) if points else None
 
 
 def _plane_normal(contacts: np.ndarray, normal: np.ndarray) -> np.ndarray | None:

@@ -174,7 +174,7 @@ def track_up(rec: TrackRecording) -> tuple[np.ndarray, float]:
     vertical in the detector's 3D where the keypoints carry it (:func:`body_vertical`: the model
     sees the body's lean whatever the database holds), else the fit's tilt estimate
     (:class:`~mocapdb.runtime.body_size.CameraTilt`)."""
-    bones = rec.column("world_bones") if len(rec) else np.zeros((0, len(FIT_BONES), 4))
+    bones = rec.column("world_bones")   # empty without the fits (no keep_take)
     vertical = body_vertical(bones) if len(bones) else None
     if vertical is not None:
         return vertical

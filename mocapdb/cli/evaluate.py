@@ -36,8 +36,9 @@ def add_eval_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--live", nargs="+", type=P.INPUT_DIR, metavar="KEYPOINTS",
                    help="keypoint folders of one take's calibrated cameras (`mocapdb detect` of each video, in the "
                         "calibration's camera order): the first run alone as `live` runs it, the stream at each "
-                        "--lags lag and the per-frame stream beside the whole take, against all cameras' "
-                        "triangulation (needs --db and --calibration; table on stdout)")
+                        "--lags lag, the per-frame stream and the published method beside the whole take (and the "
+                        "detector's raw world landmarks where the keypoints carry them), against all cameras' "
+                        "triangulation, with the database floor (needs --db and --calibration; table on stdout)")
     p.add_argument("--calibration", type=P.INPUT_FILE, metavar="TOML",
                    help="with --live: the cameras' calibration (Pose2Sim/OpenCV calibration.toml)")
     p.add_argument("--fps", type=D.FPS_HZ, help="with --live: the frame rate (Hz) where the folders have no take.json")

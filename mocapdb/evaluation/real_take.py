@@ -42,14 +42,15 @@ from mocapdb.core.formats.keypoints import KeypointFrame
 from mocapdb.core.formats.openpose import read_openpose_folder
 from mocapdb.core.formats.take import TAKE_FILE, read_take, resolve_camera
 from mocapdb.core.formats.trc import Trc, read_trc, trc_keypoints
+from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import MEASURED_BONE_NAMES, N_KEYPOINTS_2D, N_POINTS, PELVIS, bone_lengths_m
 from mocapdb.evaluation.metrics import foot_height_error_m, foot_skating_mps, pa_mpjpe, planted_feet
 from mocapdb.evaluation.reconstruction import ANKLES, BELOW_HEAD, BODY_BONES, TAKE_VARIANT, variant_config
-from mocapdb.evaluation.world_camera import camera_checks, format_rows, score_camera, summary_lines, world_of_frames
+from mocapdb.evaluation.world_camera import camera_checks, format_rows, score_camera, summary_lines
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.take import take_joints
-from mocapdb.runtime.world import fit_takes
+from mocapdb.runtime.world import fit_takes, fit_world
 
 TRC_FROM_WORLD = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # trc = TRC_FROM_WORLD @ world
 Y_DOWN = np.array([1.0, -1.0, 1.0])  # camera-aligned (y up) ↔ OpenCV camera (y down), either way
@@ -155,11 +156,11 @@ def engine_config(base: EngineConfig, cam: CameraModel, fps: float, refine: bool
 
 
 def run_camera(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[TrackRecording]]:
     """The person's joints ``[F, 15, 3]`` (camera-aligned, metres; NaN where it has no output), body
     heights ``[F]`` (metres) and, when ``config.keep_take``, the whole-take fit's joints ``[F, 15, 3]``
     (else None): the longest track that is not static (a false detection that never moves is); all
-    NaN when there is none."""
+    NaN when there is none. Last, every track's recording (for the take's world)."""
     engine = Engine(db, config)
     joints: dict[int, np.ndarray] = {}
     heights: dict[int, np.ndarray] = {}
@@ -169,11 +170,12 @@ def run_camera(db: MotionDatabase, frames: list[KeypointFrame], config: EngineCo
                 joints[pose.track] = np.full((len(frames), N_POINTS, 3), np.nan)
                 heights[pose.track] = np.full(len(frames), np.nan)
             joints[pose.track][i], heights[pose.track][i] = pose.joints_m, pose.height_m
-    recordings = {r.track: r for r in engine.finish()}
+    finished = engine.finish()
+    recordings = {r.track: r for r in finished}
     moving = [t for t in joints if not recordings[t].static]
     empty = np.full((len(frames), N_POINTS, 3), np.nan)
     if not moving:
-        return empty, np.full(len(frames), np.nan), empty if config.keep_take else None
+        return empty, np.full(len(frames), np.nan), empty if config.keep_take else None, finished
     track = max(moving, key=lambda t: np.isfinite(heights[t]).sum())
     whole = None
     if config.keep_take:
@@ -182,7 +184,7 @@ def run_camera(db: MotionDatabase, frames: list[KeypointFrame], config: EngineCo
         keep = (index >= 0) & (index < len(frames))
         whole = empty.copy()
         whole[index[keep]] = take_joints_m[keep]
-    return joints[track], heights[track], whole
+    return joints[track], heights[track], whole, finished
 
 
 def score(pred: np.ndarray, truth: np.ndarray, camera_centre: np.ndarray, fps: float) -> dict:
@@ -256,12 +258,12 @@ def evaluate_real_take(db: MotionDatabase, folder: str | Path, base: EngineConfi
         per_camera[name] = {
             "camera_height_m": height, "focal_px": focal_px(cam),
             "pinhole_offset": pinhole_offset(cam, trc_to_world(take.truth[:, :N_KEYPOINTS_2D])), "runs": runs}
-        world = world_of_frames(db, take.frames[name], engine_config(base, cam, take.fps, True))
-        per_camera[name]["world_camera"] = score_camera(world, cam)
         centre = world_to_trc(cam.center_m)
         for variant, mode, refine, given in RUNS:
             config = engine_config(base, cam, take.fps, refine, height if given else None)
-            joints, heights, whole = run_camera(db, take.frames[name], config)
+            joints, heights, whole, recordings = run_camera(db, take.frames[name], config)
+            if refine and not given:   # the world's camera, as reconstruct finds it with nothing given
+                per_camera[name]["world_camera"] = score_camera(fit_world(recordings, take.fps)[1], cam)
             body_height = _median(heights[np.isfinite(heights)])
             outputs = [(variant, joints)] + ([(TAKE_VARIANT, whole)] if whole is not None else [])
             for label, points in outputs:
