@@ -29,8 +29,8 @@ from mocapdb.runtime.world_prior import (
     FIT_END,
     FIT_START,
     NO_FIT_BONES,
+    balance_verticals,
     candidate_costs,
-    chain_verticals,
     database_bones,
     level,
     view_joints,
@@ -90,7 +90,8 @@ class PosePipeline:
         """Retrieve, refine, smooth and record one detection (its keypoints already cleaned)."""
         rerank, fit_world = self._world(state, d)
         if fit_world is not None:
-            state.verticals.extend(chain_verticals(np.column_stack([fit_world.directions, fit_world.weights])[None]))
+            bones = np.column_stack([fit_world.directions, fit_world.weights])[None]
+            state.verticals.extend(balance_verticals(bones, state.up))
         quats, root_view, match = self._retrieve(state, d.points_px, d.confidence > 0, rerank)
         if self.refiner is not None:
             root_view = self._fit(self.refiner, state, quats, root_view, d, fit_world)

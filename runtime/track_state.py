@@ -58,7 +58,7 @@ class TrackState:
     @property
     def up(self) -> np.ndarray:
         """The world's up in the view frame as this track shows it now: the median of the body's
-        recent verticals in the detector's 3D (:func:`~mocapdb.runtime.world_prior.chain_verticals`)
+        recent verticals in the detector's 3D (:func:`~mocapdb.runtime.world_prior.balance_verticals`)
         once there are :data:`~mocapdb.runtime.world_prior.MIN_VERTICAL_FRAMES`, else the fit's tilt
         estimate."""
         if len(self.verticals) < MIN_VERTICAL_FRAMES:

@@ -135,36 +135,84 @@ def candidate_costs(db_bones: np.ndarray, frames: np.ndarray, yaws_deg: np.ndarr
     return ((1.0 - cos) @ weights) / len(weights)
 
 
-# The standing body's ankle → shoulder chain among FIT_BONES (index, universal length in metres, sign:
-# −1 where the bone points down it): the thighs and shanks, then the trunk's sides (hip → shoulder).
+# The body rebuilt from its recorded world bones at the universal lengths (:func:`body_joints`): the
+# FIT_BONES' indices of the arms, legs, girdles and trunk sides.
 _L = BONE_LENGTHS_M
 _HIP_TO_SHOULDER_M = float(np.hypot(_L["torso"], _L["half_shoulder_width"] - _L["half_hip_width"]))
-VERTICAL_CHAIN = ((4, _L["thigh"] / 2, -1.0), (6, _L["thigh"] / 2, -1.0), (5, _L["shin"] / 2, -1.0),
-                  (7, _L["shin"] / 2, -1.0), (10, _HIP_TO_SHOULDER_M / 2, 1.0), (11, _HIP_TO_SHOULDER_M / 2, 1.0))
-MIN_VERTICAL_FRAMES = 10   # fewer frames with the whole chain seen: no estimate
+_HEAD_ABOVE_SHOULDERS_M = 0.25   # the head's centre above the shoulders' mid-point, along the trunk
+LEGS, TRUNK_SIDES, HIP_GIRDLE = (4, 5, 6, 7), (10, 11), 9
+# Whole-body mass fractions of the segments (Winter, "Biomechanics and Motor Control of Human
+# Movement", table 4.1, after Dempster): trunk, head and neck, thigh, shank and foot, upper arm,
+# forearm and hand (each limb's twice).
+MASS_TRUNK, MASS_HEAD, MASS_THIGH, MASS_SHANK_FOOT, MASS_UPPER_ARM, MASS_FOREARM_HAND = (
+    0.497, 0.081, 0.100, 0.061, 0.028, 0.022)
+SUPPORT_BLEND_M = 0.05   # an ankle this much lower than the other carries all the weight; level ankles share it
+MIN_VERTICAL_FRAMES = 10   # fewer frames with the legs and trunk seen: no estimate
 VERTICAL_WINDOW_S = 2.0    # the stream's up: the median of the body's verticals over this many seconds
+BALANCE_PASSES = 3         # the support chosen along the last estimate of the up, this many times
 
 
-def chain_verticals(world_bones: np.ndarray) -> np.ndarray:
-    """Per frame of ``world_bones [F, len(FIT_BONES), 4]`` (direction, weight) that sees the whole
-    :data:`VERTICAL_CHAIN`, the unit direction ankles' mid-point → shoulders' mid-point ``[F', 3]``."""
-    seen = (world_bones[:, [i for i, _, _ in VERTICAL_CHAIN], 3] > 0).all(axis=1)
-    chain = np.zeros((int(seen.sum()), 3))
-    for i, length, sign in VERTICAL_CHAIN:
-        chain += sign * length * world_bones[seen, i, :3]
-    return unit(chain)
+def body_joints(world_bones: np.ndarray) -> dict[str, np.ndarray]:
+    """The body ``{name: [F, 3]}`` (pelvis at the origin, metres) rebuilt from recorded world bones
+    ``[F, len(FIT_BONES), 4]`` (direction, weight) at the universal lengths: hips, knees, ankles,
+    shoulders, elbows, wrists (``r_``/``l_``) and the head's centre. An unseen bone (direction 0)
+    puts its end on its start."""
+    d = world_bones[..., :3]
+    j = {"r_hip": -_L["half_hip_width"] * d[:, HIP_GIRDLE], "l_hip": _L["half_hip_width"] * d[:, HIP_GIRDLE]}
+    for side, thigh, shin, trunk, upper, fore in (("r", 4, 5, 10, 0, 1), ("l", 6, 7, 11, 2, 3)):
+        j[f"{side}_knee"] = j[f"{side}_hip"] + _L["thigh"] * d[:, thigh]
+        j[f"{side}_ankle"] = j[f"{side}_knee"] + _L["shin"] * d[:, shin]
+        j[f"{side}_shoulder"] = j[f"{side}_hip"] + _HIP_TO_SHOULDER_M * d[:, trunk]
+        j[f"{side}_elbow"] = j[f"{side}_shoulder"] + _L["upper_arm"] * d[:, upper]
+        j[f"{side}_wrist"] = j[f"{side}_elbow"] + _L["forearm"] * d[:, fore]
+    shoulders = 0.5 * (j["r_shoulder"] + j["l_shoulder"])
+    j["head"] = shoulders + _HEAD_ABOVE_SHOULDERS_M * np.nan_to_num(unit(shoulders))
+    return j
+
+
+def centre_of_mass(j: dict[str, np.ndarray]) -> np.ndarray:
+    """The whole body's centre of mass ``[F, 3]`` of :func:`body_joints`' ``j``: each segment's
+    mass fraction at its mid-point (the trunk's at its four corners' mean; the foot with the shank,
+    the hand with the forearm)."""
+    trunk = 0.25 * (j["r_hip"] + j["l_hip"] + j["r_shoulder"] + j["l_shoulder"])
+    com = MASS_TRUNK * trunk + MASS_HEAD * j["head"]
+    for s in ("r", "l"):
+        com = com + MASS_THIGH * 0.5 * (j[f"{s}_hip"] + j[f"{s}_knee"])
+        com = com + MASS_SHANK_FOOT * 0.5 * (j[f"{s}_knee"] + j[f"{s}_ankle"])
+        com = com + MASS_UPPER_ARM * 0.5 * (j[f"{s}_shoulder"] + j[f"{s}_elbow"])
+        com = com + MASS_FOREARM_HAND * 0.5 * (j[f"{s}_elbow"] + j[f"{s}_wrist"])
+    return com
+
+
+def balance_verticals(world_bones: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Per frame of ``world_bones [F, len(FIT_BONES), 4]`` (direction, weight) that sees the legs and
+    the trunk's sides, the unit direction ``[F', 3]`` from the support to the body's centre of mass:
+    a body standing still keeps its centre of mass above what carries it (the lower ankle along
+    ``up`` [3], the current estimate; both ankles, weighted, within :data:`SUPPORT_BLEND_M` of level),
+    on one leg or two, leaning or not; walking averages it out over its steps."""
+    seen = (world_bones[:, list(LEGS + TRUNK_SIDES), 3] > 0).all(axis=1)
+    j = body_joints(world_bones[seen])
+    right_lower = (j["l_ankle"] - j["r_ankle"]) @ up           # > 0: the right ankle is lower
+    w = np.clip(0.5 + 0.5 * right_lower / SUPPORT_BLEND_M, 0.0, 1.0)[:, None]
+    support = w * j["r_ankle"] + (1.0 - w) * j["l_ankle"]
+    return unit(centre_of_mass(j) - support)
 
 
 def body_vertical(world_bones: np.ndarray) -> tuple[np.ndarray, float] | None:
     """The world's up as the detector's 3D shows it (view frame, unit) and its error (degrees), from a
-    track's recorded world bones ``[F, len(FIT_BONES), 4]`` (direction, weight): per frame the
-    ankles' mid-point → the shoulders' mid-point of a standing body (:data:`VERTICAL_CHAIN`), their
-    median over the frames that see the whole chain, the error their RMS angle about it, at least
-    :data:`~mocapdb.runtime.body_size.TILT_SD_DEG`. None below :data:`MIN_VERTICAL_FRAMES` frames."""
-    verticals = chain_verticals(world_bones)
-    if len(verticals) < MIN_VERTICAL_FRAMES:
+    track's recorded world bones ``[F, len(FIT_BONES), 4]`` (direction, weight): the median of
+    :func:`balance_verticals` over the frames that see the body, each frame's support chosen along
+    the last estimate (first the mid-ankles → shoulders direction; :data:`BALANCE_PASSES` passes),
+    the error their RMS angle about it, at least :data:`~mocapdb.runtime.body_size.TILT_SD_DEG`.
+    None below :data:`MIN_VERTICAL_FRAMES` frames."""
+    seen = (world_bones[:, list(LEGS + TRUNK_SIDES), 3] > 0).all(axis=1)
+    if seen.sum() < MIN_VERTICAL_FRAMES:
         return None
-    up = unit(np.median(verticals, axis=0))
+    j = body_joints(world_bones[seen])
+    up = unit(np.median(unit(j["r_shoulder"] + j["l_shoulder"] - j["r_ankle"] - j["l_ankle"]), axis=0))
+    for _ in range(BALANCE_PASSES):
+        verticals = balance_verticals(world_bones[seen], up)
+        up = unit(np.median(verticals, axis=0))
     spread = float(np.degrees(np.sqrt(np.mean(np.arccos(np.clip(verticals @ up, -1.0, 1.0)) ** 2))))
     return up, max(TILT_SD_DEG, spread)
 

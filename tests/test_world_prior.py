@@ -198,3 +198,34 @@ def test_the_streams_up_follows_the_bodys_vertical_in_the_detectors_3d(small_db)
     turned_deg = np.degrees(np.arctan2(pitched[2], pitched[1]) - np.arctan2(level[2], level[1]))
     assert turned_deg == pytest.approx(20.0, abs=1.0)
     assert np.allclose(last_up(False, landmarks=False), last_up(True, landmarks=False))
+
+
+def test_the_body_vertical_of_one_leg_balance_is_its_centre_of_mass_over_the_standing_foot():
+    """A body on its left leg, the right leg raised 40° sideways, arms hanging, leans over the
+    standing foot until its centre of mass is above it. Hand-computed with Winter's mass fractions
+    (pelvis at the origin, x to the body's left, y up; the hips 0.1 m apart from it, the lifted
+    ankle 0.2 m higher): the centre of mass at (−0.03891, 0.11007), so the standing ankle (0.1,
+    −0.85) → it runs along (−0.13891, 0.96007), 8.2° off the trunk. Seen through a camera pitched 20°,
+    the estimate is the world's up; the ankles' mid-point → shoulders' would be 20° off."""
+    from mocapdb.runtime.world_prior import FIT_BONES, body_vertical, bone_directions
+
+    s, c = np.sin(np.radians(40.0)), np.cos(np.radians(40.0))
+    joints = np.zeros((15, 3))
+    for name, xy in {"r_hip": (-0.1, 0.0), "r_knee": (-0.1 - 0.43 * s, -0.43 * c),
+                     "r_ankle": (-0.1 - 0.85 * s, -0.85 * c),
+                     "l_hip": (0.1, 0.0), "l_knee": (0.1, -0.43), "l_ankle": (0.1, -0.85),
+                     "r_shoulder": (-0.19, 0.52), "r_elbow": (-0.19, 0.23), "r_wrist": (-0.19, -0.03),
+                     "l_shoulder": (0.19, 0.52), "l_elbow": (0.19, 0.23), "l_wrist": (0.19, -0.03)}.items():
+        joints[KP[name], :2] = xy
+    balance = np.array([-0.13891, 0.96007, 0.0]) / np.hypot(0.13891, 0.96007)
+    upright = Rotation.from_rotvec([0.0, 0.0, -np.arctan2(-balance[0], balance[1])]).as_matrix()  # balance → +y
+    camera = Rotation.from_rotvec([np.radians(20.0), 0.0, 0.0]).as_matrix()
+    seen = joints @ (camera @ upright).T
+    bones, weights = bone_directions(seen, np.ones(15), FIT_BONES)
+    recorded = np.repeat(np.column_stack([bones, weights])[None], 30, axis=0)
+    up = camera @ np.array([0.0, 1.0, 0.0])
+    found, _ = body_vertical(recorded)
+    assert np.degrees(np.arccos(np.clip(found @ up, -1.0, 1.0))) < 0.1
+    ankles = seen[KP["r_ankle"]] + seen[KP["l_ankle"]]
+    chain = seen[KP["r_shoulder"]] + seen[KP["l_shoulder"]] - ankles
+    assert np.degrees(np.arccos(chain @ up / np.linalg.norm(chain))) > 15.0
