@@ -66,7 +66,14 @@ from mocapdb.runtime.stature import (
 from mocapdb.runtime.take import TakeResult, fit_take
 from mocapdb.runtime.take_params import TakeParams
 from mocapdb.runtime.world_prior import track_up
-from mocapdb.runtime.world_tilt import ContactSet, tilt_cost, tilt_sds, tilt_spread_deg, tilted_normals
+from mocapdb.runtime.world_tilt import (
+    ContactSet,
+    reported_tilt_sd_deg,
+    tilt_cost,
+    tilt_sds,
+    tilt_spread_deg,
+    tilted_normals,
+)
 
 CONTACT_SD = 0.10            # of log stature, one step's (depth and ankle-height noise), over its steps
 STEP_GRID_M = 0.01           # contacts within this of each other are one step (the whole-take fit anchors a step)
@@ -150,7 +157,7 @@ class World:
     camera_height_log_sd: float
     camera_height_given: bool
     people: dict[int, PersonSize] = field(default_factory=dict)
-    pitch_sd_deg: float = float("nan")   # the pitch's and roll's errors (posterior SDs over the tilt grid)
+    pitch_sd_deg: float = float("nan")   # the pitch's and roll's errors (world_tilt.reported_tilt_sd_deg)
     roll_sd_deg: float = float("nan")
 
     @property
@@ -257,7 +264,7 @@ def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg:
     mean = np.sum(posterior * log_h) / np.sum(posterior)
     sd = float(np.sqrt(np.sum(posterior * (log_h - mean) ** 2) / np.sum(posterior)))
     return World(best[0], float(np.exp(log_h[np.argmin(cost)])), sd, given is not None,
-                 pitch_sd_deg=tilt_sd[0], roll_sd_deg=tilt_sd[1])
+                 pitch_sd_deg=reported_tilt_sd_deg(tilt_sd[0]), roll_sd_deg=reported_tilt_sd_deg(tilt_sd[1]))
 
 
 def _cost(evidence: list[TrackEvidence], normals: np.ndarray, tilts_deg: np.ndarray,

@@ -57,3 +57,13 @@ def test_the_tilts_spread_is_the_posteriors_sd():
     assert pitch_sd == pytest.approx(4.0, rel=0.02) and roll_sd == pytest.approx(6.0, rel=0.05)
     flat_top = np.where(np.abs(tilts).max(axis=1) == 0, 0.0, 50.0)[:, None]   # all mass on one grid point
     assert tilt_spread_deg(tilts, flat_top, 2.0) == pytest.approx((2.0 / np.sqrt(12), 2.0 / np.sqrt(12)))
+
+
+def test_the_reported_tilt_error_adds_the_unmodelled_error_to_the_posteriors():
+    """The world's pitch and roll errors are the posterior's spread and the calibrated model error in
+    quadrature: 3° and 2.5° give 3.905°; a posterior as sharp as a grid point gives the model error."""
+    from mocapdb.runtime.world_tilt import TILT_MODEL_SD_DEG, reported_tilt_sd_deg
+
+    assert TILT_MODEL_SD_DEG == 2.5
+    assert reported_tilt_sd_deg(3.0) == pytest.approx(3.905125, abs=1e-6)
+    assert reported_tilt_sd_deg(0.0) == pytest.approx(2.5)
