@@ -195,7 +195,8 @@ def balance_verticals(world_bones: np.ndarray, up: np.ndarray) -> np.ndarray:
     right_lower = (j["l_ankle"] - j["r_ankle"]) @ up           # > 0: the right ankle is lower
     w = np.clip(0.5 + 0.5 * right_lower / SUPPORT_BLEND_M, 0.0, 1.0)[:, None]
     support = w * j["r_ankle"] + (1.0 - w) * j["l_ankle"]
-    return unit(centre_of_mass(j) - support)
+    verticals = unit(centre_of_mass(j) - support)
+    return verticals[np.isfinite(verticals).all(axis=1)]   # a degenerate frame (no direction) says nothing
 
 
 def body_vertical(world_bones: np.ndarray) -> tuple[np.ndarray, float] | None:
@@ -212,6 +213,8 @@ def body_vertical(world_bones: np.ndarray) -> tuple[np.ndarray, float] | None:
     up = unit(np.median(unit(j["r_shoulder"] + j["l_shoulder"] - j["r_ankle"] - j["l_ankle"]), axis=0))
     for _ in range(BALANCE_PASSES):
         verticals = balance_verticals(world_bones[seen], up)
+        if len(verticals) < MIN_VERTICAL_FRAMES:
+            return None
         up = unit(np.median(verticals, axis=0))
     spread = float(np.degrees(np.sqrt(np.mean(np.arccos(np.clip(verticals @ up, -1.0, 1.0)) ** 2))))
     return up, max(TILT_SD_DEG, spread)
