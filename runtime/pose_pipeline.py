@@ -89,9 +89,9 @@ class PosePipeline:
     def _person(self, state: TrackState, d: Detection) -> PersonPose:
         """Retrieve, refine, smooth and record one detection (its keypoints already cleaned)."""
         rerank, fit_world = self._world(state, d)
-        if fit_world is not None:
-            bones = np.column_stack([fit_world.directions, fit_world.weights])[None]
-            state.verticals.extend(balance_verticals(bones, state.up))
+        bones = None if fit_world is None else np.column_stack([fit_world.directions, fit_world.weights])
+        if bones is not None:
+            state.verticals.extend(balance_verticals(bones[None], state.up))
         quats, root_view, match = self._retrieve(state, d.points_px, d.confidence > 0, rerank)
         if self.refiner is not None:
             root_view = self._fit(self.refiner, state, quats, root_view, d, fit_world)
@@ -100,8 +100,8 @@ class PosePipeline:
         state.remember(quats)
         fit = None
         if self.config.keep_take:
-            bones = NO_FIT_BONES if fit_world is None else np.column_stack([fit_world.directions, fit_world.weights])
-            fit = (quats.copy(), root_view.copy(), np.column_stack([d.points_px, d.confidence]), d.extremities, bones)
+            fit = (quats.copy(), root_view.copy(), np.column_stack([d.points_px, d.confidence]), d.extremities,
+                   NO_FIT_BONES if bones is None else bones)
         if self.config.smoothing:
             quats = state.rotations(quats, d.t_s)
             root_view = state.root(root_view, d.t_s)

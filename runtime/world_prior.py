@@ -190,13 +190,22 @@ def balance_verticals(world_bones: np.ndarray, up: np.ndarray) -> np.ndarray:
     a body standing still keeps its centre of mass above what carries it (the lower ankle along
     ``up`` [3], the current estimate; both ankles, weighted, within :data:`SUPPORT_BLEND_M` of level),
     on one leg or two, leaning or not; walking averages it out over its steps."""
-    seen = (world_bones[:, list(LEGS + TRUNK_SIDES), 3] > 0).all(axis=1)
-    j = body_joints(world_bones[seen])
+    j = body_joints(world_bones[_body_seen(world_bones)])
+    return _support_to_mass(j, centre_of_mass(j), up)
+
+
+def _body_seen(world_bones: np.ndarray) -> np.ndarray:
+    """Which frames ``[F]`` of ``world_bones`` see the legs and the trunk's sides."""
+    return np.asarray((world_bones[:, list(LEGS + TRUNK_SIDES), 3] > 0).all(axis=1))
+
+
+def _support_to_mass(j: dict[str, np.ndarray], com: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """:func:`balance_verticals` of the rebuilt body ``j`` and its centre of mass ``com [F, 3]``; a
+    degenerate frame (no direction) is left out."""
     right_lower = (j["l_ankle"] - j["r_ankle"]) @ up           # > 0: the right ankle is lower
     w = np.clip(0.5 + 0.5 * right_lower / SUPPORT_BLEND_M, 0.0, 1.0)[:, None]
-    support = w * j["r_ankle"] + (1.0 - w) * j["l_ankle"]
-    verticals = unit(centre_of_mass(j) - support)
-    return verticals[np.isfinite(verticals).all(axis=1)]   # a degenerate frame (no direction) says nothing
+    verticals = unit(com - (w * j["r_ankle"] + (1.0 - w) * j["l_ankle"]))
+    return verticals[np.isfinite(verticals).all(axis=1)]
 
 
 def body_vertical(world_bones: np.ndarray) -> tuple[np.ndarray, float] | None:
@@ -206,13 +215,14 @@ def body_vertical(world_bones: np.ndarray) -> tuple[np.ndarray, float] | None:
     the last estimate (first the mid-ankles → shoulders direction; :data:`BALANCE_PASSES` passes),
     the error their RMS angle about it, at least :data:`~mocapdb.runtime.body_size.TILT_SD_DEG`.
     None below :data:`MIN_VERTICAL_FRAMES` frames."""
-    seen = (world_bones[:, list(LEGS + TRUNK_SIDES), 3] > 0).all(axis=1)
+    seen = _body_seen(world_bones)
     if seen.sum() < MIN_VERTICAL_FRAMES:
         return None
     j = body_joints(world_bones[seen])
+    com = centre_of_mass(j)
     up = unit(np.median(unit(j["r_shoulder"] + j["l_shoulder"] - j["r_ankle"] - j["l_ankle"]), axis=0))
     for _ in range(BALANCE_PASSES):
-        verticals = balance_verticals(world_bones[seen], up)
+        verticals = _support_to_mass(j, com, up)
         if len(verticals) < MIN_VERTICAL_FRAMES:
             return None
         up = unit(np.median(verticals, axis=0))
