@@ -3,7 +3,7 @@ tracking) and :class:`TrackLimits` (the tracking work a stream can cause), each 
 against its domain (:mod:`mocapdb.core.domains`)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from mocapdb.core import domains as D
 from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD
@@ -92,6 +92,12 @@ class EngineConfig:
         if root is None:
             root = REFINED_ROOT_DEFAULTS if self.refine else ROOT_DEFAULTS
         return rotation, root
+
+    def for_track_files(self) -> EngineConfig:
+        """This configuration as ``reconstruct`` and ``live`` run it for their track files: the
+        per-frame fits kept (``keep_take``) and not smoothed, neither the keypoints nor the rotations
+        (the online and whole takes smooth them)."""
+        return replace(self, keep_take=True, smoothing=False, keypoint_filter=None)
 
     @property
     def center_px(self) -> tuple[float, float]:

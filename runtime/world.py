@@ -41,6 +41,7 @@ tens to hundreds of milliseconds per take, independent of its length (``tools/be
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -63,6 +64,7 @@ from mocapdb.runtime.stature import (
     prior_mode,
     stature_prior,
 )
+from mocapdb.runtime.subject import join_fragments
 from mocapdb.runtime.take import TakeResult, fit_take
 from mocapdb.runtime.take_params import TakeParams
 from mocapdb.runtime.world_prior import track_up
@@ -195,6 +197,29 @@ def fit_world(recordings: list[TrackRecording], fps: float, params: TakeParams =
     evidence = [track_evidence(rec, result, fps, heights.get(rec.track, heights.get(None))) for rec, result in fits]
     world = estimate_world(evidence, camera_height_m)
     return [place_in_world(rec, world, fps) for rec, _ in fits], world
+
+
+class TakeWorld(NamedTuple):
+    """What :func:`fit_take_world` found: the input tracks with the fragments of one person joined,
+    their whole-take fits placed in the world (same order), the world, and which track each joined
+    one went into."""
+
+    recordings: list[TrackRecording]
+    fitted: list[TrackRecording]
+    world: World
+    joined: dict[int, int]
+
+
+def fit_take_world(recordings: list[TrackRecording], fps: float, params: TakeParams = TakeParams(),
+                   camera_height_m: float | None = None, subject_heights_m: dict[int | None, float] | None = None
+                   ) -> TakeWorld:
+    """What ``reconstruct`` and ``live`` fit at the end of a take: the fragments of one person joined
+    (:func:`~mocapdb.runtime.subject.join_fragments`), then :func:`fit_world` over every track, static
+    ones included (a person standing still shows the vertical and the floor as well as one who
+    moves)."""
+    joined_recordings, joined = join_fragments(recordings, fps)
+    fitted, world = fit_world(joined_recordings, fps, params, camera_height_m, subject_heights_m)
+    return TakeWorld(joined_recordings, fitted, world, joined)
 
 
 FULL_WEIGHT_S = 1.0  # a track this long or longer counts as one person's whole evidence

@@ -45,9 +45,10 @@ class TrackFacts:
             flags.append(f"FEET {-feet:.2f} m BELOW THE FLOOR")
         return flags
 
-    def line(self, main: bool = False, written: bool = True) -> str:
+    def line(self, main: bool = False, written: bool = True, why_no_files: str = "--people") -> str:
         """One summary line: ``track 3: 1.62 m (±4 %, floor), legs 0.78 m, 4.1-6.3 m away, on the floor``
-        (``track 3 (main)`` for the take's subject; "no files" where ``--people`` left it out)."""
+        (``track 3 (main)`` for the take's subject; "no files" and ``why_no_files`` where not ``written``:
+        ``--people`` left it out, or it was static)."""
         size = self.size
         where = {"floor": "on the floor", "no contacts": "no planted foot (size from the prior)",
                  "unreliable": "its feet do not fit the floor (size from the prior)"}.get(size.kind)
@@ -55,7 +56,8 @@ class TrackFacts:
             where = f"standing {size.feet_above_floor_m:.2f} m above the floor (on something; size from the prior)"
         source = {"floor": "from the floor", "prior": "the stature prior's: the take cannot fix it",
                   "given": "given"}[size.source]
-        label = f"track {self.track}" + (" (main)" if main else "") + ("" if written else " (no files: --people)")
+        label = f"track {self.track}" + (" (main)" if main else "") \
+            + ("" if written else f" (no files: {why_no_files})")
         text = (f"{label}: {self.stature_m:.2f} m (±{100 * (np.exp(size.stature_log_sd) - 1):.0f} %, "
                 f"{source}), legs {self.legs_m:.2f} m, {self.distance_m[0]:.1f}-{self.distance_m[1]:.1f} m away, "
                 f"{where or size.kind}")

@@ -67,3 +67,29 @@ def test_the_reported_tilt_error_adds_the_unmodelled_error_to_the_posteriors():
     assert TILT_MODEL_SD_DEG == 2.5
     assert reported_tilt_sd_deg(3.0) == pytest.approx(3.905125, abs=1e-6)
     assert reported_tilt_sd_deg(0.0) == pytest.approx(2.5)
+
+
+def test_reconstruct_reports_the_world_the_evaluation_scores(small_db, small_db_path, tmp_path, capsys):
+    """The bundled BlazePose take of camera 1 holds the subject and a bystander standing still at the
+    image's edge (a static track: no files). ``reconstruct``'s ``world.json`` is the world that
+    ``world_of_frames`` (the camera's evaluation) finds, the bystander's evidence included."""
+    import json
+    from pathlib import Path
+
+    from mocapdb.cli.main import main
+    from mocapdb.core.formats.openpose import read_openpose_folder
+    from mocapdb.evaluation.world_camera import world_of_frames
+    from mocapdb.runtime.engine_config import EngineConfig
+
+    folder = Path(__file__).resolve().parents[1] / "data" / "sample_keypoints" / "blazepose_cam01"
+    out = tmp_path / "rec"
+    assert main(["reconstruct", str(folder), "--db", str(small_db_path), "--focal", "1681", "--out", str(out)]) == 0
+    record = json.loads((out / "world.json").read_text())
+    still = [t for t in record["tracks"] if not t["written"]]
+    assert len(still) == 1 and record["main_track"] != still[0]["track"]
+    assert f"track {still[0]['track']} (no files: static)" in capsys.readouterr().out
+    world = world_of_frames(small_db, list(read_openpose_folder(folder, fps=60.0)),
+                            EngineConfig(fps=60.0, focal_px=1681.0, image_size=(1080, 1920)))
+    assert record["camera"]["height_m"] == pytest.approx(world.camera_height_m, rel=1e-3)
+    assert record["camera"]["pitch_deg"] == pytest.approx(world.pitch_deg, abs=0.01)
+    assert record["camera"]["roll_deg"] == pytest.approx(world.roll_deg, abs=0.01)

@@ -3,8 +3,8 @@ the camera-1 reconstruction) and docs/stereo_cameras.png (the two cameras and th
 
     .venv/bin/python tools/render_sample.py [--work /tmp/render_sample] [--reuse]
 
-Runs `mocapdb build data/sample_bvh`, `mocapdb reconstruct` of data/sample_keypoints/pose2sim_cam01
-(--fps 60 --image-size 1088x1920 --focal 1681) and `mocapdb stereo` of cameras 1 and 4 into --work
+Runs `mocapdb build data/sample_bvh`, `mocapdb reconstruct` of data/sample_keypoints/blazepose_cam01
+(--focal 1681, as tools/quickstart.sh) and `mocapdb stereo` of cameras 1 and 4 into --work
 (--reuse: keep outputs already there), then draws both pictures.
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "data" / "sample_keypoints"
-FOCAL, SIZE = 1681.0, (1088, 1920)
+FOCAL, SIZE = 1681.0, (1080, 1920)   # the take.json of blazepose_cam01
 
 
 def _run(args: list[str]) -> None:
@@ -35,8 +35,8 @@ def main() -> int:
     if not (args.reuse and (db / "manifest.json").is_file()):
         _run(["build", str(ROOT / "data" / "sample_bvh"), "--out", str(db)])
     if not (args.reuse and (recon / "result.jsonl").is_file()):
-        _run(["reconstruct", str(SAMPLE / "pose2sim_cam01"), "--db", str(db), "--out", str(recon), "--fps", "60",
-              "--image-size", f"{SIZE[0]}x{SIZE[1]}", "--focal", f"{FOCAL:g}"])
+        _run(["reconstruct", str(SAMPLE / "blazepose_cam01"), "--db", str(db), "--out", str(recon),
+              "--focal", f"{FOCAL:g}"])
     if not (args.reuse and (stereo / "cameras.json").is_file()):
         _run(["stereo", str(SAMPLE / "pose2sim_cam01"), str(SAMPLE / "pose2sim_cam04"), "--calibration",
               str(SAMPLE / "calibration.toml"), "--cameras", "cam_01", "cam_04", "--fps", "60",
@@ -45,7 +45,7 @@ def main() -> int:
     from mocapdb.render.contact_sheet import contact_sheet
     from mocapdb.render.stereo_plot import render_stereo_plot
 
-    sheet = contact_sheet(recon, SAMPLE / "pose2sim_cam01", ROOT / "docs" / "reconstruct_sample.png", args.frames,
+    sheet = contact_sheet(recon, SAMPLE / "blazepose_cam01", ROOT / "docs" / "reconstruct_sample.png", args.frames,
                           focal=FOCAL, image_size=SIZE, tile_height=480,
                           warn=lambda text: print(f"warning: {text}", file=sys.stderr))
     plot = render_stereo_plot(stereo, ROOT / "docs" / "stereo_cameras.png", panel=800)

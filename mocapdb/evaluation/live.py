@@ -95,6 +95,8 @@ def run_variants(db: MotionDatabase, frames: list[KeypointFrame], config: Engine
         out[WORLD_LANDMARKS] = {"joints": world_landmark_joints(frames, followed), "compute_s": None, "lag": None,
                                 "root": False}
     out[PER_FRAME] = {"joints": _track_joints(per_frame, track, len(frames)), "compute_s": times, "lag": 0}
+    kept, _, recordings, _ = _run(db, frames, config.for_track_files(), None)   # as reconstruct runs it
+    track = _main_track(kept, recordings)
     whole = _empty(len(frames))
     if track is not None:
         fitted = fit_takes([recordings[track]], config.fps)[0]

@@ -24,7 +24,7 @@ from mocapdb.evaluation.reconstruction import run_sequence
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.stature import HUMAN_STATURE_M
-from mocapdb.runtime.world import fit_world
+from mocapdb.runtime.world import fit_take_world
 
 MIN_TRACK_S = 1.0
 FLOOR_TOLERANCE_M = 0.05
@@ -44,11 +44,13 @@ def check_footage(db: MotionDatabase, folder: str | Path, engine: EngineConfig =
     config = replace(engine, fps=take.fps, image_size=take.image_size, focal_px=focal, keep_take=True,
                      camera_height_m=None)
     run = run_sequence(Engine(db, config), list(read_openpose_folder(folder, fps=take.fps)))
-    recordings = [r for r in run.recordings if not r.static and r.duration_s(take.fps) >= MIN_TRACK_S]
+    checked = {r.track for r in run.recordings if not r.static and r.duration_s(take.fps) >= MIN_TRACK_S}
+    still = [r for r in run.recordings if r.static]   # evidence of the world, as in reconstruct
     tracks = []
-    if recordings:
-        fitted, world = fit_world(recordings, take.fps)
-        tracks = [_track_check(rec, world.people[rec.track].kind, take.fps) for rec in fitted]
+    if checked:
+        found = fit_take_world([r for r in run.recordings if r.track in checked] + still, take.fps)
+        tracks = [_track_check(rec, found.world.people[rec.track].kind, take.fps)
+                  for rec in found.fitted if rec.track in checked]
     return {"folder": str(folder), "fps": take.fps, "image_size": list(take.image_size), "focal_px": focal,
             "tracks": tracks, "passed": sum(t["ok"] for t in tracks)}
 

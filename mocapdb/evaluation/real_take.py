@@ -50,7 +50,7 @@ from mocapdb.evaluation.world_camera import camera_checks, format_rows, score_ca
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.take import take_joints
-from mocapdb.runtime.world import fit_takes, fit_world
+from mocapdb.runtime.world import fit_take_world, fit_takes
 
 TRC_FROM_WORLD = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # trc = TRC_FROM_WORLD @ world
 Y_DOWN = np.array([1.0, -1.0, 1.0])  # camera-aligned (y up) ↔ OpenCV camera (y down), either way
@@ -263,7 +263,7 @@ def evaluate_real_take(db: MotionDatabase, folder: str | Path, base: EngineConfi
             config = engine_config(base, cam, take.fps, refine, height if given else None)
             joints, heights, whole, recordings = run_camera(db, take.frames[name], config)
             if refine and not given:   # the world's camera, as reconstruct finds it with nothing given
-                per_camera[name]["world_camera"] = score_camera(fit_world(recordings, take.fps)[1], cam)
+                per_camera[name]["world_camera"] = score_camera(fit_take_world(recordings, take.fps).world, cam)
             body_height = _median(heights[np.isfinite(heights)])
             outputs = [(variant, joints)] + ([(TAKE_VARIANT, whole)] if whole is not None else [])
             for label, points in outputs:

@@ -13,8 +13,6 @@ and for each whether the truth lies inside the world's reported ±2 SD.
 """
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from mocapdb.core.cameras import CameraModel
@@ -22,7 +20,7 @@ from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
-from mocapdb.runtime.world import World, fit_world
+from mocapdb.runtime.world import World, fit_take_world
 
 VIEW_FROM_OPENCV = np.array([1.0, -1.0, -1.0])  # OpenCV camera axes (x right, y down, z forward) → view frame
 # Issue 36's targets over the cameras of a take, each run alone: height off (% of the truth) and pitch
@@ -41,11 +39,12 @@ def true_camera(cam: CameraModel, floor_z_m: float = 0.0) -> dict[str, float]:
 
 
 def world_of_frames(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig) -> World:
-    """The world one camera's ``frames`` give, every track of them (as ``reconstruct`` finds it)."""
-    engine = Engine(db, replace(config, keep_take=True))
+    """The world one camera's ``frames`` give, every track of them, as ``reconstruct`` finds it: its
+    per-frame fits kept unsmoothed (the online and whole takes smooth them)."""
+    engine = Engine(db, config.for_track_files())
     for frame in frames:
         engine.step(frame)
-    return fit_world(engine.finish(), config.fps, camera_height_m=config.camera_height_m)[1]
+    return fit_take_world(engine.finish(), config.fps, camera_height_m=config.camera_height_m).world
 
 
 def score_camera(world: World, cam: CameraModel, floor_z_m: float = 0.0) -> dict:

@@ -17,9 +17,9 @@ from mocapdb.core.files import write_atomic
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.runtime.stream.session_options import SessionOptions
 from mocapdb.runtime.stream.session_summary import SessionSummary
-from mocapdb.runtime.subject import chosen, join_fragments, main_track
+from mocapdb.runtime.subject import chosen, main_track
 from mocapdb.runtime.take import fit_take
-from mocapdb.runtime.world import fit_world
+from mocapdb.runtime.world import fit_take_world
 from mocapdb.runtime.world_summary import track_facts, world_line, world_record
 
 LOG = logging.getLogger(__name__)
@@ -50,6 +50,7 @@ class TrackFiles:
         self._paths: set[Path] = set()  # written
         self._waiting: list[tuple[TrackRecording, str]] = []
         self._held: list[tuple[TrackRecording, str]] = []  # final files held for the shared floor
+        self._still: list[TrackRecording] = []  # static tracks: no files, but evidence of the shared floor
         self._jobs: queue.Queue[WriteJob | None] | None = None
         self._writer: threading.Thread | None = None
         self._error: BaseException | None = None
@@ -61,6 +62,8 @@ class TrackFiles:
             self.summary.add_static(rec.track)
         if rec.static and not self.options.keep_static:
             self._remove(name)  # a checkpoint written while it was open
+            if self._sharing_floor(rec):
+                self._still.append(rec)
         elif not rec.part and self._short(rec):
             self.summary.limits.short_tracks += 1
         else:
@@ -90,22 +93,27 @@ class TrackFiles:
         for rec, name in waiting:
             self._save(rec, name)
         held, self._held = self._held, []
+        still, self._still = self._still, []
         if held:
-            self._write_world(held)
+            self._write_world(held, still)
 
-    def _write_world(self, held: list[tuple[TrackRecording, str]]) -> None:
-        """The held recordings as one take: fragments of one person joined, one world, its subject;
-        the files of the tracks ``--people`` asks for, the summary's lines and ``world.json``."""
+    def _write_world(self, held: list[tuple[TrackRecording, str]], still: list[TrackRecording]) -> None:
+        """The held recordings and the static ones as one take: fragments of one person joined, one
+        world, its subject (a moving track); the files of the tracks ``--people`` asks for (static ones
+        get none), the summary's lines and ``world.json``."""
         if self.options.take is None:
             raise RuntimeError("recordings held for the shared floor without a whole-take fit (options.take)")
         names = {rec.track: name for rec, name in held}
-        recordings, joined = join_fragments([rec for rec, _ in held], self.fps)  # with their input keypoints
-        fitted, world = fit_world(recordings, self.fps, self.options.take, self.options.camera_height_m,
-                                  self.options.subject_heights_m)
-        main = main_track(recordings, 2.0 * recordings[0].camera_px[1] if recordings[0].camera_px else 1.0)
-        written = {rec.track for rec in chosen(fitted, self.options.people, main)}
+        recordings, fitted, world, joined = fit_take_world([rec for rec, _ in held] + still, self.fps,
+                                                           self.options.take, self.options.camera_height_m,
+                                                           self.options.subject_heights_m)
+        filed = [rec for rec in recordings if rec.track in names]   # with their input keypoints
+        main = main_track(filed, 2.0 * filed[0].camera_px[1] if filed[0].camera_px else 1.0)
+        written = {rec.track for rec in chosen(filed, self.options.people, main)}
         facts = [track_facts(rec, world, self.fps) for rec in fitted]
-        self.summary.world_lines = [world_line(world)] + [f.line(f.track == main, f.track in written) for f in facts]
+        self.summary.world_lines = [world_line(world)] + [
+            f.line(f.track == main, f.track in written, "--people" if f.track in names else "static")
+            for f in facts]
         self.summary.world_lines += [f"track {track} joined into track {into} (one person lost and found again)"
                                      for track, into in joined.items()]
         for rec in fitted:
