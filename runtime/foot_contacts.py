@@ -29,6 +29,11 @@ def planted_ankles(keypoints: np.ndarray, ankles_view_m: np.ndarray, up: np.ndar
     still) instead of when its ankle is still, and, flat while the other foot is not, whatever
     the heights: it carries the body.
 
+    Where both feet's heels and toes are seen, a foot also carries the body, and is planted, when it
+    is the lower and the slower of the two while the other swings (:data:`SWING`: heel and toe both
+    moving), up to :attr:`TakeParams.carrying_box_per_s`: one foot stands while the other is in the
+    air, and the keypoints of a foot under the body's weight drift more than an idle foot's.
+
     The image track of each point is first a running median over :data:`MEDIAN_FRAMES` frames of
     its seen positions, so a detector's single-frame left/right swap or missed keypoint neither
     moves a planted foot nor splits its contact; gaps of up to :data:`GAP_S` in a contact are closed."""
@@ -40,6 +45,8 @@ def planted_ankles(keypoints: np.ndarray, ankles_view_m: np.ndarray, up: np.ndar
         other = phases[:, ::-1]
         support = (other != UNSEEN) & (other != FLAT)  # the other foot seen off the floor, or partly
         still = np.where(phases != UNSEEN, (phases == FLAT) & (low | support), still)
+        slower = speed <= speed[:, ::-1]
+        still |= seen & low & (phases != UNSEEN) & (other == SWING) & slower & (speed < params.carrying_box_per_s)
     planted = _close_gaps(still, int(round(GAP_S * fps)))
     return _drop_short_runs(planted, MIN_CONTACT_FRAMES)
 

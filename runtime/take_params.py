@@ -17,6 +17,7 @@ class TakeParams:
     pop_frames: int = 5                # running-median window (frames; 1: no pop removal)
     planted_box_per_s: float = 0.25    # image speed of a planted ankle keypoint, box heights per second
     planted_height_m: float = 0.05     # a planted ankle is at most this much above the other
+    carrying_box_per_s: float = 0.5    # ... up to this image speed when the other foot is off the floor
     root_across_m: float = 0.01        # root across the viewing ray: the image's precision
     root_depth_m: float = 0.15         # root along the viewing ray: the depth's
     root_accel_mps2: float = 4.0       # root acceleration SD
@@ -27,8 +28,11 @@ class TakeParams:
 
     def __post_init__(self) -> None:
         D.SMOOTHING_HZ.check(self.smoothing_hz, "smoothing_hz")
-        positive = (self.planted_box_per_s, self.planted_height_m, self.root_across_m, self.root_depth_m,
-                    self.root_accel_mps2, self.contact_m)
+        positive = (self.planted_box_per_s, self.carrying_box_per_s, self.planted_height_m, self.root_across_m,
+                    self.root_depth_m, self.root_accel_mps2, self.contact_m)
         if self.pop_frames < 1 or not all(np.isfinite(v) and v > 0 for v in positive) \
                 or not all(np.isfinite(v) and v >= 0 for v in (self.refit_prior, self.refit_world)):
             raise ValueError(f"whole-take settings out of range: {self}")
+        if self.carrying_box_per_s < self.planted_box_per_s:
+            raise ValueError(f"carrying_box_per_s {self.carrying_box_per_s} is below planted_box_per_s "
+                             f"{self.planted_box_per_s}: a foot carrying the body is planted at least as readily")

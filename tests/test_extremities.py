@@ -124,6 +124,34 @@ def test_a_flat_foot_carries_the_body_while_the_other_is_off_the_floor():
                                   planted_ankles(keypoints, ankles, up, FPS, params))
 
 
+@pytest.mark.parametrize("drift_box_per_s, other, planted_expected", [
+    (0.35, SWING, True),          # under the body's weight, drifting: it carries the body
+    (0.60, SWING, False),         # faster than carrying_box_per_s (0.5): it moves
+    (0.35, TOE_OFF, False),       # the other foot partly on the floor: no carrier is needed
+])
+def test_the_lower_slower_foot_carries_the_body_while_the_other_swings(drift_box_per_s, other, planted_expected):
+    """The right foot is the lower one; its ankle drifts right at ``drift_box_per_s`` box heights a
+    second (box 400 px) and its heel and toe are seen moving (phase SWING: not flat); the left
+    ankle sweeps at 2 box heights a second, 10 cm higher, its foot in phase ``other``."""
+    n = 40
+    t = np.arange(n) / FPS
+    keypoints = np.zeros((n, 14, 3))
+    keypoints[:, :, 1] = np.linspace(300.0, 700.0, 14)   # a box 400 px tall
+    keypoints[:, :, 0] = 900.0
+    keypoints[:, :, 2] = 0.9
+    keypoints[:, KP["r_ankle"], 0] += 400.0 * drift_box_per_s * t
+    keypoints[:, KP["l_ankle"], 0] += 400.0 * 2.0 * t
+    ankles = np.zeros((n, 2, 3))
+    ankles[:, 1, 1] = 0.10
+    phases = np.tile([SWING, other], (n, 1))
+    inner = slice(8, -8)   # the speeds' line fits reach past the ends (edges held: slower there)
+    planted = planted_ankles(keypoints, ankles, np.array([0.0, 1.0, 0.0]), FPS, TakeParams(), phases)[inner]
+    assert planted[:, 0].all() == planted_expected and planted[:, 0].any() == planted_expected
+    assert not planted[:, 1].any()
+    # without heels and toes, the ankles' own test alone: 0.35 box heights a second is not still
+    assert not planted_ankles(keypoints, ankles, np.array([0.0, 1.0, 0.0]), FPS, TakeParams())[inner, 0].any()
+
+
 def test_lift_direction_hand_computed():
     """At 4 m with a 1000 px focal length 37.5 px is 0.15 m; a 0.25 m segment leaves 0.20 m along the
     view: a 3-4-5 triangle, 36.87° off the view axis, towards or away from the camera as the
