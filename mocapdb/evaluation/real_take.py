@@ -261,7 +261,10 @@ def evaluate_real_take(db: MotionDatabase, folder: str | Path, base: EngineConfi
         centre = world_to_trc(cam.center_m)
         for variant, mode, refine, given in RUNS:
             config = engine_config(base, cam, take.fps, refine, height if given else None)
-            joints, heights, whole, recordings = run_camera(db, take.frames[name], config)
+            joints, heights, _, recordings = run_camera(db, take.frames[name], replace(config, keep_take=False))
+            whole = None
+            if refine:   # the track files as reconstruct writes them
+                _, _, whole, recordings = run_camera(db, take.frames[name], config.for_track_files())
             if refine and not given:   # the world's camera, as reconstruct finds it with nothing given
                 per_camera[name]["world_camera"] = score_camera(fit_take_world(recordings, take.fps).world, cam)
             body_height = _median(heights[np.isfinite(heights)])
