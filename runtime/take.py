@@ -11,7 +11,9 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    cut-off is :attr:`TakeParams.smoothing_hz` (the one smoothing control, in hertz: motion slower
    than it passes, jitter faster than it goes); then fitted again to each frame's keypoints on the
    track's final body, near the smoothed pose (:func:`refit_to_image`, the per-frame refinement
-   with :attr:`TakeParams.refit_prior` times its pull to the prior), and smoothed once more.
+   with :attr:`TakeParams.refit_prior` times its pull to the prior and, where the keypoints carry
+   the detector's 3D, :attr:`TakeParams.refit_world` times its pull to those bones, smoothed at the
+   same cut-off first: :func:`smoothed_world_bones`), and smoothed once more.
 2. **Contacts**: an ankle is planted where its keypoint stands still in the image (speed under
    :attr:`TakeParams.planted_box_per_s` box heights per second: the slope of a line fitted over
    :data:`CONTACT_WINDOW_S` to its running median, which a detector's one-frame swaps and misses
@@ -129,8 +131,10 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     offsets = None if rec.proportions_m is None else body_offsets_m(rec.proportions_m)
     if params.refit_prior > 0 and rec.camera_px is not None:
         world = rec.column("world_bones")
+        if len(world):
+            world = smoothed_world_bones(world, fps, params.smoothing_hz) * [1.0, 1.0, 1.0, params.refit_world]
         quats = refit_to_image(quats, root, keypoints, scale, offsets, rec.camera_px, params.refit_prior,
-                               world * [1.0, 1.0, 1.0, params.refit_world] if len(world) else None)
+                               world if len(world) else None)
         quats = smooth_rotations(quats, fps, replace(params, pop_frames=1))
     up = track_up(rec)[0]
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]  # ankles − root
@@ -173,10 +177,28 @@ def smooth_rotations(quats: np.ndarray, fps: float, params: TakeParams) -> np.nd
     q *= sign[..., None]
     if params.pop_frames > 1 and len(q) >= params.pop_frames:
         q = median_filter(q, size=(params.pop_frames, 1, 1), mode="nearest")
-    sigma_frames = fps / (2.0 * np.pi * params.smoothing_hz) if params.smoothing_hz > 0 else 0.0
-    if sigma_frames >= MIN_SIGMA_FRAMES:  # a cut-off far above the frame rate smooths nothing
-        q = gaussian_filter1d(q, sigma_frames, axis=0, mode="nearest")
+    q = zero_phase_smoothed(q, fps, params.smoothing_hz)
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def zero_phase_smoothed(values: np.ndarray, fps: float, cutoff_hz: float) -> np.ndarray:
+    """``values [F, ...]`` through a Gaussian along the frames (``fps`` Hz) with its cut-off at
+    ``cutoff_hz``: no lag. Unchanged for 0 or a cut-off far above the frame rate."""
+    sigma_frames = fps / (2.0 * np.pi * cutoff_hz) if cutoff_hz > 0 else 0.0
+    if sigma_frames < MIN_SIGMA_FRAMES:
+        return values
+    return gaussian_filter1d(values, sigma_frames, axis=0, mode="nearest")
+
+
+def smoothed_world_bones(world_bones: np.ndarray, fps: float, cutoff_hz: float) -> np.ndarray:
+    """The detector's world bones ``[F, B, 4]`` (unit direction, weight) smoothed over the frames at
+    ``cutoff_hz`` (:func:`zero_phase_smoothed`): each bone's weighted direction, normalised again,
+    and its weight; a bone no frame near weighs 0 keeps its own direction."""
+    directions, weights = world_bones[..., :3], world_bones[..., 3:]
+    pulled = zero_phase_smoothed(directions * weights, fps, cutoff_hz)
+    length = np.linalg.norm(pulled, axis=-1, keepdims=True)
+    smoothed = np.where(length > 1e-9, pulled / np.maximum(length, 1e-9), directions)
+    return np.concatenate([smoothed, zero_phase_smoothed(weights, fps, cutoff_hz)], axis=-1)
 
 
 def refit_to_image(quats: np.ndarray, root_m: np.ndarray, keypoints: np.ndarray, scale: float,
@@ -251,9 +273,7 @@ def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
     forwards = _unit(direction - (direction @ up)[..., None] * up)
     standing = np.cos(_SLOPE) * forwards - np.sin(_SLOPE) * up
     direction = np.where(flat[..., None], standing, direction)
-    sigma_frames = fps / (2.0 * np.pi * params.smoothing_hz) if params.smoothing_hz > 0 else 0.0
-    if sigma_frames >= MIN_SIGMA_FRAMES:
-        direction = gaussian_filter1d(direction, sigma_frames, axis=0, mode="nearest")
+    direction = zero_phase_smoothed(direction, fps, params.smoothing_hz)
     turn = swing_matrices(_unit(reference), _unit(direction))
     return matrix_to_quat(np.swapaxes(parents, -1, -2) @ turn @ parents)
 

@@ -24,7 +24,8 @@ class TakeParams:
     contact_m: float = 0.005           # a planted ankle's spread over its contact
     floor: bool = True                 # keep ankles above the floor found from the contacts
     refit_prior: float = 20.0          # the re-fit's pull to the smoothed pose, × the per-frame fit's (0: none)
-    refit_world: float = 1.0           # its pull to the detector's world bones, × the per-frame fit's (0: none)
+    refit_world: float = 1.0           # its pull to the detector's world bones (smoothed as the rotations), × the
+                                       # per-frame fit's (0: none)
 
     def __post_init__(self) -> None:
         D.SMOOTHING_HZ.check(self.smoothing_hz, "smoothing_hz")
