@@ -88,7 +88,7 @@ def run_variants(db: MotionDatabase, frames: list[KeypointFrame], config: Engine
     published, times, recordings, _ = _run(db, frames, replace(config, refine=False), None)
     out[PUBLISHED] = {"joints": _track_joints(published, _main_track(published, recordings), len(frames)),
                       "compute_s": times, "lag": 0}
-    per_frame, times, recordings, keypoints = _run(db, frames, replace(config, keep_take=True), None)
+    per_frame, times, recordings, keypoints = _run(db, frames, config, None)
     track = _main_track(per_frame, recordings)
     if any(p.world_m is not None for frame in frames for p in frame.people):
         followed = keypoints[track] if track in keypoints else np.full((len(frames), N_KEYPOINTS_2D, 3), np.nan)
