@@ -47,16 +47,21 @@ def test_the_rolled_evaluation_camera_goes_back_to_the_world():
 
 
 def test_a_camera_rolled_30_degrees_costs_almost_nothing(small_db):
-    """The bundled clips the small database lacks, pitched 15° with and without a 30° roll: searched
-    upright, the rolled camera does no worse than the unrolled one; searched as they come, it does
-    (measured, whole take MPJPE: rolled 7.7 cm and unrolled 9.9 cm upright; rolled 9.4 cm as they come)."""
+    """The bundled clips the small database lacks, pitched 15° with and without a 30° roll, from three
+    yaws: searched upright, the rolled camera does almost as well as the unrolled one; searched as
+    they come, it does worse (measured, MPJPE cm, level / rolled upright / rolled as they come: the
+    per-frame stream 8.6 / 8.5 / 9.9, the whole take as ``reconstruct`` writes it 8.3 / 8.8 / 9.4)."""
     clips = [SAMPLE_BVH / f"{name}.bvh" for name in ("002_02", "002_04", "005_01", "005_11", "006_02")]
     scenarios = (Scenario("pitched 15", pitch_deg=15.0), Scenario("rolled 30", pitch_deg=15.0, roll_deg=30.0))
     mpjpe = {}
     for upright in (False, True):
-        config = EvalConfig(yaws_deg=(6.0,), scenarios=scenarios, engine=EngineConfig(upright_search=upright))
+        config = EvalConfig(yaws_deg=(6.0, 141.0, 279.0), scenarios=scenarios,
+                            engine=EngineConfig(upright_search=upright))
         report = evaluate(small_db, clips, config)
-        mpjpe[upright] = [sc["whole take"]["mpjpe_cm"] for sc in report["scenarios"]]
-    level, rolled = mpjpe[True]
-    assert rolled <= 1.1 * level
-    assert rolled < 0.95 * mpjpe[False][1]
+        for variant in ("refined", "whole take"):
+            mpjpe[upright, variant] = [sc[variant]["mpjpe_cm"] for sc in report["scenarios"]]
+    for variant in ("refined", "whole take"):
+        level, rolled = mpjpe[True, variant]
+        assert rolled <= 1.1 * level, variant
+    assert mpjpe[True, "refined"][1] < 0.9 * mpjpe[False, "refined"][1]
+    assert mpjpe[True, "whole take"][1] < mpjpe[False, "whole take"][1]

@@ -39,8 +39,8 @@ from mocapdb.evaluation.reconstruction import (
     VariantStats,
     View,
     run_sequence,
+    track_files_take,
     variant_config,
-    whole_take_run,
 )
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
@@ -114,9 +114,10 @@ def without_keypoints(frames: list[KeypointFrame], names: Collection[str]) -> li
 
 
 def gate_engine_config(config: EvalConfig) -> EngineConfig:
-    """The engine as the held-out evaluation runs it refined, keeping its fits for the whole take."""
+    """The engine as the held-out evaluation runs it refined (its whole take: as ``reconstruct`` runs
+    it, :func:`~mocapdb.evaluation.reconstruction.track_files_take`)."""
     camera = replace(config.engine, fps=config.fps, focal_px=config.focal_px, image_size=config.image_size)
-    return replace(variant_config(camera, True), keep_take=True)
+    return variant_config(camera, True)
 
 
 def score_view(db: MotionDatabase, positions_m: np.ndarray, yaw_deg: float, floor_m: np.ndarray,
@@ -128,10 +129,10 @@ def score_view(db: MotionDatabase, positions_m: np.ndarray, yaw_deg: float, floo
     view = View(camera_view(positions_m, yaw_deg, height, distance), height, distance, 0.0)
     rng = np.random.default_rng(config.seed)  # exact input: nothing is drawn from it
     frames = without_keypoints(render(view.cam, EXACT, config.focal_px, config.image_size, rng), DROPPED)
-    run = run_sequence(Engine(db, gate_engine_config(config)), frames)
+    engine = gate_engine_config(config)
     stats = {name: VariantStats() for name in VARIANTS}
-    stats["refined"].add(run, view, floor_m, frames, config)
-    take = whole_take_run(run, len(frames), config.fps)
+    stats["refined"].add(run_sequence(Engine(db, engine), frames), view, floor_m, frames, config)
+    take = track_files_take(db, engine, frames, config.fps)
     stats[TAKE_VARIANT].add(take, view, floor_m, frames, config, person_frames=len(frames))
     return stats
 

@@ -1,7 +1,8 @@
 """`mocapdb eval`: the engine run on held-out frames (:mod:`mocapdb.evaluation.heldout`) and scored.
 
-Each (yaw, clip) sequence runs twice on the same frames: refined (the engine's default) and as
-published (``EngineConfig(refine=False)``). Per scenario and variant (JSON): MPJPE (cm, pelvis-aligned
+Each (yaw, clip) sequence runs on the same frames refined (the engine's default), as published
+(``EngineConfig(refine=False)``) and as ``reconstruct`` runs it for the whole take (its fits kept,
+no 2D clean-up: :func:`track_files_take`). Per scenario and variant (JSON): MPJPE (cm, pelvis-aligned
 in the camera-aligned frame, so a wrong yaw or unseen camera pitch counts), PA-MPJPE (cm), facing yaw
 error (degrees), acceleration error (mm/frame², jitter); the database floor (cm,
 :mod:`mocapdb.evaluation.floor`: per frame the best database pose under the best vertical turn, what no
@@ -73,7 +74,7 @@ if TYPE_CHECKING:
 LOG = logging.getLogger(__name__)
 
 VARIANTS = (("published", False), ("refined", True))  # report name, EngineConfig.refine
-TAKE_VARIANT = "whole take"  # the refined run's tracks through runtime.take.fit_take
+TAKE_VARIANT = "whole take"  # a track-files run's tracks through the whole-take fit (track_files_take)
 REPORTED = ("published", "refined", TAKE_VARIANT)
 
 
@@ -382,16 +383,29 @@ def variant_config(base: EngineConfig, refine: bool) -> EngineConfig:
     return replace(base, refine=refine)
 
 
-def _new_engine(db: MotionDatabase, config: EvalConfig, scenario: Scenario | None = None,
-                refine: bool | None = None) -> Engine:
+def _engine_config(config: EvalConfig, scenario: Scenario | None = None, refine: bool | None = None
+                   ) -> EngineConfig:
     cfg = replace(config.engine, fps=config.fps, focal_px=config.focal_px, image_size=config.image_size)
     if refine is not None:
-        cfg = replace(variant_config(cfg, refine), keep_take=refine)
+        cfg = variant_config(cfg, refine)
     if scenario is not None and scenario.height_given:
         cfg = replace(cfg, subject_height_m=scenario.subject_height_m)
     if scenario is not None and scenario.camera_height_given and cfg.refine:
         cfg = replace(cfg, camera_height_m=scenario.camera_height_m)
-    return Engine(db, cfg)
+    return cfg
+
+
+def _new_engine(db: MotionDatabase, config: EvalConfig) -> Engine:
+    return Engine(db, _engine_config(config))
+
+
+def track_files_take(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], fps: float,
+                     camera_height_m: float | None = None) -> EngineRun:
+    """The whole take as ``reconstruct`` writes it: ``frames`` through an engine run as it runs one
+    (:meth:`EngineConfig.for_track_files`: the fits kept, no 2D clean-up, no per-frame smoothing),
+    then the whole-take fit (:func:`whole_take_run`)."""
+    run = run_sequence(Engine(db, engine.for_track_files()), frames)
+    return whole_take_run(run, len(frames), fps, camera_height_m)
 
 
 def evaluate_scenario(db: MotionDatabase, truths: list[Truth], scenario: Scenario, config: EvalConfig,
@@ -407,11 +421,11 @@ def evaluate_scenario(db: MotionDatabase, truths: list[Truth], scenario: Scenari
             frames = render(view.cam, scenario, config.focal_px, config.image_size, rng)
             floor = floors[floor_key(i, j, scenario)]
             for name, refine in VARIANTS:
-                run = run_sequence(_new_engine(db, config, scenario, refine), frames)
-                result.variants[name].add(run, view, floor, frames, config)
+                engine = _engine_config(config, scenario, refine)
+                result.variants[name].add(run_sequence(Engine(db, engine), frames), view, floor, frames, config)
                 if refine:
                     given = scenario.camera_height_m if scenario.camera_height_given else None
-                    take = whole_take_run(run, len(frames), config.fps, given)
+                    take = track_files_take(db, engine, frames, config.fps, given)
                     result.variants[TAKE_VARIANT].add(take, view, floor, frames, config, person_frames=len(frames))
             result.person_frames += len(frames)
             result.camera_distances_m.append(distance)

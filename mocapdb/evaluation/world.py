@@ -2,7 +2,7 @@
 
 A **take** is a handful of held-out clips (``data_specs/evaluation_split.md``) rendered together by
 one pinhole camera (:mod:`mocapdb.evaluation.world_takes`: scenarios, bodies, placement, noise).
-Each take runs through the engine (:class:`~mocapdb.runtime.engine.Engine`, ``keep_take``) and the
+Each take runs through the engine as ``reconstruct`` runs it (``EngineConfig.for_track_files``) and the
 whole-take world (:func:`mocapdb.runtime.world.fit_world`) twice (:data:`MODES`): with the camera
 height given and with nothing given (:func:`run_take`). Its tracks are scored against its people
 (:mod:`mocapdb.evaluation.world_scores`: matching, stature, root and floor errors, plausibility
@@ -57,8 +57,8 @@ def run_take(db: MotionDatabase, take: WorldTake, camera_height_m: float | None,
     """The take through the engine and the whole-take world (``camera_height_m`` given or None):
     every track (static ones too), the world, and the seconds of each."""
     engine_config = replace(config.engine, fps=config.fps, focal_px=config.focal_px, image_size=config.image_size,
-                            keep_take=True, camera_height_m=camera_height_m)
-    engine = Engine(db, engine_config)
+                            camera_height_m=camera_height_m)
+    engine = Engine(db, engine_config.for_track_files())   # as reconstruct runs it
     t0 = time.perf_counter()
     for frame in take.frames:
         engine.step(frame)
