@@ -13,6 +13,7 @@ from mocapdb.core.errors import UsageError
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import yaw_matrix
 from mocapdb.core.skeleton import PELVIS
+from mocapdb.evaluation.engine_runs import EngineRun
 from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.heldout import Scenario, Truth, camera_distance, camera_view, project, render, scaled_positions
 from mocapdb.evaluation.loso import (
@@ -24,7 +25,6 @@ from mocapdb.evaluation.loso import (
     trial_of,
 )
 from mocapdb.evaluation.reconstruction import (
-    EngineRun,
     EvalConfig,
     VariantStats,
     View,

@@ -30,6 +30,7 @@ from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame
 from mocapdb.core.skeleton import KP, MEASURED_BONE_NAMES, universal_bone_lengths_m
 from mocapdb.evaluation.bodies import Body, reshape_body
+from mocapdb.evaluation.engine_runs import run_sequence, track_files_take
 from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.heldout import EvalConfig, Scenario, Truth, camera_distance, camera_view, render
 from mocapdb.evaluation.loso import LosoConfig, sample_truths
@@ -38,8 +39,6 @@ from mocapdb.evaluation.reconstruction import (
     TAKE_VARIANT,
     VariantStats,
     View,
-    run_sequence,
-    track_files_take,
     variant_config,
 )
 from mocapdb.runtime.engine import Engine
@@ -115,7 +114,7 @@ def without_keypoints(frames: list[KeypointFrame], names: Collection[str]) -> li
 
 def gate_engine_config(config: EvalConfig) -> EngineConfig:
     """The engine as the held-out evaluation runs it refined (its whole take: as ``reconstruct`` runs
-    it, :func:`~mocapdb.evaluation.reconstruction.track_files_take`)."""
+    it, :func:`~mocapdb.evaluation.engine_runs.track_files_take`)."""
     camera = replace(config.engine, fps=config.fps, focal_px=config.focal_px, image_size=config.image_size)
     return variant_config(camera, True)
 

@@ -20,7 +20,7 @@ from mocapdb.core.formats.openpose import read_openpose_folder
 from mocapdb.core.formats.take import default_focal_px, read_take
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, KP, UNIVERSAL_HEIGHT_M
-from mocapdb.evaluation.reconstruction import run_sequence
+from mocapdb.evaluation.engine_runs import run_sequence
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.stature import HUMAN_STATURE_M

@@ -1,10 +1,11 @@
 """`mocapdb eval`: the engine run on held-out frames (:mod:`mocapdb.evaluation.heldout`) and scored.
 
 Each (yaw, clip) sequence runs on the same frames refined (the engine's default), as published
-(``EngineConfig(refine=False)``) and as ``reconstruct`` runs it for the whole take (its fits kept,
-no 2D clean-up: :func:`track_files_take`). Per scenario and variant (JSON): MPJPE (cm, pelvis-aligned
-in the camera-aligned frame, so a wrong yaw or unseen camera pitch counts), PA-MPJPE (cm), facing yaw
-error (degrees), acceleration error (mm/frame², jitter); the database floor (cm,
+(``EngineConfig(refine=False)``) and as ``reconstruct`` runs it for the whole take (its fits kept, no
+2D clean-up: :func:`~mocapdb.evaluation.engine_runs.track_files_take`). Per scenario and variant
+(JSON): MPJPE (cm, pelvis-aligned in the camera-aligned frame, so a wrong yaw or unseen camera pitch
+counts), PA-MPJPE (cm), facing yaw error (degrees), acceleration error (mm/frame², jitter); the
+database floor (cm,
 :mod:`mocapdb.evaluation.floor`: per frame the best database pose under the best vertical turn, what no
 retrieval can beat), ``engine_minus_floor`` and ``frames_below_floor`` (beating it needs leaving the
 database: smoothing or 2D refinement); reprojection error (% of the truth's 2D box height) against the
@@ -26,7 +27,6 @@ import numpy as np
 from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import normalize_pose_2d
-from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.progress import progress
 from mocapdb.core.skeleton import (
     KP,
@@ -35,9 +35,9 @@ from mocapdb.core.skeleton import (
     N_POINTS,
     PELVIS,
     bone_lengths_m,
-    pose_from_rotations,
     stature_m,
 )
+from mocapdb.evaluation.engine_runs import EngineRun, run_sequence, track_files_take
 from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.heldout import (
     UNIVERSAL_HEIGHT_M,
@@ -65,8 +65,6 @@ from mocapdb.evaluation.metrics import (
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.search import search_clustered, search_exact
-from mocapdb.runtime.take import take_joints
-from mocapdb.runtime.world import fit_takes
 
 if TYPE_CHECKING:
     from tqdm import tqdm
@@ -86,57 +84,6 @@ def facing_deg(points: np.ndarray) -> np.ndarray:
 
 def _angle_diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.abs((a - b + 180.0) % 360.0 - 180.0)
-
-
-@dataclass
-class EngineRun:
-    """One sequence through the engine; NaN where the engine gave no output."""
-
-    joints: np.ndarray  # [F, 15, 3] camera-aligned frame (absolute)
-    root: np.ndarray    # [F, 3] camera-aligned frame
-    local: np.ndarray   # [F, 15, 3] root rotation and translation removed
-    seconds: float
-    recordings: list[TrackRecording] = field(default_factory=list)  # the engine's tracks (Engine.finish)
-
-    @property
-    def ok(self) -> np.ndarray:
-        return ~np.isnan(self.joints[:, PELVIS, 0])
-
-
-def run_sequence(engine: Engine, frames: list[KeypointFrame]) -> EngineRun:
-    """Every frame through ``engine`` (one person per frame), then :meth:`Engine.finish`."""
-    joints = np.full((len(frames), N_POINTS, 3), np.nan)
-    root = np.full((len(frames), 3), np.nan)
-    local = np.full_like(joints, np.nan)
-    t0 = time.perf_counter()
-    for i, frame in enumerate(frames):
-        for pose in engine.step(frame):
-            joints[i], root[i] = pose.joints_m, pose.root_m
-            local[i] = _root_frame(pose.quaternions)
-    elapsed = time.perf_counter() - t0
-    return EngineRun(joints, root, local, elapsed, engine.finish())
-
-
-def whole_take_run(run: EngineRun, n_frames: int, fps: float, camera_height_m: float | None = None) -> EngineRun:
-    """The tracks of a refined run (made with ``keep_take``) through the whole-take fit on one floor
-    (``camera_height_m`` below the camera when known), as a run of
-    ``n_frames`` frames (frame index = position; ``local`` left NaN: the two-view test uses the
-    per-frame engine); ``seconds``: the fit's time."""
-    joints = np.full((n_frames, N_POINTS, 3), np.nan)
-    root = np.full((n_frames, 3), np.nan)
-    t0 = time.perf_counter()
-    for rec in fit_takes(run.recordings, fps, camera_height_m=camera_height_m):
-        frames, rec_joints, rec_root = take_joints(rec, fps)
-        keep = (frames >= 0) & (frames < n_frames)
-        joints[frames[keep]], root[frames[keep]] = rec_joints[keep], rec_root[keep]
-    return EngineRun(joints, root, np.full_like(joints, np.nan), time.perf_counter() - t0, run.recordings)
-
-
-def _root_frame(quats: np.ndarray) -> np.ndarray:
-    """The pose with root rotation and translation removed (joints in the pelvis frame)."""
-    q = quats.copy()
-    q[0] = [1.0, 0.0, 0.0, 0.0]
-    return pose_from_rotations(q[None], np.zeros((1, 3)))[0]
 
 
 def reprojection_pct(joints: np.ndarray, target_px: np.ndarray, box_height_px: np.ndarray, focal_px: float,
@@ -397,15 +344,6 @@ def _engine_config(config: EvalConfig, scenario: Scenario | None = None, refine:
 
 def _new_engine(db: MotionDatabase, config: EvalConfig) -> Engine:
     return Engine(db, _engine_config(config))
-
-
-def track_files_take(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], fps: float,
-                     camera_height_m: float | None = None) -> EngineRun:
-    """The whole take as ``reconstruct`` writes it: ``frames`` through an engine run as it runs one
-    (:meth:`EngineConfig.for_track_files`: the fits kept, no 2D clean-up, no per-frame smoothing),
-    then the whole-take fit (:func:`whole_take_run`)."""
-    run = run_sequence(Engine(db, engine.for_track_files()), frames)
-    return whole_take_run(run, len(frames), fps, camera_height_m)
 
 
 def evaluate_scenario(db: MotionDatabase, truths: list[Truth], scenario: Scenario, config: EvalConfig,

@@ -1,0 +1,77 @@
+"""The engine over evaluation frames: one sequence's run (:class:`EngineRun`), its whole take, and the
+whole take as ``reconstruct`` writes it (:func:`track_files_take`)."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mocapdb.core.formats.database import MotionDatabase
+from mocapdb.core.formats.keypoints import KeypointFrame
+from mocapdb.core.outputs import TrackRecording
+from mocapdb.core.skeleton import N_POINTS, PELVIS, pose_from_rotations
+from mocapdb.runtime.engine import Engine
+from mocapdb.runtime.engine_config import EngineConfig
+from mocapdb.runtime.take import take_joints
+from mocapdb.runtime.world import fit_takes
+
+
+@dataclass
+class EngineRun:
+    """One sequence through the engine; NaN where the engine gave no output."""
+
+    joints: np.ndarray  # [F, 15, 3] camera-aligned frame (absolute)
+    root: np.ndarray    # [F, 3] camera-aligned frame
+    local: np.ndarray   # [F, 15, 3] root rotation and translation removed
+    seconds: float
+    recordings: list[TrackRecording] = field(default_factory=list)  # the engine's tracks (Engine.finish)
+
+    @property
+    def ok(self) -> np.ndarray:
+        return ~np.isnan(self.joints[:, PELVIS, 0])
+
+
+def run_sequence(engine: Engine, frames: list[KeypointFrame]) -> EngineRun:
+    """Every frame through ``engine`` (one person per frame), then :meth:`Engine.finish`."""
+    joints = np.full((len(frames), N_POINTS, 3), np.nan)
+    root = np.full((len(frames), 3), np.nan)
+    local = np.full_like(joints, np.nan)
+    t0 = time.perf_counter()
+    for i, frame in enumerate(frames):
+        for pose in engine.step(frame):
+            joints[i], root[i] = pose.joints_m, pose.root_m
+            local[i] = _root_frame(pose.quaternions)
+    elapsed = time.perf_counter() - t0
+    return EngineRun(joints, root, local, elapsed, engine.finish())
+
+
+def whole_take_run(run: EngineRun, n_frames: int, fps: float, camera_height_m: float | None = None) -> EngineRun:
+    """The tracks of a refined run (made with ``keep_take``) through the whole-take fit on one floor
+    (``camera_height_m`` below the camera when known), as a run of
+    ``n_frames`` frames (frame index = position; ``local`` left NaN: the two-view test uses the
+    per-frame engine); ``seconds``: the fit's time."""
+    joints = np.full((n_frames, N_POINTS, 3), np.nan)
+    root = np.full((n_frames, 3), np.nan)
+    t0 = time.perf_counter()
+    for rec in fit_takes(run.recordings, fps, camera_height_m=camera_height_m):
+        frames, rec_joints, rec_root = take_joints(rec, fps)
+        keep = (frames >= 0) & (frames < n_frames)
+        joints[frames[keep]], root[frames[keep]] = rec_joints[keep], rec_root[keep]
+    return EngineRun(joints, root, np.full_like(joints, np.nan), time.perf_counter() - t0, run.recordings)
+
+
+def _root_frame(quats: np.ndarray) -> np.ndarray:
+    """The pose with root rotation and translation removed (joints in the pelvis frame)."""
+    q = quats.copy()
+    q[0] = [1.0, 0.0, 0.0, 0.0]
+    return pose_from_rotations(q[None], np.zeros((1, 3)))[0]
+
+
+def track_files_take(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], fps: float,
+                     camera_height_m: float | None = None) -> EngineRun:
+    """The whole take as ``reconstruct`` writes it: ``frames`` through an engine run as it runs one
+    (:meth:`EngineConfig.for_track_files`: the fits kept, no 2D clean-up, no per-frame smoothing),
+    then the whole-take fit (:func:`whole_take_run`)."""
+    run = run_sequence(Engine(db, engine.for_track_files()), frames)
+    return whole_take_run(run, len(frames), fps, camera_height_m)
