@@ -9,8 +9,9 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
 1. **Rotations**: made sign-continuous, single-frame pops removed by a running median over
    :attr:`TakeParams.pop_frames` frames, then smoothed without lag by a zero-phase Gaussian whose
    cut-off is :attr:`TakeParams.smoothing_hz` (the one smoothing control, in hertz: motion slower
-   than it passes, jitter faster than it goes); then fitted again to each frame's keypoints on the
-   track's final body, near the smoothed pose (:func:`refit_to_image`, the per-frame refinement
+   than it passes, jitter faster than it goes); then fitted again to the keypoints, de-popped and
+   smoothed alike (:func:`smoothed_keypoints`: the offline counterpart of the stream's 2D clean-up,
+   without its lag), on the track's final body, near the smoothed pose (:func:`refit_to_image`, the per-frame refinement
    with :attr:`TakeParams.refit_prior` times its pull to the prior and, where the keypoints carry
    the detector's 3D, :attr:`TakeParams.refit_world` times its pull to those bones, smoothed at the
    same cut-off first: :func:`smoothed_world_bones`), and smoothed once more.
@@ -133,8 +134,8 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
         world = rec.column("world_bones")
         if len(world):
             world = smoothed_world_bones(world, fps, params.smoothing_hz) * [1.0, 1.0, 1.0, params.refit_world]
-        quats = refit_to_image(quats, root, keypoints, scale, offsets, rec.camera_px, params.refit_prior,
-                               world if len(world) else None)
+        quats = refit_to_image(quats, root, smoothed_keypoints(keypoints, fps, params), scale, offsets,
+                               rec.camera_px, params.refit_prior, world if len(world) else None)
         quats = smooth_rotations(quats, fps, replace(params, pop_frames=1))
     up = track_up(rec)[0]
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]  # ankles − root
@@ -188,6 +189,33 @@ def zero_phase_smoothed(values: np.ndarray, fps: float, cutoff_hz: float) -> np.
     if sigma_frames < MIN_SIGMA_FRAMES:
         return values
     return gaussian_filter1d(values, sigma_frames, axis=0, mode="nearest")
+
+
+def smoothed_keypoints(keypoints: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:
+    """The detector's keypoints ``[F, K, 3]`` (x px, y px, confidence; 0: unseen) de-popped and smoothed
+    as the rotations (:func:`smooth_rotations`: running median over ``pop_frames``, then the zero-phase
+    cut-off ``smoothing_hz``), each keypoint's unseen frames bridged by its seen neighbours first; an
+    unseen keypoint stays unseen, and one seen fewer than twice stays as it is."""
+    out = keypoints.copy()
+    xy = _bridged(keypoints[..., :2], keypoints[..., 2] > 0)
+    if params.pop_frames > 1 and len(xy) >= params.pop_frames:
+        xy = median_filter(xy, size=(params.pop_frames, 1, 1), mode="nearest")
+    xy = zero_phase_smoothed(xy, fps, params.smoothing_hz)
+    seen = (keypoints[..., 2] > 0) & np.isfinite(xy).all(axis=-1)
+    out[..., :2] = np.where(seen[..., None], xy, keypoints[..., :2])
+    return out
+
+
+def _bridged(xy: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """``xy [F, K, 2]`` with each keypoint's unseen frames linearly interpolated between its seen ones
+    (held at the ends); NaN for a keypoint seen fewer than twice."""
+    out = np.full_like(xy, np.nan, dtype=np.float64)
+    frames = np.arange(len(xy))
+    for k in np.flatnonzero(seen.sum(axis=0) >= 2):
+        at = np.flatnonzero(seen[:, k])
+        for axis in range(2):
+            out[:, k, axis] = np.interp(frames, at, xy[at, k, axis])
+    return out
 
 
 def smoothed_world_bones(world_bones: np.ndarray, fps: float, cutoff_hz: float) -> np.ndarray:

@@ -13,6 +13,7 @@ from mocapdb.runtime.take import (
     plant_feet,
     refit_to_image,
     smooth_rotations,
+    smoothed_keypoints,
     smoothed_world_bones,
 )
 from mocapdb.runtime.take_params import TakeParams
@@ -320,3 +321,28 @@ def test_world_bones_are_smoothed_as_weighted_directions():
     np.testing.assert_allclose(out[30, 1, :3], [0.0, 0.0, 1.0], atol=1e-12)
     assert 0.5 < out[30, 1, 3] < 1.0 and out[0, 0, 3] == pytest.approx(1.0)
     np.testing.assert_array_equal(smoothed_world_bones(bones, 30.0, 0.0), bones)
+
+
+def test_keypoints_for_the_refit_lose_pops_and_jitter_but_not_their_motion_nor_what_was_unseen():
+    """A keypoint moving at constant speed with a one-frame swap, ±2 px jitter and one unseen frame
+    comes out on its line (RMS under 0.5 px away from the ends), the unseen frame stays unseen, a
+    keypoint seen once stays where it was, and confidences are kept."""
+    n = 61
+    frames = np.arange(n, dtype=np.float64)
+    keypoints = np.zeros((n, 3, 3))
+    keypoints[:, 0, 0], keypoints[:, 0, 1], keypoints[:, 0, 2] = 100.0 + 3.0 * frames, 500.0, 0.9
+    keypoints[:, 0, 0] += np.where(np.arange(n) % 2 == 0, 2.0, -2.0)   # jitter at the Nyquist rate
+    keypoints[30, 0, :2] = [700.0, 200.0]                              # swapped with another for a frame
+    keypoints[20, 0] = [0.0, 0.0, 0.0]                                 # not seen
+    keypoints[:, 1, 2] = 0.0
+    keypoints[10, 1] = [50.0, 60.0, 0.8]                               # seen once
+    keypoints[:, 2] = [400.0, 300.0, 0.7]
+    out = smoothed_keypoints(keypoints, FPS, TakeParams(smoothing_hz=4.0))
+    seen = np.arange(5, n - 5) != 20
+    off_px = out[5:n - 5][seen, 0, :2] - np.column_stack([100.0 + 3.0 * frames[5:n - 5][seen],
+                                                          np.full(seen.sum(), 500.0)])
+    assert np.abs(off_px).max() < 2.0 and np.sqrt(np.mean(off_px ** 2)) < 0.5   # the pop was 600 px
+    np.testing.assert_array_equal(out[20, 0], [0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(out[:, 1], keypoints[:, 1])
+    np.testing.assert_allclose(out[:, 2], keypoints[:, 2])
+    np.testing.assert_array_equal(out[..., 2], keypoints[..., 2])
