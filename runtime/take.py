@@ -176,10 +176,16 @@ def smooth_rotations(quats: np.ndarray, fps: float, params: TakeParams) -> np.nd
     flips = np.sum(q[1:] * q[:-1], axis=-1) < 0
     sign = np.concatenate([np.ones((1,) + flips.shape[1:]), np.cumprod(np.where(flips, -1.0, 1.0), axis=0)])
     q *= sign[..., None]
-    if params.pop_frames > 1 and len(q) >= params.pop_frames:
-        q = median_filter(q, size=(params.pop_frames, 1, 1), mode="nearest")
-    q = zero_phase_smoothed(q, fps, params.smoothing_hz)
+    q = depopped_and_smoothed(q, fps, params)
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def depopped_and_smoothed(values: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:
+    """``values [F, ...]`` through a running median over :attr:`TakeParams.pop_frames` frames (single-frame
+    pops), then :func:`zero_phase_smoothed` at :attr:`TakeParams.smoothing_hz`."""
+    if params.pop_frames > 1 and len(values) >= params.pop_frames:
+        values = median_filter(values, size=(params.pop_frames,) + (1,) * (values.ndim - 1), mode="nearest")
+    return zero_phase_smoothed(values, fps, params.smoothing_hz)
 
 
 def zero_phase_smoothed(values: np.ndarray, fps: float, cutoff_hz: float) -> np.ndarray:
@@ -197,10 +203,7 @@ def smoothed_keypoints(keypoints: np.ndarray, fps: float, params: TakeParams) ->
     cut-off ``smoothing_hz``), each keypoint's unseen frames bridged by its seen neighbours first; an
     unseen keypoint stays unseen, and one seen fewer than twice stays as it is."""
     out = keypoints.copy()
-    xy = _bridged(keypoints[..., :2], keypoints[..., 2] > 0)
-    if params.pop_frames > 1 and len(xy) >= params.pop_frames:
-        xy = median_filter(xy, size=(params.pop_frames, 1, 1), mode="nearest")
-    xy = zero_phase_smoothed(xy, fps, params.smoothing_hz)
+    xy = depopped_and_smoothed(_bridged(keypoints[..., :2], keypoints[..., 2] > 0), fps, params)
     seen = (keypoints[..., 2] > 0) & np.isfinite(xy).all(axis=-1)
     out[..., :2] = np.where(seen[..., None], xy, keypoints[..., :2])
     return out
