@@ -108,13 +108,16 @@ MIN_SIGMA_FRAMES = 0.05   # narrower Gaussians (cut-offs above ~3 × the frame r
 class TakeResult:
     """What :func:`fit_take` found besides the motion: contacts ``[F, 2]`` (right, left ankle), the
     planted ankles ``[N, 3]`` (view frame, metres), the floor plane ``normal · p = offset`` (view
-    frame, metres; None without contacts) and each foot's phase ``[F, 2]`` (:func:`foot_phases`;
-    None without heels and toes)."""
+    frame, metres; None without contacts), the body's own up (view frame, unit) and its error
+    (degrees; :func:`~mocapdb.runtime.world_prior.track_up`: what the track's floor started from)
+    and each foot's phase ``[F, 2]`` (:func:`foot_phases`; None without heels and toes)."""
 
     planted: np.ndarray
     planted_ankles_m: np.ndarray
     floor_normal: np.ndarray | None
     floor_offset_m: float | None
+    body_up: np.ndarray
+    body_up_sd_deg: float
     phases: np.ndarray | None = None
 
 
@@ -137,7 +140,7 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
         quats = refit_to_image(quats, root, smoothed_keypoints(keypoints, fps, params), scale, offsets,
                                rec.camera_px, params.refit_prior, world if len(world) else None)
         quats = smooth_rotations(quats, fps, replace(params, pop_frames=1))
-    up = track_up(rec)[0]
+    up, up_sd_deg = track_up(rec)
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]  # ankles − root
     extremities = rec.column("extremities")
     ends = bool(len(extremities)) and bool((extremities[..., 2] > 0).any()) and rec.camera_px is not None
@@ -158,7 +161,7 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
                                   planted, floor_up, fps, params)
     motion = Motion(quats, root, fps, "view", rec.first_frame, scale, rec.proportions_m, end_quats)
     out = replace(rec.with_motion(motion), up_view=floor_up, floor_offset_m=offset)
-    return out, TakeResult(planted, (root[:, None] + relative)[planted], normal, offset, phases)
+    return out, TakeResult(planted, (root[:, None] + relative)[planted], normal, offset, up, up_sd_deg, phases)
 
 
 def take_joints(fitted: TrackRecording, fps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

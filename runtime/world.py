@@ -24,14 +24,15 @@ and ``log h`` (or ``h`` given). Each track is one of three kinds (Bayesian model
 
 The cost sums each track's ``−log`` mixture (weighted by its length up to 1 s:
 :func:`evidence_weight`), the flatness of its contacts under each floor (:func:`_unevenness`) and
-the tilt prior (:func:`~mocapdb.runtime.world_tilt.tilt_cost`: the bodies' tilt estimate with a
-heavy tail, tighter about an axis the contacts fix); the grid's minimum is the world, its spread the camera height's
-uncertainty. Each track on the floor then takes its floor-consistent stature; any other the prior's
-mode (or its given height), standing in the same world where its feet are (above the floor on a
-box), made smaller where its lowest points would sink below the floor. No scale is negative, no
-stature leaves :data:`HUMAN_STATURE_M`. The plane is then fitted to the floor tracks' scaled
-contacts where they span it (:func:`~mocapdb.runtime.contact_floor.floor_plane`) and the estimate
-made once more about it. ``data_specs/world.md`` gives the decisions and their reasons. The stature prior
+the tilt prior (:func:`~mocapdb.runtime.world_tilt.tilt_cost`: the bodies' own up estimates with a
+heavy tail). Each piece of evidence counts once: the contacts vote on the tilt through their
+flatness only, not also as the prior's centre or width (a straight walk's contacts lie on a line
+that the depth's drift along the walk tilts, 4° on a walk away from the camera). The grid's
+minimum is the world, its spread the camera height's uncertainty. Each track on the floor then
+takes its floor-consistent stature; any other the prior's mode (or its given height), standing in
+the same world where its feet are (above the floor on a box), made smaller where its lowest points
+would sink below the floor. No scale is negative, no stature leaves :data:`HUMAN_STATURE_M`.
+``data_specs/world.md`` gives the decisions and their reasons. The stature prior
 and the kinds' likelihoods are :mod:`mocapdb.runtime.stature`; what the summary and ``world.json``
 say of the world, :mod:`mocapdb.runtime.world_summary`.
 
@@ -48,7 +49,7 @@ import numpy as np
 from mocapdb.core.motion_ops import scaled_about_origin
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
-from mocapdb.runtime.contact_floor import MIN_FLOOR_SPREAD_M, above_floor, floor_plane, lowest_level
+from mocapdb.runtime.contact_floor import MIN_FLOOR_SPREAD_M, above_floor, lowest_level
 from mocapdb.runtime.foot_contacts import ANKLES
 from mocapdb.runtime.stature import (
     FLAT_DENSITY,
@@ -67,12 +68,10 @@ from mocapdb.runtime.stature import (
 from mocapdb.runtime.subject import join_fragments
 from mocapdb.runtime.take import TakeResult, fit_take
 from mocapdb.runtime.take_params import TakeParams
-from mocapdb.runtime.world_prior import track_up
 from mocapdb.runtime.world_tilt import (
-    ContactSet,
     reported_tilt_sd_deg,
     tilt_cost,
-    tilt_sds,
+    tilt_prior_sds,
     tilt_spread_deg,
     tilted_normals,
 )
@@ -235,10 +234,9 @@ def evidence_weight(duration_s: float) -> float:
 def track_evidence(rec: TrackRecording, result: TakeResult, fps: float, given_stature_m: float | None = None
                    ) -> TrackEvidence:
     """A whole-take fit's :class:`TrackEvidence` (no contacts: an empty ``contacts_m``); ``fps``:
-    the take's frame rate (Hz)."""
-    up, up_sd = track_up(rec)
-    if result.floor_normal is not None:   # the whole take's floor: its contacts', or this up
-        up = result.floor_normal / np.linalg.norm(result.floor_normal)
+    the take's frame rate (Hz). Its up is the body's own (:attr:`TakeResult.body_up`), not the plane
+    through its contacts: they vote through their flatness (:func:`_unevenness`)."""
+    up, up_sd = result.body_up, result.body_up_sd_deg
     motion = rec.motion(fps)
     ankles = motion.joints_m()[:, list(ANKLES)]
     lower = ankles[np.arange(len(ankles)), np.argmin(ankles @ up, axis=1)]
@@ -252,14 +250,7 @@ def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None 
     grounded = [e for e in evidence if len(e.contacts_m) > 0]
     if not grounded:
         return _world_without_contacts(evidence, camera_height_m)
-    tilt_sd = _tilt_sd_deg(grounded)
-    own = [ContactSet(e.contacts_m, e.steps, 0.0) for e in grounded]   # a track's depth errors show as scatter
-    world = _grid_world(grounded, _mean_up(grounded), tilt_sds(own, tilt_sd), camera_height_m)
-    together = _floor_contacts(grounded, world)
-    refitted = None if together is None else _plane_normal(together.points_m, world.normal)
-    if refitted is not None and together is not None:
-        sds = tilt_sds(own + [together], tilt_sd)
-        world = _grid_world(grounded, refitted, sds, camera_height_m)
+    world = _grid_world(grounded, _mean_up(grounded), tilt_prior_sds(_tilt_sd_deg(grounded)), camera_height_m)
     return _with_people(world, evidence)
 
 
@@ -346,21 +337,6 @@ def observation_sd(e: TrackEvidence) -> float:
     return float(np.sqrt(BASE_SD ** 2 + CONTACT_SD ** 2 / max(e.steps, 1)))
 
 
-def _floor_contacts(evidence: list[TrackEvidence], world: World) -> ContactSet | None:
-    """The contacts of the tracks standing on ``world``'s floor, scaled into it, pooled (None: none):
-    each track's depth error is one error, shared by all its contacts."""
-    people = _with_people(world, evidence).people
-    points = [people[e.track].scale_factor * e.contacts_m for e in evidence if people[e.track].kind == "floor"]
-    return ContactSet(np.concatenate(points), len(points), DEPTH_SD_REL) if points else None
-
-
-def _plane_normal(contacts: np.ndarray, normal: np.ndarray) -> np.ndarray | None:
-    """The floor's normal through ``contacts [N, 3]`` where they fix more than ``normal`` does
-    (:func:`~mocapdb.runtime.contact_floor.floor_plane`), else None."""
-    fitted = floor_plane(contacts[:, None], np.ones((len(contacts), 1), dtype=bool), normal, 0.0)[0]
-    return None if np.allclose(fitted, normal) else fitted
-
-
 def _with_people(world: World, evidence: list[TrackEvidence]) -> World:
     """``world`` with every track's :class:`PersonSize`."""
     return replace(world, people={e.track: person_size(e, world) for e in evidence})
@@ -383,10 +359,22 @@ def person_size(e: TrackEvidence, world: World) -> PersonSize:
     if kind != "floor":
         return _prior_size(e, kind, world)
     stature = float(np.clip(np.exp(observed) if e.given_stature_m is None else e.given_stature_m, *HUMAN_STATURE_M))
-    log_sd = posterior_sd(float(observed), float(np.hypot(sd, world.camera_height_log_sd)), e.prior())
+    spread = float(np.sqrt(sd ** 2 + world.camera_height_log_sd ** 2 + _tilt_log_sd(e, world) ** 2))
+    log_sd = posterior_sd(float(observed), spread, e.prior())
     source = "given" if e.given_stature_m is not None else "floor" if log_sd < 0.8 * PRIOR_SD else "prior"
     return PersonSize(e.track, stature, log_sd, "floor", source, stature / e.nominal_stature_m,
                       _feet_above_floor(e, world, stature / e.nominal_stature_m))
+
+
+def _tilt_log_sd(e: TrackEvidence, world: World) -> float:
+    """How far the world's tilt error moves a track's floor-consistent log stature: its change for 1°
+    of pitch and of roll times their reported errors (0 where no tilt grid was searched). A pitch
+    error δ moves the floor under a person ``Z`` metres away by ``δ Z``."""
+    if not (np.isfinite(world.pitch_sd_deg) and np.isfinite(world.roll_sd_deg)):
+        return 0.0
+    at = _observed_log_stature(e, tilted_normals(world.normal, np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])))
+    per_degree = np.nan_to_num(np.abs(at[1:] - at[0]), nan=0.0)
+    return float(np.hypot(per_degree[0] * world.pitch_sd_deg, per_degree[1] * world.roll_sd_deg))
 
 
 def _prior_size(e: TrackEvidence, kind: str, world: World | None) -> PersonSize:

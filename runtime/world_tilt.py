@@ -1,17 +1,11 @@
 """The camera tilt's prior in the one-camera world (:mod:`mocapdb.runtime.world`): how far the
-bodies' estimate of the pitch and roll may be off (:func:`tilt_cost`), how tightly contacts that
-span the floor fix it (:func:`tilt_sds`), the tilted floor normals of the grid
-(:func:`tilted_normals`) and the posterior spread over that grid (:func:`tilt_spread_deg`).
-``data_specs/world.md`` gives the decisions."""
+bodies' estimate of the pitch and roll may be off (:func:`tilt_prior_sds`, :func:`tilt_cost`), the
+tilted floor normals of the grid (:func:`tilted_normals`) and the posterior spread over that grid
+(:func:`tilt_spread_deg`). ``data_specs/world.md`` gives the decisions."""
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
-from mocapdb.runtime.contact_floor import MIN_FLOOR_SPREAD_M, coplanar_spread
-
-TILT_SD_FIXED_DEG = 0.5      # a tilt's error at least, about an axis a track's contacts span
 TILT_TAIL_SD_DEG, TILT_TAIL_SHARE = 15.0, 0.2  # the tilt prior's heavy tail: bodies' estimates can be far off
 PITCH_SD_MIN_DEG = 5.0  # bodies show the pitch only by their foreshortening, and share its error (the camera's)
 # The tilt's error the cost does not model (the per-frame depth errors that run along a walk tilt the
@@ -22,17 +16,22 @@ PITCH_SD_MIN_DEG = 5.0  # bodies show the pitch only by their foreshortening, an
 TILT_MODEL_SD_DEG = 2.5
 
 
+def tilt_prior_sds(tilt_sd_deg: float) -> tuple[float, float]:
+    """The prior's pitch and roll errors (degrees) about the bodies' estimate: ``tilt_sd_deg`` (the
+    tracks' estimates combined), the pitch's at least :data:`PITCH_SD_MIN_DEG` (the people of one
+    take share its error, so more of them do not average it away)."""
+    return max(tilt_sd_deg, PITCH_SD_MIN_DEG), tilt_sd_deg
+
+
 def tilt_cost(tilts_deg: np.ndarray, sds_deg: tuple[float, float]) -> np.ndarray:
     """``−log`` prior ``[T]`` of tilt corrections ``[T, 2]`` (pitch, roll; degrees) about the bodies'
     estimate, per axis a mixture: its error ``sds_deg`` (weight 1 − :data:`TILT_TAIL_SHARE`) and a
     wide tail (:data:`TILT_TAIL_SD_DEG`): a body shows the camera's pitch only by its foreshortening,
     so its estimate is now and then far off (16° on a real take's bystander), and then the floor
-    under several people overrules it. No tail where contacts fix the axis to :data:`TILT_SD_FIXED_DEG`."""
+    under several people overrules it."""
     sds = np.asarray(sds_deg)
-    tail = np.where(sds > TILT_SD_FIXED_DEG, TILT_TAIL_SHARE, 0.0)  # none about an axis the contacts fix
-    narrow = np.log1p(-tail) - 0.5 * (tilts_deg / sds) ** 2 - np.log(sds)
-    with np.errstate(divide="ignore"):
-        wide = np.log(tail) - 0.5 * (tilts_deg / TILT_TAIL_SD_DEG) ** 2 - np.log(TILT_TAIL_SD_DEG)
+    narrow = np.log1p(-TILT_TAIL_SHARE) - 0.5 * (tilts_deg / sds) ** 2 - np.log(sds)
+    wide = np.log(TILT_TAIL_SHARE) - 0.5 * (tilts_deg / TILT_TAIL_SD_DEG) ** 2 - np.log(TILT_TAIL_SD_DEG)
     return -np.sum(np.logaddexp(narrow, wide), axis=1)
 
 
@@ -61,41 +60,3 @@ def tilt_spread_deg(tilts_deg: np.ndarray, cost: np.ndarray, grid_step_deg: floa
     sd = np.sqrt(weight @ (tilts_deg - mean) ** 2)
     step = grid_step_deg / np.sqrt(12.0)
     return float(max(sd[0], step)), float(max(sd[1], step))
-
-
-@dataclass(frozen=True)
-class ContactSet:
-    """Contacts ``[N, 3]`` (view frame, metres) that may fix the floor's tilt: how many independent
-    errors they carry (a track's steps; one per track where several tracks' contacts are pooled) and
-    each one's relative error (of the contact's height below the camera: the depth's, and the
-    size's where tracks are pooled)."""
-
-    points_m: np.ndarray
-    independent: int
-    relative_error: float
-
-
-def tilt_sds(contacts: list[ContactSet], tilt_sd_deg: float) -> tuple[float, float]:
-    """The pitch and roll errors (degrees): ``tilt_sd_deg`` (the tracks' estimates combined; the
-    pitch's at least :data:`PITCH_SD_MIN_DEG`: the people of one take share its error, so more of
-    them do not average it away), or less about an axis some set of contacts fixes (they lie on one
-    plane spanning about 1 m both ways, or along a line running mostly in depth: the pitch, or
-    mostly across: the roll): the standard error of a plane's tilt fitted to them (their RMS off it,
-    or their relative error times their height below the camera when larger, over their RMS extent
-    along the axis and the root of their independent errors), at least :data:`TILT_SD_FIXED_DEG`."""
-    pitch, roll = max(tilt_sd_deg, PITCH_SD_MIN_DEG), tilt_sd_deg
-    for c in contacts:
-        plane = coplanar_spread(c.points_m)
-        if plane is None:
-            continue
-        spread, vt = plane
-        off_plane = max(spread[2], c.relative_error * abs(float(c.points_m.mean(axis=0) @ vt[2])))
-        for axis in (0, 1):
-            if spread[axis] < MIN_FLOOR_SPREAD_M:
-                continue
-            sd = max(TILT_SD_FIXED_DEG, float(np.degrees(off_plane / (spread[axis] * np.sqrt(c.independent)))))
-            if abs(vt[axis, 2]) >= 0.7:
-                pitch = min(pitch, sd)
-            if abs(vt[axis, 0]) >= 0.7:
-                roll = min(roll, sd)
-    return pitch, roll

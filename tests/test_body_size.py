@@ -53,20 +53,27 @@ def test_subject_height_puts_a_small_person_at_the_right_depth(small_db, pitch):
 @pytest.mark.parametrize("pitch", [0.0, 12.0])
 def test_camera_height_measures_the_person_from_the_feet(small_db, pitch, tmp_path):
     """A 1.5 m person, the camera 1.4 m above the floor: per frame the floor's estimate pulls the size
-    from the assumed 1.75 m towards 1.5 m, weighed against people's heights by the tilt's error; the
-    whole take, whose contacts span the depth, measures it (5 %) and puts the root there."""
+    from the assumed 1.75 m towards 1.5 m, weighed against people's heights by the tilt's error. The
+    whole take's world weighs the floor-consistent size against the stature prior by the camera
+    tilt's error: one walker shows the pitch to about 3° (its body's up; its contacts vote through
+    their flatness), and 1° moves the floor under a person 4 m away by 5 % of their size, so the size
+    lands between the truth and the prior, its reported ±2 SD holds the truth, and the root lies
+    along the true rays at that size."""
     from mocapdb.runtime.take import take_joints
-    from mocapdb.runtime.world import fit_takes
+    from mocapdb.runtime.world import fit_world
 
     frames, truth = _seen(small_db, clip=0, height_m=1.5, camera_height_m=1.4, pitch_deg=pitch)
     engine, poses = _run(small_db, frames, camera_height_m=1.4, keep_take=True)
     assert 1.5 < poses[-1].height_m < 1.74
-    (take,) = fit_takes(engine.finish(), 24.0, camera_height_m=1.4)
-    assert 1.75 * take.scales[-1] == pytest.approx(1.5, rel=0.05)
+    (take,), world = fit_world(engine.finish(), 24.0, camera_height_m=1.4)
+    size = world.people[take.track]
+    assert 1.75 * take.scales[-1] == pytest.approx(size.stature_m)
+    assert 1.5 < size.stature_m < 1.75
+    assert abs(np.log(size.stature_m / 1.5)) < 2.0 * size.stature_log_sd
     index, _, roots = take_joints(take, 24.0)
     late = index[len(index) // 2:]
-    depth = truth[late, PELVIS, 2]
-    assert np.median(np.linalg.norm(roots[len(index) // 2:] - truth[late, PELVIS], axis=-1) / depth) < 0.05
+    ratio = np.linalg.norm(roots[len(index) // 2:], axis=-1) / np.linalg.norm(truth[late, PELVIS], axis=-1)
+    assert np.median(ratio) == pytest.approx(size.stature_m / 1.5, rel=0.05)
     # The BVH holds one skeleton of the final size, its roots moved to that size.
     (path,) = write_tracks([take], tmp_path, 24.0)
     bvh = read_bvh(path)
