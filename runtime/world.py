@@ -69,7 +69,6 @@ from mocapdb.runtime.subject import join_fragments
 from mocapdb.runtime.take import TakeResult, fit_take
 from mocapdb.runtime.take_params import TakeParams
 from mocapdb.runtime.world_tilt import (
-    reported_tilt_sd_deg,
     tilt_cost,
     tilt_prior_sds,
     tilt_spread_deg,
@@ -158,7 +157,7 @@ class World:
     camera_height_log_sd: float
     camera_height_given: bool
     people: dict[int, PersonSize] = field(default_factory=dict)
-    pitch_sd_deg: float = float("nan")   # the pitch's and roll's errors (world_tilt.reported_tilt_sd_deg)
+    pitch_sd_deg: float = float("nan")   # the pitch's and roll's errors (world_tilt.tilt_spread_deg)
     roll_sd_deg: float = float("nan")
 
     @property
@@ -280,7 +279,7 @@ def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg:
     mean = np.sum(posterior * log_h) / np.sum(posterior)
     sd = float(np.sqrt(np.sum(posterior * (log_h - mean) ** 2) / np.sum(posterior)))
     return World(best[0], float(np.exp(log_h[np.argmin(cost)])), sd, given is not None,
-                 pitch_sd_deg=reported_tilt_sd_deg(tilt_sd[0]), roll_sd_deg=reported_tilt_sd_deg(tilt_sd[1]))
+                 pitch_sd_deg=tilt_sd[0], roll_sd_deg=tilt_sd[1])
 
 
 def _cost(evidence: list[TrackEvidence], normals: np.ndarray, tilts_deg: np.ndarray,

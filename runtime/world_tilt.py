@@ -8,12 +8,6 @@ import numpy as np
 
 TILT_TAIL_SD_DEG, TILT_TAIL_SHARE = 15.0, 0.2  # the tilt prior's heavy tail: bodies' estimates can be far off
 PITCH_SD_MIN_DEG = 5.0  # bodies show the pitch only by their foreshortening, and share its error (the camera's)
-# The tilt's error the cost does not model (the per-frame depth errors that run along a walk tilt the
-# floor under its contacts; the bodies' tilt estimates share the database's biases), added to the
-# posterior's spread in the reported pitch and roll errors: set so that the truth lies inside the
-# reported ±2 SD in 95 % of the synthetic world takes of CMU subject 6 (a calibration set, not the
-# held-out subject 7; `data_specs/world.md`, "The tilt's reported error").
-TILT_MODEL_SD_DEG = 2.5
 
 
 def tilt_prior_sds(tilt_sd_deg: float) -> tuple[float, float]:
@@ -45,15 +39,10 @@ def tilted_normals(normal: np.ndarray, tilts_deg: np.ndarray) -> np.ndarray:
     return np.stack([c * x - s * y, s * x + c * y, z], axis=1)
 
 
-def reported_tilt_sd_deg(posterior_sd_deg: float) -> float:
-    """The pitch's or roll's reported error (degrees): the posterior's spread and
-    :data:`TILT_MODEL_SD_DEG` in quadrature."""
-    return float(np.hypot(posterior_sd_deg, TILT_MODEL_SD_DEG))
-
-
 def tilt_spread_deg(tilts_deg: np.ndarray, cost: np.ndarray, grid_step_deg: float) -> tuple[float, float]:
     """The posterior SDs of pitch and roll (degrees) over a tilt grid ``[T, 2]`` and its ``−log``
-    posterior ``cost [T, H]`` (heights marginalised). At least the grid's step ``grid_step_deg`` over √12."""
+    posterior ``cost [T, H]`` (heights marginalised): the world's reported pitch and roll errors. At
+    least the grid's step ``grid_step_deg`` over √12."""
     weight = np.exp(-(cost - cost.min())).sum(axis=1)
     weight /= weight.sum()
     mean = weight @ tilts_deg

@@ -59,16 +59,6 @@ def test_the_tilts_spread_is_the_posteriors_sd():
     assert tilt_spread_deg(tilts, flat_top, 2.0) == pytest.approx((2.0 / np.sqrt(12), 2.0 / np.sqrt(12)))
 
 
-def test_the_reported_tilt_error_adds_the_unmodelled_error_to_the_posteriors():
-    """The world's pitch and roll errors are the posterior's spread and the calibrated model error in
-    quadrature: 3° and 2.5° give 3.905°; a posterior as sharp as a grid point gives the model error."""
-    from mocapdb.runtime.world_tilt import TILT_MODEL_SD_DEG, reported_tilt_sd_deg
-
-    assert TILT_MODEL_SD_DEG == 2.5
-    assert reported_tilt_sd_deg(3.0) == pytest.approx(3.905125, abs=1e-6)
-    assert reported_tilt_sd_deg(0.0) == pytest.approx(2.5)
-
-
 def test_reconstruct_reports_the_world_the_evaluation_scores(small_db, small_db_path, tmp_path, capsys):
     """The bundled BlazePose take of camera 1 holds the subject and a bystander standing still at the
     image's edge (a static track: no files). ``reconstruct``'s ``world.json`` is the world that
