@@ -11,10 +11,10 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    cut-off is :attr:`TakeParams.smoothing_hz` (the one smoothing control, in hertz: motion slower
    than it passes, jitter faster than it goes); then fitted again to the keypoints, de-popped and
    smoothed alike (:func:`smoothed_keypoints`: the offline counterpart of the stream's 2D clean-up,
-   without its lag), on the track's final body, near the smoothed pose (:func:`refit_to_image`, the per-frame refinement
-   with :attr:`TakeParams.refit_prior` times its pull to the prior and, where the keypoints carry
-   the detector's 3D, :attr:`TakeParams.refit_world` times its pull to those bones, smoothed at the
-   same cut-off first: :func:`smoothed_world_bones`), and smoothed once more.
+   without its lag), on the track's final body, near the smoothed pose (:func:`refit_to_image`, the
+   per-frame refinement with :attr:`TakeParams.refit_prior` times its pull to the prior; the
+   detector's 3D is not pulled towards a second time: the per-frame fits it started from did), and
+   smoothed once more.
 2. **Contacts**: an ankle is planted where its keypoint stands still in the image (speed under
    :attr:`TakeParams.planted_box_per_s` box heights per second: the slope of a line fitted over
    :data:`CONTACT_WINDOW_S` to its running median, which a detector's one-frame swaps and misses
@@ -88,9 +88,9 @@ from mocapdb.runtime.foot_contacts import (
     planted_ankles,
     true_runs,
 )
-from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner, WorldBones
+from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
 from mocapdb.runtime.take_params import TakeParams
-from mocapdb.runtime.world_prior import FIT_END, FIT_START, track_up
+from mocapdb.runtime.world_prior import track_up
 
 WRISTS = (KP["r_wrist"], KP["l_wrist"])
 # Each end joint (skeleton.END_JOINTS): the rig joint it hangs from, and its direction at rest (heel →
@@ -134,11 +134,8 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     keypoints = rec.column("keypoints")
     offsets = None if rec.proportions_m is None else body_offsets_m(rec.proportions_m)
     if params.refit_prior > 0 and rec.camera_px is not None:
-        world = rec.column("world_bones")
-        if len(world):
-            world = smoothed_world_bones(world, fps, params.smoothing_hz) * [1.0, 1.0, 1.0, params.refit_world]
         quats = refit_to_image(quats, root, smoothed_keypoints(keypoints, fps, params), scale, offsets,
-                               rec.camera_px, params.refit_prior, world if len(world) else None)
+                               rec.camera_px, params.refit_prior)
         quats = smooth_rotations(quats, fps, replace(params, pop_frames=1))
     up, up_sd_deg = track_up(rec)
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]  # ankles − root
@@ -224,29 +221,15 @@ def _bridged(xy: np.ndarray, seen: np.ndarray) -> np.ndarray:
     return out
 
 
-def smoothed_world_bones(world_bones: np.ndarray, fps: float, cutoff_hz: float) -> np.ndarray:
-    """The detector's world bones ``[F, B, 4]`` (unit direction, weight) smoothed over the frames at
-    ``cutoff_hz`` (:func:`zero_phase_smoothed`): each bone's weighted direction, normalised again,
-    and its weight; a bone no frame near weighs 0 keeps its own direction."""
-    directions, weights = world_bones[..., :3], world_bones[..., 3:]
-    pulled = zero_phase_smoothed(directions * weights, fps, cutoff_hz)
-    length = np.linalg.norm(pulled, axis=-1, keepdims=True)
-    smoothed = np.where(length > 1e-9, pulled / np.maximum(length, 1e-9), directions)
-    return np.concatenate([smoothed, zero_phase_smoothed(weights, fps, cutoff_hz)], axis=-1)
-
-
 def refit_to_image(quats: np.ndarray, root_m: np.ndarray, keypoints: np.ndarray, scale: float,
-                   offsets_m: np.ndarray | None, camera_px: tuple[float, float, float], prior: float,
-                   world_bones: np.ndarray | None = None) -> np.ndarray:
+                   offsets_m: np.ndarray | None, camera_px: tuple[float, float, float], prior: float) -> np.ndarray:
     """``quats [F, R, 4]`` (smoothed) fitted again to each frame's keypoints ``[F, 14, 3]`` on the
     track's final body (``scale``, ``offsets_m``): the per-frame refinement
     (:class:`~mocapdb.runtime.refine.Refiner`) with the smoothed pose as its prior, ``prior`` times
     the per-frame weights, no previous pose and no joint limits (the smoothed pose keeps within
     them). The per-frame fits were made on the body known so far; this fits the one body of the
     whole take. ``root_m [F, 3]``: the roots (view frame, metres; only the starting point);
-    ``camera_px``: focal, principal point (pixels); ``world_bones [F, B, 4]``: the detector's world
-    bones each frame's fit used (direction, weight: :data:`~mocapdb.runtime.world_prior.FIT_BONES`),
-    used again. Frames without keypoints are kept."""
+    ``camera_px``: focal, principal point (pixels). Frames without keypoints are kept."""
     per_frame = RefineParams()
     refiner = Refiner(replace(per_frame, prior_root=prior * per_frame.prior_root, previous=0.0, limits=0.0,
                               prior_joint=prior * per_frame.prior_joint), _NO_LIMITS)
@@ -255,11 +238,8 @@ def refit_to_image(quats: np.ndarray, root_m: np.ndarray, keypoints: np.ndarray,
     points = np.ascontiguousarray(keypoints[..., :2])
     confidence = np.ascontiguousarray(keypoints[..., 2])
     for f in np.flatnonzero((confidence > 0).any(axis=1)):
-        world = None
-        if world_bones is not None and (world_bones[f, :, 3] > 0).any():
-            world = WorldBones(FIT_START, FIT_END, world_bones[f, :, :3], world_bones[f, :, 3])
         refiner(out[f], root_m[f].copy(), scale, points[f], confidence[f], quats[f], None, focal_px, (cx, cy),
-                offsets_m, world)
+                offsets_m)
     return out
 
 

@@ -24,15 +24,13 @@ class TakeParams:
     contact_m: float = 0.005           # a planted ankle's spread over its contact
     floor: bool = True                 # keep ankles above the floor found from the contacts
     refit_prior: float = 20.0          # the re-fit's pull to the smoothed pose, × the per-frame fit's (0: none)
-    refit_world: float = 1.0           # its pull to the detector's world bones (smoothed as the rotations), × the
-                                       # per-frame fit's (0: none)
 
     def __post_init__(self) -> None:
         D.SMOOTHING_HZ.check(self.smoothing_hz, "smoothing_hz")
         positive = (self.planted_box_per_s, self.carrying_box_per_s, self.planted_height_m, self.root_across_m,
                     self.root_depth_m, self.root_accel_mps2, self.contact_m)
         if self.pop_frames < 1 or not all(np.isfinite(v) and v > 0 for v in positive) \
-                or not all(np.isfinite(v) and v >= 0 for v in (self.refit_prior, self.refit_world)):
+                or not (np.isfinite(self.refit_prior) and self.refit_prior >= 0):
             raise ValueError(f"whole-take settings out of range: {self}")
         if self.carrying_box_per_s < self.planted_box_per_s:
             raise ValueError(f"carrying_box_per_s {self.carrying_box_per_s} is below planted_box_per_s "

@@ -14,7 +14,6 @@ from mocapdb.runtime.take import (
     refit_to_image,
     smooth_rotations,
     smoothed_keypoints,
-    smoothed_world_bones,
 )
 from mocapdb.runtime.take_params import TakeParams
 
@@ -304,23 +303,6 @@ def test_a_cut_off_far_above_the_frame_rate_leaves_the_rotations_as_they_are():
     quats[:, 3] = _turns(np.linspace(0.0, 1.0, 20) ** 2)
     out = smooth_rotations(quats, FPS, TakeParams(smoothing_hz=1000.0, pop_frames=1))
     np.testing.assert_allclose(out, quats, atol=1e-12)
-
-
-def test_world_bones_are_smoothed_as_weighted_directions():
-    """A bone flipping each frame between two directions 90° apart (equal weights) comes out along
-    their bisector in the middle of the take, a frame that did not see it takes its neighbours'
-    direction, weights are smoothed alike, and a 0 Hz cut-off leaves everything as it was."""
-    n = 61
-    bones = np.zeros((n, 2, 4))
-    bones[:, 0, :3] = np.where((np.arange(n) % 2 == 0)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-    bones[:, 0, 3] = 1.0
-    bones[:, 1] = [0.0, 0.0, 1.0, 1.0]
-    bones[30, 1] = [1.0, 0.0, 0.0, 0.0]                    # not seen: weight 0, a meaningless direction
-    out = smoothed_world_bones(bones, 30.0, 2.0)
-    np.testing.assert_allclose(out[25:36, 0, :3], np.tile([0.5 ** 0.5, 0.5 ** 0.5, 0.0], (11, 1)), atol=2e-3)
-    np.testing.assert_allclose(out[30, 1, :3], [0.0, 0.0, 1.0], atol=1e-12)
-    assert 0.5 < out[30, 1, 3] < 1.0 and out[0, 0, 3] == pytest.approx(1.0)
-    np.testing.assert_array_equal(smoothed_world_bones(bones, 30.0, 0.0), bones)
 
 
 def test_keypoints_for_the_refit_lose_pops_and_jitter_but_not_their_motion_nor_what_was_unseen():

@@ -1,5 +1,6 @@
-"""The engine over evaluation frames: one sequence's run (:class:`EngineRun`), its whole take, and the
-whole take as ``reconstruct`` writes it (:func:`track_files_take`)."""
+"""The engine over evaluation frames: one sequence's run (:class:`EngineRun`), its whole take, the
+whole take as ``reconstruct`` writes it (:func:`track_files_take`), and the peer: the detector's own
+3D as a run (:func:`world_landmarks_run`)."""
 from __future__ import annotations
 
 import time
@@ -9,12 +10,13 @@ import numpy as np
 
 from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame
-from mocapdb.core.outputs import TrackRecording
+from mocapdb.core.outputs import CAMERA_FROM_VIEW, TrackRecording
 from mocapdb.core.skeleton import N_POINTS, PELVIS, pose_from_rotations
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.take import take_joints
 from mocapdb.runtime.world import fit_takes
+from mocapdb.runtime.world_prior import view_joints
 
 
 @dataclass
@@ -75,3 +77,18 @@ def track_files_take(db: MotionDatabase, engine: EngineConfig, frames: list[Keyp
     then the whole-take fit (:func:`whole_take_run`)."""
     run = run_sequence(Engine(db, engine.for_track_files()), frames)
     return whole_take_run(run, len(frames), fps, camera_height_m)
+
+
+def world_landmarks_run(frames: list[KeypointFrame], true_root_m: np.ndarray, focal_px: float,
+                        center_px: tuple[float, float]) -> EngineRun:
+    """The frames' world landmarks (the detector's own 3D, one person per frame) as a run, read as the
+    engine reads them (:func:`~mocapdb.runtime.world_prior.view_joints`) and placed at the true root
+    ``true_root_m [F, 3]`` (camera-aligned; they have none of their own); NaN where a frame has none."""
+    joints = np.full((len(frames), N_POINTS, 3), np.nan)
+    for i, frame in enumerate(frames):
+        person = frame.people[0] if frame.people else None
+        if person is not None and person.world_m is not None:
+            view, _ = view_joints(person.world_m, person.points_px, person.confidence, focal_px, center_px)
+            joints[i] = view * CAMERA_FROM_VIEW + true_root_m[i]
+    root = np.where(np.isnan(joints[:, PELVIS]), np.nan, true_root_m)
+    return EngineRun(joints, root, np.full_like(joints, np.nan), 0.0)

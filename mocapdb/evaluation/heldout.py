@@ -4,7 +4,9 @@ Held-out BVH clips (``data_specs/evaluation_split.md``; the database must be bui
 are retargeted like database clips (:class:`Truth`), optionally scaled to another subject height,
 turned by yaws off the database's grid, seen by a pinhole camera at several heights and pitches,
 and perturbed by detector-like noise, dropout and left/right swaps (:class:`Scenario`,
-:func:`render`). Scoring the engine on these frames: :mod:`mocapdb.evaluation.reconstruction`.
+:func:`render`), optionally with the detector's own 3D (:func:`detector_world`: world landmarks with
+errors mostly in depth, slow, swapped with the 2D). Scoring the engine on these frames:
+:mod:`mocapdb.evaluation.reconstruction`.
 """
 from __future__ import annotations
 
@@ -22,6 +24,10 @@ from mocapdb.runtime.engine_config import EngineConfig
 
 BODIES = ("universal", "varied")
 SWAP_PAIRS = [(KP[right], KP[left]) for right, left in MIRROR_PAIRS]  # right/left keypoint pairs
+WORLD_ERROR_FRAMES = 12       # the simulated world landmarks' errors are correlated over this many frames (0.5 s)
+WORLD_ACROSS_SHARE = 1.0 / 3  # their error across the viewing ray, a share of the error along it
+DETECTOR_WORLD_SD_M = 0.08    # the scenarios' error along the ray: raw landmarks ~8-9 cm MPJPE, as MediaPipe's
+#                               10-12 cm on the balancing take's better cameras (issue 37's table)
 IMAGE_HEIGHT_PX = 1080
 UNIVERSAL_HEIGHT_M = 1.75   # the database skeleton's height (data_specs/skeleton.md)
 
@@ -42,6 +48,8 @@ class Scenario:
     body: str = "universal"     # "universal": the retargeted clip; "varied": its source joints on a
     #                             sampled body per clip and yaw (mocapdb.evaluation.bodies)
     camera_height_given: bool = False  # the engine is told camera_height_m (EngineConfig.camera_height_m)
+    world_sd_m: float = 0.0     # the keypoints carry the detector's 3D (world landmarks), its error along the
+    #                             viewing ray this SD (metres; :func:`detector_world`); 0: none carried
 
     def __post_init__(self) -> None:
         if self.body not in BODIES:
@@ -63,6 +71,9 @@ DEFAULT_SCENARIOS = (
     Scenario("varied bodies, clean, pitched 15 deg", pitch_deg=15.0, body="varied"),
     Scenario("varied bodies, sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05,
              body="varied"),
+    Scenario("varied bodies, clean, detector 3D", body="varied", world_sd_m=DETECTOR_WORLD_SD_M),
+    Scenario("varied bodies, sigma 5 px + 10% dropout + 5% swaps, detector 3D", noise_px=5.0, dropout=0.1,
+             swap=0.05, body="varied", world_sd_m=DETECTOR_WORLD_SD_M),
 )
 
 
@@ -193,7 +204,8 @@ def project(cam_points: np.ndarray, focal_px: float, image_size: tuple[int, int]
 
 def render(cam_points: np.ndarray, scenario: Scenario, focal_px: float, image_size: tuple[int, int],
            rng: np.random.Generator) -> list[KeypointFrame]:
-    """Detector-like keypoint frames of camera-aligned points ``[F, 15, 3]``."""
+    """Detector-like keypoint frames of camera-aligned points ``[F, 15, 3]`` (with the detector's own
+    3D where ``scenario.world_sd_m`` > 0: :func:`detector_world`)."""
     px = project(cam_points[:, :N_KEYPOINTS_2D], focal_px, image_size)
     px = px + rng.normal(scale=scenario.noise_px * image_size[1] / IMAGE_HEIGHT_PX, size=px.shape)
     conf = np.where(rng.random(px.shape[:2]) < scenario.dropout, 0.0, 0.9)
@@ -202,5 +214,38 @@ def render(cam_points: np.ndarray, scenario: Scenario, focal_px: float, image_si
     swapped = rng.random(len(px)) < scenario.swap
     for right, left in SWAP_PAIRS:
         px[swapped, right], px[swapped, left] = px[swapped, left].copy(), px[swapped, right].copy()
-    return [KeypointFrame(i, None, [Person(px[i], conf[i])]) for i in range(len(px))]
+    world = detector_world(cam_points, scenario.world_sd_m, swapped, rng) if scenario.world_sd_m > 0 else None
+    return [KeypointFrame(i, None, [Person(px[i], conf[i], world_m=None if world is None else world[i])])
+            for i in range(len(px))]
 
+
+def detector_world(cam_points: np.ndarray, sd_m: float, swapped: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """World landmarks ``[F, 14, 3]`` as a detector gives them (``data_specs/keypoint_formats.md``,
+    "World landmarks") of camera-aligned points ``[F, 15, 3]``: metres about the hips' centre, image
+    axes (x right, y down, z away) turned so that the ray through the hips is z. Each joint's error
+    is a slow random walk back to 0 (AR(1) over :data:`WORLD_ERROR_FRAMES` frames), of SD ``sd_m``
+    along that ray and :data:`WORLD_ACROSS_SHARE` of it across: a monocular model's depth is its
+    weakest axis. Left and right are swapped in the ``swapped [F]`` frames, as the keypoints."""
+    points = cam_points[:, :N_KEYPOINTS_2D] * [1.0, -1.0, 1.0]            # image axes
+    hips = 0.5 * (points[:, KP["r_hip"]] + points[:, KP["l_hip"]])
+    world = np.einsum("fij,fkj->fki", _turn_onto_z(hips / np.linalg.norm(hips, axis=-1, keepdims=True)),
+                      points - hips[:, None])
+    rho = np.exp(-1.0 / WORLD_ERROR_FRAMES)
+    steps = rng.normal(size=world.shape) * (sd_m * np.array([WORLD_ACROSS_SHARE, WORLD_ACROSS_SHARE, 1.0]))
+    error = np.empty_like(world)
+    error[0] = steps[0]
+    for f in range(1, len(world)):   # frames, each a whole [14, 3] array
+        error[f] = rho * error[f - 1] + np.sqrt(1.0 - rho ** 2) * steps[f]
+    world = world + error
+    for right, left in SWAP_PAIRS:
+        world[swapped, right], world[swapped, left] = world[swapped, left].copy(), world[swapped, right].copy()
+    return world
+
+
+def _turn_onto_z(rays: np.ndarray) -> np.ndarray:
+    """The smallest rotations ``[F, 3, 3]`` taking unit vectors ``rays [F, 3]`` onto z (Rodrigues)."""
+    axis = np.stack([rays[:, 1], -rays[:, 0], np.zeros(len(rays))], axis=-1)   # ray × z
+    k = np.zeros((len(rays), 3, 3))
+    k[:, 0, 2], k[:, 1, 2], k[:, 0, 1] = axis[:, 1], -axis[:, 0], -axis[:, 2]
+    k[:, 2, 0], k[:, 2, 1], k[:, 1, 0] = -axis[:, 1], axis[:, 0], axis[:, 2]
+    return np.eye(3) + k + k @ k / (1.0 + rays[:, 2])[:, None, None]

@@ -38,7 +38,7 @@ from mocapdb.core import domains as D
 from mocapdb.core.clips import process_clip
 from mocapdb.core.errors import UsageError
 from mocapdb.core.formats.database_reader import load_database
-from mocapdb.evaluation.heldout import Scenario, Truth
+from mocapdb.evaluation.heldout import DETECTOR_WORLD_SD_M, Scenario, Truth
 from mocapdb.evaluation.reconstruction import (
     EvalConfig,
     ScenarioResult,
@@ -55,6 +55,8 @@ LOSO_SCENARIOS = (
              body="varied"),
     Scenario("varied bodies, clean, camera height 1.5 m given", body="varied", camera_height_given=True),
     Scenario("universal body, clean, camera 1.5 m"),
+    Scenario("varied bodies, sigma 5 px + 10% dropout + 5% swaps, detector 3D", noise_px=5.0, dropout=0.1,
+             swap=0.05, body="varied", world_sd_m=DETECTOR_WORLD_SD_M),
 )
 
 LOG = logging.getLogger(__name__)

@@ -37,7 +37,7 @@ from mocapdb.core.skeleton import (
     bone_lengths_m,
     stature_m,
 )
-from mocapdb.evaluation.engine_runs import EngineRun, run_sequence, track_files_take
+from mocapdb.evaluation.engine_runs import EngineRun, run_sequence, track_files_take, world_landmarks_run
 from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.heldout import (
     UNIVERSAL_HEIGHT_M,
@@ -74,6 +74,7 @@ LOG = logging.getLogger(__name__)
 VARIANTS = (("published", False), ("refined", True))  # report name, EngineConfig.refine
 TAKE_VARIANT = "whole take"  # a track-files run's tracks through the whole-take fit (track_files_take)
 REPORTED = ("published", "refined", TAKE_VARIANT)
+PEER_VARIANT = "detector 3D (raw)"  # the keypoints' world landmarks, where a scenario carries them, at the true root
 
 
 def facing_deg(points: np.ndarray) -> np.ndarray:
@@ -258,6 +259,10 @@ class ScenarioResult:
     heights_m: list[float] = field(default_factory=list)  # the rendered bodies' statures
     queries: list[Person] = field(default_factory=list)
 
+    def __post_init__(self) -> None:
+        if self.scenario.world_sd_m > 0:
+            self.variants.setdefault(PEER_VARIANT, VariantStats())
+
     def extend(self, other: ScenarioResult) -> None:
         for name, stats in self.variants.items():
             stats.extend(other.variants[name])
@@ -358,6 +363,10 @@ def evaluate_scenario(db: MotionDatabase, truths: list[Truth], scenario: Scenari
             view = View(camera_view(positions, yaw, *camera), *camera)
             frames = render(view.cam, scenario, config.focal_px, config.image_size, rng)
             floor = floors[floor_key(i, j, scenario)]
+            if PEER_VARIANT in result.variants:
+                center = (config.image_size[0] / 2.0, config.image_size[1] / 2.0)
+                peer = world_landmarks_run(frames, view.cam[:, PELVIS], config.focal_px, center)
+                result.variants[PEER_VARIANT].add(peer, view, floor, frames, config)
             for name, refine in VARIANTS:
                 engine = _engine_config(config, scenario, refine)
                 result.variants[name].add(run_sequence(Engine(db, engine), frames), view, floor, frames, config)
