@@ -82,6 +82,11 @@ class CameraTilt:
         roll = float(np.arctan2(-up[0], up[1]))
         return float(np.sign(roll) * max(abs(roll) - np.radians(TILT_SD_DEG), 0.0))
 
+    def seed(self, up: np.ndarray, frames: int) -> None:
+        """Start from ``up`` (view frame, unit) as ``frames`` frames' worth of observations."""
+        self.up_sum[:] = frames * np.asarray(up, dtype=np.float64)
+        self.count = frames
+
     def tilt_root(self, root_upright: np.ndarray, out: np.ndarray) -> None:
         """``out`` = the upright root quaternion turned by the estimated tilt (view frame)."""
         _tilt_into(self.up_sum, root_upright, self._scratch[0], out)

@@ -38,6 +38,10 @@ from mocapdb.runtime.world_prior import (
 )
 
 R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]  # numba freezes them as constants
+ROLL_SEARCH_DEG = np.arange(-40.0, 40.1, 10.0)  # a new track's first keypoints are searched turned by each roll
+ROLL_SEED_MARGIN = 0.5  # the best roll seeds the track's estimate where its match is this much nearer than none's
+ROLL_SEED_FRAMES = 3    # ... as this many frames' worth of the fit's estimate
+MIN_ROLL_SEARCH_POINTS = 8  # visible keypoints a roll search needs
 
 
 class PosePipeline:
@@ -141,6 +145,8 @@ class PosePipeline:
         and the match. The database's projections are upright: a rolled camera's keypoints are first
         turned upright about the mid-hip by the track's roll estimate (:func:`upright_px`)."""
         if self.config.upright_search:
+            if self.refiner is not None and state.tilt.count == 0:
+                self._seed_roll(state, points_px, visible)
             points_px = upright_px(points_px, visible, state.tilt.roll_rad)
         query, _, _ = normalize_pose_2d(points_px, visible)
         rows, dist = self.search(query, visible)
@@ -156,6 +162,21 @@ class PosePipeline:
         root_view = self._root_view(f, yaw_deg, points_px, visible) * state.scale
         clip = int(self.db.frame_clip[f])
         return quats, root_view, Match(self.db.clip_name[clip], int(self.db.frame_index[f]), yaw_deg, float(dist[best]))
+
+    def _seed_roll(self, state: TrackState, points_px: np.ndarray, visible: np.ndarray) -> None:
+        """A new track's roll estimate from its first keypoints: the turn among :data:`ROLL_SEARCH_DEG`
+        whose nearest candidate is nearest, where it beats no turn by :data:`ROLL_SEED_MARGIN`. The fit's
+        estimate alone starts level, so a rolled camera's first second is searched tilted, and the
+        poses retrieved then lean to make up the rest, which holds the estimate short."""
+        if visible.sum() < MIN_ROLL_SEARCH_POINTS:
+            return
+        nearest = np.array([np.min(self.search(normalize_pose_2d(upright_px(points_px, visible, np.radians(r)),
+                                                                 visible)[0], visible)[1], initial=np.inf)
+                            for r in ROLL_SEARCH_DEG])
+        best = int(np.argmin(nearest))
+        if nearest[best] < (1.0 - ROLL_SEED_MARGIN) * nearest[np.argmin(np.abs(ROLL_SEARCH_DEG))]:
+            roll = np.radians(ROLL_SEARCH_DEG[best])
+            state.tilt.seed(np.array([-np.sin(roll), np.cos(roll), 0.0]), ROLL_SEED_FRAMES)
 
     def _fit(self, refiner: Refiner, state: TrackState, quats: np.ndarray, root_view: np.ndarray,
              d: Detection, world: WorldBones | None = None) -> np.ndarray:
