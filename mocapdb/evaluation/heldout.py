@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.signal import lfilter
 
 from mocapdb.core.clips import ClipOptions, process_clip
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
@@ -232,10 +233,8 @@ def detector_world(cam_points: np.ndarray, sd_m: float, swapped: np.ndarray, rng
                       points - hips[:, None])
     rho = np.exp(-1.0 / WORLD_ERROR_FRAMES)
     steps = rng.normal(size=world.shape) * (sd_m * np.array([WORLD_ACROSS_SHARE, WORLD_ACROSS_SHARE, 1.0]))
-    error = np.empty_like(world)
-    error[0] = steps[0]
-    for f in range(1, len(world)):   # frames, each a whole [14, 3] array
-        error[f] = rho * error[f - 1] + np.sqrt(1.0 - rho ** 2) * steps[f]
+    gain = np.sqrt(1.0 - rho ** 2)   # e[f] = rho e[f-1] + gain steps[f], e[0] = steps[0]: stationary from the start
+    error, _ = lfilter([gain], [1.0, -rho], steps, axis=0, zi=((1.0 - gain) * steps[0])[None])
     world = world + error
     for right, left in SWAP_PAIRS:
         world[swapped, right], world[swapped, left] = world[swapped, left].copy(), world[swapped, right].copy()
