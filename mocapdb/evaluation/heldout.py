@@ -22,6 +22,7 @@ from mocapdb.core.geometry import yaw_matrix
 from mocapdb.core.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS, bone_lengths_m
 from mocapdb.evaluation.bodies import reshape_body, sample_body
 from mocapdb.runtime.engine_config import EngineConfig
+from mocapdb.runtime.world_prior import Z_AXIS, rotation_between
 
 BODIES = ("universal", "varied")
 SWAP_PAIRS = [(KP[right], KP[left]) for right, left in MIRROR_PAIRS]  # right/left keypoint pairs
@@ -229,8 +230,8 @@ def detector_world(cam_points: np.ndarray, sd_m: float, swapped: np.ndarray, rng
     weakest axis. Left and right are swapped in the ``swapped [F]`` frames, as the keypoints."""
     points = cam_points[:, :N_KEYPOINTS_2D] * [1.0, -1.0, 1.0]            # image axes
     hips = 0.5 * (points[:, KP["r_hip"]] + points[:, KP["l_hip"]])
-    world = np.einsum("fij,fkj->fki", _turn_onto_z(hips / np.linalg.norm(hips, axis=-1, keepdims=True)),
-                      points - hips[:, None])
+    turns = np.stack([rotation_between(ray / np.linalg.norm(ray), Z_AXIS) for ray in hips])   # the ray onto z
+    world = np.einsum("fij,fkj->fki", turns, points - hips[:, None])
     rho = np.exp(-1.0 / WORLD_ERROR_FRAMES)
     steps = rng.normal(size=world.shape) * (sd_m * np.array([WORLD_ACROSS_SHARE, WORLD_ACROSS_SHARE, 1.0]))
     gain = np.sqrt(1.0 - rho ** 2)   # e[f] = rho e[f-1] + gain steps[f], e[0] = steps[0]: stationary from the start
@@ -239,12 +240,3 @@ def detector_world(cam_points: np.ndarray, sd_m: float, swapped: np.ndarray, rng
     for right, left in SWAP_PAIRS:
         world[swapped, right], world[swapped, left] = world[swapped, left].copy(), world[swapped, right].copy()
     return world
-
-
-def _turn_onto_z(rays: np.ndarray) -> np.ndarray:
-    """The smallest rotations ``[F, 3, 3]`` taking unit vectors ``rays [F, 3]`` onto z (Rodrigues)."""
-    axis = np.stack([rays[:, 1], -rays[:, 0], np.zeros(len(rays))], axis=-1)   # ray × z
-    k = np.zeros((len(rays), 3, 3))
-    k[:, 0, 2], k[:, 1, 2], k[:, 0, 1] = axis[:, 1], -axis[:, 0], -axis[:, 2]
-    k[:, 2, 0], k[:, 2, 1], k[:, 1, 0] = -axis[:, 1], axis[:, 0], axis[:, 2]
-    return np.eye(3) + k + k @ k / (1.0 + rays[:, 2])[:, None, None]
