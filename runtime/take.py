@@ -28,7 +28,10 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    across the viewing ray (the image fixes it: SD :attr:`TakeParams.root_across_m`) and, much more
    loosely, along it (the depth from the body's size: :attr:`TakeParams.root_depth_m`), smooth
    (root acceleration SD :attr:`TakeParams.root_accel_mps2`), and each planted ankle at one place
-   (its anchor) for its whole contact (SD :attr:`TakeParams.contact_m`).
+   (its anchor) for its whole contact (SD :attr:`TakeParams.contact_m` across the viewing ray,
+   :attr:`TakeParams.contact_depth_m` along it: a pose's legs are least sure in depth, and a
+   stride short in depth, held rigidly, would drag the root along the walk away from the depth
+   the body's image size gives).
    **Planted feet**: each leg's hip and knee are then turned (two-bone IK, the knee kept in its
    bending plane) so that a planted ankle is exactly at its anchor, eased in and out of the contact.
 4. **Floor**: the plane through the planted ankles, lowered by the ankle height (:func:`floor_plane`:
@@ -329,14 +332,15 @@ def fit_root_path(root_m: np.ndarray, ankle_offsets_m: np.ndarray, planted: np.n
         for a in range(3):
             add(np.stack([3 * (t - 1) + a, 3 * t + a, 3 * (t + 1) + a], axis=1),
                 np.tile([w, -2.0 * w, w], (len(t), 1)), np.zeros(len(t)))
-    # contacts: root + ankle offset − anchor = 0 over each contact, per axis
-    w = 1.0 / params.contact_m
+    # contacts: root + ankle offset − anchor = 0 over each contact, along the ray and across it
+    c_basis = basis * (1.0 / np.array([params.contact_depth_m, params.contact_m, params.contact_m]))[None, :, None]
     for c, (k, start, stop) in enumerate(contacts):
         t = np.arange(start, stop)
-        for a in range(3):
-            anchor = 3 * n + 3 * c + a
-            add(np.stack([3 * t + a, np.full(len(t), anchor)], axis=1), np.tile([w, -w], (len(t), 1)),
-                -w * ankle_offsets_m[t, k, a])
+        w_rows = c_basis[t].reshape(-1, 3)                                           # [3·len(t), 3]
+        root_cols = np.repeat(3 * t, 3)[:, None] + np.arange(3)[None, :]
+        anchor_cols = np.broadcast_to(3 * n + 3 * c + np.arange(3), root_cols.shape)
+        add(np.concatenate([root_cols, anchor_cols], axis=1), np.concatenate([w_rows, -w_rows], axis=1),
+            -np.einsum("fij,fj->fi", c_basis[t], ankle_offsets_m[t, k]).ravel())
     a_matrix = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                                  shape=(sum(len(t) for t in rhs), n_unknowns))
     b = np.concatenate(rhs)

@@ -75,6 +75,40 @@ def test_root_path_locks_planted_ankles_and_keeps_the_image_across_the_ray():
     assert np.abs(root[:, 2] - true_root[:, 2]).mean() < np.abs(noisy[:, 2] - true_root[:, 2]).mean()
 
 
+def _walk_away_with_short_strides(n: int, contact: int, short: float):
+    """A root walking 4 m straight away from the camera, feet planted in turn for ``contact`` frames
+    each, and the ankle offsets a pose gives whose legs are ``short`` too short along the ray."""
+    root = np.column_stack([np.full(n, 0.2), np.full(n, -0.4), np.linspace(-5.0, -9.0, n)])
+    ray = root / np.linalg.norm(root, axis=-1, keepdims=True)
+    planted = np.zeros((n, 2), dtype=bool)
+    offsets = np.zeros((n, 2, 3))
+    for c, start in enumerate(range(0, n, contact)):
+        t, k = np.arange(start, min(start + contact, n)), c % 2
+        true_offset = root[(t[0] + t[-1]) // 2] + [0.1 * (2 * k - 1), -0.85, 0.0] - root[t]  # foot under mid-contact
+        along = np.sum(true_offset * ray[t], axis=1, keepdims=True)
+        planted[t, k] = True
+        offsets[t, k] = true_offset - short * along * ray[t]
+        offsets[t, 1 - k] = true_offset + [0.0, 0.1, 0.0]
+    return root, ray, planted, offsets
+
+
+def test_root_path_follows_the_depth_where_the_legs_are_short_in_depth():
+    # the pose's stride 20 % short along the ray: held rigidly, each contact drags the root back
+    # towards the camera and the walk ends ~0.25 m short; the contacts' depth slack lets the
+    # (unbiased, noisy) per-frame depth keep the root where it is
+    root, ray, planted, offsets = _walk_away_with_short_strides(150, 15, 0.2)
+    noisy = root + ray * np.random.default_rng(3).normal(scale=0.15, size=(len(root), 1))
+    rigid, _ = fit_root_path(noisy, offsets, planted, FPS, TakeParams(contact_depth_m=TakeParams().contact_m))
+    path, _ = fit_root_path(noisy, offsets, planted, FPS, TakeParams())
+    ends = np.r_[0:10, -10:0]
+    rigid_error = np.linalg.norm(rigid - root, axis=1)[ends].mean()
+    error = np.linalg.norm(path - root, axis=1)[ends].mean()
+    assert rigid_error > 0.2
+    assert error < 0.06 and error < 0.25 * rigid_error
+    across = path - np.sum(path * ray, axis=-1, keepdims=True) * ray
+    assert np.linalg.norm(across, axis=-1).max() < 0.02       # the image still fixes it across the ray
+
+
 def test_leg_ik_puts_a_planted_ankle_on_its_anchor_and_keeps_the_bones():
     n = 16
     quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, N_RIG_JOINTS, 1))
