@@ -33,7 +33,8 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    stride short in depth, held rigidly, would drag the root along the walk away from the depth
    the body's image size gives).
    **Planted feet**: each leg's hip and knee are then turned (two-bone IK, the knee kept in its
-   bending plane) so that a planted ankle is exactly at its anchor, eased in and out of the contact.
+   bending plane) so that a planted ankle is exactly at its anchor, eased in and out of the contact;
+   where a stretched leg cannot reach it, the root first moves by the shortfall (:func:`within_reach`).
 4. **Floor**: the plane through the planted ankles, lowered by the ankle height (:func:`floor_plane`:
    fitted to the contacts when they lie on one plane and span about 1 m both ways; along a straight
    walk, the camera's estimated up made perpendicular to it; else that up; its height that of the
@@ -148,6 +149,8 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     planted = planted_ankles(keypoints, root[:, None] + relative, up, fps, params, phases)
     root, anchors = fit_root_path(root, relative, planted, fps, params)
     weights, targets = contact_targets(planted, anchors)
+    reached = pose_from_rotations(plant_feet(quats, root, scale, offsets, weights, targets), root, scale, offsets)
+    root = within_reach(root, reached[:, ANKLES], planted, anchors)
     quats = plant_feet(quats, root, scale, offsets, weights, targets)
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]
     normal, offset = None, None
@@ -386,6 +389,25 @@ def plant_feet(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: n
         quats[active, hip_j] = matrix_to_quat(local_hip[active])
         quats[active, knee_j] = matrix_to_quat(local_knee[active])
     return quats
+
+
+REACH_SMOOTHING_FRAMES = 2.0  # the shortfall's smoothing (Gaussian SD, frames): no kink where a contact starts
+
+
+def within_reach(root_m: np.ndarray, ankles_m: np.ndarray, planted: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+    """The root path ``[F, 3]`` moved by what a planted leg, fully stretched, falls short of its
+    anchor (``ankles_m [F, 2, 3]`` after the IK, ``anchors [F, 2, 3]`` of the ``planted [F, 2]``
+    frames; the mean of both feet's shortfalls), interpolated linearly between planted frames and
+    smoothed over :data:`REACH_SMOOTHING_FRAMES`: the root path's depth slack can leave an anchor a
+    few centimetres beyond the leg's reach, and the foot would slide."""
+    shortfall = np.where(planted[..., None], anchors - ankles_m, np.nan)
+    any_planted = planted.any(axis=1)
+    if not any_planted.any():
+        return root_m
+    mean = np.nanmean(shortfall[any_planted], axis=1)
+    frames = np.arange(len(root_m))
+    shift = np.column_stack([np.interp(frames, frames[any_planted], mean[:, a]) for a in range(3)])
+    return root_m + gaussian_filter1d(shift, REACH_SMOOTHING_FRAMES, axis=0, mode="nearest")
 
 
 def contact_targets(planted: np.ndarray, anchors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,19 +1,24 @@
 """The whole-take fit: zero-phase smoothing against a known trajectory, pops, contact locking, leg IK,
 the floor plane (hand-made cases with known answers)."""
+from functools import partial
+
 import numpy as np
 import pytest
+from scipy.ndimage import gaussian_filter1d
 
 from mocapdb.core.geometry import quat_geodesic
 from mocapdb.core.skeleton import KP, N_RIG_JOINTS, bone_lengths_m, pose_from_rotations
 from mocapdb.runtime.contact_floor import floor_plane
 from mocapdb.runtime.foot_contacts import planted_ankles
 from mocapdb.runtime.take import (
+    REACH_SMOOTHING_FRAMES,
     contact_targets,
     fit_root_path,
     plant_feet,
     refit_to_image,
     smooth_rotations,
     smoothed_keypoints,
+    within_reach,
 )
 from mocapdb.runtime.take_params import TakeParams
 
@@ -107,6 +112,24 @@ def test_root_path_follows_the_depth_where_the_legs_are_short_in_depth():
     assert error < 0.06 and error < 0.25 * rigid_error
     across = path - np.sum(path * ray, axis=-1, keepdims=True) * ray
     assert np.linalg.norm(across, axis=-1).max() < 0.02       # the image still fixes it across the ray
+
+
+def test_the_root_moves_by_what_a_stretched_leg_falls_short_of_its_anchor():
+    root = np.zeros((6, 3))
+    ankles = np.zeros((6, 2, 3))
+    planted = np.zeros((6, 2), dtype=bool)
+    anchors = np.full((6, 2, 3), np.nan)
+    planted[1, 0] = True                                   # short by 4 cm in depth
+    anchors[1, 0] = [0.0, 0.0, -0.04]
+    planted[4] = True                                      # both feet: short by 2 and 0 cm, the mean
+    anchors[4] = [[0.02, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    moved = within_reach(root, ankles, planted, anchors)
+    expected_z = [-0.04, -0.04, -0.04 * 2 / 3, -0.04 / 3, 0.0, 0.0]   # held, then linear from frame 1 to 4
+    expected_x = [0.0, 0.0, 0.01 / 3, 0.02 / 3, 0.01, 0.01]
+    smooth = partial(gaussian_filter1d, sigma=REACH_SMOOTHING_FRAMES, mode="nearest")  # scipy's, as the reference
+    np.testing.assert_allclose(moved[:, 2], smooth(np.array(expected_z)), atol=1e-12)
+    np.testing.assert_allclose(moved[:, 0], smooth(np.array(expected_x)), atol=1e-12)
+    np.testing.assert_array_equal(within_reach(root, ankles, np.zeros((6, 2), dtype=bool), anchors), root)
 
 
 def test_leg_ik_puts_a_planted_ankle_on_its_anchor_and_keeps_the_bones():
