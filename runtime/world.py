@@ -330,6 +330,12 @@ def _observed_log_stature(e: TrackEvidence, normals: np.ndarray) -> np.ndarray:
     return np.where(ok, np.log(e.nominal_stature_m / np.where(ok, depth, 1.0)), np.nan)
 
 
+def floor_stature_m(e: TrackEvidence, normal: np.ndarray, camera_height_m: float) -> float:
+    """A track's floor-consistent stature (metres) on the floor ``normal · p = −camera_height_m``
+    (view frame, unit normal): its contacts put on it; NaN where that floor is not below them."""
+    return float(np.exp(_observed_log_stature(e, np.asarray(normal, dtype=np.float64)[None])[0]) * camera_height_m)
+
+
 def observation_sd(e: TrackEvidence) -> float:
     """The error (SD of log stature) of a track's floor-consistent stature at a known floor:
     :data:`BASE_SD` and :data:`CONTACT_SD` over its steps."""
@@ -346,7 +352,7 @@ def person_size(e: TrackEvidence, world: World) -> PersonSize:
     height; on the floor: its floor-consistent stature; else the prior's mode or its given height)."""
     if len(e.contacts_m) == 0:
         return _prior_size(e, "no contacts", world)
-    observed = _observed_log_stature(e, world.normal[None])[0] + np.log(world.camera_height_m)
+    observed = np.log(floor_stature_m(e, world.normal, world.camera_height_m))
     sd = observation_sd(e)
     if np.isfinite(observed):
         on_floor, smaller = prior_density(np.array(observed), sd, e.prior())

@@ -6,7 +6,7 @@ import pytest
 
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
 from mocapdb.runtime.stature import HUMAN_STATURE_M
-from mocapdb.runtime.world import TrackEvidence, estimate_world
+from mocapdb.runtime.world import TrackEvidence, estimate_world, floor_stature_m
 
 
 def _normal(pitch_deg: float) -> np.ndarray:
@@ -154,3 +154,15 @@ def test_a_walk_whose_depth_drifts_does_not_tilt_the_world():
     world = estimate_world([TrackEvidence(1, UNIVERSAL_HEIGHT_M, contacts, up, 3.0)], camera_height_m=1.6)
     assert world.pitch_deg == pytest.approx(10.0, abs=1.0)
     assert world.people[1].stature_m == pytest.approx(UNIVERSAL_HEIGHT_M, rel=0.08)
+
+
+def test_floor_stature_puts_the_contacts_on_the_floor_it_is_given():
+    # contacts 1.0 m below a level camera at the nominal 1.75 m: the floor 0.08 m lower (the ankle's
+    # height); on a floor 1.62 m down the body scales by 1.62 / 1.08
+    contacts = np.column_stack([np.linspace(-1.0, 1.0, 40), np.full(40, -1.0), np.linspace(-4.0, -6.0, 40)])
+    e = TrackEvidence(1, UNIVERSAL_HEIGHT_M, contacts, _normal(0.0), 3.0)
+    assert floor_stature_m(e, _normal(0.0), 1.62) == pytest.approx(1.75 * 1.62 / (1.0 + ANKLE_HEIGHT_M))
+    # the same contacts under a camera pitched 10 deg: each contact's depth below it is −p · up
+    depth = np.median(-(contacts @ _normal(10.0))) + ANKLE_HEIGHT_M
+    assert floor_stature_m(e, _normal(10.0), 1.62) == pytest.approx(1.75 * 1.62 / depth)
+    assert np.isnan(floor_stature_m(e, -_normal(0.0), 1.62))  # a floor above the contacts
