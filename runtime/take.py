@@ -92,6 +92,7 @@ from mocapdb.runtime.foot_contacts import (
     planted_ankles,
     true_runs,
 )
+from mocapdb.runtime.image_vertical import vertical_planes
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
 from mocapdb.runtime.take_params import TakeParams
 from mocapdb.runtime.world_prior import track_up
@@ -113,8 +114,10 @@ class TakeResult:
     """What :func:`fit_take` found besides the motion: contacts ``[F, 2]`` (right, left ankle), the
     planted ankles ``[N, 3]`` (view frame, metres), the floor plane ``normal · p = offset`` (view
     frame, metres; None without contacts), the body's own up (view frame, unit) and its error
-    (degrees; :func:`~mocapdb.runtime.world_prior.track_up`: what the track's floor started from)
-    and each foot's phase ``[F, 2]`` (:func:`foot_phases`; None without heels and toes)."""
+    (degrees; :func:`~mocapdb.runtime.world_prior.track_up`: what the track's floor started from),
+    each foot's phase ``[F, 2]`` (:func:`foot_phases`; None without heels and toes) and the image's
+    vertical planes ``[N, 3]`` (:func:`~mocapdb.runtime.image_vertical.vertical_planes`; None without
+    the camera)."""
 
     planted: np.ndarray
     planted_ankles_m: np.ndarray
@@ -123,6 +126,7 @@ class TakeResult:
     body_up: np.ndarray
     body_up_sd_deg: float
     phases: np.ndarray | None = None
+    vertical_planes: np.ndarray | None = None
 
 
 def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams()) -> tuple[TrackRecording, TakeResult]:
@@ -164,7 +168,9 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
                                   planted, floor_up, fps, params)
     motion = Motion(quats, root, fps, "view", rec.first_frame, scale, rec.proportions_m, end_quats)
     out = replace(rec.with_motion(motion), up_view=floor_up, floor_offset_m=offset)
-    return out, TakeResult(planted, (root[:, None] + relative)[planted], normal, offset, up, up_sd_deg, phases)
+    planes = None if rec.camera_px is None else vertical_planes(keypoints, rec.camera_px,
+                                                                float(np.median(-root[:, 2])), up)
+    return out, TakeResult(planted, (root[:, None] + relative)[planted], normal, offset, up, up_sd_deg, phases, planes)
 
 
 def take_joints(fitted: TrackRecording, fps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -23,8 +23,8 @@ and ``log h`` (or ``h`` given). Each track is one of three kinds (Bayesian model
   false detection): the flat density.
 
 The cost sums each track's ``−log`` mixture (weighted by its length up to 1 s:
-:func:`evidence_weight`), the flatness of its contacts under each floor (:func:`_unevenness`) and
-the tilt prior (:func:`~mocapdb.runtime.world_tilt.tilt_cost`: the bodies' own up estimates with a
+:func:`evidence_weight`), the flatness of its contacts under each floor (:func:`_unevenness`), its
+image's verticals on the roll (:mod:`mocapdb.runtime.image_vertical`) and the tilt prior (:func:`~mocapdb.runtime.world_tilt.tilt_cost`: the bodies' own up estimates with a
 heavy tail). Each piece of evidence counts once: the contacts vote on the tilt through their
 flatness only, not also as the prior's centre or width (a straight walk's contacts lie on a line
 that the depth's drift along the walk tilts, 4° on a walk away from the camera). The grid's
@@ -36,7 +36,8 @@ would sink below the floor. No scale is negative, no stature leaves :data:`HUMAN
 and the kinds' likelihoods are :mod:`mocapdb.runtime.stature`; what the summary and ``world.json``
 say of the world, :mod:`mocapdb.runtime.world_summary`.
 
-Costs O(T·H·P) for T tilts, H heights and P people (at most :data:`MAX_FLOOR_POINTS` contacts each):
+Costs O(T·H·P) for T tilts, H heights and P people (at most :data:`MAX_FLOOR_POINTS` contacts and
+:data:`~mocapdb.runtime.image_vertical.MAX_PLANES` image planes each):
 tens to hundreds of milliseconds per take, independent of its length (``tools/bench_world.py``).
 """
 from __future__ import annotations
@@ -51,6 +52,7 @@ from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
 from mocapdb.runtime.contact_floor import MIN_FLOOR_SPREAD_M, above_floor, lowest_level
 from mocapdb.runtime.foot_contacts import ANKLES
+from mocapdb.runtime.image_vertical import vertical_misfit, vertical_sd_deg
 from mocapdb.runtime.stature import (
     FLAT_DENSITY,
     HUMAN_STATURE_M,
@@ -82,6 +84,7 @@ TILT_RANGE_DEG = 20.0        # the grid's pitch and roll search about the tracks
 LOG_HEIGHT_STEP = 0.01       # the camera-height grid's step (log metres)
 CAMERA_HEIGHT_RANGE_M = (0.1, 60.0)
 MIN_FLOOR_DEPTH = 0.05       # a floor less than this × the person's stature below the camera: not under them
+MIN_PLANES = 10             # frames seeing the whole body a track needs for its image vertical to count
 
 
 @dataclass(frozen=True)
@@ -90,7 +93,9 @@ class TrackEvidence:
     metres at its nominal stature ``nominal_stature_m``), its own up estimate and that one's error
     (degrees), its height if the user gave it, how much its likelihood counts (``weight``, 0-1:
     :func:`evidence_weight`) and its lower ankle in every frame ``[F, 3]`` (at the nominal size; where
-    it has no contact, the floor must still not be above it). Derived once: the contacts on its
+    it has no contact, the floor must still not be above it), the image's vertical planes ``[N, 3]``
+    and their error (degrees; :mod:`~mocapdb.runtime.image_vertical`; None: too few frames saw the
+    whole body). Derived once: the contacts on its
     lowest level and all its contacts (each at most :data:`MAX_FLOOR_POINTS`, evenly spaced) and
     its log-likelihood table (:func:`log_likelihood`), and its number of steps (distinct contacts:
     the whole-take fit holds a planted ankle at one place for its whole contact)."""
@@ -103,6 +108,8 @@ class TrackEvidence:
     given_stature_m: float | None = None
     weight: float = 1.0
     lower_ankles_m: np.ndarray | None = None
+    vertical_planes: np.ndarray | None = None
+    vertical_sd_deg: float = float("nan")
     floor_points_m: np.ndarray = field(init=False, repr=False)
     contact_sample_m: np.ndarray = field(init=False, repr=False)
     steps: int = field(init=False, repr=False)
@@ -234,14 +241,19 @@ def track_evidence(rec: TrackRecording, result: TakeResult, fps: float, given_st
                    ) -> TrackEvidence:
     """A whole-take fit's :class:`TrackEvidence` (no contacts: an empty ``contacts_m``); ``fps``:
     the take's frame rate (Hz). Its up is the body's own (:attr:`TakeResult.body_up`), not the plane
-    through its contacts: they vote through their flatness (:func:`_unevenness`)."""
+    through its contacts: they vote through their flatness (:func:`_unevenness`); its image's
+    verticals count from :data:`MIN_PLANES` frames."""
     up, up_sd = result.body_up, result.body_up_sd_deg
     motion = rec.motion(fps)
     ankles = motion.joints_m()[:, list(ANKLES)]
     lower = ankles[np.arange(len(ankles)), np.argmin(ankles @ up, axis=1)]
+    planes = result.vertical_planes
+    if planes is not None and len(planes) < MIN_PLANES:
+        planes = None
+    planes_sd = float("nan") if planes is None else vertical_sd_deg(planes, up, len(rec) / fps)
     return TrackEvidence(rec.track, motion.height_m, result.planted_ankles_m.reshape(-1, 3), up,
                          up_sd, given_stature_m,
-                         evidence_weight(len(rec) / fps), lower[::max(len(lower) // 256, 1)])
+                         evidence_weight(len(rec) / fps), lower[::max(len(lower) // 256, 1)], planes, planes_sd)
 
 
 def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None = None) -> World:
@@ -266,7 +278,7 @@ def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg:
     for n, (step, half_width, log_h_window) in enumerate(TILT_PASSES):
         offsets = np.arange(-half_width, half_width + 1e-9, step)
         tilts = tilt + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
-        cost = _cost(evidence, tilted_normals(normal, tilts), tilts, tilt_sds_deg, log_h)
+        cost = _cost(evidence, normal, tilts, tilt_sds_deg, log_h)
         tilt_sd = tilt_spread_deg(tilts, cost, step) if n == 0 else tilt_sd   # the widest grid's
         t, h = np.unravel_index(int(np.argmin(cost)), cost.shape)
         tilt = tilts[t]
@@ -274,7 +286,7 @@ def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg:
             log_h = _LOG_HEIGHTS[np.abs(_LOG_HEIGHTS - log_h[h]) <= log_h_window]
     best = tilted_normals(normal, tilt[None])
     log_h = _LOG_HEIGHTS if given is None else given
-    cost = _cost(evidence, best, tilt[None], tilt_sds_deg, log_h)[0]
+    cost = _cost(evidence, normal, tilt[None], tilt_sds_deg, log_h)[0]
     posterior = np.exp(-(cost - cost.min()))
     mean = np.sum(posterior * log_h) / np.sum(posterior)
     sd = float(np.sqrt(np.sum(posterior * (log_h - mean) ** 2) / np.sum(posterior)))
@@ -282,14 +294,20 @@ def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg:
                  pitch_sd_deg=tilt_sd[0], roll_sd_deg=tilt_sd[1])
 
 
-def _cost(evidence: list[TrackEvidence], normals: np.ndarray, tilts_deg: np.ndarray,
+def _cost(evidence: list[TrackEvidence], normal: np.ndarray, tilts_deg: np.ndarray,
           tilt_sds_deg: tuple[float, float], log_h: np.ndarray) -> np.ndarray:
-    """``−log`` posterior ``[T, H]`` over tilts ``[T, 2]`` (pitch, roll; degrees) and log camera
-    heights ``log_h [H]``."""
+    """``−log`` posterior ``[T, H]`` over tilts ``[T, 2]`` (pitch, roll; degrees) about ``normal``
+    and log camera heights ``log_h [H]``. The image's verticals (:mod:`~mocapdb.runtime.image_vertical`)
+    see each tilt's roll only: a sideways lean of a person off the image's centre would otherwise
+    move the pitch several times as far."""
+    normals = tilted_normals(normal, tilts_deg)
+    rolled = tilted_normals(normal, tilts_deg * [0.0, 1.0])   # the image's verticals vote on the roll alone
     cost = np.repeat(tilt_cost(tilts_deg, tilt_sds_deg)[:, None], len(log_h), axis=1)
     for e in evidence:
         cost -= e.weight * log_likelihood(_observed_log_stature(e, normals)[:, None] + log_h[None, :], e.likelihood)
         cost += e.weight * _unevenness(e, normals)[:, None]
+        if e.vertical_planes is not None:
+            cost += e.weight * vertical_misfit(e.vertical_planes, e.vertical_sd_deg, rolled)[:, None]
     return cost
 
 

@@ -202,10 +202,16 @@ def _body_seen(world_bones: np.ndarray) -> np.ndarray:
 def _support_to_mass(j: dict[str, np.ndarray], com: np.ndarray, up: np.ndarray) -> np.ndarray:
     """:func:`balance_verticals` of the rebuilt body ``j`` and its centre of mass ``com [F, 3]``; a
     degenerate frame (no direction) is left out."""
+    verticals = unit(com - support_points(j, up))
+    return verticals[np.isfinite(verticals).all(axis=1)]
+
+
+def support_points(j: dict[str, np.ndarray], up: np.ndarray) -> np.ndarray:
+    """What carries a body ``j`` (``{name: [F, 3]}``, metres) in each frame ``[F, 3]``: the lower ankle
+    along ``up`` [3], both ankles weighted within :data:`SUPPORT_BLEND_M` of level."""
     right_lower = (j["l_ankle"] - j["r_ankle"]) @ up           # > 0: the right ankle is lower
     w = np.clip(0.5 + 0.5 * right_lower / SUPPORT_BLEND_M, 0.0, 1.0)[:, None]
-    verticals = unit(com - (w * j["r_ankle"] + (1.0 - w) * j["l_ankle"]))
-    return verticals[np.isfinite(verticals).all(axis=1)]
+    return w * j["r_ankle"] + (1.0 - w) * j["l_ankle"]
 
 
 def body_vertical(world_bones: np.ndarray) -> tuple[np.ndarray, float] | None:
