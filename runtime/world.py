@@ -24,10 +24,11 @@ and ``log h`` (or ``h`` given). Each track is one of three kinds (Bayesian model
 
 The cost sums each track's ``−log`` mixture (weighted by its length up to 1 s:
 :func:`evidence_weight`), the flatness of its contacts under each floor (:func:`_unevenness`), its
-image's verticals on the roll (:mod:`mocapdb.runtime.image_vertical`) and the tilt prior (:func:`~mocapdb.runtime.world_tilt.tilt_cost`: the bodies' own up estimates with a
-heavy tail). Each piece of evidence counts once: the contacts vote on the tilt through their
-flatness only, not also as the prior's centre or width (a straight walk's contacts lie on a line
-that the depth's drift along the walk tilts, 4° on a walk away from the camera). The grid's
+image's verticals on the roll (:mod:`mocapdb.runtime.image_vertical`) and the tilt prior
+(:func:`~mocapdb.runtime.world_tilt.tilt_cost`: the bodies' own up estimates with a heavy tail).
+Each piece of evidence counts once: the contacts vote on the tilt through their flatness only, not
+also as the prior's centre or width (a straight walk's contacts lie on a line that the depth's drift
+along the walk tilts, 4° on a walk away from the camera). The grid's
 minimum is the world, its spread the camera height's uncertainty. Each track on the floor then
 takes its floor-consistent stature; any other the prior's mode (or its given height), standing in
 the same world where its feet are (above the floor on a box), made smaller where its lowest points
