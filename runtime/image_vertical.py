@@ -33,10 +33,12 @@ def vertical_planes(keypoints: np.ndarray, camera_px: tuple[float, float, float]
                     up: np.ndarray) -> np.ndarray:
     """Unit plane normals ``[N, 3]`` (view frame) through the camera and each frame's image line
     support → centre of mass, for the frames of ``keypoints [F, 14, 3]`` (x px, y px, confidence)
-    that see every one of :data:`MASS_KEYPOINTS` (at most :data:`MAX_PLANES`, evenly spaced).
+    that see every one of :data:`MASS_KEYPOINTS` (the nose may be missing: :func:`_head_or_shoulders`;
+    at most :data:`MAX_PLANES`, evenly spaced).
     ``camera_px``: focal length and principal point (pixels); ``depth_m``: the person's distance
     along the optical axis (metres); ``up``: the track's estimate of the world's up (view frame): the
     support is chosen along it, then along it rolled into the planes found (:data:`SUPPORT_PASSES`)."""
+    keypoints = _head_or_shoulders(keypoints)
     seen = (keypoints[:, _MASS_INDEX, 2] > 0).all(axis=1)
     points = keypoints[seen][:, :, :2]
     points = points[::max(len(points) // MAX_PLANES, 1)]
@@ -53,6 +55,20 @@ def vertical_planes(keypoints: np.ndarray, camera_px: tuple[float, float, float]
             break
         up = _rolled_into(normals, up)
     return normals
+
+
+def _head_or_shoulders(keypoints: np.ndarray) -> np.ndarray:
+    """``keypoints [F, 14, 3]`` with an unseen nose put at the shoulders' mid-point where both are
+    seen: a detector that drops the nose (or the engine that doubts it) leaves the head's 8 % of the
+    mass a few centimetres off, a fraction of a degree, instead of the frame."""
+    head, right, left = KP["head"], KP["r_shoulder"], KP["l_shoulder"]
+    missing = (keypoints[:, head, 2] <= 0) & (keypoints[:, right, 2] > 0) & (keypoints[:, left, 2] > 0)
+    if not missing.any():
+        return keypoints
+    out = keypoints.copy()
+    out[missing, head, :2] = 0.5 * (keypoints[missing, right, :2] + keypoints[missing, left, :2])
+    out[missing, head, 2] = 1.0
+    return out
 
 
 SUPPORT_PASSES = 3   # the support chosen along the up, that up rolled into the planes, this many times

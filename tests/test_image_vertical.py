@@ -60,12 +60,18 @@ def test_every_plane_holds_the_true_up(x_m, pitch_deg, roll_deg):
     assert np.abs(plane_angles_deg(planes, _true_up(pitch_deg, roll_deg)[None])).max() < 0.1
 
 
-def test_a_frame_missing_a_keypoint_gives_no_plane():
-    keypoints = _keypoints(0.5, 5.0, 1.5, 10.0, 0.0, frames=12)
+def test_a_frame_missing_a_keypoint_with_mass_gives_no_plane_but_a_missing_nose_sits_between_the_shoulders():
+    keypoints = _keypoints(0.5, 5.0, 1.5, 10.0, 6.0, frames=12)
     keypoints[3, KP["l_wrist"], 2] = 0.0
     keypoints[7, KP["r_ankle"], 2] = 0.0
     keypoints[9, KP["neck"], 2] = 0.0   # the neck has no mass of its own: not needed
-    assert len(vertical_planes(keypoints, (FOCAL_PX, *CENTRE_PX), 5.0, _true_up(10.0, 0.0))) == 10
+    keypoints[:, KP["head"], 2] = 0.0   # a detector that drops the nose
+    planes = vertical_planes(keypoints, (FOCAL_PX, *CENTRE_PX), 5.0, _true_up(10.0, 6.0))
+    assert len(planes) == 10
+    # the head's 8 % of the mass moved from the nose (0.18 m above the shoulders) to between them
+    assert np.abs(plane_angles_deg(planes, _true_up(10.0, 6.0)[None])).max() < 0.2
+    keypoints[5, KP["l_shoulder"], 2] = 0.0   # no shoulders, no stand-in for the nose
+    assert len(vertical_planes(keypoints, (FOCAL_PX, *CENTRE_PX), 5.0, _true_up(10.0, 6.0))) == 9
 
 
 def test_the_misfit_is_least_at_the_true_roll_and_its_error_shrinks_with_more_frames():
