@@ -129,6 +129,12 @@ def main() -> int:
         parser.error("give --world HELDOUT… or NAME=FOLDER cameras (with --calibration, --trc, --fps)")
     if args.cameras and not (args.calibration and args.trc and args.fps):
         parser.error("cameras need --calibration, --trc and --fps")
+    if args.cameras:
+        names = read_calibration_toml(args.calibration)
+        for spec in args.cameras:
+            name, _, folder = spec.partition("=")
+            if name not in names or not folder:
+                parser.error(f"{spec}: expected NAME=FOLDER with NAME one of {', '.join(sorted(names))}")
     db = load_database(args.db)
     if args.world:
         print("\n".join(synthetic_table(synthetic_rows(db, args.world, WorldConfig(repeats=args.repeats)))))
