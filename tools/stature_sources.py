@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapdb.core.cameras import read_calibration_toml
+from mocapdb.core.cameras import CameraModel, read_calibration_toml
 from mocapdb.core.formats.database_reader import MotionDatabase, load_database
 from mocapdb.core.formats.keypoints import KeypointFrame
 from mocapdb.core.formats.openpose import read_openpose_folder
@@ -90,10 +90,10 @@ def synthetic_table(rows: list[tuple[str, float, float]]) -> list[str]:
     return lines
 
 
-def real_lines(db: MotionDatabase, calibration: Path, trc_path: Path, fps: float, cameras: list[str]) -> list[str]:
+def real_lines(db: MotionDatabase, cams: dict[str, CameraModel], trc_path: Path, fps: float, cameras: list[str]
+               ) -> list[str]:
     """Per camera ``NAME=FOLDER``: its longest track's stature error (%) as the world found it and on
     the true floor (the calibration's), against the triangulation's median stature."""
-    cams = read_calibration_toml(calibration)
     true_stature = float(np.median(stature_m(bone_lengths_m(trc_keypoints(read_trc(trc_path))))))
     lines = [f"Triangulated stature {true_stature:.3f} m.", "",
              "| camera | found: stature, error | world pitch / truth | on the true floor: stature, error |",
@@ -130,16 +130,16 @@ def main() -> int:
     if args.cameras and not (args.calibration and args.trc and args.fps):
         parser.error("cameras need --calibration, --trc and --fps")
     if args.cameras:
-        names = read_calibration_toml(args.calibration)
+        cams = read_calibration_toml(args.calibration)
         for spec in args.cameras:
             name, _, folder = spec.partition("=")
-            if name not in names or not folder:
-                parser.error(f"{spec}: expected NAME=FOLDER with NAME one of {', '.join(sorted(names))}")
+            if name not in cams or not folder:
+                parser.error(f"{spec}: expected NAME=FOLDER with NAME one of {', '.join(sorted(cams))}")
     db = load_database(args.db)
     if args.world:
         print("\n".join(synthetic_table(synthetic_rows(db, args.world, WorldConfig(repeats=args.repeats)))))
     if args.cameras:
-        print("\n".join(real_lines(db, args.calibration, args.trc, args.fps, args.cameras)))
+        print("\n".join(real_lines(db, cams, args.trc, args.fps, args.cameras)))
     return 0
 
 
