@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.cameras import CameraModel, read_calibration_toml
+from mocapdb.core.errors import MocapdbError
 from mocapdb.core.formats.database_reader import MotionDatabase, load_database
 from mocapdb.core.formats.keypoints import KeypointFrame
 from mocapdb.core.formats.openpose import read_openpose_folder
@@ -129,17 +130,19 @@ def main() -> int:
         parser.error("give --world HELDOUT… or NAME=FOLDER cameras (with --calibration, --trc, --fps)")
     if args.cameras and not (args.calibration and args.trc and args.fps):
         parser.error("cameras need --calibration, --trc and --fps")
-    if args.cameras:
-        cams = read_calibration_toml(args.calibration)
+    try:
+        cams = read_calibration_toml(args.calibration) if args.cameras else {}
         for spec in args.cameras:
             name, _, folder = spec.partition("=")
             if name not in cams or not folder:
                 parser.error(f"{spec}: expected NAME=FOLDER with NAME one of {', '.join(sorted(cams))}")
-    db = load_database(args.db)
-    if args.world:
-        print("\n".join(synthetic_table(synthetic_rows(db, args.world, WorldConfig(repeats=args.repeats)))))
-    if args.cameras:
-        print("\n".join(real_lines(db, cams, args.trc, args.fps, args.cameras)))
+        db = load_database(args.db)
+        if args.world:
+            print("\n".join(synthetic_table(synthetic_rows(db, args.world, WorldConfig(repeats=args.repeats)))))
+        if args.cameras:
+            print("\n".join(real_lines(db, cams, args.trc, args.fps, args.cameras)))
+    except MocapdbError as exc:   # an unreadable database, clip, calibration, TRC or keypoint folder
+        parser.exit(2, f"{parser.prog}: error: {exc}\n")
     return 0
 
 
