@@ -52,7 +52,7 @@ from mocapdb.core.motion_ops import scaled_about_origin
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
 from mocapdb.runtime.contact_floor import MIN_FLOOR_SPREAD_M, above_floor, lowest_level
-from mocapdb.runtime.foot_contacts import ANKLES
+from mocapdb.runtime.foot_contacts import ANKLES, true_runs
 from mocapdb.runtime.image_vertical import vertical_misfit, vertical_sd_deg
 from mocapdb.runtime.stature import (
     FLAT_DENSITY,
@@ -76,6 +76,7 @@ from mocapdb.runtime.world_tilt import (
     tilt_prior_sds,
     tilt_spread_deg,
     tilted_normals,
+    track_tilt_sd_deg,
 )
 
 CONTACT_SD = 0.10            # of log stature, one step's (depth and ankle-height noise), over its steps
@@ -242,9 +243,11 @@ def track_evidence(rec: TrackRecording, result: TakeResult, fps: float, given_st
                    ) -> TrackEvidence:
     """A whole-take fit's :class:`TrackEvidence` (no contacts: an empty ``contacts_m``); ``fps``:
     the take's frame rate (Hz). Its up is the body's own (:attr:`TakeResult.body_up`), not the plane
-    through its contacts: they vote through their flatness (:func:`_unevenness`); its image's
+    through its contacts: they vote through their flatness (:func:`_unevenness`), and its error the
+    frames' over its strides (:func:`~mocapdb.runtime.world_tilt.track_tilt_sd_deg`); its image's
     verticals count from :data:`MIN_PLANES` frames."""
-    up, up_sd = result.body_up, result.body_up_sd_deg
+    footfalls = sum(len(true_runs(result.planted[:, foot])) for foot in range(result.planted.shape[1]))
+    up, up_sd = result.body_up, track_tilt_sd_deg(result.body_up_sd_deg, footfalls)
     motion = rec.motion(fps)
     ankles = motion.joints_m()[:, list(ANKLES)]
     lower = ankles[np.arange(len(ankles)), np.argmin(ankles @ up, axis=1)]
@@ -252,9 +255,9 @@ def track_evidence(rec: TrackRecording, result: TakeResult, fps: float, given_st
     if planes is not None and len(planes) < MIN_PLANES:
         planes = None
     planes_sd = float("nan") if planes is None else vertical_sd_deg(planes, up, len(rec) / fps)
-    return TrackEvidence(rec.track, motion.height_m, result.planted_ankles_m.reshape(-1, 3), up,
-                         up_sd, given_stature_m,
-                         evidence_weight(len(rec) / fps), lower[::max(len(lower) // 256, 1)], planes, planes_sd)
+    return TrackEvidence(rec.track, motion.height_m, result.planted_ankles_m.reshape(-1, 3), up, up_sd,
+                         given_stature_m, evidence_weight(len(rec) / fps), lower[::max(len(lower) // 256, 1)],
+                         planes, planes_sd)
 
 
 def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None = None) -> World:
@@ -454,8 +457,9 @@ def _world_without_contacts(evidence: list[TrackEvidence], camera_height_m: floa
 
 
 def _mean_up(evidence: list[TrackEvidence]) -> np.ndarray:
-    """The tracks' up estimates averaged, each weighted by its contacts (one at least)."""
-    total = np.sum([max(len(e.contacts_m), 1) * e.up for e in evidence], axis=0)
+    """The tracks' up estimates averaged, each weighted by its inverse variance (as
+    :func:`_tilt_sd_deg` combines their errors)."""
+    total = np.sum([e.up / e.up_sd_deg ** 2 for e in evidence], axis=0)
     return total / np.linalg.norm(total)
 
 

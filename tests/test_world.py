@@ -1,12 +1,15 @@
 """The take's world (runtime/world.py) on hand-built evidence with a known truth: people standing or
 walking on a floor seen by one camera, their contacts as the whole-take fit would report them at
 the nominal size (each true contact scaled about the camera by 1.75 m / its person's stature)."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
 from mocapdb.runtime.stature import HUMAN_STATURE_M
 from mocapdb.runtime.world import TrackEvidence, estimate_world, floor_stature_m
+from mocapdb.runtime.world_tilt import track_tilt_sd_deg
 
 
 def _normal(pitch_deg: float) -> np.ndarray:
@@ -166,3 +169,30 @@ def test_floor_stature_puts_the_contacts_on_the_floor_it_is_given():
     depth = np.median(-(contacts @ _normal(10.0))) + ANKLE_HEIGHT_M
     assert floor_stature_m(e, _normal(10.0), 1.62) == pytest.approx(1.75 * 1.62 / depth)
     assert np.isnan(floor_stature_m(e, -_normal(0.0), 1.62))  # a floor above the contacts
+
+
+def test_a_tracks_tilt_error_falls_with_its_strides_not_its_frames():
+    # one posture (a person standing still: two footfalls) errs by the posture's 6 deg whatever its
+    # frames' spread; a walker's 14 footfalls are 7 strides: 6.8 / sqrt(7); 3 deg stays
+    assert track_tilt_sd_deg(4.0, 2) == pytest.approx(np.hypot(3.0, 6.0))
+    assert track_tilt_sd_deg(4.0, 0) == pytest.approx(np.hypot(3.0, 6.0))
+    assert track_tilt_sd_deg(6.8, 14) == pytest.approx(np.hypot(3.0, 6.8 / np.sqrt(7.0)))
+    assert track_tilt_sd_deg(12.0, 2) == pytest.approx(np.hypot(3.0, 12.0))
+    # three strides whose frames agree within 2 deg: a posture's floor is 6 / 3 deg, over sqrt(3)
+    assert track_tilt_sd_deg(2.0, 6) == pytest.approx(np.hypot(3.0, 2.0 / np.sqrt(3.0)))
+
+
+def test_a_still_persons_leaning_posture_does_not_tilt_the_world_of_a_walker():
+    """A person standing still at 5 m (both feet planted all take: twice the walker's contacts) whose
+    one posture reads the pitch 8 deg low, beside a walker at 7 m (half a metre: no floor's slope)
+    whose strides read it right; nothing given. The tracks' up estimates count by their errors (the
+    still one's posture's 6.7 deg, the walker's 4 deg): pitch 1.6 deg and camera height 10 % off.
+    Counted by their contacts, they put the pitch 2.7 deg and the height 18 % off."""
+    rng = np.random.default_rng(7)
+    walker = _person(1, 1.70, 0.5, 7.0, 1.5, 10.0, rng, walk_m=0.5, n=72)
+    still = _person(2, 1.75, -1.0, 5.0, 1.5, 10.0, rng, walk_m=0.0, n=144, up_error_deg=-8.0)
+    walker = replace(walker, up_sd_deg=track_tilt_sd_deg(6.8, 14))
+    still = replace(still, up_sd_deg=track_tilt_sd_deg(4.0, 2))
+    world = estimate_world([walker, still])
+    assert world.pitch_deg == pytest.approx(10.0, abs=2.0)
+    assert world.camera_height_m == pytest.approx(1.5, rel=0.12)
