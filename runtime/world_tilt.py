@@ -1,5 +1,6 @@
 """The camera tilt's prior in the one-camera world (:mod:`mocapdb.runtime.world`): how far the
-bodies' estimate of the pitch and roll may be off (:func:`tilt_prior_sds`, :func:`tilt_cost`), the
+bodies' estimate of the pitch and roll may be off (each track's: :func:`track_tilt_sd_deg`; the
+take's: :func:`tilt_prior_sds`, :func:`tilt_cost`), the
 tilted floor normals of the grid (:func:`tilted_normals`) and the posterior spread over that grid
 (:func:`tilt_spread_deg`). ``data_specs/world.md`` gives the decisions."""
 from __future__ import annotations
@@ -10,8 +11,6 @@ from mocapdb.runtime.body_size import TILT_SD_DEG
 
 TILT_TAIL_SD_DEG, TILT_TAIL_SHARE = 15.0, 0.2  # the tilt prior's heavy tail: bodies' estimates can be far off
 PITCH_SD_MIN_DEG = 5.0  # bodies show the pitch only by their foreshortening, and share its error (the camera's)
-
-
 POSTURE_TILT_SD_DEG = 6.0  # one posture's up estimate error (rendered still people: 5.4-5.7° RMS)
 
 
