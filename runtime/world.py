@@ -24,12 +24,13 @@ and ``log h`` (or ``h`` given). Each track is one of three kinds (Bayesian model
 
 The cost sums each track's ``−log`` mixture (weighted by its length up to 1 s:
 :func:`evidence_weight`), the flatness of its contacts under each floor (:func:`_unevenness`), its
-image's verticals on the roll (:mod:`mocapdb.runtime.image_vertical`) and the tilt prior
-(:func:`~mocapdb.runtime.world_tilt.tilt_cost`: the bodies' own up estimates with a heavy tail).
+image's verticals on the roll (:mod:`mocapdb.runtime.image_vertical`), the tilt prior
+(:func:`~mocapdb.runtime.world_tilt.tilt_cost`: the bodies' own up estimates with a heavy tail) and
+the camera height's (:func:`~mocapdb.runtime.world_tilt.height_cost`: how high people film from).
 Each piece of evidence counts once: the contacts vote on the tilt through their flatness only, not
 also as the prior's centre or width (a straight walk's contacts lie on a line that the depth's drift
 along the walk tilts, 4° on a walk away from the camera). The grid's
-minimum is the world, its spread the camera height's uncertainty. Each track on the floor then
+minimum is the world, its spread (tilts marginalised) the camera height's uncertainty. Each track on the floor then
 takes its floor-consistent stature; any other the prior's mode (or its given height), standing in
 the same world where its feet are (above the floor on a box), made smaller where its lowest points
 would sink below the floor. No scale is negative, no stature leaves :data:`HUMAN_STATURE_M`.
@@ -72,6 +73,8 @@ from mocapdb.runtime.subject import join_fragments
 from mocapdb.runtime.take import TakeResult, fit_take
 from mocapdb.runtime.take_params import TakeParams
 from mocapdb.runtime.world_tilt import (
+    height_cost,
+    height_spread_log,
     tilt_cost,
     tilt_prior_sds,
     tilt_spread_deg,
@@ -275,15 +278,17 @@ def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg:
     and log camera heights (one, when given): tilt grids ever finer about the last one's minimum
     (:data:`TILT_PASSES`), the first on every :data:`COARSE_HEIGHT_STRIDE`-th height, the others on
     every height within a window of the last minimum wide enough for the valley along which a
-    height and a pitch trade; then the height's spread at the best tilt."""
+    height and a pitch trade. The height's and the tilt's spreads are the widest grid's, each
+    marginalised over the other (a height traded against a pitch is as uncertain as that pitch)."""
     given = None if camera_height_m is None else np.array([np.log(camera_height_m)])
     tilt, log_h = np.zeros(2), _LOG_HEIGHTS[::COARSE_HEIGHT_STRIDE] if given is None else given
-    tilt_sd = (np.nan, np.nan)
+    tilt_sd, sd = (np.nan, np.nan), 0.0
     for n, (step, half_width, log_h_window) in enumerate(TILT_PASSES):
         offsets = np.arange(-half_width, half_width + 1e-9, step)
         tilts = tilt + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
         cost = _cost(evidence, normal, tilts, tilt_sds_deg, log_h)
-        tilt_sd = tilt_spread_deg(tilts, cost, step) if n == 0 else tilt_sd   # the widest grid's
+        if n == 0:   # the widest grid's spreads, each marginalised over the other
+            tilt_sd, sd = tilt_spread_deg(tilts, cost, step), height_spread_log(log_h, cost)
         t, h = np.unravel_index(int(np.argmin(cost)), cost.shape)
         tilt = tilts[t]
         if given is None:
@@ -291,9 +296,6 @@ def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg:
     best = tilted_normals(normal, tilt[None])
     log_h = _LOG_HEIGHTS if given is None else given
     cost = _cost(evidence, normal, tilt[None], tilt_sds_deg, log_h)[0]
-    posterior = np.exp(-(cost - cost.min()))
-    mean = np.sum(posterior * log_h) / np.sum(posterior)
-    sd = float(np.sqrt(np.sum(posterior * (log_h - mean) ** 2) / np.sum(posterior)))
     return World(best[0], float(np.exp(log_h[np.argmin(cost)])), sd, given is not None,
                  pitch_sd_deg=tilt_sd[0], roll_sd_deg=tilt_sd[1])
 
@@ -306,7 +308,7 @@ def _cost(evidence: list[TrackEvidence], normal: np.ndarray, tilts_deg: np.ndarr
     move the pitch several times as far."""
     normals = tilted_normals(normal, tilts_deg)
     rolled = tilted_normals(normal, tilts_deg * [0.0, 1.0])   # the image's verticals vote on the roll alone
-    cost = np.repeat(tilt_cost(tilts_deg, tilt_sds_deg)[:, None], len(log_h), axis=1)
+    cost = tilt_cost(tilts_deg, tilt_sds_deg)[:, None] + height_cost(log_h, _LOG_RANGE_WIDTH)[None, :]
     for e in evidence:
         cost -= e.weight * log_likelihood(_observed_log_stature(e, normals)[:, None] + log_h[None, :], e.likelihood)
         cost += e.weight * _unevenness(e, normals)[:, None]
@@ -341,6 +343,7 @@ def _unevenness(e: TrackEvidence, normals: np.ndarray) -> np.ndarray:
 TILT_PASSES = ((2.0, TILT_RANGE_DEG, 0.5), (0.5, 3.0, 0.15), (0.1, 0.75, 0.15))
 COARSE_HEIGHT_STRIDE = 4  # the coarse pass takes every 4th height of the grid
 _LOG_HEIGHTS = np.arange(np.log(CAMERA_HEIGHT_RANGE_M[0]), np.log(CAMERA_HEIGHT_RANGE_M[1]), LOG_HEIGHT_STEP)
+_LOG_RANGE_WIDTH = float(np.log(CAMERA_HEIGHT_RANGE_M[1] / CAMERA_HEIGHT_RANGE_M[0]))
 
 
 def _observed_log_stature(e: TrackEvidence, normals: np.ndarray) -> np.ndarray:
@@ -388,7 +391,7 @@ def person_size(e: TrackEvidence, world: World) -> PersonSize:
     stature = float(np.clip(np.exp(observed) if e.given_stature_m is None else e.given_stature_m, *HUMAN_STATURE_M))
     spread = float(np.sqrt(sd ** 2 + world.camera_height_log_sd ** 2 + _tilt_log_sd(e, world) ** 2))
     log_sd = posterior_sd(float(observed), spread, e.prior())
-    source = "given" if e.given_stature_m is not None else "floor" if log_sd < 0.8 * PRIOR_SD else "prior"
+    source = "given" if e.given_stature_m is not None else "floor" if spread < PRIOR_SD else "prior"
     return PersonSize(e.track, stature, log_sd, "floor", source, stature / e.nominal_stature_m,
                       _feet_above_floor(e, world, stature / e.nominal_stature_m))
 

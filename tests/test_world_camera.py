@@ -59,6 +59,37 @@ def test_the_tilts_spread_is_the_posteriors_sd():
     assert tilt_spread_deg(tilts, flat_top, 2.0) == pytest.approx((2.0 / np.sqrt(12), 2.0 / np.sqrt(12)))
 
 
+def test_the_heights_spread_takes_the_pitch_it_trades_with():
+    """A Gaussian posterior in (pitch t, log height y) along a valley, y − 0.03 t of SD 0.1 and t of
+    SD 5°: the height's marginal SD is √(0.1² + (0.03 · 5)²) = 0.18 (closed form), while at the best
+    pitch alone it is 0.1. One height (given) has none."""
+    from mocapdb.runtime.world_tilt import height_spread_log
+
+    offsets = np.arange(-20.0, 20.0 + 1e-9, 2.0)
+    tilts = np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
+    log_h = np.arange(-1.5, 1.5, 0.01)
+    cost = 0.5 * ((log_h[None, :] - 0.03 * tilts[:, :1]) / 0.1) ** 2 + 0.5 * (tilts[:, :1] / 5.0) ** 2
+    assert height_spread_log(log_h, cost) == pytest.approx(np.hypot(0.1, 0.15), rel=0.03)
+    at_best_pitch = cost[np.abs(tilts).max(axis=1) == 0]
+    assert height_spread_log(log_h, at_best_pitch) == pytest.approx(0.1, rel=0.02)
+    assert height_spread_log(np.array([0.4]), cost[:, :1]) == 0.0
+
+
+def test_the_camera_heights_prior_is_usual_heights_with_a_flat_tail():
+    """−log of 0.8 N(log h; log 1.5 m, 0.7) + 0.2 / width, by hand: least at 1.5 m, even in log about
+    it, and never dearer than the flat tail alone (a camera on the ground or a drone stays possible)."""
+    from mocapdb.runtime.world_tilt import height_cost
+
+    width = np.log(60.0 / 0.1)
+    usual = 0.8 / (0.7 * np.sqrt(2.0 * np.pi))
+    assert height_cost(np.log([1.5]), width)[0] == pytest.approx(-np.log(usual + 0.2 / width))
+    z = np.log(3.0 / 1.5) / 0.7
+    assert height_cost(np.log([3.0]), width)[0] == pytest.approx(-np.log(usual * np.exp(-0.5 * z * z) + 0.2 / width))
+    assert height_cost(np.log([0.75]), width)[0] == pytest.approx(height_cost(np.log([3.0]), width)[0])
+    far = height_cost(np.log([0.1, 60.0]), width)
+    assert np.all(far < -np.log(0.2 / width)) and np.all(far > -np.log(0.2 / width) - 0.01)
+
+
 def test_reconstruct_reports_the_world_the_evaluation_scores(small_db, small_db_path, tmp_path, capsys):
     """The bundled BlazePose take of camera 1 holds the subject and a bystander standing still at the
     image's edge (a static track: no files). ``reconstruct``'s ``world.json`` is the world that
