@@ -29,8 +29,8 @@ image's verticals on the roll (:mod:`mocapdb.runtime.image_vertical`), the tilt 
 the camera height's (:func:`~mocapdb.runtime.world_tilt.height_cost`: how high people film from).
 Each piece of evidence counts once: the contacts vote on the tilt through their flatness only, not
 also as the prior's centre or width (a straight walk's contacts lie on a line that the depth's drift
-along the walk tilts, 4° on a walk away from the camera). The grid's
-minimum is the world, its spread (tilts marginalised) the camera height's uncertainty. Each track on the floor then
+along the walk tilts, 4° on a walk away from the camera). The grid's minimum is the world, its
+spread (the tilts marginalised) the camera height's uncertainty. Each track on the floor then
 takes its floor-consistent stature; any other the prior's mode (or its given height), standing in
 the same world where its feet are (above the floor on a box), made smaller where its lowest points
 would sink below the floor. No scale is negative, no stature leaves :data:`HUMAN_STATURE_M`.

@@ -12,7 +12,7 @@ from mocapdb.runtime.body_size import TILT_SD_DEG
 TILT_TAIL_SD_DEG, TILT_TAIL_SHARE = 15.0, 0.2  # the tilt prior's heavy tail: bodies' estimates can be far off
 PITCH_SD_MIN_DEG = 5.0  # bodies show the pitch only by their foreshortening, and share its error (the camera's)
 POSTURE_TILT_SD_DEG = 6.0  # one posture's up estimate error (rendered still people: 5.4-5.7° RMS)
-# How high people film people (data_specs/world.md, decision 2): a hand or a tripod, 0.6-4 m (±2 SD of
+# How high people film people (data_specs/world.md, decision 2): a hand or a tripod, 0.37-6 m (±2 SD of
 # the log), 80 %; anything in the world's range (a camera on the ground, a stand, a roof, a drone), 20 %.
 CAMERA_HEIGHT_MEDIAN_M, CAMERA_HEIGHT_LOG_SD, CAMERA_HEIGHT_TAIL_SHARE = 1.5, 0.7, 0.2
 
@@ -54,7 +54,7 @@ def height_cost(log_heights: np.ndarray, log_range_width: float) -> np.ndarray:
     :data:`CAMERA_HEIGHT_MEDIAN_M` (weight 1 − :data:`CAMERA_HEIGHT_TAIL_SHARE`) and a flat tail over
     the grid's range (``log_range_width`` in log metres). Where the people leave the height free (two
     people whose floor could pass through the camera), it keeps the camera off the grid's ends; any
-    person on a floor outweighs it (a log stature's error is ~0.05, this prior's 0.5)."""
+    person on a floor outweighs it (a log stature's error is ~0.05, this prior's 0.7)."""
     z = (np.asarray(log_heights) - np.log(CAMERA_HEIGHT_MEDIAN_M)) / CAMERA_HEIGHT_LOG_SD
     usual = (1.0 - CAMERA_HEIGHT_TAIL_SHARE) * np.exp(-0.5 * z ** 2) / (CAMERA_HEIGHT_LOG_SD * np.sqrt(2.0 * np.pi))
     return -np.log(usual + CAMERA_HEIGHT_TAIL_SHARE / log_range_width)
