@@ -112,8 +112,9 @@ def carry_keypoints(previous_gray: np.ndarray, gray: np.ndarray, keypoints: np.n
     frame ``gray`` by pyramidal Lucas–Kanade optical flow; a point the flow loses keeps its place
     with confidence 0."""
     points = np.ascontiguousarray(keypoints[..., :2].reshape(-1, 1, 2), dtype=np.float32)
-    # cv2's stubs want an array for nextPts; None has OpenCV allocate it
-    moved, status, _ = cv2.calcOpticalFlowPyrLK(previous_gray, gray, points, None,  # type: ignore[call-overload]
+    # nextPts is an output here (no OPTFLOW_USE_INITIAL_FLOW): an array rather than None, which
+    # OpenCV 4's type stubs refuse and OpenCV 5's accept
+    moved, status, _ = cv2.calcOpticalFlowPyrLK(previous_gray, gray, points, np.empty_like(points),
                                                 winSize=(FLOW_WINDOW_PX, FLOW_WINDOW_PX), maxLevel=FLOW_LEVELS)
     moved = moved.reshape(keypoints.shape[:2] + (2,))
     found = status.reshape(keypoints.shape[:2]).astype(bool) & np.isfinite(moved).all(axis=-1)
