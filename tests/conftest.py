@@ -1,5 +1,12 @@
-"""Shared test fixtures: paths to the bundled sample and to the shared real data."""
+"""Shared test fixtures: paths to the bundled sample and to the shared real data; skips for missing data.
+
+A test whose data or tool is absent skips with a reason starting :data:`MISSING` (:func:`needs`,
+:func:`skip_missing`). The summary counts those skips; under ``CI=true``, where ``../shared`` lies beside
+the clone and ``.ci/run`` installs every tool, each of them fails instead (docs/install.md, "Tests").
+"""
+import os
 from pathlib import Path
+from typing import NoReturn
 
 import pytest
 
@@ -8,6 +15,48 @@ SAMPLE_BVH = ROOT / "data" / "sample_bvh"
 SHARED_DATA = ROOT.parent / "shared" / "data"
 SHARED_BVH = SHARED_DATA / "cmu_bvh"
 SAMPLE_KEYPOINTS = ROOT / "data" / "sample_keypoints" / "pose2sim_cam01"
+# the Pose2Sim balancing take (4 calibrated cameras' OpenPose output, calibration, triangulation): the
+# accuracy gate's copy in the repository, so the tests on it always run
+REAL_TAKE = ROOT / "data" / "gate" / "pose2sim_balancing"
+MISSING = "missing: "
+
+
+def needs(*paths: Path) -> pytest.MarkDecorator:
+    """Skip (a failure under CI) unless every one of ``paths`` exists."""
+    absent = [str(path) for path in paths if not path.exists()]
+    return pytest.mark.skipif(bool(absent), reason=MISSING + ", ".join(absent))
+
+
+def skip_missing(what: str) -> NoReturn:
+    """Skip the running test for ``what`` (data or a tool) being absent: a failure under CI."""
+    pytest.skip(MISSING + what)
+
+
+def in_ci() -> bool:
+    return os.environ.get("CI", "").lower() == "true"
+
+
+def _skip_reason(report: pytest.TestReport) -> str:
+    longrepr = report.longrepr
+    return longrepr[2].removeprefix("Skipped: ") if isinstance(longrepr, tuple) else str(longrepr)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """Under CI a skip for missing data or a missing tool is a failure: there it means a broken set-up."""
+    report = (yield).get_result()
+    if report.skipped and in_ci() and _skip_reason(report).startswith(MISSING):
+        report.outcome = "failed"
+        report.longrepr = f"skipped, {_skip_reason(report)}: under CI=true every test's data and tools must be here"
+
+
+def pytest_terminal_summary(terminalreporter):
+    """How many tests skipped for missing data or tools, and the first few reasons."""
+    reasons = [_skip_reason(r) for r in terminalreporter.stats.get("skipped", [])
+               if _skip_reason(r).startswith(MISSING)]
+    if reasons:
+        terminalreporter.write_line(f"{len(reasons)} test(s) skipped for missing data or tools (failures under "
+                                    f"CI=true): {'; '.join(sorted(set(reasons))[:5])}")
 
 @pytest.fixture(scope="session")
 def small_db_path(tmp_path_factory):

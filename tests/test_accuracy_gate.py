@@ -100,3 +100,26 @@ def test_help_and_a_missing_database():
     run = subprocess.run([sys.executable, str(TOOL), "--help"], capture_output=True, text=True, timeout=60)
     assert run.returncode == 0 and "--write-thresholds" in run.stdout and "accuracy_gate.md" in run.stdout
     assert _tool().main(["--db", str(ROOT / "no such database")]) == 2
+
+
+@pytest.mark.parametrize("passed, skipped, in_ci, verdict", [
+    (0, 48, False, ": it checked nothing"), (0, 0, False, ": it checked nothing"),
+    (36, 12, True, ": 12 check(s) skipped under CI=true"), (36, 12, False, ""), (48, 0, True, "")])
+def test_a_gate_that_checked_nothing_or_skipped_under_ci_fails(passed, skipped, in_ci, verdict):
+    assert _tool().unchecked(passed, skipped, in_ci) == verdict
+
+
+def test_without_its_data_the_gate_fails_having_checked_nothing(small_db_path, tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv("CI", raising=False)
+    absent = ["--bvh-dir", str(tmp_path / "no clips"), "--real-take", str(tmp_path / "no take")]
+    assert _tool().main(["--db", str(small_db_path), *absent]) == 1
+    assert "accuracy gate: FAIL (0 passed, 0 failed, 48 skipped of 48 checks" in capsys.readouterr().out
+
+
+def test_the_gate_data_live_in_the_repository_where_the_tool_looks():
+    args = _tool().parse_args([])
+    assert all((args.bvh_dir / f"{clip}.bvh").is_file() for clip in GATE_CLIPS)
+    take_files = {"calibration.toml", "triangulated_4cam.trc", "openpose_body25b"}
+    assert {p.name for p in args.real_take.iterdir()} >= take_files
+    assert len(list((args.real_take / "openpose_body25b").glob("cam0?_json/*.json"))) == 400
+    assert args.bvh_dir.is_relative_to(ROOT) and args.real_take.is_relative_to(ROOT)

@@ -28,7 +28,9 @@ from mocapdb.detect.errors import DetectError
 from mocapdb.detect.model_store import DETECTOR, LANDMARKS, blazepose_paths, onnx_path, tflite_path
 from mocapdb.detect.openpose_out import openpose_json
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "videos"
+from .conftest import SHARED_DATA, skip_missing
+
+SHARED = SHARED_DATA / "videos"
 BALANCING = SHARED / "pose2sim_balancing" / "cam01.mp4"
 SPORTS2D = SHARED / "sports2d_demo" / "demo.mp4"
 REL_TOLERANCE = 1e-3   # the target: converted outputs within 1e-3 of the TFLite reference's range
@@ -41,12 +43,12 @@ def _prepared(variant: str) -> tuple[Path, Path]:
     try:
         return blazepose_paths(variant)
     except DetectError as exc:
-        pytest.skip(str(exc))
+        skip_missing(str(exc))
 
 
 def _frames(path: Path, indices: tuple[int, ...]) -> list[np.ndarray]:
     if not path.exists():
-        pytest.skip(f"{path} not found (../shared)")
+        skip_missing(f"{path} (../shared)")
     capture, frames = cv2.VideoCapture(str(path)), []
     for i in range(max(indices) + 1):
         ok, image = capture.read()
@@ -66,7 +68,7 @@ def test_converted_models_match_the_tflite_originals_on_real_frames(model):
 
     _prepared("full")
     if not onnx_path(model).is_file():
-        pytest.skip(f"{model.stem} not prepared: `mocapdb models fetch lite heavy`")
+        skip_missing(f"{model.stem} not prepared: `mocapdb models fetch lite heavy`")
     reference = litert.Interpreter(model_path=str(tflite_path(model)))
     reference.allocate_tensors()
     (entry,) = reference.get_input_details()

@@ -11,12 +11,13 @@ from mocapdb.core.motion import Motion
 from mocapdb.core.outputs import motion_bvh
 from mocapdb.core.skeleton import PELVIS, rest_positions_m, retarget
 
-from .conftest import ROOT
+from .conftest import MISSING, ROOT
 
 sys.path.insert(0, str(ROOT / "tools"))
 from blender_check import blender_available  # noqa: E402
 
-pytestmark = pytest.mark.skipif(not blender_available(), reason="Blender not installed")
+pytestmark = pytest.mark.skipif(not blender_available(),
+                                reason=f"{MISSING}Blender (the bpy wheel in $MOCAPDB_BPY_PYTHON)")
 
 
 def test_blender_imports_universal_bvh_with_the_same_joint_positions(tmp_path):

@@ -16,7 +16,7 @@ from mocapdb.runtime import body_size
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 
-from .conftest import SHARED_BVH
+from .conftest import SHARED_BVH, skip_missing
 from .test_body_size import _filled, _head_on_top
 
 CLIP = SHARED_BVH / "007_05.bvh"
@@ -44,7 +44,7 @@ def test_narrow_hips_are_believed_where_a_head_top_is_not():
 def narrow_walk():
     """The walk's joints ``[F, 15, 3]`` (world, metres) on the narrow-hipped body."""
     if not CLIP.is_file():
-        pytest.skip("shared CMU data not present")
+        skip_missing(str(CLIP))
     (truth,) = load_heldout([CLIP], 24.0)
     return reshape_body(truth.source_joints(), BODY)
 

@@ -26,7 +26,7 @@ from mocapdb.core.skeleton import (
     pose_from_rotations,
 )
 
-from .conftest import SAMPLE_BVH
+from .conftest import MISSING, SAMPLE_BVH
 
 OPENSIM_PYTHON_ENV = "MOCAPDB_OPENSIM_PYTHON"  # a Python with `pip install opensim` (CI sets it)
 # Bones Unity's Humanoid avatar requires, and HumanIK's characterisation needs, by Mixamo name.
@@ -153,7 +153,7 @@ def test_bvh_lead_frames_need_a_first_frame(lead):
         format_bvh(bvh, lead_frames=lead)
 
 
-@pytest.mark.skipif(not os.environ.get(OPENSIM_PYTHON_ENV), reason=f"no OpenSim: set ${OPENSIM_PYTHON_ENV}")
+@pytest.mark.skipif(not os.environ.get(OPENSIM_PYTHON_ENV), reason=f"{MISSING}OpenSim: set ${OPENSIM_PYTHON_ENV}")
 def test_opensim_reads_the_trc(tmp_path):
     positions = np.random.default_rng(1).normal(size=(12, len(KEYPOINTS), 3))
     (tmp_path / "m.trc").write_text(format_trc(list(KEYPOINTS), positions, 60.0, np.arange(5, 17)))

@@ -17,7 +17,7 @@ from mocapdb.core.joint_map import (
 )
 from mocapdb.core.skeleton import KEYPOINTS, N_POINTS
 
-from .conftest import SHARED_BVH
+from .conftest import SHARED_BVH, needs
 
 KP = {name: i for i, name in enumerate(KEYPOINTS)}
 
@@ -383,7 +383,7 @@ def test_describe_lists_roles_and_sources():
 REAL_FILES = ["001_01.bvh", "002_01.bvh"]
 
 
-@pytest.mark.skipif(not SHARED_BVH.is_dir(), reason="shared CMU BVH data not present")
+@needs(SHARED_BVH)
 @pytest.mark.parametrize("name", REAL_FILES)
 def test_real_character_creator_file(name):
     bvh = read_bvh(SHARED_BVH / name)

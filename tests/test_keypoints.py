@@ -28,10 +28,9 @@ from mocapdb.core.formats.openpose import (
 )
 from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D
 
-from .conftest import SAMPLE_KEYPOINTS, SHARED_DATA
+from .conftest import REAL_TAKE, SAMPLE_KEYPOINTS
 
-BODY25B_DIR = SHARED_DATA / "pose2sim_balancing" / "openpose_body25b"
-needs_body25b = pytest.mark.skipif(not BODY25B_DIR.is_dir(), reason="shared pose2sim BODY_25B data not present")
+BODY25B_DIR = REAL_TAKE / "openpose_body25b"
 
 # A person standing, facing the camera (their right on the image's left), pixels, y down.
 FIGURE = {
@@ -203,7 +202,6 @@ def _as_body25(raw: np.ndarray) -> np.ndarray:
     return out
 
 
-@needs_body25b
 @pytest.mark.parametrize("cam", [1, 2, 3, 4])
 def test_detect_real_body25b(cam):
     raw = _real_body25b(cam)
@@ -211,7 +209,6 @@ def test_detect_real_body25b(cam):
     assert detect_layout(_as_body25(raw)) == "body25"
 
 
-@needs_body25b
 def test_read_real_folder():
     frames = list(read_openpose_folder(BODY25B_DIR / "cam01_json", fps=60.0))
     assert [f.index for f in frames] == list(range(100))

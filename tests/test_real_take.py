@@ -14,10 +14,9 @@ from mocapdb.core.formats.trc import read_trc, trc_keypoints
 from mocapdb.core.skeleton import KP, PELVIS, rest_positions_m
 from mocapdb.evaluation.real_take import camera_to_trc, score, trc_to_world
 
-from .conftest import SHARED_DATA
+from .conftest import REAL_TAKE
 
-TAKE = SHARED_DATA / "pose2sim_balancing"
-needs_take = pytest.mark.skipif(not TAKE.is_dir(), reason="the shared Pose2Sim take is not here")
+TAKE = REAL_TAKE
 
 
 def _trc() -> np.ndarray:
@@ -40,7 +39,6 @@ def _projection_errors_px(name: str, section: dict, world: np.ndarray) -> np.nda
     return np.concatenate(errors)
 
 
-@needs_take
 def test_trc_projects_onto_each_cameras_openpose_keypoints():
     calibration = tomllib.loads((TAKE / "calibration.toml").read_text())
     trc = _trc()
@@ -57,7 +55,6 @@ def test_trc_projects_onto_each_cameras_openpose_keypoints():
     assert np.allclose(cam.project(world[0]), reference.reshape(-1, 2), atol=1e-6)
 
 
-@needs_take
 def test_camera_aligned_points_go_back_to_the_trc():
     trc = _trc()
     world = trc[..., [2, 0, 1]]  # world x, y, z = TRC z, x, y
@@ -98,7 +95,6 @@ def test_scores_are_zero_on_the_truth_and_the_shift_on_a_shifted_truth():
     assert moved["planted_foot_height_error_cm"]["mean"] == pytest.approx(-40.0)
 
 
-@needs_take
 def test_real_take_command_on_one_camera(small_db_path, tmp_path, capsys):
     out = tmp_path / "real_take.json"
     args = ["eval", "--db", str(small_db_path), "--real-take", str(TAKE), "--cameras", "cam_01", "--out", str(out)]
@@ -125,7 +121,6 @@ def test_real_take_command_on_one_camera(small_db_path, tmp_path, capsys):
     assert "--real-take" in capsys.readouterr().err
 
 
-@needs_take
 def test_a_camera_folders_take_description_must_agree_with_the_take(tmp_path):
     """A camera folder that `mocapdb detect` wrote holds a take.json: its rate and image size must be the
     TRC's and the calibration's (here the video was detected at half its rate)."""

@@ -12,9 +12,9 @@ import pytest
 from mocapdb.core.formats.bvh import Bvh, accumulate_transforms, local_transforms, motion_from_rotations, read_bvh
 from mocapdb.core.joint_map import JointMapError, detect_mapping
 
-from .conftest import SHARED_BVH
+from .conftest import SHARED_BVH, needs
 
-pytestmark = pytest.mark.skipif(not SHARED_BVH.is_dir(), reason="shared CMU BVH data not present")
+pytestmark = needs(SHARED_BVH)
 
 RUN = "002_03.bvh"       # CMU subject 2, "run/jog"
 WAIST = "CC_Base_Waist"  # carries the spine, the arms and the head; the legs hang from the pelvis

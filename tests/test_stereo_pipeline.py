@@ -31,9 +31,9 @@ from mocapdb.stereo.pipeline import select_people
 from mocapdb.stereo.relative_pose import rotation_angle_deg
 from mocapdb.stereo.views import load_views
 
-from .conftest import SAMPLE_BVH, SAMPLE_KEYPOINTS, SHARED_DATA
+from .conftest import REAL_TAKE, SAMPLE_BVH, SAMPLE_KEYPOINTS
 
-POSE2SIM = SHARED_DATA / "pose2sim_balancing"
+POSE2SIM = REAL_TAKE
 
 
 @pytest.fixture(scope="module")
@@ -309,7 +309,6 @@ def test_stereo_reads_each_views_take_description(tmp_path, motion, capsys, capl
              f"{v1}/take.json says 25 Hz, {v2}/take.json says 50 Hz: the views must be synchronised")
 
 
-@pytest.mark.skipif(not POSE2SIM.is_dir(), reason="shared Pose2Sim data not present")
 def test_every_real_pair_keeps_every_frame_and_joint_both_views_see():
     """Issue 19, item 3 (tools/eval_stereo_pairs.py): on all 6 pairs of the Pose2Sim take, no frame where
     both views see the person is lost (target ≤ 2 %), and no joint both see is written null (camera 1's
@@ -354,7 +353,6 @@ def test_pairs_of_keypoint_folders_are_scored_against_the_calibration(tmp_path, 
         assert row.rotation_error_deg < 2.0 and row.pa_mpjpe_mm < 30.0, row
 
 
-@pytest.mark.skipif(not POSE2SIM.is_dir(), reason="shared Pose2Sim data not present")
 def test_real_pose2sim_pair(tmp_path, capsys):
     json_dir = POSE2SIM / "openpose_body25b"
     code = _stereo([str(json_dir / "cam01_json"), str(json_dir / "cam02_json"), "--out", str(tmp_path),
@@ -378,7 +376,6 @@ def test_real_pose2sim_pair(tmp_path, capsys):
     assert len(errors) >= 80 and np.mean(errors) < 0.06
 
 
-@pytest.mark.skipif(not POSE2SIM.is_dir(), reason="shared Pose2Sim data not present")
 def test_trc_reader_on_the_real_file():
     trc = read_trc(POSE2SIM / "triangulated_4cam.trc")
     assert trc.positions.shape == (100, 21, 3) and trc.rate_hz == 60.0
