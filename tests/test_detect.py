@@ -392,24 +392,26 @@ def truncated_video(tmp_path):
     return cut
 
 
-def test_a_truncated_video_is_an_error_that_keeps_the_frames_read(truncated_video, yolo_model, tmp_path, capsys):
+def test_a_truncated_video_is_read_to_its_last_frame_with_a_warning(truncated_video, yolo_model, tmp_path, capsys):
+    """Issue 52, item 4: a file shorter than its header is what players play: every frame read is
+    written, a warning says how many of how many, the command succeeds."""
     reader = VideoReader(str(truncated_video))
     assert reader.frame_count == TRUNCATED_FRAMES and reader.truncation() is None   # not at its end yet
     assert len(list(reader.frames())) == 1 and reader.ended
-    assert reader.truncation().endswith("video ended after 1 of 20 frames: the file looks truncated "
-                                        "(an interrupted copy or download, or a recording that was not closed)")
+    assert reader.truncation().endswith("the container promised 20 frames, 1 could be read: the file looks cut "
+                                        "short (an interrupted copy or download, or a recording that was not "
+                                        "closed); every frame read is used")
     reader.close()
     out = tmp_path / "kp"
-    assert detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out)) == 2
+    assert detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out)) == 0
     captured = capsys.readouterr()
-    assert "frames read 1, frames written 1 (the video ended early: truncated?)" in captured.out
-    assert captured.err.startswith(f"mocapdb detect: error: {truncated_video}: video ended after 1 of 20 frames: "
-                                   "the file looks truncated") and "Traceback" not in captured.err
-    assert f"the 1 file(s) written in {out} are kept" in captured.err
+    assert "frames read 1, frames written 1 (the video ended before its declared frame count)" in captured.out
+    assert captured.err.startswith(f"mocapdb: warning: {truncated_video}: the container promised 20 frames, "
+                                   "1 could be read") and "Traceback" not in captured.err
     assert sorted(f.name for f in out.iterdir()) == ["cut_000000000000_keypoints.json", "take.json"]
     assert len(list(read_openpose_folder(out))[0].people) == 2
-    assert detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out), "--every", "3") == 2
-    assert "video ended after 1 of 20 frames" in capsys.readouterr().err
+    assert detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out), "--every", "3") == 0
+    assert "the container promised 20 frames, 1 could be read" in capsys.readouterr().err
 
 
 def test_a_video_read_to_its_declared_end_or_without_a_count_is_fine(video, truncated_video):
@@ -434,7 +436,7 @@ def test_the_live_video_source_warns_about_a_truncated_file(truncated_video, yol
     while not live.finished and time.monotonic() < deadline:
         live.get(timeout=0.1)
     live.close()
-    assert "\nwarning: " in live.report() and "video ended after 1 of 20 frames" in live.report()
+    assert "\nwarning: " in live.report() and "the container promised 20 frames, 1 could be read" in live.report()
 
 
 def test_detect_os_errors_name_the_path(video, yolo_model, tmp_path, capsys, monkeypatch):

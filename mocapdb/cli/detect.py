@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -22,6 +23,8 @@ from mocapdb.detect.options import (
 
 if TYPE_CHECKING:
     from mocapdb.detect.tracked import FastPath
+
+LOG = logging.getLogger(__name__)
 
 
 def add_model_options(p: argparse.ArgumentParser) -> None:
@@ -90,9 +93,10 @@ def add_detect_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run_detect(args: argparse.Namespace) -> int:
-    """``mocapdb detect``: 0 on success; DetectError (exit 2) for a user error, also a video file
-    that ends before its declared frame count (its frames read are kept); 130 if a video file was
-    interrupted before its end."""
+    """``mocapdb detect``: 0 on success, also for a video file that ends before its declared frame
+    count (every frame read is written; a warning says how many of how many) or whose timestamps are
+    missing or jump (warned, :class:`~mocapdb.detect.video.VideoReader`); DetectError (exit 2) for a
+    user error; 130 if a video file was interrupted before its end."""
     from mocapdb.cli.signals import install_stop_handlers
     from mocapdb.core.outputs import check_output_folder
     from mocapdb.detect.detectors import open_detector
@@ -116,8 +120,8 @@ def run_detect(args: argparse.Namespace) -> int:
         reader.close()
     print(f"wrote {len(summary.people)} file(s) in {args.out} (model {model.describe()})")
     print(summary.report())
-    if summary.truncated:
-        raise DetectError(f"{summary.truncated}; the {len(summary.people)} file(s) written in {args.out} are kept")
+    for warning in summary.warnings:
+        LOG.warning("%s", warning)
     return 130 if summary.interrupted and not reader.is_camera else 0
 
 

@@ -4,8 +4,10 @@ runs the model over a video to write them.
 Detections come in the detector's layout: BlazePose's 33 landmarks are written as they are
 (``mediapipe33``), YOLO-pose and RTMO's COCO-17 in OpenPose's COCO-18 layout
 (:func:`coco17_to_coco18`), as ``<video stem>_<frame:012d>_keypoints.json``, each file atomically,
-so `mocapdb reconstruct` and `live` read them like OpenPose's own output. File format:
-``data_specs/pose_models.md``.
+so `mocapdb reconstruct` and `live` read them like OpenPose's own output. Each file also says its
+frame's number on the video's nominal timeline and its time from the container (``frame``, ``time``:
+:class:`~mocapdb.detect.video.FrameClock`), so a gap in the video keeps its length. File format:
+``data_specs/pose_models.md``; the frame times: ``data_specs/take_description.md``.
 
 The output folder is written in place as the video is read (``live`` may follow it meanwhile), not
 swapped in at the end as other commands' outputs are: a folder holding anything but an earlier
@@ -30,10 +32,10 @@ from mocapdb.core.formats.take import TAKE_FILE, TakeInfo, write_take
 from mocapdb.core.outputs import OutputFiles, clear_output_folder
 from mocapdb.core.progress import progress
 from mocapdb.detect.errors import DetectError
+from mocapdb.detect.video import FrameClock, VideoReader
 
 if TYPE_CHECKING:
     from mocapdb.detect.detectors import FrameDetector
-    from mocapdb.detect.video import VideoReader
 
 N_COCO = len(LAYOUTS["coco17"])
 DETECT_FILES = OutputFiles("detect", ("*_keypoints.json", TAKE_FILE), TAKE_FILE)  # an earlier output holds these
@@ -73,12 +75,15 @@ def written_layout(layout: str) -> str:
     return "coco18" if layout == "coco17" else layout
 
 
-def openpose_json(keypoints: np.ndarray, layout: str = "coco17", world: np.ndarray | None = None) -> str:
+def openpose_json(keypoints: np.ndarray, layout: str = "coco17", world: np.ndarray | None = None, *,
+                  frame: int | None = None, time_s: float | None = None) -> str:
     """One OpenPose ``--write_json`` frame (version 1.3) for people ``[P, K, 3]`` in ``layout``:
     COCO-17 becomes COCO-18 (:func:`coco17_to_coco18`), other layouts (BlazePose's 33) stay; non-finite
     points become (0, 0, 0), "not found". ``world [P, K, 3]`` (metres; BlazePose's world landmarks) is
     written as each person's :data:`WORLD_FIELD`, ``[x0, y0, z0, x1, ...]`` to 0.1 mm (a person whose
-    world landmarks are not all finite gets none)."""
+    world landmarks are not all finite gets none). ``frame`` (the frame's number at the keypoints'
+    rate) and ``time_s`` (seconds since the first frame, to 1 µs) are written as ``frame`` and ``time``
+    when given, the fields the JSON-lines stream reads (``data_specs/keypoint_formats.md``)."""
     size = len(LAYOUTS[layout])
     rows = np.asarray(keypoints, dtype=np.float64).reshape(-1, size, 3)
     rows = coco17_to_coco18(rows) if layout == "coco17" else \
@@ -92,7 +97,10 @@ def openpose_json(keypoints: np.ndarray, layout: str = "coco17", world: np.ndarr
         for person, points in zip(people, np.asarray(world, dtype=np.float64).reshape(-1, size, 3)):
             if np.isfinite(points).all():
                 person[WORLD_FIELD] = np.round(points, 4).ravel().tolist()
-    return json.dumps({"version": 1.3, "people": people})
+    timing: dict[str, float] = {"frame": frame} if frame is not None else {}
+    if time_s is not None:
+        timing["time"] = round(time_s, 6)
+    return json.dumps({"version": 1.3, **timing, "people": people})
 
 
 def frame_file_name(stem: str, index: int) -> str:
@@ -109,6 +117,8 @@ class DetectSummary:
     detection_fps: float = 0.0
     interrupted: bool = False
     truncated: str | None = None   # why the video looks truncated (VideoReader.truncation), else None
+    warnings: list[str] = field(default_factory=list)   # the video's truncation and timestamps (the caller's to say)
+    gaps: str | None = None        # the gaps in the video's timestamps (FrameClock.report), else None
 
     def report(self) -> str:
         counts = np.array(self.people, dtype=np.int64)
@@ -116,9 +126,10 @@ class DetectSummary:
         return "\n".join([
             f"frames read {self.frames_read}, frames written {counts.size}"
             + (" (interrupted)" if self.interrupted else "")
-            + (" (the video ended early: truncated?)" if self.truncated else ""),
+            + (" (the video ended before its declared frame count)" if self.truncated else ""),
             f"people per frame: mean {mean:.2f}, max {most}, frames with nobody {int(np.sum(counts == 0))}",
-            f"detection {self.detection_fps:.1f} frames/s"])
+            f"detection {self.detection_fps:.1f} frames/s"]
+            + ([f"frame times: {self.gaps}"] if self.gaps else []))
 
 
 def detect_video(reader: VideoReader, model: FrameDetector, out_dir: Path, every: int = 1,
@@ -127,16 +138,19 @@ def detect_video(reader: VideoReader, model: FrameDetector, out_dir: Path, every
     :mod:`mocapdb.detect.tracked`) and write one OpenPose JSON file per frame
     (atomically) into ``out_dir``, then the take description (``take.json``: the keypoints' frame
     rate, the image size, the frames written, source and model; :mod:`mocapdb.core.formats.take`);
-    ends with the video or once ``stop`` is set. ``out_dir`` is emptied of an earlier detect output
-    first and refused (OutputFolderError) when it holds anything else (see the module docstring).
-    ``truncated`` of the summary says when the video file ended before its declared frame count (the
-    files written are complete); DetectError naming the path when the folder or a file cannot be
-    written."""
+    each file holds its frame's number and time (:func:`openpose_json`). Ends with the video or once
+    ``stop`` is set. ``out_dir`` is emptied of an earlier detect output first and refused
+    (OutputFolderError) when it holds anything else (see the module docstring). The summary's
+    ``truncated`` says when the video file ended before its declared frame count (every frame read is
+    written), its ``warnings`` that and frames without a usable timestamp, its ``gaps`` the jumps in
+    the timestamps; DetectError naming the path when the folder or a file cannot be written."""
     try:
         clear_output_folder(out_dir, DETECT_FILES)
     except OSError as exc:
         raise DetectError(os_error_message(exc, out_dir, "create the output folder")) from None
     summary = DetectSummary()
+    rate_hz = reader.fps / every if reader.fps else None
+    clock = FrameClock(None if reader.is_camera else rate_hz)   # a camera's frames are numbered as they come
     total = -(-reader.frame_count // every) if reader.frame_count else None
     size = None
     with progress(total=total, desc=f"detect {reader.name}", unit="frame") as bar:
@@ -145,7 +159,8 @@ def detect_video(reader: VideoReader, model: FrameDetector, out_dir: Path, every
             found = model(frame.image)
             path = out_dir / frame_file_name(reader.name, frame.index)
             try:
-                write_atomic(path, openpose_json(found.keypoints, model.keypoint_layout, found.world))
+                write_atomic(path, openpose_json(found.keypoints, model.keypoint_layout, found.world,
+                                                 frame=clock.number(frame.time_s), time_s=frame.time_s))
             except OSError as exc:
                 raise DetectError(os_error_message(exc, path, "write the keypoints")) from None
             summary.people.append(len(found.scores))
@@ -155,7 +170,9 @@ def detect_video(reader: VideoReader, model: FrameDetector, out_dir: Path, every
                 break
     summary.frames_read, summary.detection_fps = reader.frames_read, model.fps
     summary.truncated = None if summary.interrupted else reader.truncation()
-    take = TakeInfo(fps=reader.fps / every if reader.fps else None, image_size=size, frames=len(summary.people),
+    summary.warnings = [w for w in (summary.truncated, *reader.time_warnings()) if w]
+    summary.gaps = clock.report()
+    take = TakeInfo(fps=rate_hz, image_size=size, frames=len(summary.people),
                     source=reader.label, model=model.path.name, layout=written_layout(model.keypoint_layout))
     try:
         write_take(out_dir, take)

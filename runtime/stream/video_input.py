@@ -7,7 +7,10 @@ this one. Frames (universal 14 keypoints) wait in a small buffer; when the consu
 falls behind, the oldest is dropped and counted (``StreamStats.dropped_stale``), as
 :class:`~mocapdb.runtime.stream.buffering.LiveInput` does for messages. Every frame carries the moment it was
 decoded, so the session's latency is end to end: capture → output line. A file is read as fast as
-detection goes (not paced to its frame rate); a camera paces itself.
+detection goes (not paced to its frame rate); a camera paces itself. A file's frames carry their
+container timestamps and their numbers on the video's nominal timeline
+(:class:`~mocapdb.detect.video.FrameClock`): a gap in the video is a jump in frame numbers, which
+the engine bridges as frames nobody was seen in, so the BVH keeps the gap's length.
 """
 from __future__ import annotations
 
@@ -19,7 +22,7 @@ from mocapdb.core.formats.keypoints import KeypointFrame, Person, to_extremities
 from mocapdb.detect.detectors import FrameDetector
 from mocapdb.detect.errors import DetectError
 from mocapdb.detect.model import Detections
-from mocapdb.detect.video import VideoFrame, VideoReader
+from mocapdb.detect.video import FrameClock, VideoFrame, VideoReader
 from mocapdb.runtime.stream.buffering import BufferedThread
 from mocapdb.runtime.stream.messages import StreamStats
 
@@ -37,15 +40,17 @@ class CapturedFrame(NamedTuple):
     capture_s: float
 
 
-def keypoint_frame(video_frame: VideoFrame, found: Detections, layout: str = "coco17") -> KeypointFrame:
+def keypoint_frame(video_frame: VideoFrame, found: Detections, layout: str = "coco17",
+                   number: int | None = None) -> KeypointFrame:
     """The people ``found`` (keypoints in ``layout``) in ``video_frame`` as the engine takes them
-    (universal keypoints, frame pixels; the detector's world landmarks when it gives them)."""
+    (universal keypoints, frame pixels; the detector's world landmarks when it gives them), numbered
+    ``number`` (default: the frame's index in the video)."""
     points, confidence = to_universal(found.keypoints, layout)
     extremities = to_extremities(found.keypoints, layout)   # heels, toes, knuckles (BlazePose), else None
     world = None if found.world is None else to_universal_world(found.world, layout)
     people = [Person(p, c, None, None if extremities is None else extremities[i], None if world is None else world[i])
               for i, (p, c) in enumerate(zip(points, confidence))]
-    return KeypointFrame(video_frame.index, video_frame.time_s, people, layout)
+    return KeypointFrame(video_frame.index if number is None else number, video_frame.time_s, people, layout)
 
 
 class VideoDetections(BufferedThread[CapturedFrame]):
@@ -64,6 +69,7 @@ class VideoDetections(BufferedThread[CapturedFrame]):
         super().__init__(capacity, stats if stats is not None else StreamStats(), "mocapdb-video-detect")
         self.model, self.every = model, every
         self.reader = VideoReader(source)
+        self.clock = FrameClock(None if self.reader.is_camera or not self.reader.fps else self.reader.fps / every)
         self.frames_detected = 0
         self._stop = threading.Event()
         self._start()
@@ -78,7 +84,8 @@ class VideoDetections(BufferedThread[CapturedFrame]):
             yield captured
 
     def _detect(self, video_frame: VideoFrame) -> KeypointFrame:
-        return keypoint_frame(video_frame, self.model(video_frame.image), self.model.keypoint_layout)
+        return keypoint_frame(video_frame, self.model(video_frame.image), self.model.keypoint_layout,
+                              self.clock.number(video_frame.time_s))
 
     @property
     def detection_fps(self) -> float:
@@ -86,13 +93,15 @@ class VideoDetections(BufferedThread[CapturedFrame]):
         return self.model.fps
 
     def report(self) -> str:
-        """One summary line: frames read, detected, dropped, detection rate; a warning line after it
-        when the video file ended before its declared frame count
-        (:meth:`~mocapdb.detect.video.VideoReader.truncation`)."""
-        truncated = self.reader.truncation()
-        return (f"video {self.reader.label}: frames read {self.reader.frames_read}, detected {self.frames_detected}, "
-                f"dropped {self.dropped}; detection {self.detection_fps:.1f} frames/s ({self.model.describe()})"
-                + (f"\nwarning: {truncated}" if truncated else ""))
+        """One summary line: frames read, detected, dropped, detection rate; a line on the gaps in the
+        video's timestamps (:class:`~mocapdb.detect.video.FrameClock`); a warning line when the video
+        file ended before its declared frame count or some frames had no usable timestamp
+        (:meth:`~mocapdb.detect.video.VideoReader.truncation`, ``time_warnings``)."""
+        notes = [f"frame times: {gaps}" for gaps in [self.clock.report()] if gaps]
+        notes += [f"warning: {w}" for w in (self.reader.truncation(), *self.reader.time_warnings()) if w]
+        return "\n".join([f"video {self.reader.label}: frames read {self.reader.frames_read}, detected "
+                          f"{self.frames_detected}, dropped {self.dropped}; detection {self.detection_fps:.1f} "
+                          f"frames/s ({self.model.describe()})", *notes])
 
     def close(self) -> None:
         """Stops the thread (after the frame in hand), waits for it and releases the video; idempotent."""

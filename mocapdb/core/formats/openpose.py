@@ -11,7 +11,7 @@ import os
 import re
 from collections.abc import Container, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import TypeVar
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 
@@ -194,52 +194,72 @@ def _frame_files(folder: Path) -> list[Path]:
     return [folder / name for name in sorted(names, key=frame_order_key)]
 
 
-def _read_people(path: Path) -> list[RawPerson]:
+class _ParsedFrame(NamedTuple):
+    """A frame's people as its file holds them, and the frame's own number and time (seconds) when
+    it gives them (``frame``, ``time``: as a stream line's), else None."""
+
+    people: list[RawPerson]
+    number: int | None = None
+    time_s: float | None = None
+
+
+def _read_frame_file(path: Path) -> _ParsedFrame:
     text = _read_text(path, MAX_FRAME_FILE_BYTES)
     with error_source(path):
-        return _raw_people(_load_json(text))
+        obj = _load_json(text)
+        index, time_s = _frame_and_time(obj) if isinstance(obj, dict) else (None, None)
+        return _ParsedFrame(_raw_people(obj), index, time_s)
 
 
 def read_openpose_folder(folder: str | Path, layout: str | None = None,
                          fps: float | None = None) -> Iterator[KeypointFrame]:
     """The frames of an OpenPose ``--write_json`` folder (or of MMPose per-image files), in frame-number order.
 
-    ``index`` is the position in that order; ``time_s = index / fps`` (seconds) when ``fps`` (Hz)
-    is given. ``layout`` None: detected once from the first :data:`DETECT_FRAMES` frames holding
-    people, then fixed. Folder errors are raised at once, file errors when the file is reached.
+    ``index`` is the file's own ``frame`` (`mocapdb detect` writes it: the frame's number on the
+    video's nominal timeline), else one more than the frame before (the position in that order
+    when no file gives one), as `reconstruct` numbers them; ``time_s`` the file's own ``time``, else
+    ``index / fps`` (seconds) when ``fps`` (Hz) is given. ``layout`` None: detected once from the
+    first :data:`DETECT_FRAMES` frames holding people, then fixed. Folder errors are raised at once,
+    file errors when the file is reached.
     """
     files = _frame_files(Path(folder))
     check_fps(fps)
-    return _detected_frames((_read_people(p) for p in files), files, optional_layout(layout), fps, files[0].parent)
+    return _detected_frames((_read_frame_file(p) for p in files), files, optional_layout(layout), fps,
+                            files[0].parent)
 
 
 def read_raw_folder(folder: str | Path) -> list[list[RawPerson]]:
     """Each frame's people of a keypoint folder as its files hold them (the source layout, not mapped
     onto the universal 14), in frame order (:func:`frame_order_key`); errors name the file."""
-    return [_read_people(p) for p in _frame_files(Path(folder))]
+    return [_read_frame_file(p).people for p in _frame_files(Path(folder))]
 
 
-def _detected_frames(parsed: Iterator[list[RawPerson]], names: Sequence[object], layout: str | None,
+def _detected_frames(parsed: Iterator[_ParsedFrame], names: Sequence[object], layout: str | None,
                      fps: float | None, pool_name: object) -> Iterator[KeypointFrame]:
-    """Frames of the people lists ``parsed`` (frame i is ``names[i]`` in errors); ``layout`` None:
-    detected once from the first :data:`DETECT_FRAMES` frames holding people (``pool_name`` in errors)."""
-    buffered: list[list[RawPerson]] = []
+    """Frames of ``parsed`` (frame i is ``names[i]`` in errors), numbered and timed as
+    :func:`read_openpose_folder` says; ``layout`` None: detected once from the first
+    :data:`DETECT_FRAMES` frames holding people (``pool_name`` in errors)."""
+    buffered: list[_ParsedFrame] = []
     if layout is None:
         with_people = 0
-        for people in parsed:
-            buffered.append(people)
-            with_people += bool(people)
+        for item in parsed:
+            buffered.append(item)
+            with_people += bool(item.people)
             if with_people >= DETECT_FRAMES:
                 break
-        pool = [p.raw for b in buffered for p in b]
+        pool = [p.raw for b in buffered for p in b.people]
         if pool:
             with error_source(pool_name):
                 if len({len(r) for r in pool}) > 1:
                     raise KeypointError("the first frames mix people with different keypoint counts")
                 layout = detect_layout(np.stack(pool))
-    for index, people in enumerate(itertools.chain(buffered, parsed)):
-        with error_source(names[index]):
-            frame = build_frame(index, frame_time(index, fps), people, layout)
+    next_index = 0
+    for position, own in enumerate(itertools.chain(buffered, parsed)):
+        index = next_index if own.number is None else own.number
+        time_s = frame_time(index, fps) if own.time_s is None else own.time_s
+        with error_source(names[position]):
+            frame = build_frame(index, time_s, own.people, layout)
+        next_index = index + 1
         yield frame
 
 
@@ -277,7 +297,7 @@ def read_mmpose_json(path: str | Path, layout: str | None = None, fps: float | N
     with error_source(path):
         people = _mmpose_people(_load_json(text))
         names = [f"frame {i}" for i in range(len(people))]
-        return list(_detected_frames(iter(people), names, optional_layout(layout), fps, None))
+        return list(_detected_frames(map(_ParsedFrame, people), names, optional_layout(layout), fps, None))
 
 
 def _field(obj: dict, key: str, kinds: tuple[type[T], ...], what: str) -> T | None:
@@ -301,12 +321,18 @@ def parse_stream_line(line: str, default_layout: str | None = None,
     obj = _load_json(line)
     if isinstance(obj, list):
         return build_frame(-1, None, _raw_people(obj), optional_layout(default_layout), known)
+    index, time_s = _frame_and_time(obj)
+    layout = optional_layout(obj.get("layout", default_layout))
+    return build_frame(-1 if index is None else index, time_s, _raw_people(obj), layout, known)
+
+
+def _frame_and_time(obj: dict) -> tuple[int | None, float | None]:
+    """A frame object's own ``frame`` number and ``time`` (seconds), each None when absent or null;
+    KeypointError when out of range (:data:`MAX_INTEGER`, :data:`MAX_TIME_S`)."""
     index = _field(obj, "frame", (int,), "a non-negative integer")
     if index is not None and not 0 <= index < MAX_INTEGER:
         raise KeypointError("'frame' must be a non-negative integer below 2**53")
     time_s = _field(obj, "time", (int, float), "a number of seconds")
     if time_s is not None and not abs(time_s) < MAX_TIME_S:  # NaN, infinite, or beyond any take
         raise KeypointError(f"'time' must be a finite number of seconds below {MAX_TIME_S:,.0f} in magnitude")
-    layout = optional_layout(obj.get("layout", default_layout))
-    return build_frame(-1 if index is None else index, None if time_s is None else float(time_s),
-                       _raw_people(obj), layout, known)
+    return index, None if time_s is None else float(time_s)
