@@ -85,6 +85,7 @@ def test_the_camera_in_ordinary_terms(small_db_path, tmp_path, capsys):
     """--fov (horizontal degrees) and --focal-35mm (35 mm equivalent) become pixels for the image;
     the header records the focal used; out-of-range values and two at once are refused."""
     import json
+    import shutil
 
     import numpy as np
     import pytest
@@ -96,7 +97,10 @@ def test_the_camera_in_ordinary_terms(small_db_path, tmp_path, capsys):
 
     assert focal_from_fov(90.0, (1920, 1080)) == pytest.approx(960.0)           # by hand: 960 / tan 45°
     assert focal_from_35mm(26.0, (1920, 1080)) == pytest.approx(26 * 2202.907 / 43.27, rel=1e-5)
-    common = [str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--fps", "60", "--image-size", "1088x1920"]
+    source = tmp_path / "cam01"  # without its take.json, which gives a focal length
+    shutil.copytree(SAMPLE_KEYPOINTS, source)
+    (source / "take.json").unlink()
+    common = [str(source), "--db", str(small_db_path), "--fps", "60", "--image-size", "1088x1920"]
     for option, expected in ((["--fov", "90"], 544.0), (["--focal-35mm", "43.27"], float(np.hypot(1088, 1920)))):
         out = tmp_path / option[0].strip("-")
         assert main(["reconstruct", *common, "--out", str(out), *option]) == 0

@@ -210,7 +210,7 @@ def test_eval_live_scores_world_landmarks_as_the_others(small_db, tmp_path):
     body25b = SOURCE_INDEX["body25b"]
     copy = tmp_path / "cam01"
     copy.mkdir()
-    files = sorted(SAMPLE_KEYPOINTS.glob("*.json"))
+    files = sorted(SAMPLE_KEYPOINTS.glob("cam01.*.json"))
     for t, path in enumerate(files):
         frame = json.loads(path.read_text())
         for i, person in enumerate(frame["people"]):

@@ -643,7 +643,7 @@ def test_a_transformed_copy_has_no_parallax(tmp_path, motion, capsys, change):
     (["--focal", "1000", "--image-size", "5x10"], "argument --image-size: '5x10': width and height must each be"),
     (["--focal", "1000", "--image-size", "1088x1920", "--center", "nan", "5"],
      "argument --center: 'nan': must be a pixel coordinate"),
-    (["--focal", "1000", "--image-size", "1088x1920", "--center", "5000", "10"],
+    (["--image-size", "1088x1920", "--center", "5000", "10"],  # the focal: each folder's take.json
      "principal point (5000, 10) px is far outside the 1088 × 1920 px image"),
     ([*BUNDLED_ARGS, "--camera-distance", "0"], "argument --camera-distance: '0': must be a distance"),
     ([*BUNDLED_ARGS, "--camera-distance", "-5"], "argument --camera-distance: '-5': must be a distance"),
@@ -777,7 +777,7 @@ def test_a_main_person_behind_a_camera_is_refused_others_warned():
 def _view_copy(folder, order):
     """Camera 4's bundled frames renamed in the given order (a view of another moment of the take)."""
     folder.mkdir()
-    frames = sorted((BUNDLED / "pose2sim_cam04").glob("*.json"))
+    frames = sorted((BUNDLED / "pose2sim_cam04").glob("cam04.*.json"))
     for k, source in enumerate(frames[i] for i in order):
         shutil.copy(source, folder / f"cam04.{k:04d}.json")
     return folder

@@ -371,7 +371,7 @@ def _shifted_view(tmp: Path) -> Path:
     """Camera 4's frames from another moment of the take: frame i holds frame i + 50 (wrapped)."""
     view = tmp / "cam04_shifted"
     view.mkdir()
-    files = sorted(CAM4.glob("*.json"))
+    files = sorted(CAM4.glob("cam04.*.json"))
     for i, f in enumerate(files):
         shutil.copy(files[(i + 50) % len(files)], view / f.name)
     return view

@@ -154,9 +154,11 @@ def resolve_take(args: argparse.Namespace, source: str) -> None:
     for ``live --source VIDEO --model``; the defaults where nothing says. An option that contradicts
     it is an error naming both. ``args.camera_sources`` says where each came from (given, read,
     default); ``args.fps`` stays None when neither gave it (the warning stays)."""
+    from dataclasses import replace
     from pathlib import Path
 
-    from mocapdb.core.formats.take import DEFAULT_FOCAL_35MM, TAKE_FILE, read_take, resolve_camera
+    from mocapdb.core.formats.folder_size import size_of_keypoint_folder
+    from mocapdb.core.formats.take import DEFAULT_FOCAL_35MM, TAKE_FILE, TakeInfo, read_take, resolve_camera
 
     if getattr(args, "blazepose", None) and _is_video(source):
         take, where = _video_take(source), source
@@ -164,7 +166,12 @@ def resolve_take(args: argparse.Namespace, source: str) -> None:
         take = read_take(source) if source and Path(source).is_dir() else None
         where = str(Path(source) / TAKE_FILE)
     given_size = args.image_size
+    seen_size = None if given_size or (take and take.image_size) else size_of_keypoint_folder(source)
+    if seen_size:
+        take = TakeInfo(None, seen_size, None, source) if take is None else replace(take, image_size=seen_size)
     settings = resolve_camera(take, where, args.fps, given_size, _given_focal(args, given_size, take))
+    if seen_size:
+        settings.sources["image_size"] = "keypoints"
     if settings.sources["focal_px"] == "default":
         LOG.warning("no focal length given: assuming a typical phone main camera, %g mm equivalent (%.0f px for "
                     "%dx%d); give --focal PX, --fov DEG or --focal-35mm MM", DEFAULT_FOCAL_35MM, settings.focal_px,

@@ -21,6 +21,7 @@ from pathlib import Path
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.formats.keypoints import LAYOUTS, KeypointError, KeypointFrame
 from mocapdb.core.formats.openpose import parse_stream_line
+from mocapdb.core.formats.take import holds_keypoints
 from mocapdb.core.outputs import header_line
 from mocapdb.core.progress import compile_notice, kernels_cached
 from mocapdb.runtime import refine
@@ -72,11 +73,15 @@ class InputError(MocapdbError, ValueError):
     """Input that contradicts the command's parameters (e.g. keypoints outside --image-size)."""
 
 
+# where the image size came from (camera_sources["image_size"]) → how a frame outside it names the size
+SIZE_ORIGINS = {"given": " by --image-size", "read": " by the take description",
+                "default": ", a size assumed (none given, no take description)",
+                "keypoints": ", a size taken from the first frames' keypoints (none given, no take description)"}
+ASSUMED_SIZES = ("default", "keypoints")  # a frame outside these stops the run (live too)
+
+
 class SinkError(OSError):
     """The sink could not take a line (disk full, closed pipe): the session stops there."""
-
-
-IMAGE_MARGIN = 0.1  # keypoints may lie this fraction of the image size outside it (detectors extrapolate)
 
 
 class Session:
@@ -117,9 +122,13 @@ class Session:
 
     def handle_frame(self, frame: KeypointFrame, arrival_s: float) -> None:
         """Process and write one parsed frame that arrived at ``arrival_s`` (time.monotonic);
-        raises :class:`SinkError` if the sink fails."""
+        raises :class:`SinkError` if the sink fails. A frame outside the image size is refused
+        (:class:`InputError`) when the size was assumed or ``strict``, else counted and skipped."""
         problem = self._contradiction(frame)
         if problem:
+            if self.options.camera_sources.get("image_size") in ASSUMED_SIZES:
+                raise InputError(f"{problem}; give --image-size WIDTHxHEIGHT, or write the take description "
+                                 "(take.json, data_specs/take_description.md) beside the keypoints")
             if self.options.strict:
                 raise InputError(problem)
             self.summary.add_malformed("keypoints outside --image-size")
@@ -179,14 +188,13 @@ class Session:
             if len(seen) == 0:
                 continue
             lo, hi = seen.min(axis=0), seen.max(axis=0)
-            if lo.min() >= -IMAGE_MARGIN * min(width, height) and hi[0] <= (1 + IMAGE_MARGIN) * width \
-                    and hi[1] <= (1 + IMAGE_MARGIN) * height:
+            if holds_keypoints((width, height), lo, hi):
                 continue
-            hint = ""
-            if hi[0] <= (1 + IMAGE_MARGIN) * height and hi[1] <= (1 + IMAGE_MARGIN) * width:
-                hint = f"; is the image {height}x{width} (width x height)?"
+            swapped = holds_keypoints((height, width), lo, hi)
+            hint = f"; is the image {height}x{width} (width x height)?" if swapped else ""
+            said = SIZE_ORIGINS[self.options.camera_sources.get("image_size", "given")]
             return (f"frame {frame.index}: keypoints reach x = {hi[0]:.0f} px, y = {hi[1]:.0f} px in an image "
-                    f"said to be {width}x{height} by --image-size{hint}")
+                    f"said to be {width}x{height}{said}{hint}")
         return None
 
     def finish(self, bvh_dir: Path | None = None) -> SessionSummary:

@@ -27,6 +27,9 @@ MAX_SIDE_PX = 65536          # no camera makes larger images
 MAX_FPS = 10000.0
 MAX_TAKE_BYTES = 1_000_000   # a take description is a few hundred bytes: more is read as broken
 CODEC_BLOCK_PX = 16          # video codecs code whole 16-px blocks: a 1080-line video is 1088 lines, cropped
+IMAGE_MARGIN = 0.1           # keypoints may lie this fraction of the image size outside it (detectors extrapolate)
+# the video sizes (width, height) px an image size is taken from when only the keypoints tell it, smallest first
+STANDARD_SIZES = ((640, 480), (1280, 720), (1920, 1080), (2560, 1440), (3840, 2160))
 LOG = logging.getLogger(__name__)
 
 
@@ -55,6 +58,24 @@ def focal_from_fov(fov_deg: float, image_size: tuple[int, int]) -> float:
 def default_focal_px(image_size: tuple[int, int]) -> float:
     """The focal length assumed when nothing gives one: :data:`DEFAULT_FOCAL_35MM` for the image."""
     return focal_from_35mm(DEFAULT_FOCAL_35MM, image_size)
+
+
+def holds_keypoints(size: tuple[int, int], low: tuple[float, float], high: tuple[float, float]) -> bool:
+    """Whether an image of ``size`` (width, height) px holds keypoints from ``low`` to ``high`` (the
+    smallest and largest x, y, px), each side allowed :data:`IMAGE_MARGIN` outside it."""
+    width, height = size
+    return (min(low) >= -IMAGE_MARGIN * min(width, height) and high[0] <= (1 + IMAGE_MARGIN) * width
+            and high[1] <= (1 + IMAGE_MARGIN) * height)
+
+
+def standard_size_holding(low: tuple[float, float], high: tuple[float, float]) -> tuple[int, int] | None:
+    """The smallest of :data:`STANDARD_SIZES` (landscape before portrait) that holds keypoints from
+    ``low`` to ``high`` (px, :func:`holds_keypoints`); None when none does."""
+    for width, height in STANDARD_SIZES:
+        for size in ((width, height), (height, width)):
+            if holds_keypoints(size, low, high):
+                return size
+    return None
 
 
 class TakeError(MocapdbError, ValueError):
