@@ -10,7 +10,7 @@ from mocapdb.evaluation import stereo as eval_stereo
 from mocapdb.stereo.bone_lengths import RIGID_BONES, refine_bone_lengths
 from mocapdb.stereo.checks import check_geometry, check_parallax, check_synchronised
 from mocapdb.stereo.config import StereoConfig, StereoError
-from mocapdb.stereo.ellipose import _stage2, reconstruct
+from mocapdb.stereo.ellipose import _stage2, converged, reconstruct
 from mocapdb.stereo.ellipsoid import fit_ellipsoid, ransac_ellipsoid, sphericity, undistort
 from mocapdb.stereo.outputs import StereoSummary
 from mocapdb.stereo.people import Selection
@@ -231,6 +231,16 @@ def test_mismatched_views():
                     cam, cam, StereoConfig())
 
 
+@pytest.mark.parametrize("epsilons, expected", [
+    ([0.07, 0.03, 0.024], True),                          # the method's stop
+    ([0.07, 0.045, 0.05, 0.055, 0.049, 0.06, 0.052], True),  # the lowest (0.045) not lowered in 5 rounds: a floor
+    ([0.07, 0.045, 0.05, 0.055, 0.049, 0.06], False),       # 4 rounds after it: still falling, perhaps
+    ([0.2, 0.15, 0.16, 0.17, 0.16, 0.18, 0.17], False),     # a floor, but no sphere: above 0.1
+    ([], None)])
+def test_the_ellipsoid_rounds_converge_at_the_stop_or_on_a_floor_near_a_sphere(epsilons, expected):
+    assert converged(epsilons, StereoConfig()) is expected
+
+
 def test_an_ellipsoid_fit_that_cannot_converge_is_warned_once(dance, caplog):
     """A body 30 % longer along the vertical than across (no rigid skeleton): under any camera pose its
     bone vectors lie on an ellipsoid, never a sphere, so ε stays ≈ 0.15 in all 20 rounds."""
@@ -241,9 +251,10 @@ def test_an_ellipsoid_fit_that_cannot_converge_is_warned_once(dance, caplog):
         result = reconstruct(*views, cam1, cam2, StereoConfig())
     assert result.converged is False and len(result.epsilons) == 20 and min(result.epsilons) > 0.1
     warned = [w for w in result.warnings if "did not converge" in w]
-    assert warned == [f"the ellipsoid fit did not converge: ε stayed at or above 0.025 in all 20 round(s) (at most "
-                      f"20; last ε {result.epsilons[-1]:.4f}; round {result.kept_round}, ε "
-                      f"{result.epsilons[result.kept_round]:.4f}, is kept)" + warned[0].split("is kept)")[1]]
+    assert warned == [f"the ellipsoid fit did not converge: ε stayed at or above 0.025 in all 20 round(s) and did "
+                      f"not settle below 0.1 (at most 20; last ε {result.epsilons[-1]:.4f}; round "
+                      f"{result.kept_round}, ε {result.epsilons[result.kept_round]:.4f}, is kept)"
+                      + warned[0].split("is kept)")[1]]
     assert [r.getMessage() for r in caplog.records] == warned
     summary = StereoSummary(150, {}, result.epsilons, result.kept_round, 90.0, 1.0, False, "legs", warned, {}, [],
                             [], [], result.converged)

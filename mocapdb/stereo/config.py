@@ -37,6 +37,8 @@ class StereoConfig:
     ransac_threshold: float = 0.005   # essential-matrix RANSAC, normalised image units
     ransac_prob: float = 0.999
     epsilon: float = 0.025            # sphericity that stops stage 2
+    plateau_rounds: int = 5           # rounds without a lower ε after which ε has reached the data's floor
+    plateau_epsilon: float = 0.1      # such a floor below this converges (real detections: 0.05–0.08, true cameras)
     delta: float = 0.2                # bone inlier band: length within 1 ± delta of its scale
     gamma: float = 0.2                # fraction of the ellipsoid undistortion applied per round
     max_rounds: int = 20

@@ -4,10 +4,11 @@ Stage 1 estimates camera 2's pose from the body keypoints of all frames (essenti
 triangulates. Stage 2 fits one origin-centred ellipsoid to the bone vectors (one scale per bone
 type; the fit discounts each bone's triangulation noise: :mod:`mocapdb.stereo.ellipsoid`),
 undistorts the 3D points partway along its axes, re-fits both cameras by PnP and re-triangulates,
-until the ellipsoid is nearly a sphere (:func:`converged`; when no round gets there, the round
-with the lowest ε is kept and a warning says so). Stage 3 makes bone lengths constant against the 2D
-evidence (:mod:`mocapdb.stereo.bone_lengths`). Views without parallax and camera poses that put the
-people behind a camera are refused (:mod:`mocapdb.stereo.checks`). Decisions:
+until the ellipsoid is nearly a sphere or ε stops falling near it (:func:`converged`; the round
+with the lowest ε is kept; when the rounds do not converge a warning says so). Stage 3 makes bone
+lengths constant against the 2D evidence (:mod:`mocapdb.stereo.bone_lengths`). Views without
+parallax and camera poses that put the people behind a camera are refused
+(:mod:`mocapdb.stereo.checks`). Decisions:
 ``data_specs/stereo.md``. Coordinates: camera 1's OpenCV axes (x right, y down, z forward), the
 baseline = 1 unless ``camera_distance_m`` gives metres.
 """
@@ -37,18 +38,24 @@ LOG = logging.getLogger(__name__)
 
 def converged(epsilons: list[float], config: StereoConfig) -> bool | None:
     """Whether the ellipsoid rounds converged: a round's sphericity ε fell below ``config.epsilon``
-    (the method's stop: the bone vectors lie on a sphere, the rounds end there); None when no round
-    ran (stage 2 off, or a sequence too short or still for it)."""
-    return None if not epsilons else min(epsilons) < config.epsilon
+    (the method's stop: the bone vectors lie on a sphere), or the lowest ε, below
+    ``config.plateau_epsilon``, was not lowered in the ``config.plateau_rounds`` rounds after it
+    (the floor real detections' sliding joints leave: further rounds only trade the fit's noise);
+    the rounds end there. None when no round ran (stage 2 off, or a sequence too short or still)."""
+    if not epsilons:
+        return None
+    lowest = int(np.argmin(epsilons))
+    settled = len(epsilons) - 1 - lowest >= config.plateau_rounds and epsilons[lowest] < config.plateau_epsilon
+    return epsilons[lowest] < config.epsilon or settled
 
 
 def convergence_warning(epsilons: list[float], kept: int, config: StereoConfig) -> str:
     """The warning of rounds that did not converge (:func:`converged`): their count, the last ε and the kept round's."""
     return (f"the ellipsoid fit did not converge: ε stayed at or above {config.epsilon:g} in all {len(epsilons)} "
-            f"round(s) (at most {config.max_rounds}; last ε {epsilons[-1]:.4f}; round {kept}, ε {epsilons[kept]:.4f}, "
-            "is kept). The bone vectors do not lie on one sphere under any camera pose the rounds tried: noisy or "
-            "sliding joints (real detections), or a camera estimate the rounds could not correct; the relative "
-            "camera pose may be off by a few degrees")
+            f"round(s) and did not settle below {config.plateau_epsilon:g} (at most {config.max_rounds}; last ε "
+            f"{epsilons[-1]:.4f}; round {kept}, ε {epsilons[kept]:.4f}, is kept). The bone vectors do not lie on "
+            "one sphere under any camera pose the rounds tried: noisy or sliding joints (real detections), or a "
+            "camera estimate the rounds could not correct; the relative camera pose may be off by a few degrees")
 
 
 def _stage1(n1, n2, valid, config, focal_px: float, person: np.ndarray):
@@ -92,7 +99,7 @@ def _stage2(points, n1, n2, valid, R, t, config, bones, warnings):
         epsilons.append(eps)
         if eps < best[0]:
             best = (eps, points, R, t, round_)
-        if eps < config.epsilon or not np.all(np.linalg.eigvalsh(A) > 0):
+        if converged(epsilons, config) or not np.all(np.linalg.eigvalsh(A) > 0):
             break
         corrected = undistort(points, A, config.gamma)
         R, t = refit_cameras(corrected[valid], n1[valid], n2[valid], R, t, config)
