@@ -41,6 +41,7 @@ KEYPOINT_ROLES = {
     "l_shoulder": "l_upperarm", "l_elbow": "l_forearm", "l_wrist": "l_hand",
     "r_hip": "r_thigh", "r_knee": "r_shin", "r_ankle": "r_foot",
     "l_hip": "l_thigh", "l_knee": "l_shin", "l_ankle": "l_foot"}
+ROLE_COLUMN = {role: k for k, role in enumerate(ROLES)}  # a role's column in _role_kinematics' arrays
 
 # Metres per file unit. "cmu" is the CMU ASF unit (1/0.45 inch) that cgspeed-style CMU BVH files keep.
 # Plausible leg length (hip → knee → ankle), metres. The window spans a factor 2, less than the
@@ -290,8 +291,17 @@ def _check_choice(value: str, choices: Sequence[str] | dict[str, float], what: s
         raise JointMapError(f"{what} {value!r} is not one of {', '.join(choices)}")
 
 
-def _body_up_axis(positions: np.ndarray, idx: dict[str, int]) -> str:
-    return detect_up_axis(positions, [idx["r_upperarm"], idx["l_upperarm"]], [idx["r_foot"], idx["l_foot"]])
+def _role_kinematics(bvh: Bvh, idx: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Global positions ``[F, 13, 3]`` (file units) and rotations ``[F, 13, 3, 3]`` of the roles'
+    joints, columns in :data:`ROLES` order (:data:`ROLE_COLUMN`); only they and their ancestors are
+    chained, not the whole rig."""
+    return forward_kinematics(bvh, [idx[role] for role in ROLES])
+
+
+def _body_up_axis(role_positions: np.ndarray) -> str:
+    """The up axis from the roles' positions ``[F, 13, 3]`` (:func:`_role_kinematics`)."""
+    col = ROLE_COLUMN
+    return detect_up_axis(role_positions, [col["r_upperarm"], col["l_upperarm"]], [col["r_foot"], col["l_foot"]])
 
 
 def extract_keypoints(bvh: Bvh, mapping: JointMapping, unit: str | None = None,
@@ -305,17 +315,18 @@ def extract_keypoints(bvh: Bvh, mapping: JointMapping, unit: str | None = None,
     idx = _indexes(bvh, mapping)
     unit = unit or detect_unit(bvh, mapping)
     _check_choice(unit, UNITS, "unit")
-    pos, rot = forward_kinematics(bvh)
-    up_axis = up_axis or _body_up_axis(pos, idx)
+    pos, rot = _role_kinematics(bvh, idx)
+    up_axis = up_axis or _body_up_axis(pos)
     _check_choice(up_axis, UP_AXES, "up axis")
+    col = ROLE_COLUMN
     points = np.empty((bvh.n_frames, N_POINTS, 3))
     for keypoint, role in KEYPOINT_ROLES.items():
-        points[:, KEYPOINTS.index(keypoint)] = pos[:, idx[role]]
-    points[:, KEYPOINTS.index("neck")] = (pos[:, idx["r_upperarm"]] + pos[:, idx["l_upperarm"]]) / 2
-    points[:, KEYPOINTS.index("pelvis")] = (pos[:, idx["r_thigh"]] + pos[:, idx["l_thigh"]]) / 2
-    points[:, KEYPOINTS.index("head")] = pos[:, idx["head"]]
+        points[:, KEYPOINTS.index(keypoint)] = pos[:, col[role]]
+    points[:, KEYPOINTS.index("neck")] = (pos[:, col["r_upperarm"]] + pos[:, col["l_upperarm"]]) / 2
+    points[:, KEYPOINTS.index("pelvis")] = (pos[:, col["r_thigh"]] + pos[:, col["l_thigh"]]) / 2
+    points[:, KEYPOINTS.index("head")] = pos[:, col["head"]]
     if _normalized_name(mapping.joints["head"]) != UNIVERSAL_NOSE:
-        points[:, KEYPOINTS.index("head")] += rot[:, idx["head"]] @ _nose_offset(bvh, idx, UNITS[unit])
+        points[:, KEYPOINTS.index("head")] += rot[:, col["head"]] @ _nose_offset(bvh, idx, UNITS[unit])
     return (points * UNITS[unit]) @ _TO_Y_UP[up_axis].T
 
 
@@ -327,7 +338,7 @@ def describe(bvh: Bvh, mapping: JointMapping, unit: str | None = None, up_axis: 
     unit = unit or detect_unit(bvh, mapping)
     _check_choice(unit, UNITS, "unit")
     axis_how = "given" if up_axis else "detected"
-    up_axis = up_axis or _body_up_axis(forward_kinematics(bvh)[0], idx)
+    up_axis = up_axis or _body_up_axis(_role_kinematics(bvh, idx)[0])
     _check_choice(up_axis, UP_AXES, "up axis")
     lines = [f"file:        {bvh.source}",
              f"frames:      {bvh.n_frames} at {bvh.fps:.2f} fps ({bvh.n_frames * bvh.frame_time:.2f} s)",

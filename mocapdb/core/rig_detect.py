@@ -37,6 +37,8 @@ MIN_SIDE_COSINE = 0.5    # left − right within 60° of the character's left (o
                          # poses agree with the names; within 60° of its right: they contradict them
 MIN_FACING_SHARE = 0.25  # a facing cue's horizontal part, at least this share of its length
 SIDE_FRAMES = 60         # frames (spread over the clip) in which the sides are checked
+MAX_ROLE_CANDIDATES = 32  # joints whose names read as one role (real rigs: 1-3); more is refused, since the
+                          # chain search pairs them (time up to its cube), and a joint map can name the joint
 
 
 @dataclass
@@ -50,11 +52,9 @@ class RigReading:
 
 
 def is_ancestor(bvh: Bvh, a: int, b: int) -> bool:
-    """Whether joint ``a`` is a proper ancestor of joint ``b``."""
-    p = int(bvh.parents[b])
-    while p >= 0 and p != a:
-        p = int(bvh.parents[p])
-    return p == a
+    """Whether joint ``a`` is a proper ancestor of joint ``b`` (O(1): the rig's subtree bounds)."""
+    rank, end = bvh.subtree_bounds
+    return bool(rank[a] < rank[b] < end[a])
 
 
 def rest_positions(bvh: Bvh) -> np.ndarray:
@@ -97,28 +97,44 @@ def _above(bvh: Bvh, a: tuple[int, ...], b: tuple[int, ...]) -> bool:
     return all(x == y or is_ancestor(bvh, x, y) for x, y in zip(a, b))
 
 
+def _highest(bvh: Bvh, top: list[tuple[int, ...]]) -> tuple[int, ...] | None:
+    """The placement of ``top`` above or equal to every other, joint by joint, or None: at each place
+    the joint first in depth-first order is the only one that can be above all (time linear in ``top``)."""
+    rank = bvh.subtree_bounds[0]
+    first = tuple(min({c[i] for c in top}, key=lambda j: rank[j]) for i in range(len(top[0])))
+    return first if first in top and all(_above(bvh, first, c) for c in top) else None
+
+
+def _chain_placements(bvh: Bvh, options: list[list[int]]) -> list[tuple[int, ...]]:
+    """Every pick of one joint per role from ``options`` that runs parent → descendant."""
+    combos: list[tuple[int, ...]] = [(j,) for j in options[0]]
+    for later in options[1:]:  # each joint a proper ancestor of the next
+        combos = [c + (j,) for c in combos for j in later if is_ancestor(bvh, c[-1], j)]
+    return combos
+
+
 def _place_chain(bvh: Bvh, words: list[JointWords], chain: tuple[str, ...], fixed: dict[str, int],
                  reading: RigReading, allowed: set[int] | None = None) -> None:
     """Place ``chain`` (see the module docstring) into ``reading``, or add why it cannot be."""
     options = [[j for j in _candidates(words, r, fixed) if allowed is None or j in allowed] for r in chain]
-    combos: list[tuple[int, ...]] = [(j,) for j in options[0]]
-    for later in options[1:]:  # each joint a proper ancestor of the next
-        combos = [c + (j,) for c in combos for j in later if is_ancestor(bvh, c[-1], j)]
+    crowded = [f"{r}: {len(found)} joints' names read as a {_role_text(r)}; at most {MAX_ROLE_CANDIDATES} are "
+               "compared" for r, found in zip(chain, options) if len(found) > MAX_ROLE_CANDIDATES]
+    combos = [] if crowded else _chain_placements(bvh, options)
     if not combos:
-        reading.problems += _explain_unplaced(bvh, chain, options)
+        reading.problems += crowded or _explain_unplaced(bvh, chain, options)
         return
     best = max(_score(words, c) for c in combos)
     top = [c for c in combos if _score(words, c) == best]
-    chosen = [c for c in top if all(_above(bvh, c, other) for other in top)]
+    chosen = _highest(bvh, top)
     twins = [i for i in range(len(chain)) if len({_bare(bvh.names[c[i]]) for c in top}) < len({c[i] for c in top})]
-    if len(chosen) != 1 or twins:
+    if chosen is None or twins:
         for i, role in enumerate(chain):
             names = sorted({bvh.names[c[i]] for c in top})
             if len(names) > 1:
                 reading.problems.append(f"{role}: ambiguous, candidates {', '.join(names)}")
         return
     for i, role in enumerate(chain):
-        j = chosen[0][i]
+        j = chosen[i]
         reading.placed[role] = j
         reading.why[role] = "named by the joint map" if role in fixed else (
             words[j].describe() + _passed_over(bvh, words, [c[i] for c in combos], j))
@@ -148,7 +164,10 @@ def place_roles(bvh: Bvh, fixed: dict[str, int]) -> RigReading:
     for chain in LIMBS:
         _place_chain(bvh, words, chain, fixed, reading)
     tops = [reading.placed[c[0]] for c in LIMBS if c[0] in reading.placed]
-    outside = {j for j in range(len(bvh.names)) if not any(j == t or is_ancestor(bvh, t, j) for t in tops)}
+    inside = np.zeros(len(bvh.names), dtype=bool)
+    for top in tops:
+        inside |= bvh.subtree(top)
+    outside = set(np.flatnonzero(~inside).tolist())
     _place_chain(bvh, words, ("head",), fixed, reading, allowed=None if "head" in fixed else outside)
     return reading
 
@@ -197,7 +216,9 @@ def check_structure(bvh: Bvh, placed: dict[str, int], reading: RigReading) -> No
 
 
 def _descendants(bvh: Bvh, joint: int) -> list[int]:
-    return [j for j in range(len(bvh.names)) if is_ancestor(bvh, joint, j)]
+    below = bvh.subtree(joint)
+    below[joint] = False
+    return np.flatnonzero(below).tolist()
 
 
 def _posed(bvh: Bvh) -> np.ndarray:

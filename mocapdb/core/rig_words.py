@@ -42,6 +42,7 @@ OTHER_WORDS = frozenset("spine chest neck pelvis hips root base waist back abdom
                         "upper lower up low lo fore big".split())
 VOCABULARY = frozenset(SIDE_WORDS) | {w for p in PART_PHRASES for w in p} | NOT_A_ROLE_WORDS | OTHER_WORDS
 _LONGEST_PHRASE = max(len(p) for p in [*PART_PHRASES, *NOT_A_ROLE_PHRASES])
+_LONGEST_WORD = max(len(w) for w in VOCABULARY)  # letters; bounds the cuts tried (time linear in a name)
 _CASE_WORDS = re.compile(r"[A-Z]+(?=[A-Z][a-z])|[A-Z]?[a-z]+|[A-Z]+|\d+")
 
 
@@ -79,7 +80,7 @@ def _glued(word: str) -> tuple[str, ...]:
         return (word,)
     best: list[tuple[str, ...] | None] = [()] + [None] * len(word)
     for end in range(1, len(word) + 1):
-        for start in range(end):
+        for start in range(max(end - _LONGEST_WORD, 0), end):
             head, current = best[start], best[end]
             if head is not None and word[start:end] in VOCABULARY and (
                     current is None or len(head) + 1 < len(current)):

@@ -15,25 +15,25 @@ Biped's ``Bip01 L Thigh``: a name is the rest of its ``ROOT``/``JOINT`` line). S
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
-from mocapdb.core.errors import MocapdbError
 from mocapdb.core.files import MIB, read_input_text, write_atomic
+from mocapdb.core.formats.bvh_motion import MAX_POSITION, BvhError, bvh_error, parse_motion
 from mocapdb.core.geometry import euler_to_matrix, matrix_to_euler
+from mocapdb.core.hierarchy import children_and_depths, subtree_bounds, with_ancestors
 
 VALID_CHANNELS = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
-MAX_FRAMES = 10_000_000     # more is a broken header, not motion (a day at 100 fps is 8.6 M)
-MAX_FRAME_TIME_S = 10.0     # a longer frame time is a broken header
 MAX_BVH_BYTES = 256 * MIB   # a larger file is read in parts (hours of motion at 120 fps fit below)
-MAX_POSITION = 1e7          # |OFFSET| and position channels, file units: 10 km in millimetres, the smallest unit
-MOTION_CHUNK_ROWS = 4096    # motion rows parsed per numpy call (memory bounded, time linear)
+MAX_INDENT_TABS = 32        # written HIERARCHY indentation stops deepening here (deep chains stay linear text)
 # How non-root position channels are read (``Bvh.position_mode``), and how `mocapdb inspect` says it.
 NO_POSITIONS = "none"
 ADDED = "offset+channel"
@@ -44,10 +44,6 @@ POSITION_MODE_TEXT = {NO_POSITIONS: "none",
 # Frame-0 position channels "equal" a joint's OFFSET within this fraction of the bone, or ABS units.
 POSITION_MATCH_REL = 0.01
 POSITION_MATCH_ABS = 1e-3
-
-
-class BvhError(MocapdbError, ValueError):
-    """A BVH file that cannot be read; the message names the file and the problem."""
 
 
 @dataclass
@@ -90,29 +86,34 @@ class Bvh:
     def children(self, joint: int) -> list[int]:
         return [int(c) for c in np.flatnonzero(self.parents == joint)]
 
+    @functools.cached_property
+    def subtree_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each joint's pre-order rank and the rank after its last descendant (:func:`subtree_bounds`)."""
+        return subtree_bounds(self.parents)
+
+    def subtree(self, joint: int) -> np.ndarray:
+        """Whether each joint ``[J]`` (bool) is ``joint`` or lies below it; O(J), any depth."""
+        rank, end = self.subtree_bounds
+        return (rank >= rank[joint]) & (rank < end[joint])
+
 
 _TOKEN = re.compile(r"\S+")
-
-
-def _fail(source: str, line: int, message: str) -> BvhError:
-    where = f"{source}:{line}" if line else source
-    return BvhError(f"{where}: {message}")
 
 
 def parse_bvh(text: str, source: str = "<text>") -> Bvh:
     """Parse BVH text; raises :class:`BvhError` naming ``source`` and the line on any defect."""
     text = text.removeprefix("\ufeff")
     if "\0" in text:
-        raise _fail(source, 0, "not a text file (it holds NUL bytes: binary data, not BVH)")
+        raise bvh_error(source, 0, "not a text file (it holds NUL bytes: binary data, not BVH)")
     if not text.lstrip().startswith("HIERARCHY"):
-        raise _fail(source, 1, "not a BVH file (it does not start with HIERARCHY)")
+        raise bvh_error(source, 1, "not a BVH file (it does not start with HIERARCHY)")
     motion_at = re.search(r"^[ \t]*MOTION[ \t\r]*$", text, flags=re.MULTILINE)
     if motion_at is None:
-        raise _fail(source, 0, "no MOTION section (file truncated?)")
+        raise bvh_error(source, 0, "no MOTION section (file truncated?)")
     header = text[:motion_at.start()]
     joints = _parse_hierarchy(header, source)
     labels = [f"{name} {c}" for name, chans in zip(joints.names, joints.channels) for c in chans]
-    frame_time, motion = _parse_motion(text[motion_at.end():], labels, source, header.count("\n") + 1)
+    frame_time, motion = parse_motion(text[motion_at.end():], labels, source, header.count("\n") + 1)
     bvh = Bvh(joints.names, np.array(joints.parents, dtype=np.int64), np.array(joints.offsets, dtype=np.float64),
               joints.channels, np.array(joints.end_site, dtype=bool), frame_time, motion, source)
     bvh.position_mode = detect_position_mode(bvh)
@@ -143,15 +144,15 @@ class _Hierarchy:
     def declare(self, keyword: str, name: str, line: int) -> None:
         """A ``ROOT``, ``JOINT`` or ``End`` (Site) line."""
         if keyword == "ROOT" and self.names:
-            raise _fail(self.source, line, "more than one ROOT is not supported")
+            raise bvh_error(self.source, line, "more than one ROOT is not supported")
         if keyword != "ROOT" and not self.stack:
-            raise _fail(self.source, line, f"{'End Site' if keyword == 'End' else keyword} outside any parent")
+            raise bvh_error(self.source, line, f"{'End Site' if keyword == 'End' else keyword} outside any parent")
         if keyword == "End":
             name = f"{self.names[self.stack[-1]]}_End"
         elif not name:
-            raise _fail(self.source, line, f"{keyword} without a name")
+            raise bvh_error(self.source, line, f"{keyword} without a name")
         if name in self.declared:
-            raise _fail(self.source, line, f"joint name {name!r} appears twice")
+            raise bvh_error(self.source, line, f"joint name {name!r} appears twice")
         self.declared.add(name)
         self.names.append(name)
         self.parents.append(self.stack[-1] if self.stack else -1)
@@ -162,29 +163,29 @@ class _Hierarchy:
 
     def open(self, line: int) -> None:
         if self.pending is None:
-            raise _fail(self.source, line, "'{' without a joint")
+            raise bvh_error(self.source, line, "'{' without a joint")
         self.stack.append(self.pending)
         self.pending = None
 
     def close(self, line: int) -> None:
         if not self.stack:
-            raise _fail(self.source, line, "unbalanced '}'")
+            raise bvh_error(self.source, line, "unbalanced '}'")
         self.stack.pop()
 
     def offset(self, values: list[str], line: int) -> None:
         if not self.stack:
-            raise _fail(self.source, line, "OFFSET outside a joint")
+            raise bvh_error(self.source, line, "OFFSET outside a joint")
         try:
             offset = [float(v) for v in values]
         except ValueError:
-            raise _fail(self.source, line, "OFFSET needs three numbers") from None
+            raise bvh_error(self.source, line, "OFFSET needs three numbers") from None
         if len(offset) != 3:
-            raise _fail(self.source, line, "OFFSET needs three numbers")
+            raise bvh_error(self.source, line, "OFFSET needs three numbers")
         if not all(math.isfinite(v) for v in offset):
-            raise _fail(self.source, line, f"OFFSET of {self.names[self.stack[-1]]!r} is not finite "
+            raise bvh_error(self.source, line, f"OFFSET of {self.names[self.stack[-1]]!r} is not finite "
                                            f"({' '.join(values)})")
         if max(abs(v) for v in offset) > MAX_POSITION:
-            raise _fail(self.source, line, f"OFFSET of {self.names[self.stack[-1]]!r} ({' '.join(values)}) is "
+            raise bvh_error(self.source, line, f"OFFSET of {self.names[self.stack[-1]]!r} ({' '.join(values)}) is "
                                            f"beyond {MAX_POSITION:g} units (10 km in millimetres)")
         self.offsets[self.stack[-1]] = offset
 
@@ -192,17 +193,17 @@ class _Hierarchy:
         """The ``CHANNELS`` list at ``tokens[i]``; returns the index of the token after it."""
         line = tokens[i].line
         if not self.stack or self.end_site[self.stack[-1]]:
-            raise _fail(self.source, line, "CHANNELS outside a joint")
+            raise bvh_error(self.source, line, "CHANNELS outside a joint")
         try:
             count = int(tokens[i + 1].text)
         except (ValueError, IndexError):
-            raise _fail(self.source, line, "CHANNELS needs a count") from None
+            raise bvh_error(self.source, line, "CHANNELS needs a count") from None
         names = [t.text for t in tokens[i + 2:i + 2 + max(count, 0)]]
         if count < 0 or len(names) != count or any(c not in VALID_CHANNELS for c in names):
-            raise _fail(self.source, line, f"bad channel list {names!r} (count {count})")
+            raise bvh_error(self.source, line, f"bad channel list {names!r} (count {count})")
         twice = sorted({c for c in names if names.count(c) > 1})
         if twice:
-            raise _fail(self.source, line, f"channel list {' '.join(names)} names {', '.join(twice)} twice")
+            raise bvh_error(self.source, line, f"channel list {' '.join(names)} names {', '.join(twice)} twice")
         self.channels[self.stack[-1]] = names
         return i + 2 + count
 
@@ -233,7 +234,7 @@ def _parse_hierarchy(header: str, source: str) -> _Hierarchy:
             joints.declare(tok, name, line)
         elif tok == "End":
             if i + 1 >= len(tokens) or tokens[i + 1].text != "Site":
-                raise _fail(source, line, "'End' must be followed by 'Site'")
+                raise bvh_error(source, line, "'End' must be followed by 'Site'")
             joints.declare(tok, "", line)
             i += 2
         elif tok in ("{", "}"):
@@ -245,110 +246,12 @@ def _parse_hierarchy(header: str, source: str) -> _Hierarchy:
         elif tok == "CHANNELS":
             i = joints.set_channels(tokens, i)
         else:
-            raise _fail(source, line, f"unexpected {tok!r} in HIERARCHY")
+            raise bvh_error(source, line, f"unexpected {tok!r} in HIERARCHY")
     if joints.stack:
-        raise _fail(source, tokens[-1].line if tokens else 0, "unclosed '{' in HIERARCHY")
+        raise bvh_error(source, tokens[-1].line if tokens else 0, "unclosed '{' in HIERARCHY")
     if not joints.names:
-        raise _fail(source, 0, "no ROOT joint")
+        raise bvh_error(source, 0, "no ROOT joint")
     return joints
-
-
-def _motion_header(lines: list[str], source: str, line0: int) -> tuple[int, float, int]:
-    """``Frames:`` and ``Frame Time:``, checked, and the index of the line after them.
-
-    ``lines[k]`` is line ``line0 + k`` of the file (``lines[0]``: the rest of the MOTION line).
-    """
-    fields: dict[str, tuple[str, int]] = {}
-    k = 0
-    while k < len(lines) and len(fields) < 2:
-        stripped = lines[k].strip()
-        k += 1
-        if not stripped:
-            continue
-        key, _, value = stripped.partition(":")
-        key = " ".join(key.split())
-        if key not in ("Frames", "Frame Time"):
-            raise _fail(source, line0 + k - 1, f"expected 'Frames:' and 'Frame Time:', got {stripped[:40]!r}")
-        fields[key] = (value.strip(), line0 + k - 1)
-    try:
-        (frames_text, frames_line), (time_text, time_line) = fields["Frames"], fields["Frame Time"]
-        n_frames, frame_time = int(frames_text), float(time_text)
-    except (KeyError, ValueError):
-        raise _fail(source, line0, "missing or malformed 'Frames:' / 'Frame Time:'") from None
-    if n_frames < 1:
-        raise _fail(source, frames_line, f"Frames: {n_frames}: no motion to read")
-    if n_frames > MAX_FRAMES:
-        raise _fail(source, frames_line, f"Frames: {n_frames} is absurd (more than {MAX_FRAMES}): a broken header")
-    if not 0 < frame_time <= MAX_FRAME_TIME_S:  # also false for NaN
-        raise _fail(source, time_line, f"Frame Time: {time_text} is not a frame duration "
-                                       f"(seconds, above 0 and at most {MAX_FRAME_TIME_S:g})")
-    return n_frames, frame_time, k
-
-
-def _parse_motion(body: str, labels: list[str], source: str, line0: int) -> tuple[float, np.ndarray]:
-    """Frame time and motion ``[F, C]`` from what follows the MOTION keyword (on line ``line0``);
-    ``labels`` name the C channels ("joint Xrotation"). Exactly ``Frames:`` rows must follow; they
-    are parsed :data:`MOTION_CHUNK_ROWS` at a time (linear time, memory bounded by the file's size)."""
-    lines = body.splitlines()
-    n_frames, frame_time, k = _motion_header(lines, source, line0)
-    if n_frames * max(len(labels), 1) > len(body):  # every value takes at least a digit and a space
-        raise _fail(source, 0, f"header says {n_frames} frames of {len(labels)} values, more than the file "
-                               "holds (truncated?)")
-    motion = np.empty((n_frames, len(labels)), dtype=np.float64)
-    row_lines = np.empty(n_frames, dtype=np.int64)  # the file line of each frame
-    n_rows, chunk = 0, []
-    for i in range(k, len(lines)):
-        if not lines[i].strip():
-            continue
-        if n_rows == n_frames:
-            raise _fail(source, line0 + i, f"more motion rows than the header's 'Frames: {n_frames}' "
-                                           "(a wrong frame count?)")
-        row_lines[n_rows] = line0 + i
-        chunk.append(lines[i])
-        n_rows += 1
-        if len(chunk) == MOTION_CHUNK_ROWS:
-            _fill_rows(motion, row_lines, n_rows - len(chunk), chunk, labels, source)
-            chunk = []
-    if n_rows < n_frames:
-        raise _fail(source, 0, f"header says {n_frames} frames but only {n_rows} are present (truncated?)")
-    _fill_rows(motion, row_lines, n_rows - len(chunk), chunk, labels, source)
-    return frame_time, motion
-
-
-def _fill_rows(motion: np.ndarray, row_lines: np.ndarray, first: int, rows: list[str], labels: list[str],
-               source: str) -> None:
-    """Parse ``rows`` (text) into ``motion[first:first + len(rows)]``, checked: numbers, one per channel,
-    finite, positions within :data:`MAX_POSITION`; errors name the file line."""
-    if not rows:
-        return
-    n_channels = len(labels)
-    try:
-        values = np.array(" ".join(rows).split(), dtype=np.float64)
-    except ValueError:
-        bad = next(i for i, r in enumerate(rows) if not _is_numeric_row(r))
-        raise _fail(source, int(row_lines[first + bad]), "non-numeric value in the MOTION data") from None
-    if values.size != len(rows) * n_channels:
-        bad = next(i for i, r in enumerate(rows) if len(r.split()) != n_channels)
-        raise _fail(source, int(row_lines[first + bad]),
-                    f"frame {first + bad} has {len(rows[bad].split())} values, expected {n_channels}")
-    block = values.reshape(len(rows), n_channels)
-    positions = np.array([label.endswith("position") for label in labels], dtype=bool)
-    bad_value = ~np.isfinite(block) | (positions & (np.abs(block) > MAX_POSITION))
-    if bad_value.any():
-        row, column = np.argwhere(bad_value)[0]
-        value, where = block[row, column], f"frame {first + row}, {labels[column]}"
-        raise _fail(source, int(row_lines[first + row]),
-                    f"NaN or infinite value in the MOTION data ({where})" if not np.isfinite(value) else
-                    f"{where} {value:g} is beyond {MAX_POSITION:g} units (10 km in millimetres)")
-    motion[first:first + len(rows)] = block
-
-
-def _is_numeric_row(row: str) -> bool:
-    try:
-        np.array(row.split(), dtype=np.float64)
-    except ValueError:
-        return False
-    return True
 
 
 def _position_channels(bvh: Bvh, joint: int) -> tuple[list[int], list[int]]:
@@ -392,6 +295,26 @@ def _fmt(x: float) -> str:
     return f"{x:.6f}" if abs(x) >= 1e-4 or x == 0 else f"{x:.9e}"
 
 
+def _hierarchy_lines(bvh: Bvh) -> list[str]:
+    """The HIERARCHY section's lines below its keyword, depth first, without recursion (any depth);
+    indented one tab a level up to :data:`MAX_INDENT_TABS` (the text stays linear in the joints)."""
+    children, depth = children_and_depths(bvh.parents)
+    out: list[str] = []
+    pending = [(0, False)]  # (joint, whether its block is to be closed), the next on top
+    while pending:
+        j, closing = pending.pop()
+        pad = "\t" * min(depth[j], MAX_INDENT_TABS)
+        if closing:
+            out.append(pad + "}")
+            continue
+        title = "End Site" if bvh.end_site[j] else f"{'ROOT' if depth[j] == 0 else 'JOINT'} {bvh.names[j]}"
+        out += [pad + title, pad + "{", f"{pad}\tOFFSET " + " ".join(_fmt(v) for v in bvh.offsets[j])]
+        if not bvh.end_site[j]:
+            out.append(f"{pad}\tCHANNELS {len(bvh.channels[j])} " + " ".join(bvh.channels[j]))
+        pending += [(j, True)] + [(c, False) for c in reversed(children[j])]
+    return out
+
+
 def format_bvh(bvh: Bvh, decimals: int = 6, lead_frames: int = 0) -> str:
     """BVH text for ``bvh`` (LF line endings, tab indentation, values with ``decimals`` places).
 
@@ -400,24 +323,7 @@ def format_bvh(bvh: Bvh, decimals: int = 6, lead_frames: int = 0) -> str:
     """
     if lead_frames < 0 or (lead_frames and not bvh.n_frames):
         raise ValueError(f"{lead_frames} lead frames for a motion of {bvh.n_frames} frames")
-    out = ["HIERARCHY"]
-
-    def emit(j: int, depth: int) -> None:
-        pad = "\t" * depth
-        if bvh.end_site[j]:
-            out.append(f"{pad}End Site")
-        else:
-            out.append(f"{pad}{'ROOT' if bvh.parents[j] < 0 else 'JOINT'} {bvh.names[j]}")
-        out.append(pad + "{")
-        out.append(f"{pad}\tOFFSET " + " ".join(_fmt(v) for v in bvh.offsets[j]))
-        if not bvh.end_site[j]:
-            out.append(f"{pad}\tCHANNELS {len(bvh.channels[j])} " + " ".join(bvh.channels[j]))
-        for c in bvh.children(j):
-            emit(c, depth + 1)
-        out.append(pad + "}")
-
-    emit(0, 0)
-    out.append("MOTION")
+    out = ["HIERARCHY", *_hierarchy_lines(bvh), "MOTION"]
     out.append(f"Frames: {bvh.n_frames + lead_frames}")
     out.append(f"Frame Time: {bvh.frame_time:.8f}")
     body = np.char.mod(f"%.{decimals}f", np.round(bvh.motion, decimals) + 0.0)
@@ -433,22 +339,24 @@ def write_bvh(path: str | os.PathLike, bvh: Bvh, decimals: int = 6) -> None:
     write_atomic(path, format_bvh(bvh, decimals))
 
 
-def local_transforms(bvh: Bvh) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame local rotations ``[F, J, 3, 3]`` and translations ``[F, J, 3]`` (file units)."""
-    n_frames, n_joints = bvh.n_frames, len(bvh.names)
-    rot = np.broadcast_to(np.eye(3), (n_frames, n_joints, 3, 3)).copy()
-    trans = np.broadcast_to(bvh.offsets, (n_frames, n_joints, 3)).copy()
+def local_transforms(bvh: Bvh, joints: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame local rotations ``[F, K, 3, 3]`` and translations ``[F, K, 3]`` (file units) of the
+    K ``joints`` (every joint when None)."""
+    joints = np.arange(len(bvh.names)) if joints is None else joints
+    rot = np.broadcast_to(np.eye(3), (bvh.n_frames, len(joints), 3, 3)).copy()
+    trans = np.broadcast_to(bvh.offsets[joints], (bvh.n_frames, len(joints), 3)).copy()
     replaced = bvh.position_mode == REPLACED
-    for j, chans in enumerate(bvh.channels):
+    for k, j in enumerate(joints.tolist()):
+        chans = bvh.channels[j]
         start = bvh.channel_start[j]
         rot_cols = [start + i for i, c in enumerate(chans) if c.endswith("rotation")]
         if rot_cols:
             order = "".join(c[0] for c in chans if c.endswith("rotation"))
-            rot[:, j] = euler_to_matrix(bvh.motion[:, rot_cols], order)
+            rot[:, k] = euler_to_matrix(bvh.motion[:, rot_cols], order)
         columns, axes = _position_channels(bvh, j)
         if columns:
             base = 0.0 if replaced and bvh.parents[j] >= 0 else bvh.offsets[j, axes]
-            trans[:, j, axes] = base + bvh.motion[:, columns]
+            trans[:, k, axes] = base + bvh.motion[:, columns]
     return rot, trans
 
 
@@ -471,10 +379,20 @@ def accumulate_transforms(parents: np.ndarray, local_rot: np.ndarray,
     return g_pos, g_rot
 
 
-def forward_kinematics(bvh: Bvh) -> tuple[np.ndarray, np.ndarray]:
-    """Global joint positions ``[F, J, 3]`` (file units) and rotations ``[F, J, 3, 3]``."""
-    rot, trans = local_transforms(bvh)
-    return accumulate_transforms(bvh.parents, rot, trans)
+def forward_kinematics(bvh: Bvh, joints: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Global positions ``[F, K, 3]`` (file units) and rotations ``[F, K, 3, 3]`` of the K ``joints``,
+    in their order (every joint, J, when None). Only they and their ancestors are chained: the rest
+    of a large rig costs no time or memory."""
+    if joints is None:
+        return accumulate_transforms(bvh.parents, *local_transforms(bvh))
+    kept = with_ancestors(bvh.parents, joints)
+    column = np.full(len(bvh.names), -1, dtype=np.int64)  # each kept joint's place in ``kept``
+    column[kept] = np.arange(len(kept))
+    parents = bvh.parents[kept]
+    kept_parents = np.where(parents >= 0, column[parents], -1)
+    positions, rotations = accumulate_transforms(kept_parents, *local_transforms(bvh, kept))
+    wanted = column[list(joints)]
+    return positions[:, wanted], rotations[:, wanted]
 
 
 def motion_from_rotations(bvh: Bvh, local_rot: np.ndarray, root_translation: np.ndarray) -> np.ndarray:
