@@ -1,6 +1,6 @@
 """`tools/quickstart.sh`'s main-job commands (reconstruct and stereo, not the set-up) run on the bundled
 data as written (the test database in place of demo/sample.db, the outputs in a temporary folder), with
-Python's warnings made errors, and print no warning."""
+Python's warnings made errors, and print no warning (issue 52: the demo's first words were warnings)."""
 import shlex
 import subprocess
 import sys
@@ -10,9 +10,6 @@ import pytest
 from .conftest import ROOT
 
 MAIN_JOBS = ("reconstruct", "stereo")
-# camera 4 sees the back of the head (data/sample_keypoints/README.md): its nose is never detected, so the
-# stereo BVH's head is a rest pose. The one warning the bundled pair must print; the only one allowed.
-EXPECTED = "warning: no frame has the head in both views: the head follows the torso (rest pose)"
 
 
 def _main_job_commands() -> list[list[str]]:
@@ -33,4 +30,4 @@ def test_the_quickstarts_main_jobs_print_no_warning(command, small_db_path, tmp_
                          text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     lines = (run.stdout + run.stderr).splitlines()
-    assert not [line for line in lines if "warning" in line.lower() and EXPECTED not in line], lines
+    assert not [line for line in lines if "warning" in line.lower()], lines

@@ -8,7 +8,7 @@ world for everyone (the main person's, :class:`World`), inverse kinematics on th
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -84,11 +84,12 @@ def require_joints(points: np.ndarray) -> None:
         raise StereoError(f"no frame reconstructs {', '.join(never)}: cannot fit the skeleton")
 
 
-def complete_head(points_m: np.ndarray, warnings: list[str]) -> np.ndarray:
-    """``points_m [T, 15, 3]`` (metres) with a head that no frame has put on the torso, and a warning."""
+def complete_head(points_m: np.ndarray, notes: list[str]) -> np.ndarray:
+    """``points_m [T, 15, 3]`` (metres) with a head that no frame has put on the torso, and a note: the
+    output is whole, only the head's own turn is not measured (a view of the back of the head)."""
     if not np.isnan(points_m[:, KP["head"]]).all():
         return points_m
-    warnings.append("no frame has the head in both views: the head follows the torso (rest pose)")
+    notes.append("no frame has the head (nose) in both views: the head follows the torso (rest pose)")
     out = points_m.copy()
     out[:, KP["head"]] = head_from_torso(out)
     return out
@@ -128,7 +129,8 @@ class StereoPerson:
     quats_view: np.ndarray      # [T, R, 4] the motion's rotations, the root's relative to the view frame
     #                             (NaN: no skeleton)
     pelvis_aligned: np.ndarray  # [T, 3] the (gap-filled) pelvis, camera-aligned frame
-    warnings: list[str]         # what the inverse kinematics had to assume
+    warnings: list[str]         # what may make the result wrong
+    notes: list[str] = field(default_factory=list)  # what the inverse kinematics assumed where the views are silent
 
     @property
     def fitted(self) -> bool:
@@ -158,15 +160,15 @@ def to_motion(points_m: np.ndarray, valid14: np.ndarray, fps: float, scaled: boo
     filled = fill_gaps(points, valid, round(MAX_GAP_S * fps))
     require_joints(filled)
     world = world or make_world(points, valid, filled, scaled)
-    warnings: list[str] = []
-    motion, _ = from_points(complete_head(world.scale * filled @ world.bvh_from_camera.T, warnings), fps)
+    notes: list[str] = []
+    motion, _ = from_points(complete_head(world.scale * filled @ world.bvh_from_camera.T, notes), fps)
     level = world.bvh_from_camera @ VIEW_FRAME  # VIEW_FRAME is its own inverse
     quats_view = motion.rotations.copy()
     quats_view[:, 0] = matrix_to_quat(level.T @ quat_to_matrix(motion.rotations[:, 0]))
     pelvis = world.scale * filled[:, PELVIS]
     motion.root_m = pelvis @ world.bvh_from_camera.T
     return StereoPerson(track, motion, world.scale * points @ CAMERA_ALIGNED, present, quats_view,
-                        pelvis @ CAMERA_ALIGNED, warnings), world
+                        pelvis @ CAMERA_ALIGNED, [], notes), world
 
 
 def joints_only(points_m: np.ndarray, valid14: np.ndarray, track: int, world: World, why: str) -> StereoPerson:
@@ -198,6 +200,7 @@ def people_motions(people: People, result: StereoResult, cam1: CameraModel, cam2
         motions[-1].warnings[:0] = behind
     for m in motions:
         m.warnings = [w if m.track == 0 else f"track {m.track}: {w}" for w in m.warnings]
+        m.notes = [w if m.track == 0 else f"track {m.track}: {w}" for w in m.notes]
     return motions, world
 
 

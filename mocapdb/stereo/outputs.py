@@ -7,7 +7,7 @@ people; BVHs: the universal rig in the levelled y-up world (:mod:`mocapdb.stereo
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +48,7 @@ class StereoSummary:
     tracks: list[dict]             # per person: track, frames, first, last, correspondences, bvh
     unmatched: list[str]           # detections that are no person, per view
     converged: bool | None = None  # the ellipsoid rounds reached their stop (None: no round ran)
+    notes: list[str] = field(default_factory=list)  # what the output assumed where the views are silent
 
     def report(self) -> str:
         """Human-readable lines for the command line."""
@@ -64,7 +65,7 @@ class StereoSummary:
         lines.append(f"ellipsoid ε per round: {eps}; kept round {self.kept_round}{state}")
         lines.append(f"camera 2 relative to camera 1: rotation {self.rotation_deg:.2f}°, "
                      f"baseline {self.baseline:.3f} m ({self.scale_source})")
-        lines += [f"warning: {w}" for w in self.warnings]
+        lines += [f"note: {n}" for n in self.notes] + [f"warning: {w}" for w in self.warnings]
         lines += [f"  {stage:<12} {sec:8.3f} s" for stage, sec in self.seconds.items()]
         lines.append(f"  {'total':<12} {sum(self.seconds.values()):8.3f} s")
         lines.append("wrote " + ", ".join(str(p) for p in self.outputs))
@@ -100,8 +101,9 @@ def track_records(people: People, motions: list[StereoPerson]) -> list[dict]:
 
 
 def cameras_text(cam1: CameraModel, cam2: CameraModel, result: StereoResult, world: World, people: People,
-                 tracks: list[dict], warnings: list[str]) -> str:
-    """``cameras.json``: both cameras in camera 1's frame (metres), the camera fit, the people, the warnings."""
+                 tracks: list[dict], warnings: list[str], notes: list[str]) -> str:
+    """``cameras.json``: both cameras in camera 1's frame (metres), the camera fit, the people, the warnings
+    and notes."""
     t = np.asarray(result.t, dtype=np.float64) * world.scale
     record = {
         "frame": "camera 1 (OpenCV: x right, y down, z forward), metres; x2 = R x1 + t",
@@ -111,7 +113,7 @@ def cameras_text(cam1: CameraModel, cam2: CameraModel, result: StereoResult, wor
         "camera_source": "all people's correspondences (tracks stacked along time)",
         "epsilons": [float(e) for e in result.epsilons], "kept_round": int(result.kept_round),
         "converged": result.converged,
-        "warnings": warnings, "dropped_frames": people.dropped, "tracks": tracks, "not_people": people.unmatched,
+        "warnings": warnings, "notes": notes, "dropped_frames": people.dropped, "tracks": tracks, "not_people": people.unmatched,
         "bvh_from_camera1": world.bvh_from_camera.tolist(),
     }
     return "{\n" + ",\n".join(f"  {json.dumps(k)}: {json.dumps(v)}" for k, v in record.items()) + "\n}\n"

@@ -99,12 +99,14 @@ def run_stereo(view1_dir: str | Path, view2_dir: str | Path, cam1: CameraModel, 
     lap("reconstruct")
     motions, world = people_motions(people, result, cam1, cam2, config, fps)
     warnings += [w for m in motions for w in m.warnings]
+    notes = [n for m in motions for n in m.notes]
     lap("ik")
     tracks = track_records(people, motions)
-    paths = write_outputs(out_dir, motions, world, cameras_text(cam1, cam2, result, world, people, tracks, warnings),
-                          fps, calibration_text(cam1, cam2, result, world))
+    cameras = cameras_text(cam1, cam2, result, world, people, tracks, warnings, notes)
+    paths = write_outputs(out_dir, motions, world, cameras, fps, calibration_text(cam1, cam2, result, world))
     lap("write")
     return StereoSummary(len(frames1), people.dropped, [float(e) for e in result.epsilons],
                          int(result.kept_round), rotation_angle_deg(np.asarray(result.R)),
                          float(np.linalg.norm(result.t)) * world.scale, bool(result.scaled),
-                         world.scale_source, warnings, seconds, paths, tracks, people.unmatched, result.converged)
+                         world.scale_source, warnings, seconds, paths, tracks, people.unmatched, result.converged,
+                         notes)
