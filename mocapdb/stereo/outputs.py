@@ -112,8 +112,8 @@ def cameras_text(cam1: CameraModel, cam2: CameraModel, result: StereoResult, wor
         "rotation_deg": rotation_angle_deg(np.asarray(result.R)),
         "camera_source": "all people's correspondences (tracks stacked along time)",
         "epsilons": [float(e) for e in result.epsilons], "kept_round": int(result.kept_round),
-        "converged": result.converged,
-        "warnings": warnings, "notes": notes, "dropped_frames": people.dropped, "tracks": tracks, "not_people": people.unmatched,
+        "converged": result.converged, "warnings": warnings, "notes": notes,
+        "dropped_frames": people.dropped, "tracks": tracks, "not_people": people.unmatched,
         "bvh_from_camera1": world.bvh_from_camera.tolist(),
     }
     return "{\n" + ",\n".join(f"  {json.dumps(k)}: {json.dumps(v)}" for k, v in record.items()) + "\n}\n"
