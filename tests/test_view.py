@@ -2,7 +2,9 @@
 through Playwright), the server's limits, the live sink that never waits for a page."""
 from __future__ import annotations
 
+import fnmatch
 import hashlib
+import importlib.util
 import json
 import os
 import re
@@ -29,6 +31,7 @@ from tests.conftest import ROOT, SAMPLE_KEYPOINTS
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 STATIC = ROOT / "mocapdb" / "view" / "static"
+THREE = ROOT / "mocapdb" / "view" / "vendor" / "three"
 SAMPLE = ["--fps", "60", "--image-size", "1088x1920", "--focal", "1681"]
 FRAME_K = 57
 
@@ -83,16 +86,35 @@ def variance_of(png: bytes) -> float:
     return float(img.astype(np.float64).var())
 
 
-def test_three_js_is_bundled_as_pinned_and_installed_with_the_package():
-    for line in (STATIC / "three" / "SHA256SUMS").read_text().splitlines():
+def test_three_js_is_vendored_as_pinned_and_installed_with_the_package():
+    sums = (THREE / "SHA256SUMS").read_text().splitlines()
+    for line in sums:
         digest, name = line.split()
-        assert hashlib.sha256((STATIC / "three" / name).read_bytes()).hexdigest() == digest, name
+        assert hashlib.sha256((THREE / name).read_bytes()).hexdigest() == digest, name
     doc = (ROOT / "data_specs" / "viewer.md").read_text()
-    assert all(line.split()[0] in doc for line in (STATIC / "three" / "SHA256SUMS").read_text().splitlines())
+    assert all(line.split()[0] in doc for line in sums)
     page = (STATIC / "index.html").read_text() + (STATIC / "viewer.js").read_text()
     assert not re.search(r"https?://", page), "the page fetches nothing from elsewhere"
+    assert '"three": "/vendor/three/three.module.js"' in page
     data = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["mocapdb.view"]
-    assert set(data) >= {"static/*.html", "static/*.js", "static/three/*"}
+    shipped = [p.relative_to(THREE.parents[1]).as_posix() for p in THREE.iterdir()]
+    assert len(shipped) == 5 and all(any(fnmatch.fnmatch(f, glob) for glob in data) for f in shipped), (shipped, data)
+    assert not list(STATIC.rglob("three*")), "three.js lives in vendor/, not among the page's own files"
+
+
+def test_the_vendoring_tools_check_finds_a_changed_file(tmp_path):
+    run = subprocess.run([sys.executable, str(ROOT / "tools" / "vendor_three.py"), "--check"], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 0 and "all files match" in run.stdout, run.stdout + run.stderr
+    spec = importlib.util.spec_from_file_location("vendor_three", ROOT / "tools" / "vendor_three.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    assert tool.DEST == THREE
+    copy = shutil.copytree(THREE, tmp_path / "three")
+    assert tool.check(copy) == []
+    (copy / "OrbitControls.js").write_text((copy / "OrbitControls.js").read_text() + "// changed\n")
+    (copy / "LICENSE").unlink()
+    assert tool.check(copy) == ["OrbitControls.js", "LICENSE"]
 
 
 def test_the_page_shows_the_take_and_the_track_files_joints(browser, take_folder, tmp_path):
@@ -175,7 +197,8 @@ def test_the_server_answers_the_loopback_only_and_serves_only_the_listed_files(t
     try:
         url = server.url
         assert server.url.startswith("http://127.0.0.1:")
-        assert _get(url) == 200 and _get(url + "static/three/OrbitControls.js") == 200
+        assert _get(url) == 200 and _get(url + "vendor/three/OrbitControls.js") == 200
+        assert _get(url + "static/three/OrbitControls.js") == 404 and _get(url + "vendor/../server.py") == 404
         assert _get(url + "files/world.json") == 200
         assert _get(url + "files/..%2Fworld.json") == 404 and _get(url + "static/../take.py") == 404
         assert _get(url + "files/take.json") == 404                       # not a file the run wrote

@@ -1,4 +1,4 @@
-"""Bring three.js into the viewer's static files (`mocapdb/view/static/three/`) from the npm registry.
+"""Bring three.js into the viewer's vendored code (`mocapdb/view/vendor/three/`) from the npm registry.
 
     python tools/vendor_three.py            # npm pack three@VERSION, check, copy, write SHA256SUMS
     python tools/vendor_three.py --check    # the bundled files against SHA256SUMS (nothing fetched)
@@ -25,7 +25,7 @@ FILES = {  # bundled name: path inside the tarball
     "OrbitControls.js": "package/examples/jsm/controls/OrbitControls.js",
     "LICENSE": "package/LICENSE",
 }
-DEST = Path(__file__).resolve().parents[1] / "mocapdb" / "view" / "static" / "three"
+DEST = Path(__file__).resolve().parents[1] / "mocapdb" / "view" / "vendor" / "three"
 SUMS = "SHA256SUMS"
 
 

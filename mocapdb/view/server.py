@@ -1,6 +1,6 @@
 """The viewer's web server: the standard library's threading HTTP server on 127.0.0.1, in a thread.
 
-Routes (``data_specs/viewer.md``): ``/`` the page; ``/static/...`` its scripts (three.js bundled);
+Routes (``data_specs/viewer.md``): ``/`` the page; ``/static/...`` its script; ``/vendor/three/...`` three.js;
 ``/api/take`` the take's description; ``/api/frames?from=P&count=N`` the frames at timeline
 positions P..P+N; ``/video/N.jpg`` video frame N; ``/files/NAME`` a file the run wrote (only those
 the description lists); ``/api/live`` the live stream as server-sent events. Requests naming
@@ -21,7 +21,8 @@ from mocapdb.view.live import LiveFeed
 from mocapdb.view.take import TakeView
 
 LOG = logging.getLogger(__name__)
-STATIC = Path(__file__).resolve().parent / "static"
+STATIC = Path(__file__).resolve().parent / "static"  # the page and its script
+VENDOR = Path(__file__).resolve().parent / "vendor"  # third-party code served as is: three.js
 HOST = "127.0.0.1"
 TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8", ".css": "text/css",
          ".json": "application/json", ".jsonl": "application/jsonl", ".png": "image/png", ".jpg": "image/jpeg"}
@@ -92,6 +93,8 @@ class _Handler(BaseHTTPRequestHandler):
             return self._file(STATIC / "index.html")
         if path.startswith("/static/"):
             return self._file(STATIC / path.removeprefix("/static/"), STATIC)
+        if path.startswith("/vendor/"):
+            return self._file(VENDOR / path.removeprefix("/vendor/"), VENDOR)
         if path == "/api/take":
             return self._send(json.dumps(self.view.meta()).encode(), TYPES[".json"])
         if path == "/api/frames" and take is not None:
