@@ -20,7 +20,7 @@ from mocapdb.core.formats.bvh import (
     read_bvh,
 )
 
-from .conftest import SHARED_BVH
+from .conftest import SHARED_BVH, needs
 
 # A two-bone arm: root at (1,2,3) with channels in an unusual order, one joint rotating,
 # an End Site. Frame 0: no rotation; frame 1: root turned 90° about z, elbow 90° about y.
@@ -71,7 +71,7 @@ def test_round_trip_keeps_positions():
     assert again.channels == bvh.channels
 
 
-@pytest.mark.skipif(not SHARED_BVH.is_dir(), reason="shared CMU data not present")
+@needs(SHARED_BVH)
 def test_real_file_round_trip(tmp_path):
     from mocapdb.core.formats.bvh import write_bvh
     bvh = read_bvh(SHARED_BVH / "002_03.bvh")

@@ -27,7 +27,7 @@ from mocapdb.runtime.stream.sinks import FileSink, TeeSink
 from mocapdb.view.live import QUEUE_FRAMES, LiveFeed, PageSink
 from mocapdb.view.server import ViewServer
 from mocapdb.view.take import open_take
-from tests.conftest import ROOT, SAMPLE_KEYPOINTS
+from tests.conftest import ROOT, SAMPLE_KEYPOINTS, skip_missing
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 STATIC = ROOT / "mocapdb" / "view" / "static"
@@ -51,7 +51,7 @@ def take_folder(tmp_path_factory, small_db_path) -> Path:
 def browser():
     """Headless Chromium from Debian's packages (never a browser Playwright would download)."""
     if CHROMIUM is None:
-        pytest.skip("no chromium on PATH (apt-get install chromium): the page is not tested in a browser")
+        skip_missing("chromium on PATH (apt-get install chromium): the page is not tested in a browser")
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
     with sync_api.sync_playwright() as p:
         chromium = p.chromium.launch(executable_path=CHROMIUM, args=["--enable-unsafe-swiftshader"])
@@ -96,9 +96,11 @@ def test_three_js_is_vendored_as_pinned_and_installed_with_the_package():
     page = (STATIC / "index.html").read_text() + (STATIC / "viewer.js").read_text()
     assert not re.search(r"https?://", page), "the page fetches nothing from elsewhere"
     assert '"three": "/vendor/three/three.module.js"' in page
-    data = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["mocapdb.view"]
-    shipped = [p.relative_to(THREE.parents[1]).as_posix() for p in THREE.iterdir()]
-    assert len(shipped) == 5 and all(any(fnmatch.fnmatch(f, glob) for glob in data) for f in shipped), (shipped, data)
+    setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    globs = setuptools["package-data"]["mocapdb.view.vendor.three"]
+    shipped = [p.name for p in THREE.iterdir()]
+    assert "mocapdb.view.vendor.three" in setuptools["packages"]
+    assert len(shipped) == 5 and all(any(fnmatch.fnmatch(f, glob) for glob in globs) for f in shipped), (shipped, globs)
     assert not list(STATIC.rglob("three*")), "three.js lives in vendor/, not among the page's own files"
 
 
