@@ -44,7 +44,8 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    (:mod:`mocapdb.runtime.world`).
 6. **Feet and hands** (layouts with heels, big toes and knuckles): the humanoid rig's feet and
    hands turned to the directions the image gives them (:func:`end_rotations`), a planted foot
-   flat on the floor.
+   flat on the floor. **Head** (layouts with face points): the head's rotation fitted to them
+   (:mod:`mocapdb.runtime.head_pose`), smoothed as the rotations (:func:`head_rotation`).
 
 The settings: :mod:`mocapdb.runtime.take_params`; the contacts (step 2):
 :mod:`mocapdb.runtime.foot_contacts`; the floor (step 4): :mod:`mocapdb.runtime.contact_floor`.
@@ -61,6 +62,7 @@ from scipy import sparse
 from scipy.ndimage import gaussian_filter1d, median_filter
 from scipy.sparse.linalg import spsolve
 
+from mocapdb.core.formats.keypoint_layouts import N_FEET_HANDS
 from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
 from mocapdb.core.motion import Motion
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, TrackRecording
@@ -92,6 +94,7 @@ from mocapdb.runtime.foot_contacts import (
     planted_ankles,
     true_runs,
 )
+from mocapdb.runtime.head_pose import chest_relative_head, face_points, head_local
 from mocapdb.runtime.image_vertical import vertical_planes
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
 from mocapdb.runtime.take_params import TakeParams
@@ -148,7 +151,7 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     up, up_sd_deg = track_up(rec)
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]  # ankles − root
     extremities = rec.column("extremities")
-    ends = bool(len(extremities)) and bool((extremities[..., 2] > 0).any()) and rec.camera_px is not None
+    ends = bool(len(extremities)) and bool((extremities[:, :N_FEET_HANDS, 2] > 0).any()) and rec.camera_px is not None
     phases = foot_phases(extremities, box_height_px(keypoints), fps, params) if ends else None
     planted = planted_ankles(keypoints, root[:, None] + relative, up, fps, params, phases)
     root, anchors = fit_root_path(root, relative, planted, fps, params)
@@ -166,7 +169,9 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     if ends and rec.camera_px is not None:
         end_quats = end_rotations(quats, root, scale, offsets, keypoints, extremities, rec.camera_px[0],
                                   planted, floor_up, fps, params)
-    motion = Motion(quats, root, fps, "view", rec.first_frame, scale, rec.proportions_m, end_quats)
+    head = None if not len(extremities) or rec.camera_px is None else head_rotation(
+        quats, root, scale, offsets, face_points(keypoints, extremities), rec.camera_px, fps, params)
+    motion = Motion(quats, root, fps, "view", rec.first_frame, scale, rec.proportions_m, _ends(end_quats, head))
     out = replace(rec.with_motion(motion), up_view=floor_up, floor_offset_m=offset)
     planes = None if rec.camera_px is None else vertical_planes(keypoints, rec.camera_px,
                                                                 float(np.median(-root[:, 2])), up)
@@ -302,6 +307,31 @@ def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
     direction = zero_phase_smoothed(direction, fps, params.smoothing_hz)
     turn = swing_matrices(_unit(reference), _unit(direction))
     return matrix_to_quat(np.swapaxes(parents, -1, -2) @ turn @ parents)
+
+
+def head_rotation(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
+                  face_px: np.ndarray, camera_px: tuple[float, float, float], fps: float, params: TakeParams
+                  ) -> np.ndarray | None:
+    """``[F, 4]`` the humanoid ``Head``'s local rotation of the fitted motion (``quats [F, R, 4]``, ``root_m``
+    view frame, body ``scale``, ``offsets_m``) from the face points ``face_px [F, 7, 3]``
+    (:func:`~mocapdb.runtime.head_pose.chest_relative_head`): gaps interpolated, de-popped and smoothed
+    as the rotations; None when no frame's face fixes it."""
+    relative = chest_relative_head(quats, root_m, scale, offsets_m, face_px, camera_px)
+    if not np.isfinite(relative).any():
+        return None
+    relative = smooth_rotations(interpolated(relative)[:, None], fps, params)[:, 0]
+    return head_local(quats, relative)
+
+
+def _ends(feet_hands: np.ndarray | None, head: np.ndarray | None) -> np.ndarray | None:
+    """The end joints' rotations ``[F, 5, 4]`` of the feet's and hands' ``[F, 4, 4]`` and the head's
+    ``[F, 4]`` (None: not turned, identity); None when neither turns."""
+    if feet_hands is None and head is None:
+        return None
+    n = len(head if feet_hands is None else feet_hands)
+    identity = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    return np.concatenate([np.repeat(identity[:, None], 4, axis=1) if feet_hands is None else feet_hands,
+                           (identity if head is None else head)[:, None]], axis=1)
 
 
 def fit_root_path(root_m: np.ndarray, ankle_offsets_m: np.ndarray, planted: np.ndarray, fps: float,

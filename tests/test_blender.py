@@ -54,7 +54,7 @@ def test_blender_turns_the_humanoid_feet_and_hands(tmp_path):
     rng = np.random.default_rng(3)
     quats, pos = retarget(rest_positions_m() + rng.normal(scale=0.03, size=(6, 15, 3)) + [0.3, 1.0, -3.0])
     half = np.radians(40.0) / 2
-    end_quats = np.tile([1.0, 0.0, 0.0, 0.0], (6, 4, 1))
+    end_quats = np.tile([1.0, 0.0, 0.0, 0.0], (6, 5, 1))
     end_quats[:, 0] = [np.cos(half), 0.0, np.sin(half), 0.0]   # right foot: 40° about its up
     end_quats[:, 2] = [np.cos(half), np.sin(half), 0.0, 0.0]   # right hand
     for name, ends in (("still", None), ("turned", end_quats)):

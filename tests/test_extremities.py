@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mocapdb.core.formats.bvh import format_bvh, forward_kinematics, parse_bvh, read_bvh
-from mocapdb.core.formats.keypoint_layouts import EXTREMITIES, LAYOUTS
+from mocapdb.core.formats.keypoint_layouts import EXTREMITIES, LAYOUTS, N_FEET_HANDS
 from mocapdb.core.formats.keypoints import to_extremities
 from mocapdb.core.formats.openpose import parse_openpose_json
 from mocapdb.core.geometry import quat_to_matrix
@@ -53,11 +53,12 @@ def test_each_layout_gives_its_own_heels_toes_and_knuckles(layout, expected):
 
 
 @pytest.mark.parametrize("layout", ["coco17", "coco18"])
-def test_layouts_without_feet_or_hands_give_none(layout):
+def test_layouts_without_feet_or_hands_give_only_face_points(layout):
     raw = np.ones((1, len(LAYOUTS[layout]), 3))
-    assert to_extremities(raw, layout) is None
+    got = to_extremities(raw, layout)[0]
+    assert (got[:N_FEET_HANDS, 2] == 0).all() and (got[N_FEET_HANDS:N_FEET_HANDS + 4, 2] == 1).all()
     text = json.dumps({"people": [{"pose_keypoints_2d": (raw[0] * 500.0).ravel().tolist()}]})
-    assert parse_openpose_json(text, 0).people[0].extremities is None
+    assert (parse_openpose_json(text, 0).people[0].extremities[:N_FEET_HANDS, 2] == 0).all()
 
 
 def test_an_openpose_body25_person_carries_its_heels_and_toes():
@@ -215,7 +216,7 @@ def test_the_humanoid_bvh_turns_its_feet_and_hands_and_nothing_else():
     quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, N_RIG_JOINTS, 1))
     root = rng.normal(size=(n, 3))
     angle = np.radians(30.0)
-    end_quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, 4, 1))
+    end_quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, 5, 1))
     end_quats[:, 0] = [np.cos(angle / 2), 0.0, np.sin(angle / 2), 0.0]     # right foot: 30° about up
     end_quats[:, 3] = [np.cos(angle / 2), 0.0, 0.0, -np.sin(angle / 2)]    # left hand: 30° down
     still = parse_bvh(format_bvh(motion_bvh(Motion(quats, root, FPS), rig="humanoid")))

@@ -19,6 +19,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from mocapdb.core.skeleton import (
+    END_JOINTS,
     N_RIG_JOINTS,
     UNIVERSAL_HEIGHT_M,
     body_offsets_m,
@@ -27,7 +28,7 @@ from mocapdb.core.skeleton import (
 )
 
 COORDINATE_FRAMES = ("world", "view", "camera")
-N_END_JOINTS = 4  # the feet and hands (skeleton.END_JOINTS) a humanoid BVH turns
+N_END_JOINTS = len(END_JOINTS)  # the feet, hands and head (skeleton.END_JOINTS) a humanoid BVH turns
 
 
 @dataclass
@@ -38,7 +39,7 @@ class Motion:
     w x y z), the root's relative to ``coordinate_frame``; ``root_m [F, 3]`` the pelvis in it (metres).
     The body is the universal one times ``scale`` (its height / 1.75 m), with the bone proportions
     ``proportions_m [8]`` (``skeleton.MEASURED_BONE_NAMES`` at 1.75 m; None: the universal body's).
-    ``end_rotations [F, 4, 4]``: the feet's and hands' local rotations (``skeleton.END_JOINTS``
+    ``end_rotations [F, 5, 4]``: the feet's, hands' and head's local rotations (``skeleton.END_JOINTS``
     order; None: they do not turn). ``first_frame``: the index of its first frame in the input or
     the source (frames at ``fps`` Hz).
     """

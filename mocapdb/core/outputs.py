@@ -92,8 +92,8 @@ class TrackRecording:
     up_view: np.ndarray | None = None  # the world's up in the view frame (the camera's tilt estimate)
     up_sd_deg: float | None = None     # that estimate's error (degrees; runtime.body_size.CameraTilt.sd_deg)
     floor_offset_m: float | None = None  # the floor found under the feet: up_view · p = this (view frame)
-    # [F, 4, 4] the feet's and hands' local rotations (END_JOINTS order) found by the whole-take fit
-    # from heels, toes and knuckles; None: they do not turn
+    # [F, 5, 4] the feet's, hands' and head's local rotations (END_JOINTS order) found by the whole-take fit
+    # from heels, toes, knuckles and face points; None: they do not turn
     end_quaternions: np.ndarray | None = None
     static: bool = False  # its keypoints never moved (see StillnessCheck): a poster, not a person
     part: int = 0         # earlier parts of the track cut off (Engine.cut_recordings)

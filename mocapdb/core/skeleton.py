@@ -108,9 +108,10 @@ NODE_BONE_AXES: dict[str, tuple[str | None, str | None, str | None]] = {
 # metres, universal rig joint or end joint (:data:`END_JOINTS`) whose rotation it carries, or None:
 # identity). The added joints move no universal joint: every universal joint stays exactly where
 # the universal rig puts it; the feet and hands turn only where a layout gives heels, toes and
-# knuckles (``runtime.take.end_rotations``); names ending in "_End" are End Sites (named as mocapdb
-# reads them back: parent + "_End"). Hand, foot and head-base lengths are not measured: fixed proportions.
-END_JOINTS: tuple[str, ...] = ("r_foot", "l_foot", "r_hand", "l_hand")  # at the ankles and wrists
+# knuckles (``runtime.take.end_rotations``), the head where it gives face points (``runtime.head_pose``;
+# its rotation relative to the neck: data_specs/head.md); names ending in "_End" are End Sites (named as
+# mocapdb reads them back: parent + "_End"). Hand, foot and head-base lengths are not measured: fixed proportions.
+END_JOINTS: tuple[str, ...] = ("r_foot", "l_foot", "r_hand", "l_hand", "head")  # at the ankles, wrists, skull base
 HAND_LENGTH_M = 0.08      # wrist → end of the hand bone (the index and pinky knuckles), along the forearm
 # Heel keypoint → big-toe keypoint of a standing foot: length and downward slope (the heel keypoint
 # sits higher on the heel than the toe's on the toe): the bundled balancing take's 4-camera
@@ -159,7 +160,7 @@ HUMANOID_NODES: tuple[tuple[str, str | None, tuple[float, float, float], str | N
     ("Spine", "Hips", (0.0, 0.0, 0.0), "spine"),
     ("Spine1", "Spine", (0.0, _HALF_TORSO, 0.0), None),
     ("Neck", "Spine1", (0.0, _HALF_TORSO, 0.0), "neck"),
-    ("Head", "Neck", (0.0, HEAD_BASE_M, 0.0), None),
+    ("Head", "Neck", (0.0, HEAD_BASE_M, 0.0), "head"),
     ("Head_End", "Head", (0.0, float(NOSE_OFFSET_M[1]) - HEAD_BASE_M, float(NOSE_OFFSET_M[2])), None),
     *_humanoid_arm(-1.0),
     *_humanoid_arm(1.0),

@@ -46,18 +46,26 @@ _SOURCES: dict[str, tuple[str | None, ...]] = {
 # command-line parsers read this module, which therefore imports nothing heavy.
 SOURCE_INDEX: dict[str, tuple[int, ...]] = {
     name: tuple(LAYOUTS[name].index(s) if s else -1 for s in sources) for name, sources in _SOURCES.items()}
-# The points beyond the universal 14 that drive the feet and hands (``data_specs/keypoint_formats.md``,
-# "Feet and hands"): per foot the heel and the big toe, per hand the index and pinky knuckles
-# (the subject's own sides).
+# The points beyond the universal 14 that drive the feet, hands and head (``data_specs/keypoint_formats.md``,
+# "Feet and hands"; ``data_specs/head.md``): per foot the heel and the big toe, per hand the index and
+# pinky knuckles, then the face's eyes, ears and mouth corners (the subject's own sides).
 EXTREMITIES: tuple[str, ...] = (
-    "r_heel", "r_big_toe", "l_heel", "l_big_toe", "r_index", "r_pinky", "l_index", "l_pinky")
+    "r_heel", "r_big_toe", "l_heel", "l_big_toe", "r_index", "r_pinky", "l_index", "l_pinky",
+    "r_eye", "l_eye", "r_ear", "l_ear", "r_mouth", "l_mouth")
+N_FEET_HANDS = 8  # the first rows of EXTREMITIES: the feet's and hands' points; then the face's
 _COCO_FEET_SOURCES = ("right_heel", "right_big_toe", "left_heel", "left_big_toe")
+_COCO_FACE = ("right_eye", "left_eye", "right_ear", "left_ear", None, None)
+_OPENPOSE_FACE_SOURCES = ("REye", "LEye", "REar", "LEar", None, None)
+# COCO-WholeBody's face points are the 68 of iBUG 300-W: 48 and 54 the mouth's corners (the subject's right, left)
 _EXTREMITY_SOURCES: dict[str, tuple[str | None, ...]] = {
-    "body25": ("RHeel", "RBigToe", "LHeel", "LBigToe", None, None, None, None),
-    "body25b": _COCO_FEET_SOURCES + (None,) * 4, "halpe26": _COCO_FEET_SOURCES + (None,) * 4,
-    "wholebody133": _COCO_FEET_SOURCES + ("right_hand_5", "right_hand_17", "left_hand_5", "left_hand_17"),
+    "body25": ("RHeel", "RBigToe", "LHeel", "LBigToe", None, None, None, None) + _OPENPOSE_FACE_SOURCES,
+    "coco18": (None,) * 8 + _OPENPOSE_FACE_SOURCES, "coco17": (None,) * 8 + _COCO_FACE,
+    "body25b": _COCO_FEET_SOURCES + (None,) * 4 + _COCO_FACE, "halpe26": _COCO_FEET_SOURCES + (None,) * 4 + _COCO_FACE,
+    "wholebody133": _COCO_FEET_SOURCES + ("right_hand_5", "right_hand_17", "left_hand_5", "left_hand_17")
+    + _COCO_FACE[:4] + ("face_48", "face_54"),
     "mediapipe33": ("right_heel", "right_foot_index", "left_heel", "left_foot_index",
-                    "right_index", "right_pinky", "left_index", "left_pinky")}
+                    "right_index", "right_pinky", "left_index", "left_pinky",
+                    "right_eye", "left_eye", "right_ear", "left_ear", "mouth_right", "mouth_left")}
 # Per layout with any of them, the index of the source of each of EXTREMITIES; -1: none.
 EXTREMITY_INDEX: dict[str, tuple[int, ...]] = {
     name: tuple(LAYOUTS[name].index(s) if s else -1 for s in sources) for name, sources in _EXTREMITY_SOURCES.items()}
