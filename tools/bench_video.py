@@ -57,10 +57,13 @@ STAGES = ("decode", "detect BlazePose", "detect full", "detect crop", "detect cr
           "output")
 
 
-def configurations(crop_px: int, variants: list[str], model: str | None) -> dict[str, tuple[FastPath, list[str]]]:
-    """Name → (the detector's paths, the same as `live` options)."""
+def configurations(crop_px: int, variants: list[str], model: str | None,
+                   hands: bool = False) -> dict[str, tuple[FastPath, list[str]]]:
+    """Name → (the detector's paths, the same as `live` options); ``hands``: each BlazePose variant also
+    with ``--hands``."""
     size = ["--crop-size", str(crop_px)]
-    blazepose = {f"BlazePose {v}": (FULL_FRAME, ["--blazepose", v]) for v in variants}
+    blazepose = {f"BlazePose {v}{suffix}": (FULL_FRAME, ["--blazepose", v, *flag]) for v in variants
+                 for suffix, flag in [("", [])] + ([(" + hands", ["--hands"])] if hands else [])}
     if model is None:
         return blazepose
     flags = ["--model", model]
@@ -82,7 +85,7 @@ def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[d
     """Decode → detect → engine step → output line in one thread: milliseconds per stage, the
     detections of every frame and the frames per second over the timed frames."""
     detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU, max_people=None,
-                             input_size=DEFAULT_INPUT_SIZE, fast=fast)
+                             input_size=DEFAULT_INPUT_SIZE, fast=fast, hands=args.hands)
     session = _session(args, args.sink, strict=False)
     engine_ms: list[float] = []
     step = session.engine.step
@@ -175,17 +178,19 @@ def main() -> int:
     ap.add_argument("--db", default=str(ROOT / "demo" / "sample.db"))
     ap.add_argument("--frames", type=int, default=400, help="frames of the one-thread runs (default 400)")
     ap.add_argument("--crop-size", type=int, default=256, help="largest crop input side, pixels (default 256)")
+    ap.add_argument("--hands", action="store_true", help="each BlazePose variant also with --hands (`live` frames/s "
+                                                         "with hands over without)")
     args = ap.parse_args()
     print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())}; {os.cpu_count()} cores")
     results, detections = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         sink = str(Path(tmp) / "out.jsonl")
-        for name, (fast, flags) in configurations(args.crop_size, args.blazepose, args.model).items():
+        for name, (fast, flags) in configurations(args.crop_size, args.blazepose, args.model, args.hands).items():
             run_args = live_args(args.video, args.db, sink, flags)
             stages, found, fps = one_thread(run_args, fast, args.frames)
             results[name], detections[name] = (stages, fps), found
         live = {name: live_run(args.video, args.db, flags, sink)
-                for name, (_, flags) in configurations(args.crop_size, args.blazepose, args.model).items()}
+                for name, (_, flags) in configurations(args.crop_size, args.blazepose, args.model, args.hands).items()}
     reader = VideoReader(args.video)
     first = next(reader.frames()).image
     reader.close()
@@ -201,6 +206,9 @@ def main() -> int:
     for name, row in live.items():
         print(f"{name:24}{row['fps']:10.1f}{row['p50']:10.1f}{row['p99']:10.1f}{row['read']:8d}{row['dropped']:9d}"
               f"{row['detect_fps']:10.1f}")
+    for name in (n for n in live if n.endswith(" + hands")):
+        without = live[name.removesuffix(" + hands")]["fps"]
+        print(f"{name}: {live[name]['fps'] / without:.2f} x the frames/s without hands")
     print(f"\nload average after: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     return 0
 

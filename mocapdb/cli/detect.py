@@ -19,6 +19,7 @@ from mocapdb.detect.options import (
     DEFAULT_IOU,
     DETECTORS,
     FETCH_COMMAND,
+    HANDS,
 )
 
 if TYPE_CHECKING:
@@ -34,6 +35,10 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
                         f"`{FETCH_COMMAND} [VARIANT]`; default %(default)s)")
     p.add_argument("--model", metavar="POSE.onnx", type=P.INPUT_FILE,
                    help="a YOLO-pose or RTMO ONNX export instead of BlazePose (data_specs/pose_models.md)")
+    p.add_argument("--hands", action="store_true",
+                   help="BlazePose only: also 21 points per hand from MediaPipe's hand landmark model on crops the "
+                        f"pose's hand points give (prepared by `{FETCH_COMMAND} {HANDS}`; data_specs/pose_models.md, "
+                        "\"Hands\")")
 
 
 def add_detector_options(p: argparse.ArgumentParser, detector: str) -> None:
@@ -110,7 +115,7 @@ def run_detect(args: argparse.Namespace) -> int:
         raise DetectError("--every must be at least 1")
     check_output_folder(args.out, DETECT_FILES)  # before any work; emptied once the model and the video open
     model = open_detector(args.model, args.blazepose, conf=args.conf, iou=args.iou, max_people=args.max_people,
-                          input_size=args.input_size, fast=fast_path(args))
+                          input_size=args.input_size, fast=fast_path(args), hands=args.hands)
     reader = VideoReader(args.camera if args.camera is not None else args.video)
     stop = threading.Event()
     try:
@@ -135,9 +140,11 @@ def add_models_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
                                    "run time. Sources and pins: data_specs/pose_models.md.")
     p.add_argument("action", choices=("fetch", "list"))
     # a str default: argparse checks an empty nargs="*" positional's default against the choices
-    p.add_argument("variants", nargs="*", choices=BLAZEPOSE_VARIANTS, default=DEFAULT_BLAZEPOSE, metavar="VARIANT",
-                   help=f"landmark models to prepare: {', '.join(BLAZEPOSE_VARIANTS)} (default {DEFAULT_BLAZEPOSE}; "
-                        "the person detector always)")
+    p.add_argument("variants", nargs="*", choices=(*BLAZEPOSE_VARIANTS, HANDS), default=DEFAULT_BLAZEPOSE,
+                   metavar="VARIANT", help=f"landmark models to prepare: {', '.join(BLAZEPOSE_VARIANTS)} (default "
+                                           f"{DEFAULT_BLAZEPOSE}; the person detector always), and {HANDS}: the hand "
+                                           f"landmark model of detect/live --hands (with {DEFAULT_BLAZEPOSE} when "
+                                           "no variant is named)")
     p.set_defaults(run=run_models)
     return p
 
@@ -145,12 +152,14 @@ def add_models_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
 def run_models(args: argparse.Namespace) -> int:
     """``mocapdb models fetch|list``: 0 when every model asked for is ready; DetectError otherwise."""
     from mocapdb.detect.errors import DetectError
-    from mocapdb.detect.model_store import blazepose_paths, fetch_models, models_dir
+    from mocapdb.detect.model_store import blazepose_paths, fetch_models, hand_landmark_path, models_dir
 
-    variants = (args.variants,) if isinstance(args.variants, str) else tuple(args.variants)
+    named = (args.variants,) if isinstance(args.variants, str) else tuple(args.variants)
+    variants = tuple(v for v in named if v != HANDS) or (DEFAULT_BLAZEPOSE,)
     if args.action == "fetch":
-        paths = fetch_models(variants)
-        print(f"BlazePose {', '.join(variants)} ready in {models_dir()} ({len(paths)} models)")
+        paths = fetch_models(variants, hands=HANDS in named)
+        extra = " and the hand landmarks" if HANDS in named else ""
+        print(f"BlazePose {', '.join(variants)}{extra} ready in {models_dir()} ({len(paths)} models)")
         return 0
     ready = []
     for variant in BLAZEPOSE_VARIANTS:
@@ -158,5 +167,9 @@ def run_models(args: argparse.Namespace) -> int:
             ready.append(f"{variant}: {blazepose_paths(variant)[1]}")
         except DetectError:
             ready.append(f"{variant}: not prepared (`{FETCH_COMMAND} {variant}`)")
+    try:
+        ready.append(f"{HANDS}: {hand_landmark_path()}")
+    except DetectError:
+        ready.append(f"{HANDS}: not prepared (`{FETCH_COMMAND} {HANDS}`)")
     print("\n".join([f"models in {models_dir()}"] + ready))
     return 0

@@ -33,16 +33,27 @@ class FrameDetector(Protocol):
 
 
 def open_detector(model: str | Path | None, variant: str, *, conf: float, iou: float, max_people: int | None,
-                  input_size: int, fast) -> FrameDetector:
-    """BlazePose ``variant`` (lite, full, heavy) when ``model`` is None, else the ONNX export ``model``
-    with the paths ``fast`` allows (:class:`~mocapdb.detect.tracked.FastPath`); DetectError when the
-    model cannot be used or BlazePose is not prepared on this machine."""
+                  input_size: int, fast, hands: bool = False) -> FrameDetector:
+    """BlazePose ``variant`` (lite, full, heavy) when ``model`` is None, with ``hands`` also each person's
+    hands (:class:`~mocapdb.detect.hands.WithHands`), else the ONNX export ``model`` with the paths ``fast``
+    allows (:class:`~mocapdb.detect.tracked.FastPath`); DetectError when the model cannot be used, when
+    hands are asked of an export, or when BlazePose (or the hand model) is not prepared on this machine."""
     if model is None:
         from mocapdb.detect.blazepose import BlazePose
-        from mocapdb.detect.model_store import blazepose_paths
+        from mocapdb.detect.model_store import blazepose_paths, hand_landmark_path
 
         detector_path, landmark_path = blazepose_paths(variant)
-        return BlazePose(detector_path, landmark_path, max_people=max_people, name=f"BlazePose {variant}")
+        hand_path = hand_landmark_path() if hands else None
+        pose = BlazePose(detector_path, landmark_path, max_people=max_people, name=f"BlazePose {variant}")
+        if hand_path is None:
+            return pose
+        from mocapdb.detect.hands import WithHands
+
+        return WithHands(pose, hand_path)
+    if hands:
+        from mocapdb.detect.errors import DetectError
+
+        raise DetectError("--hands needs BlazePose (its hand points give the hands' crops), not --model")
     from mocapdb.detect.model import PoseModel
     from mocapdb.detect.tracked import TrackedDetector
 

@@ -172,6 +172,9 @@ class Detections(NamedTuple):
     # [P, K, 3] the model's own 3D of the keypoints (BlazePose's world landmarks: metres, x right and y down
     # along the image's axes, z away from the camera, origin at the hips' centre); None when it gives none
     world: np.ndarray | None = None
+    # both hands of each person (mocapdb.detect.hands.Hands: 21 points each, presence, why absent); None
+    # unless hands were asked for
+    hands: Any = None
 
 
 def _first_line(exc: Exception) -> str:

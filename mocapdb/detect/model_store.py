@@ -1,4 +1,4 @@
-"""The BlazePose models on this machine: fetched once from the package indexes, checked, converted.
+"""The BlazePose and hand models on this machine: fetched once from the package indexes, checked, converted.
 
 ``mocapdb models fetch`` (run by ``tools/setup.sh``) downloads the pinned packages that carry
 MediaPipe's BlazePose TFLite files (Apache-2.0), checks the sha256 of the package and of each file
@@ -24,7 +24,7 @@ from pathlib import Path
 
 from mocapdb.core.files import write_atomic
 from mocapdb.detect.errors import DetectError
-from mocapdb.detect.options import BLAZEPOSE_VARIANTS, DEFAULT_BLAZEPOSE, FETCH_COMMAND
+from mocapdb.detect.options import BLAZEPOSE_VARIANTS, DEFAULT_BLAZEPOSE, FETCH_COMMAND, HANDS
 
 
 @dataclass(frozen=True)
@@ -70,6 +70,11 @@ LANDMARKS = {
     "heavy": ModelFile(MEDIAPIPE_NPM, "package/pose_landmark_heavy.tflite",
                        "59e42d71bcd44cbdbabc419f0ff76686595fd265419566bd4009ef703ea8e1fe"),
 }
+# MediaPipe Hands' landmark model (224 x 224; 21 points, hand flag, handedness), prepared by `models fetch hands`
+HAND_LANDMARKS = ModelFile(MEDIAPIPE_WHEEL, "mediapipe/modules/hand_landmark/hand_landmark_full.tflite",
+                           "11c272b891e1a99ab034208e23937a8008388cf11ed2a9d776ed3d01d0ba00e3")
+BLAZEPOSE_AUTHORS = "Google LLC (MediaPipe BlazePose: Bazarevsky et al., 2020, arXiv:2006.10204)"
+_AUTHORS = {HAND_LANDMARKS.stem: "Google LLC (MediaPipe Hands: Zhang et al., 2020, arXiv:2006.10214)"}
 
 
 def models_dir() -> Path:
@@ -104,6 +109,16 @@ def blazepose_paths(variant: str = DEFAULT_BLAZEPOSE, folder: Path | None = None
                           f"`{FETCH_COMMAND}{extra}` once, with access to the package index (it downloads the "
                           f"pinned MediaPipe package and converts its models; nothing is fetched at run time)")
     return paths
+
+
+def hand_landmark_path(folder: Path | None = None) -> Path:
+    """The converted hand landmark model; DetectError naming the command that prepares it when missing."""
+    path = onnx_path(HAND_LANDMARKS, folder)
+    if not path.is_file():
+        raise DetectError(f"the hand landmark model is not prepared on this machine ({path} missing): run "
+                          f"`{FETCH_COMMAND} {HANDS}` once, with access to the package index (it downloads the "
+                          f"pinned MediaPipe package and converts the model; nothing is fetched at run time)")
+    return path
 
 
 def sha256_of(path: Path) -> str:
@@ -174,15 +189,15 @@ def _extract(archive: Path, model: ModelFile, into: Path) -> Path:
 
 
 def fetch_models(variants: tuple[str, ...] = (DEFAULT_BLAZEPOSE,), folder: Path | None = None,
-                 say: Callable[[str], None] = print) -> list[Path]:
-    """Downloads, checks and converts the person detector and the ``variants`` landmark models into
-    ``folder`` (default :func:`models_dir`); files already there with their model card are kept.
-    Returns the ONNX paths; DetectError for a download or a checksum that fails."""
+                 say: Callable[[str], None] = print, hands: bool = False) -> list[Path]:
+    """Downloads, checks and converts the person detector, the ``variants`` landmark models and, with
+    ``hands``, the hand landmark model into ``folder`` (default :func:`models_dir`); files already there
+    with their model card are kept. Returns the ONNX paths; DetectError for a download or a checksum that fails."""
     from mocapdb.detect.tflite_onnx import convert_tflite
 
     folder = folder or models_dir()
     folder.mkdir(parents=True, exist_ok=True)
-    wanted = [DETECTOR] + [LANDMARKS[v] for v in variants]
+    wanted = [DETECTOR] + [LANDMARKS[v] for v in variants] + ([HAND_LANDMARKS] if hands else [])
     todo = [m for m in wanted if not _card_matches(m, folder)]
     with tempfile.TemporaryDirectory(prefix="mocapdb-models-") as scratch:
         archives: dict[Package, Path] = {}
@@ -217,7 +232,7 @@ def _card_text(model: ModelFile) -> str:
     return json.dumps({
         "model": model.stem, "source_package": f"{model.package.index}:{model.package.name}=={model.package.version}",
         "source_file": model.member, "source_sha256": model.sha256, "license": model.package.license,
-        "authors": "Google LLC (MediaPipe BlazePose: Bazarevsky et al., 2020, arXiv:2006.10204)",
+        "authors": _AUTHORS.get(model.stem, BLAZEPOSE_AUTHORS),
         "converted_by": "mocapdb.detect.tflite_onnx"}, indent=1)
 
 

@@ -9,3 +9,4 @@ DETECTORS = ("full", "crops")   # the model on every whole frame; or on crops ar
 BLAZEPOSE_VARIANTS = ("lite", "full", "heavy")   # landmark models; the person detector is shared
 DEFAULT_BLAZEPOSE = "full"
 FETCH_COMMAND = "mocapdb models fetch"          # prepares the BlazePose models (mocapdb.detect.model_store)
+HANDS = "hands"   # `mocapdb models fetch hands` also prepares the hand landmark model (detect/live --hands)

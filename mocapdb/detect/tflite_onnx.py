@@ -1,9 +1,11 @@
-"""TFLite → ONNX: mocapdb's own converter for the float BlazePose models (person detector, landmarks).
+"""TFLite → ONNX: mocapdb's own converter for MediaPipe's float models (BlazePose's person detector and
+landmarks, the hand landmarks).
 
 The TFLite flatbuffer is read with the ``tflite`` package (the schema's generated readers) and the
 same graph written with ``onnx`` (opset :data:`OPSET`). Operators covered: CONV_2D,
 DEPTHWISE_CONV_2D, MAX_POOL_2D, ADD, PAD, RESIZE_BILINEAR, DEPTH_TO_SPACE, RESHAPE, CONCATENATION,
-LOGISTIC, with their fused activations (RELU, RELU6); DEQUANTIZE and DENSIFY of constant weights
+LOGISTIC, MEAN (over constant axes), FULLY_CONNECTED (2-D input, float weights), with their fused
+activations (RELU, RELU6); DEQUANTIZE and DENSIFY of constant weights
 (float16, stored dense or sparse) are evaluated here, so the ONNX file holds float32 weights only.
 
 TFLite tensors are NHWC; the ONNX graph computes in NCHW: the input is transposed once, every 4-D
@@ -321,6 +323,28 @@ class _Converter:
         axis = _AXIS_NHWC_TO_NCHW[axis] if rank == 4 else axis
         concat = self.g.node("Concat", [self.value(i) for i in inputs], "concat", axis=axis)
         self.names[output] = self.activate(concat, o.FusedActivationFunction(), self.out_name(output))
+
+    def _mean(self, op, inputs, output) -> None:
+        keep = bool(_options(op, "ReducerOptions").KeepDims())
+        rank = len(self.r.shape(inputs[0]))
+        axes = sorted(int(a) % rank for a in np.ravel(self.r.weights(inputs[1], "MEAN axes")))
+        if rank == 4:
+            axes = sorted(_AXIS_NHWC_TO_NCHW[a] for a in axes)
+            if not keep and 1 not in axes and ({2, 3} - set(axes)):
+                raise ConversionError("MEAN keeping channels and a spatial axis of a 4-D tensor without keep_dims")
+        self.names[output] = self.g.node("ReduceMean", [self.value(inputs[0])], "mean", self.out_name(output),
+                                         axes=axes, keepdims=int(keep))
+
+    def _fully_connected(self, op, inputs, output) -> None:
+        o = _options(op, "FullyConnectedOptions")
+        if len(self.r.shape(inputs[0])) != 2 or o.WeightsFormat() != 0:
+            raise ConversionError("FULLY_CONNECTED of other than a 2-D input with float weights")
+        weights = self.r.weights(inputs[1], "FULLY_CONNECTED weights").astype(np.float32)   # [out, in]
+        args = [self.value(inputs[0]), self.g.constant(weights, "w")]
+        if len(inputs) > 2 and inputs[2] >= 0:
+            args.append(self.g.constant(self.r.weights(inputs[2], "FULLY_CONNECTED bias").astype(np.float32), "b"))
+        gemm = self.g.node("Gemm", args, "dense", transB=1)
+        self.names[output] = self.activate(gemm, o.FusedActivationFunction(), self.out_name(output))
 
 
 def convert_tflite(tflite_path: Path, onnx_path: Path, doc: str = "") -> None:

@@ -52,6 +52,10 @@ class Person:
     # the hips' centre, x right and y down along the image's axes, z away from the camera; NaN where it
     # has none; None when the input carries none (data_specs/keypoint_formats.md, "World landmarks")
     world_m: np.ndarray | None = None
+    # [2, 21, 4] the subject's right hand, then their left: 21 points each (wrist, thumb 1-4, index 1-4,
+    # middle, ring, pinky 1-4) as x px, y px, z (depth from the wrist, px; NaN when not given), confidence
+    # (0 and NaN position = missing); None when the input carries no hands (data_specs/keypoint_formats.md)
+    hands: np.ndarray | None = None
 
 
 @dataclass
@@ -68,6 +72,7 @@ class RawPerson(NamedTuple):
     person_id: int | None
     layout: str | None   # the person's own layout, if the input names one
     world: np.ndarray | None = None   # [K, 3] world landmarks (metres; NaN: none) in the source layout, if given
+    hands: np.ndarray | None = None   # [2, 21, 4] the person's hands (Person.hands), if given
 
 
 def visible(person: Person, threshold: float = CONFIDENCE_THRESHOLD) -> np.ndarray:
@@ -283,7 +288,7 @@ def build_frame(index: int, time_s: float | None, people: list[RawPerson], layou
         for j, i in enumerate(members):
             world = people[i].world
             out[i] = Person(points[j], conf[j], people[i].person_id, None if extremities is None else extremities[j],
-                            None if world is None else to_universal_world(world[None], name)[0])
+                            None if world is None else to_universal_world(world[None], name)[0], people[i].hands)
     return KeypointFrame(index, time_s, [out[i] for i in range(len(people))],
                          names[0] if len(set(names)) == 1 else None)
 

@@ -16,6 +16,7 @@ from typing import NamedTuple, TypeVar
 import numpy as np
 
 from mocapdb.core.files import MIB, read_input_text
+from mocapdb.core.formats.hand_keypoints import read_hands
 from mocapdb.core.formats.keypoints import (
     KeypointError,
     KeypointFrame,
@@ -100,7 +101,8 @@ def _raw_person(obj: object, i: int) -> RawPerson:
     if given is not None and given != []:   # absent, null or [] (as Pose2Sim's empty fields): none
         what = f"person {i} {WORLD_FIELD}"
         world = check_world(numeric(given, what), len(raw), what)
-    return RawPerson(raw, _person_id(obj.get("id", obj.get("person_id"))), optional_layout(obj.get("layout")), world)
+    return RawPerson(raw, _person_id(obj.get("id", obj.get("person_id"))), optional_layout(obj.get("layout")), world,
+                     read_hands(obj, f"person {i}"))
 
 
 def _raw_people(obj: dict | list) -> list[RawPerson]:
