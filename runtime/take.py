@@ -326,9 +326,10 @@ def head_rotation(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
 def _ends(feet_hands: np.ndarray | None, head: np.ndarray | None) -> np.ndarray | None:
     """The end joints' rotations ``[F, 5, 4]`` of the feet's and hands' ``[F, 4, 4]`` and the head's
     ``[F, 4]`` (None: not turned, identity); None when neither turns."""
-    if feet_hands is None and head is None:
+    present = feet_hands if feet_hands is not None else head
+    if present is None:
         return None
-    n = len(head if feet_hands is None else feet_hands)
+    n = len(present)
     identity = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
     return np.concatenate([np.repeat(identity[:, None], 4, axis=1) if feet_hands is None else feet_hands,
                            (identity if head is None else head)[:, None]], axis=1)
