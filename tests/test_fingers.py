@@ -213,3 +213,22 @@ def test_gestures_recognised_on_real_photos(photo):
     hands = photo_hands(cv2.imread(str(SAMPLE_HANDS / photo)), _pose_models(), _hand_model())
     expected = photo.rsplit("_", 1)[0]
     assert expected in [classify(points) for _, points, _ in hands]
+
+
+def test_live_frames_carry_the_detectors_hands():
+    """`live --source VIDEO --hands`: each person's hands reach the engine's frame (Person.hands)."""
+    from mocapdb.detect.model import Detections
+    from mocapdb.detect.video import VideoFrame
+    from mocapdb.runtime.stream.video_input import keypoint_frame
+
+    keypoints = np.random.default_rng(0).uniform(10, 500, size=(2, 33, 3))
+    hands = Hands.empty(2)
+    hands.points[1, 0, :, :2] = np.arange(42.0).reshape(21, 2)
+    hands.points[1, 0, :, 3] = 0.9
+    image = np.zeros((4, 4, 3), np.uint8)
+    found = Detections(np.zeros((2, 4)), np.ones(2), keypoints, None, hands)
+    frame = keypoint_frame(VideoFrame(7, 0.25, 0.0, image), found, "mediapipe33")
+    assert np.array_equal(frame.people[1].hands, hands.points[1], equal_nan=True)
+    assert frame.people[0].hands.shape == (2, 21, 4) and (frame.people[0].hands[..., 3] == 0).all()
+    without = keypoint_frame(VideoFrame(7, 0.25, 0.0, image), found._replace(hands=None), "mediapipe33")
+    assert all(person.hands is None for person in without.people)

@@ -43,13 +43,14 @@ class CapturedFrame(NamedTuple):
 def keypoint_frame(video_frame: VideoFrame, found: Detections, layout: str = "coco17",
                    number: int | None = None) -> KeypointFrame:
     """The people ``found`` (keypoints in ``layout``) in ``video_frame`` as the engine takes them
-    (universal keypoints, frame pixels; the detector's world landmarks when it gives them), numbered
+    (universal keypoints, frame pixels; the detector's world landmarks and hands when it gives them), numbered
     ``number`` (default: the frame's index in the video)."""
     points, confidence = to_universal(found.keypoints, layout)
     extremities = to_extremities(found.keypoints, layout)   # heels, toes, knuckles (BlazePose), else None
     world = None if found.world is None else to_universal_world(found.world, layout)
-    people = [Person(p, c, None, None if extremities is None else extremities[i], None if world is None else world[i])
-              for i, (p, c) in enumerate(zip(points, confidence))]
+    hands = None if found.hands is None else found.hands.points   # [P, 2, 21, 4] with --hands
+    people = [Person(p, c, None, None if extremities is None else extremities[i], None if world is None else world[i],
+                     None if hands is None else hands[i]) for i, (p, c) in enumerate(zip(points, confidence))]
     return KeypointFrame(video_frame.index if number is None else number, video_frame.time_s, people, layout)
 
 
