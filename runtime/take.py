@@ -68,26 +68,18 @@ from mocapdb.core.motion import Motion
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, TrackRecording
 from mocapdb.core.skeleton import (
     ANKLE_HEIGHT_M,
-    HAND_LENGTH_M,
-    HEEL_TO_TOE_M,
-    HEEL_TO_TOE_SLOPE_DEG,
-    KP,
     N_RIG_JOINTS,
     NODE_NAMES,
     NODE_OFFSETS_M,
     RIG_JOINTS,
     body_offsets_m,
-    global_rotations,
     pose_from_rotations,
     swing_matrices,
 )
 from mocapdb.runtime.contact_floor import above_floor, floor_plane
+from mocapdb.runtime.end_joints import end_frames, end_locals, measured_directions, standing_directions
 from mocapdb.runtime.foot_contacts import (
     ANKLES,
-    HEELS,
-    INDEX_KNUCKLES,
-    PINKY_KNUCKLES,
-    TOES,
     box_height_px,
     foot_phases,
     interpolated,
@@ -100,15 +92,6 @@ from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
 from mocapdb.runtime.take_params import TakeParams
 from mocapdb.runtime.world_prior import track_up
 
-WRISTS = (KP["r_wrist"], KP["l_wrist"])
-# Each end joint (skeleton.END_JOINTS): the rig joint it hangs from, and its direction at rest (heel →
-# toe forwards, sloping down as on a standing foot; wrist → knuckles along the forearm, as the
-# humanoid rig's hand bones)
-END_PARENTS = ("r_knee", "l_knee", "r_elbow", "l_elbow")
-_SLOPE = np.radians(HEEL_TO_TOE_SLOPE_DEG)
-_FOOT_REST = [0.0, -np.sin(_SLOPE), np.cos(_SLOPE)]
-END_REST_DIRECTIONS = np.array([_FOOT_REST, _FOOT_REST, [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
-END_LENGTHS_M = np.array([HEEL_TO_TOE_M, HEEL_TO_TOE_M, HAND_LENGTH_M, HAND_LENGTH_M])  # of a 1.75 m body
 MIN_SIGMA_FRAMES = 0.05   # narrower Gaussians (cut-offs above ~3 × the frame rate) leave the rotations as they are
 
 
@@ -263,50 +246,26 @@ def refit_to_image(quats: np.ndarray, root_m: np.ndarray, keypoints: np.ndarray,
 _NO_LIMITS = JointLimits(np.full((N_RIG_JOINTS, 3), -np.inf), np.full((N_RIG_JOINTS, 3), np.inf))
 
 
-def lift_direction(delta_px: np.ndarray, depth_m: np.ndarray, length_m: np.ndarray, focal_px: float,
-                   reference: np.ndarray) -> np.ndarray:
-    """Unit directions ``[..., 3]`` (view frame: x right, y up, z towards the camera) of segments of
-    ``length_m [...]`` whose image is ``delta_px [..., 2]`` (start → end, pixels, y down) at ``depth_m
-    [...]`` (metres from the camera): across the view ``delta_px × depth / focal_px``, along it what
-    the length leaves (0 when the image is longer), on the side of ``reference [..., 3]`` (where the
-    segment points without this measure)."""
-    across = np.stack([delta_px[..., 0], -delta_px[..., 1]], axis=-1) * (depth_m / focal_px)[..., None]
-    along = np.sqrt(np.maximum(length_m ** 2 - np.sum(across ** 2, axis=-1), 0.0))
-    along = np.where(reference[..., 2] < 0, -along, along)
-    return _unit(np.concatenate([across, along[..., None]], axis=-1))
-
-
 def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
                   keypoints: np.ndarray, extremities: np.ndarray, focal_px: float, planted: np.ndarray,
                   up: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:
     """Local rotations ``[F, 4, 4]`` of the feet and hands (:data:`~mocapdb.core.skeleton.END_JOINTS`)
     of the fitted motion (``quats [F, R, 4]``, ``root_m [F, 3]`` view frame, body ``scale`` and
     ``offsets_m``): each turned from where its parent (shank, forearm) points it to the measured
-    direction, heel → big toe for a foot, wrist → mid-knuckles for a hand (:func:`lift_direction` at
-    the ankle's or wrist's depth, lengths :data:`END_LENGTHS_M` × ``scale``); gaps interpolated,
+    direction, heel → big toe for a foot, wrist → mid-knuckles for a hand
+    (:func:`~mocapdb.runtime.end_joints.measured_directions`); gaps interpolated,
     smoothed as the rotations (:attr:`TakeParams.smoothing_hz`); a ``planted [F, 2]`` foot flat
     on the floor (perpendicular to ``up`` but for the standing foot's slope,
     :data:`~mocapdb.core.skeleton.HEEL_TO_TOE_SLOPE_DEG`); never seen: not turned. ``keypoints [F, 14, 3]``,
     ``extremities [F, 8, 3]``: x px, y px, confidence; ``focal_px``: the camera's focal length."""
-    joints = pose_from_rotations(quats, root_m, scale, offsets_m)
-    parents = global_rotations(quats)[:, [RIG_JOINTS.index(j) for j in END_PARENTS]]   # [F, 4, 3, 3]
-    reference = np.einsum("fkij,kj->fki", parents, END_REST_DIRECTIONS)                 # [F, 4, 3]
-    xy = np.where(extremities[..., 2:] > 0, extremities[..., :2], np.nan)
-    wrists = np.where(keypoints[:, WRISTS, 2:] > 0, keypoints[:, WRISTS, :2], np.nan)
-    starts = np.concatenate([xy[:, HEELS], wrists], axis=1)
-    ends = np.concatenate([xy[:, TOES], 0.5 * (xy[:, INDEX_KNUCKLES] + xy[:, PINKY_KNUCKLES])], axis=1)
-    depth = -joints[:, list(ANKLES) + list(WRISTS), 2]
-    direction = lift_direction(ends - starts, depth, END_LENGTHS_M * scale, focal_px, reference)
+    parents, reference = end_frames(quats)
+    direction = measured_directions(quats, root_m, scale, offsets_m, keypoints, extremities, focal_px)
     seen = np.isfinite(direction).all(axis=-1)
     direction = np.where(seen.any(axis=0)[None, :, None], interpolated(direction), reference)
-    up = up / np.linalg.norm(up)
     flat = np.concatenate([planted, np.zeros_like(planted)], axis=1)
-    forwards = _unit(direction - (direction @ up)[..., None] * up)
-    standing = np.cos(_SLOPE) * forwards - np.sin(_SLOPE) * up
-    direction = np.where(flat[..., None], standing, direction)
+    direction = np.where(flat[..., None], standing_directions(direction, up), direction)
     direction = zero_phase_smoothed(direction, fps, params.smoothing_hz)
-    turn = swing_matrices(_unit(reference), _unit(direction))
-    return matrix_to_quat(np.swapaxes(parents, -1, -2) @ turn @ parents)
+    return end_locals(parents, reference, direction)
 
 
 def head_rotation(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,

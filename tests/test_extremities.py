@@ -22,8 +22,9 @@ from mocapdb.core.skeleton import (
     RIG_JOINTS,
     global_rotations,
 )
+from mocapdb.runtime.end_joints import END_PARENTS, END_REST_DIRECTIONS, lift_direction
 from mocapdb.runtime.foot_contacts import FLAT, HEEL_STRIKE, SWING, TOE_OFF, UNSEEN, foot_phases, planted_ankles
-from mocapdb.runtime.take import END_PARENTS, END_REST_DIRECTIONS, end_rotations, lift_direction
+from mocapdb.runtime.take import end_rotations
 from mocapdb.runtime.take_params import TakeParams
 
 FPS = 30.0

@@ -1,0 +1,92 @@
+"""The feet's and hands' directions as one camera sees them (heel → big toe, wrist → mid-knuckles) and
+the humanoid end joints' local rotations that turn them there: shared by the whole take
+(:func:`mocapdb.runtime.take.end_rotations`) and the online take (:mod:`mocapdb.runtime.online_ends`).
+
+Each end joint (:data:`~mocapdb.core.skeleton.END_JOINTS`' feet and hands) hangs from a rig joint
+(:data:`END_PARENTS`) that points it along :data:`END_REST_DIRECTIONS` (its rest direction in the
+parent's frame); the measured direction turns it by the shortest turn (no twist about it).
+Contract: ``data_specs/stream_output.md`` (``--rig``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mocapdb.core.geometry import matrix_to_quat
+from mocapdb.core.skeleton import (
+    HAND_LENGTH_M,
+    HEEL_TO_TOE_M,
+    HEEL_TO_TOE_SLOPE_DEG,
+    KP,
+    RIG_JOINTS,
+    global_rotations,
+    pose_from_rotations,
+    swing_matrices,
+)
+from mocapdb.runtime.foot_contacts import ANKLES, HEELS, INDEX_KNUCKLES, PINKY_KNUCKLES, TOES
+
+WRISTS = (KP["r_wrist"], KP["l_wrist"])
+# Each end joint: the rig joint it hangs from, and its direction at rest (heel → toe forwards, sloping
+# down as on a standing foot; wrist → knuckles along the forearm, as the humanoid rig's hand bones)
+END_PARENTS = ("r_knee", "l_knee", "r_elbow", "l_elbow")
+_PARENT_ROWS = [RIG_JOINTS.index(j) for j in END_PARENTS]
+_SLOPE = np.radians(HEEL_TO_TOE_SLOPE_DEG)
+_FOOT_REST = [0.0, -np.sin(_SLOPE), np.cos(_SLOPE)]
+END_REST_DIRECTIONS = np.array([_FOOT_REST, _FOOT_REST, [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+END_LENGTHS_M = np.array([HEEL_TO_TOE_M, HEEL_TO_TOE_M, HAND_LENGTH_M, HAND_LENGTH_M])  # of a 1.75 m body
+
+
+def lift_direction(delta_px: np.ndarray, depth_m: np.ndarray, length_m: np.ndarray, focal_px: float,
+                   reference: np.ndarray) -> np.ndarray:
+    """Unit directions ``[..., 3]`` (view frame: x right, y up, z towards the camera) of segments of
+    ``length_m [...]`` whose image is ``delta_px [..., 2]`` (start → end, pixels, y down) at ``depth_m
+    [...]`` (metres from the camera): across the view ``delta_px × depth / focal_px``, along it what
+    the length leaves (0 when the image is longer), on the side of ``reference [..., 3]`` (where the
+    segment points without this measure)."""
+    across = np.stack([delta_px[..., 0], -delta_px[..., 1]], axis=-1) * (depth_m / focal_px)[..., None]
+    along = np.sqrt(np.maximum(length_m ** 2 - np.sum(across ** 2, axis=-1), 0.0))
+    along = np.where(reference[..., 2] < 0, -along, along)
+    return _unit(np.concatenate([across, along[..., None]], axis=-1))
+
+
+def end_frames(quats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The parents' global rotations ``[F, 4, 3, 3]`` (view frame) of the rig rotations ``quats [F, R, 4]``
+    and where they point the feet and hands at rest ``[F, 4, 3]`` (unit)."""
+    parents = global_rotations(quats)[:, _PARENT_ROWS]
+    return parents, np.einsum("fkij,kj->fki", parents, END_REST_DIRECTIONS)
+
+
+def measured_directions(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
+                        keypoints: np.ndarray, extremities: np.ndarray, focal_px: float) -> np.ndarray:
+    """``[F, 4, 3]`` the feet's heel → big toe and the hands' wrist → mid-knuckles directions (view
+    frame, unit; NaN where a point is unseen) of a motion (``quats [F, R, 4]``, ``root_m [F, 3]`` view
+    frame, body ``scale``, ``offsets_m``) seen as ``keypoints [F, 14, 3]`` and ``extremities [F, E, 3]``
+    (x px, y px, confidence; 0: unseen): :func:`lift_direction` at the ankle's or wrist's depth, lengths
+    :data:`END_LENGTHS_M` × ``scale``, along the view on the side the parent points it."""
+    joints = pose_from_rotations(quats, root_m, scale, offsets_m)
+    reference = end_frames(quats)[1]
+    xy = np.where(extremities[..., 2:] > 0, extremities[..., :2], np.nan)
+    wrists = np.where(keypoints[:, WRISTS, 2:] > 0, keypoints[:, WRISTS, :2], np.nan)
+    starts = np.concatenate([xy[:, HEELS], wrists], axis=1)
+    ends = np.concatenate([xy[:, TOES], 0.5 * (xy[:, INDEX_KNUCKLES] + xy[:, PINKY_KNUCKLES])], axis=1)
+    depth = -joints[:, list(ANKLES) + list(WRISTS), 2]
+    return lift_direction(ends - starts, depth, END_LENGTHS_M * scale, focal_px, reference)
+
+
+def standing_directions(directions: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """``directions [..., 3]`` laid on a floor of normal ``up`` ([3], view frame): their heading kept, sloping
+    down by a standing foot's :data:`~mocapdb.core.skeleton.HEEL_TO_TOE_SLOPE_DEG`."""
+    up = up / np.linalg.norm(up)
+    forwards = _unit(directions - (directions @ up)[..., None] * up)
+    return np.cos(_SLOPE) * forwards - np.sin(_SLOPE) * up
+
+
+def end_locals(parents: np.ndarray, reference: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """``[F, 4, 4]`` the feet's and hands' local rotations (relative to their ``parents [F, 4, 3, 3]``)
+    that turn them from ``reference [F, 4, 3]`` (:func:`end_frames`) to ``directions [F, 4, 3]`` by the
+    shortest turn."""
+    turn = swing_matrices(_unit(reference), _unit(directions))
+    return matrix_to_quat(np.swapaxes(parents, -1, -2) @ turn @ parents)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
