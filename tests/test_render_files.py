@@ -176,12 +176,13 @@ def test_files_that_do_not_line_up_with_the_stream_are_not_drawn(tmp_path):
 @pytest.fixture(scope="module")
 def two_runs(tmp_path_factory, small_db_path):
     """The bundled Pose2Sim take reconstructed on the floor (the default) and in the view frame
-    (--view-frame; CSV and BVH files)."""
+    (--view-frame; CSV and BVH files on the universal rig, whose every joint the BVH holds exactly)."""
     from mocapdb.cli.main import main
 
     root = tmp_path_factory.mktemp("files")
     common = [str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--fps", "60", "--image-size", "1088x1920",
-              "--focal", "1681", "--format", "csv,bvh"]
+              "--focal", "1681", "--format", "csv,bvh",
+              "--rig", "universal"]
     assert main(["reconstruct", *common, "--out", str(root / "floor")]) == 0
     assert main(["reconstruct", *common, "--out", str(root / "view"), "--view-frame"]) == 0
     return root / "floor", root / "view"

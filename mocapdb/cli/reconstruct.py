@@ -101,10 +101,10 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     files.add_argument("--format", default="bvh", type=P.TextArg("a list of formats"), metavar="LIST",
                        help="files per track, comma-separated: bvh (animation), trc (OpenSim/Pose2Sim markers, "
                             "metres), csv (joint positions, metres); default bvh")
-    files.add_argument("--rig", choices=("universal", "humanoid"), default="universal",
-                       help="BVH rig: mocapdb's 11 joints (what `mocapdb build` reads back exactly), or humanoid: "
-                            "with head, clavicle, hand, foot and toe bones under Mixamo names for Unity Humanoid, "
-                            "HumanIK and Blender (default universal)")
+    files.add_argument("--rig", choices=("universal", "humanoid"), default="humanoid",
+                       help="BVH rig: humanoid, with head, clavicle, hand, foot and toe bones under Mixamo names for "
+                            "Unity Humanoid, HumanIK and Blender (the default), or universal: mocapdb's 11 joints, "
+                            "what `mocapdb build` reads back exactly")
     frame = files.add_mutually_exclusive_group()
     frame.add_argument("--floor", dest="view_frame", action="store_false", default=False,
                        help="the track files stand on the world's floor: levelled, feet on y = 0 (y up), "
