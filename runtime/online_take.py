@@ -34,6 +34,9 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
 5. **Per-joint speed limits**: no rig joint turns faster than its limit (:data:`JOINT_SPEED_DEG_S`,
    degrees per second; the local rotation is slerped back towards the previous frame's) and the
    root moves no faster than ``root_speed_mps``.
+6. **Feet, hands and head** (given the camera: heels, big toes, knuckles, face points): the humanoid
+   rig's end joints measured as the whole take measures them, smoothed as the rotations, an unseen one
+   held, then eased to rest (:mod:`mocapdb.runtime.online_ends`).
 The body's size is the engine's per frame (its own proportions, settling as they are measured;
 1.75 m tall unless ``--subject-height`` or ``--camera-height``): the world's size of each person
 (:mod:`mocapdb.runtime.world`) reaches the track files only.
@@ -48,10 +51,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from mocapdb.core.geometry import quat_turned_towards
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, RIG_JOINTS, UNIVERSAL_HEIGHT_M, body_offsets_m, pose_from_rotations
 from mocapdb.runtime.filters import OneEuroParams, QuaternionOneEuroFilter
 from mocapdb.runtime.foot_contacts import ANKLES, CONTACT_WINDOW_S, HEELS, TOES
+from mocapdb.runtime.online_ends import OnlineEnds
 from mocapdb.runtime.root_filter import RootFilter
 from mocapdb.runtime.take import plant_feet
 
@@ -97,10 +102,11 @@ class OnlineTake:
     """Frames in, the same frames out ``lag_frames`` later, every person through the online whole
     take (module docstring). ``fps``: the input's frame rate (Hz)."""
 
-    def __init__(self, fps: float, params: OnlineParams = OnlineParams()):
+    def __init__(self, fps: float, params: OnlineParams = OnlineParams(),
+                 camera_px: tuple[float, float, float] | None = None):
         if not fps > 0:
             raise ValueError("the online take needs a positive frame rate")
-        self.fps, self.params = float(fps), params
+        self.fps, self.params, self.camera_px = float(fps), params, camera_px
         self.lag = params.lag_frames
         self.frames: deque[Frame] = deque()
         self.tracks: dict[int, OnlineTrack] = {}
@@ -110,7 +116,7 @@ class OnlineTake:
         self.frames.append((index, time_s, poses))
         for pose in poses:
             if pose.track not in self.tracks:
-                self.tracks[pose.track] = OnlineTrack(self.fps, self.params)
+                self.tracks[pose.track] = OnlineTrack(self.fps, self.params, self.camera_px)
             self.tracks[pose.track].add(index, pose)
         if len(self.frames) <= self.lag:
             return []
@@ -146,10 +152,12 @@ class _Feet:
 class OnlineTrack:
     """One track's online whole take: its recent per-frame poses and what the steps carry over."""
 
-    def __init__(self, fps: float, params: OnlineParams):
+    def __init__(self, fps: float, params: OnlineParams, camera_px: tuple[float, float, float] | None = None):
         self.fps, self.params = fps, params
         # the whole take smooths twice at smoothing_hz (before and after its re-fit): one Gaussian √2 as wide
         self.sigma_frames = np.sqrt(2.0) * fps / (2.0 * np.pi * params.smoothing_hz)
+        self.ends = None if camera_px is None else OnlineEnds(fps, params.lag_frames, self.sigma_frames,
+                                                              params.causal_rotations, camera_px)
         self.half_window = max(round(CONTACT_WINDOW_S * fps / 2), 1)
         self.recent: dict[int, PersonPose] = {}
         self.boxes: deque[float] = deque(maxlen=int(2 * fps))
@@ -165,6 +173,8 @@ class OnlineTrack:
         """One frame's per-frame pose of the track."""
         self.recent[index] = pose
         self.last_index = index
+        if self.ends is not None:
+            self.ends.add(index, pose)
         if pose.keypoints_px is not None:
             seen = pose.keypoints_px[pose.keypoints_px[:, 2] > 0, 1]
             if len(seen) > 1:
@@ -191,8 +201,10 @@ class OnlineTrack:
         self.previous = (index, quats, root)
         joints = pose_from_rotations(quats[None], root[None], scale, offsets)[0]
         floor = float(np.median(np.array(feet.placed) @ up)) - ANKLE_HEIGHT_M * scale if feet.placed else None
+        ends, seen = (None, None) if self.ends is None else self.ends.output(index, quats, feet.weight, up)
         return replace(pose, joints_m=joints * CAMERA_FROM_VIEW, quaternions=quats, root_m=root * CAMERA_FROM_VIEW,
-                       up_view=up, floor_offset_m=floor, contacts=(bool(feet.planted[0]), bool(feet.planted[1])))
+                       up_view=up, floor_offset_m=floor, contacts=(bool(feet.planted[0]), bool(feet.planted[1])),
+                       end_quaternions=ends, end_seen=None if seen is None else tuple(bool(s) for s in seen))
 
     def _smoothed(self, index: int, pose: PersonPose) -> np.ndarray:
         """Step 1: the rotations ``[R, 4]`` of frame ``index``."""
@@ -274,11 +286,7 @@ class OnlineTrack:
         if previous is not None and 0 < index - previous[0] <= 2:
             frames = index - previous[0]
             prev_q, prev_root = previous[1], previous[2]
-            dots = np.sum(prev_q * quats, axis=-1)
-            quats = np.where((dots < 0)[:, None], -quats, quats)
-            angle = 2.0 * np.arccos(np.clip(np.abs(dots), 0.0, 1.0))
-            share = np.minimum(1.0, self.max_turn * frames / np.maximum(angle, 1e-12))
-            quats = _slerp(prev_q, quats, share)
+            quats = quat_turned_towards(prev_q, quats, self.max_turn * frames)
             root = prev_root + _clamped(root - prev_root, self.params.root_speed_mps * frames / self.fps)
         return quats, root
 
@@ -311,14 +319,3 @@ def _slopes(frames: np.ndarray, points: np.ndarray) -> np.ndarray:
     speed = np.linalg.norm(cov, axis=-1) / np.maximum(var, 1e-12)
     return np.where(count >= 3, speed, np.inf)
 
-
-def _slerp(a: np.ndarray, b: np.ndarray, share: np.ndarray) -> np.ndarray:
-    """Per row the rotation ``share`` of the way from unit quaternion ``a [R, 4]`` to ``b`` (same hemisphere)."""
-    dot = np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)
-    theta = np.arccos(dot)
-    small = theta < 1e-6
-    sin = np.where(small, 1.0, np.sin(theta))
-    wa = np.where(small, 1.0 - share, np.sin((1.0 - share) * theta) / sin)
-    wb = np.where(small, share, np.sin(share * theta) / sin)
-    out = wa[:, None] * a + wb[:, None] * b
-    return out / np.linalg.norm(out, axis=-1, keepdims=True)

@@ -141,6 +141,28 @@ def quat_geodesic(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(dot, 0.0, 1.0))
 
 
+def slerp(a: np.ndarray, b: np.ndarray, share: np.ndarray | float) -> np.ndarray:
+    """``share [...]`` of the way from unit vectors ``a [..., n]`` to ``b [..., n]`` along the great circle
+    (directions, or quaternions in ``a``'s hemisphere: the caller aligns their signs)."""
+    dot = np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)
+    theta = np.arccos(dot)
+    small = theta < 1e-6
+    sin = np.where(small, 1.0, np.sin(theta))
+    wa = np.where(small, 1.0 - share, np.sin((1.0 - share) * theta) / sin)
+    wb = np.where(small, share, np.sin(share * theta) / sin)
+    out = wa[..., None] * a + wb[..., None] * b
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def quat_turned_towards(a: np.ndarray, b: np.ndarray, max_angle_rad: np.ndarray | float) -> np.ndarray:
+    """Unit quaternions ``b [..., 4]``, or where ``b`` is more than ``max_angle_rad [...]`` from ``a [..., 4]``,
+    the rotation that far from ``a`` towards it (a speed limit over one step); ``b``'s sign aligned to ``a``."""
+    dots = np.sum(a * b, axis=-1)
+    b = np.where((dots < 0)[..., None], -b, b)
+    angle = 2.0 * np.arccos(np.clip(np.abs(dots), 0.0, 1.0))
+    return slerp(a, b, np.minimum(1.0, max_angle_rad / np.maximum(angle, 1e-12)))
+
+
 def yaw_matrix(yaw_deg: float | np.ndarray) -> np.ndarray:
     """Rotations ``[..., 3, 3]`` about the vertical (y) axis by ``yaw_deg`` degrees (right-handed)."""
     return axis_rotation_matrices("Y", np.radians(np.asarray(yaw_deg, dtype=np.float64)))

@@ -105,7 +105,8 @@ def run_variants(db: MotionDatabase, frames: list[KeypointFrame], config: Engine
         whole[index[keep]] = take_joints_m[keep]
     out[WHOLE_TAKE] = {"joints": whole, "compute_s": None, "lag": None}
     for lag in lags:
-        online = OnlineTake(config.fps, replace(params or OnlineParams(), lag_frames=lag))
+        online = OnlineTake(config.fps, replace(params or OnlineParams(), lag_frames=lag),
+                            (config.focal_px, *config.center_px))
         joints, times, _, _ = _run(db, frames, replace(config, smoothing=False, keep_take=False), online)
         out[f"online take, L = {lag}"] = {"joints": _track_joints(joints, track, len(frames)), "compute_s": times,
                                           "lag": lag}

@@ -101,7 +101,9 @@ class Session:
         if self.options.online_take:
             take = self.options.take  # the stream smooths as the track files do: their --smoothing-hz
             smoothing_hz = take.smoothing_hz if take and take.smoothing_hz > 0 else OnlineParams.smoothing_hz
-            self.online = OnlineTake(engine.config.fps, OnlineParams(self.options.lag_frames, smoothing_hz))
+            config = engine.config
+            self.online = OnlineTake(config.fps, OnlineParams(self.options.lag_frames, smoothing_hz),
+                                     (config.focal_px, *config.center_px))
         self.started = self._checkpointed = time.perf_counter()
         try:
             config = engine.config

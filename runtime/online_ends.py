@@ -1,0 +1,169 @@
+"""The online take's end joints: the humanoid rig's feet, hands and head
+(:data:`~mocapdb.core.skeleton.END_JOINTS`) turned per frame of the stream, as the whole take turns
+them in the track files (:func:`mocapdb.runtime.take.end_rotations`, :func:`~mocapdb.runtime.take.head_rotation`).
+
+Per track (:class:`OnlineEnds`), per frame:
+
+1. **Measured** on the frame's per-frame pose as the whole take measures them: the feet's heel → big toe
+   and the hands' wrist → mid-knuckles directions (:func:`~mocapdb.runtime.end_joints.measured_directions`),
+   the head's rotation relative to the chest (:func:`~mocapdb.runtime.head_pose.chest_relative_head`).
+2. **Smoothed** as the online take smooths the rig's rotations: lag 0, a causal 1€ filter (its
+   ``causal_rotations``; the directions as vectors, the head as a quaternion); lag ``L``, the Gaussian
+   mean of the frames ``t − L … t + L`` measured. A planted foot is laid flat on the floor, blended in
+   with its IK weight, and keeps the heading it was put down with (following the measure at most
+   :data:`PLANTED_FOLLOW_DEG_S`): its ankle is held in place, so is the ball of the foot.
+3. **Unseen**: an end joint keeps its last value for :data:`HOLD_S`, then eases to rest (the identity,
+   where the rig puts it unturned) over :data:`EASE_S` (smoothstep); seen again, or seen first, it eases
+   in from there over :data:`EASE_S`. Every frame says which end joints were measured (``end_seen``).
+4. **Speed limits**: no end joint's local rotation turns faster than :data:`END_SPEED_DEG_S`.
+
+Cost: one face fit and a few forward kinematics of one frame per person and frame.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
+from mocapdb.core.geometry import matrix_to_quat, quat_turned_towards, slerp
+from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose
+from mocapdb.core.skeleton import END_JOINTS, RIG_JOINTS, UNIVERSAL_HEIGHT_M, body_offsets_m, global_rotations
+from mocapdb.runtime.end_joints import end_frames, end_locals, measured_directions, standing_directions
+from mocapdb.runtime.filters import OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
+from mocapdb.runtime.head_pose import chest_relative_head, face_points, head_local
+
+HOLD_S = 0.5   # an end joint unseen this long keeps its last value (the whole take interpolates such gaps)
+EASE_S = 0.3   # then it turns to rest over this long; seen (again), it turns from there to its measure as long
+# The fastest each end joint's local rotation may turn (degrees per second; END_JOINTS order), as the rig
+# joint it hangs from (online_take.JOINT_SPEED_DEG_S): feet the knees', hands the elbows', the head the neck's
+END_SPEED_DEG_S = np.array([2000.0, 2000.0, 2300.0, 2300.0, 900.0])
+# A planted foot's heading follows its measure at most this fast (degrees per second): about the online
+# take's anchor following of 2 cm/s at the ball of the foot, 14 cm ahead of the ankle
+PLANTED_FOLLOW_DEG_S = 8.0
+_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+_N_ENDS = len(END_JOINTS)
+_SPINE, _NECK = RIG_JOINTS.index("spine"), RIG_JOINTS.index("neck")
+Measure = tuple[np.ndarray, np.ndarray]   # the feet's and hands' directions [4, 3], the head [4]; NaN: unseen
+
+
+def measure(pose: PersonPose, camera_px: tuple[float, float, float]) -> Measure:
+    """The feet's and hands' directions ``[4, 3]`` (view frame, unit) and the head's rotation relative to
+    the chest ``[4]`` of one per-frame ``pose``, seen by the pinhole ``camera_px`` (focal, cx, cy: pixels);
+    NaN where its keypoints do not give them."""
+    unseen = np.full((4, 3), np.nan), np.full(4, np.nan)
+    keypoints, extremities = pose.keypoints_px, pose.extremities_px
+    if keypoints is None or extremities is None or len(extremities) < len(EXTREMITIES):
+        return unseen
+    scale = pose.height_m / UNIVERSAL_HEIGHT_M
+    offsets = None if pose.bones_m is None else body_offsets_m(pose.bones_m / scale)
+    quats, root = pose.quaternions[None], (pose.root_m * CAMERA_FROM_VIEW)[None]
+    directions = measured_directions(quats, root, scale, offsets, keypoints[None], extremities[None], camera_px[0])
+    head = chest_relative_head(quats, root, scale, offsets, face_points(keypoints[None], extremities[None]),
+                               camera_px)
+    return directions[0], head[0]
+
+
+class OnlineEnds:
+    """One track's end joints in the online take (module docstring). ``fps``: frames per second;
+    ``lag_frames``, ``sigma_frames``: the online take's lag and Gaussian (frames); ``causal``: its 1€
+    filter at lag 0; ``camera_px``: focal, cx, cy (pixels)."""
+
+    def __init__(self, fps: float, lag_frames: int, sigma_frames: float, causal: OneEuroParams,
+                 camera_px: tuple[float, float, float]) -> None:
+        self.fps, self.lag, self.sigma_frames, self.camera_px = fps, lag_frames, sigma_frames, camera_px
+        self.measured: dict[int, Measure] = {}
+        self.direction_filter = OneEuroFilter(causal)
+        self.head_filter = QuaternionOneEuroFilter(causal)
+        self.held: Measure | None = None          # the last smoothed values (what an unseen end keeps)
+        self.progress = np.zeros(_N_ENDS)         # into the measured rotation: 0 (rest) … 1, linear in time
+        self.unseen_s = np.zeros(_N_ENDS)         # seconds since each was last seen
+        self.previous: tuple[int, np.ndarray] | None = None   # index and end rotations [5, 4] of the last output
+        self.planted = np.full((2, 3), np.nan)    # each planted foot's direction (view frame); NaN: not planted
+        self.planted_sum = np.zeros((2, 3))       # the sum of its standing directions since put down
+
+    def add(self, index: int, pose: PersonPose) -> None:
+        """One frame's per-frame pose of the track: measured, kept while the window needs it."""
+        self.measured[index] = measure(pose, self.camera_px)
+        for old in [i for i in self.measured if i < index - 2 * self.lag - 1]:
+            del self.measured[old]
+
+    def output(self, index: int, quats: np.ndarray, plant_weights: np.ndarray, up: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """The end joints' local rotations ``[5, 4]`` (:data:`~mocapdb.core.skeleton.END_JOINTS`) of frame
+        ``index`` on the output rotations ``quats [R, 4]``, the feet flat by ``plant_weights [2]`` on the
+        floor of normal ``up`` (view frame), and which were seen ``[5]``."""
+        parents, reference = end_frames(quats[None])
+        rest = (reference[0], _rest_head(quats))
+        directions, head, seen = self._smoothed(index, rest)
+        flat = plant_weights[:, None]
+        directions[:2] = (1.0 - flat) * directions[:2] + flat * self._planted(standing_directions(directions[:2], up),
+                                                                              plant_weights)
+        ends = np.vstack([end_locals(parents, reference, directions[None])[0], head_local(quats[None], head[None])])
+        ends *= np.where(ends[:, :1] < 0, -1.0, 1.0)
+        dt = 1.0 / self.fps
+        self.unseen_s = np.where(seen, 0.0, self.unseen_s + dt)
+        easing = np.where(seen, 1.0, np.where(self.unseen_s > HOLD_S, -1.0, 0.0))
+        self.progress = np.clip(self.progress + easing * dt / EASE_S, 0.0, 1.0)
+        weight = self.progress ** 2 * (3.0 - 2.0 * self.progress)
+        ends = slerp(np.tile(_IDENTITY, (_N_ENDS, 1)), ends, weight)
+        if self.previous is not None and 0 < index - self.previous[0] <= 2:
+            limit = np.radians(END_SPEED_DEG_S) * (index - self.previous[0]) / self.fps
+            ends = quat_turned_towards(self.previous[1], ends, limit)
+        self.previous = (index, ends)
+        return ends, seen
+
+    def _planted(self, standing: np.ndarray, plant_weights: np.ndarray) -> np.ndarray:
+        """``[2, 3]`` the feet's directions: while planted (``plant_weights [2]`` above 0) the mean of their
+        ``standing [2, 3]`` directions since put down, followed no faster than :data:`PLANTED_FOLLOW_DEG_S`;
+        else ``standing``."""
+        planted = (plant_weights > 0)[:, None]
+        self.planted_sum = np.where(planted, self.planted_sum + standing, 0.0)
+        mean = np.where(planted, self.planted_sum, standing)
+        mean /= np.linalg.norm(mean, axis=-1, keepdims=True)
+        held = np.where(np.isnan(self.planted), mean, self.planted)
+        angle = np.arccos(np.clip(np.sum(held * mean, axis=-1), -1.0, 1.0))
+        limit = np.radians(PLANTED_FOLLOW_DEG_S) / self.fps
+        followed = slerp(held, mean, np.minimum(1.0, limit / np.maximum(angle, 1e-12)))
+        self.planted = np.where(planted, followed, np.nan)
+        return np.where(planted, followed, standing)
+
+    def _smoothed(self, index: int, rest: Measure) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Step 2 at frame ``index``: the directions ``[4, 3]``, the head ``[4]`` and which ends were seen
+        ``[5]``; an end not seen keeps its held value (``rest`` before it was ever seen)."""
+        directions, head = self.measured.get(index, (np.full((4, 3), np.nan), np.full(4, np.nan)))
+        seen = np.append(np.isfinite(directions).all(axis=-1), np.isfinite(head).all())
+        held = rest if self.held is None else self.held
+        if self.lag == 0:
+            directions = self.direction_filter(np.where(seen[:4, None], directions, held[0]), index / self.fps)
+            head = self.head_filter(np.where(seen[4], head, held[1])[None], index / self.fps)[0]
+        else:
+            directions, head = self._window_mean(index, held)
+        directions = directions / np.linalg.norm(directions, axis=-1, keepdims=True)
+        self.held = (directions, head)
+        return directions.copy(), head, seen
+
+    def _window_mean(self, index: int, held: Measure) -> Measure:
+        """The Gaussian means of the directions and the head over the frames measured in ``index`` ± lag;
+        ``held`` where none is."""
+        near = [i for i in range(index - self.lag, index + self.lag + 1) if i in self.measured]
+        weights = np.exp(-0.5 * ((np.array(near) - index) / self.sigma_frames) ** 2)
+        directions = np.array([self.measured[i][0] for i in near])          # [n, 4, 3]
+        heads = np.array([self.measured[i][1] for i in near])               # [n, 4]
+        heads = np.where((np.sum(heads * held[1], axis=-1) < 0)[:, None], -heads, heads)
+        return _mean_or(directions, weights, held[0]), _mean_or(heads, weights, held[1])
+
+
+def _mean_or(values: np.ndarray, weights: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Per item of ``values [n, ...]`` (NaN: unseen) the ``weights [n]`` mean of its seen values, normalised
+    along the last axis; ``fallback`` where none is seen."""
+    seen = np.isfinite(values).all(axis=-1)                                 # [n, ...]
+    w = np.where(seen, weights.reshape((-1,) + (1,) * (seen.ndim - 1)), 0.0)
+    total = (w[..., None] * np.nan_to_num(values)).sum(axis=0)
+    norm = np.linalg.norm(total, axis=-1, keepdims=True)
+    return np.where(norm > 1e-9, total / np.maximum(norm, 1e-12), fallback)
+
+
+def _rest_head(quats: np.ndarray) -> np.ndarray:
+    """``[4]`` the head's rotation relative to the chest at rest on the neck (its local rotation the
+    identity) of the rig rotations ``quats [R, 4]``."""
+    rotations = global_rotations(quats[None])[0]
+    return matrix_to_quat(rotations[_SPINE].T @ rotations[_NECK])
