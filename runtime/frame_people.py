@@ -20,8 +20,8 @@ MIN_EXTENT_PX = 4.0  # a person whose confident keypoints span less is skipped (
 @dataclass(frozen=True)
 class Detection:
     """One person in one frame: keypoints ``[14, 2]`` px, their confidences ``[14]`` (0: missing),
-    heels, toes and knuckles ``[8, 3]`` (x px, y px, confidence) and the detector's world landmarks
-    ``[14, 3]`` (``Person.world_m``; None without them)."""
+    heels, toes, knuckles and face points ``[E, 3]`` (x px, y px, confidence) and the detector's world
+    landmarks ``[14, 3]`` and ``[E, 3]`` (``Person.world_m``, ``Person.extremities_world_m``; None without)."""
 
     frame_index: int
     t_s: float
@@ -29,6 +29,7 @@ class Detection:
     confidence: np.ndarray
     extremities: np.ndarray
     world_m: np.ndarray | None = None
+    extremities_world_m: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -44,11 +45,13 @@ class FramePeople:
     skipped: int = 0
     degenerate: int = 0
     world_m: tuple[np.ndarray | None, ...] = ()   # per person, its world landmarks [14, 3] or None
+    extremities_world_m: tuple[np.ndarray | None, ...] = ()   # per person, its extremities' [E, 3] or None
 
     def detection(self, person: int) -> Detection:
         """The ``person``-th usable person's detection."""
         return Detection(self.frame_index, self.t_s, self.points_px[person], self.confidence[person],
-                         self.extremities[person], self.world_m[person] if self.world_m else None)
+                         self.extremities[person], self.world_m[person] if self.world_m else None,
+                         self.extremities_world_m[person] if self.extremities_world_m else None)
 
 
 def usable_people(frame: KeypointFrame, config: EngineConfig) -> FramePeople:
@@ -62,7 +65,8 @@ def usable_people(frame: KeypointFrame, config: EngineConfig) -> FramePeople:
     conf = np.where(conf >= threshold, conf, 0.0)
     extremities = np.array([_extremities(p, threshold) for p in people]).reshape(-1, len(EXTREMITIES), 3)
     return FramePeople(frame.index, t_s, points, conf, extremities, len(frame.people) - len(people),
-                       kinds.count("degenerate"), tuple(p.world_m for p in people))
+                       kinds.count("degenerate"), tuple(p.world_m for p in people),
+                       tuple(p.extremities_world_m for p in people))
 
 
 def _kind(person: Person, config: EngineConfig) -> str:

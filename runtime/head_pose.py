@@ -4,9 +4,13 @@ A rigid face model (:data:`FACE_MODEL_M`, in the head's frame: x to the subject'
 forwards, origin the ears' mid-point; scaled with the body) is turned and moved across the view so
 that its points project onto the detected ones (:func:`fit_head`: Gauss-Newton on the confidence-
 weighted re-projection error, robust (Huber) weights, its depth held where the body's nose is). A
-weak prior holds it near ``prior`` (the chest's frame: the head at rest on the trunk) where the face
-says little. Layouts give what they have: BlazePose all seven points, COCO-17 and OpenPose nose,
-eyes and ears; fewer than :data:`MIN_POINTS` seen points (nose included) leave the frame unknown.
+weak prior holds it near ``prior`` where the face says little. Layouts give what they have: BlazePose
+all seven points, COCO-17 and OpenPose nose, eyes and ears; fewer than :data:`MIN_POINTS` seen points
+(nose included) leave the frame unknown. The face's left and right are tried both ways (detectors swap
+them), the better fit kept. With the detector's world landmarks (:func:`face_world`: BlazePose's own
+metric 3D) the face model is the person's own pattern (:func:`face_model`) and the prior is the head's
+turn against the shoulders read off them (:func:`world_relative`). The humanoid ``Head`` carries only
+the components in :data:`HEAD_GAINS` (:func:`head_local`).
 
 Contract and decisions: ``data_specs/head.md``.
 """
@@ -16,7 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
-from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
+from mocapdb.core.geometry import euler_to_matrix, matrix_to_euler, matrix_to_quat, quat_to_matrix
 from mocapdb.core.skeleton import KP, RIG_JOINTS, global_rotations, pose_from_rotations
 
 # The face points after the nose, as rows of the extremities array (keypoint_layouts.EXTREMITIES)
@@ -39,6 +43,19 @@ HUBER_SD = 2.0            # residuals beyond this many SDs weigh less (Huber)
 PRIOR_SD_DEG = 40.0       # the prior's pull: the head within about this of it
 DEPTH_SD = 0.3            # the head's depth: free to within this share of the body's (the model's size is a guess)
 ITERATIONS = 12
+# The face rows with the subject's left and right exchanged (nose, eyes, ears, mouth corners)
+SWAPPED = (0, 2, 1, 4, 3, 6, 5)
+# The world landmarks the head needs (:func:`face_world`): the nose, FACE_NAMES, then the shoulders and hips
+WORLD_BODY = tuple(KP[n] for n in ("r_shoulder", "l_shoulder", "r_hip", "l_hip"))
+NO_FACE_WORLD = np.full((7 + len(WORLD_BODY), 3), np.nan)
+MIN_MODEL_FRAMES = 5      # frames with all seven world face points a person's own face model needs
+WORLD_PRIOR_SD_DEG = 15.0  # the world landmarks' head rotation as the fit's prior: within about this
+# Which components of the head's own rotation (intrinsic Y-X-Z against the Neck: turn, nod, tilt) the
+# humanoid Head carries (1) or leaves to the neck (0): the decision rule of data_specs/head.md
+HEAD_GAINS = np.array([0.0, 0.0, 1.0])
+_VIEW_OF_WORLD = np.array([1.0, -1.0, -1.0])   # world landmarks (x right, y down, z away) → view (y up, z to camera)
+_BODY_SWAP = np.array([-1.0, 1.0, -1.0])   # the chest's x and z flip: Ry(180°) (rows of chest⁻¹ · head)
+_FACE_SWAP = np.array([-1.0, -1.0, 1.0])   # the head's x and y flip: Rz(180°) (its columns)
 
 
 def face_points(keypoints: np.ndarray, extremities: np.ndarray) -> np.ndarray:
@@ -72,64 +89,156 @@ def _jacobian(points_view: np.ndarray, offsets: np.ndarray, focal: float) -> np.
 
 
 def fit_head(face_px: np.ndarray, nose_view_m: np.ndarray, prior: np.ndarray, scale: float,
-             camera_px: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+             camera_px: tuple[float, float, float], prior_sd_deg: float | np.ndarray = PRIOR_SD_DEG,
+             model_m: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The head's global rotations ``[F, 3, 3]`` (view frame; identity: facing +z upright) and which
     frames the face fixed ``[F]`` (the others: ``prior``). ``face_px [F, 7, 3]``: :func:`face_points`;
     ``nose_view_m [F, 3]``: the body's nose (view frame, metres; its depth is the model's);
-    ``prior [F, 3, 3]``: where the head would be without the face (the start, weakly held);
-    ``scale``: the body's (height / 1.75 m); ``camera_px``: focal, cx, cy (pixels)."""
-    model = FACE_MODEL_M * scale
+    ``prior [F, 3, 3]``: where the head would be without the face (the start, held within
+    ``prior_sd_deg``, degrees, one or ``[F]``); ``scale``: the body's (height / 1.75 m); ``camera_px``:
+    focal, cx, cy (pixels); ``model_m [7, 3]``: the face (metres; default :data:`FACE_MODEL_M` scaled).
+    Each frame's face is fitted as labelled and with its left and right exchanged; the lower cost wins."""
+    model = FACE_MODEL_M * scale if model_m is None else model_m
     seen = (face_px[..., 2] > 0) & np.isfinite(face_px[..., :2]).all(axis=-1)
     fixed = seen[:, 0] & (seen.sum(axis=1) >= MIN_POINTS)
     rotation = prior.copy()
     if not fixed.any():
         return rotation, fixed
-    rot, base = prior[fixed], prior[fixed]
-    nose = nose_view_m[fixed]
+    sd = np.broadcast_to(np.radians(prior_sd_deg), fixed.shape)[fixed]
+    pixel_sd = camera_px[0] * POINT_SD_M * scale / -nose_view_m[fixed, 2]
+    args = (nose_view_m[fixed], prior[fixed], sd, pixel_sd, model, camera_px)
+    straight, straight_cost = _fit_face(face_px[fixed], *args)
+    swapped, swapped_cost = _fit_face(face_px[fixed][:, list(SWAPPED)], *args)
+    rotation[fixed] = np.where((swapped_cost < straight_cost)[:, None, None], swapped, straight)
+    return rotation, fixed
+
+
+def _fit_face(face_px: np.ndarray, nose: np.ndarray, base: np.ndarray, prior_sd_rad: np.ndarray,
+              pixel_sd: np.ndarray, model: np.ndarray, camera_px: tuple[float, float, float]
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fit_head`'s Gauss-Newton on frames the face fixes: rotations ``[n, 3, 3]`` and their costs
+    ``[n]`` (Huber re-projection cost in SDs², confidence-weighted, plus the prior's)."""
+    rot = base.copy()
     centre = nose - np.einsum("fij,j->fi", rot, model[0])
-    observed = np.nan_to_num(face_px[fixed, :, :2])
-    weight = np.where(seen[fixed], face_px[fixed, :, 2], 0.0)
-    pixel_sd = camera_px[0] * POINT_SD_M * scale / -nose[:, 2]                  # [n]
-    prior_weight = 1.0 / np.radians(PRIOR_SD_DEG)
+    seen = (face_px[..., 2] > 0) & np.isfinite(face_px[..., :2]).all(axis=-1)
+    observed = np.nan_to_num(face_px[..., :2])
+    weight = np.where(seen, face_px[..., 2], 0.0)
+    prior_weight = 1.0 / prior_sd_rad                                              # [n]
     start_depth = centre[:, 2].copy()
     depth_weight = 1.0 / (DEPTH_SD * -start_depth)                                # [n]
     for _ in range(ITERATIONS):
-        offsets = np.einsum("fij,pj->fpi", rot, model)
-        points = centre[:, None] + offsets
-        residual = (_project(points, camera_px) - observed) / pixel_sd[:, None, None]   # [n, P, 2] in SDs
-        size = np.linalg.norm(residual, axis=-1)
+        offsets, points, residual, size = _residuals(rot, centre, model, observed, pixel_sd, camera_px)
         w = weight * np.minimum(1.0, HUBER_SD / np.maximum(size, 1e-12))
+        away = Rotation.from_matrix(rot @ np.swapaxes(base, -1, -2)).as_rotvec()    # the prior's residual
         jac = _jacobian(points, offsets, camera_px[0]) / pixel_sd[:, None, None, None]
         normal = np.einsum("fp,fpki,fpkj->fij", w, jac, jac)
         gradient = np.einsum("fp,fpki,fpk->fi", w, jac, residual)
-        away = Rotation.from_matrix(rot @ np.swapaxes(base, -1, -2)).as_rotvec()    # the prior's residual
-        normal[:, :3, :3] += prior_weight ** 2 * np.eye(3)
-        gradient[:, :3] += prior_weight ** 2 * away
+        normal[:, :3, :3] += prior_weight[:, None, None] ** 2 * np.eye(3)
+        gradient[:, :3] += prior_weight[:, None] ** 2 * away
         normal[:, 5, 5] += depth_weight ** 2
         gradient[:, 5] += depth_weight ** 2 * (centre[:, 2] - start_depth)
         step = -np.linalg.solve(normal + 1e-9 * np.eye(6), gradient[..., None])[..., 0]
         rot = Rotation.from_rotvec(step[:, :3]).as_matrix() @ rot
         centre += step[:, 3:]
-    rotation[fixed] = rot
-    return rotation, fixed
+    size = _residuals(rot, centre, model, observed, pixel_sd, camera_px)[3]
+    huber = np.where(size < HUBER_SD, 0.5 * size ** 2, HUBER_SD * (size - 0.5 * HUBER_SD))
+    away = Rotation.from_matrix(rot @ np.swapaxes(base, -1, -2)).as_rotvec()
+    return rot, np.sum(weight * huber, axis=1) + 0.5 * prior_weight ** 2 * np.sum(away ** 2, axis=1)
+
+
+def _residuals(rot: np.ndarray, centre: np.ndarray, model: np.ndarray, observed: np.ndarray, pixel_sd: np.ndarray,
+               camera_px: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The turned model's offsets and points ``[n, P, 3]`` (view frame), its re-projection residuals
+    ``[n, P, 2]`` and their sizes ``[n, P]`` (in pixel SDs) against ``observed [n, P, 2]``."""
+    offsets = np.einsum("fij,pj->fpi", rot, model)
+    points = centre[:, None] + offsets
+    residual = (_project(points, camera_px) - observed) / pixel_sd[:, None, None]
+    return offsets, points, residual, np.linalg.norm(residual, axis=-1)
+
+
+def face_world(world_m: np.ndarray | None, extremities_world_m: np.ndarray | None) -> np.ndarray:
+    """``[11, 3]`` the world landmarks (``Person.world_m [14, 3]``, ``Person.extremities_world_m [E, 3]``;
+    metres, x right, y down, z away) of the nose, :data:`FACE_NAMES` and :data:`WORLD_BODY`; NaN without."""
+    if world_m is None or extremities_world_m is None:
+        return NO_FACE_WORLD
+    return np.concatenate([world_m[:1], extremities_world_m[list(FACE_ROWS)], world_m[list(WORLD_BODY)]])
+
+
+def _frames(x: np.ndarray, hint: np.ndarray, hint_axis: int) -> np.ndarray:
+    """Rotations ``[..., 3, 3]`` (columns x, y, z) with x along ``x`` and axis ``hint_axis`` (1: y,
+    2: z) along ``hint`` made perpendicular to it; right-handed."""
+    x = x / np.linalg.norm(x, axis=-1, keepdims=True)
+    second = hint - np.sum(hint * x, axis=-1, keepdims=True) * x
+    second /= np.linalg.norm(second, axis=-1, keepdims=True)
+    third = np.cross(x, second) if hint_axis == 1 else np.cross(second, x)
+    return np.stack([x, second, third] if hint_axis == 1 else [x, third, second], axis=-1)
+
+
+def _world_head(face_view: np.ndarray) -> np.ndarray:
+    """``[..., 3, 3]`` the head frame (x: right → left ear, z: ears' mid-point → nose) of view-frame
+    :func:`face_world` points ``[..., 11, 3]``."""
+    mid = 0.5 * (face_view[..., 3, :] + face_view[..., 4, :])
+    return _frames(face_view[..., 4, :] - face_view[..., 3, :], face_view[..., 0, :] - mid, 2)
+
+
+def face_model(face_world_m: np.ndarray) -> np.ndarray | None:
+    """``[7, 3]`` the person's own face (metres, the head frame of :data:`FACE_MODEL_M`): the median over
+    frames of their :func:`face_world` points ``[F, 11, 3]`` in the head frame (ears → x, ears'
+    mid-point → nose ≈ z); None with fewer than :data:`MIN_MODEL_FRAMES` frames seeing all seven."""
+    view = face_world_m[:, :7] * _VIEW_OF_WORLD
+    whole = view[np.isfinite(view).all(axis=(1, 2))]
+    if len(whole) < MIN_MODEL_FRAMES:
+        return None
+    head = _world_head(whole)
+    local = np.einsum("fji,fpj->fpi", head, whole - 0.5 * (whole[:, 3:4] + whole[:, 4:5]))
+    return np.median(local, axis=0)
+
+
+def world_relative(face_world_m: np.ndarray) -> np.ndarray:
+    """``[F, 3, 3]`` the head's rotation relative to the chest (x: right → left shoulder, y: hips →
+    shoulders) of :func:`face_world` points ``[F, 11, 3]`` (NaN where any is missing). A detector that
+    swaps the left and right of the body (a half turn of the chest about its up) or of the face (of
+    the head about its forwards) against the other: of the four labellings, the smallest rotation."""
+    view = face_world_m * _VIEW_OF_WORLD
+    r_sh, l_sh, r_hip, l_hip = np.moveaxis(view[:, 7:], 1, 0)
+    relative = np.swapaxes(_frames(l_sh - r_sh, 0.5 * (r_sh + l_sh - r_hip - l_hip), 1), -1, -2) @ _world_head(view)
+    candidates = np.stack([relative, relative * _BODY_SWAP[:, None], relative * _FACE_SWAP,
+                           relative * _BODY_SWAP[:, None] * _FACE_SWAP])             # [4, F, 3, 3]
+    best = np.argmax(np.trace(candidates, axis1=-2, axis2=-1), axis=0)
+    return candidates[best, np.arange(len(relative))]
 
 
 def chest_relative_head(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
-                        face_px: np.ndarray, camera_px: tuple[float, float, float]) -> np.ndarray:
+                        face_px: np.ndarray, camera_px: tuple[float, float, float],
+                        face_world_m: np.ndarray | None = None) -> np.ndarray:
     """``[F, 4]`` the head's rotation relative to the chest (the ``spine`` joint's frame; w ≥ 0, NaN
-    where the face does not fix it) of a motion (``quats [F, R, 4]``, ``root_m [F, 3]`` view frame,
-    body ``scale`` and ``offsets_m``) seen as ``face_px [F, 7, 3]`` (:func:`face_points`)."""
+    where neither the face nor the world landmarks fix it) of a motion (``quats [F, R, 4]``, ``root_m
+    [F, 3]`` view frame, body ``scale`` and ``offsets_m``) seen as ``face_px [F, 7, 3]``
+    (:func:`face_points`), with the detector's ``face_world_m [F, 11, 3]`` (:func:`face_world`) if any."""
     chest = global_rotations(quats)[:, RIG_JOINTS.index("spine")]
     nose = pose_from_rotations(quats, root_m, scale, offsets_m)[:, KP["head"]]
-    head, fixed = fit_head(face_px, nose, chest, scale, camera_px)
+    prior, known, model = chest, np.zeros(len(chest), dtype=bool), None
+    sd: float | np.ndarray = PRIOR_SD_DEG
+    if face_world_m is not None and len(face_world_m):
+        measured = world_relative(face_world_m)
+        known = np.isfinite(measured).all(axis=(1, 2))
+        prior = np.where(known[:, None, None], chest @ np.nan_to_num(measured), chest)
+        sd = np.where(known, WORLD_PRIOR_SD_DEG, PRIOR_SD_DEG)
+        model = face_model(face_world_m)
+    head, fixed = fit_head(face_px, nose, prior, scale, camera_px, sd, model)
     relative = matrix_to_quat(np.swapaxes(chest, -1, -2) @ head)
     relative *= np.where(relative[:, :1] < 0, -1.0, 1.0)
-    return np.where(fixed[:, None], relative, np.nan)
+    return np.where((fixed | known)[:, None], relative, np.nan)
 
 
 def head_local(quats: np.ndarray, chest_relative: np.ndarray) -> np.ndarray:
     """``[F, 4]`` the humanoid ``Head``'s local rotation (relative to the ``Neck``, which carries the
-    universal ``neck`` joint) that puts the head at ``chest_relative [F, 4]`` from the chest."""
+    universal ``neck`` joint) that puts the head at ``chest_relative [F, 4]`` from the chest in the
+    components :data:`HEAD_GAINS` keeps (intrinsic Y-X-Z angles against the chest: turn, nod, tilt) and
+    where the neck holds it (the head rigid on the neck) in the others."""
     rotations = global_rotations(quats)
     chest, neck = rotations[:, RIG_JOINTS.index("spine")], rotations[:, RIG_JOINTS.index("neck")]
-    return matrix_to_quat(np.swapaxes(neck, -1, -2) @ chest @ quat_to_matrix(chest_relative))
+    fitted = matrix_to_euler(quat_to_matrix(chest_relative), "YXZ")
+    rigid = matrix_to_euler(np.swapaxes(chest, -1, -2) @ neck, "YXZ")
+    kept = euler_to_matrix(HEAD_GAINS * fitted + (1.0 - HEAD_GAINS) * rigid, "YXZ")
+    return matrix_to_quat(np.swapaxes(neck, -1, -2) @ chest @ kept)

@@ -20,6 +20,7 @@ from mocapdb.core.search_rules import clusters_searched_for, subclusters_searche
 from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, UNIVERSAL_HEIGHT_M, pose_from_rotations
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.frame_people import Detection
+from mocapdb.runtime.head_pose import face_world
 from mocapdb.runtime.refine import JointLimits, Refiner, WorldBones
 from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact, yaw_offset
 from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotations
@@ -105,7 +106,7 @@ class PosePipeline:
         fit = None
         if self.config.keep_take:
             fit = (quats.copy(), root_view.copy(), np.column_stack([d.points_px, d.confidence]), d.extremities,
-                   NO_FIT_BONES if bones is None else bones)
+                   NO_FIT_BONES if bones is None else bones, face_world(d.world_m, d.extremities_world_m))
         if self.config.smoothing:
             quats = state.rotations(quats, d.t_s)
             root_view = state.root(root_view, d.t_s)

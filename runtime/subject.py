@@ -15,6 +15,7 @@ import numpy as np
 
 from mocapdb.core.motion import FrameRecorder
 from mocapdb.core.outputs import TrackRecording
+from mocapdb.runtime.head_pose import NO_FACE_WORLD
 from mocapdb.runtime.track_state import NO_EXTREMITIES
 
 EDGE_WEIGHT = 0.5      # a box at the image's left or right edge counts this much of one in the middle
@@ -130,7 +131,7 @@ def _appended(before: TrackRecording, after: TrackRecording) -> TrackRecording:
     filler = before.frames.last()
     filler.update(keypoints=np.zeros_like(filler["keypoints"]), extremities=NO_EXTREMITIES)
     if "world_bones" in filler:
-        filler["world_bones"] = np.zeros_like(filler["world_bones"])
+        filler.update(world_bones=np.zeros_like(filler["world_bones"]), face_world_m=NO_FACE_WORLD)
     columns = {name: np.concatenate([before.frames[name], np.repeat(filler[name][None], gap, axis=0),
                                      after.frames[name]]) for name in before.frames.names()}
     longer = before if len(before) >= len(after) else after

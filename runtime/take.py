@@ -153,7 +153,8 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
         end_quats = end_rotations(quats, root, scale, offsets, keypoints, extremities, rec.camera_px[0],
                                   planted, floor_up, fps, params)
     head = None if not len(extremities) or rec.camera_px is None else head_rotation(
-        quats, root, scale, offsets, face_points(keypoints, extremities), rec.camera_px, fps, params)
+        quats, root, scale, offsets, face_points(keypoints, extremities), rec.camera_px, fps, params,
+        rec.column("face_world_m"))
     motion = Motion(quats, root, fps, "view", rec.first_frame, scale, rec.proportions_m, _ends(end_quats, head))
     out = replace(rec.with_motion(motion), up_view=floor_up, floor_offset_m=offset)
     planes = None if rec.camera_px is None else vertical_planes(keypoints, rec.camera_px,
@@ -269,13 +270,14 @@ def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
 
 
 def head_rotation(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
-                  face_px: np.ndarray, camera_px: tuple[float, float, float], fps: float, params: TakeParams
-                  ) -> np.ndarray | None:
+                  face_px: np.ndarray, camera_px: tuple[float, float, float], fps: float, params: TakeParams,
+                  face_world_m: np.ndarray | None = None) -> np.ndarray | None:
     """``[F, 4]`` the humanoid ``Head``'s local rotation of the fitted motion (``quats [F, R, 4]``, ``root_m``
     view frame, body ``scale``, ``offsets_m``) from the face points ``face_px [F, 7, 3]``
+    and the detector's ``face_world_m [F, 11, 3]`` if recorded
     (:func:`~mocapdb.runtime.head_pose.chest_relative_head`): gaps interpolated, de-popped and smoothed
     as the rotations; None when no frame's face fixes it."""
-    relative = chest_relative_head(quats, root_m, scale, offsets_m, face_px, camera_px)
+    relative = chest_relative_head(quats, root_m, scale, offsets_m, face_px, camera_px, face_world_m)
     if not np.isfinite(relative).any():
         return None
     relative = smooth_rotations(interpolated(relative)[:, None], fps, params)[:, 0]

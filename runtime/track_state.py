@@ -22,6 +22,7 @@ from mocapdb.core.skeleton import (
 from mocapdb.runtime.body_size import BoneLengths, CameraTilt, FloorScale
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.filters import KeypointFilter, OneEuroFilter, QuaternionOneEuroFilter
+from mocapdb.runtime.head_pose import NO_FACE_WORLD
 from mocapdb.runtime.world_prior import MIN_VERTICAL_FRAMES, VERTICAL_WINDOW_S
 
 # A person's heels, toes and knuckles when its layout has none: all missing
@@ -77,12 +78,14 @@ class TrackState:
         return self.history[0] if self.n_history and self.last_frame == frame - 1 else None
 
     def record(self, frame: int, t_s: float, quats: np.ndarray, root_view: np.ndarray,
-               fit: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
+               fit: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+               ) -> None:
         """Append this frame, holding the last pose over any frames the track missed; ``fit``: the
         unfiltered rotations and root, the keypoints ``[14, 3]``, the heels, toes and knuckles
         ``[8, 3]`` (x, y px, confidence) and the world bones the fit used ``[B, 4]`` (direction,
-        weight; :data:`~mocapdb.runtime.world_prior.FIT_BONES`), kept for the whole-take fit (missed
-        frames get the last fit and no keypoint nor world bone)."""
+        weight; :data:`~mocapdb.runtime.world_prior.FIT_BONES`) and the face's world landmarks ``[11, 3]``
+        (:func:`~mocapdb.runtime.head_pose.face_world`), kept for the whole-take fit (missed frames get the
+        last fit and no keypoint nor world landmark)."""
         rec = self.recording
         if not len(rec):
             rec.first_frame, rec.first_s = frame, t_s
@@ -91,12 +94,12 @@ class TrackState:
             held = rec.frames.last()
             if "keypoints" in held:
                 held.update(keypoints=np.zeros_like(held["keypoints"]), extremities=NO_EXTREMITIES,
-                            world_bones=np.zeros_like(held["world_bones"]))
+                            world_bones=np.zeros_like(held["world_bones"]), face_world_m=NO_FACE_WORLD)
             rec.frames.append(**held)
         row: dict[str, np.ndarray | float] = dict(quaternions=quats, root_view_m=root_view, scales=self.scale)
         if fit is not None:
             row.update(fit_quaternions=fit[0], fit_root_view_m=fit[1], keypoints=fit[2], extremities=fit[3],
-                       world_bones=fit[4])
+                       world_bones=fit[4], face_world_m=fit[5])
             rec.up_view, rec.up_sd_deg = self.tilt.up, self.tilt.sd_deg
         rec.frames.append(**row)
         rec.proportions_m = self.proportions_m

@@ -80,7 +80,7 @@ def _recorded(track: int, first: int, frames: int, x0: float, speed_px: float = 
     roots = np.tile([float(track), 0.0, -5.0], (frames, 1))
     columns = FrameRecorder.of(quaternions=quats, root_view_m=roots, scales=np.ones(frames), fit_quaternions=quats,
                                fit_root_view_m=roots, keypoints=keypoints,
-                               extremities=np.full((frames, 8, 3), 0.0))
+                               extremities=np.full((frames, 14, 3), 0.0))
     return TrackRecording(track=track, first_frame=first, frames=columns, first_s=first / 30.0,
                           last_s=(first + frames - 1) / 30.0)
 

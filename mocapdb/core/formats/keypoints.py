@@ -56,6 +56,9 @@ class Person:
     # middle, ring, pinky 1-4) as x px, y px, z (depth from the wrist, px; NaN when not given), confidence
     # (0 and NaN position = missing); None when the input carries no hands (data_specs/keypoint_formats.md)
     hands: np.ndarray | None = None
+    # [E, 3] the detector's own 3D of the EXTREMITIES rows (heels, toes, knuckles, face), as ``world_m``;
+    # None when the input carries no world landmarks or the layout has no such rows
+    extremities_world_m: np.ndarray | None = None
 
 
 @dataclass
@@ -153,6 +156,16 @@ def to_extremities(raw: np.ndarray, layout: str) -> np.ndarray | None:
         return None
     points, conf = _picked(np.asarray(raw, dtype=np.float64), EXTREMITY_INDEX[layout])
     return np.concatenate([points, conf[..., None]], axis=-1)
+
+
+def to_extremities_world(world: np.ndarray, layout: str) -> np.ndarray | None:
+    """World landmarks ``[P, K, 3]`` (metres) in ``layout`` (checked) on the EXTREMITIES rows ``[P, E, 3]``
+    (NaN where the layout has no such point or the value is not finite); None for a layout without any."""
+    if layout not in EXTREMITY_INDEX:
+        return None
+    index = np.array(EXTREMITY_INDEX[layout])
+    picked = np.asarray(world, dtype=np.float64)[:, np.maximum(index, 0)]
+    return np.where((np.isfinite(picked).all(axis=-1) & (index >= 0))[..., None], picked, np.nan)
 
 
 def to_universal_world(world: np.ndarray, layout: str) -> np.ndarray:
@@ -287,8 +300,10 @@ def build_frame(index: int, time_s: float | None, people: list[RawPerson], layou
         extremities = to_extremities(raw, name)
         for j, i in enumerate(members):
             world = people[i].world
+            ends_world = None if world is None else to_extremities_world(world[None], name)
             out[i] = Person(points[j], conf[j], people[i].person_id, None if extremities is None else extremities[j],
-                            None if world is None else to_universal_world(world[None], name)[0], people[i].hands)
+                            None if world is None else to_universal_world(world[None], name)[0], people[i].hands,
+                            None if ends_world is None else ends_world[0])
     return KeypointFrame(index, time_s, [out[i] for i in range(len(people))],
                          names[0] if len(set(names)) == 1 else None)
 
