@@ -62,7 +62,10 @@ class PersonPose:
     floor_offset_m: float | None = None   # the floor under the person: up_view · p = this (view frame, metres)
     contacts: tuple[bool, bool] | None = None  # (right, left) foot planted (None: not estimated)
     keypoints_px: np.ndarray | None = None     # [14, 3] the keypoints it was fitted to (x, y px, confidence)
-    extremities_px: np.ndarray | None = None   # [8, 3] its heels, toes, knuckles (x, y px, confidence; 0: unseen)
+    extremities_px: np.ndarray | None = None   # [E, 3] its heels, toes, knuckles, face (x, y px, confidence; 0: unseen)
+    # [5, 4] the humanoid rig's feet, hands and head (END_JOINTS): local rotations (None: not estimated)
+    end_quaternions: np.ndarray | None = None
+    end_seen: tuple[bool, ...] | None = None  # [5] each measured in this frame (else held, or easing to rest)
 
 
 MOTION_COLUMNS = ("quaternions", "root_view_m", "scales")  # every recorded frame's (TrackRecording.frames)
@@ -289,10 +292,13 @@ def person_record(pose: PersonPose) -> dict:
 
 def _online_fields(pose: PersonPose) -> dict:
     """What the online whole take adds to a person's record: the feet planted, the world's up and the
-    floor (view frame), where known."""
+    floor (view frame), the end joints' rotations and which were seen, where known."""
     fields: dict = {}
     if pose.contacts is not None:
         fields["contacts"] = [bool(c) for c in pose.contacts]
+    if pose.end_quaternions is not None:
+        fields["end_quaternions"] = _rounded(pose.end_quaternions, 5)
+        fields["end_seen"] = [bool(s) for s in (pose.end_seen or (False,) * len(END_JOINTS))]
     if pose.up_view is not None:
         fields["up"] = _rounded(pose.up_view, 5)
     if pose.floor_offset_m is not None:
@@ -332,6 +338,7 @@ def header_line(fps: float, image_size: tuple[int, int] | None = None, focal_px:
     if lag_frames is not None:
         body["lag_frames"] = int(lag_frames)
         body["lag_s"] = round(lag_frames / fps, 6)
+        body["end_joints"] = list(END_JOINTS)
     return json.dumps(body, separators=(",", ":"))
 
 
