@@ -125,6 +125,11 @@ def _vmc_frames(datagrams: list[bytes]) -> list[list[OscMessage]]:
 
 def _forward_kinematics(frame: list[OscMessage]) -> dict[str, np.ndarray]:
     """Each bone's position (Unity world) from the root and the bones' local transforms."""
+    return bone_transforms(frame)[0]
+
+
+def bone_transforms(frame: list[OscMessage]) -> tuple[dict[str, np.ndarray], dict[str, Rotation]]:
+    """Each bone's position and global rotation (Unity world) from the root and the bones' local transforms."""
     root = next(m.params for m in frame if m.address == "/VMC/Ext/Root/Pos")
     bones = {m.params[0]: m.params[1:] for m in frame if m.address == "/VMC/Ext/Bone/Pos"}
     pos, rot = {}, {}
@@ -134,7 +139,7 @@ def _forward_kinematics(frame: list[OscMessage]) -> dict[str, np.ndarray]:
                                                                                                    rot[parent])
         pos[name] = p_pos + p_rot.apply(bones[name][:3])
         rot[name] = p_rot * Rotation.from_quat(bones[name][3:7])
-    return pos
+    return pos, rot
 
 
 @pytest.fixture(scope="module", params=[0.0, 20.0], ids=["level", "pitched20"])

@@ -29,7 +29,9 @@ from mocapdb.core.geometry import matrix_to_euler, matrix_to_quat, quat_mul
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose, _rig_table
 from mocapdb.core.skeleton import (
     ANKLE_HEIGHT_M,
+    END_JOINTS,
     KP,
+    N_RIG_JOINTS,
     RIG_JOINTS,
     UNIVERSAL_HEIGHT_M,
     rig_globals_into,
@@ -47,8 +49,11 @@ _UNITY_NAME = {"Hips": "Hips", "Spine": "Spine", "Spine1": "Chest", "Neck": "Nec
 _NAMES, _PARENTS, _, _SOURCES, _END_SITE = _rig_table("humanoid")
 _BONE_NODES = np.flatnonzero(~_END_SITE)                     # the humanoid nodes that are bones
 UNITY_BONES: tuple[str, ...] = tuple(_UNITY_NAME[_NAMES[i]] for i in _BONE_NODES)  # parents before children
-# each humanoid node's row in the rig quaternions (RIG_JOINTS order), -1: no rotation of its own
-_NODE_JOINT = np.array([RIG_JOINTS.index(s) if s in RIG_JOINTS else -1 for s in _SOURCES])
+# each humanoid node's row in the rig quaternions (RIG_JOINTS order) then the end joints' (END_JOINTS order,
+# after them), -1: no rotation of its own
+_NODE_JOINT = np.array([RIG_JOINTS.index(s) if s in RIG_JOINTS else N_RIG_JOINTS + END_JOINTS.index(s)
+                        if s in END_JOINTS else -1 for s in _SOURCES])
+_REST_ENDS = np.tile([1.0, 0.0, 0.0, 0.0], (len(END_JOINTS), 1))   # end joints not estimated: not turned
 _TURNING = np.flatnonzero(_NODE_JOINT[_BONE_NODES] >= 0)      # bones (UNITY_BONES index) that turn
 _ROWS = _NODE_JOINT[_BONE_NODES[_TURNING]]                    # their rows in the rig quaternions
 _FLOOR_PLANE = np.array([1.0, 0.0, 1.0])                      # a point's projection on the floor (y = 0)
@@ -123,15 +128,16 @@ def avatar_pose(pose: PersonPose, up_view: np.ndarray, floor_offset_m: float,
     n = len(_NAMES)
     g_rot, g_pos = np.empty((n, 3, 3)), np.empty((n, 3))
     pelvis_view = pose.root_m * CAMERA_FROM_VIEW
-    rig_globals_into(np.ascontiguousarray(pose.quaternions, dtype=np.float64), pelvis_view, scale, _PARENTS,
-                     offsets, _NODE_JOINT, np.empty((3, 3)), g_rot, g_pos)
+    ends = _REST_ENDS if pose.end_quaternions is None else pose.end_quaternions
+    quats = np.ascontiguousarray(np.vstack([pose.quaternions, ends]), dtype=np.float64)
+    rig_globals_into(quats, pelvis_view, scale, _PARENTS, offsets, _NODE_JOINT, np.empty((3, 3)), g_rot, g_pos)
     level, level_quat = _levelling(tuple(float(u) for u in up_view))
     world_rot = (_MIRROR[:, None] * level) @ g_rot[_BONE_NODES] * _MIRROR   # S L G S
     world_m = unity_points(g_pos[_BONE_NODES], up_view, floor_offset_m, origin_m)
     local_m = offsets[_BONE_NODES] * (scale * _MIRROR)
     local_m[0] = (0.0, world_m[0, 1], 0.0)
     local_quats = np.tile(ROOT_QUAT, (len(_BONE_NODES), 1))
-    local_quats[_TURNING] = pose.quaternions[_ROWS]
+    local_quats[_TURNING] = quats[_ROWS]
     local_quats[0] = quat_mul(level_quat, local_quats[0])
     local_quats *= _QUAT_MIRROR
     return AvatarPose(world_m[0] * _FLOOR_PLANE, local_m, local_quats, world_m, world_rot)
