@@ -181,6 +181,48 @@ def test_several_people_found_and_followed_on_real_video():
     assert (last.keypoints[:, ankles, 2] > 0.5).all(axis=1).any()   # the walker's feet seen: heels and toes too
 
 
+def _box_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two boxes (x1, y1, x2, y2)."""
+    inter = np.prod(np.clip(np.minimum(a[2:], b[2:]) - np.maximum(a[:2], b[:2]), 0.0, None))
+    return float(inter / (np.prod(a[2:] - a[:2]) + np.prod(b[2:] - b[:2]) - inter))
+
+
+def test_max_people_one_follows_the_balancing_man_not_the_bystander():
+    """The whole balancing take (100 frames): with ``max_people=1`` one person every frame, the one whose
+    box is the largest of those the unlimited detector finds (the man; the bystander at the left edge is
+    found from frame ~40 on), and one landmark run per frame."""
+    frames = _frames(BALANCING, tuple(range(100)))
+    everyone = BlazePose(*_prepared("full"))
+    one = BlazePose(*_prepared("full"), max_people=1)
+    found_all = [everyone(image) for image in frames]
+    found_one = [one(image) for image in frames]
+    assert max(len(f.scores) for f in found_all) == 2   # the bystander is there to be left out
+    assert all(len(f.scores) == 1 for f in found_one)
+    assert one.landmark_runs == len(frames)
+    for all_people, chosen in zip(found_all, found_one):
+        areas = np.prod(all_people.boxes[:, 2:] - all_people.boxes[:, :2], axis=1)
+        assert _box_iou(chosen.boxes[0], all_people.boxes[np.argmax(areas)]) > 0.9
+        assert (chosen.boxes[0, 0] + chosen.boxes[0, 2]) / 2.0 > 250.0   # not at the left edge
+
+
+def test_max_people_follows_the_most_prominent_detection_and_keeps_it():
+    """With ``max_people=1`` the detection of the largest region × score is followed (not the first
+    found), a second one is not added while it is followed, and the scan stops running the detector."""
+    detector = BlazePose(*_prepared("full"), max_people=1)
+    small = Region(np.array([100.0, 100.0]), 100.0, 0.0)
+    large = Region(np.array([600.0, 600.0]), 200.0, 0.0)
+    faint = Region(np.array([900.0, 900.0]), 210.0, 0.0)   # 210² × 0.5 < 200² × 0.9
+    detector._add_people([(small, 1.0), (faint, 0.5), (large, 0.9)])
+    assert [p.region for p in detector.people] == [large]
+    detector._add_people([(Region(np.array([1000.0, 600.0]), 400.0, 0.0), 1.0)])
+    assert [p.region for p in detector.people] == [large]
+    frames = _frames(BALANCING, tuple(range(10)))
+    followed = BlazePose(*_prepared("full"), max_people=1, scan_every=1)
+    followed(frames[0])
+    runs = followed.detector_runs
+    assert all(len(followed(image).scores) == 1 for image in frames[1:]) and followed.detector_runs == runs
+
+
 def test_landmarks_follow_a_person_between_frames_without_the_detector():
     detector = BlazePose(*_prepared("full"), scan_every=1000)
     frames = _frames(BALANCING, tuple(range(10)))

@@ -29,7 +29,8 @@ LOG = logging.getLogger(__name__)
 
 
 def add_model_options(p: argparse.ArgumentParser) -> None:
-    """``--blazepose VARIANT`` (the default detector) and ``--model POSE.onnx`` (an export instead)."""
+    """``--blazepose VARIANT`` (the default detector), ``--model POSE.onnx`` (an export instead), ``--hands``
+    and ``--max-people N``."""
     p.add_argument("--blazepose", choices=BLAZEPOSE_VARIANTS, default=DEFAULT_BLAZEPOSE,
                    help="BlazePose landmark model, the detector used without --model (prepared by "
                         f"`{FETCH_COMMAND} [VARIANT]`; default %(default)s)")
@@ -39,6 +40,10 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
                    help="BlazePose only: also 21 points per hand from MediaPipe's hand landmark model on crops the "
                         f"pose's hand points give (prepared by `{FETCH_COMMAND} {HANDS}`; data_specs/pose_models.md, "
                         "\"Hands\")")
+    p.add_argument("--max-people", type=D.MAX_PEOPLE, metavar="N",
+                   help="follow at most N people, no landmark run spent on the others (BlazePose: the most "
+                        "prominent, region area x score, kept until lost or one twice as prominent comes; an export: "
+                        "the N best-scoring per frame; default all)")
 
 
 def add_detector_options(p: argparse.ArgumentParser, detector: str) -> None:
@@ -85,8 +90,6 @@ def add_detect_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "earlier detect output there is replaced, a folder holding other files refused)")
     p.add_argument("--every", type=D.FRAMES_EVERY, default=D.FRAMES_EVERY.default, metavar="N",
                    help="detect every N-th frame only (default %(default)s)")
-    p.add_argument("--max-people", type=D.MAX_PEOPLE, metavar="N",
-                   help="keep the N best-scoring people per frame (default all)")
     p.add_argument("--conf", type=D.CONF, default=DEFAULT_CONF,
                    help="least person score kept (default %(default)s)")
     p.add_argument("--iou", type=D.IOU, default=DEFAULT_IOU, help="NMS IoU threshold (default %(default)s)")

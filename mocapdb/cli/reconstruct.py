@@ -460,8 +460,8 @@ def run_live(args: argparse.Namespace) -> int:
         try:
             if _is_video(args.source):
                 detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
-                                         max_people=None, input_size=DEFAULT_INPUT_SIZE, fast=fast_path(args),
-                                         hands=args.hands)
+                                         max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE,
+                                         fast=fast_path(args), hands=args.hands)
                 video = open_video_source(args.source, detector, capacity=args.buffer, stats=session.summary.stream)
                 run_video(session, video, stop)
             else:

@@ -15,7 +15,10 @@ Two ONNX models converted from MediaPipe's TFLite files (:mod:`mocapdb.detect.mo
 from frame to frame. The detector runs on squares of the frame (:func:`scan_tiles`: the whole frame,
 squares of its shorter side, squares of half that, for people far away): all but the smallest on
 the first frame and after someone is lost or while nobody is followed, and otherwise one square
-every ``scan_every`` frames in turn. A detection outside every followed region starts a new person.
+every ``scan_every`` frames in turn. A detection outside every followed region starts a new person;
+with ``max_people``, only while fewer are followed, the most prominent first (:func:`prominence`); the
+ones followed are kept until lost (no flip to a bystander), and while ``max_people`` are followed the
+scan is skipped.
 Output: :class:`~mocapdb.detect.model.Detections` with 33 keypoints per person in the
 ``mediapipe33`` layout (``data_specs/keypoint_formats.md``), the landmark's visibility as its
 confidence, and their world landmarks ``[P, 33, 3]`` (metres; x right, y down along the image's
@@ -149,6 +152,12 @@ def region_from_points(hips_xy: np.ndarray, head_xy: np.ndarray, scale: float = 
     return Region(hips_xy, 2.0 * float(np.hypot(dx, dy)) * scale, rotation)
 
 
+def prominence(region: Region, score: float) -> float:
+    """How prominent a detected person is: the area of their region (pixels², the body's size) × the
+    detector's score (0–1)."""
+    return region.side ** 2 * score
+
+
 def _sigmoid(x: np.ndarray) -> np.ndarray:
     return 1.0 / (1.0 + np.exp(-np.clip(x, -80.0, 80.0)))
 
@@ -234,7 +243,7 @@ class BlazePose:
             (self._tiles, self._coarse), self._tiles_for = scan_tiles(width, height), (width, height)
         if self._lost or not self.people:
             self._add_people([r for tile in self._tiles[:self._coarse] for r in self.detect(image, tile)], True)
-        elif self.frames % self.scan_every == 0:
+        elif self.frames % self.scan_every == 0 and not self._full:
             self._add_people(self.detect(image, self._tiles[self._next_tile % len(self._tiles)]))
             self._next_tile += 1
         found = self._follow(image)
@@ -242,9 +251,9 @@ class BlazePose:
         self.seconds += time.perf_counter() - started
         return found
 
-    def detect(self, image: np.ndarray, tile: np.ndarray) -> list[Region]:
+    def detect(self, image: np.ndarray, tile: np.ndarray) -> list[tuple[Region, float]]:
         """The person detector on the square ``tile`` (x0, y0, side; frame pixels) of ``image [H, W, 3]``
-        (uint8 BGR; beyond its edges black) → each person's region, best first."""
+        (uint8 BGR; beyond its edges black) → each person's region and score (0–1), best first."""
         x0, y0, side = tile
         scale = DETECTOR_PX / side
         matrix = np.array([[scale, 0.0, -x0 * scale], [0.0, scale, -y0 * scale]])
@@ -253,9 +262,9 @@ class BlazePose:
         blob = (canvas[..., ::-1].astype(np.float32) / 127.5 - 1.0)[None]
         raw_boxes, raw_logits = self._detector.run(None, {self._detector.get_inputs()[0].name: blob})
         self.detector_runs += 1
-        _, _, points = decode_people(raw_boxes[0], raw_logits[0])
+        _, scores, points = decode_people(raw_boxes[0], raw_logits[0])
         points = points / scale + tile[:2]
-        return [region_from_points(p[0], p[1]) for p in points]
+        return [(region_from_points(p[0], p[1]), float(score)) for p, score in zip(points, scores)]
 
     def landmarks(self, image: np.ndarray, region: Region
                   ) -> tuple[np.ndarray, float, Region, np.ndarray | None]:
@@ -274,10 +283,18 @@ class BlazePose:
         following = region_from_points(frame_xy[REGION_POINTS[0]], frame_xy[REGION_POINTS[1]])
         return points, float(np.ravel(flag)[0]), following, world_from_output(world[0], region) if world else None
 
-    def _add_people(self, regions: list[Region], trusted: bool = False) -> None:
-        """Starts following each detected region whose centre (the hips) is in no followed person's box."""
-        for region in regions:
-            if self.max_people is not None and len(self.people) >= self.max_people:
+    @property
+    def _full(self) -> bool:
+        """Whether ``max_people`` are followed."""
+        return self.max_people is not None and len(self.people) >= self.max_people
+
+    def _add_people(self, found: list[tuple[Region, float]], trusted: bool = False) -> None:
+        """Starts following each detected region (and its score) whose centre (the hips) is in no followed
+        person's box; with ``max_people``, the most prominent first, while fewer are followed."""
+        if self.max_people is not None:
+            found = sorted(found, key=lambda region_score: -prominence(*region_score))
+        for region, _ in found:
+            if self._full:
                 break
             boxes = np.array([p.box for p in self.people]).reshape(-1, 4)
             inside = (boxes[:, :2] <= region.centre).all(axis=1) & (region.centre <= boxes[:, 2:]).all(axis=1)
