@@ -8,8 +8,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
-from mocapdb.core.outputs import CAMERA_FROM_VIEW, Match, PersonPose, frame_line
+from mocapdb.core.outputs import CAMERA_FROM_VIEW, Match, PersonPose, frame_line, header_line
 from mocapdb.core.skeleton import KP, N_RIG_JOINTS, pose_from_rotations, universal_bone_lengths_m
+from mocapdb.render.results import RenderError, read_result
 from mocapdb.runtime.head_pose import FACE_MODEL_M, head_local
 from mocapdb.runtime.online_ends import EASE_S, HOLD_S
 from mocapdb.runtime.online_take import OnlineParams, OnlineTake
@@ -109,9 +110,19 @@ def test_a_hand_never_seen_rests_and_one_lost_is_held_then_eased_to_rest():
     assert steps.max() <= 1.5 * turn / (EASE_S * FPS) + 0.5, steps.max()          # smoothstep's steepest, no pop
 
 
-def test_the_stream_line_carries_the_end_rotations_and_what_was_seen():
+def test_the_stream_carries_the_end_rotations_and_what_was_seen_and_reads_them_back(tmp_path):
     pose = _run(0, lambda t: {**ALL, "face": False})[-1]
-    person = json.loads(frame_line(89, 89 / FPS, [pose]))["people"][0]
+    header, line = header_line(FPS, lag_frames=0), frame_line(89, 89 / FPS, [pose])
+    assert json.loads(header)["end_joints"] == ["r_foot", "l_foot", "r_hand", "l_hand", "head"]
+    person = json.loads(line)["people"][0]
     assert person["end_seen"] == [True, True, True, True, False]
     np.testing.assert_allclose(person["end_quaternions"], pose.end_quaternions, atol=1e-5)
     assert person["end_quaternions"][4] == [1.0, 0.0, 0.0, 0.0]
+    (tmp_path / "result.jsonl").write_text(f"{header}\n{line}\n")
+    np.testing.assert_allclose(read_result(tmp_path).frames[0].people[0].end_quaternions, pose.end_quaternions,
+                               atol=1e-5)
+    bad = json.loads(line)
+    bad["people"][0]["end_quaternions"] = [[1.0, 0.0, 0.0]] * 5
+    (tmp_path / "result.jsonl").write_text(f"{header}\n{json.dumps(bad)}\n")
+    with pytest.raises(RenderError, match="line 2: person 0 has end_quaternions"):
+        read_result(tmp_path)

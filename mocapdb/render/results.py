@@ -19,7 +19,7 @@ from mocapdb.core.errors import MocapdbError
 from mocapdb.core.files import MIB, open_input, read_input_text
 from mocapdb.core.formats.take import TakeInfo
 from mocapdb.core.outputs import STREAM_FORMAT, STREAM_VERSION
-from mocapdb.core.skeleton import KEYPOINTS, N_POINTS
+from mocapdb.core.skeleton import END_JOINTS, KEYPOINTS, N_POINTS
 
 RESULT_FILE = "result.jsonl"
 CAMERAS_FILE = "cameras.json"
@@ -42,6 +42,8 @@ class TrackPose:
     height: float | None = None
     distance_2d: float | None = None   # the match's Eq. 1 distance (None for stereo results)
     label: str | None = None           # drawn instead of "#<track>" (the track files': id, main, stature)
+    # [5, 4] the feet's, hands' and head's local rotations (the stream's end_quaternions; None: not in it)
+    end_quaternions: np.ndarray | None = None
 
 
 @dataclass
@@ -168,8 +170,22 @@ def _frame(path: Path, line_no: int, line: str) -> ResultFrame:
         dist = match.get("distance_2d") if isinstance(match, dict) else None
         height = p.get("height")
         people.append(TrackPose(track, joints, float(height) if isinstance(height, (int, float)) else None,
-                                float(dist) if isinstance(dist, (int, float)) else None))
+                                float(dist) if isinstance(dist, (int, float)) else None,
+                                end_quaternions=_end_quaternions(path, line_no, k, p.get("end_quaternions"))))
     return ResultFrame(obj["frame"], float(time_s) if isinstance(time_s, (int, float)) else math.nan, people)
+
+
+def _end_quaternions(path: Path, line_no: int, k: int, value: object) -> np.ndarray | None:
+    """A person's ``end_quaternions`` ``[5, 4]`` (None when the line has none); RenderError when malformed."""
+    if value is None:
+        return None
+    try:
+        quats = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        quats = np.zeros(0)
+    if quats.shape != (len(END_JOINTS), 4) or not np.isfinite(quats).all():
+        raise _bad(path, line_no, f"person {k} has end_quaternions that are not [{len(END_JOINTS)}, 4] numbers")
+    return quats
 
 
 def read_cameras(folder: str | Path) -> StereoCameras | None:
