@@ -1,7 +1,7 @@
 """Benchmark video → 3D: what each step costs, end to end, for each detector and detector path.
 
     python tools/bench_video.py VIDEO [--blazepose lite full heavy] [--model POSE.onnx] [--db demo/sample.db]
-                                [--frames 400]
+                                [--frames 400] [--hands] [--max-people N] [--repeats R] [--mediapipe PYTHON]
 
 BlazePose (the default detector; the variants prepared by `mocapdb models fetch lite full heavy`)
 runs its person detector on a tile scan and one landmark run per person. With ``--model``, a
@@ -22,7 +22,11 @@ then the real `mocapdb live --source VIDEO --model POSE.onnx` (detection in its 
 throughput and latency p50/p99 from a frame's capture to its output line. The file is read as
 fast as detection goes (frames queue as they would behind a camera too fast for the machine), so
 the latency includes waiting in the buffer. Other processes on the machine slow every figure
-alike: compare the ratios within one run (the load average is printed).
+alike: compare the ratios within one run (the load average is printed). ``--repeats R``: every run R
+times, interleaved (stages pooled, frames/s the median). ``--max-people N``: each BlazePose variant also
+with ``--max-people N``. ``--mediapipe PYTHON``: MediaPipe Pose (complexity 1) on the same frames in that
+Python (tools/bench_mediapipe.py; a venv with mediapipe 0.10.21), in the same sitting: its frames/s on
+frames decoded first and with decoding, and each configuration's over MediaPipe's on decoded frames.
 """
 from __future__ import annotations
 
@@ -57,13 +61,15 @@ STAGES = ("decode", "detect BlazePose", "detect full", "detect crop", "detect cr
           "output")
 
 
-def configurations(crop_px: int, variants: list[str], model: str | None,
-                   hands: bool = False) -> dict[str, tuple[FastPath, list[str]]]:
+def configurations(crop_px: int, variants: list[str], model: str | None, hands: bool = False,
+                   max_people: int | None = None) -> dict[str, tuple[FastPath, list[str]]]:
     """Name → (the detector's paths, the same as `live` options); ``hands``: each BlazePose variant also
-    with ``--hands``."""
+    with ``--hands``; ``max_people``: also with ``--max-people``."""
     size = ["--crop-size", str(crop_px)]
+    extra = [("", [])] + ([(" + hands", ["--hands"])] if hands else [])
+    extra += [(f" max {max_people}", ["--max-people", str(max_people)])] if max_people else []
     blazepose = {f"BlazePose {v}{suffix}": (FULL_FRAME, ["--blazepose", v, *flag]) for v in variants
-                 for suffix, flag in [("", [])] + ([(" + hands", ["--hands"])] if hands else [])}
+                 for suffix, flag in extra}
     if model is None:
         return blazepose
     flags = ["--model", model]
@@ -84,8 +90,8 @@ def live_args(video: str, db: str, sink: str, flags: list[str]) -> argparse.Name
 def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[dict, list[Detections], float]:
     """Decode → detect → engine step → output line in one thread: milliseconds per stage, the
     detections of every frame and the frames per second over the timed frames."""
-    detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU, max_people=None,
-                             input_size=DEFAULT_INPUT_SIZE, fast=fast, hands=args.hands)
+    detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
+                             max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE, fast=fast, hands=args.hands)
     session = _session(args, args.sink, strict=False)
     engine_ms: list[float] = []
     step = session.engine.step
@@ -155,6 +161,32 @@ def live_run(video: str, db: str, flags: list[str], sink: str) -> dict[str, floa
             "read": int(video_line[1]), "dropped": int(video_line[3]), "detect_fps": float(video_line[4])}
 
 
+def mediapipe_run(python: str, video: str, frames: int, repeats: int) -> tuple[float, float]:
+    """MediaPipe Pose's median frames/s (frames decoded first, decoding on the same thread) from
+    tools/bench_mediapipe.py run by ``python``."""
+    command = [python, str(ROOT / "tools" / "bench_mediapipe.py"), video, "--frames", str(frames),
+               "--repeats", str(repeats)]
+    out = subprocess.run(command, capture_output=True, text=True, check=True).stdout
+    found = re.search(r"mediapipe decoded ([\d.]+) frames/s, with decoding ([\d.]+) frames/s", out)
+    if found is None:
+        raise RuntimeError(f"unexpected output from {' '.join(command)}:\n{out}")
+    return float(found[1]), float(found[2])
+
+
+def pooled(runs: list[tuple[dict, float]]) -> tuple[dict, float]:
+    """Repeated one-thread runs as one: each stage's milliseconds pooled, the median frames/s."""
+    stages: dict[str, list[float]] = defaultdict(list)
+    for run_stages, _ in runs:
+        for stage, ms in run_stages.items():
+            stages[stage] += ms
+    return stages, float(np.median([fps for _, fps in runs]))
+
+
+def median_live(rows: list[dict[str, float]]) -> dict[str, float]:
+    """Repeated `mocapdb live` runs as one: the median of each figure."""
+    return {key: type(rows[0][key])(np.median([row[key] for row in rows])) for key in rows[0]}
+
+
 def stage_table(results: dict[str, tuple[dict, float]]) -> list[str]:
     """One row per stage: mean / p99 ms of each configuration."""
     names = list(results)
@@ -180,17 +212,28 @@ def main() -> int:
     ap.add_argument("--crop-size", type=int, default=256, help="largest crop input side, pixels (default 256)")
     ap.add_argument("--hands", action="store_true", help="each BlazePose variant also with --hands (`live` frames/s "
                                                          "with hands over without)")
+    ap.add_argument("--max-people", type=int, metavar="N", help="each BlazePose variant also with --max-people N")
+    ap.add_argument("--repeats", type=int, default=1, help="runs of each configuration, interleaved (default 1)")
+    ap.add_argument("--mediapipe", metavar="PYTHON", help="also MediaPipe Pose in this Python (tools/bench_mediapipe.py)")
     args = ap.parse_args()
     print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())}; {os.cpu_count()} cores")
-    results, detections = {}, {}
+    configs = configurations(args.crop_size, args.blazepose, args.model, args.hands, args.max_people)
+    runs: dict[str, list] = defaultdict(list)
+    lives: dict[str, list] = defaultdict(list)
+    detections = {}
+    mediapipe = None
     with tempfile.TemporaryDirectory() as tmp:
         sink = str(Path(tmp) / "out.jsonl")
-        for name, (fast, flags) in configurations(args.crop_size, args.blazepose, args.model, args.hands).items():
-            run_args = live_args(args.video, args.db, sink, flags)
-            stages, found, fps = one_thread(run_args, fast, args.frames)
-            results[name], detections[name] = (stages, fps), found
-        live = {name: live_run(args.video, args.db, flags, sink)
-                for name, (_, flags) in configurations(args.crop_size, args.blazepose, args.model, args.hands).items()}
+        for _ in range(args.repeats):
+            for name, (fast, flags) in configs.items():
+                stages, detections[name], fps = one_thread(live_args(args.video, args.db, sink, flags), fast,
+                                                           args.frames)
+                runs[name].append((stages, fps))
+                lives[name].append(live_run(args.video, args.db, flags, sink))
+        if args.mediapipe:
+            mediapipe = mediapipe_run(args.mediapipe, args.video, args.frames, args.repeats)
+    results = {name: pooled(rows) for name, rows in runs.items()}
+    live = {name: median_live(rows) for name, rows in lives.items()}
     reader = VideoReader(args.video)
     first = next(reader.frames()).image
     reader.close()
@@ -209,6 +252,12 @@ def main() -> int:
     for name in (n for n in live if n.endswith(" + hands")):
         without = live[name.removesuffix(" + hands")]["fps"]
         print(f"{name}: {live[name]['fps'] / without:.2f} x the frames/s without hands")
+    if mediapipe is not None:
+        print(f"\nMediaPipe Pose (complexity 1): {mediapipe[0]:.1f} frames/s on decoded frames, {mediapipe[1]:.1f} "
+              "with decoding; frames/s over MediaPipe's on decoded frames:")
+        for name in results:
+            print(f"{name:24}one thread {results[name][1] / mediapipe[0]:.2f} x, mocapdb live "
+                  f"{live[name]['fps'] / mediapipe[0]:.2f} x")
     print(f"\nload average after: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     return 0
 
