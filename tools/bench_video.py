@@ -214,7 +214,8 @@ def main() -> int:
                                                          "with hands over without)")
     ap.add_argument("--max-people", type=int, metavar="N", help="each BlazePose variant also with --max-people N")
     ap.add_argument("--repeats", type=int, default=1, help="runs of each configuration, interleaved (default 1)")
-    ap.add_argument("--mediapipe", metavar="PYTHON", help="also MediaPipe Pose in this Python (tools/bench_mediapipe.py)")
+    ap.add_argument("--mediapipe", metavar="PYTHON",
+                    help="also MediaPipe Pose in this Python (tools/bench_mediapipe.py)")
     args = ap.parse_args()
     print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())}; {os.cpu_count()} cores")
     configs = configurations(args.crop_size, args.blazepose, args.model, args.hands, args.max_people)
