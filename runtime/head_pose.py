@@ -97,19 +97,21 @@ def fit_head(face_px: np.ndarray, nose_view_m: np.ndarray, prior: np.ndarray, sc
     ``prior [F, 3, 3]``: where the head would be without the face (the start, held within
     ``prior_sd_deg``, degrees, one or ``[F]``); ``scale``: the body's (height / 1.75 m); ``camera_px``:
     focal, cx, cy (pixels); ``model_m [7, 3]``: the face (metres; default :data:`FACE_MODEL_M` scaled).
-    Each frame's face is fitted as labelled and with its left and right exchanged; the lower cost wins."""
+    Each frame's face is fitted as labelled and with its left and right exchanged (both in one
+    :func:`_fit_face`: its cost is mostly per call, a stream fits one frame at a time); the lower cost wins."""
     model = FACE_MODEL_M * scale if model_m is None else model_m
     seen = (face_px[..., 2] > 0) & np.isfinite(face_px[..., :2]).all(axis=-1)
     fixed = seen[:, 0] & (seen.sum(axis=1) >= MIN_POINTS)
     rotation = prior.copy()
     if not fixed.any():
         return rotation, fixed
+    count = int(fixed.sum())
     sd = np.broadcast_to(np.radians(prior_sd_deg), fixed.shape)[fixed]
     pixel_sd = camera_px[0] * POINT_SD_M * scale / -nose_view_m[fixed, 2]
-    args = (nose_view_m[fixed], prior[fixed], sd, pixel_sd, model, camera_px)
-    straight, straight_cost = _fit_face(face_px[fixed], *args)
-    swapped, swapped_cost = _fit_face(face_px[fixed][:, list(SWAPPED)], *args)
-    rotation[fixed] = np.where((swapped_cost < straight_cost)[:, None, None], swapped, straight)
+    both_ways = np.concatenate([face_px[fixed], face_px[fixed][:, list(SWAPPED)]])
+    twice = [np.concatenate([a, a]) for a in (nose_view_m[fixed], prior[fixed], sd, pixel_sd)]
+    fitted, cost = _fit_face(both_ways, *twice, model, camera_px)
+    rotation[fixed] = np.where((cost[count:] < cost[:count])[:, None, None], fitted[count:], fitted[:count])
     return rotation, fixed
 
 
