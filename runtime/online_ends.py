@@ -6,7 +6,9 @@ Per track (:class:`OnlineEnds`), per frame:
 
 1. **Measured** on the frame's per-frame pose as the whole take measures them: the feet's heel → big toe
    and the hands' wrist → mid-knuckles directions (:func:`~mocapdb.runtime.end_joints.measured_directions`),
-   the head's rotation relative to the chest (:func:`~mocapdb.runtime.head_pose.chest_relative_head`).
+   the head's rotation relative to the chest (:func:`~mocapdb.runtime.head_pose.chest_relative_head`; with
+   the detector's world landmarks of the face as its prior where the frame has them, but the default face
+   model: the whole take's own face pattern is a median over the take's frames).
 2. **Smoothed** as the online take smooths the rig's rotations: lag 0, a causal 1€ filter (its
    ``causal_rotations``; the directions as vectors, the head as a quaternion); lag ``L``, the Gaussian
    mean of the frames ``t − L … t + L`` measured. A planted foot is laid flat on the floor, blended in
@@ -57,8 +59,9 @@ def measure(pose: PersonPose, camera_px: tuple[float, float, float]) -> Measure:
     offsets = None if pose.bones_m is None else body_offsets_m(pose.bones_m / scale)
     quats, root = pose.quaternions[None], (pose.root_m * CAMERA_FROM_VIEW)[None]
     directions = measured_directions(quats, root, scale, offsets, keypoints[None], extremities[None], camera_px[0])
+    face_world_m = None if pose.face_world_m is None else pose.face_world_m[None]
     head = chest_relative_head(quats, root, scale, offsets, face_points(keypoints[None], extremities[None]),
-                               camera_px)
+                               camera_px, face_world_m)
     return directions[0], head[0]
 
 

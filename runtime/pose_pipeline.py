@@ -104,9 +104,10 @@ class PosePipeline:
             root_view = np.zeros(3)
         state.remember(quats)
         fit = None
+        face_world_m = face_world(d.world_m, d.extremities_world_m)
         if self.config.keep_take:
             fit = (quats.copy(), root_view.copy(), np.column_stack([d.points_px, d.confidence]), d.extremities,
-                   NO_FIT_BONES if bones is None else bones, face_world(d.world_m, d.extremities_world_m))
+                   NO_FIT_BONES if bones is None else bones, face_world_m)
         if self.config.smoothing:
             quats = state.rotations(quats, d.t_s)
             root_view = state.root(root_view, d.t_s)
@@ -115,7 +116,8 @@ class PosePipeline:
         return PersonPose(state.recording.track, joints_view * CAMERA_FROM_VIEW, quats,
                           root_view * CAMERA_FROM_VIEW, match, state.scale * UNIVERSAL_HEIGHT_M,
                           state.proportions_m * state.scale, up_view=state.up,
-                          keypoints_px=np.column_stack([d.points_px, d.confidence]), extremities_px=d.extremities)
+                          keypoints_px=np.column_stack([d.points_px, d.confidence]), extremities_px=d.extremities,
+                          face_world_m=face_world_m)
 
     def _world(self, state: TrackState, d: Detection
                ) -> tuple[tuple[np.ndarray, np.ndarray] | None, WorldBones | None]:

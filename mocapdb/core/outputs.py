@@ -66,6 +66,7 @@ class PersonPose:
     # [5, 4] the humanoid rig's feet, hands and head (END_JOINTS): local rotations (None: not estimated)
     end_quaternions: np.ndarray | None = None
     end_seen: tuple[bool, ...] | None = None  # [5] each measured in this frame (else held, or easing to rest)
+    face_world_m: np.ndarray | None = None    # [11, 3] the detector's face world landmarks (head_pose.face_world)
 
 
 MOTION_COLUMNS = ("quaternions", "root_view_m", "scales")  # every recorded frame's (TrackRecording.frames)
