@@ -108,6 +108,7 @@ class OnlineEnds:
         self.progress = np.clip(self.progress + easing * dt / EASE_S, 0.0, 1.0)
         weight = self.progress ** 2 * (3.0 - 2.0 * self.progress)
         ends = slerp(np.tile(_IDENTITY, (_N_ENDS, 1)), ends, weight)
+        ends = np.where(np.isfinite(ends).all(axis=-1, keepdims=True), ends, _IDENTITY)   # a degenerate pose: rest
         if self.previous is not None and 0 < index - self.previous[0] <= 2:
             limit = np.radians(END_SPEED_DEG_S) * (index - self.previous[0]) / self.fps
             ends = quat_turned_towards(self.previous[1], ends, limit)
