@@ -11,7 +11,7 @@ from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D
 from mocapdb.runtime.engine_config import EngineConfig
-from mocapdb.runtime.track_state import NO_EXTREMITIES
+from mocapdb.runtime.track_state import NO_EXTREMITIES, NO_HANDS
 
 R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]
 MIN_EXTENT_PX = 4.0  # a person whose confident keypoints span less is skipped (degenerate)
@@ -20,8 +20,9 @@ MIN_EXTENT_PX = 4.0  # a person whose confident keypoints span less is skipped (
 @dataclass(frozen=True)
 class Detection:
     """One person in one frame: keypoints ``[14, 2]`` px, their confidences ``[14]`` (0: missing),
-    heels, toes, knuckles and face points ``[E, 3]`` (x px, y px, confidence) and the detector's world
-    landmarks ``[14, 3]`` and ``[E, 3]`` (``Person.world_m``, ``Person.extremities_world_m``; None without)."""
+    heels, toes, knuckles and face points ``[E, 3]`` (x px, y px, confidence), the detector's world
+    landmarks ``[14, 3]`` and ``[E, 3]`` (``Person.world_m``, ``Person.extremities_world_m``; None without)
+    and the hands' points ``[2, 21, 3]`` (x, y, z px; NaN: absent; :func:`hand_points`; None without)."""
 
     frame_index: int
     t_s: float
@@ -30,6 +31,7 @@ class Detection:
     extremities: np.ndarray
     world_m: np.ndarray | None = None
     extremities_world_m: np.ndarray | None = None
+    hands_px: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -46,12 +48,14 @@ class FramePeople:
     degenerate: int = 0
     world_m: tuple[np.ndarray | None, ...] = ()   # per person, its world landmarks [14, 3] or None
     extremities_world_m: tuple[np.ndarray | None, ...] = ()   # per person, its extremities' [E, 3] or None
+    hands_px: tuple[np.ndarray, ...] = ()   # per person, its hands' points [2, 21, 3] (hand_points)
 
     def detection(self, person: int) -> Detection:
         """The ``person``-th usable person's detection."""
         return Detection(self.frame_index, self.t_s, self.points_px[person], self.confidence[person],
                          self.extremities[person], self.world_m[person] if self.world_m else None,
-                         self.extremities_world_m[person] if self.extremities_world_m else None)
+                         self.extremities_world_m[person] if self.extremities_world_m else None,
+                         self.hands_px[person] if self.hands_px else None)
 
 
 def usable_people(frame: KeypointFrame, config: EngineConfig) -> FramePeople:
@@ -66,7 +70,7 @@ def usable_people(frame: KeypointFrame, config: EngineConfig) -> FramePeople:
     extremities = np.array([_extremities(p, threshold) for p in people]).reshape(-1, len(EXTREMITIES), 3)
     return FramePeople(frame.index, t_s, points, conf, extremities, len(frame.people) - len(people),
                        kinds.count("degenerate"), tuple(p.world_m for p in people),
-                       tuple(p.extremities_world_m for p in people))
+                       tuple(p.extremities_world_m for p in people), tuple(hand_points(p) for p in people))
 
 
 def _kind(person: Person, config: EngineConfig) -> str:
@@ -86,6 +90,16 @@ def _extremities(person: Person, threshold: float) -> np.ndarray:
         return NO_EXTREMITIES
     keep = person.extremities[:, 2] >= threshold
     return np.where(keep[:, None], person.extremities, NO_EXTREMITIES)
+
+
+def hand_points(person: Person) -> np.ndarray:
+    """A person's hands ``[2, 21, 3]`` (right, left; x, y, z px, float32: what the whole take needs), a hand
+    with any point missing (confidence 0, or no depth) absent: all NaN; :data:`NO_HANDS` without hands."""
+    if person.hands is None:
+        return NO_HANDS
+    points = person.hands[..., :3]
+    found = (person.hands[..., 3] > 0).all(axis=-1) & np.isfinite(points).all(axis=(-2, -1))
+    return np.where(found[:, None, None], points, np.nan).astype(np.float32)
 
 
 @njit(cache=True)

@@ -24,7 +24,7 @@ from mocapdb.runtime.head_pose import face_world
 from mocapdb.runtime.refine import JointLimits, Refiner, WorldBones
 from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact, yaw_offset
 from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotations
-from mocapdb.runtime.track_state import NO_EXTREMITIES, TrackState
+from mocapdb.runtime.track_state import NO_EXTREMITIES, NO_HANDS, TrackState
 from mocapdb.runtime.world_prior import (
     FIT_BONES,
     FIT_END,
@@ -107,7 +107,8 @@ class PosePipeline:
         face_world_m = face_world(d.world_m, d.extremities_world_m)
         if self.config.keep_take:
             fit = (quats.copy(), root_view.copy(), np.column_stack([d.points_px, d.confidence]), d.extremities,
-                   NO_FIT_BONES if bones is None else bones, face_world_m)
+                   NO_FIT_BONES if bones is None else bones, face_world_m,
+                   NO_HANDS if d.hands_px is None else d.hands_px)
         if self.config.smoothing:
             quats = state.rotations(quats, d.t_s)
             root_view = state.root(root_view, d.t_s)

@@ -44,7 +44,9 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    (:mod:`mocapdb.runtime.world`).
 6. **Feet and hands** (layouts with heels, big toes and knuckles): the humanoid rig's feet and
    hands turned to the directions the image gives them (:func:`end_rotations`), a planted foot
-   flat on the floor. **Head** (layouts with face points): the head's rotation fitted to them
+   flat on the floor; where the hand landmark model saw a hand (``detect --hands``), its direction and
+   its palm's twist from its own points, and its 15 finger bones (:func:`finger_rotations`;
+   :mod:`mocapdb.runtime.hand_pose`). **Head** (layouts with face points): the head's rotation fitted to them
    (:mod:`mocapdb.runtime.head_pose`), smoothed as the rotations (:func:`head_rotation`).
 
 The settings: :mod:`mocapdb.runtime.take_params`; the contacts (step 2):
@@ -59,7 +61,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import sparse
-from scipy.ndimage import gaussian_filter1d, median_filter
+from scipy.ndimage import gaussian_filter1d
 from scipy.sparse.linalg import spsolve
 
 from mocapdb.core.formats.keypoint_layouts import N_FEET_HANDS
@@ -86,13 +88,21 @@ from mocapdb.runtime.foot_contacts import (
     planted_ankles,
     true_runs,
 )
+from mocapdb.runtime.hand_pose import (
+    eased_smoothed,
+    finger_rotations,
+    hand_twist_deg,
+    hands_seen,
+    palm_frames,
+    track_hand_points,
+    twisted,
+)
 from mocapdb.runtime.head_pose import chest_relative_head, face_points, head_local
 from mocapdb.runtime.image_vertical import vertical_planes
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
 from mocapdb.runtime.take_params import TakeParams
+from mocapdb.runtime.take_smoothing import smooth_rotations, smoothed_keypoints, zero_phase_smoothed
 from mocapdb.runtime.world_prior import track_up
-
-MIN_SIGMA_FRAMES = 0.05   # narrower Gaussians (cut-offs above ~3 × the frame rate) leave the rotations as they are
 
 
 @dataclass
@@ -148,15 +158,20 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
         normal, offset = floor_plane(root[:, None] + relative, planted, up, ANKLE_HEIGHT_M * scale)
         root = above_floor(root, relative, normal, offset, ANKLE_HEIGHT_M * scale)
     floor_up = up if normal is None else normal
+    hands = track_hand_points(rec)
+    palms = None if hands is None else palm_frames(hands)
     end_quats = None
     if ends and rec.camera_px is not None:
         end_quats = end_rotations(quats, root, scale, offsets, keypoints, extremities, rec.camera_px[0],
-                                  planted, floor_up, fps, params)
+                                  planted, floor_up, fps, params, palms)
     head = None if not len(extremities) or rec.camera_px is None else head_rotation(
         quats, root, scale, offsets, face_points(keypoints, extremities), rec.camera_px, fps, params,
         rec.column("face_world_m"))
-    motion = Motion(quats, root, fps, "view", rec.first_frame, scale, rec.proportions_m, _ends(end_quats, head))
-    out = replace(rec.with_motion(motion), up_view=floor_up, floor_offset_m=offset)
+    fingers = None if hands is None or palms is None else finger_rotations(hands, palms, fps, params)
+    motion = Motion(quats, root, fps, "view", rec.first_frame, scale, rec.proportions_m, _ends(end_quats, head),
+                    fingers)
+    out = replace(rec.with_motion(motion), up_view=floor_up, floor_offset_m=offset,
+                  hands_seen=None if hands is None else hands_seen(hands))
     planes = None if rec.camera_px is None else vertical_planes(keypoints, rec.camera_px,
                                                                 float(np.median(-root[:, 2])), up)
     return out, TakeResult(planted, (root[:, None] + relative)[planted], normal, offset, up, up_sd_deg, phases, planes)
@@ -169,57 +184,6 @@ def take_joints(fitted: TrackRecording, fps: float) -> tuple[np.ndarray, np.ndar
     motion = fitted.motion(fps)
     frames = motion.first_frame + np.arange(len(motion))
     return frames, motion.joints_m() * CAMERA_FROM_VIEW, motion.root_m * CAMERA_FROM_VIEW
-
-
-def smooth_rotations(quats: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:
-    """``quats [F, R, 4]`` sign-continuous, de-popped (running median) and smoothed without lag."""
-    q = quats.copy()
-    flips = np.sum(q[1:] * q[:-1], axis=-1) < 0
-    sign = np.concatenate([np.ones((1,) + flips.shape[1:]), np.cumprod(np.where(flips, -1.0, 1.0), axis=0)])
-    q *= sign[..., None]
-    q = depopped_and_smoothed(q, fps, params)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
-
-
-def depopped_and_smoothed(values: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:
-    """``values [F, ...]`` through a running median over :attr:`TakeParams.pop_frames` frames (single-frame
-    pops), then :func:`zero_phase_smoothed` at :attr:`TakeParams.smoothing_hz`."""
-    if params.pop_frames > 1 and len(values) >= params.pop_frames:
-        values = median_filter(values, size=(params.pop_frames,) + (1,) * (values.ndim - 1), mode="nearest")
-    return zero_phase_smoothed(values, fps, params.smoothing_hz)
-
-
-def zero_phase_smoothed(values: np.ndarray, fps: float, cutoff_hz: float) -> np.ndarray:
-    """``values [F, ...]`` through a Gaussian along the frames (``fps`` Hz) with its cut-off at
-    ``cutoff_hz``: no lag. Unchanged for 0 or a cut-off far above the frame rate."""
-    sigma_frames = fps / (2.0 * np.pi * cutoff_hz) if cutoff_hz > 0 else 0.0
-    if sigma_frames < MIN_SIGMA_FRAMES:
-        return values
-    return gaussian_filter1d(values, sigma_frames, axis=0, mode="nearest")
-
-
-def smoothed_keypoints(keypoints: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:
-    """The detector's keypoints ``[F, K, 3]`` (x px, y px, confidence; 0: unseen) de-popped and smoothed
-    as the rotations (:func:`smooth_rotations`: running median over ``pop_frames``, then the zero-phase
-    cut-off ``smoothing_hz``), each keypoint's unseen frames bridged by its seen neighbours first; an
-    unseen keypoint stays unseen, and one seen fewer than twice stays as it is."""
-    out = keypoints.copy()
-    xy = depopped_and_smoothed(_bridged(keypoints[..., :2], keypoints[..., 2] > 0), fps, params)
-    seen = (keypoints[..., 2] > 0) & np.isfinite(xy).all(axis=-1)
-    out[..., :2] = np.where(seen[..., None], xy, keypoints[..., :2])
-    return out
-
-
-def _bridged(xy: np.ndarray, seen: np.ndarray) -> np.ndarray:
-    """``xy [F, K, 2]`` with each keypoint's unseen frames linearly interpolated between its seen ones
-    (held at the ends); NaN for a keypoint seen fewer than twice."""
-    out = np.full_like(xy, np.nan, dtype=np.float64)
-    frames = np.arange(len(xy))
-    for k in np.flatnonzero(seen.sum(axis=0) >= 2):
-        at = np.flatnonzero(seen[:, k])
-        for axis in range(2):
-            out[:, k, axis] = np.interp(frames, at, xy[at, k, axis])
-    return out
 
 
 def refit_to_image(quats: np.ndarray, root_m: np.ndarray, keypoints: np.ndarray, scale: float,
@@ -249,7 +213,7 @@ _NO_LIMITS = JointLimits(np.full((N_RIG_JOINTS, 3), -np.inf), np.full((N_RIG_JOI
 
 def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
                   keypoints: np.ndarray, extremities: np.ndarray, focal_px: float, planted: np.ndarray,
-                  up: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:
+                  up: np.ndarray, fps: float, params: TakeParams, palms: np.ndarray | None = None) -> np.ndarray:
     """Local rotations ``[F, 4, 4]`` of the feet and hands (:data:`~mocapdb.core.skeleton.END_JOINTS`)
     of the fitted motion (``quats [F, R, 4]``, ``root_m [F, 3]`` view frame, body ``scale`` and
     ``offsets_m``): each turned from where its parent (shank, forearm) points it to the measured
@@ -258,15 +222,23 @@ def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
     smoothed as the rotations (:attr:`TakeParams.smoothing_hz`); a ``planted [F, 2]`` foot flat
     on the floor (perpendicular to ``up`` but for the standing foot's slope,
     :data:`~mocapdb.core.skeleton.HEEL_TO_TOE_SLOPE_DEG`); never seen: not turned. ``keypoints [F, 14, 3]``,
-    ``extremities [F, 8, 3]``: x px, y px, confidence; ``focal_px``: the camera's focal length."""
+    ``extremities [F, 8, 3]``: x px, y px, confidence; ``focal_px``: the camera's focal length. ``palms
+    [F, 2, 3, 3]`` (:func:`~mocapdb.runtime.hand_pose.palm_frames` of the hand model's points; NaN: unseen):
+    a hand's direction where seen, and its palm's twist about it, eased to none where unseen."""
     parents, reference = end_frames(quats)
     direction = measured_directions(quats, root_m, scale, offsets_m, keypoints, extremities, focal_px)
+    if palms is not None:
+        direction[:, 2:] = np.where(np.isfinite(palms[..., 0, :]), palms[..., 0, :], direction[:, 2:])
     seen = np.isfinite(direction).all(axis=-1)
     direction = np.where(seen.any(axis=0)[None, :, None], interpolated(direction), reference)
     flat = np.concatenate([planted, np.zeros_like(planted)], axis=1)
     direction = np.where(flat[..., None], standing_directions(direction, up), direction)
     direction = zero_phase_smoothed(direction, fps, params.smoothing_hz)
-    return end_locals(parents, reference, direction)
+    local = end_locals(parents, reference, direction)
+    if palms is not None:
+        twist = hand_twist_deg(parents[:, 2:], local[:, 2:], palms)
+        local[:, 2:] = twisted(local[:, 2:], eased_smoothed(twist, np.isfinite(twist), 0.0, fps, params))
+    return local
 
 
 def head_rotation(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,

@@ -27,6 +27,7 @@ from mocapdb.runtime.world_prior import MIN_VERTICAL_FRAMES, VERTICAL_WINDOW_S
 
 # A person's heels, toes and knuckles when its layout has none: all missing
 NO_EXTREMITIES = np.column_stack([np.full((len(EXTREMITIES), 2), np.nan), np.zeros(len(EXTREMITIES))])
+NO_HANDS = np.full((2, 21, 3), np.nan, dtype=np.float32)   # a person's hands when none is seen (x, y, z px)
 
 
 class TrackState:
@@ -78,14 +79,14 @@ class TrackState:
         return self.history[0] if self.n_history and self.last_frame == frame - 1 else None
 
     def record(self, frame: int, t_s: float, quats: np.ndarray, root_view: np.ndarray,
-               fit: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
-               ) -> None:
+               fit: tuple[np.ndarray, ...] | None = None) -> None:
         """Append this frame, holding the last pose over any frames the track missed; ``fit``: the
         unfiltered rotations and root, the keypoints ``[14, 3]``, the heels, toes and knuckles
         ``[8, 3]`` (x, y px, confidence) and the world bones the fit used ``[B, 4]`` (direction,
         weight; :data:`~mocapdb.runtime.world_prior.FIT_BONES`) and the face's world landmarks ``[11, 3]``
-        (:func:`~mocapdb.runtime.head_pose.face_world`), kept for the whole-take fit (missed frames get the
-        last fit and no keypoint nor world landmark)."""
+        (:func:`~mocapdb.runtime.head_pose.face_world`) and the hands' points ``[2, 21, 3]`` (x, y, z px,
+        float32; NaN: absent), kept for the whole-take fit (missed frames get the last fit and no keypoint,
+        world landmark nor hand)."""
         rec = self.recording
         if not len(rec):
             rec.first_frame, rec.first_s = frame, t_s
@@ -94,12 +95,14 @@ class TrackState:
             held = rec.frames.last()
             if "keypoints" in held:
                 held.update(keypoints=np.zeros_like(held["keypoints"]), extremities=NO_EXTREMITIES,
-                            world_bones=np.zeros_like(held["world_bones"]), face_world_m=NO_FACE_WORLD)
+                            world_bones=np.zeros_like(held["world_bones"]), face_world_m=NO_FACE_WORLD,
+                            hands_px=NO_HANDS)
             rec.frames.append(**held)
         row: dict[str, np.ndarray | float] = dict(quaternions=quats, root_view_m=root_view, scales=self.scale)
         if fit is not None:
             row.update(fit_quaternions=fit[0], fit_root_view_m=fit[1], keypoints=fit[2], extremities=fit[3],
-                       world_bones=fit[4], face_world_m=fit[5])
+                       world_bones=fit[4], face_world_m=fit[5],
+                       hands_px=fit[6])
             rec.up_view, rec.up_sd_deg = self.tilt.up, self.tilt.sd_deg
         rec.frames.append(**row)
         rec.proportions_m = self.proportions_m

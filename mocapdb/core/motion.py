@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from mocapdb.core.hand_rig import FINGER_JOINTS
 from mocapdb.core.skeleton import (
     END_JOINTS,
     N_RIG_JOINTS,
@@ -40,8 +41,9 @@ class Motion:
     The body is the universal one times ``scale`` (its height / 1.75 m), with the bone proportions
     ``proportions_m [8]`` (``skeleton.MEASURED_BONE_NAMES`` at 1.75 m; None: the universal body's).
     ``end_rotations [F, 5, 4]``: the feet's, hands' and head's local rotations (``skeleton.END_JOINTS``
-    order; None: they do not turn). ``first_frame``: the index of its first frame in the input or
-    the source (frames at ``fps`` Hz).
+    order; None: they do not turn); ``finger_rotations [F, 30, 4]``: the humanoid rig's finger joints'
+    (``hand_rig.FINGER_JOINTS`` order; None: at rest, straight). ``first_frame``: the index of its first
+    frame in the input or the source (frames at ``fps`` Hz).
     """
 
     rotations: np.ndarray
@@ -52,6 +54,7 @@ class Motion:
     scale: float = 1.0
     proportions_m: np.ndarray | None = None
     end_rotations: np.ndarray | None = None
+    finger_rotations: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.rotations)
@@ -60,6 +63,9 @@ class Motion:
                              f"{self.rotations.shape} and {self.root_m.shape}")
         if self.end_rotations is not None and self.end_rotations.shape != (n, N_END_JOINTS, 4):
             raise ValueError(f"end rotations must be [F, {N_END_JOINTS}, 4]: got {self.end_rotations.shape}")
+        if self.finger_rotations is not None and self.finger_rotations.shape != (n, len(FINGER_JOINTS), 4):
+            raise ValueError(f"finger rotations must be [F, {len(FINGER_JOINTS)}, 4]: "
+                             f"got {self.finger_rotations.shape}")
         if self.coordinate_frame not in COORDINATE_FRAMES:
             raise ValueError(f"unknown coordinate frame {self.coordinate_frame!r}: "
                              f"one of {', '.join(COORDINATE_FRAMES)}")
@@ -90,8 +96,9 @@ class Motion:
     def window(self, start: int, stop: int) -> Motion:
         """Frames ``start`` to ``stop`` (indices into this motion) as a motion of their own."""
         ends = None if self.end_rotations is None else self.end_rotations[start:stop]
+        fingers = None if self.finger_rotations is None else self.finger_rotations[start:stop]
         return replace(self, rotations=self.rotations[start:stop], root_m=self.root_m[start:stop],
-                       first_frame=self.first_frame + start, end_rotations=ends)
+                       first_frame=self.first_frame + start, end_rotations=ends, finger_rotations=fingers)
 
     def times_s(self) -> np.ndarray:
         """Each frame's time (seconds) from the input's or source's frame 0."""

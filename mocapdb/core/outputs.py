@@ -16,12 +16,14 @@ from mocapdb.core.errors import MocapdbError
 from mocapdb.core.files import recover_interrupted, replace_folder, sibling
 from mocapdb.core.formats.bvh import Bvh, motion_from_rotations
 from mocapdb.core.geometry import quat_to_matrix
+from mocapdb.core.hand_rig import FINGER_JOINTS
 from mocapdb.core.motion import FrameRecorder, Motion
 from mocapdb.core.skeleton import (
     END_JOINTS,
     END_SITES,
     HUMANOID_BONE_AXES,
     HUMANOID_NODES,
+    HUMANOID_NODES_WITH_FINGERS,
     KEYPOINTS,
     MEASURED_BONE_NAMES,
     NODE_NAMES,
@@ -71,7 +73,7 @@ class PersonPose:
 
 MOTION_COLUMNS = ("quaternions", "root_view_m", "scales")  # every recorded frame's (TrackRecording.frames)
 FIT_COLUMNS = ("fit_quaternions", "fit_root_view_m", "keypoints", "extremities",  # with EngineConfig.keep_take
-               "world_bones", "face_world_m")
+               "world_bones", "face_world_m", "hands_px")
 
 
 @dataclass
@@ -85,7 +87,8 @@ class TrackRecording:
     [14, 3]`` and ``extremities [8, 3]`` (heels, toes, knuckles; x, y px, confidence), and the
     detector's world bones the fit was turned towards ``world_bones [B, 4]`` (unit direction in the
     view frame, weight; weight 0: none; ``runtime/world_prior.py``) and its world landmarks of the face,
-    shoulders and hips ``face_world_m [11, 3]`` (NaN: none; ``runtime/head_pose.face_world``).
+    shoulders and hips ``face_world_m [11, 3]`` (NaN: none; ``runtime/head_pose.face_world``) and the hands'
+    points ``hands_px [2, 21, 3]`` (x, y, z px, float32; NaN: absent; ``runtime/frame_people.hand_points``).
     :meth:`motion` gives the track as a :class:`~mocapdb.core.motion.Motion`.
     """
 
@@ -100,6 +103,11 @@ class TrackRecording:
     # [F, 5, 4] the feet's, hands' and head's local rotations (END_JOINTS order) found by the whole-take fit
     # from heels, toes, knuckles and face points; None: they do not turn
     end_quaternions: np.ndarray | None = None
+    # [F, 30, 4] the finger joints' local rotations (hand_rig.FINGER_JOINTS order) from the hands' points and
+    # [F, 2] the frames whose hand (right, left) was measured (else interpolated or eased to a relaxed hand);
+    # None: the fingers do not turn
+    finger_quaternions: np.ndarray | None = None
+    hands_seen: np.ndarray | None = None
     static: bool = False  # its keypoints never moved (see StillnessCheck): a poster, not a person
     part: int = 0         # earlier parts of the track cut off (Engine.cut_recordings)
     first_s: float = 0.0  # input time of the first and the last recorded frame
@@ -136,7 +144,8 @@ class TrackRecording:
         whole-take fit) are not carried over."""
         scales = np.full(len(motion), motion.scale)
         frames = FrameRecorder.of(quaternions=motion.rotations, root_view_m=motion.root_m, scales=scales)
-        return replace(self, frames=frames, end_quaternions=motion.end_rotations)
+        return replace(self, frames=frames, end_quaternions=motion.end_rotations,
+                       finger_quaternions=motion.finger_rotations)
 
     def snapshot(self) -> TrackRecording:
         """A copy whose frames stay as they are now while the track records on (for a thread that
@@ -157,7 +166,7 @@ class TrackRecording:
         scales = self.scales
         final = float(scales[-1])
         return Motion(self.quaternions, self.root_view_m * (final / scales)[:, None], fps, "view", self.first_frame,
-                      final, self.proportions_m, self.end_quaternions)
+                      final, self.proportions_m, self.end_quaternions, self.finger_quaternions)
 
 
 BVH_ROTATION_CHANNELS = ["Zrotation", "Yrotation", "Xrotation"]
@@ -167,11 +176,12 @@ BVH_UNITS = {"m": 1.0, "cm": 100.0}
 RIGS = ("universal", "humanoid")  # BVH rigs: mocapdb's 11 joints, or with the bones character set-ups expect
 
 
-def _rig_table(rig: str, proportions_m: np.ndarray | None = None
+def _rig_table(rig: str, proportions_m: np.ndarray | None = None, fingers: bool = False
                ) -> tuple[list[str], np.ndarray, np.ndarray, list[str | None], np.ndarray]:
     """Names, parents, rest offsets (metres, for a body of bone lengths ``proportions_m`` at 1.75 m;
-    None: the universal body), the universal joint or end joint (:data:`END_JOINTS`) each node turns
-    with (None: identity) and the End Site mask of a BVH rig (:data:`RIGS`)."""
+    None: the universal body), the universal joint, end joint (:data:`END_JOINTS`) or finger joint
+    (:data:`FINGER_JOINTS`) each node turns with (None: identity) and the End Site mask of a BVH rig
+    (:data:`RIGS`); ``fingers``: the humanoid rig's hands end in 15 finger joints each, not an End Site."""
     proportions = universal_bone_lengths_m() if proportions_m is None else proportions_m
     if rig == "universal":
         names = [n if n not in END_SITES else f"{RIG_NODES[NODE_NAMES.index(n)][1]}_End" for n in NODE_NAMES]
@@ -179,10 +189,11 @@ def _rig_table(rig: str, proportions_m: np.ndarray | None = None
         end_site = np.array([n in END_SITES for n in NODE_NAMES])
         return names, NODE_PARENTS.copy(), body_offsets_m(proportions), sources, end_site
     if rig == "humanoid":
-        names = [n[0] for n in HUMANOID_NODES]
-        parents = np.array([-1 if n[1] is None else names.index(n[1]) for n in HUMANOID_NODES])
-        offsets = rig_offsets_m(np.array([n[2] for n in HUMANOID_NODES]), names, HUMANOID_BONE_AXES, proportions)
-        return names, parents, offsets, [n[3] for n in HUMANOID_NODES], np.array([n.endswith("_End") for n in names])
+        nodes = HUMANOID_NODES_WITH_FINGERS if fingers else HUMANOID_NODES
+        names = [n[0] for n in nodes]
+        parents = np.array([-1 if n[1] is None else names.index(n[1]) for n in nodes])
+        offsets = rig_offsets_m(np.array([n[2] for n in nodes]), names, HUMANOID_BONE_AXES, proportions)
+        return names, parents, offsets, [n[3] for n in nodes], np.array([n.endswith("_End") for n in names])
     raise ValueError(f"unknown rig {rig!r}: one of {', '.join(RIGS)}")
 
 
@@ -204,22 +215,23 @@ def motion_bvh(motion: Motion, unit: str = "m", rig: str = "universal") -> Bvh:
 
     ``unit`` is the BVH's length unit (``"m"`` or ``"cm"``); every bone is the motion's body's
     (its proportions times its scale). ``rig="humanoid"`` adds head, clavicle, hand, foot and toe
-    bones under Mixamo's names (:data:`HUMANOID_NODES`); the joints of both rigs are at the same
-    places, and its feet and hands turn by the motion's ``end_rotations`` (None: they do not turn);
+    bones and 15 finger joints a hand under Mixamo's names (:data:`HUMANOID_NODES_WITH_FINGERS`); the
+    joints of both rigs are at the same places, and its feet and hands turn by the motion's
+    ``end_rotations``, its fingers by its ``finger_rotations`` (None: they do not turn);
     the universal rig has no such joints.
     """
     scale = BVH_UNITS[unit]
-    names, parents, offsets_m, sources, end_site = _with_root_tail(*_rig_table(rig, motion.proportions_m))
+    names, parents, offsets_m, sources, end_site = _with_root_tail(*_rig_table(rig, motion.proportions_m, True))
     channels = [([] if end else BVH_ROTATION_CHANNELS.copy()) for end in end_site]
     channels[0] = ["Xposition", "Yposition", "Zposition"] + BVH_ROTATION_CHANNELS
     skeleton = Bvh(names, parents, offsets_m * (scale * motion.scale), channels, end_site, 1.0 / motion.fps,
                    np.zeros((len(motion), 0)))
     local = np.broadcast_to(np.eye(3), (len(motion), len(names), 3, 3)).copy()
-    turning = [i for i, source in enumerate(sources) if source in RIG_JOINTS]
-    local[:, turning] = quat_to_matrix(motion.rotations[:, [RIG_JOINTS.index(sources[i]) for i in turning]])
-    ends = [i for i, source in enumerate(sources) if source in END_JOINTS]
-    if motion.end_rotations is not None and ends:
-        local[:, ends] = quat_to_matrix(motion.end_rotations[:, [END_JOINTS.index(sources[i]) for i in ends]])
+    for joints, rotations in ((RIG_JOINTS, motion.rotations), (END_JOINTS, motion.end_rotations),
+                              (FINGER_JOINTS, motion.finger_rotations)):
+        nodes = [i for i, source in enumerate(sources) if source in joints]
+        if rotations is not None and nodes:
+            local[:, nodes] = quat_to_matrix(rotations[:, [joints.index(str(sources[i])) for i in nodes]])
     skeleton.motion = motion_from_rotations(skeleton, local, motion.root_m * scale)
     return skeleton
 

@@ -10,6 +10,7 @@ import numpy as np
 from numba import njit
 
 from mocapdb.core.geometry import frame_from_axes, matrix_to_quat, quat_to_matrix
+from mocapdb.core.hand_rig import finger_nodes
 from mocapdb.core.kernels import mat3_mul_into, quat_to_matrix_into
 from mocapdb.core.keypoint_order import KEYPOINTS, KP, N_KEYPOINTS_2D  # noqa: F401 - the order, re-exported
 
@@ -165,6 +166,10 @@ HUMANOID_NODES: tuple[tuple[str, str | None, tuple[float, float, float], str | N
     *_humanoid_arm(-1.0),
     *_humanoid_arm(1.0),
 )
+# The humanoid rig of BVH files: each hand's End Site replaced by its 15 finger joints (core.hand_rig)
+HUMANOID_NODES_WITH_FINGERS: tuple[tuple[str, str | None, tuple[float, float, float], str | None], ...] = tuple(
+    row for node in HUMANOID_NODES
+    for row in (finger_nodes(str(node[1])[:-len("Hand")]) if node[0].endswith("Hand_End") else (node,)))
 # The humanoid node at each universal keypoint (the nose is the head bone's end).
 HUMANOID_NODE_OF_KEYPOINT = {
     "pelvis": "Hips", "neck": "Neck", "head": "Head_End",

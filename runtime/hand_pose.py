@@ -1,0 +1,179 @@
+"""The hands from the hand landmark model's 21 points (``Person.hands``) in the whole take: each palm's
+frame (its direction and its twist about it) and the 15 finger bones' local rotations of the humanoid
+rig (:mod:`mocapdb.core.hand_rig`), eased to a relaxed hand where a hand is absent.
+
+The points (x, y frame px; z px, the depth from the wrist at x's scale, smaller: nearer) become
+view-frame offsets from the wrist ``(x, −y, −z)`` px. Lifted at the wrist's depth
+(:func:`~mocapdb.runtime.end_joints.lift_direction`) every offset would scale by one factor, depth /
+focal, on which no direction or angle depends: the pixels are used as they are.
+
+**Palm frame** (:func:`palm_frames`): ``u`` wrist → the index and pinky knuckles' midpoint, ``t`` pinky →
+index knuckle made perpendicular to ``u``, ``n`` out of the palm. **Fingers** (:func:`finger_angles_deg`):
+each finger's first bone's spread (towards the thumb's side) and flexion (towards the palm; the thumb's
+across it), then the flexion of its second and third bones about the first bone's hinge, each angle
+within :data:`~mocapdb.core.hand_rig.ANGLE_LIMITS_DEG`; the spread fades out as the first joint bends
+past :data:`SPREAD_FADE_DEG` (square, it has none). The angles are sided: one set of angles is the
+mirror-image pose on the two hands (:func:`finger_quaternions`). **Absent hands** (:func:`eased_to_rest`).
+Contract: ``data_specs/skeleton.md``, "Fingers".
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mocapdb.core.fingers import FINGERS, finger_chain
+from mocapdb.core.geometry import quat_mul, quat_to_matrix
+from mocapdb.core.hand_rig import ANGLE_LIMITS_DEG, FINGER_AXES, RELAXED_DEG, SIDE_NAMES, hand_basis
+from mocapdb.core.outputs import TrackRecording
+from mocapdb.runtime.take_params import TakeParams
+from mocapdb.runtime.take_smoothing import depopped_and_smoothed
+
+HAND_BASES = np.stack([hand_basis(side) for side in SIDE_NAMES])      # [2 (right, left), 3, 3] columns u, t, n
+HANDEDNESS = np.linalg.det(HAND_BASES)                               # [2] −1 (right: left-handed basis), +1
+SPREAD_FADE_DEG = 60.0    # a first joint bent beyond this loses its spread linearly, none at 90°
+TWIST_LIMIT_DEG = 90.0    # the palm's twist about the hand, from the shortest turn: the forearm's
+                          # pronation and supination, 80–85° each way (AAOS), with some margin
+EASE_S = 0.3              # an absent hand eases to rest (and back) over this (smoothstep); a gap up to
+                          # twice as long is bridged (interpolated) instead
+_CHAINS = np.array([finger_chain(f) for f in FINGERS])[:, 1:]        # [5, 4] base joint to tip
+_FLEX_AXES = np.cross(FINGER_AXES[:, 0], FINGER_AXES[:, 1])           # [5, 3] turn r towards p (hand basis)
+_SPREAD_AXES = np.cross(FINGER_AXES[:, 0], FINGER_AXES[:, 2])         # [5, 3] turn r towards s
+_RIG_FLEX_AXES = HANDEDNESS[:, None, None] * np.einsum("hij,fj->hfi", HAND_BASES, _FLEX_AXES)    # [2, 5, 3]
+_RIG_SPREAD_AXES = HANDEDNESS[:, None, None] * np.einsum("hij,fj->hfi", HAND_BASES, _SPREAD_AXES)
+
+
+def hand_points_view(hands_px: np.ndarray) -> np.ndarray:
+    """``hands_px [..., 21, 3]`` (x, y, z px) → offsets from the wrist ``[..., 21, 3]`` (view frame: x right,
+    y up, z towards the camera; px). NaN stays NaN."""
+    return (hands_px - hands_px[..., :1, :]) * np.array([1.0, -1.0, -1.0])
+
+
+def palm_frames(points: np.ndarray) -> np.ndarray:
+    """``[..., 2, 3, 3]`` each hand's rows ``u, t, n`` (unit; view frame) of ``points [..., 2, 21, 3]`` (rows:
+    right, left hand; :func:`hand_points_view`): module docstring."""
+    index, pinky = points[..., 5, :], points[..., 17, :]
+    along = _unit(0.5 * (index + pinky) - points[..., 0, :])
+    across = index - pinky
+    across = _unit(across - np.sum(across * along, axis=-1, keepdims=True) * along)
+    palmar = HANDEDNESS[:, None] * np.cross(along, across)
+    return np.stack([along, across, palmar], axis=-2)
+
+
+def finger_angles_deg(points: np.ndarray, palms: np.ndarray) -> np.ndarray:
+    """``[..., 2, 5, 4]`` each finger's spread and the flexions of its three bones (degrees; fingers in
+    :data:`~mocapdb.core.fingers.FINGERS` order) of the hands ``points [..., 2, 21, 3]`` in their
+    ``palms [..., 2, 3, 3]`` (:func:`palm_frames`), within the limits; NaN where a point is missing."""
+    bones = _unit(np.diff(points[..., _CHAINS, :], axis=-2))                       # [..., 2, 5, 3, 3]
+    bones = np.einsum("...hij,...hfbj->...hfbi", palms, bones)                     # in the hand basis
+    along, bend, side = (np.einsum("fj,...fbj->...fb", FINGER_AXES[:, k], bones) for k in range(3))
+    flex1 = np.arctan2(bend[..., 0], np.hypot(along[..., 0], side[..., 0]))
+    fade = np.clip((np.radians(90.0) - np.abs(flex1)) / np.radians(90.0 - SPREAD_FADE_DEG), 0.0, 1.0)
+    spread = np.arctan2(side[..., 0], np.abs(along[..., 0])) * fade
+    hinge = (np.cos(spread)[..., None] * _FLEX_AXES + np.sin(spread)[..., None] * np.cross(_SPREAD_AXES, _FLEX_AXES))
+    first, second = bones[..., :-1, :], bones[..., 1:, :]
+    flex23 = np.arctan2(np.sum(np.cross(first, second) * hinge[..., None, :], axis=-1),
+                        np.sum(first * second, axis=-1))
+    angles = np.degrees(np.concatenate([spread[..., None], flex1[..., None], flex23], axis=-1))
+    return np.clip(angles, ANGLE_LIMITS_DEG[..., 0], ANGLE_LIMITS_DEG[..., 1])
+
+
+def finger_quaternions(angles_deg: np.ndarray) -> np.ndarray:
+    """``[F, 30, 4]`` the finger joints' local rotations (``hand_rig.FINGER_JOINTS`` order) of the angles
+    ``[F, 2, 5, 4]`` (:func:`finger_angles_deg`): the first joint spreads then bends, the others bend
+    about the same hinge; each hand's axes in the rig (the right hand's mirrored: its basis is left-handed)."""
+    spread = _axis_quats(_RIG_SPREAD_AXES, np.radians(angles_deg[..., 0]))         # [F, 2, 5, 4]
+    flexes = _axis_quats(_RIG_FLEX_AXES[:, :, None], np.radians(angles_deg[..., 1:]))   # [F, 2, 5, 3, 4]
+    first = quat_mul(spread, flexes[..., 0, :])
+    joints = np.concatenate([first[..., None, :], flexes[..., 1:, :]], axis=-2)
+    return joints.reshape(len(angles_deg), 30, 4)
+
+
+def hand_twist_deg(parents: np.ndarray, swings: np.ndarray, palms: np.ndarray) -> np.ndarray:
+    """``[F, 2]`` the palm's twist about the hand (degrees, within :data:`TWIST_LIMIT_DEG`): the turn about
+    the hand's direction from where its shortest turn puts the thumb's side to where the palm's ``t``
+    points; ``parents [F, 2, 3, 3]`` the forearms' global rotations, ``swings [F, 2, 4]`` the hands'
+    local shortest turns (view frame), ``palms [F, 2, 3, 3]`` (:func:`palm_frames`; NaN: unseen)."""
+    hand = parents @ quat_to_matrix(swings) @ HAND_BASES                          # columns: the turned u, t
+    along, thumb_side = hand[..., 0], hand[..., 1]
+    measured = palms[..., 1, :] - np.sum(palms[..., 1, :] * along, axis=-1, keepdims=True) * along
+    twist = np.arctan2(np.sum(np.cross(thumb_side, measured) * along, axis=-1),
+                       np.sum(thumb_side * measured, axis=-1))
+    return np.clip(np.degrees(twist), -TWIST_LIMIT_DEG, TWIST_LIMIT_DEG)
+
+
+def twisted(swings: np.ndarray, twist_deg: np.ndarray) -> np.ndarray:
+    """The hands' local rotations ``[F, 2, 4]``: ``swings`` then ``twist_deg [F, 2]`` about the hand's own axis."""
+    return quat_mul(swings, _axis_quats(HAND_BASES[:, :, 0], np.radians(twist_deg)))
+
+
+def eased_to_rest(values: np.ndarray, seen: np.ndarray, rest: np.ndarray | float, fps: float) -> np.ndarray:
+    """``values [F, ...]`` where ``seen [F]``; between seen frames up to 2 × :data:`EASE_S` apart, interpolated;
+    elsewhere ``rest``, eased into from the last seen value and out to the next over :data:`EASE_S`
+    (smoothstep: no step, at most 1.5 × the change / the ease's frames a frame). Never seen: ``rest``."""
+    out = np.broadcast_to(rest, values.shape).astype(np.float64)
+    at = np.flatnonzero(seen)
+    if not len(at):
+        return out
+    frames = np.arange(len(values))
+    prev = at[np.clip(np.searchsorted(at, frames, side="right") - 1, 0, len(at) - 1)]
+    after = at[np.clip(np.searchsorted(at, frames, side="left"), 0, len(at) - 1)]
+    ease_frames = max(EASE_S * fps, 1.0)
+    gap = after - prev
+    bridged = (frames >= at[0]) & (frames <= at[-1]) & (gap <= 2.0 * ease_frames)
+    share = _expand((frames - prev) / np.maximum(gap, 1), values)
+    linear = values[prev] + share * (values[after] - values[prev])
+    leaving = _expand(np.where(frames >= at[0], _smoothstep(1.0 - (frames - prev) / ease_frames), 0.0), values)
+    coming = _expand(np.where(frames <= at[-1], _smoothstep(1.0 - (after - frames) / ease_frames), 0.0), values)
+    eased = out + leaving * (values[prev] - out) + coming * (values[after] - out)
+    return np.where(_expand(bridged, values), linear, eased)
+
+
+def finger_rotations(points: np.ndarray, palms: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:
+    """``[F, 30, 4]`` the finger joints' local rotations of the hands' ``points [F, 2, 21, 3]`` (view frame
+    px, :func:`~mocapdb.runtime.hand_pose.hand_points_view`; NaN: absent) in their ``palms``: the angles
+    (:func:`~mocapdb.runtime.hand_pose.finger_angles_deg`) eased to a relaxed hand where absent
+    (:data:`~mocapdb.core.hand_rig.RELAXED_DEG`), de-popped and smoothed as the rotations."""
+    angles = finger_angles_deg(points, palms)
+    return finger_quaternions(eased_smoothed(angles, np.isfinite(angles).all(axis=(-2, -1)), RELAXED_DEG, fps,
+                                              params))
+
+
+def eased_smoothed(values: np.ndarray, seen: np.ndarray, rest: np.ndarray | float, fps: float,
+                    params: TakeParams) -> np.ndarray:
+    """Per hand, ``values [F, 2, ...]`` where ``seen [F, 2]`` eased to ``rest`` elsewhere
+    (:func:`~mocapdb.runtime.hand_pose.eased_to_rest`), then de-popped and smoothed as the rotations."""
+    eased = np.stack([eased_to_rest(values[:, h], seen[:, h], rest, fps) for h in range(2)], axis=1)
+    return depopped_and_smoothed(eased, fps, params)
+
+
+def track_hand_points(rec: TrackRecording) -> np.ndarray | None:
+    """The track's hands ``[F, 2, 21, 3]`` (view frame px from the wrist; NaN: absent), None when none was seen."""
+    hands = rec.column("hands_px") if "hands_px" in rec.frames else np.zeros(0)
+    if not len(hands) or not np.isfinite(hands).any():
+        return None
+    return hand_points_view(hands.astype(np.float64))
+
+
+def hands_seen(points: np.ndarray) -> np.ndarray:
+    """``[F, 2]`` whether each hand of ``points [F, 2, 21, 3]`` was seen (every point given)."""
+    return np.isfinite(points).all(axis=(-2, -1))
+
+
+def _expand(per_frame: np.ndarray, like: np.ndarray) -> np.ndarray:
+    return per_frame.reshape((-1,) + (1,) * (like.ndim - 1))
+
+
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _axis_quats(axes: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
+    """Quaternions ``[..., 4]`` turning ``angles_rad [...]`` about unit ``axes [..., 3]`` (broadcast)."""
+    half = 0.5 * np.asarray(angles_rad)[..., None]
+    vector = np.sin(half) * axes
+    return np.concatenate([np.broadcast_to(np.cos(half), vector.shape[:-1] + (1,)), vector], axis=-1)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
