@@ -109,8 +109,8 @@ def fit_head(face_px: np.ndarray, nose_view_m: np.ndarray, prior: np.ndarray, sc
     sd = np.broadcast_to(np.radians(prior_sd_deg), fixed.shape)[fixed]
     pixel_sd = camera_px[0] * POINT_SD_M * scale / -nose_view_m[fixed, 2]
     both_ways = np.concatenate([face_px[fixed], face_px[fixed][:, list(SWAPPED)]])
-    twice = [np.concatenate([a, a]) for a in (nose_view_m[fixed], prior[fixed], sd, pixel_sd)]
-    fitted, cost = _fit_face(both_ways, *twice, model, camera_px)
+    nose2, prior2, sd2, pixel_sd2 = (np.concatenate([a, a]) for a in (nose_view_m[fixed], prior[fixed], sd, pixel_sd))
+    fitted, cost = _fit_face(both_ways, nose2, prior2, sd2, pixel_sd2, model, camera_px)
     rotation[fixed] = np.where((cost[count:] < cost[:count])[:, None, None], fitted[count:], fitted[:count])
     return rotation, fixed
 
