@@ -30,6 +30,7 @@ from mocapdb.runtime.take_smoothing import depopped_and_smoothed
 HAND_BASES = np.stack([hand_basis(side) for side in SIDE_NAMES])      # [2 (right, left), 3, 3] columns u, t, n
 HANDEDNESS = np.linalg.det(HAND_BASES)                               # [2] −1 (right: left-handed basis), +1
 SPREAD_FADE_DEG = 60.0    # a first joint bent beyond this loses its spread linearly, none at 90°
+BEND_PLANE_MIN_DEG = 20.0  # a finger bent less than about this: its bend plane (and the twist to it) fades out
 TWIST_LIMIT_DEG = 90.0    # the palm's twist about the hand, from the shortest turn: the forearm's
                           # pronation and supination, 80–85° each way (AAOS), with some margin
 EASE_S = 0.3              # an absent hand eases to rest (and back) over this (smoothstep); a gap up to
@@ -39,6 +40,7 @@ _FLEX_AXES = np.cross(FINGER_AXES[:, 0], FINGER_AXES[:, 1])           # [5, 3] t
 _SPREAD_AXES = np.cross(FINGER_AXES[:, 0], FINGER_AXES[:, 2])         # [5, 3] turn r towards s
 _RIG_FLEX_AXES = HANDEDNESS[:, None, None] * np.einsum("hij,fj->hfi", HAND_BASES, _FLEX_AXES)    # [2, 5, 3]
 _RIG_SPREAD_AXES = HANDEDNESS[:, None, None] * np.einsum("hij,fj->hfi", HAND_BASES, _SPREAD_AXES)
+_RIG_TWIST_AXES = HANDEDNESS[:, None, None] * np.einsum("hij,fj->hfi", HAND_BASES, FINGER_AXES[:, 0])
 
 
 def hand_points_view(hands_px: np.ndarray) -> np.ndarray:
@@ -59,32 +61,68 @@ def palm_frames(points: np.ndarray) -> np.ndarray:
 
 
 def finger_angles_deg(points: np.ndarray, palms: np.ndarray) -> np.ndarray:
-    """``[..., 2, 5, 4]`` each finger's spread and the flexions of its three bones (degrees; fingers in
+    """``[..., 2, 5, 5]`` each finger's angles (degrees, :data:`~mocapdb.core.hand_rig.ANGLES`; fingers in
     :data:`~mocapdb.core.fingers.FINGERS` order) of the hands ``points [..., 2, 21, 3]`` in their
     ``palms [..., 2, 3, 3]`` (:func:`palm_frames`), within the limits; NaN where a point is missing."""
     bones = _unit(np.diff(points[..., _CHAINS, :], axis=-2))                       # [..., 2, 5, 3, 3]
     bones = np.einsum("...hij,...hfbj->...hfbi", palms, bones)                     # in the hand basis
-    along, bend, side = (np.einsum("fj,...fbj->...fb", FINGER_AXES[:, k], bones) for k in range(3))
-    flex1 = np.arctan2(bend[..., 0], np.hypot(along[..., 0], side[..., 0]))
+    rest, bend, side = (FINGER_AXES[:, k] for k in range(3))                      # [5, 3] each: r, p, s
+    along, bent, aside = (np.sum(bones[..., 0, :] * axis, axis=-1) for axis in (rest, bend, side))
+    flex1 = _limited(np.arctan2(bent, np.copysign(np.hypot(along, aside), along)), 1)
     fade = np.clip((np.radians(90.0) - np.abs(flex1)) / np.radians(90.0 - SPREAD_FADE_DEG), 0.0, 1.0)
-    spread = np.arctan2(side[..., 0], np.abs(along[..., 0])) * fade
-    hinge = (np.cos(spread)[..., None] * _FLEX_AXES + np.sin(spread)[..., None] * np.cross(_SPREAD_AXES, _FLEX_AXES))
-    first, second = bones[..., :-1, :], bones[..., 1:, :]
-    flex23 = np.arctan2(np.sum(np.cross(first, second) * hinge[..., None, :], axis=-1),
-                        np.sum(first * second, axis=-1))
-    angles = np.degrees(np.concatenate([spread[..., None], flex1[..., None], flex23], axis=-1))
-    return np.clip(angles, ANGLE_LIMITS_DEG[..., 0], ANGLE_LIMITS_DEG[..., 1])
+    spread = _limited(np.arctan2(aside, np.abs(along)) * fade, 0)
+    first = (np.cos(flex1)[..., None] * (np.cos(spread)[..., None] * rest + np.sin(spread)[..., None] * side)
+             + np.sin(flex1)[..., None] * bend)                                   # the first bone, turned
+    untwisted = _turned(_FLEX_AXES, _SPREAD_AXES, spread)
+    twist = _limited(_bend_plane_twist(first, untwisted, bones), 2)
+    hinge = _turned(untwisted, first, twist)
+    flex2 = _hinge_angle(first, bones[..., 1, :], hinge)
+    flex3 = _hinge_angle(bones[..., 1, :], bones[..., 2, :], hinge)
+    return np.degrees(np.stack([spread, flex1, twist, _limited(flex2, 3), _limited(flex3, 4)], axis=-1))
+
+
+def _bend_plane_twist(first: np.ndarray, hinge: np.ndarray, bones: np.ndarray) -> np.ndarray:
+    """``[...]`` radians: the twist about the ``first`` bone [..., 3] that turns its ``hinge`` onto the normal
+    of the plane the finger's ``bones [..., 3, 3]`` bend in (a bend backwards is about the same hinge), less
+    where they are nearly straight (none below :data:`BEND_PLANE_MIN_DEG`'s sine)."""
+    normal = np.cross(bones[..., 0, :], bones[..., 1, :]) + np.cross(bones[..., 1, :], bones[..., 2, :])
+    normal *= np.where(np.sum(normal * hinge, axis=-1, keepdims=True) < 0, -1.0, 1.0)
+    normal -= np.sum(normal * first, axis=-1, keepdims=True) * first
+    sure = np.clip(np.linalg.norm(normal, axis=-1) / np.sin(np.radians(BEND_PLANE_MIN_DEG)), 0.0, 1.0)
+    return sure * np.arctan2(np.sum(np.cross(hinge, normal) * first, axis=-1), np.sum(hinge * normal, axis=-1))
+
+
+def _hinge_angle(into: np.ndarray, out: np.ndarray, hinge: np.ndarray) -> np.ndarray:
+    """Radians ``[...]``: the turn about unit ``hinge [..., 3]`` from bone ``into`` to bone ``out`` (both
+    ``[..., 3]``), each seen in the plane across the hinge."""
+    into = into - np.sum(into * hinge, axis=-1, keepdims=True) * hinge
+    out = out - np.sum(out * hinge, axis=-1, keepdims=True) * hinge
+    return np.arctan2(np.sum(np.cross(into, out) * hinge, axis=-1), np.sum(into * out, axis=-1))
+
+
+def _limited(angles_rad: np.ndarray, column: int) -> np.ndarray:
+    """``angles_rad [..., 5]`` (one per finger) within the limits of :data:`~mocapdb.core.hand_rig.ANGLES`'
+    ``column``: an angle outside goes to the nearer limit round the circle (a bend a little past 180° to the
+    bend's limit, not to the extension's)."""
+    low, high = np.radians(ANGLE_LIMITS_DEG[:, column, 0]), np.radians(ANGLE_LIMITS_DEG[:, column, 1])
+    start = low - (2.0 * np.pi - (high - low)) / 2.0           # the middle of the arc outside the limits
+    return np.clip(np.mod(angles_rad - start, 2.0 * np.pi) + start, low, high)
+
+
+def _turned(vectors: np.ndarray, axes: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
+    """``vectors [..., 3]`` turned by ``angles_rad [...]`` about unit ``axes [..., 3]`` perpendicular to them."""
+    return np.cos(angles_rad)[..., None] * vectors + np.sin(angles_rad)[..., None] * np.cross(axes, vectors)
 
 
 def finger_quaternions(angles_deg: np.ndarray) -> np.ndarray:
     """``[F, 30, 4]`` the finger joints' local rotations (``hand_rig.FINGER_JOINTS`` order) of the angles
-    ``[F, 2, 5, 4]`` (:func:`finger_angles_deg`): the first joint spreads then bends, the others bend
-    about the same hinge; each hand's axes in the rig (the right hand's mirrored: its basis is left-handed)."""
-    spread = _axis_quats(_RIG_SPREAD_AXES, np.radians(angles_deg[..., 0]))         # [F, 2, 5, 4]
-    flexes = _axis_quats(_RIG_FLEX_AXES[:, :, None], np.radians(angles_deg[..., 1:]))   # [F, 2, 5, 3, 4]
-    first = quat_mul(spread, flexes[..., 0, :])
-    joints = np.concatenate([first[..., None, :], flexes[..., 1:, :]], axis=-2)
-    return joints.reshape(len(angles_deg), 30, 4)
+    ``[F, 2, 5, 5]`` (:func:`finger_angles_deg`): the first joint spreads, bends and twists, the others bend
+    about its hinge; each hand's axes in the rig (the right hand's mirrored: its basis is left-handed)."""
+    radians = np.radians(angles_deg)
+    spread_flex = quat_mul(_axis_quats(_RIG_SPREAD_AXES, radians[..., 0]), _axis_quats(_RIG_FLEX_AXES, radians[..., 1]))
+    first = quat_mul(spread_flex, _axis_quats(_RIG_TWIST_AXES, radians[..., 2]))
+    flexes = _axis_quats(_RIG_FLEX_AXES[:, :, None], radians[..., 3:])              # [F, 2, 5, 2, 4]
+    return np.concatenate([first[..., None, :], flexes], axis=-2).reshape(len(angles_deg), 30, 4)
 
 
 def hand_twist_deg(parents: np.ndarray, swings: np.ndarray, palms: np.ndarray) -> np.ndarray:

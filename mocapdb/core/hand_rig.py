@@ -57,13 +57,18 @@ def _orthonormal(vectors: np.ndarray) -> np.ndarray:
 # thumb across it, towards the little finger) and the one a spread turns it towards (s: the thumb's side)
 _THUMB_AXES = _orthonormal(np.array([REST_DIRECTIONS[0], [0.0, -1.0, 1.0], [0.0, 1.0, 0.0]]))
 FINGER_AXES = np.stack([_THUMB_AXES] + [np.eye(3)[[0, 2, 1]]] * 4)   # [5, 3 (r, p, s), 3]
-# Limits (degrees) of spread, flexion at the first, second and third joint (negative: extension)
+# Each finger's angles (degrees): its first bone's spread (towards s), flexion (towards p) and twist about
+# itself, then the flexion of its second and third bones
+ANGLES = ("spread", "flex1", "twist", "flex2", "flex3")
+# Limits (degrees; negative flexion: extension). Thumb (AAOS ranges and margin): CMC spread and flexion, the
+# metacarpal's twist (opposition turns it; the fingers have none), MCP, IP; fingers: MCP spread and flexion,
+# PIP, DIP (AAOS: MCP 90, PIP 100, DIP 90)
 ANGLE_LIMITS_DEG = np.array([
-    [[-20.0, 40.0], [-20.0, 50.0], [-10.0, 60.0], [-15.0, 80.0]],     # thumb: CMC spread, CMC, MCP, IP
-    *[[[-25.0, 25.0], [-30.0, 90.0], [-5.0, 110.0], [-10.0, 90.0]]] * 4])   # MCP spread, MCP, PIP, DIP
-# A relaxed hand (our choice: a slight curl, more towards the little finger): spread, flexion 1-3
-RELAXED_DEG = np.array([[0.0, 5.0, 10.0, 10.0], [0.0, 10.0, 15.0, 10.0], [0.0, 12.0, 18.0, 10.0],
-                        [0.0, 14.0, 20.0, 10.0], [0.0, 16.0, 22.0, 10.0]])
+    [[-20.0, 40.0], [-20.0, 50.0], [-30.0, 60.0], [-10.0, 60.0], [-15.0, 80.0]],
+    *[[[-25.0, 25.0], [-30.0, 90.0], [0.0, 0.0], [-5.0, 110.0], [-10.0, 90.0]]] * 4])
+# A relaxed hand (our choice: a slight curl, more towards the little finger), in :data:`ANGLES` order
+RELAXED_DEG = np.array([[0.0, 5.0, 0.0, 10.0, 10.0], [0.0, 10.0, 0.0, 15.0, 10.0], [0.0, 12.0, 0.0, 18.0, 10.0],
+                        [0.0, 14.0, 0.0, 20.0, 10.0], [0.0, 16.0, 0.0, 22.0, 10.0]])
 
 
 def finger_joint_names(side: str) -> list[str]:

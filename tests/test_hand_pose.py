@@ -1,0 +1,185 @@
+"""Fingers and the palm in the whole take: finger rotations of a hand built in closed form against scipy's
+rotations, the palm's full rotation, MediaPipe's gestures through the humanoid BVH's forward kinematics,
+an absent hand eased to rest without a jump, and the humanoid file with moving fingers read back as the
+build reads it."""
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from mocapdb.core.clips import ClipOptions, process_clip
+from mocapdb.core.fingers import FINGERS, curl_deg, finger_chain, flexion_deg
+from mocapdb.core.formats.bvh import parse_bvh, write_bvh
+from mocapdb.core.hand_rig import ANGLE_LIMITS_DEG, FINGER_JOINTS, FINGER_NAMES, RELAXED_DEG, SIDE_NAMES
+from mocapdb.core.joint_map import detect_mapping
+from mocapdb.core.motion import Motion
+from mocapdb.core.outputs import motion_bvh
+from mocapdb.core.skeleton import N_RIG_JOINTS, PELVIS, rest_positions_m, retarget
+from mocapdb.evaluation.gestures import CURLED_DEG, STRAIGHT_DEG, classify
+from mocapdb.evaluation.hand_bvh import bvh_hand_points, side_of
+from mocapdb.runtime.hand_pose import (
+    EASE_S,
+    finger_angles_deg,
+    finger_quaternions,
+    finger_rotations,
+    palm_frames,
+)
+from mocapdb.runtime.take import end_rotations
+from mocapdb.runtime.take_params import TakeParams
+
+from .test_fingers import SAMPLE_HANDS, _hand_model, _pose_models
+
+FPS = 30.0
+# The four fingers' knuckles on a left hand at rest (rig axes: +x along the hand, +z the thumb's side)
+KNUCKLES_M = np.array([[0.084, 0.0, 0.026], [0.084, 0.0, 0.008], [0.076, 0.0, -0.009], [0.067, 0.0, -0.026]])
+BONES_M = np.array([0.045, 0.027, 0.02])
+
+
+def _rotation_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The angle (degrees) between quaternions ``a`` and ``b`` ``[..., 4]`` (w, x, y, z)."""
+    return np.degrees(2.0 * np.arccos(np.clip(np.abs(np.sum(a * b, axis=-1)), 0.0, 1.0)))
+
+
+def _scipy(rotation: Rotation) -> np.ndarray:
+    return np.roll(rotation.as_quat(), 1, axis=-1)      # scipy's (x, y, z, w) → (w, x, y, z)
+
+
+def _closed_form_hand(side: str, hand: Rotation, angles_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A hand's 21 points (view frame) turned by ``hand`` with the four fingers' ``angles_deg [4, 5]`` (spread
+    towards the thumb, flexions towards the palm), and each finger joint's local rotation (scipy): on the left
+    hand flexion turns +x towards −y (about −z) and spread towards +z (about −y); the right hand's mirror image
+    (x negated) turns about +z and +y."""
+    mirror = np.array([-1.0, 1.0, 1.0]) if side == "Right" else np.ones(3)
+    sign = 1.0 if side == "Right" else -1.0
+    points = np.full((21, 3), np.nan)
+    points[0] = 0.0
+    points[1:5] = hand.apply(mirror * np.array([[0.02, -0.01, 0.02], [0.05, -0.02, 0.04], [0.07, -0.03, 0.05],
+                                                [0.09, -0.03, 0.06]]))            # the thumb: only placed
+    expected = np.zeros((4, 3, 4))
+    for f, (spread, flex1, _, *flexes) in enumerate(angles_deg):
+        chain = finger_chain(FINGERS[f + 1])
+        left_turn = Rotation.from_euler("y", -spread, degrees=True)     # the geometry: a left hand, mirrored
+        position = mirror * KNUCKLES_M[f]
+        points[chain[1]] = hand.apply(position)
+        bent = 0.0
+        for k, flex in enumerate([flex1, *flexes]):
+            bent += flex
+            position = position + mirror * (left_turn * Rotation.from_euler("z", -bent, degrees=True)).apply(
+                [BONES_M[k], 0.0, 0.0])
+            points[chain[k + 2]] = hand.apply(position)
+            joint = Rotation.from_euler("z", sign * flex, degrees=True)
+            expected[f, k] = _scipy(Rotation.from_euler("y", sign * spread, degrees=True) * joint if k == 0 else joint)
+    return points, expected
+
+
+def _measured(points: np.ndarray) -> np.ndarray:
+    """``[F, 30, 4]`` finger rotations of hands ``[F, 2, 21, 3]`` already in the view frame."""
+    return finger_quaternions(finger_angles_deg(points, palm_frames(points)))
+
+
+def test_finger_rotations_of_a_hand_built_in_closed_form():
+    rng = np.random.default_rng(4)
+    for side in SIDE_NAMES:
+        hand = Rotation.random(random_state=7)
+        angles = np.column_stack([rng.uniform(-20, 20, 4), rng.uniform(-20, 55, 4), np.zeros(4), rng.uniform(0, 100, 4),
+                                  rng.uniform(0, 80, 4)])
+        points, expected = _closed_form_hand(side, hand, angles)
+        both = np.full((1, 2, 21, 3), np.nan)
+        both[0, SIDE_NAMES.index(side)] = points
+        rows = [FINGER_JOINTS.index(f"{side}Hand{name}{k}") for name in FINGER_NAMES[1:] for k in (1, 2, 3)]
+        assert _rotation_deg(_measured(both)[0, rows], expected.reshape(12, 4)).max() < 1e-4, side   # arccos noise
+        basis = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]) * (np.array([-1.0, 1, 1]) if side == "Right" else 1)
+        np.testing.assert_allclose(palm_frames(both)[0, SIDE_NAMES.index(side)], (hand.as_matrix() @ basis.T).T,
+                                   atol=1e-9)                      # u, t, n: the rest basis turned by the hand
+
+
+def test_the_hand_turns_fully_with_its_palm():
+    """A left hand's palm turned by a known rotation (its twist about the hand within the forearm's range):
+    the whole take's hand rotation is that rotation (the arm at rest: its local rotation is the global)."""
+    n = 12
+    hand = Rotation.from_euler("zyx", [25.0, -30.0, 60.0], degrees=True)   # 60° twist about the hand (x)
+    points = np.full((n, 2, 21, 3), np.nan)
+    points[:, 1] = _closed_form_hand("Left", hand, np.zeros((4, 5)))[0]
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, N_RIG_JOINTS, 1))
+    local = end_rotations(quats, np.tile([0.0, 0.0, -3.0], (n, 1)), 1.0, None, np.zeros((n, 14, 3)),
+                          np.zeros((n, 8, 3)), 1000.0, np.zeros((n, 2), bool), np.array([0.0, 1.0, 0.0]), FPS,
+                          TakeParams(), palm_frames(points))
+    assert _rotation_deg(local[:, 3], _scipy(hand)).max() < 1e-4
+    np.testing.assert_allclose(local[:, 2], np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), atol=1e-12)   # never seen
+
+
+def _gesture_hands() -> list[tuple[str, str, np.ndarray]]:
+    """(gesture, side, points [21, 3] image convention) of MediaPipe's fist landmarks and one photo of each
+    other gesture (data/sample_hands); the photos need the models."""
+    from mocapdb.evaluation.gestures import photo_hands
+
+    fist = np.array(json.loads((SAMPLE_HANDS / "mediapipe_world_landmarks.json").read_text())["hands"]["fist"])
+    found = [("fist", side_of(fist), fist)]
+    for photo in ("pointing_1.jpg", "open_palm_1.jpg", "thumb_down_1.jpg", "thumb_up_1.jpg"):
+        gesture = photo.rsplit("_", 1)[0]
+        for label, points, _ in photo_hands(cv2.imread(str(SAMPLE_HANDS / photo)), _pose_models(), _hand_model()):
+            if classify(points) == gesture:
+                side = "Right" if label.endswith("right") else "Left" if label.endswith("left") else side_of(points)
+                found.append((gesture, side, points))
+                break
+    return found
+
+
+def test_gestures_through_the_bvh_forward_kinematics():
+    """MediaPipe's gestures: the humanoid BVH's fingers, forward kinematics from the measured rotations, show
+    the same gesture, each finger curled or straight as measured; the second and third joints' flexion (the
+    thumb's MCP and IP, the fingers' PIP and DIP) within a median 5° of the points' (within the limits: blurred
+    photos' curled fingers bend PIPs to 150-176°), within 10° on MediaPipe's own fist."""
+    hands = _gesture_hands()
+    assert [g for g, _, _ in hands] == ["fist", "pointing", "open_palm", "thumb_down", "thumb_up"]
+    errors = []
+    for gesture, side, points in hands:
+        rebuilt = bvh_hand_points(side, points)
+        assert classify(rebuilt) == gesture, (gesture, side)
+        measured, fk = curl_deg(flexion_deg(points))[1:], curl_deg(flexion_deg(rebuilt))[1:]
+        for a, b in zip(measured, fk):
+            assert (a < STRAIGHT_DEG) == (b < STRAIGHT_DEG) and (a > CURLED_DEG) == (b > CURLED_DEG), gesture
+        joints = [3, 4]                                             # ANGLES: the second and third bones' flexion
+        within = np.clip(flexion_deg(points)[:, 1:], ANGLE_LIMITS_DEG[:, joints, 0], ANGLE_LIMITS_DEG[:, joints, 1])
+        errors.append(np.abs(within - flexion_deg(rebuilt)[:, 1:]))
+    assert errors[0].max() < 10.0 and np.median(errors) < 5.0
+
+
+def test_an_absent_hand_eases_to_rest_without_a_jump():
+    """A left fist seen for 1 s, gone 2 s, seen 0.2 s, gone 0.3 s (bridged), seen 1 s; the right hand never:
+    the right hand relaxed throughout, the left relaxed in the long gap's middle, the short gap interpolated,
+    no joint turning more a frame than the ease allows (1.5 × its change over the ease's frames)."""
+    n = int(4.5 * FPS)
+    seen = np.zeros(n, bool)
+    for start_s, stop_s in ((0.0, 1.0), (3.0, 3.2), (3.5, 4.5)):
+        seen[int(start_s * FPS):int(stop_s * FPS)] = True
+    fist = np.tile([0.0, 60.0, 0.0, 90.0, 50.0], (4, 1))
+    left = _closed_form_hand("Left", Rotation.from_euler("x", 20.0, degrees=True), fist)[0]
+    points = np.full((n, 2, 21, 3), np.nan)
+    points[seen, 1] = left
+    quats = finger_rotations(points, palm_frames(points), FPS, TakeParams())
+    relaxed = finger_quaternions(np.broadcast_to(RELAXED_DEG, (1, 2, 5, 5)))[0]
+    assert _rotation_deg(quats[:, :15], relaxed[:15]).max() < 1e-4                 # never seen: relaxed
+    assert _rotation_deg(quats[int(2.0 * FPS), 15:], relaxed[15:]).max() < 1e-3     # the long gap: at rest
+    measured = _measured(points[:1])[0, 15:]
+    assert _rotation_deg(quats[int(3.35 * FPS), 15:], measured).max() < 1.0         # the short gap: bridged
+    step = _rotation_deg(quats[1:], quats[:-1]).max()
+    largest_change = _rotation_deg(measured, relaxed[15:]).max()
+    assert 0 < step <= 1.5 * largest_change / (EASE_S * FPS)
+
+
+def test_the_humanoid_file_with_moving_fingers_reads_back_as_without(tmp_path):
+    """`mocapdb build` reads a humanoid BVH as a Mixamo rig: its finger joints moving changes nothing it reads."""
+    rng = np.random.default_rng(2)
+    quats, pos = retarget(rest_positions_m() + rng.normal(scale=0.04, size=(30, 15, 3)) + [0.0, 1.0, 0.0])
+    fingers = finger_quaternions(rng.uniform(0.0, 60.0, size=(30, 2, 5, 5)))
+    clips = {}
+    for name, turned in (("still", None), ("fingers", fingers)):
+        path = tmp_path / f"{name}.bvh"
+        write_bvh(path, motion_bvh(Motion(quats, pos[:, PELVIS], FPS, finger_rotations=turned), "cm", "humanoid"))
+        assert detect_mapping(parse_bvh(path.read_text())).convention == "motionbuilder_mixamo"
+        clips[name] = process_clip(path, tmp_path, ClipOptions(fps=FPS)).positions
+    np.testing.assert_array_equal(clips["still"], clips["fingers"])
