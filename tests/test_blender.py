@@ -67,6 +67,23 @@ def test_blender_turns_the_humanoid_feet_and_hands(tmp_path):
     assert np.degrees(np.arccos(cosine)) == pytest.approx(40.0, abs=0.1)
 
 
+def test_blender_imports_the_humanoid_fingers_where_mocapdb_puts_them(tmp_path):
+    """The humanoid rig's 30 finger bones, curled and spread: Blender has every one, each bone's head where
+    mocapdb's forward kinematics puts its joint."""
+    from blender_check import blender_pose, compare
+
+    from mocapdb.core.hand_rig import FINGER_JOINTS, RELAXED_DEG
+    from mocapdb.runtime.hand_pose import finger_quaternions
+
+    rng = np.random.default_rng(5)
+    quats, pos = retarget(rest_positions_m() + rng.normal(scale=0.03, size=(4, 15, 3)) + [0.3, 1.0, -3.0])
+    angles = RELAXED_DEG + rng.uniform(0.0, 40.0, size=(4, 2, 5, 5)) * [0.2, 1.0, 0.5, 1.0, 1.0]
+    motion = Motion(quats, pos[:, PELVIS], 30.0, finger_rotations=finger_quaternions(angles))
+    write_bvh(tmp_path / "fingers.bvh", motion_bvh(motion, "cm", rig="humanoid"))
+    assert compare(tmp_path / "fingers.bvh", [0, 3]) < 1e-3  # centimetres
+    assert set(FINGER_JOINTS) <= set(blender_pose(tmp_path / "fingers.bvh", [0])["bones"])
+
+
 @pytest.mark.parametrize("rig", ["universal", "humanoid"])
 def test_blender_finds_no_zero_length_bone(tmp_path, rig):
     from blender_check import INSIDE, run_in_blender
