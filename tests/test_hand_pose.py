@@ -25,6 +25,7 @@ from mocapdb.runtime.hand_pose import (
     finger_angles_deg,
     finger_quaternions,
     finger_rotations,
+    hand_points_view,
     palm_frames,
 )
 from mocapdb.runtime.take import end_rotations
@@ -183,3 +184,39 @@ def test_the_humanoid_file_with_moving_fingers_reads_back_as_without(tmp_path):
         assert detect_mapping(parse_bvh(path.read_text())).convention == "motionbuilder_mixamo"
         clips[name] = process_clip(path, tmp_path, ClipOptions(fps=FPS)).positions
     np.testing.assert_array_equal(clips["still"], clips["fingers"])
+
+
+def test_the_hands_travel_from_the_frames_to_the_take(small_db):
+    """Person.hands through the engine (keep_take) into the track's recording (hands_px, NaN where absent) and
+    the whole take: the left fist's fingers turn in the BVH as measured, the right hand never seen stays
+    relaxed; hands_seen flags the measured frames."""
+    from mocapdb.core.formats.keypoints import KeypointFrame, Person
+    from mocapdb.runtime.engine import Engine
+    from mocapdb.runtime.engine_config import EngineConfig
+    from mocapdb.runtime.take import fit_take
+
+    first, n = small_db.clip_first_frame[0], small_db.clip_n_frames[0]
+    world = small_db.positions[first:first + n].astype(np.float64) - [0.0, 1.0, 4.0]
+    body = np.stack([960 + 1000 * world[..., 0] / -world[..., 2], 540 - 1000 * world[..., 1] / -world[..., 2]],
+                    axis=-1)[:, :14]
+    fist = np.tile([0.0, 60.0, 0.0, 90.0, 50.0], (4, 1))
+    left = _closed_form_hand("Left", Rotation.from_euler("x", 20.0, degrees=True), fist)[0]
+    hands = np.zeros((2, 21, 4))
+    hands[1, :, :3] = left * 1000.0 * [1.0, -1.0, -1.0] + [1200.0, 500.0, 0.0]      # image px, z px
+    hands[1, :, 3] = 0.9
+    seen = np.arange(n) % 40 < 30                                                   # 10 frames in 40 lost
+    frames = [KeypointFrame(i, i / 24.0, [Person(body[i], np.full(14, 0.9), hands=hands if seen[i] else
+                                                 hands * [1.0, 1.0, 1.0, 0.0])]) for i in range(n)]
+    engine = Engine(small_db, EngineConfig(fps=24.0, focal_px=1000.0, image_size=(1920, 1080), keep_take=True))
+    for frame in frames:
+        engine.step(frame)
+    rec = max(engine.finish(), key=len)
+    recorded = rec.column("hands_px")
+    assert recorded.dtype == np.float32 and recorded.shape == (len(rec), 2, 21, 3)
+    assert np.isnan(recorded[:, 0]).all() and (np.isfinite(recorded[:, 1]).all(axis=(-2, -1)) == seen[:len(rec)]).all()
+    fitted, _ = fit_take(rec, 24.0)
+    np.testing.assert_array_equal(fitted.hands_seen, np.isfinite(recorded).all(axis=(-2, -1)))
+    relaxed = finger_quaternions(np.broadcast_to(RELAXED_DEG, (1, 2, 5, 5)))[0]
+    measured = _measured(hand_points_view(recorded[:1].astype(np.float64)))[0]
+    assert _rotation_deg(fitted.finger_quaternions[:, :15], relaxed[:15]).max() < 1e-4
+    assert _rotation_deg(fitted.finger_quaternions[5, 15:], measured[15:]).max() < 1e-3

@@ -86,22 +86,25 @@ def hand_basis(side: str) -> np.ndarray:
     return np.array([[along, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]).T
 
 
-def finger_nodes(side: str) -> tuple[tuple[str, str, tuple[float, float, float], str], ...]:
+NodeRow = tuple[str, str, tuple[float, float, float], str | None]   # name, parent, offset (m), joint it turns with
+
+
+def finger_nodes(side: str) -> tuple[NodeRow, ...]:
     """One hand's finger rows (name, parent, rest offset in metres, the finger joint it turns with, or
     None), depth first as :data:`~mocapdb.core.skeleton.HUMANOID_NODES`' rows."""
     basis = hand_basis(side)
-    rows = []
+    rows: list[NodeRow] = []
     for f, finger in enumerate(FINGER_NAMES):
         if f == 0:
-            base_uvn = np.array([THUMB_CMC_UN_M[0], KNUCKLE_ACROSS_M[0], THUMB_CMC_UN_M[1]])
+            base_utn = np.array([THUMB_CMC_UN_M[0], KNUCKLE_ACROSS_M[0], THUMB_CMC_UN_M[1]])
         else:
             along = _MIDDLE_KNUCKLE_SHARE * METACARPAL_SHARE[f] / METACARPAL_SHARE[2] * WRIST_TO_FINGERTIP_M
-            base_uvn = np.array([along, KNUCKLE_ACROSS_M[f], 0.0])
-        steps = [base_uvn] + [share * WRIST_TO_FINGERTIP_M * REST_DIRECTIONS[f] for share in PHALANX_SHARES[f]]
+            base_utn = np.array([along, KNUCKLE_ACROSS_M[f], 0.0])
+        steps = [base_utn] + [share * WRIST_TO_FINGERTIP_M * REST_DIRECTIONS[f] for share in PHALANX_SHARES[f]]
         parent = f"{side}Hand"
         for k, step in enumerate(steps):
             name = f"{side}Hand{finger}{k + 1}" if k < 3 else f"{parent}_End"
-            offset = tuple(float(v) for v in basis @ step)
-            rows.append((name, parent, offset, name if k < 3 else None))
+            x, y, z = (float(v) for v in basis @ step)
+            rows.append((name, parent, (x, y, z), name if k < 3 else None))
             parent = name
-    return tuple(rows)  # type: ignore[return-value]
+    return tuple(rows)
