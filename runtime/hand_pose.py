@@ -10,10 +10,13 @@ focal, on which no direction or angle depends: the pixels are used as they are.
 **Palm frame** (:func:`palm_frames`): ``u`` wrist → the index and pinky knuckles' midpoint, ``t`` pinky →
 index knuckle made perpendicular to ``u``, ``n`` out of the palm. **Fingers** (:func:`finger_angles_deg`):
 each finger's first bone's spread (towards the thumb's side) and flexion (towards the palm; the thumb's
-across it), then the flexion of its second and third bones about the first bone's hinge, each angle
-within :data:`~mocapdb.core.hand_rig.ANGLE_LIMITS_DEG`; the spread fades out as the first joint bends
-past :data:`SPREAD_FADE_DEG` (square, it has none). The angles are sided: one set of angles is the
-mirror-image pose on the two hands (:func:`finger_quaternions`). **Absent hands** (:func:`eased_to_rest`).
+across it), the thumb's metacarpal twisted about itself onto the plane its bones bend in, then the
+flexion of the second and third bones about the first bone's hinge (seen across it), each angle within
+:data:`~mocapdb.core.hand_rig.ANGLE_LIMITS_DEG`; the spread fades out as the first joint bends past
+:data:`SPREAD_FADE_DEG` (square, it has none). The angles are sided: one set of angles is the
+mirror-image pose on the two hands (:func:`finger_quaternions`). **Palm twist** (:func:`hand_twist_deg`):
+about the hand's direction, from its shortest turn to the palm's plane. **Absent hands**
+(:func:`eased_to_rest`).
 Contract: ``data_specs/skeleton.md``, "Fingers".
 """
 from __future__ import annotations
@@ -185,7 +188,7 @@ def eased_smoothed(values: np.ndarray, seen: np.ndarray, rest: np.ndarray | floa
 
 def track_hand_points(rec: TrackRecording) -> np.ndarray | None:
     """The track's hands ``[F, 2, 21, 3]`` (view frame px from the wrist; NaN: absent), None when none was seen."""
-    hands = rec.column("hands_px") if "hands_px" in rec.frames else np.zeros(0)
+    hands = rec.column("hands_px")
     if not len(hands) or not np.isfinite(hands).any():
         return None
     return hand_points_view(hands.astype(np.float64))
