@@ -129,16 +129,18 @@ def finger_quaternions(angles_deg: np.ndarray) -> np.ndarray:
 
 
 def hand_twist_deg(parents: np.ndarray, swings: np.ndarray, palms: np.ndarray) -> np.ndarray:
-    """``[F, 2]`` the palm's twist about the hand (degrees, within :data:`TWIST_LIMIT_DEG`): the turn about
-    the hand's direction from where its shortest turn puts the thumb's side to where the palm's ``t``
-    points; ``parents [F, 2, 3, 3]`` the forearms' global rotations, ``swings [F, 2, 4]`` the hands'
+    """``[F, 2]`` the palm's twist about the hand (degrees): the turn about the hand's direction from where its
+    shortest turn puts the thumb's side to where the palm's ``t`` points; NaN beyond :data:`TWIST_LIMIT_DEG`
+    (a palm the forearm cannot turn to: misread, the model's or the pose's hand flipped), as where the
+    hand is unseen. ``parents [F, 2, 3, 3]`` the forearms' global rotations, ``swings [F, 2, 4]`` the hands'
     local shortest turns (view frame), ``palms [F, 2, 3, 3]`` (:func:`palm_frames`; NaN: unseen)."""
     hand = parents @ quat_to_matrix(swings) @ HAND_BASES                          # columns: the turned u, t
     along, thumb_side = hand[..., 0], hand[..., 1]
     measured = palms[..., 1, :] - np.sum(palms[..., 1, :] * along, axis=-1, keepdims=True) * along
     twist = np.arctan2(np.sum(np.cross(thumb_side, measured) * along, axis=-1),
                        np.sum(thumb_side * measured, axis=-1))
-    return np.clip(np.degrees(twist), -TWIST_LIMIT_DEG, TWIST_LIMIT_DEG)
+    twist_deg = np.degrees(twist)
+    return np.where(np.abs(twist_deg) <= TWIST_LIMIT_DEG, twist_deg, np.nan)
 
 
 def twisted(swings: np.ndarray, twist_deg: np.ndarray) -> np.ndarray:

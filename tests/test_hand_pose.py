@@ -99,17 +99,19 @@ def test_finger_rotations_of_a_hand_built_in_closed_form():
 
 def test_the_hand_turns_fully_with_its_palm():
     """A left hand's palm turned by a known rotation (its twist about the hand within the forearm's range):
-    the whole take's hand rotation is that rotation (the arm at rest: its local rotation is the global)."""
+    the whole take's hand rotation is that rotation (the arm at rest: its local rotation is the global); a
+    palm twisted 150° (beyond the forearm's reach: misread) is not used, the hand keeps its shortest turn."""
     n = 12
-    hand = Rotation.from_euler("zyx", [25.0, -30.0, 60.0], degrees=True)   # 60° twist about the hand (x)
-    points = np.full((n, 2, 21, 3), np.nan)
-    points[:, 1] = _closed_form_hand("Left", hand, np.zeros((4, 5)))[0]
-    quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, N_RIG_JOINTS, 1))
-    local = end_rotations(quats, np.tile([0.0, 0.0, -3.0], (n, 1)), 1.0, None, np.zeros((n, 14, 3)),
-                          np.zeros((n, 8, 3)), 1000.0, np.zeros((n, 2), bool), np.array([0.0, 1.0, 0.0]), FPS,
-                          TakeParams(), palm_frames(points))
-    assert _rotation_deg(local[:, 3], _scipy(hand)).max() < 1e-4
-    np.testing.assert_allclose(local[:, 2], np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), atol=1e-12)   # never seen
+    for hand, expected in ((Rotation.from_euler("zyx", [25.0, -30.0, 60.0], degrees=True), None),
+                           (Rotation.from_euler("x", 150.0, degrees=True), Rotation.identity())):
+        points = np.full((n, 2, 21, 3), np.nan)
+        points[:, 1] = _closed_form_hand("Left", hand, np.zeros((4, 5)))[0]
+        quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, N_RIG_JOINTS, 1))
+        local = end_rotations(quats, np.tile([0.0, 0.0, -3.0], (n, 1)), 1.0, None, np.zeros((n, 14, 3)),
+                              np.zeros((n, 8, 3)), 1000.0, np.zeros((n, 2), bool), np.array([0.0, 1.0, 0.0]), FPS,
+                              TakeParams(), palm_frames(points))
+        assert _rotation_deg(local[:, 3], _scipy(hand if expected is None else expected)).max() < 1e-4
+        np.testing.assert_allclose(local[:, 2], np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), atol=1e-12)   # never seen
 
 
 def _gesture_hands() -> list[tuple[str, str, np.ndarray]]:

@@ -1,12 +1,15 @@
 """Finger bend angles from the humanoid BVH against the hand points they were measured from.
 
     python tools/eval_hand_bvh.py [PHOTO_OR_FOLDER ...]     (default: data/sample_hands)
+    python tools/eval_hand_bvh.py --bvh TRACK.bvh             (a humanoid track file's hands over time)
 
 Per hand (each hand found in the photos, and MediaPipe's own landmarks of its four test photos): the
 gesture of its points and of the hand the BVH's forward kinematics gives back
 (:func:`mocapdb.evaluation.hand_bvh.bvh_hand_points`), then per finger the flexion at its three joints
 (degrees; :func:`mocapdb.core.fingers.flexion_deg`) from the points' 2D + z and from the BVH; last, the
 median and largest differences per joint over all hands. Needs ``mocapdb models fetch hands``.
+With ``--bvh``: per hand, how far its ``…Hand`` joint and its 15 finger joints turn from one frame to the
+next (largest, 99th percentile, median; degrees) and from rest (median).
 """
 from __future__ import annotations
 
@@ -23,6 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from eval_fingers import SAMPLE, photos  # noqa: E402
 
 from mocapdb.core.fingers import FINGERS, flexion_deg  # noqa: E402
+from mocapdb.core.formats.bvh import local_transforms, read_bvh  # noqa: E402
+from mocapdb.core.geometry import matrix_to_quat  # noqa: E402
+from mocapdb.core.hand_rig import SIDE_NAMES, finger_joint_names  # noqa: E402
 from mocapdb.detect.model_store import blazepose_paths, hand_landmark_path  # noqa: E402
 from mocapdb.evaluation.gestures import classify, photo_hands  # noqa: E402
 from mocapdb.evaluation.hand_bvh import bvh_hand_points, side_of  # noqa: E402
@@ -41,7 +47,29 @@ def hands(paths: list[str]) -> list[tuple[str, str, np.ndarray]]:
     return found
 
 
+def turn_deg(rotations: np.ndarray) -> np.ndarray:
+    """The angles (degrees) of rotation matrices ``[..., 3, 3]``."""
+    return np.degrees(2.0 * np.arccos(np.clip(np.abs(matrix_to_quat(rotations)[..., 0]), 0.0, 1.0)))
+
+
+def track_turns(path: str) -> None:
+    """Print how the hands and fingers of a humanoid BVH turn (module docstring)."""
+    bvh = read_bvh(path)
+    for side in SIDE_NAMES:
+        for what, names in (("hand", [f"{side}Hand"]), ("fingers", finger_joint_names(side))):
+            if not set(names) <= set(bvh.names):
+                print(f"{side} {what}: not in the file")
+                continue
+            local = local_transforms(bvh, np.array([bvh.index(n) for n in names]))[0]
+            step = turn_deg(np.swapaxes(local[:-1], -1, -2) @ local[1:])
+            print(f"{side} {what}: a frame's turn max {step.max():.1f}, 99th percentile {np.percentile(step, 99):.1f}, "
+                  f"median {np.median(step):.2f} deg; from rest median {np.median(turn_deg(local)):.1f} deg")
+
+
 def main() -> int:
+    if sys.argv[1:2] == ["--bvh"]:
+        track_turns(sys.argv[2])
+        return 0
     differences = []
     for name, side, points in hands(sys.argv[1:]):
         rebuilt = bvh_hand_points(side, points)
