@@ -17,10 +17,18 @@ Contract and decisions: ``data_specs/head.md``.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+from numba import njit
 
 from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
 from mocapdb.core.geometry import euler_to_matrix, matrix_to_euler, matrix_to_quat, quat_to_matrix
+from mocapdb.core.kernels import (
+    cholesky_solve_into,
+    mat3_mul_into,
+    quat_exp_into,
+    quat_log_into,
+    quat_mul_into,
+    quat_to_matrix_into,
+)
 from mocapdb.core.skeleton import KP, RIG_JOINTS, global_rotations, pose_from_rotations
 
 # The face points after the nose, as rows of the extremities array (keypoint_layouts.EXTREMITIES)
@@ -64,30 +72,6 @@ def face_points(keypoints: np.ndarray, extremities: np.ndarray) -> np.ndarray:
     return np.concatenate([keypoints[:, :1], extremities[:, list(FACE_ROWS)]], axis=1)
 
 
-def _project(points_view: np.ndarray, camera_px: tuple[float, float, float]) -> np.ndarray:
-    """View-frame points ``[..., 3]`` (z towards the camera) in pixels ``[..., 2]`` (y down)."""
-    focal, cx, cy = camera_px
-    depth = -points_view[..., 2]
-    return np.stack([cx + focal * points_view[..., 0] / depth, cy - focal * points_view[..., 1] / depth], axis=-1)
-
-
-def _jacobian(points_view: np.ndarray, offsets: np.ndarray, focal: float) -> np.ndarray:
-    """``[F, P, 2, 6]``: pixels of points ``[F, P, 3]`` = centre + ``offsets`` (the turned model) by a
-    small turn (rotation vector, left-multiplied) and a move of the centre (x, y, z)."""
-    depth = -points_view[..., 2]
-    d_uv = np.zeros(points_view.shape[:-1] + (2, 3))        # d(u, v) / d(point)
-    d_uv[..., 0, 0] = focal / depth
-    d_uv[..., 0, 2] = focal * points_view[..., 0] / depth ** 2
-    d_uv[..., 1, 1] = -focal / depth
-    d_uv[..., 1, 2] = -focal * points_view[..., 1] / depth ** 2
-    skew = np.zeros(offsets.shape + (3,))                    # d(offset) / d(turn) = −[offset]×
-    ox, oy, oz = offsets[..., 0], offsets[..., 1], offsets[..., 2]
-    skew[..., 0, 1], skew[..., 0, 2] = oz, -oy
-    skew[..., 1, 0], skew[..., 1, 2] = -oz, ox
-    skew[..., 2, 0], skew[..., 2, 1] = oy, -ox
-    return np.concatenate([d_uv @ skew, d_uv], axis=-1)
-
-
 def fit_head(face_px: np.ndarray, nose_view_m: np.ndarray, prior: np.ndarray, scale: float,
              camera_px: tuple[float, float, float], prior_sd_deg: float | np.ndarray = PRIOR_SD_DEG,
              model_m: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -120,42 +104,109 @@ def _fit_face(face_px: np.ndarray, nose: np.ndarray, base: np.ndarray, prior_sd_
               ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`fit_head`'s Gauss-Newton on frames the face fixes: rotations ``[n, 3, 3]`` and their costs
     ``[n]`` (Huber re-projection cost in SDs², confidence-weighted, plus the prior's)."""
-    rot = base.copy()
-    centre = nose - np.einsum("fij,j->fi", rot, model[0])
     seen = (face_px[..., 2] > 0) & np.isfinite(face_px[..., :2]).all(axis=-1)
-    observed = np.nan_to_num(face_px[..., :2])
     weight = np.where(seen, face_px[..., 2], 0.0)
-    prior_weight = 1.0 / prior_sd_rad                                              # [n]
-    start_depth = centre[:, 2].copy()
-    depth_weight = 1.0 / (DEPTH_SD * -start_depth)                                # [n]
-    for _ in range(ITERATIONS):
-        offsets, points, residual, size = _residuals(rot, centre, model, observed, pixel_sd, camera_px)
-        w = weight * np.minimum(1.0, HUBER_SD / np.maximum(size, 1e-12))
-        away = Rotation.from_matrix(rot @ np.swapaxes(base, -1, -2)).as_rotvec()    # the prior's residual
-        jac = _jacobian(points, offsets, camera_px[0]) / pixel_sd[:, None, None, None]
-        normal = np.einsum("fp,fpki,fpkj->fij", w, jac, jac)
-        gradient = np.einsum("fp,fpki,fpk->fi", w, jac, residual)
-        normal[:, :3, :3] += prior_weight[:, None, None] ** 2 * np.eye(3)
-        gradient[:, :3] += prior_weight[:, None] ** 2 * away
-        normal[:, 5, 5] += depth_weight ** 2
-        gradient[:, 5] += depth_weight ** 2 * (centre[:, 2] - start_depth)
-        step = -np.linalg.solve(normal + 1e-9 * np.eye(6), gradient[..., None])[..., 0]
-        rot = Rotation.from_rotvec(step[:, :3]).as_matrix() @ rot
-        centre += step[:, 3:]
-    size = _residuals(rot, centre, model, observed, pixel_sd, camera_px)[3]
-    huber = np.where(size < HUBER_SD, 0.5 * size ** 2, HUBER_SD * (size - 0.5 * HUBER_SD))
-    away = Rotation.from_matrix(rot @ np.swapaxes(base, -1, -2)).as_rotvec()
-    return rot, np.sum(weight * huber, axis=1) + 0.5 * prior_weight ** 2 * np.sum(away ** 2, axis=1)
+    rotation, cost = np.empty((len(face_px), 3, 3)), np.empty(len(face_px))
+    _fit_face_kernel(np.nan_to_num(face_px[..., :2]), weight, nose, np.ascontiguousarray(base), 1.0 / prior_sd_rad,
+                     pixel_sd, np.ascontiguousarray(model, dtype=np.float64), *camera_px, rotation, cost)
+    return rotation, cost
 
 
-def _residuals(rot: np.ndarray, centre: np.ndarray, model: np.ndarray, observed: np.ndarray, pixel_sd: np.ndarray,
-               camera_px: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The turned model's offsets and points ``[n, P, 3]`` (view frame), its re-projection residuals
-    ``[n, P, 2]`` and their sizes ``[n, P]`` (in pixel SDs) against ``observed [n, P, 2]``."""
-    offsets = np.einsum("fij,pj->fpi", rot, model)
-    points = centre[:, None] + offsets
-    residual = (_project(points, camera_px) - observed) / pixel_sd[:, None, None]
-    return offsets, points, residual, np.linalg.norm(residual, axis=-1)
+@njit(cache=True)
+def _fit_face_kernel(observed: np.ndarray, weight: np.ndarray, nose: np.ndarray, base: np.ndarray,
+                     prior_weight: np.ndarray, pixel_sd: np.ndarray, model: np.ndarray, focal: float, cx: float,
+                     cy: float, rotation: np.ndarray, cost: np.ndarray) -> None:
+    """:func:`_fit_face` per frame: ``observed [n, P, 2]`` pixels, their ``weight [n, P]`` (0: unseen), the
+    body's ``nose [n, 3]`` (m, view frame), the prior ``base [n, 3, 3]`` and its weight ``[n]`` (1 / SD,
+    radians), ``pixel_sd [n]``, ``model [P, 3]`` (m); fills ``rotation [n, 3, 3]`` (the turn away from
+    ``base``, a unit quaternion, times ``base``) and ``cost [n]``. Each of :data:`ITERATIONS` steps: the
+    normal equations of the turn (rotation vector, left-multiplied) and the centre's move, one Cholesky solve."""
+    n_points = len(model)
+    q, step_turn, turned, turn = np.empty(4), np.empty(4), np.empty(4), np.empty((3, 3))
+    offsets, points, residual = np.empty((n_points, 3)), np.empty((n_points, 3)), np.empty((n_points, 2))
+    size, away = np.empty(n_points), np.empty(3)
+    normal, gradient, step = np.empty((6, 6)), np.empty(6), np.empty(6)
+    for f in range(len(observed)):
+        q[:] = (1.0, 0.0, 0.0, 0.0)
+        rotation[f] = base[f]
+        centre = nose[f] - base[f] @ model[0]
+        start_depth = centre[2]
+        depth_weight2, prior_weight2 = 1.0 / (DEPTH_SD * start_depth) ** 2, prior_weight[f] ** 2
+        for _ in range(ITERATIONS):
+            _face_residuals(rotation[f], centre, model, observed[f], pixel_sd[f], focal, cx, cy, offsets, points,
+                            residual, size)
+            _normal_equations(points, offsets, residual, size, weight[f], focal / pixel_sd[f], normal, gradient)
+            quat_log_into(q, away)
+            for i in range(3):
+                normal[i, i] += prior_weight2
+                gradient[i] += prior_weight2 * away[i]
+            normal[5, 5] += depth_weight2
+            gradient[5] += depth_weight2 * (centre[2] - start_depth)
+            if not cholesky_solve_into(normal, -gradient, 6, step):
+                break
+            quat_exp_into(step[:3], step_turn)
+            quat_mul_into(step_turn, q, turned)
+            q[:] = turned
+            quat_to_matrix_into(q, turn)
+            mat3_mul_into(turn, base[f], rotation[f])
+            centre += step[3:]
+        _face_residuals(rotation[f], centre, model, observed[f], pixel_sd[f], focal, cx, cy, offsets, points,
+                        residual, size)
+        quat_log_into(q, away)
+        cost[f] = 0.5 * prior_weight2 * (away[0] ** 2 + away[1] ** 2 + away[2] ** 2)
+        for p in range(n_points):
+            huber = 0.5 * size[p] ** 2 if size[p] < HUBER_SD else HUBER_SD * (size[p] - 0.5 * HUBER_SD)
+            cost[f] += weight[f, p] * huber
+
+
+@njit(cache=True)
+def _normal_equations(points: np.ndarray, offsets: np.ndarray, residual: np.ndarray, size: np.ndarray,
+                      weight: np.ndarray, focal_sd: float, normal: np.ndarray, gradient: np.ndarray) -> None:
+    """``normal [6, 6]`` (JᵀWJ, plus 1e-9 on the diagonal) and ``gradient [6]`` (JᵀWr) of one frame's face
+    points: :func:`_face_residuals`' outputs, ``weight [P]`` times the Huber weights of the residuals' ``size``."""
+    jac = np.empty((2, 6))
+    normal[:] = 0.0
+    gradient[:] = 0.0
+    for p in range(len(points)):
+        w = weight[p] * min(1.0, HUBER_SD / max(size[p], 1e-12))
+        _point_jacobian(points[p], offsets[p], focal_sd, jac)
+        for k in range(2):
+            for i in range(6):
+                gradient[i] += w * jac[k, i] * residual[p, k]
+                for j in range(6):
+                    normal[i, j] += w * jac[k, i] * jac[k, j]
+    for i in range(6):
+        normal[i, i] += 1e-9
+
+
+@njit(cache=True)
+def _face_residuals(rotation: np.ndarray, centre: np.ndarray, model: np.ndarray, observed: np.ndarray,
+                    pixel_sd: float, focal: float, cx: float, cy: float, offsets: np.ndarray, points: np.ndarray,
+                    residual: np.ndarray, size: np.ndarray) -> None:
+    """The turned ``model``'s ``offsets`` and ``points [P, 3]`` (view frame), its re-projection ``residual
+    [P, 2]`` and their ``size [P]`` (in pixel SDs) against ``observed [P, 2]`` (pixels; y down)."""
+    for p in range(len(model)):
+        for i in range(3):
+            offsets[p, i] = rotation[i, 0] * model[p, 0] + rotation[i, 1] * model[p, 1] + rotation[i, 2] * model[p, 2]
+            points[p, i] = centre[i] + offsets[p, i]
+        depth = -points[p, 2]
+        residual[p, 0] = (cx + focal * points[p, 0] / depth - observed[p, 0]) / pixel_sd
+        residual[p, 1] = (cy - focal * points[p, 1] / depth - observed[p, 1]) / pixel_sd
+        size[p] = np.sqrt(residual[p, 0] ** 2 + residual[p, 1] ** 2)
+
+
+@njit(cache=True)
+def _point_jacobian(point: np.ndarray, offset: np.ndarray, focal_sd: float, jac: np.ndarray) -> None:
+    """``jac [2, 6]``: a point's (= centre + ``offset``) pixels, in pixel SDs (``focal_sd``: focal / SD), by a
+    small turn (rotation vector, left-multiplied: d offset = −[offset]× d turn) and a move of the centre."""
+    depth = -point[2]
+    du_x, du_z = focal_sd / depth, focal_sd * point[0] / depth ** 2
+    dv_y, dv_z = -focal_sd / depth, -focal_sd * point[1] / depth ** 2
+    ox, oy, oz = offset[0], offset[1], offset[2]
+    jac[0, 0], jac[0, 1], jac[0, 2] = du_z * oy, du_x * oz - du_z * ox, -du_x * oy
+    jac[1, 0], jac[1, 1], jac[1, 2] = -dv_y * oz + dv_z * oy, -dv_z * ox, dv_y * ox
+    jac[0, 3], jac[0, 4], jac[0, 5] = du_x, 0.0, du_z
+    jac[1, 3], jac[1, 4], jac[1, 5] = 0.0, dv_y, dv_z
 
 
 def face_world(world_m: np.ndarray | None, extremities_world_m: np.ndarray | None) -> np.ndarray:

@@ -1,8 +1,9 @@
 """The head's rotation from face points: the fit recovers a known rotation from projected model points
-(scipy's Rotation as the reference), with the face's left and right swapped too, works with the points
-COCO-17 has, leaves frames without a face to the prior, each layout's face rows (and their world
-landmarks), the world landmarks' head against the chest and the person's own face model (closed form),
-and the humanoid BVH's Head carrying the kept components of the rotation relative to the chest."""
+(scipy's Rotation as the reference; to 1e-9 where the cost's minimum is the true head), with the face's
+left and right swapped too, works with the points COCO-17 has, leaves frames without a face to the prior,
+each layout's face rows (and their world landmarks), the world landmarks' head against the chest and the
+person's own face model (closed form), and the humanoid BVH's Head carrying the kept components of the
+rotation relative to the chest."""
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -17,7 +18,6 @@ from mocapdb.runtime import head_pose
 from mocapdb.runtime.head_pose import (
     FACE_MODEL_M,
     FACE_ROWS,
-    _project,
     face_model,
     fit_head,
     head_local,
@@ -25,6 +25,13 @@ from mocapdb.runtime.head_pose import (
 )
 
 CAMERA = (1500.0, 960.0, 540.0)
+
+
+def _project(points_view: np.ndarray, camera_px: tuple[float, float, float]) -> np.ndarray:
+    """The pinhole's pixels ``[..., 2]`` (y down) of view-frame points ``[..., 3]`` (y up, z to the camera)."""
+    focal, cx, cy = camera_px
+    depth = -points_view[..., 2]
+    return np.stack([cx + focal * points_view[..., 0] / depth, cy - focal * points_view[..., 1] / depth], axis=-1)
 
 
 def _scene(n: int, seed: int = 0, noise_px: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -57,6 +64,20 @@ def test_a_face_with_its_left_and_right_swapped_is_fitted_as_the_same_head():
     rotation, fixed = fit_head(swapped, nose, prior, 1.0, CAMERA)
     assert fixed.all()
     assert np.median(_angle_deg(truth, rotation)) < 1.0
+
+
+@pytest.mark.parametrize("seen", [7, 5])
+def test_the_fit_lands_on_the_true_head_to_1e9_from_a_prior_30_degrees_off(seen):
+    """Noise-free points, the centre started where it is and a prior too weak to pull (SD 10⁶°): the
+    cost's minimum is the true rotation (every residual 0), which the Gauss-Newton must reach exactly."""
+    truth, face, nose = _scene(40, seed=7)
+    face[:, seen:, 2] = 0.0                               # 5: no mouth corners (COCO-17's face)
+    rng = np.random.default_rng(8)
+    prior = Rotation.from_rotvec(rng.normal(size=(40, 3)) * np.radians(30) / np.sqrt(3)).as_matrix() @ truth
+    centre = nose - truth @ FACE_MODEL_M[0]
+    rotation, fixed = fit_head(face, centre + prior @ FACE_MODEL_M[0], prior, 1.0, CAMERA, 1e6)
+    assert fixed.all()
+    np.testing.assert_allclose(rotation, truth, atol=1e-9)
 
 
 def test_noisy_points_and_a_wrong_depth_stay_within_eight_degrees():
