@@ -321,3 +321,10 @@ def test_live_never_writes_over_earlier_track_files_nor_touches_others(small_db_
     assert main([*live, "--bvh-dir", str(users)]) == 0
     assert (users / "notes.txt").read_text() == "the user's notes"
     assert sorted(p.name for p in users.iterdir()) == ["notes.txt", "track_1.bvh"]
+
+
+def test_the_summary_s_throughput_counts_from_the_first_frame_processed():
+    """11 frames, the last 10 in 2 s after the first was processed, in a 10 s session (models loaded,
+    the first frame compiled): 5 frames/s, not 1.1."""
+    report = SessionSummary(frames=11, wall_s=10.0, steady_s=2.0).report()
+    assert "throughput 5.0 frames/s from the first frame processed (over 2.00 s), session 10.00 s" in report

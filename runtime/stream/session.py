@@ -97,6 +97,7 @@ class Session:
                                      self.options.min_track_s)
         self._fps_warned = self.options.fps_given
         self._first_frame = True
+        self._first_done_s: float | None = None
         self.online = None
         if self.options.online_take:
             take = self.options.take  # the stream smooths as the track files do: their --smoothing-hz
@@ -143,7 +144,15 @@ class Session:
         self.summary.frames += 1
         self.summary.person_frames += len(poses)
         self.summary.add_latency(time.monotonic() - arrival_s)
+        self._frame_done()
         self._bvhs()
+
+    def _frame_done(self) -> None:
+        """The steady-state clock: seconds from the first frame processed to this one."""
+        now = time.perf_counter()
+        if self._first_done_s is None:
+            self._first_done_s = now
+        self.summary.steady_s = now - self._first_done_s
 
     def _write_frame(self, index: int, time_s: float, poses: list) -> None:
         """The frame's people, or, through the online take, those now due
