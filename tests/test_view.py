@@ -21,9 +21,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mocapdb.core.formats.keypoints import Person
 from mocapdb.core.outputs import PersonPose
+from mocapdb.core.skeleton import KP
 from mocapdb.render.tracks import read_csv_joints
 from mocapdb.runtime.stream.sinks import FileSink, TeeSink
+from mocapdb.view import payload
 from mocapdb.view.live import QUEUE_FRAMES, LiveFeed, PageSink
 from mocapdb.view.server import ViewServer
 from mocapdb.view.take import open_take
@@ -34,6 +37,8 @@ STATIC = ROOT / "mocapdb" / "view" / "static"
 THREE = ROOT / "mocapdb" / "view" / "vendor" / "three"
 SAMPLE = ["--fps", "60", "--image-size", "1088x1920", "--focal", "1681"]
 FRAME_K = 57
+HAND_STEP_PX = 25.0   # the test's hand: each finger's points this far apart, fanned out upwards from the wrist
+RIGHT_HAND_RGB = (0x00, 0xe5, 0xff)   # viewer.js HAND_COLOURS[0]
 
 
 @pytest.fixture(scope="module")
@@ -45,6 +50,32 @@ def take_folder(tmp_path_factory, small_db_path) -> Path:
     assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), *SAMPLE, "--format", "csv,bvh",
                  "--out", str(out)]) == 0
     return out
+
+
+def fanned_hand(wrist_px: np.ndarray) -> np.ndarray:
+    """A hand ``[21, 4]`` (x, y, z px, confidence): five straight fingers fanned upwards from ``wrist_px``."""
+    hand = np.zeros((21, 4))
+    hand[:, 3] = 0.9
+    hand[0, :2] = wrist_px
+    for finger in range(5):
+        angle = -np.pi / 2 + (finger - 2) * 0.3
+        for k in range(1, 5):
+            hand[1 + 4 * finger + k - 1, :2] = wrist_px + k * HAND_STEP_PX * np.array([np.cos(angle), np.sin(angle)])
+    return hand
+
+
+@pytest.fixture(scope="module")
+def hands_keypoints(tmp_path_factory) -> tuple[Path, np.ndarray]:
+    """The bundled keypoints with a right hand (:func:`fanned_hand`) added to the first person of frame
+    :data:`FRAME_K` at their right wrist (OpenPose's hand field), and that hand."""
+    folder = shutil.copytree(SAMPLE_KEYPOINTS, tmp_path_factory.mktemp("hands") / "keypoints")
+    path = folder / f"cam01.{FRAME_K:04d}.json"
+    frame = json.loads(path.read_text())
+    body = np.array(frame["people"][0]["pose_keypoints_2d"]).reshape(-1, 3)
+    hand = fanned_hand(body[4, :2])   # BODY_25's RWrist
+    frame["people"][0]["hand_right_keypoints_2d"] = hand[:, [0, 1, 3]].ravel().tolist()
+    path.write_text(json.dumps(frame))
+    return folder, hand
 
 
 @pytest.fixture(scope="module")
@@ -164,6 +195,117 @@ def test_the_page_shows_the_take_and_the_track_files_joints(browser, take_folder
         server.close()
 
 
+def test_the_payload_carries_a_persons_hands_only_where_the_keypoints_have_them():
+    hand = fanned_hand(np.array([100.0, 200.0]))
+    hand[20, 3] = 0.1                                  # the pinky's tip below the threshold: not drawn
+    with_hands = Person(np.zeros((14, 2)), np.ones(14), hands=np.stack([hand, np.zeros((21, 4))]))
+    without = Person(np.zeros((14, 2)), np.ones(14))
+    hands = payload.input_hands([without, with_hands])
+    assert hands[0] is None and hands[1][1] is None    # no hands; an absent left hand
+    right = hands[1][0]
+    assert right[0] == [100.0, 200.0] and right[20] == [None, None]
+    assert right[12] == [100.0, 200.0 - 4 * HAND_STEP_PX]   # the middle finger's tip, straight up
+    assert payload.input_hands([without]) is None and payload.input_hands([np.zeros((14, 3))]) is None
+    lines = payload.skeleton()["hand_lines"]
+    assert len(lines) == 20 and [0, 1] in lines and [3, 4] in lines and [0, 17] in lines and [19, 20] in lines
+
+
+def _turn(axis: int, deg: float) -> list[float]:
+    q = [np.cos(np.radians(deg) / 2), 0.0, 0.0, 0.0]
+    q[1 + axis] = np.sin(np.radians(deg) / 2)
+    return q
+
+
+def test_the_face_and_hands_directions_compose_the_chain_to_the_neck_with_the_head():
+    rest = np.tile([1.0, 0.0, 0.0, 0.0], (11, 1))
+    ends = np.tile([1.0, 0.0, 0.0, 0.0], (5, 1))
+    ends[4] = _turn(0, 30)                     # the head pitched 30 deg about x (down: the face's z towards -y)
+    pitched = [0.0, -0.5, np.sqrt(3) / 2]
+    assert payload.end_directions(rest, ends, np.eye(3))["face"] == pytest.approx(pitched, abs=1e-4)
+    neck = rest.copy()
+    neck[6] = _turn(1, 90)                     # the neck (rotations row 6) turned 90 deg about y: x → -z, z → x
+    out = payload.end_directions(neck, ends, np.eye(3))
+    assert out["face"] == pytest.approx([np.sqrt(3) / 2, -0.5, 0.0], abs=1e-4)   # neck, then head: Ry(90) Rx(30) z
+    assert out["hands"] == [[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]]                    # the arms do not hang from the neck
+    pelvis = rest.copy()
+    pelvis[0] = _turn(1, 90)                   # the whole body turned: its hands too
+    behind = payload.scene_from_view([[-1, 0, 0], [0, -1, 0], [0, 0, 1]])   # a camera turned 180 deg about y
+    assert behind == pytest.approx(np.diag([-1.0, 1.0, -1.0]))
+    out = payload.end_directions(pelvis, ends, behind)
+    assert out["face"] == pytest.approx([-np.sqrt(3) / 2, -0.5, 0.0], abs=1e-4)
+    assert np.array(out["hands"]) == pytest.approx(np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]]), abs=1e-4)
+
+
+def _chest_forward(joints: np.ndarray) -> np.ndarray:
+    """The horizontal direction the chest faces (scene frame, y up): across the shoulders, turned about y."""
+    across = np.array(joints[KP["l_shoulder"]]) - np.array(joints[KP["r_shoulder"]])
+    forward = np.cross(across, [0.0, 1.0, 0.0]) * [1.0, 0.0, 1.0]
+    return forward / np.linalg.norm(forward)
+
+
+def test_the_takes_frames_carry_the_hands_and_the_streams_face_direction(take_folder, hands_keypoints):
+    folder, hand = hands_keypoints
+    take = open_take(take_folder, folder)
+    frames = take.frames_json(0, 100)
+    with_hands = [f for f in frames if "hands" in f]
+    assert [f["frame"] for f in with_hands] == [FRAME_K]
+    assert with_hands[0]["hands"][0] == [payload.numbers(hand[:, :2], 1), None] and with_hands[0]["hands"][1] is None
+    assert not any("hands" in f for f in open_take(take_folder, SAMPLE_KEYPOINTS).frames_json(0, 100))
+    angles = []
+    for f in frames:
+        for person in [p for p in f["people"] if "face" in p]:   # the frames whose stream line turns the head
+            face = np.array(person["face"])
+            assert np.linalg.norm(face) == pytest.approx(1.0, abs=1e-3) and np.array(person["hands"]).shape == (2, 3)
+            flat = face * [1.0, 0.0, 1.0]
+            angles.append(np.degrees(np.arccos(flat @ _chest_forward(person["joints"]) / np.linalg.norm(flat))))
+    # the stream's head, turned into the track files' floor frame, faces where the files' chest faces
+    assert len(angles) >= 90 and np.median(angles) < 30, (len(angles), np.median(angles))
+
+
+def test_the_page_draws_the_hands_and_the_face_direction(browser, take_folder, hands_keypoints):
+    folder, hand = hands_keypoints
+    main_track = json.loads((take_folder / "world.json").read_text())["main_track"]
+    server = ViewServer(0, take=open_take(take_folder, folder), folder=take_folder)
+    box = f"{hand[:, 0].min():.0f}, {hand[:, 1].min():.0f}, {np.ptp(hand[:, 0]) + 1:.0f}, {np.ptp(hand[:, 1]) + 1:.0f}"
+    count_hand_pixels = f"""() => {{ const d = document.getElementById('image').getContext('2d')
+        .getImageData({box}).data; let n = 0;
+        for (let i = 0; i < d.length; i += 4) n += Math.abs(d[i] - {RIGHT_HAND_RGB[0]}) + Math.abs(d[i + 1]
+          - {RIGHT_HAND_RGB[1]}) + Math.abs(d[i + 2] - {RIGHT_HAND_RGB[2]}) < 40;
+        return n; }}"""
+    try:
+        page, errors = open_page(browser, server.url)
+        page.wait_for_function("window.mocapdbViewer && window.mocapdbViewer.ready === true", timeout=30_000)
+        page.evaluate(f"window.mocapdbViewer.seek({FRAME_K - 1})")
+        page.wait_for_function(f"window.mocapdbViewer.frame() === {FRAME_K - 1}")
+        assert page.evaluate("window.mocapdbViewer.handSegments()") == 0 and page.evaluate(count_hand_pixels) == 0
+        page.evaluate(f"window.mocapdbViewer.seek({FRAME_K})")
+        page.wait_for_function(f"window.mocapdbViewer.frame() === {FRAME_K}")
+        assert page.evaluate("window.mocapdbViewer.handSegments()") == 20       # one hand: wrist out along 5 fingers
+        assert page.evaluate(count_hand_pixels) > 100
+        person = next(p for p in page.evaluate("window.mocapdbViewer.viewer.current.people")
+                      if p["track"] == main_track)
+        ends = np.array(page.evaluate(f"window.mocapdbViewer.ends({main_track})"), dtype=np.float64)
+        head = np.array(person["joints"][KP["head"]])
+        assert ends[0] == pytest.approx(np.stack([head, head + 0.3 * np.array(person["face"])]), abs=1e-4)
+        wrists = np.array(person["joints"])[[KP["r_wrist"], KP["l_wrist"]]]
+        assert ends[1:, 1] == pytest.approx(wrists + 0.12 * np.array(person["hands"]), abs=1e-4)
+        assert not errors, errors
+    finally:
+        server.close()
+
+
+def test_the_live_page_gets_the_face_direction_of_a_turned_head():
+    feed = LiveFeed()
+    page = feed.subscribe()
+    pose = _pose(1)
+    pose.quaternions[:] = [1.0, 0.0, 0.0, 0.0]
+    pose.end_quaternions = np.tile([1.0, 0.0, 0.0, 0.0], (5, 1))
+    pose.end_quaternions[4] = _turn(1, -90)             # the head turned to the person's right: +z → -x
+    feed.frame(0, 0.0, [pose, _pose(2)])
+    people = json.loads(feed.event(page.take(1.0), page))["people"]
+    assert people[0]["face"] == pytest.approx([-1.0, 0.0, 0.0]) and "face" not in people[1]
+
+
 def test_the_stereo_output_shows_both_cameras(browser, tmp_path):
     from mocapdb.cli.main import main
 
@@ -175,6 +317,8 @@ def test_the_stereo_output_shows_both_cameras(browser, tmp_path):
     assert take.meta["kind"] == "stereo" and [c["name"] for c in take.meta["cameras"]] == ["cam_01", "cam_04"]
     centres = [np.array(c["position"]) for c in take.meta["cameras"]]
     assert np.linalg.norm(centres[1] - centres[0]) == pytest.approx(5.24, abs=0.01)
+    people = [p for f in take.frames_json(0, 100) for p in f["people"]]
+    assert people and not any("face" in p or "hands" in p for p in people)   # a stereo stream turns no end joints
     server = ViewServer(0, take=take, folder=out)
     try:
         page, errors = open_page(browser, server.url)

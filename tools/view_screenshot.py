@@ -2,6 +2,8 @@
 reconstructed with the demo database, with the video when the shared data holds it.
 
     .venv/bin/python tools/view_screenshot.py            # writes docs/view_sports2d.png
+    .venv/bin/python tools/view_screenshot.py --keypoints KP_HANDS --frame 50 --out docs/view_hands.png
+                                                         # keypoints of `mocapdb detect --hands`
 
 Headless Chromium from Debian's packages (`apt-get install chromium`), driven by Playwright.
 """
@@ -28,6 +30,7 @@ KEYPOINTS = ROOT / "data" / "sample_keypoints" / "video_sports2d"
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--db", default=str(ROOT / "demo" / "sample.db"), help="the motion database")
+    parser.add_argument("--keypoints", default=str(KEYPOINTS), help="keypoint folder (its take.json: the video)")
     parser.add_argument("--frame", type=int, default=60, help="the frame shown")
     parser.add_argument("--out", default=str(ROOT / "docs" / "view_sports2d.png"), help="the PNG written")
     parser.add_argument("--size", default="1600x900", help="the browser window, WxH")
@@ -35,16 +38,17 @@ def main() -> int:
     chromium = shutil.which("chromium")
     if chromium is None:
         sys.exit("no chromium on PATH: apt-get install chromium")
-    take = read_take(KEYPOINTS)
+    keypoints = Path(args.keypoints)
+    take = read_take(keypoints)
     video = ROOT / take.source if take is not None and take.source else None
     video = video if video is not None and video.is_file() else None
     width, height = (int(v) for v in args.size.split("x"))
     with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "sports2d"
-        if mocapdb(["reconstruct", str(KEYPOINTS), "--db", args.db, "--out", str(out), "--format", "bvh,trc,csv",
+        out = Path(tmp) / keypoints.name
+        if mocapdb(["reconstruct", str(keypoints), "--db", args.db, "--out", str(out), "--format", "bvh,trc,csv",
                     "-q"]) != 0:
             return 1
-        server = ViewServer(0, take=open_take(out, KEYPOINTS, video), folder=out)
+        server = ViewServer(0, take=open_take(out, keypoints, video), folder=out)
         try:
             with sync_playwright() as p:
                 browser = p.chromium.launch(executable_path=chromium)

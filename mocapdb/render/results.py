@@ -19,7 +19,7 @@ from mocapdb.core.errors import MocapdbError
 from mocapdb.core.files import MIB, open_input, read_input_text
 from mocapdb.core.formats.take import TakeInfo
 from mocapdb.core.outputs import STREAM_FORMAT, STREAM_VERSION
-from mocapdb.core.skeleton import END_JOINTS, KEYPOINTS, N_POINTS
+from mocapdb.core.skeleton import END_JOINTS, KEYPOINTS, N_POINTS, N_RIG_JOINTS
 
 RESULT_FILE = "result.jsonl"
 CAMERAS_FILE = "cameras.json"
@@ -44,6 +44,7 @@ class TrackPose:
     label: str | None = None           # drawn instead of "#<track>" (the track files': id, main, stature)
     # [5, 4] the feet's, hands' and head's local rotations (the stream's end_quaternions; None: not in it)
     end_quaternions: np.ndarray | None = None
+    quaternions: np.ndarray | None = None   # [11, 4] the rig's local rotations, view frame (None: not in it)
 
 
 @dataclass
@@ -171,20 +172,22 @@ def _frame(path: Path, line_no: int, line: str) -> ResultFrame:
         height = p.get("height")
         people.append(TrackPose(track, joints, float(height) if isinstance(height, (int, float)) else None,
                                 float(dist) if isinstance(dist, (int, float)) else None,
-                                end_quaternions=_end_quaternions(path, line_no, k, p.get("end_quaternions"))))
+                                end_quaternions=_rotations(path, line_no, k, p, "end_quaternions", len(END_JOINTS)),
+                                quaternions=_rotations(path, line_no, k, p, "quaternions", N_RIG_JOINTS)))
     return ResultFrame(obj["frame"], float(time_s) if isinstance(time_s, (int, float)) else math.nan, people)
 
 
-def _end_quaternions(path: Path, line_no: int, k: int, value: object) -> np.ndarray | None:
-    """A person's ``end_quaternions`` ``[5, 4]`` (None when the line has none); RenderError when malformed."""
+def _rotations(path: Path, line_no: int, k: int, person: dict, name: str, rows: int) -> np.ndarray | None:
+    """Person ``k``'s quaternions ``name`` ``[rows, 4]`` (None when the line has none); RenderError when malformed."""
+    value = person.get(name)
     if value is None:
         return None
     try:
         quats = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
         quats = np.zeros(0)
-    if quats.shape != (len(END_JOINTS), 4) or not np.isfinite(quats).all():
-        raise _bad(path, line_no, f"person {k} has end_quaternions that are not [{len(END_JOINTS)}, 4] numbers")
+    if quats.shape != (rows, 4) or not np.isfinite(quats).all():
+        raise _bad(path, line_no, f"person {k} has {name} that are not [{rows}, 4] numbers")
     return quats
 
 

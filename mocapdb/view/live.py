@@ -41,6 +41,8 @@ class LivePerson:
     up_view: np.ndarray | None
     floor_offset_m: float | None
     height_m: float
+    quaternions: np.ndarray            # [11, 4] the rig's local rotations, view frame
+    end_quaternions: np.ndarray | None  # [5, 4] the feet's, hands' and head's (None: not turned)
 
 
 @dataclass(frozen=True)
@@ -143,7 +145,9 @@ class LiveFeed:
         copied = tuple(LivePerson(p.track, np.array(p.joints_m, dtype=np.float64),
                                   None if p.keypoints_px is None else np.array(p.keypoints_px),
                                   None if p.up_view is None else np.array(p.up_view), p.floor_offset_m,
-                                  float(p.height_m)) for p in first)
+                                  float(p.height_m), np.array(p.quaternions),
+                                  None if p.end_quaternions is None else np.array(p.end_quaternions))
+                       for p in first)
         self._publish(LiveFrame(index, time_s, time.time(), copied))
 
     def end(self) -> None:
@@ -179,6 +183,8 @@ class LiveFeed:
                 person["px"] = payload.numbers(project_pinhole(p.joints, image["focal"], (image["cx"], image["cy"])), 1)
             if p.keypoints is not None:
                 person["keypoints"] = payload.input_people([p.keypoints])[0]
+            if p.end_quaternions is not None:
+                person.update(payload.end_directions(p.quaternions, p.end_quaternions, turn))
             people.append(person)
         axes = payload.VIEW_AXES @ turn.T
         camera = payload.camera("camera", lift, axes, None if image is None else payload.fov(image),

@@ -7,14 +7,24 @@ the camera). Pixels are the input image's (x right, y down). Unknown values are 
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 
 import numpy as np
 
-from mocapdb.core.skeleton import DRAWING_LINES, KEYPOINTS
+from mocapdb.core.fingers import FINGERS, finger_chain
+from mocapdb.core.geometry import quat_to_matrix
+from mocapdb.core.skeleton import DRAWING_LINES, END_JOINTS, KEYPOINTS, RIG_JOINTS, global_rotations
 from mocapdb.render.draw import track_colour
 
 INPUT_THRESHOLD = 0.3   # input keypoints below this confidence are not drawn (as `mocapdb render`)
 VIEW_AXES = np.diag([1.0, -1.0, -1.0])   # rows: a camera's right, down and forward in its view frame
+HAND_LINES = [[a, b] for finger in FINGERS for a, b in pairwise(finger_chain(finger))]   # the 21 hand points
+FACE_REST = np.array([0.0, 0.0, 1.0])    # where the face points in the rest pose (view frame: at the camera)
+HAND_REST = np.array([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])   # right, left hand bones at rest: out along the forearm
+_NECK = RIG_JOINTS.index("neck")
+_ELBOWS = [RIG_JOINTS.index("r_elbow"), RIG_JOINTS.index("l_elbow")]
+_HEAD_END = END_JOINTS.index("head")
+_HAND_ENDS = [END_JOINTS.index("r_hand"), END_JOINTS.index("l_hand")]
 
 
 def numbers(values: np.ndarray, decimals: int) -> list:
@@ -31,8 +41,8 @@ def colour(track: int) -> str:
 
 
 def skeleton() -> dict:
-    """The joints' names and the lines drawn between them (indices)."""
-    return {"joints": list(KEYPOINTS), "lines": [list(line) for line in DRAWING_LINES]}
+    """The joints' names and the lines drawn between them (indices), and a hand's lines (its 21 points)."""
+    return {"joints": list(KEYPOINTS), "lines": [list(line) for line in DRAWING_LINES], "hand_lines": HAND_LINES}
 
 
 def image(focal_px: float, size: tuple[int, int], principal: tuple[float, float] | None = None) -> dict:
@@ -65,6 +75,40 @@ def input_people(people: list) -> list:
         seen = np.asarray(conf) >= INPUT_THRESHOLD
         out.append(numbers(np.where(seen[:, None], pts, np.nan), 1))
     return out
+
+
+def _hand(points: np.ndarray) -> list | None:
+    """One hand ``[21, 4]`` (x, y, z px, confidence) as 21 ``[x, y]`` or null below :data:`INPUT_THRESHOLD`;
+    None when no point is seen."""
+    seen = points[:, 3] >= INPUT_THRESHOLD
+    return numbers(np.where(seen[:, None], points[:, :2], np.nan), 1) if seen.any() else None
+
+
+def input_hands(people: list) -> list | None:
+    """The input people's hands (``Person.hands [2, 21, 4]``), in :func:`input_people`'s order: per
+    person ``[right, left]`` (each :func:`_hand`), or null for a person without hands; None when no
+    person carries hands (the frame then says nothing of them)."""
+    out = [None if getattr(p, "hands", None) is None else [_hand(h) for h in p.hands] for p in people]
+    return out if any(h is not None for h in out) else None
+
+
+def scene_from_view(axes: np.ndarray) -> np.ndarray:
+    """``[3, 3]`` the rotation taking view-frame directions to the scene, of a camera whose rows
+    ``axes`` are its right, down and forward in the scene (:func:`camera`)."""
+    return np.asarray(axes, dtype=np.float64).T @ VIEW_AXES
+
+
+def end_directions(quaternions: np.ndarray, end_quaternions: np.ndarray, to_scene: np.ndarray) -> dict:
+    """Where one person-frame's face and hands point (unit, scene frame; 4 decimals): the head's global
+    rotation (the neck's, the product of the rig's ``quaternions [11, 4]`` from the pelvis down, times
+    the head's of ``end_quaternions [5, 4]``, view frame) on :data:`FACE_REST`, each hand's (its elbow's
+    times its own) on :data:`HAND_REST`; ``to_scene`` the view frame's rotation into the scene."""
+    rig = global_rotations(np.asarray(quaternions, dtype=np.float64)[None])[0]
+    ends = quat_to_matrix(end_quaternions)
+    face = to_scene @ rig[_NECK] @ ends[_HEAD_END] @ FACE_REST
+    hands = [to_scene @ rig[e] @ ends[h] @ rest for e, h, rest in zip(_ELBOWS, _HAND_ENDS, HAND_REST)]
+    return {"face": numbers(face / np.linalg.norm(face), 4),
+            "hands": numbers(hands / np.linalg.norm(hands, axis=1, keepdims=True), 4)}
 
 
 def spread_text(log_sd: float | None) -> str:

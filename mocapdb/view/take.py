@@ -44,12 +44,14 @@ _OPENCV = np.diag([1.0, -1.0, 1.0])   # camera-aligned ↔ OpenCV camera axes
 @dataclass
 class ViewTrack:
     """One person as drawn: input frame numbers ``[F]``, scene joints ``[F, 15, 3]`` and their
-    pixels ``[F, 15, 2]``, and what the page says of it (label, legend, colour, main)."""
+    pixels ``[F, 15, 2]``, what the page says of it (label, legend, colour, main), and by frame number
+    where its face and hands point (:func:`payload.end_directions`; frames the stream turns them in)."""
     track: int
     frames: np.ndarray
     scene: np.ndarray
     pixels: np.ndarray
     info: dict
+    ends: dict[int, dict] = field(default_factory=dict)
     rows: dict[int, int] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -69,16 +71,19 @@ class TakeView:
 
     def frames_json(self, start: int, count: int) -> list[dict]:
         """The frames at timeline positions ``start`` to ``start + count`` (at most
-        :data:`MAX_FRAMES_PER_REQUEST`): each person's scene joints and pixels, the input keypoints."""
+        :data:`MAX_FRAMES_PER_REQUEST`): each person's scene joints, pixels, face and hands' directions,
+        the input keypoints and hands."""
         out = []
         for pos in range(max(0, start), min(len(self.frames), start + min(count, MAX_FRAMES_PER_REQUEST))):
             index = self.frames[pos]
             people = [{"track": t.track, "joints": payload.numbers(t.scene[row], 5),
-                       "px": payload.numbers(t.pixels[row], 1)}
+                       "px": payload.numbers(t.pixels[row], 1), **t.ends.get(index, {})}
                       for t in self.tracks if (row := t.rows.get(index)) is not None]
             item = {"frame": index, "time": round(self.times[pos], 6), "people": people}
             if self.keypoints is not None:
                 item["keypoints"] = payload.input_people(self.keypoints.get(index, []))
+                if (hands := payload.input_hands(self.keypoints.get(index, []))) is not None:
+                    item["hands"] = hands
             out.append(item)
         return out
 
@@ -141,20 +146,33 @@ def _project(image: dict, camera_aligned: np.ndarray) -> np.ndarray:
     return project_pinhole(camera_aligned, image["focal"], (image["cx"], image["cy"]))
 
 
-def _stream_tracks(stream: ResultStream, image: dict, to_scene: Callable[[np.ndarray], np.ndarray]) -> list[ViewTrack]:
-    """The per-frame stream's people, ``to_scene`` taking camera-aligned joints to the scene."""
+def _end_directions(stream: ResultStream, to_scene: np.ndarray) -> dict[int, dict[int, dict]]:
+    """Per track, by frame number, where the face and hands point (:func:`payload.end_directions`) in the
+    frames whose stream line turns them; ``to_scene`` the view frame's rotation into the scene."""
+    out: dict[int, dict[int, dict]] = {}
+    for f in stream.frames:
+        for p in f.people:
+            if p.quaternions is not None and p.end_quaternions is not None:
+                out.setdefault(p.track, {})[f.index] = payload.end_directions(p.quaternions, p.end_quaternions,
+                                                                              to_scene)
+    return out
+
+
+def _stream_tracks(stream: ResultStream, image: dict, scene_from_aligned: np.ndarray) -> list[ViewTrack]:
+    """The per-frame stream's people, ``scene_from_aligned`` the rotation of camera-aligned joints into the scene."""
     frames: dict[int, list[int]] = {}
     joints: dict[int, list[np.ndarray]] = {}
     for f in stream.frames:
         for p in f.people:
             frames.setdefault(p.track, []).append(f.index)
             joints.setdefault(p.track, []).append(p.joints)
+    ends = _end_directions(stream, scene_from_aligned * CAMERA_FROM_VIEW)
     tracks = []
     for k in sorted(frames):
         aligned = np.stack(joints[k])
-        tracks.append(ViewTrack(k, np.array(frames[k]), to_scene(aligned), _project(image, aligned),
+        tracks.append(ViewTrack(k, np.array(frames[k]), aligned @ scene_from_aligned.T, _project(image, aligned),
                                 {"track": k, "label": f"#{k}", "legend": f"#{k}", "colour": payload.colour(k),
-                                 "main": False}))
+                                 "main": False}, ends.get(k, {})))
     return tracks
 
 
@@ -170,9 +188,10 @@ def _world_summary(scene: FileScene) -> tuple[list[str], str]:
     return [f"camera {height:.2f} m above the floor ({spread}), {tilt}"], f"camera {height:.2f} m"
 
 
-def _file_tracks(scene: FileScene, image: dict) -> list[ViewTrack]:
+def _file_tracks(scene: FileScene, image: dict, ends: dict[int, dict[int, dict]]) -> list[ViewTrack]:
     """The track files' people: scene joints in the files' own frame (on the floor), labelled with
-    ``world.json``'s facts: id, main, stature ± its spread, flags; legend with legs, distance, contact."""
+    ``world.json``'s facts: id, main, stature ± its spread, flags; legend with legs, distance, contact;
+    ``ends`` the stream's face and hands' directions per track."""
     world = scene.world
     tracks = []
     for t in scene.tracks:
@@ -189,7 +208,7 @@ def _file_tracks(scene: FileScene, image: dict) -> list[ViewTrack]:
             legend += f"; {distance[0]:.1f}–{distance[1]:.1f} m away"
         tracks.append(ViewTrack(t.track, t.frames, t.scene * CAMERA_FROM_VIEW, _project(image, t.camera),
                                 {"track": t.track, "label": label, "legend": legend,
-                                 "colour": payload.colour(t.track), "main": main}))
+                                 "colour": payload.colour(t.track), "main": main}, ends.get(t.track, {})))
     return tracks
 
 
@@ -200,7 +219,7 @@ def _stereo(stream: ResultStream, cams: StereoCameras) -> tuple[dict, list[ViewT
     image = payload.image(float(c1.K[0, 0]), c1.size, (float(c1.K[0, 2]), float(c1.K[1, 2])))
     basis = stereo_basis(cams)
     world = np.diag(CAMERA_FROM_VIEW) if basis is None else np.diag(CAMERA_FROM_VIEW) @ basis  # right-handed
-    tracks = _stream_tracks(stream, image, lambda joints: joints @ world.T)
+    tracks = _stream_tracks(stream, image, world)
     cameras = []
     for c in cams.cameras:
         axes = c.R @ _OPENCV @ world.T
@@ -236,13 +255,14 @@ def open_take(result: str | Path, keypoints: str | Path | None = None, video: st
             scene, why = file_scene(folder, stream)
             if scene is None:
                 kind, note = "stream", f"the per-frame stream ({stream.path.name}): {why}"
-                tracks = _stream_tracks(stream, image, lambda joints: joints * CAMERA_FROM_VIEW)
+                tracks = _stream_tracks(stream, image, np.diag(CAMERA_FROM_VIEW))
                 summary, label, position, axes = [], "camera", np.zeros(3), payload.VIEW_AXES
             else:
-                kind, tracks, on_floor = "take", _file_tracks(scene, image), scene.on_floor
+                axes = payload.VIEW_AXES if scene.camera_axes is None else scene.camera_axes * CAMERA_FROM_VIEW
+                ends = _end_directions(stream, payload.scene_from_view(axes))
+                kind, tracks, on_floor = "take", _file_tracks(scene, image, ends), scene.on_floor
                 summary, label = _world_summary(scene)
                 position = np.zeros(3) if scene.camera_scene is None else scene.camera_scene
-                axes = payload.VIEW_AXES if scene.camera_axes is None else scene.camera_axes * CAMERA_FROM_VIEW
                 note = scene.describe()
             cameras = [payload.camera("camera", position, axes, payload.fov(image), label)]
         if frames_in is not None and tuple(frames_in.size) != (image["width"], image["height"]):

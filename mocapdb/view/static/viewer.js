@@ -8,6 +8,10 @@ const VIDEO_AHEAD = 4;       // video frames fetched ahead while playing
 const EVERYWHERE = new THREE.Sphere(new THREE.Vector3(), 1e4);   // a fixed bound: never computed from NaN
 const LABEL_HEIGHT = 0.024;  // 3D labels: a share of the view's height
 const INPUT_COLOUR = '#969696';
+const HAND_COLOURS = ['#00e5ff', '#ff3df5'];   // the right hand's, the left's (image and 3D): unlike tracks 0-2
+const FACE_COLOUR = '#ffffff';
+const FACE_M = 0.3;          // the face's direction: a line this long (metres) from the head
+const HAND_M = 0.12;         // each hand's direction: from the wrist
 const $ = (id) => document.getElementById(id);
 
 // ---------------------------------------------------------------- the 3D view
@@ -52,7 +56,8 @@ class Scene3D {
     this.camera.position.set(4, 3, 6);
     this.controls = new OrbitControls(this.camera, this.renderer.domElement);
     this.controls.addEventListener('change', () => this.render());
-    this.people = new Map();   // track → {group, lines, points, label}
+    this.people = new Map();   // track → {group, lines, points, ends, label}
+    this.endJoints = ['head', 'r_wrist', 'l_wrist'].map((name) => skeleton.joints.indexOf(name));
     this.cameras = new THREE.Group();
     this.scene.add(this.cameras);
     this.setGrid(10, 0);
@@ -114,10 +119,11 @@ class Scene3D {
       const points = new THREE.Points(new THREE.BufferGeometry(), new THREE.PointsMaterial({ ...material, size: 0.05 }));
       const joints = this.skeleton.joints.length;
       points.geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(joints * 3), 3));
-      for (const o of [lines, points]) o.geometry.boundingSphere = EVERYWHERE;   // unknown joints are NaN
+      const ends = this.endLines();
+      for (const o of [lines, points, ends]) o.geometry.boundingSphere = EVERYWHERE;   // unknown joints are NaN
       const group = new THREE.Group();
-      group.add(lines, points);
-      person = { group, lines, points, label: null, text: null, shown: true };
+      group.add(lines, points, ends);
+      person = { group, lines, points, ends, label: null, text: null, shown: true };
       this.people.set(track, person);
       this.scene.add(group);
     }
@@ -130,7 +136,31 @@ class Scene3D {
     return person;
   }
 
-  // one frame's people: [{track, joints}], the others hidden
+  // three lines: where the face points (from the head) and each hand (from its wrist)
+  endLines() {
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(6 * 3), 3));
+    const colours = [FACE_COLOUR, FACE_COLOUR, ...HAND_COLOURS.flatMap((c) => [c, c])]
+      .flatMap((c) => new THREE.Color(c).toArray());
+    geometry.setAttribute('color', new THREE.BufferAttribute(new Float32Array(colours), 3));
+    return new THREE.LineSegments(geometry, new THREE.LineBasicMaterial({ vertexColors: true }));
+  }
+
+  // the face's and hands' directions ({face, hands}: unit, scene frame) from the joints; none: not drawn
+  placeEnds(person, p, joints) {
+    const at = person.ends.geometry.attributes.position;
+    const rays = [[p.face, FACE_M], [p.hands?.[0], HAND_M], [p.hands?.[1], HAND_M]];
+    rays.forEach(([direction, length], i) => {
+      const from = joints[this.endJoints[i]];
+      const known = direction && direction[0] !== null && from.every(Number.isFinite);
+      const to = known ? from.map((v, k) => v + length * direction[k]) : [NaN, NaN, NaN];
+      at.setXYZ(2 * i, ...(known ? from : to));
+      at.setXYZ(2 * i + 1, ...to);
+    });
+    at.needsUpdate = true;
+  }
+
+  // one frame's people: [{track, joints, face, hands}], the others hidden
   pose(people, info) {
     const seen = new Set();
     for (const p of people) {
@@ -143,6 +173,7 @@ class Scene3D {
       const lines = person.lines.geometry.attributes.position;
       this.skeleton.lines.forEach(([a, b], i) => { lines.setXYZ(2 * i, ...joints[a]); lines.setXYZ(2 * i + 1, ...joints[b]); });
       lines.needsUpdate = true;
+      this.placeEnds(person, p, joints);
       const head = joints[0].every(Number.isFinite) ? joints[0] : joints[1];
       person.label.position.set(head[0], head[1] + 0.2, head[2]);
       person.group.visible = person.shown;
@@ -157,6 +188,14 @@ class Scene3D {
     if (!person || !person.group.visible) return null;
     const at = person.points.geometry.attributes.position;
     return Array.from({ length: at.count }, (_, i) => [at.getX(i), at.getY(i), at.getZ(i)]);
+  }
+
+  // the face's and hands' lines drawn: [[from, to] × 3] (NaN: not drawn), null when the person is not shown
+  drawnEnds(track) {
+    const person = this.people.get(track);
+    if (!person || !person.group.visible) return null;
+    const at = person.ends.geometry.attributes.position;
+    return [0, 1, 2].map((i) => [2 * i, 2 * i + 1].map((k) => [at.getX(k), at.getY(k), at.getZ(k)]));
   }
 
   // look at ``points`` (the people) and the filming camera from its side, 30° above the floor
@@ -194,27 +233,43 @@ class ImagePanel {
     this.width = Math.max(2, image.width / 300);
   }
 
-  bones(points, colour, width) {
+  // points ([x, y], null or [null, null]: unknown) and the ``lines`` between them; returns the lines drawn
+  bones(points, colour, width, lines = this.skeleton.lines) {
     const ctx = this.ctx;
+    const known = (p) => p && p[0] !== null;
     ctx.strokeStyle = ctx.fillStyle = colour;
     ctx.lineWidth = width;
-    for (const [a, b] of this.skeleton.lines) {
-      if (points[a] && points[b] && points[a][0] !== null && points[b][0] !== null) {
+    let drawn = 0;
+    for (const [a, b] of lines) {
+      if (known(points[a]) && known(points[b])) {
         ctx.beginPath(); ctx.moveTo(...points[a]); ctx.lineTo(...points[b]); ctx.stroke();
+        drawn += 1;
       }
     }
     for (const p of points) {
-      if (p && p[0] !== null) { ctx.beginPath(); ctx.arc(p[0], p[1], width * 1.2, 0, 2 * Math.PI); ctx.fill(); }
+      if (known(p)) { ctx.beginPath(); ctx.arc(p[0], p[1], width * 1.2, 0, 2 * Math.PI); ctx.fill(); }
+    }
+    return drawn;
+  }
+
+  // the input people's hands ([right, left] or null per person; a hand null when absent): the finger lines
+  hands(people) {
+    this.handSegments = 0;
+    for (const person of people) {
+      (person || []).forEach((hand, side) => {
+        if (hand) this.handSegments += this.bones(hand, HAND_COLOURS[side], this.width * 0.6, this.skeleton.hand_lines);
+      });
     }
   }
 
-  // the video frame (or a dark background), the input keypoints (grey), each person re-projected
-  draw(background, keypoints, people, info) {
+  // the video frame (or a dark background), the input keypoints (grey) and hands, each person re-projected
+  draw(background, keypoints, hands, people, info) {
     if (!this.image) return;
     const ctx = this.ctx;
     if (background) ctx.drawImage(background, 0, 0, this.canvas.width, this.canvas.height);
     else { ctx.fillStyle = '#201e1c'; ctx.fillRect(0, 0, this.canvas.width, this.canvas.height); }
     for (const k of keypoints) this.bones(k, INPUT_COLOUR, this.width * 0.5);
+    this.hands(hands);
     for (const p of people) {
       if (!p.px) continue;
       const { colour, label } = info(p);
@@ -357,7 +412,7 @@ class Viewer {
     if (!frame) return;
     if (background !== undefined) this.background = background;
     const people = this.visible(frame.people);
-    this.image.draw(this.background, frame.keypoints || [], people, this.info);
+    this.image.draw(this.background, frame.keypoints || [], frame.hands || [], people, this.info);
     this.scene.pose(people, this.info);
   }
 
@@ -468,6 +523,8 @@ async function main() {
       if (frame !== undefined && frame !== viewer.current?.frame) { viewer.pause(); await viewer.show(meta.frames.indexOf(frame)); }
       return viewer.scene.drawnJoints(track);
     },
+    ends: (track) => viewer.scene.drawnEnds(track),
+    handSegments: () => viewer.image.handSegments,
     play: () => viewer.play(),
     pause: () => viewer.pause(),
     stats: () => ({ ...viewer.stats, playing: viewer.playing,
