@@ -290,9 +290,10 @@ class BlazePose:
 
     def _add_people(self, found: list[tuple[Region, float]], trusted: bool = False) -> None:
         """Starts following each detected region (and its score) whose centre (the hips) is in no followed
-        person's box; with ``max_people``, the most prominent first, while fewer are followed."""
-        if self.max_people is not None:
-            found = sorted(found, key=lambda region_score: -prominence(*region_score))
+        person's box, the best scored first (of overlapping detections from several tiles, the one the
+        detector is surest of); with ``max_people``, the most prominent first, while fewer are followed."""
+        rank = prominence if self.max_people is not None else (lambda _, score: score)
+        found = sorted(found, key=lambda region_score: -rank(*region_score))
         for region, _ in found:
             if self._full:
                 break
