@@ -57,6 +57,7 @@ from mocapdb.core.skeleton import ANKLE_HEIGHT_M, RIG_JOINTS, UNIVERSAL_HEIGHT_M
 from mocapdb.runtime.filters import OneEuroParams, QuaternionOneEuroFilter
 from mocapdb.runtime.foot_contacts import ANKLES, CONTACT_WINDOW_S, HEELS, TOES
 from mocapdb.runtime.online_ends import OnlineEnds
+from mocapdb.runtime.online_fingers import OnlineFingers
 from mocapdb.runtime.root_filter import RootFilter
 from mocapdb.runtime.take import plant_feet
 
@@ -158,6 +159,7 @@ class OnlineTrack:
         self.sigma_frames = np.sqrt(2.0) * fps / (2.0 * np.pi * params.smoothing_hz)
         self.ends = None if camera_px is None else OnlineEnds(fps, params.lag_frames, self.sigma_frames,
                                                               params.causal_rotations, camera_px)
+        self.fingers: OnlineFingers | None = None   # made at the track's first frame with a hand seen
         self.half_window = max(round(CONTACT_WINDOW_S * fps / 2), 1)
         self.recent: dict[int, PersonPose] = {}
         self.boxes: deque[float] = deque(maxlen=int(2 * fps))
@@ -175,6 +177,11 @@ class OnlineTrack:
         self.last_index = index
         if self.ends is not None:
             self.ends.add(index, pose)
+        if pose.hands_px is not None and (self.fingers is not None or np.isfinite(pose.hands_px).any()):
+            if self.fingers is None:
+                self.fingers = OnlineFingers(self.fps, self.params.lag_frames, self.sigma_frames,
+                                             self.params.causal_rotations)
+            self.fingers.add(index, pose.hands_px)
         if pose.keypoints_px is not None:
             seen = pose.keypoints_px[pose.keypoints_px[:, 2] > 0, 1]
             if len(seen) > 1:
@@ -202,9 +209,12 @@ class OnlineTrack:
         joints = pose_from_rotations(quats[None], root[None], scale, offsets)[0]
         floor = float(np.median(np.array(feet.placed) @ up)) - ANKLE_HEIGHT_M * scale if feet.placed else None
         ends, seen = (None, None) if self.ends is None else self.ends.output(index, quats, feet.weight, up)
+        fingers, hands = (None, None) if self.fingers is None else self.fingers.output(index)
         return replace(pose, joints_m=joints * CAMERA_FROM_VIEW, quaternions=quats, root_m=root * CAMERA_FROM_VIEW,
                        up_view=up, floor_offset_m=floor, contacts=(bool(feet.planted[0]), bool(feet.planted[1])),
-                       end_quaternions=ends, end_seen=None if seen is None else tuple(bool(s) for s in seen))
+                       end_quaternions=ends, end_seen=None if seen is None else tuple(bool(s) for s in seen),
+                       finger_quaternions=fingers, fingers_seen=None if hands is None else (bool(hands[0]),
+                                                                                            bool(hands[1])))
 
     def _smoothed(self, index: int, pose: PersonPose) -> np.ndarray:
         """Step 1: the rotations ``[R, 4]`` of frame ``index``."""

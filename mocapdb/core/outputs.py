@@ -69,6 +69,10 @@ class PersonPose:
     end_quaternions: np.ndarray | None = None
     end_seen: tuple[bool, ...] | None = None  # [5] each measured in this frame (else held, or easing to rest)
     face_world_m: np.ndarray | None = None    # [11, 3] the detector's face world landmarks (head_pose.face_world)
+    hands_px: np.ndarray | None = None        # [2, 21, 3] its hands' points (x, y, z px; NaN: absent; None: no hands)
+    # [30, 4] the finger joints' local rotations (hand_rig.FINGER_JOINTS order; None: the input has no hands)
+    finger_quaternions: np.ndarray | None = None
+    fingers_seen: tuple[bool, bool] | None = None  # (right, left) hand measured in this frame
 
 
 MOTION_COLUMNS = ("quaternions", "root_view_m", "scales")  # every recorded frame's (TrackRecording.frames)
@@ -305,13 +309,16 @@ def person_record(pose: PersonPose) -> dict:
 
 def _online_fields(pose: PersonPose) -> dict:
     """What the online whole take adds to a person's record: the feet planted, the world's up and the
-    floor (view frame), the end joints' rotations and which were seen, where known."""
+    floor (view frame), the end joints' and fingers' rotations and which were seen, where known."""
     fields: dict = {}
     if pose.contacts is not None:
         fields["contacts"] = [bool(c) for c in pose.contacts]
     if pose.end_quaternions is not None:
         fields["end_quaternions"] = _rounded(pose.end_quaternions, 5)
         fields["end_seen"] = [bool(s) for s in (pose.end_seen or (False,) * len(END_JOINTS))]
+    if pose.finger_quaternions is not None:
+        fields["finger_quaternions"] = _rounded(pose.finger_quaternions.reshape(2, -1, 4), 5)
+        fields["fingers_seen"] = [bool(s) for s in (pose.fingers_seen or (False, False))]
     if pose.up_view is not None:
         fields["up"] = _rounded(pose.up_view, 5)
     if pose.floor_offset_m is not None:

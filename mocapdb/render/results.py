@@ -18,6 +18,7 @@ from mocapdb.core.cameras import CameraModel
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.files import MIB, open_input, read_input_text
 from mocapdb.core.formats.take import TakeInfo
+from mocapdb.core.hand_rig import FINGER_JOINTS
 from mocapdb.core.outputs import STREAM_FORMAT, STREAM_VERSION
 from mocapdb.core.skeleton import END_JOINTS, KEYPOINTS, N_POINTS, N_RIG_JOINTS
 
@@ -44,6 +45,8 @@ class TrackPose:
     label: str | None = None           # drawn instead of "#<track>" (the track files': id, main, stature)
     # [5, 4] the feet's, hands' and head's local rotations (the stream's end_quaternions; None: not in it)
     end_quaternions: np.ndarray | None = None
+    # [30, 4] the finger joints' local rotations (the stream's finger_quaternions [2, 15, 4]; None: not in it)
+    finger_quaternions: np.ndarray | None = None
     quaternions: np.ndarray | None = None   # [11, 4] the rig's local rotations, view frame (None: not in it)
 
 
@@ -173,7 +176,8 @@ def _frame(path: Path, line_no: int, line: str) -> ResultFrame:
         people.append(TrackPose(track, joints, float(height) if isinstance(height, (int, float)) else None,
                                 float(dist) if isinstance(dist, (int, float)) else None,
                                 end_quaternions=_rotations(path, line_no, k, p, "end_quaternions", len(END_JOINTS)),
-                                quaternions=_rotations(path, line_no, k, p, "quaternions", N_RIG_JOINTS)))
+                                quaternions=_rotations(path, line_no, k, p, "quaternions", N_RIG_JOINTS),
+                                finger_quaternions=_finger_rotations(path, line_no, k, p)))
     return ResultFrame(obj["frame"], float(time_s) if isinstance(time_s, (int, float)) else math.nan, people)
 
 
@@ -189,6 +193,15 @@ def _rotations(path: Path, line_no: int, k: int, person: dict, name: str, rows: 
     if quats.shape != (rows, 4) or not np.isfinite(quats).all():
         raise _bad(path, line_no, f"person {k} has {name} that are not [{rows}, 4] numbers")
     return quats
+
+
+def _finger_rotations(path: Path, line_no: int, k: int, person: dict) -> np.ndarray | None:
+    """Person ``k``'s ``finger_quaternions`` ``[2, 15, 4]`` as ``[30, 4]`` (None when the line has none);
+    RenderError when malformed."""
+    value = person.get("finger_quaternions")
+    if isinstance(value, list) and len(value) == 2 and all(isinstance(hand, list) for hand in value):
+        value = value[0] + value[1]
+    return _rotations(path, line_no, k, {"finger_quaternions": value}, "finger_quaternions", len(FINGER_JOINTS))
 
 
 def read_cameras(folder: str | Path) -> StereoCameras | None:
