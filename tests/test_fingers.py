@@ -142,6 +142,30 @@ def test_gestures_on_mediapipes_own_results_for_its_test_photos():
     assert found == {"fist": "fist", "pointing_up": "pointing", "thumb_up": "thumb_up", "victory": "other"}
 
 
+def test_hands_batched_in_one_run_match_one_run_each():
+    """All of a frame's hands go through the model in one run: each hand's outputs as the converted model's
+    own batch-of-1 run on that crop alone gives them (within 1e-5)."""
+    from mocapdb.detect.blazepose import Region
+    from mocapdb.detect.hands import HAND_OUTPUTS, hand_input
+    from mocapdb.detect.model import load_session
+
+    path = _hand_model()
+    image = cv2.imread(str(SAMPLE_HANDS / "open_palm_1.jpg"))
+    height, width = image.shape[:2]
+    regions = [Region(np.array([width * x, height * y]), side * width, turn)
+               for x, y, side, turn in ((0.5, 0.5, 0.6, 0.0), (0.3, 0.4, 0.3, 0.5), (0.7, 0.6, 0.4, -1.0))]
+    points, flags, rights = HandLandmarker(path).landmarks_batch(image, regions)
+    single = load_session(path, HAND_OUTPUTS)   # the converted model as it is: a batch of 1
+    for hand, region in enumerate(regions):
+        raw, flag, right = single.run(list(HAND_OUTPUTS), {"input_1": hand_input(image, region)[None]})
+        values = raw.reshape(21, 3)
+        px_per_input = region.side / 224
+        expected = np.concatenate([region.to_frame(values[:, :2], 224), values[:, 2:] * px_per_input], axis=1)
+        np.testing.assert_allclose(points[hand], expected, atol=1e-5 * px_per_input)
+        assert flags[hand] == pytest.approx(float(flag.ravel()[0]), abs=1e-5)
+        assert rights[hand] == pytest.approx(float(right.ravel()[0]), abs=1e-5)
+
+
 # --- absent hands -------------------------------------------------------------------------------------
 
 def _pose_with_hand(scale_px: float, visibility: float = 0.9) -> np.ndarray:

@@ -93,56 +93,86 @@ def region_from_hand(points_xy: np.ndarray, scale: float = LANDMARK_ROI_SCALE) -
     return Region(centre_turned @ np.array([[cos, sin], [-sin, cos]]), scale * side, rotation)
 
 
+def pose_crop(pose: np.ndarray, side: int) -> Region | str:
+    """The crop of the hand on ``side`` (row of :data:`SIDES`) of a pose ``[33, 3]`` (mediapipe33: x, y px,
+    visibility), or why the model is not run on it: "hidden" (checked first) or "small"."""
+    wrist, index, pinky = pose[list(POSE_HAND[SIDES[side]])]
+    if min(wrist[2], index[2], pinky[2]) < MIN_POSE_VISIBILITY or not np.isfinite(pose[:, :2]).all():
+        return "hidden"
+    region, size_px = hand_region(wrist[:2], index[:2], pinky[:2])
+    return "small" if size_px < MIN_HAND_PX else region
+
+
+def hand_input(image: np.ndarray, region: Region) -> np.ndarray:
+    """The hand model's input ``[224, 224, 3]`` (RGB in [0, 1]): ``region`` of ``image`` (uint8 BGR)."""
+    crop = cv2.warpAffine(image, region.to_input(HAND_PX), (HAND_PX, HAND_PX), flags=cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
+    return crop[..., ::-1].astype(np.float32) / 255.0
+
+
+def _to_frame(values: np.ndarray, region: Region) -> np.ndarray:
+    """The model's points ``[21, 3]`` (input px) in ``region`` → x, y frame px and z px (scaled like x)."""
+    px_per_input = region.side / HAND_PX
+    return np.concatenate([region.to_frame(values[:, :2], HAND_PX), values[:, 2:] * px_per_input], axis=1)
+
+
 @dataclass
 class HandLandmarker:
-    """The hand landmark model at ``path`` (converted ONNX) run on each person's hands."""
+    """The hand landmark model at ``path`` (converted ONNX) run on each person's hands: all the hands of
+    a frame in one batched run (the model's layers treat each hand alone: the same outputs as one run each)."""
 
     path: Path
 
     def __post_init__(self) -> None:
-        self._session = load_session(Path(self.path), HAND_OUTPUTS)
+        self._session = load_session(Path(self.path), HAND_OUTPUTS, any_batch=True)
         self._input = self._session.get_inputs()[0].name
-        self.runs = 0
+        self.runs = 0      # hands run through the model
+        self.batches = 0   # model runs (each on one frame's hands)
 
     def landmarks(self, image: np.ndarray, region: Region) -> tuple[np.ndarray, float, float]:
         """The model in ``region`` of ``image`` (uint8 BGR): points ``[21, 3]`` (x, y frame px, z px),
         the hand flag and the model's handedness score: the probability of the subject's right hand on
         a camera's own (unmirrored) image (measured: ``data_specs/pose_models.md``, "Hands")."""
-        forward = region.to_input(HAND_PX)
-        crop = cv2.warpAffine(image, forward, (HAND_PX, HAND_PX), flags=cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
-        blob = (crop[..., ::-1].astype(np.float32) / 255.0)[None]
-        raw, flag, right = self._session.run(list(HAND_OUTPUTS), {self._input: blob})
-        self.runs += 1
-        values = raw.reshape(N_HAND_POINTS, 3).astype(np.float64)
-        px_per_input = region.side / HAND_PX
-        points = np.concatenate([region.to_frame(values[:, :2], HAND_PX), values[:, 2:] * px_per_input], axis=1)
-        return points, float(np.ravel(flag)[0]), float(np.ravel(right)[0])
+        points, flags, rights = self.landmarks_batch(image, [region])
+        return points[0], float(flags[0]), float(rights[0])
+
+    def landmarks_batch(self, image: np.ndarray, regions: list[Region]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`landmarks` of each of ``regions`` in one model run: points ``[R, 21, 3]``, flags and
+        handedness scores ``[R]``."""
+        blob = np.stack([hand_input(image, region) for region in regions])
+        raw, flags, rights = self._session.run(list(HAND_OUTPUTS), {self._input: blob})
+        self.runs += len(regions)
+        self.batches += 1
+        values = raw.reshape(len(regions), N_HAND_POINTS, 3).astype(np.float64)
+        points = np.stack([_to_frame(hand, region) for hand, region in zip(values, regions)])
+        return points, np.ravel(flags).astype(np.float64), np.ravel(rights).astype(np.float64)
 
     def __call__(self, image: np.ndarray, keypoints: np.ndarray) -> Hands:
         """Both hands of each person ``keypoints [P, 33, 3]`` (mediapipe33: x, y px, visibility) in ``image``."""
         hands = Hands.empty(len(keypoints))
-        for person, pose in enumerate(keypoints):
-            reasons = tuple(self._hand(image, pose, side, hands, person) for side in range(len(SIDES)))
-            hands.absent[person] = reasons   # type: ignore[assignment]
+        sides = range(len(SIDES))
+        crops = {(person, side): pose_crop(pose, side) for person, pose in enumerate(keypoints) for side in sides}
+        reasons = {key: crop for key, crop in crops.items() if isinstance(crop, str)}
+        regions = {key: crop for key, crop in crops.items() if isinstance(crop, Region)}
+        if regions:
+            found = self.landmarks_batch(image, list(regions.values()))
+            for key, points, flag, model_right in zip(regions, *found):
+                reasons[key] = _fill(hands, key, points, flag, model_right)
+        hands.absent[:] = [tuple(reasons[person, side] for side in sides) for person in range(len(keypoints))]
         return hands
 
-    def _hand(self, image: np.ndarray, pose: np.ndarray, side: int, hands: Hands, person: int) -> str:
-        """Fills ``hands`` for one person's hand on ``side``; returns why it is absent ("" when found)."""
-        wrist, index, pinky = pose[list(POSE_HAND[SIDES[side]])]
-        if min(wrist[2], index[2], pinky[2]) < MIN_POSE_VISIBILITY or not np.isfinite(pose[:, :2]).all():
-            return "hidden"
-        region, size_px = hand_region(wrist[:2], index[:2], pinky[:2])
-        if size_px < MIN_HAND_PX:
-            return "small"
-        points, flag, model_right = self.landmarks(image, region)
-        hands.presence[person, side] = flag
-        hands.handedness[person, side] = model_right if SIDES[side] == "right" else 1.0 - model_right
-        if flag < MIN_PRESENCE:
-            return "unsure"
-        hands.points[person, side, :, :3] = points
-        hands.points[person, side, :, 3] = flag
-        return ""
+
+def _fill(hands: Hands, key: tuple[int, int], points: np.ndarray, flag: float, model_right: float) -> str:
+    """Fills ``hands`` at ``key`` (person, side) with the model's ``points [21, 3]``, hand flag and
+    right-hand score; returns why the hand is absent ("unsure") or "" when it is found."""
+    person, side = key
+    hands.presence[person, side] = flag
+    hands.handedness[person, side] = model_right if SIDES[side] == "right" else 1.0 - model_right
+    if flag < MIN_PRESENCE:
+        return "unsure"
+    hands.points[person, side, :, :3] = points
+    hands.points[person, side, :, 3] = flag
+    return ""
 
 
 class WithHands:
@@ -165,7 +195,8 @@ class WithHands:
         return frames / seconds if seconds > 0 else 0.0
 
     def describe(self) -> str:
-        return (f"{self.detector.describe()}; hand landmarks {HAND_PX} px per hand, runs {self.hands.runs}")
+        return (f"{self.detector.describe()}; hand landmarks {HAND_PX} px per hand, {self.hands.runs} hands in "
+                f"{self.hands.batches} runs")
 
     def __call__(self, image: np.ndarray) -> Detections:
         found = self.detector(image)

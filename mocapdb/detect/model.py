@@ -188,11 +188,12 @@ def cpu_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def load_session(path: Path, outputs: tuple[str, ...] | None = None) -> Any:
+def load_session(path: Path, outputs: tuple[str, ...] | None = None, *, any_batch: bool = False) -> Any:
     """An onnxruntime CPU session for ``path`` set for this machine (intra-op threads = its cores, not
     spinning when idle; sequential execution; all graph optimisations); DetectError when missing or
     not loadable. ``outputs``: only the part of the graph these outputs need is loaded (the rest is
-    never computed)."""
+    never computed); ``any_batch``: the inputs' and outputs' first dimension (a converted model's fixed
+    batch of 1) left free, for a model whose layers treat each batch item alone."""
     if not path.exists():
         raise DetectError(f"pose model not found: {path}")
     check_readable(path, "pose model")
@@ -207,20 +208,27 @@ def load_session(path: Path, outputs: tuple[str, ...] | None = None) -> Any:
     # idle threads sleep: spinning would take the cores the decoder and the live engine need
     options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     try:
-        model = str(path) if outputs is None else _subgraph(path, outputs)
+        model = str(path) if outputs is None and not any_batch else _subgraph(path, outputs, any_batch)
         return ort.InferenceSession(model, options, providers=["CPUExecutionProvider"])
     except Exception as exc:  # noqa: BLE001 - onnxruntime's and onnx's exception types share no narrower base
         raise DetectError(f"{path}: not a usable ONNX model ({_first_line(exc)})") from None
 
 
-def _subgraph(path: Path, outputs: tuple[str, ...]) -> bytes:
-    """The serialised part of the model at ``path`` that computes ``outputs`` from its inputs."""
+def _subgraph(path: Path, outputs: tuple[str, ...] | None, any_batch: bool) -> bytes:
+    """The serialised part of the model at ``path`` that computes ``outputs`` (None: all) from its inputs,
+    with ``any_batch`` its first dimension free (:func:`load_session`)."""
     import onnx
     from onnx.utils import Extractor
 
     model = onnx.load(str(path))
     inputs = [i.name for i in model.graph.input]
-    return Extractor(model).extract_model(inputs, list(outputs)).SerializeToString()
+    wanted = [o.name for o in model.graph.output] if outputs is None else list(outputs)
+    part = Extractor(model).extract_model(inputs, wanted)
+    if any_batch:
+        for value in [*part.graph.input, *part.graph.output]:
+            value.type.tensor_type.shape.dim[0].dim_param = "batch"
+        del part.graph.value_info[:]   # inner shapes were inferred for a batch of 1
+    return part.SerializeToString()
 
 
 def _check_options(conf: float, iou: float, max_people: int | None, input_size: int) -> None:
