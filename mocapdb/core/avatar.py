@@ -26,19 +26,19 @@ from functools import lru_cache
 import numpy as np
 
 from mocapdb.core.geometry import matrix_to_euler, matrix_to_quat, quat_mul
+from mocapdb.core.hand_rig import FINGER_JOINTS, FINGER_NAMES, SIDE_NAMES
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose, _rig_table
 from mocapdb.core.skeleton import (
     ANKLE_HEIGHT_M,
     END_JOINTS,
     KP,
-    N_RIG_JOINTS,
     RIG_JOINTS,
     UNIVERSAL_HEIGHT_M,
     rig_globals_into,
     swing_matrices,
 )
 
-__all__ = ["ROOT_QUAT", "UNITY_BONES", "VIEW_UP", "AvatarPose", "ankle_floor_m", "avatar_pose",
+__all__ = ["ROOT_QUAT", "UNITY_BONES", "UNITY_FINGER_BONES", "VIEW_UP", "AvatarPose", "ankle_floor_m", "avatar_pose",
            "level_rotation", "unity_euler_deg", "unity_points"]
 
 # Unity's name for each humanoid rig bone (Mixamo's names; the ``_End`` sites are no bones)
@@ -46,16 +46,43 @@ _UNITY_NAME = {"Hips": "Hips", "Spine": "Spine", "Spine1": "Chest", "Neck": "Nec
                **{f"{side}{mixamo}": f"{side}{unity}" for side in ("Left", "Right") for mixamo, unity in (
                    ("UpLeg", "UpperLeg"), ("Leg", "LowerLeg"), ("Foot", "Foot"), ("ToeBase", "Toes"),
                    ("Shoulder", "Shoulder"), ("Arm", "UpperArm"), ("ForeArm", "LowerArm"), ("Hand", "Hand"))}}
-_NAMES, _PARENTS, _, _SOURCES, _END_SITE = _rig_table("humanoid")
-_BONE_NODES = np.flatnonzero(~_END_SITE)                     # the humanoid nodes that are bones
-UNITY_BONES: tuple[str, ...] = tuple(_UNITY_NAME[_NAMES[i]] for i in _BONE_NODES)  # parents before children
-# each humanoid node's row in the rig quaternions (RIG_JOINTS order) then the end joints' (END_JOINTS order,
-# after them), -1: no rotation of its own
-_NODE_JOINT = np.array([RIG_JOINTS.index(s) if s in RIG_JOINTS else N_RIG_JOINTS + END_JOINTS.index(s)
-                        if s in END_JOINTS else -1 for s in _SOURCES])
+# Unity's name for each finger joint (Mixamo's names; Unity's little finger is Mixamo's pinky)
+_UNITY_FINGER = {f"{side}Hand{mixamo}{k}": f"{side}{unity}{phalanx}" for side in SIDE_NAMES
+                 for mixamo, unity in zip(FINGER_NAMES, ("Thumb", "Index", "Middle", "Ring", "Little"))
+                 for k, phalanx in ((1, "Proximal"), (2, "Intermediate"), (3, "Distal"))}
+
+
+@dataclass(frozen=True)
+class _Table:
+    """The avatar's humanoid rig (``fingers``: with the finger joints) as bones: its table
+    (:func:`~mocapdb.core.outputs._rig_table`), the nodes that are bones (the body's, then the fingers' in
+    :data:`~mocapdb.core.hand_rig.FINGER_JOINTS` order), each node's row in the stacked rotations (rig, end
+    joints, fingers; -1: none of its own), the bones that turn and their rows."""
+
+    parents: np.ndarray
+    names: tuple[str, ...]
+    bone_nodes: np.ndarray
+    node_joint: np.ndarray
+    turning: np.ndarray
+    rows: np.ndarray
+
+
+@lru_cache(maxsize=2)
+def _table(fingers: bool) -> _Table:
+    names, parents, _, sources, end_site = _rig_table("humanoid", fingers=fingers)
+    body = [i for i in np.flatnonzero(~end_site) if names[i] not in FINGER_JOINTS]
+    bone_nodes = np.array(body + [names.index(n) for n in FINGER_JOINTS if n in names])
+    stacked = list(RIG_JOINTS) + list(END_JOINTS) + list(FINGER_JOINTS)
+    node_joint = np.array([-1 if s is None else stacked.index(s) for s in sources])
+    turning = np.flatnonzero(node_joint[bone_nodes] >= 0)
+    return _Table(parents, tuple(names), bone_nodes, node_joint, turning, node_joint[bone_nodes[turning]])
+
+
+_BODY_NAMES = [_table(False).names[i] for i in _table(False).bone_nodes]
+UNITY_BONES: tuple[str, ...] = tuple(_UNITY_NAME[str(n)] for n in _BODY_NAMES)     # parents before children
+# Unity's finger bones (HumanBodyBones), in FINGER_JOINTS order: the right hand's 15, then the left's
+UNITY_FINGER_BONES: tuple[str, ...] = tuple(_UNITY_FINGER[n] for n in FINGER_JOINTS)
 _REST_ENDS = np.tile([1.0, 0.0, 0.0, 0.0], (len(END_JOINTS), 1))   # end joints not estimated: not turned
-_TURNING = np.flatnonzero(_NODE_JOINT[_BONE_NODES] >= 0)      # bones (UNITY_BONES index) that turn
-_ROWS = _NODE_JOINT[_BONE_NODES[_TURNING]]                    # their rows in the rig quaternions
 _FLOOR_PLANE = np.array([1.0, 0.0, 1.0])                      # a point's projection on the floor (y = 0)
 _MIRROR = np.array([-1.0, 1.0, 1.0])                         # S: levelled (right-handed) ↔ Unity (left-handed)
 _QUAT_MIRROR = np.array([1.0, 1.0, -1.0, -1.0])              # S R S on a quaternion (w, x, y, z)
@@ -66,8 +93,9 @@ ROOT_QUAT = np.array([1.0, 0.0, 0.0, 0.0])                   # the root transfor
 @dataclass(frozen=True)
 class AvatarPose:
     """One person's avatar in the Unity world frame (metres; quaternions ``(w, x, y, z)``), bones in
-    :data:`UNITY_BONES` order. The root transform stands on the floor under the pelvis with rotation
-    :data:`ROOT_QUAT`; every bone's local position is its T-pose offset from its parent on this body
+    :data:`UNITY_BONES` order, then :data:`UNITY_FINGER_BONES`' where the pose has finger rotations.
+    The root transform stands on the floor under the pelvis with rotation :data:`ROOT_QUAT`; every bone's local
+    position is its T-pose offset from its parent on this body
     (the Hips': from the root, so its height is the pelvis's above the floor) and its local rotation is
     relative to the T-pose."""
 
@@ -112,9 +140,10 @@ def ankle_floor_m(pose: PersonPose, up_view: np.ndarray) -> float:
 
 
 @lru_cache(maxsize=8)
-def _rest_offsets_m(proportions: tuple[float, ...] | None) -> np.ndarray:
-    """The humanoid rig's rest offsets ``[N, 3]`` (metres, 1.75 m stature) for bone lengths ``proportions``."""
-    return _rig_table("humanoid", None if proportions is None else np.array(proportions))[2]
+def _rest_offsets_m(proportions: tuple[float, ...] | None, fingers: bool) -> np.ndarray:
+    """The humanoid rig's rest offsets ``[N, 3]`` (metres, 1.75 m stature) for bone lengths ``proportions``
+    (``fingers``: with the finger joints)."""
+    return _rig_table("humanoid", None if proportions is None else np.array(proportions), fingers)[2]
 
 
 def avatar_pose(pose: PersonPose, up_view: np.ndarray, floor_offset_m: float,
@@ -124,20 +153,25 @@ def avatar_pose(pose: PersonPose, up_view: np.ndarray, floor_offset_m: float,
     floor point under the camera)."""
     scale = pose.height_m / UNIVERSAL_HEIGHT_M
     proportions = None if pose.bones_m is None else tuple(float(b) for b in pose.bones_m / scale)
-    offsets = _rest_offsets_m(proportions)
-    n = len(_NAMES)
+    rotations = [pose.quaternions, _REST_ENDS if pose.end_quaternions is None else pose.end_quaternions]
+    fingers = pose.finger_quaternions is not None
+    if pose.finger_quaternions is not None:
+        rotations.append(pose.finger_quaternions)
+    offsets, table = _rest_offsets_m(proportions, fingers), _table(fingers)
+    n = len(table.names)
     g_rot, g_pos = np.empty((n, 3, 3)), np.empty((n, 3))
     pelvis_view = pose.root_m * CAMERA_FROM_VIEW
-    ends = _REST_ENDS if pose.end_quaternions is None else pose.end_quaternions
-    quats = np.ascontiguousarray(np.vstack([pose.quaternions, ends]), dtype=np.float64)
-    rig_globals_into(quats, pelvis_view, scale, _PARENTS, offsets, _NODE_JOINT, np.empty((3, 3)), g_rot, g_pos)
+    quats = np.ascontiguousarray(np.vstack(rotations), dtype=np.float64)
+    rig_globals_into(quats, pelvis_view, scale, table.parents, offsets, table.node_joint, np.empty((3, 3)), g_rot,
+                     g_pos)
+    bones = table.bone_nodes
     level, level_quat = _levelling(tuple(float(u) for u in up_view))
-    world_rot = (_MIRROR[:, None] * level) @ g_rot[_BONE_NODES] * _MIRROR   # S L G S
-    world_m = unity_points(g_pos[_BONE_NODES], up_view, floor_offset_m, origin_m)
-    local_m = offsets[_BONE_NODES] * (scale * _MIRROR)
+    world_rot = (_MIRROR[:, None] * level) @ g_rot[bones] * _MIRROR   # S L G S
+    world_m = unity_points(g_pos[bones], up_view, floor_offset_m, origin_m)
+    local_m = offsets[bones] * (scale * _MIRROR)
     local_m[0] = (0.0, world_m[0, 1], 0.0)
-    local_quats = np.tile(ROOT_QUAT, (len(_BONE_NODES), 1))
-    local_quats[_TURNING] = quats[_ROWS]
+    local_quats = np.tile(ROOT_QUAT, (len(bones), 1))
+    local_quats[table.turning] = quats[table.rows]
     local_quats[0] = quat_mul(level_quat, local_quats[0])
     local_quats *= _QUAT_MIRROR
     return AvatarPose(world_m[0] * _FLOOR_PLANE, local_m, local_quats, world_m, world_rot)

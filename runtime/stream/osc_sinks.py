@@ -36,6 +36,7 @@ from pythonosc.osc_message_builder import OscMessageBuilder
 from mocapdb.core.avatar import (
     ROOT_QUAT,
     UNITY_BONES,
+    UNITY_FINGER_BONES,
     VIEW_UP,
     AvatarPose,
     ankle_floor_m,
@@ -207,24 +208,30 @@ def _xyzw(quats: np.ndarray) -> np.ndarray:
     return quats[..., [1, 2, 3, 0]]
 
 
+def _vmc_frame(bones: tuple[str, ...]) -> OscFrames:
+    """A VMC frame's messages: the root, each of ``bones`` (Unity's names), OK and the time."""
+    return OscFrames([("/VMC/Ext/Root/Pos", ("root",), 7), *[("/VMC/Ext/Bone/Pos", (bone,), 7) for bone in bones],
+                      ("/VMC/Ext/OK", (1,), 0), ("/VMC/Ext/T", (), 1)], MAX_BUNDLE_BYTES)
+
+
 class VmcSink(AvatarSink):
     """The VMC protocol (Performer → Marionette): per frame ``/VMC/Ext/Root/Pos``, ``/VMC/Ext/Bone/Pos``
-    for every bone of :data:`~mocapdb.core.avatar.UNITY_BONES`, ``/VMC/Ext/OK 1`` and ``/VMC/Ext/T``,
-    in bundles of at most :data:`MAX_BUNDLE_BYTES`; a frame without the person: ``/VMC/Ext/OK 0`` and
-    ``/VMC/Ext/T``. ``track``: the track to send (default: the main one)."""
+    for every bone of :data:`~mocapdb.core.avatar.UNITY_BONES` (then of
+    :data:`~mocapdb.core.avatar.UNITY_FINGER_BONES` where the stream has fingers), ``/VMC/Ext/OK 1`` and
+    ``/VMC/Ext/T``, in bundles of at most :data:`MAX_BUNDLE_BYTES`; a frame without the person:
+    ``/VMC/Ext/OK 0`` and ``/VMC/Ext/T``. ``track``: the track to send (default: the main one)."""
 
     def __init__(self, host: str, port: int = VMC_PORT, stats: StreamStats | None = None,
                  track: int | None = None) -> None:
         super().__init__(host, port, stats, track)
-        self._frame = OscFrames([("/VMC/Ext/Root/Pos", ("root",), 7),
-                                 *[("/VMC/Ext/Bone/Pos", (bone,), 7) for bone in UNITY_BONES],
-                                 ("/VMC/Ext/OK", (1,), 0), ("/VMC/Ext/T", (), 1)], MAX_BUNDLE_BYTES)
+        self._frame, self._finger_frame = (_vmc_frame(UNITY_BONES), _vmc_frame(UNITY_BONES + UNITY_FINGER_BONES))
         self._absent = OscFrames([("/VMC/Ext/OK", (0,), 0), ("/VMC/Ext/T", (), 1)], MAX_BUNDLE_BYTES)
 
     def _frame_datagrams(self, avatar: AvatarPose, time_s: float) -> list[bytes]:
         root = np.concatenate([avatar.root_m, _xyzw(ROOT_QUAT)])
         bones = np.hstack([avatar.local_m, _xyzw(avatar.local_quats)])
-        return self._frame.datagrams(np.concatenate([root, bones.ravel(), [time_s]]))
+        frame = self._frame if len(bones) == len(UNITY_BONES) else self._finger_frame
+        return frame.datagrams(np.concatenate([root, bones.ravel(), [time_s]]))
 
     def _absent_datagrams(self, time_s: float) -> list[bytes]:
         return self._absent.datagrams(np.array([time_s]))
