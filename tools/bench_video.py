@@ -23,10 +23,11 @@ throughput and latency p50/p99 from a frame's capture to its output line. The fi
 fast as detection goes (frames queue as they would behind a camera too fast for the machine), so
 the latency includes waiting in the buffer. Other processes on the machine slow every figure
 alike: compare the ratios within one run (the load average is printed). ``--repeats R``: every run R
-times, interleaved (stages pooled, frames/s the median). ``--max-people N``: each BlazePose variant also
-with ``--max-people N``. ``--mediapipe PYTHON``: MediaPipe Pose (complexity 1) on the same frames in that
-Python (tools/bench_mediapipe.py; a venv with mediapipe 0.10.21), in the same sitting: its frames/s on
-frames decoded first and with decoding, and each configuration's over MediaPipe's on decoded frames.
+times, interleaved (stages pooled, frames/s the median). ``--max-people N``: each BlazePose variant (and with
+``--hands`` its hands variant) also with ``--max-people N``. ``--mediapipe PYTHON``: MediaPipe Pose
+(complexity 1) on the same frames in that Python (tools/bench_mediapipe.py; a venv with mediapipe
+0.10.21), in the same sitting: its frames/s on frames decoded first and with decoding, and each
+configuration's over MediaPipe's on decoded frames.
 """
 from __future__ import annotations
 
@@ -64,10 +65,11 @@ STAGES = ("decode", "detect BlazePose", "detect full", "detect crop", "detect cr
 def configurations(crop_px: int, variants: list[str], model: str | None, hands: bool = False,
                    max_people: int | None = None) -> dict[str, tuple[FastPath, list[str]]]:
     """Name → (the detector's paths, the same as `live` options); ``hands``: each BlazePose variant also
-    with ``--hands``; ``max_people``: also with ``--max-people``."""
+    with ``--hands``; ``max_people``: also with ``--max-people`` (and with both)."""
     size = ["--crop-size", str(crop_px)]
-    extra = [("", [])] + ([(" + hands", ["--hands"])] if hands else [])
-    extra += [(f" max {max_people}", ["--max-people", str(max_people)])] if max_people else []
+    people = [("", [])] + ([(f" max {max_people}", ["--max-people", str(max_people)])] if max_people else [])
+    extra = [(limit + hand, [*limit_flags, *hand_flags]) for limit, limit_flags in people
+             for hand, hand_flags in [("", [])] + ([(" + hands", ["--hands"])] if hands else [])]
     blazepose = {f"BlazePose {v}{suffix}": (FULL_FRAME, ["--blazepose", v, *flag]) for v in variants
                  for suffix, flag in extra}
     if model is None:

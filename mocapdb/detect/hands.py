@@ -158,7 +158,7 @@ class HandLandmarker:
             found = self.landmarks_batch(image, list(regions.values()))
             for key, points, flag, model_right in zip(regions, *found):
                 reasons[key] = _fill(hands, key, points, flag, model_right)
-        hands.absent[:] = [tuple(reasons[person, side] for side in sides) for person in range(len(keypoints))]
+        hands.absent[:] = [(reasons[person, 0], reasons[person, 1]) for person in range(len(keypoints))]
         return hands
 
 
