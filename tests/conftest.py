@@ -2,7 +2,7 @@
 
 A test whose data or tool is absent skips with a reason starting :data:`MISSING` (:func:`needs`,
 :func:`skip_missing`). The summary counts those skips; under ``CI=true``, where ``../shared`` lies beside
-the clone and ``.ci/run`` installs every tool, each of them fails instead (docs/install.md, "Tests").
+the clone and ``.ci/run`` installs every tool, each of them fails instead (docs/install.md, "Tests that skip").
 """
 import os
 from pathlib import Path
