@@ -164,8 +164,8 @@ def eased_to_rest(values: np.ndarray, seen: np.ndarray, rest: np.ndarray | float
     bridged = (frames >= at[0]) & (frames <= at[-1]) & (gap <= 2.0 * ease_frames)
     share = _expand((frames - prev) / np.maximum(gap, 1), values)
     linear = values[prev] + share * (values[after] - values[prev])
-    leaving = _expand(np.where(frames >= at[0], _smoothstep(1.0 - (frames - prev) / ease_frames), 0.0), values)
-    coming = _expand(np.where(frames <= at[-1], _smoothstep(1.0 - (after - frames) / ease_frames), 0.0), values)
+    leaving = _expand(np.where(frames >= at[0], smoothstep(1.0 - (frames - prev) / ease_frames), 0.0), values)
+    coming = _expand(np.where(frames <= at[-1], smoothstep(1.0 - (after - frames) / ease_frames), 0.0), values)
     eased = out + leaving * (values[prev] - out) + coming * (values[after] - out)
     return np.where(_expand(bridged, values), linear, eased)
 
@@ -205,7 +205,8 @@ def _expand(per_frame: np.ndarray, like: np.ndarray) -> np.ndarray:
     return per_frame.reshape((-1,) + (1,) * (like.ndim - 1))
 
 
-def _smoothstep(x: np.ndarray) -> np.ndarray:
+def smoothstep(x: np.ndarray) -> np.ndarray:
+    """3x² − 2x³ of ``x`` clipped to [0, 1]: 0 → 1 with no step and a flat start and end."""
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3.0 - 2.0 * x)
 

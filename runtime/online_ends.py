@@ -31,6 +31,7 @@ from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose
 from mocapdb.core.skeleton import END_JOINTS, RIG_JOINTS, UNIVERSAL_HEIGHT_M, body_offsets_m, global_rotations
 from mocapdb.runtime.end_joints import end_frames, end_locals, measured_directions, standing_directions
 from mocapdb.runtime.filters import OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
+from mocapdb.runtime.hand_pose import smoothstep
 from mocapdb.runtime.head_pose import chest_relative_head, face_points, head_local
 
 HOLD_S = 0.5   # an end joint unseen this long keeps its last value (the whole take interpolates such gaps)
@@ -65,6 +66,25 @@ def measure(pose: PersonPose, camera_px: tuple[float, float, float]) -> Measure:
     return directions[0], head[0]
 
 
+class EaseToRest:
+    """Step 3 for ``count`` items seen or not frame by frame at ``fps``: each unseen item keeps its last value
+    ``hold_s`` seconds, then eases to rest over ``ease_s``; seen (again, or first) it eases in as long."""
+
+    def __init__(self, count: int, fps: float, hold_s: float, ease_s: float) -> None:
+        self.fps, self.hold_s, self.ease_s = fps, hold_s, ease_s
+        self.progress = np.zeros(count)   # into the measured value: 0 (rest) … 1, linear in time
+        self.unseen_s = np.zeros(count)   # seconds since each was last seen
+
+    def weight(self, seen: np.ndarray) -> np.ndarray:
+        """``[count]`` this frame's share of the measured value against rest (0 … 1, smoothstep), given which
+        items are ``seen [count]`` in it."""
+        dt = 1.0 / self.fps
+        self.unseen_s = np.where(seen, 0.0, self.unseen_s + dt)
+        easing = np.where(seen, 1.0, np.where(self.unseen_s > self.hold_s, -1.0, 0.0))
+        self.progress = np.clip(self.progress + easing * dt / self.ease_s, 0.0, 1.0)
+        return smoothstep(self.progress)
+
+
 class OnlineEnds:
     """One track's end joints in the online take (module docstring). ``fps``: frames per second;
     ``lag_frames``, ``sigma_frames``: the online take's lag and Gaussian (frames); ``causal``: its 1€
@@ -77,8 +97,7 @@ class OnlineEnds:
         self.direction_filter = OneEuroFilter(causal)
         self.head_filter = QuaternionOneEuroFilter(causal)
         self.held: Measure | None = None          # the last smoothed values (what an unseen end keeps)
-        self.progress = np.zeros(_N_ENDS)         # into the measured rotation: 0 (rest) … 1, linear in time
-        self.unseen_s = np.zeros(_N_ENDS)         # seconds since each was last seen
+        self.ease = EaseToRest(_N_ENDS, fps, HOLD_S, EASE_S)
         self.previous: tuple[int, np.ndarray] | None = None   # index and end rotations [5, 4] of the last output
         self.planted = np.full((2, 3), np.nan)    # each planted foot's direction (view frame); NaN: not planted
         self.planted_sum = np.zeros((2, 3))       # the sum of its standing directions since put down
@@ -102,12 +121,7 @@ class OnlineEnds:
                                                                               plant_weights)
         ends = np.vstack([end_locals(parents, reference, directions[None])[0], head_local(quats[None], head[None])])
         ends *= np.where(ends[:, :1] < 0, -1.0, 1.0)
-        dt = 1.0 / self.fps
-        self.unseen_s = np.where(seen, 0.0, self.unseen_s + dt)
-        easing = np.where(seen, 1.0, np.where(self.unseen_s > HOLD_S, -1.0, 0.0))
-        self.progress = np.clip(self.progress + easing * dt / EASE_S, 0.0, 1.0)
-        weight = self.progress ** 2 * (3.0 - 2.0 * self.progress)
-        ends = slerp(np.tile(_IDENTITY, (_N_ENDS, 1)), ends, weight)
+        ends = slerp(np.tile(_IDENTITY, (_N_ENDS, 1)), ends, self.ease.weight(seen))
         ends = np.where(np.isfinite(ends).all(axis=-1, keepdims=True), ends, _IDENTITY)   # a degenerate pose: rest
         if self.previous is not None and 0 < index - self.previous[0] <= 2:
             limit = np.radians(END_SPEED_DEG_S) * (index - self.previous[0]) / self.fps

@@ -22,6 +22,7 @@ import numpy as np
 from mocapdb.core.hand_rig import RELAXED_DEG
 from mocapdb.runtime.filters import OneEuroFilter, OneEuroParams
 from mocapdb.runtime.hand_pose import EASE_S, finger_angles_deg, finger_quaternions, hand_points_view, palm_frames
+from mocapdb.runtime.online_ends import EaseToRest
 
 HOLD_S = 2.0 * EASE_S   # an unseen hand keeps its last angles this long (seconds), as the whole take bridges
 _REST = np.broadcast_to(RELAXED_DEG, (2, 5, 5))
@@ -44,8 +45,7 @@ class OnlineFingers:
         self.measured: dict[int, np.ndarray] = {}   # frame → angles [2, 5, 5] (degrees; NaN: absent)
         self.filter = OneEuroFilter(causal)
         self.held = _REST.copy()                      # the last smoothed angles (what an unseen hand keeps)
-        self.progress = np.zeros(2)                   # into the measured angles: 0 (rest) … 1, linear in time
-        self.unseen_s = np.zeros(2)                   # seconds since each hand was last seen
+        self.ease = EaseToRest(2, fps, HOLD_S, EASE_S)
 
     def add(self, index: int, hands_px: np.ndarray) -> None:
         """Frame ``index``'s hands ``[2, 21, 3]`` (px; NaN: absent): measured, kept while the window needs them."""
@@ -63,11 +63,7 @@ class OnlineFingers:
         else:
             smoothed = self._window_mean(index)
         self.held = np.where(seen[:, None, None], smoothed, self.held)
-        dt = 1.0 / self.fps
-        self.unseen_s = np.where(seen, 0.0, self.unseen_s + dt)
-        easing = np.where(seen, 1.0, np.where(self.unseen_s > HOLD_S, -1.0, 0.0))
-        self.progress = np.clip(self.progress + easing * dt / EASE_S, 0.0, 1.0)
-        weight = (self.progress ** 2 * (3.0 - 2.0 * self.progress))[:, None, None]
+        weight = self.ease.weight(seen)[:, None, None]
         return finger_quaternions((_REST + weight * (self.held - _REST))[None])[0], seen
 
     def _window_mean(self, index: int) -> np.ndarray:
