@@ -36,7 +36,7 @@ _API = {
     "KeypointFrame": "mocapdb.core.formats.keypoints",
     "Person": "mocapdb.core.formats.keypoints",
     "PersonPose": "mocapdb.core.outputs",
-    "fit_takes": "mocapdb.runtime.world",
+    "fit_takes": "mocapdb.runtime.world.fuse",
     "TakeParams": "mocapdb.runtime.take_params",
     "write_tracks": "mocapdb.core.exports",
     "TrackExport": "mocapdb.core.exports",

@@ -49,7 +49,7 @@ class EngineConfig:
     joint_weights: tuple[float, ...] | None = None            # per rig joint; default all 1
     weight_2d: float = D.WEIGHT_2D.default               # added to Eq. 2: this × the candidate's Eq. 1 distance
     world_prior: float = 10.0            # added too (refining): this × the candidate's disagreement with the
-                                         # detector's world landmarks, when given (runtime/world_prior.py); 0: not used
+                                         # detector's world landmarks, when given (world/detector_prior.py); 0: not used
     confidence_threshold: float = CONFIDENCE_THRESHOLD
     min_joints: int = 6                  # fewer confident joints: the person is skipped
     focal_px: float = 1000.0             # input camera focal length, pixels

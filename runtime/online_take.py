@@ -39,7 +39,7 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    held, then eased to rest (:mod:`mocapdb.runtime.online_ends`).
 The body's size is the engine's per frame (its own proportions, settling as they are measured;
 1.75 m tall unless ``--subject-height`` or ``--camera-height``): the world's size of each person
-(:mod:`mocapdb.runtime.world`) reaches the track files only.
+(:mod:`mocapdb.runtime.world.fuse`) reaches the track files only.
 
 Each extra frame of lag widens the smoothing towards its full window and lets the contacts see
 further ahead. Cost: O(window) per person and frame (a few forward kinematics and one two-leg IK).

@@ -25,7 +25,7 @@ from mocapdb.runtime.refine import JointLimits, Refiner, WorldBones
 from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact, yaw_offset
 from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotations
 from mocapdb.runtime.track_state import NO_EXTREMITIES, NO_HANDS, TrackState
-from mocapdb.runtime.world_prior import (
+from mocapdb.runtime.world.detector_prior import (
     FIT_BONES,
     FIT_END,
     FIT_START,
@@ -122,7 +122,7 @@ class PosePipeline:
 
     def _world(self, state: TrackState, d: Detection
                ) -> tuple[tuple[np.ndarray, np.ndarray] | None, WorldBones | None]:
-        """The detector's 3D of ``d`` (:mod:`mocapdb.runtime.world_prior`) as the retrieval's world
+        """The detector's 3D of ``d`` (:mod:`mocapdb.runtime.world.detector_prior`) as the retrieval's world
         bones and weights (levelled by the track's tilt; None unless ``world_prior``) and the fit's
         (the view frame; None unless ``refinement.world``); each bone weighted by its confidence, its
         agreement with the frame before and the weight asked for."""
@@ -227,7 +227,7 @@ class PosePipeline:
 def upright_px(points_px: np.ndarray, visible: np.ndarray, roll_rad: float) -> np.ndarray:
     """Keypoints ``[14, 2]`` (pixels, y down) turned about their mid-hip (the visible hips', else the
     visible points' mean) so that a world up leaning ``roll_rad`` to the image's left (the camera's
-    roll, as :attr:`~mocapdb.runtime.world.World.roll_deg`) points up the image."""
+    roll, as :attr:`~mocapdb.runtime.world.fuse.World.roll_deg`) points up the image."""
     if roll_rad == 0.0 or not visible.any():
         return points_px
     hips = [k for k in (R_HIP, L_HIP) if visible[k]]

@@ -3,7 +3,7 @@
 Unknowns (36): the root position ``t`` (metres, view frame) and, for each of the 11 rig joints
 (the root included: a tilted camera shows the body tilted on all three axes), a rotation
 increment ``δ_j`` in the joint's own frame, ``q_j ← q_j ⊗ exp(δ_j)``. Bones are the track's own
-body (its estimated proportions, :class:`~mocapdb.runtime.body_size.BoneLengths`) times its scale,
+body (its estimated proportions, :class:`~mocapdb.runtime.world.body_size.BoneLengths`) times its scale,
 fixed during the fit.
 
 Cost, with re-projection residuals in units of the person's box height ``h`` (pixels) and
@@ -22,7 +22,7 @@ a hand found on the background) costs at most ``c²`` and stops pulling its limb
 
 The last term is given per call (:class:`WorldBones`; none by default): unit directions ``e_b`` of
 bones between two of the 14 keypoints in the view frame (the detector's world landmarks,
-:mod:`mocapdb.runtime.world_prior`) with weights ``w_b``; ``u_b`` is the fitted bone's direction;
+:mod:`mocapdb.runtime.world.detector_prior`) with weights ``w_b``; ``u_b`` is the fitted bone's direction;
 ``ρ_w`` is Geman–McClure at :attr:`RefineParams.world_scale`, so a bone the detector got the wrong
 way round (a left/right or front/back swap) stops pulling once it is far off.
 

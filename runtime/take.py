@@ -41,7 +41,7 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    lowest contacts, so a step or platform climbed on is not the floor); no ankle goes below it
    (the root is lifted where one would).
 5. **One world**: every track of a take on one floor, each with its own size
-   (:mod:`mocapdb.runtime.world`).
+   (:mod:`mocapdb.runtime.world.fuse`).
 6. **Feet and hands** (layouts with heels, big toes and knuckles): the humanoid rig's feet and
    hands turned to the directions the image gives them (:func:`end_rotations`), a planted foot
    flat on the floor; where the hand landmark model saw a hand (``detect --hands``), its direction and
@@ -50,7 +50,7 @@ which makes planted feet slide. With the whole track at hand (`mocapdb reconstru
    (:mod:`mocapdb.runtime.head_pose`), smoothed as the rotations (:func:`head_rotation`).
 
 The settings: :mod:`mocapdb.runtime.take_params`; the contacts (step 2):
-:mod:`mocapdb.runtime.foot_contacts`; the floor (step 4): :mod:`mocapdb.runtime.contact_floor`.
+:mod:`mocapdb.runtime.foot_contacts`; the floor (step 4): :mod:`mocapdb.runtime.world.contact_floor`.
 
 Costs O(F) per track (the least-squares system is banded, the re-fit ~70 µs a frame): thousands of
 frames per second.
@@ -78,7 +78,6 @@ from mocapdb.core.skeleton import (
     pose_from_rotations,
     swing_matrices,
 )
-from mocapdb.runtime.contact_floor import above_floor, floor_plane
 from mocapdb.runtime.end_joints import end_frames, end_locals, measured_directions, standing_directions
 from mocapdb.runtime.foot_contacts import (
     ANKLES,
@@ -98,11 +97,12 @@ from mocapdb.runtime.hand_pose import (
     twisted,
 )
 from mocapdb.runtime.head_pose import chest_relative_head, face_points, head_local
-from mocapdb.runtime.image_vertical import vertical_planes
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
 from mocapdb.runtime.take_params import TakeParams
 from mocapdb.runtime.take_smoothing import smooth_rotations, smoothed_keypoints, zero_phase_smoothed
-from mocapdb.runtime.world_prior import track_up
+from mocapdb.runtime.world.contact_floor import above_floor, floor_plane
+from mocapdb.runtime.world.detector_prior import track_up
+from mocapdb.runtime.world.image_vertical import vertical_planes
 
 
 @dataclass
@@ -110,9 +110,9 @@ class TakeResult:
     """What :func:`fit_take` found besides the motion: contacts ``[F, 2]`` (right, left ankle), the
     planted ankles ``[N, 3]`` (view frame, metres), the floor plane ``normal · p = offset`` (view
     frame, metres; None without contacts), the body's own up (view frame, unit) and its error
-    (degrees; :func:`~mocapdb.runtime.world_prior.track_up`: what the track's floor started from),
+    (degrees; :func:`~mocapdb.runtime.world.detector_prior.track_up`: what the track's floor started from),
     each foot's phase ``[F, 2]`` (:func:`foot_phases`; None without heels and toes) and the image's
-    vertical planes ``[N, 3]`` (:func:`~mocapdb.runtime.image_vertical.vertical_planes`; None without
+    vertical planes ``[N, 3]`` (:func:`~mocapdb.runtime.world.image_vertical.vertical_planes`; None without
     the camera)."""
 
     planted: np.ndarray

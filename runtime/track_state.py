@@ -19,11 +19,11 @@ from mocapdb.core.skeleton import (
     pose_from_rotations,
     universal_bone_lengths_m,
 )
-from mocapdb.runtime.body_size import BoneLengths, CameraTilt, FloorScale
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.filters import KeypointFilter, OneEuroFilter, QuaternionOneEuroFilter
 from mocapdb.runtime.head_pose import NO_FACE_WORLD
-from mocapdb.runtime.world_prior import MIN_VERTICAL_FRAMES, VERTICAL_WINDOW_S
+from mocapdb.runtime.world.body_size import BoneLengths, CameraTilt, FloorScale
+from mocapdb.runtime.world.detector_prior import MIN_VERTICAL_FRAMES, VERTICAL_WINDOW_S
 
 # A person's heels, toes and knuckles when its layout has none: all missing
 NO_EXTREMITIES = np.column_stack([np.full((len(EXTREMITIES), 2), np.nan), np.zeros(len(EXTREMITIES))])
@@ -60,8 +60,8 @@ class TrackState:
     @property
     def up(self) -> np.ndarray:
         """The world's up in the view frame as this track shows it now: the median of the body's
-        recent verticals in the detector's 3D (:func:`~mocapdb.runtime.world_prior.balance_verticals`)
-        once there are :data:`~mocapdb.runtime.world_prior.MIN_VERTICAL_FRAMES`, else the fit's tilt
+        recent verticals in the detector's 3D (:func:`~mocapdb.runtime.world.detector_prior.balance_verticals`)
+        once there are :data:`~mocapdb.runtime.world.detector_prior.MIN_VERTICAL_FRAMES`, else the fit's tilt
         estimate."""
         if len(self.verticals) < MIN_VERTICAL_FRAMES:
             return self.tilt.up
@@ -83,7 +83,7 @@ class TrackState:
         """Append this frame, holding the last pose over any frames the track missed; ``fit``: the
         unfiltered rotations and root, the keypoints ``[14, 3]``, the heels, toes and knuckles
         ``[8, 3]`` (x, y px, confidence) and the world bones the fit used ``[B, 4]`` (direction,
-        weight; :data:`~mocapdb.runtime.world_prior.FIT_BONES`) and the face's world landmarks ``[11, 3]``
+        weight; :data:`~mocapdb.runtime.world.detector_prior.FIT_BONES`) and the face's world landmarks ``[11, 3]``
         (:func:`~mocapdb.runtime.head_pose.face_world`) and the hands' points ``[2, 21, 3]`` (x, y, z px,
         float32; NaN: absent), kept for the whole-take fit (missed frames get the last fit and no keypoint,
         world landmark nor hand)."""

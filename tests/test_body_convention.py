@@ -1,4 +1,4 @@
-"""The fit's body takes the input's keypoint convention (``runtime/body_size.py``, "One body"): a body
+"""The fit's body takes the input's keypoint convention (``runtime/world/body_size.py``, "One body"): a body
 whose hip-joint centres are 0.095 m apart, as HumanEva-I's mocap puts them (the universal skeleton's
 0.20 m), otherwise of the universal proportions, walking (CMU 007_05) in front of one camera, its 2D
 keypoints exact. Only the stature chain is judged for plausibility, so a head-top keypoint still is."""
@@ -12,9 +12,9 @@ from mocapdb.evaluation.bodies import reshape_body
 from mocapdb.evaluation.heldout import EvalConfig, Scenario, camera_distance, camera_view, load_heldout, render
 from mocapdb.evaluation.metrics import pa_mpjpe
 from mocapdb.evaluation.reconstruction import BELOW_HEAD
-from mocapdb.runtime import body_size
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
+from mocapdb.runtime.world import body_size
 
 from .conftest import SHARED_BVH, skip_missing
 from .test_body_size import _filled, _head_on_top

@@ -62,7 +62,7 @@ def test_camera_height_measures_the_person_from_the_feet(small_db, pitch, tmp_pa
     (2.7 SDs below its mean) a 1.5 m adult lies: the truth sits at the edge of its ±2 SD (1.8-2.1 SD
     off as the whole take's settings move), so the check is ±2.5 SD."""
     from mocapdb.runtime.take import take_joints
-    from mocapdb.runtime.world import fit_world
+    from mocapdb.runtime.world.fuse import fit_world
 
     frames, truth = _seen(small_db, clip=0, height_m=1.5, camera_height_m=1.4, pitch_deg=pitch)
     engine, poses = _run(small_db, frames, camera_height_m=1.4, keep_take=True)
@@ -125,7 +125,7 @@ def test_tilt_error_grows_with_the_frames_disagreement():
     """Frames whose fitted roots lean alternately ±10° about the camera's x axis: their mean up is
     level and its error is their RMS spread, 2 sin(5°) = 9.99° in closed form; frames that agree
     keep the least error, TILT_SD_DEG."""
-    from mocapdb.runtime.body_size import TILT_SD_DEG, CameraTilt
+    from mocapdb.runtime.world.body_size import TILT_SD_DEG, CameraTilt
 
     upright = np.array([1.0, 0.0, 0.0, 0.0])
     half = np.radians(10.0) / 2
@@ -143,7 +143,7 @@ def test_tilt_error_grows_with_the_frames_disagreement():
 def _filled(log_factors, n=None):
     """A BoneLengths whose bones hold ``n`` (a count, or one per bone; default all) samples of
     ``log_factors [8]``; a NaN: none."""
-    from mocapdb.runtime.body_size import BoneLengths
+    from mocapdb.runtime.world.body_size import BoneLengths
 
     bones = BoneLengths()
     counts = np.broadcast_to(bones.CAPACITY if n is None else n, len(log_factors))
@@ -168,7 +168,7 @@ def test_a_head_top_keypoint_is_not_believed_and_does_not_shrink_the_body(monkey
     the body's own (neck→nose the prior's, here the truth's), as if the bone had not been measured;
     believed, it took 1.6 × 0.21 m of the 1.75 m stature and shrank the rest."""
     from mocapdb.core.skeleton import MEASURED_BONE_NAMES, stature_m, universal_bone_lengths_m
-    from mocapdb.runtime import body_size
+    from mocapdb.runtime.world import body_size
 
     universal = universal_bone_lengths_m()
     truth = universal * [1.0, 1.12, 0.88, 1.0, 1.0, 1.1, 0.95, 1.0]
@@ -230,7 +230,7 @@ def test_the_plausible_range_of_neck_nose_by_hand(offset, believed):
     neck→nose is uncorrelated, so the SD of it minus the others' mean is √(0.07² + 0.1² + (1ᵀΣ1 +
     7 × 0.1²) / 7²), 1ᵀΣ1 over the seven = 0.018675 (variances) + 2 × 0.0058575 (the nine correlated
     pairs) = 0.03039: SD 0.130188, a limit of 3 SD = 0.3906."""
-    from mocapdb.runtime.body_size import believed_bones
+    from mocapdb.runtime.world.body_size import believed_bones
 
     medians = np.full(8, 0.02)
     medians[-1] += offset

@@ -5,7 +5,7 @@ import pytest
 
 from mocapdb.core.skeleton import KP
 from mocapdb.evaluation.heldout import WORLD_ACROSS_SHARE, Scenario, detector_world, project, render
-from mocapdb.runtime.world_prior import view_joints
+from mocapdb.runtime.world.detector_prior import view_joints
 
 
 def _people(rng: np.random.Generator, frames: int) -> np.ndarray:

@@ -1,13 +1,13 @@
-"""The image's verticals (runtime/image_vertical.py) on a standing body projected by hand through a
+"""The image's verticals (runtime/world/image_vertical.py) on a standing body projected by hand through a
 pitched and rolled pinhole: each frame's plane holds the true up, a candidate up's misfit is least at
 the true roll, and in the world they pull a roll that the bodies' own up misreads back to the truth."""
 import numpy as np
 import pytest
 
 from mocapdb.core.skeleton import KP
-from mocapdb.runtime.image_vertical import plane_angles_deg, vertical_misfit, vertical_planes, vertical_sd_deg
-from mocapdb.runtime.world import estimate_world
-from mocapdb.runtime.world_tilt import tilted_normals
+from mocapdb.runtime.world.fuse import estimate_world
+from mocapdb.runtime.world.image_vertical import plane_angles_deg, vertical_misfit, vertical_planes, vertical_sd_deg
+from mocapdb.runtime.world.tilt import tilted_normals
 from tests.test_world import _person
 
 FOCAL_PX, CENTRE_PX = 1000.0, (960.0, 540.0)

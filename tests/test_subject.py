@@ -1,4 +1,4 @@
-"""The take's subject and --people (runtime/subject.py), and the world.json reconstruct writes."""
+"""The take's subject and --people (runtime/world/subject.py), and the world.json reconstruct writes."""
 import json
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 
 from mocapdb.core.motion import FrameRecorder
 from mocapdb.core.outputs import TrackRecording
-from mocapdb.runtime.subject import chosen, main_track, parse_people, subject_score
+from mocapdb.runtime.world.subject import chosen, main_track, parse_people, subject_score
 
 
 def _track(track: int, centre_x: float, height_px: float, speed_px: float, frames: int = 50) -> TrackRecording:
@@ -89,7 +89,7 @@ def test_a_person_lost_and_found_again_is_one_track():
     """Track 4 starts 12 frames (0.4 s) after track 1 ends, where track 1's box was heading: joined,
     the 12 frames between holding track 1's last pose with no keypoint; track 7, 600 px away, and
     track 9, overlapping track 1 in time, are not."""
-    from mocapdb.runtime.subject import join_fragments
+    from mocapdb.runtime.world.subject import join_fragments
 
     first = _recorded(1, 0, 40, 300.0)
     again = _recorded(4, 52, 30, 300.0)

@@ -8,7 +8,6 @@ from scipy.ndimage import gaussian_filter1d
 
 from mocapdb.core.geometry import quat_geodesic
 from mocapdb.core.skeleton import KP, N_RIG_JOINTS, bone_lengths_m, pose_from_rotations
-from mocapdb.runtime.contact_floor import floor_plane
 from mocapdb.runtime.foot_contacts import planted_ankles
 from mocapdb.runtime.take import (
     REACH_SMOOTHING_FRAMES,
@@ -21,6 +20,7 @@ from mocapdb.runtime.take import (
     within_reach,
 )
 from mocapdb.runtime.take_params import TakeParams
+from mocapdb.runtime.world.contact_floor import floor_plane
 
 FPS = 30.0
 
@@ -295,7 +295,7 @@ def test_two_people_share_one_floor_and_their_sizes_follow(small_db):
     from mocapdb.runtime.engine import Engine
     from mocapdb.runtime.engine_config import EngineConfig
     from mocapdb.runtime.take import fit_take
-    from mocapdb.runtime.world import estimate_world, place_in_world, track_evidence
+    from mocapdb.runtime.world.fuse import estimate_world, place_in_world, track_evidence
 
     focal, size, pitch = 1000.0, (1920, 1080), np.radians(10.0)
     first, n = small_db.clip_first_frame[0], small_db.clip_n_frames[0]

@@ -5,10 +5,10 @@ import pytest
 from mocapdb.core.skeleton import KP
 from mocapdb.evaluation.heldout import EvalConfig, Scenario, camera_to_world, camera_view
 from mocapdb.evaluation.reconstruction import evaluate
-from mocapdb.runtime.body_size import TILT_SD_DEG, CameraTilt
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.pose_pipeline import PosePipeline, upright_px
 from mocapdb.runtime.track_state import TrackState
+from mocapdb.runtime.world.body_size import TILT_SD_DEG, CameraTilt
 
 from .conftest import SAMPLE_BVH
 

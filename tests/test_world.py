@@ -1,4 +1,4 @@
-"""The take's world (runtime/world.py) on hand-built evidence with a known truth: people standing or
+"""The take's world (runtime/world/fuse.py) on hand-built evidence with a known truth: people standing or
 walking on a floor seen by one camera, their contacts as the whole-take fit would report them at
 the nominal size (each true contact scaled about the camera by 1.75 m / its person's stature)."""
 from dataclasses import replace
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
-from mocapdb.runtime.stature import HUMAN_STATURE_M
-from mocapdb.runtime.world import TrackEvidence, estimate_world, floor_stature_m
-from mocapdb.runtime.world_tilt import track_tilt_sd_deg
+from mocapdb.runtime.world.fuse import TrackEvidence, estimate_world, floor_stature_m
+from mocapdb.runtime.world.stature import HUMAN_STATURE_M
+from mocapdb.runtime.world.tilt import track_tilt_sd_deg
 
 
 def _normal(pitch_deg: float) -> np.ndarray:

@@ -5,7 +5,7 @@ from scipy.spatial.transform import Rotation
 
 from mocapdb.core.cameras import CameraModel
 from mocapdb.evaluation.world_camera import camera_checks, score_camera, true_camera
-from mocapdb.runtime.world import World
+from mocapdb.runtime.world.fuse import World
 
 
 def _camera(height_m: float, pitch_deg: float, roll_deg: float, yaw_deg: float = 30.0) -> CameraModel:
@@ -48,7 +48,7 @@ def test_a_world_is_scored_against_the_calibration():
 
 def test_the_tilts_spread_is_the_posteriors_sd():
     """A Gaussian posterior over the tilt grid (SD 4° in pitch, 6° in roll, any height) gives those SDs."""
-    from mocapdb.runtime.world_tilt import tilt_spread_deg
+    from mocapdb.runtime.world.tilt import tilt_spread_deg
 
     offsets = np.arange(-20.0, 20.0 + 1e-9, 2.0)
     tilts = np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
@@ -63,7 +63,7 @@ def test_the_heights_spread_takes_the_pitch_it_trades_with():
     """A Gaussian posterior in (pitch t, log height y) along a valley, y − 0.03 t of SD 0.1 and t of
     SD 5°: the height's marginal SD is √(0.1² + (0.03 · 5)²) = 0.18 (closed form), while at the best
     pitch alone it is 0.1. One height (given) has none."""
-    from mocapdb.runtime.world_tilt import height_spread_log
+    from mocapdb.runtime.world.tilt import height_spread_log
 
     offsets = np.arange(-20.0, 20.0 + 1e-9, 2.0)
     tilts = np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
@@ -78,7 +78,7 @@ def test_the_heights_spread_takes_the_pitch_it_trades_with():
 def test_the_camera_heights_prior_is_usual_heights_with_a_flat_tail():
     """−log of 0.8 N(log h; log 1.5 m, 0.7) + 0.2 / width, by hand: least at 1.5 m, even in log about
     it, and never dearer than the flat tail alone (a camera on the ground or a drone stays possible)."""
-    from mocapdb.runtime.world_tilt import height_cost
+    from mocapdb.runtime.world.tilt import height_cost
 
     width = np.log(60.0 / 0.1)
     usual = 0.8 / (0.7 * np.sqrt(2.0 * np.pi))

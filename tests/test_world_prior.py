@@ -10,7 +10,7 @@ from mocapdb.core.skeleton import KP, PELVIS
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.refine import RefineParams
-from mocapdb.runtime.world_prior import (
+from mocapdb.runtime.world.detector_prior import (
     BONES,
     VIEW_FROM_IMAGE_AXES,
     candidate_costs,
@@ -106,8 +106,8 @@ def test_the_fit_turns_bones_towards_them_and_the_whole_take_keeps_them(small_db
     landmarks' bones; the recording keeps the weighted bones (``world_bones``), and the whole take,
     which starts from those fits (and is not pulled to the bones a second time), stays nearer them."""
     from mocapdb.runtime.take import take_joints
-    from mocapdb.runtime.world import fit_takes
-    from mocapdb.runtime.world_prior import FIT_BONES, bone_directions
+    from mocapdb.runtime.world.detector_prior import FIT_BONES, bone_directions
+    from mocapdb.runtime.world.fuse import fit_takes
 
     yaws = np.asarray(small_db.meta["yaws_deg"], dtype=np.float64)
     frames, truth = [], []
@@ -141,7 +141,7 @@ def test_the_fit_turns_bones_towards_them_and_the_whole_take_keeps_them(small_db
 def _standing_bones(up: np.ndarray, frames: int, lean_sd_deg: float = 0.0, seed: int = 0) -> np.ndarray:
     """Recorded world bones ``[F, 12, 4]`` of a body standing along ``up`` (view frame): legs straight
     down it, the trunk's sides up it, each frame leaning by up to ``lean_sd_deg``; weights 1."""
-    from mocapdb.runtime.world_prior import FIT_BONES
+    from mocapdb.runtime.world.detector_prior import FIT_BONES
 
     rng = np.random.default_rng(seed)
     out = np.zeros((frames, len(FIT_BONES), 4))
@@ -157,8 +157,8 @@ def _standing_bones(up: np.ndarray, frames: int, lean_sd_deg: float = 0.0, seed:
 def test_the_body_vertical_is_the_standing_bodys_up():
     """A body standing along an up pitched 20° and rolled −10° (as the camera sees it) gives that up;
     frames that lean about it widen the error; too few frames give none."""
-    from mocapdb.runtime.body_size import TILT_SD_DEG
-    from mocapdb.runtime.world_prior import MIN_VERTICAL_FRAMES, body_vertical
+    from mocapdb.runtime.world.body_size import TILT_SD_DEG
+    from mocapdb.runtime.world.detector_prior import MIN_VERTICAL_FRAMES, body_vertical
 
     p, r = np.radians(20.0), np.radians(-10.0)
     up = np.array([np.sin(r) * np.cos(p) * -1.0, np.cos(r) * np.cos(p), np.sin(p)])
@@ -208,7 +208,7 @@ def test_the_body_vertical_of_one_leg_balance_is_its_centre_of_mass_over_the_sta
     ankle 0.2 m higher): the centre of mass at (−0.03891, 0.11007), so the standing ankle (0.1,
     −0.85) → it runs along (−0.13891, 0.96007), 8.2° off the trunk. Seen through a camera pitched 20°,
     the estimate is the world's up; the ankles' mid-point → shoulders' would be 20° off."""
-    from mocapdb.runtime.world_prior import FIT_BONES, body_vertical, bone_directions
+    from mocapdb.runtime.world.detector_prior import FIT_BONES, body_vertical, bone_directions
 
     s, c = np.sin(np.radians(40.0)), np.cos(np.radians(40.0))
     joints = np.zeros((15, 3))

@@ -43,7 +43,7 @@ from mocapdb.runtime.stream.session_options import SessionOptions  # noqa: E402
 from mocapdb.runtime.stream.session_summary import SessionSummary  # noqa: E402
 from mocapdb.runtime.stream.transport import StreamStats, open_sink, open_source  # noqa: E402
 from mocapdb.runtime.take_params import TakeParams  # noqa: E402
-from mocapdb.runtime.world import fit_world  # noqa: E402
+from mocapdb.runtime.world.fuse import fit_world  # noqa: E402
 
 DEFAULT_HELDOUT = sorted((ROOT.parent / "shared" / "data" / "cmu_bvh").glob("007_*.bvh"))
 COCO17_OF_UNIVERSAL = {0: 0, 2: 6, 3: 8, 4: 10, 5: 5, 6: 7, 7: 9, 8: 12, 9: 14, 10: 16, 11: 11, 12: 13, 13: 15}
@@ -74,7 +74,7 @@ def throughput(db, sequences, **options) -> tuple[float, list]:
 
 
 def whole_take_speed(recordings) -> float:
-    """Person-frames/s of the whole-take fit with the take's world (``runtime.world.fit_world``: each
+    """Person-frames/s of the whole-take fit with the take's world (``runtime.world.fuse.fit_world``: each
     track's ``fit_take``, then one world for all of them) over recorded tracks, taken as one take."""
     fit_world(recordings[:1], 24.0)  # warm up
     start = time.perf_counter()

@@ -1,10 +1,10 @@
-"""How the take's world (runtime/world.py) grows with the people and their contacts.
+"""How the take's world (runtime/world/fuse.py) grows with the people and their contacts.
 
     python tools/bench_world.py
 
 People walk 2 m across in front of one camera (1.5 m high, pitched 8 deg), each with N planted-ankle
 contacts and, in the last column, the image's vertical planes of 256 frames
-(``runtime/image_vertical.py``); the world is estimated with the camera height given and with
+(``runtime/world/image_vertical.py``); the world is estimated with the camera height given and with
 nothing given. Prints the milliseconds per estimate: it is O(T·H·P) for T tilts, H heights and P
 people (contacts enter through at most 64 per person, planes through at most 256), so it grows
 linearly with the people and not with the take's length.
@@ -21,8 +21,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M  # noqa: E402
-from mocapdb.runtime.image_vertical import MAX_PLANES  # noqa: E402
-from mocapdb.runtime.world import TrackEvidence, estimate_world  # noqa: E402
+from mocapdb.runtime.world.fuse import TrackEvidence, estimate_world  # noqa: E402
+from mocapdb.runtime.world.image_vertical import MAX_PLANES  # noqa: E402
 
 CAMERA_HEIGHT_M, PITCH_DEG = 1.5, 8.0
 

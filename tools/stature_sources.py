@@ -38,7 +38,14 @@ from mocapdb.evaluation.world_takes import WorldConfig, build_take
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.take import fit_take
-from mocapdb.runtime.world import TrackEvidence, World, estimate_world, floor_stature_m, place_in_world, track_evidence
+from mocapdb.runtime.world.fuse import (
+    TrackEvidence,
+    World,
+    estimate_world,
+    floor_stature_m,
+    place_in_world,
+    track_evidence,
+)
 
 
 def sized_in_world(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig

@@ -257,8 +257,8 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
     from mocapdb.runtime.stream.session_options import SessionOptions
     from mocapdb.runtime.stream.session_summary import SessionSummary
     from mocapdb.runtime.stream.transport import StreamStats, TeeSink, open_sink
-    from mocapdb.runtime.subject import parse_people
     from mocapdb.runtime.take_params import TakeParams
+    from mocapdb.runtime.world.subject import parse_people
 
     summary = SessionSummary(stream=StreamStats())
     if bvh_dir is None and getattr(args, "bvh_dir", None):  # live --bvh-dir

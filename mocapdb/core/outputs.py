@@ -90,7 +90,7 @@ class TrackRecording:
     the unfiltered per-frame fit ``fit_quaternions``/``fit_root_view_m``, the input ``keypoints
     [14, 3]`` and ``extremities [8, 3]`` (heels, toes, knuckles; x, y px, confidence), and the
     detector's world bones the fit was turned towards ``world_bones [B, 4]`` (unit direction in the
-    view frame, weight; weight 0: none; ``runtime/world_prior.py``) and its world landmarks of the face,
+    view frame, weight; weight 0: none; ``runtime/world/detector_prior.py``) and its world landmarks of the face,
     shoulders and hips ``face_world_m [11, 3]`` (NaN: none; ``runtime/head_pose.face_world``) and the hands'
     points ``hands_px [2, 21, 3]`` (x, y, z px, float32; NaN: absent; ``runtime/frame_people.hand_points``).
     :meth:`motion` gives the track as a :class:`~mocapdb.core.motion.Motion`.
@@ -102,7 +102,7 @@ class TrackRecording:
     proportions_m: np.ndarray | None = None  # [8] its bone lengths at 1.75 m stature (None: universal)
     camera_px: tuple[float, float, float] | None = None  # the pinhole they were fitted with: focal, cx, cy (px)
     up_view: np.ndarray | None = None  # the world's up in the view frame (the camera's tilt estimate)
-    up_sd_deg: float | None = None     # that estimate's error (degrees; runtime.body_size.CameraTilt.sd_deg)
+    up_sd_deg: float | None = None     # that estimate's error (degrees; runtime.world.body_size.CameraTilt.sd_deg)
     floor_offset_m: float | None = None  # the floor found under the feet: up_view · p = this (view frame)
     # [F, 5, 4] the feet's, hands' and head's local rotations (END_JOINTS order) found by the whole-take fit
     # from heels, toes, knuckles and face points; None: they do not turn

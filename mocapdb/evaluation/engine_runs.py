@@ -4,7 +4,7 @@ whole take as ``reconstruct`` writes it (:func:`track_files_take`), and the peer
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -14,9 +14,10 @@ from mocapdb.core.outputs import CAMERA_FROM_VIEW, TrackRecording
 from mocapdb.core.skeleton import N_POINTS, PELVIS, pose_from_rotations
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
+from mocapdb.runtime.online_take import OnlineParams, OnlineTake
 from mocapdb.runtime.take import take_joints
-from mocapdb.runtime.world import fit_takes
-from mocapdb.runtime.world_prior import view_joints
+from mocapdb.runtime.world.detector_prior import view_joints
+from mocapdb.runtime.world.fuse import fit_takes
 
 
 @dataclass
@@ -82,7 +83,7 @@ def track_files_take(db: MotionDatabase, engine: EngineConfig, frames: list[Keyp
 def world_landmarks_run(frames: list[KeypointFrame], true_root_m: np.ndarray, focal_px: float,
                         center_px: tuple[float, float]) -> EngineRun:
     """The frames' world landmarks (the detector's own 3D, one person per frame) as a run, read as the
-    engine reads them (:func:`~mocapdb.runtime.world_prior.view_joints`) and placed at the true root
+    engine reads them (:func:`~mocapdb.runtime.world.detector_prior.view_joints`) and placed at the true root
     ``true_root_m [F, 3]`` (camera-aligned; they have none of their own); NaN where a frame has none."""
     joints = np.full((len(frames), N_POINTS, 3), np.nan)
     for i, frame in enumerate(frames):
@@ -92,3 +93,29 @@ def world_landmarks_run(frames: list[KeypointFrame], true_root_m: np.ndarray, fo
             joints[i] = view * CAMERA_FROM_VIEW + true_root_m[i]
     root = np.where(np.isnan(joints[:, PELVIS]), np.nan, true_root_m)
     return EngineRun(joints, root, np.full_like(joints, np.nan), 0.0)
+
+
+def stream_config(engine: EngineConfig) -> EngineConfig:
+    """``engine`` as ``reconstruct`` and ``live`` run it under their default stream, the online take:
+    the per-frame fits unsmoothed (no 1€ filters, no 2D clean-up; the online take smooths them)."""
+    return replace(engine, smoothing=False, keypoint_filter=None, keep_take=False)
+
+
+def stream_run(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], lag_frames: int,
+               params: OnlineParams | None = None) -> EngineRun:
+    """The default stream of ``frames`` (one person per frame) at ``lag_frames``: the engine as the
+    stream runs it (:func:`stream_config`) then :class:`~mocapdb.runtime.online_take.OnlineTake`, as a
+    run (frame index = position; ``local`` left NaN); ``seconds``: the engine's and the take's time."""
+    config = stream_config(engine)
+    online = OnlineTake(config.fps, replace(params or OnlineParams(), lag_frames=lag_frames),
+                        (config.focal_px, *config.center_px))
+    run = Engine(db, config)
+    joints = np.full((len(frames), N_POINTS, 3), np.nan)
+    root = np.full((len(frames), 3), np.nan)
+    t0 = time.perf_counter()
+    for i, frame in enumerate(frames):
+        due = online.push(i, i / config.fps, run.step(frame))
+        for index, _, people in due + (online.flush() if i == len(frames) - 1 else []):
+            for pose in people:
+                joints[index], root[index] = pose.joints_m, pose.root_m
+    return EngineRun(joints, root, np.full_like(joints, np.nan), time.perf_counter() - t0)

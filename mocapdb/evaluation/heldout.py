@@ -22,7 +22,7 @@ from mocapdb.core.geometry import yaw_matrix
 from mocapdb.core.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS, bone_lengths_m
 from mocapdb.evaluation.bodies import reshape_body, sample_body
 from mocapdb.runtime.engine_config import EngineConfig
-from mocapdb.runtime.world_prior import Z_AXIS, rotation_between
+from mocapdb.runtime.world.detector_prior import Z_AXIS, rotation_between
 
 BODIES = ("universal", "varied")
 SWAP_PAIRS = [(KP[right], KP[left]) for right, left in MIRROR_PAIRS]  # right/left keypoint pairs

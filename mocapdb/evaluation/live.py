@@ -7,7 +7,7 @@ The first camera is run alone through the engine as ``live`` runs it (:class:`~m
 then :class:`~mocapdb.runtime.online_take.OnlineTake`, frame by frame), its output taken to the
 calibration's world by that camera's extrinsics. Variants: the per-frame stream (before the online
 take: the engine's causal 1€ output), the online take at each lag ``L``, and the whole take (the
-track files: :func:`~mocapdb.runtime.world.fit_takes`). When the keypoints carry the detector's own 3D
+track files: :func:`~mocapdb.runtime.world.fuse.fit_takes`). When the keypoints carry the detector's own 3D
 (BlazePose's world landmarks, ``data_specs/keypoint_formats.md``), they are scored too as a peer
 (:data:`WORLD_LANDMARKS`): per frame, those of the person the main track follows (the nearest in the
 image to its keypoints), hips-centred and without a root, so only MPJPE and PA are given for them.
@@ -49,7 +49,7 @@ from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.online_take import OnlineParams, OnlineTake
 from mocapdb.runtime.take import take_joints
-from mocapdb.runtime.world import fit_takes
+from mocapdb.runtime.world.fuse import fit_takes
 
 SCORED = ("r_shoulder", "l_shoulder", "r_elbow", "l_elbow", "r_wrist", "l_wrist",
           "r_hip", "l_hip", "r_knee", "l_knee", "r_ankle", "l_ankle")

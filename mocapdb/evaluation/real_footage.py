@@ -23,8 +23,8 @@ from mocapdb.core.skeleton import ANKLE_HEIGHT_M, KP, UNIVERSAL_HEIGHT_M
 from mocapdb.evaluation.engine_runs import run_sequence
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
-from mocapdb.runtime.stature import HUMAN_STATURE_M
-from mocapdb.runtime.world import fit_take_world
+from mocapdb.runtime.world.fuse import fit_take_world
+from mocapdb.runtime.world.stature import HUMAN_STATURE_M
 
 MIN_TRACK_S = 1.0
 FLOOR_TOLERANCE_M = 0.05

@@ -50,7 +50,7 @@ from mocapdb.evaluation.world_camera import camera_checks, format_rows, score_ca
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.take import take_joints
-from mocapdb.runtime.world import fit_take_world, fit_takes
+from mocapdb.runtime.world.fuse import fit_take_world, fit_takes
 
 TRC_FROM_WORLD = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # trc = TRC_FROM_WORLD @ world
 Y_DOWN = np.array([1.0, -1.0, 1.0])  # camera-aligned (y up) ↔ OpenCV camera (y down), either way

@@ -3,7 +3,7 @@
 A **take** is a handful of held-out clips (``data_specs/evaluation_split.md``) rendered together by
 one pinhole camera (:mod:`mocapdb.evaluation.world_takes`: scenarios, bodies, placement, noise).
 Each take runs through the engine as ``reconstruct`` runs it (``EngineConfig.for_track_files``) and the
-whole-take world (:func:`mocapdb.runtime.world.fit_world`) twice (:data:`MODES`): with the camera
+whole-take world (:func:`mocapdb.runtime.world.fuse.fit_world`) twice (:data:`MODES`): with the camera
 height given and with nothing given (:func:`run_take`). Its tracks are scored against its people
 (:mod:`mocapdb.evaluation.world_scores`: matching, stature, root and floor errors, plausibility
 flags, pair stature ratios). This module holds the run (:func:`evaluate_world`), its report's
@@ -29,7 +29,7 @@ from mocapdb.evaluation.world_scores import HUMAN_STATURE_RANGE_M, IMPLAUSIBLE, 
 from mocapdb.evaluation.world_takes import CAMERA_HEIGHT_RANGE_M, WorldConfig, WorldTake, build_take
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.take import take_joints
-from mocapdb.runtime.world import World, fit_world
+from mocapdb.runtime.world.fuse import World, fit_world
 
 LOG = logging.getLogger(__name__)
 

@@ -1,9 +1,9 @@
 """The world's camera against a calibration (issue 36): the height, pitch and roll the one-camera
-world (:func:`~mocapdb.runtime.world.fit_world`) reports, scored against the calibrated camera.
+world (:func:`~mocapdb.runtime.world.fuse.fit_world`) reports, scored against the calibrated camera.
 
 Truth. A Pose2Sim calibration's world is z up, metres, its floor the plane ``z = 0`` where the
 people stand. The camera's height is its centre's ``z``; its pitch and roll are those of the
-floor's normal seen from the camera, with the same definitions as :class:`~mocapdb.runtime.world.World`
+floor's normal seen from the camera, with the same definitions as :class:`~mocapdb.runtime.world.fuse.World`
 (the normal in the view frame, x right, y up, z towards the camera: pitch ``atan2(n_z, n_y)``,
 positive looking down; roll ``atan2(−n_x, n_y)``, positive when the world's up leans to the
 image's left).
@@ -20,7 +20,7 @@ from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
-from mocapdb.runtime.world import World, fit_take_world
+from mocapdb.runtime.world.fuse import World, fit_take_world
 
 VIEW_FROM_OPENCV = np.array([1.0, -1.0, -1.0])  # OpenCV camera axes (x right, y down, z forward) → view frame
 # Issue 36's targets over the cameras of a take, each run alone: height off (% of the truth) and pitch

@@ -37,13 +37,13 @@ class SessionOptions:
     bvh_part_min: float = D.BVH_PART_MIN.default
     rate_by_arrival: bool = False
     take: TakeParams | None = None  # track files from the whole-take fit (runtime.take); None: per frame
-    shared_floor: bool = False      # files written at the end, every track on one floor (runtime.world)
+    shared_floor: bool = False      # files written at the end, every track on one floor (runtime.world.fuse)
     lag_frames: int = 0             # stream lines written this many frames late (runtime.online_take)
     online_take: bool = True        # the stream through the online whole take; False: as the engine gives it
     camera_sources: dict[str, str] = field(default_factory=dict)  # where fps, image size, focal came from
     camera_height_m: float | None = None  # the shared floor's distance below the camera, when known
     subject_heights_m: dict[int | None, float] = field(default_factory=dict)  # track (None: all) → stature
-    people: str | tuple[int, ...] = "all"  # the tracks given files at the end: "all", "main" or ids (runtime.subject)
+    people: str | tuple[int, ...] = "all"  # the tracks given files at the end: "all", "main" or ids (world.subject)
     write_in_background: bool = False  # track files fitted and written by a thread of their own (live)
 
     def __post_init__(self) -> None:

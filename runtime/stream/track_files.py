@@ -17,10 +17,10 @@ from mocapdb.core.files import write_atomic
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.runtime.stream.session_options import SessionOptions
 from mocapdb.runtime.stream.session_summary import SessionSummary
-from mocapdb.runtime.subject import chosen, main_track
 from mocapdb.runtime.take import fit_take
-from mocapdb.runtime.world import fit_take_world
-from mocapdb.runtime.world_summary import track_facts, world_line, world_record
+from mocapdb.runtime.world.fuse import fit_take_world
+from mocapdb.runtime.world.subject import chosen, main_track
+from mocapdb.runtime.world.summary import track_facts, world_line, world_record
 
 LOG = logging.getLogger(__name__)
 

@@ -75,7 +75,7 @@ class CameraTilt:
     @property
     def roll_rad(self) -> float:
         """The camera's roll this estimate gives (radians; positive when the world's up leans to the
-        image's left, as :attr:`~mocapdb.runtime.world.World.roll_deg`), shrunk towards 0 by the least
+        image's left, as :attr:`~mocapdb.runtime.world.fuse.World.roll_deg`), shrunk towards 0 by the least
         error of the estimate (:data:`TILT_SD_DEG`): a roll within it is taken as none (shrinking by the
         frames' spread, :attr:`sd_deg`, gave back most of the gain on the real take)."""
         up = self.up

@@ -24,9 +24,9 @@ and ``log h`` (or ``h`` given). Each track is one of three kinds (Bayesian model
 
 The cost sums each track's ``−log`` mixture (weighted by its length up to 1 s:
 :func:`evidence_weight`), the flatness of its contacts under each floor (:func:`_unevenness`), its
-image's verticals on the roll (:mod:`mocapdb.runtime.image_vertical`), the tilt prior
-(:func:`~mocapdb.runtime.world_tilt.tilt_cost`: the bodies' own up estimates with a heavy tail) and
-the camera height's (:func:`~mocapdb.runtime.world_tilt.height_cost`: how high people film from).
+image's verticals on the roll (:mod:`mocapdb.runtime.world.image_vertical`), the tilt prior
+(:func:`~mocapdb.runtime.world.tilt.tilt_cost`: the bodies' own up estimates with a heavy tail) and
+the camera height's (:func:`~mocapdb.runtime.world.tilt.height_cost`: how high people film from).
 Each piece of evidence counts once: the contacts vote on the tilt through their flatness only, not
 also as the prior's centre or width (a straight walk's contacts lie on a line that the depth's drift
 along the walk tilts, 4° on a walk away from the camera). The grid's minimum is the world, its
@@ -35,11 +35,11 @@ takes its floor-consistent stature; any other the prior's mode (or its given hei
 the same world where its feet are (above the floor on a box), made smaller where its lowest points
 would sink below the floor. No scale is negative, no stature leaves :data:`HUMAN_STATURE_M`.
 ``data_specs/world.md`` gives the decisions and their reasons. The stature prior
-and the kinds' likelihoods are :mod:`mocapdb.runtime.stature`; what the summary and ``world.json``
-say of the world, :mod:`mocapdb.runtime.world_summary`.
+and the kinds' likelihoods are :mod:`mocapdb.runtime.world.stature`; what the summary and ``world.json``
+say of the world, :mod:`mocapdb.runtime.world.summary`.
 
 Costs O(T·H·P) for T tilts, H heights and P people (at most :data:`MAX_FLOOR_POINTS` contacts and
-:data:`~mocapdb.runtime.image_vertical.MAX_PLANES` image planes each):
+:data:`~mocapdb.runtime.world.image_vertical.MAX_PLANES` image planes each):
 tens to hundreds of milliseconds per take, independent of its length (``tools/bench_world.py``).
 """
 from __future__ import annotations
@@ -52,10 +52,12 @@ import numpy as np
 from mocapdb.core.motion_ops import scaled_about_origin
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
-from mocapdb.runtime.contact_floor import MIN_FLOOR_SPREAD_M, above_floor, lowest_level
 from mocapdb.runtime.foot_contacts import ANKLES, true_runs
-from mocapdb.runtime.image_vertical import vertical_misfit, vertical_sd_deg
-from mocapdb.runtime.stature import (
+from mocapdb.runtime.take import TakeResult, fit_take
+from mocapdb.runtime.take_params import TakeParams
+from mocapdb.runtime.world.contact_floor import MIN_FLOOR_SPREAD_M, above_floor, lowest_level
+from mocapdb.runtime.world.image_vertical import vertical_misfit, vertical_sd_deg
+from mocapdb.runtime.world.stature import (
     FLAT_DENSITY,
     HUMAN_STATURE_M,
     P_ELEVATED,
@@ -69,10 +71,8 @@ from mocapdb.runtime.stature import (
     prior_mode,
     stature_prior,
 )
-from mocapdb.runtime.subject import join_fragments
-from mocapdb.runtime.take import TakeResult, fit_take
-from mocapdb.runtime.take_params import TakeParams
-from mocapdb.runtime.world_tilt import (
+from mocapdb.runtime.world.subject import join_fragments
+from mocapdb.runtime.world.tilt import (
     height_cost,
     height_spread_log,
     tilt_cost,
@@ -99,7 +99,7 @@ class TrackEvidence:
     (degrees), its height if the user gave it, how much its likelihood counts (``weight``, 0-1:
     :func:`evidence_weight`) and its lower ankle in every frame ``[F, 3]`` (at the nominal size; where
     it has no contact, the floor must still not be above it), the image's vertical planes ``[N, 3]``
-    and their error (degrees; :mod:`~mocapdb.runtime.image_vertical`; None: too few frames saw the
+    and their error (degrees; :mod:`~mocapdb.runtime.world.image_vertical`; None: too few frames saw the
     whole body). Derived once: the contacts on its
     lowest level and all its contacts (each at most :data:`MAX_FLOOR_POINTS`, evenly spaced) and
     its log-likelihood table (:func:`log_likelihood`), and its number of steps (distinct contacts:
@@ -224,7 +224,7 @@ def fit_take_world(recordings: list[TrackRecording], fps: float, params: TakePar
                    camera_height_m: float | None = None, subject_heights_m: dict[int | None, float] | None = None
                    ) -> TakeWorld:
     """What ``reconstruct`` and ``live`` fit at the end of a take: the fragments of one person joined
-    (:func:`~mocapdb.runtime.subject.join_fragments`), then :func:`fit_world` over every track, static
+    (:func:`~mocapdb.runtime.world.subject.join_fragments`), then :func:`fit_world` over every track, static
     ones included (a person standing still shows the vertical and the floor as well as one who
     moves)."""
     joined_recordings, joined = join_fragments(recordings, fps)
@@ -247,7 +247,7 @@ def track_evidence(rec: TrackRecording, result: TakeResult, fps: float, given_st
     """A whole-take fit's :class:`TrackEvidence` (no contacts: an empty ``contacts_m``); ``fps``:
     the take's frame rate (Hz). Its up is the body's own (:attr:`TakeResult.body_up`), not the plane
     through its contacts: they vote through their flatness (:func:`_unevenness`), and its error the
-    frames' over its strides (:func:`~mocapdb.runtime.world_tilt.track_tilt_sd_deg`); its image's
+    frames' over its strides (:func:`~mocapdb.runtime.world.tilt.track_tilt_sd_deg`); its image's
     verticals count from :data:`MIN_PLANES` frames."""
     footfalls = sum(len(true_runs(result.planted[:, foot])) for foot in range(result.planted.shape[1]))
     up, up_sd = result.body_up, track_tilt_sd_deg(result.body_up_sd_deg, footfalls)
@@ -303,7 +303,7 @@ def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg:
 def _cost(evidence: list[TrackEvidence], normal: np.ndarray, tilts_deg: np.ndarray,
           tilt_sds_deg: tuple[float, float], log_h: np.ndarray) -> np.ndarray:
     """``−log`` posterior ``[T, H]`` over tilts ``[T, 2]`` (pitch, roll; degrees) about ``normal``
-    and log camera heights ``log_h [H]``. The image's verticals (:mod:`~mocapdb.runtime.image_vertical`)
+    and log camera heights ``log_h [H]``. The image's verticals (:mod:`~mocapdb.runtime.world.image_vertical`)
     see each tilt's roll only: a sideways lean of a person off the image's centre would otherwise
     move the pitch several times as far."""
     normals = tilted_normals(normal, tilts_deg)

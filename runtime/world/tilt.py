@@ -1,4 +1,4 @@
-"""The camera's prior in the one-camera world (:mod:`mocapdb.runtime.world`): how far the bodies'
+"""The camera's prior in the one-camera world (:mod:`mocapdb.runtime.world.fuse`): how far the bodies'
 estimate of the pitch and roll may be off (each track's: :func:`track_tilt_sd_deg`; the take's:
 :func:`tilt_prior_sds`, :func:`tilt_cost`), how high people film from (:func:`height_cost`), the
 tilted floor normals of the grid (:func:`tilted_normals`) and the posterior spread over that grid
@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapdb.runtime.body_size import TILT_SD_DEG
+from mocapdb.runtime.world.body_size import TILT_SD_DEG
 
 TILT_TAIL_SD_DEG, TILT_TAIL_SHARE = 15.0, 0.2  # the tilt prior's heavy tail: bodies' estimates can be far off
 PITCH_SD_MIN_DEG = 5.0  # bodies show the pitch only by their foreshortening, and share its error (the camera's)
@@ -21,7 +21,7 @@ def track_tilt_sd_deg(frame_sd_deg: float, footfalls: int) -> float:
     """The error (degrees) of a track's up estimate (the mean of its frames'), from its frames'
     spread ``frame_sd_deg`` and its ``footfalls`` (contacts begun, both feet): each stride (two
     footfalls) shows a new posture, and the mean's error is a posture's over the root of the strides;
-    what no stride removes is :data:`~mocapdb.runtime.body_size.TILT_SD_DEG`. The frames' spread
+    what no stride removes is :data:`~mocapdb.runtime.world.body_size.TILT_SD_DEG`. The frames' spread
     measures how far postures differ only when there are several: the frames of a person standing
     still share one posture's lean (on rendered still people their spread is 4°, their error 5.5°),
     so a posture errs by at least :data:`POSTURE_TILT_SD_DEG` over the strides."""

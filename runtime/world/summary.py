@@ -1,6 +1,6 @@
 """What the summary and ``world.json`` say of a take's world and of each track placed in it.
 
-:func:`track_facts` reads a track placed in the world (:func:`~mocapdb.runtime.world.place_in_world`):
+:func:`track_facts` reads a track placed in the world (:func:`~mocapdb.runtime.world.fuse.place_in_world`):
 its stature, legs, distance and the world's verdict on its size, with the flags of anything a person
 cannot be; :func:`world_line` and :meth:`TrackFacts.line` are the summary's lines,
 :func:`world_record` is ``world.json`` (data_specs/world.md).
@@ -13,8 +13,8 @@ import numpy as np
 
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import MEASURED_BONE_NAMES, swing_matrices
-from mocapdb.runtime.stature import HUMAN_STATURE_M
-from mocapdb.runtime.world import PersonSize, World
+from mocapdb.runtime.world.fuse import PersonSize, World
+from mocapdb.runtime.world.stature import HUMAN_STATURE_M
 
 
 @dataclass(frozen=True)

@@ -5,14 +5,14 @@ vertical line, and the plane through the camera and that line holds the world's 
 
 Per frame, :func:`vertical_planes` gives that plane's unit normal (view frame). Each keypoint is
 put on its ray at the person's depth, which makes the body a flat picture of itself: its centre of
-mass the mass-weighted mid-points (:func:`~mocapdb.runtime.world_prior.centre_of_mass`), its support
-chosen along the track's up (:func:`~mocapdb.runtime.world_prior.support_points`).
+mass the mass-weighted mid-points (:func:`~mocapdb.runtime.world.detector_prior.centre_of_mass`), its support
+chosen along the track's up (:func:`~mocapdb.runtime.world.detector_prior.support_points`).
 
 :func:`plane_angles_deg` gives a candidate up's angle out of the planes, :func:`vertical_misfit` a
 track's cost of a candidate up and :func:`vertical_sd_deg` its error. A lean along the viewing ray
 leaves a plane unchanged, so the planes fix the roll; the pitch they show only through the
 perspective of people off the image's centre, where a sideways lean of 1° moves it by several, so
-the world counts them on the roll alone (:mod:`~mocapdb.runtime.world`). ``data_specs/world.md``
+the world counts them on the roll alone (:mod:`~mocapdb.runtime.world.fuse`). ``data_specs/world.md``
 gives the decisions.
 """
 from __future__ import annotations
@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 
 from mocapdb.core.skeleton import KP
-from mocapdb.runtime.world_prior import centre_of_mass, support_points, unit
-from mocapdb.runtime.world_tilt import tilted_normals
+from mocapdb.runtime.world.detector_prior import centre_of_mass, support_points, unit
+from mocapdb.runtime.world.tilt import tilted_normals
 
 MASS_KEYPOINTS = ("head", "r_shoulder", "l_shoulder", "r_elbow", "l_elbow", "r_wrist", "l_wrist",
                   "r_hip", "l_hip", "r_knee", "l_knee", "r_ankle", "l_ankle")

@@ -27,7 +27,7 @@ import numpy as np
 from mocapdb.core.geometry import yaw_matrix
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import BONE_LENGTHS_M, KP
-from mocapdb.runtime.body_size import TILT_SD_DEG
+from mocapdb.runtime.world.body_size import TILT_SD_DEG
 
 BONES = tuple((KP[a], KP[b]) for a, b in (
     ("r_shoulder", "r_elbow"), ("r_elbow", "r_wrist"), ("l_shoulder", "l_elbow"), ("l_elbow", "l_wrist"),
@@ -219,7 +219,7 @@ def body_vertical(world_bones: np.ndarray) -> tuple[np.ndarray, float] | None:
     track's recorded world bones ``[F, len(FIT_BONES), 4]`` (direction, weight): the median of
     :func:`balance_verticals` over the frames that see the body, each frame's support chosen along
     the last estimate (first the mid-ankles → shoulders direction; :data:`BALANCE_PASSES` passes),
-    the error their RMS angle about it, at least :data:`~mocapdb.runtime.body_size.TILT_SD_DEG`.
+    the error their RMS angle about it, at least :data:`~mocapdb.runtime.world.body_size.TILT_SD_DEG`.
     None below :data:`MIN_VERTICAL_FRAMES` frames."""
     seen = _body_seen(world_bones)
     if seen.sum() < MIN_VERTICAL_FRAMES:
@@ -240,7 +240,7 @@ def track_up(rec: TrackRecording) -> tuple[np.ndarray, float]:
     """A track's estimate of the world's up (view frame, unit) and its error (degrees): the body's
     vertical in the detector's 3D where the keypoints carry it (:func:`body_vertical`: the model
     sees the body's lean whatever the database holds), else the fit's tilt estimate
-    (:class:`~mocapdb.runtime.body_size.CameraTilt`)."""
+    (:class:`~mocapdb.runtime.world.body_size.CameraTilt`)."""
     bones = rec.column("world_bones")   # empty without the fits (no keep_take)
     vertical = body_vertical(bones) if len(bones) else None
     if vertical is not None:

@@ -1,7 +1,7 @@
 """The floor under a track's planted ankles: its plane (:func:`floor_plane`), the contacts on its
 lowest level (:func:`lowest_level`), whether contacts lie on one plane (:func:`coplanar_spread`),
 and roots lifted so that no ankle sinks below it (:func:`above_floor`). Step 4 of the whole-take
-fit (:mod:`mocapdb.runtime.take`); the take's world (:mod:`mocapdb.runtime.world`) uses it too."""
+fit (:mod:`mocapdb.runtime.take`); the take's world (:mod:`mocapdb.runtime.world.fuse`) uses it too."""
 from __future__ import annotations
 
 import numpy as np

@@ -2,7 +2,7 @@
 
 The prior is :mod:`mocapdb.core.anthropometry`'s mixture of adults and children of 2-17 years, or
 one narrow component about a height the user gave (``--subject-height``). An observed stature (the
-floor-consistent one of :mod:`mocapdb.runtime.world`) is blurred by its error and weighed under a
+floor-consistent one of :mod:`mocapdb.runtime.world.fuse`) is blurred by its error and weighed under a
 track's three kinds: **on the floor** (:data:`P_ON_FLOOR`: drawn from the prior), **elevated**
 (:data:`P_ELEVATED`: the prior's probability of a person at least :data:`ELEVATED_MIN_LOG` smaller,
 times a flat density over :data:`HUMAN_STATURE_M`) and **unreliable** (:data:`P_UNRELIABLE`: the
