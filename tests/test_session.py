@@ -96,7 +96,7 @@ def test_live_over_tcp(small_db, tmp_path):
     assert summary.frames + summary.stream.dropped_stale == 20
     assert sum(summary.malformed.values()) == 1
     assert (tmp_path / "bvh" / "track_0.bvh").exists()
-    assert "latency p50" in summary.report()
+    assert "latency capture → send p50" in summary.report()
 
 
 def test_cli_reconstruct_real_openpose_folder(small_db_path, tmp_path, capsys):

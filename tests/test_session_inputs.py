@@ -22,7 +22,7 @@ from mocapdb.runtime.engine_config import EngineConfig, TrackLimits
 from mocapdb.runtime.stream.session import FrameParser, InputError, Session, SinkError
 from mocapdb.runtime.stream.session_options import SessionOptions
 from mocapdb.runtime.stream.session_summary import SessionSummary
-from mocapdb.runtime.stream.transport import StreamStats, open_sink
+from mocapdb.runtime.stream.transport import Sink, StreamStats, open_sink
 
 from .test_session import _stream_lines
 
@@ -317,19 +317,17 @@ def test_a_long_track_is_written_in_parts_as_they_complete(small_db, tmp_path):
     assert (part2[:15] == part2[15]).all() and (part2[15] != part2[16]).any()  # its first pose held
 
 
-class _FailingSink:
+class _FailingSink(Sink):
     """A sink whose disk fills after ``n`` lines."""
 
     def __init__(self, n: int):
+        super().__init__()
         self.n, self.closed = n, False
 
-    def write(self, line: str) -> None:
+    def _put(self, text: str) -> None:
         self.n -= 1
         if self.n < 0:
             raise OSError(28, "No space left on device")
-
-    def write_frame(self, frame_index: int, time_s: float, people: list) -> None:
-        self.write("a frame")
 
     def close(self) -> None:
         self.closed = True

@@ -9,7 +9,7 @@
   whole-take fit's person-frames/s over the tracks recorded;
 * search: recall@1 of the clustered search against exact search and the time of each;
 * live: 4 people per frame streamed at 30 fps over TCP on loopback into the live loop;
-  latency p50/p99 from a message's arrival to its output line;
+  latency p50/p99 from a message's arrival to the sink's send of its output line;
 * track files in live: one person for 3,000 frames in 2,000-frame parts (a part's whole-take fit
   written when it completes): the slowest frame of the loop with the files written in it and on
   live's writer thread;
@@ -119,7 +119,7 @@ def live_latency(db, sequences, n_people: int = 4, fps: float = 30.0, n_frames: 
     stop.set()
     loop.join()
     session.finish(None)
-    lat = np.array(summary.latencies_s[10:]) * 1000  # after warm-up
+    lat = np.array(summary.latency.latencies_s[10:]) * 1000  # after warm-up
     return {"people": n_people, "frames_sent": n_frames, "frames_processed": summary.frames,
             "dropped_stale": summary.stream.dropped_stale, "tracks": summary.tracks,
             "latency_ms_p50": round(float(np.percentile(lat, 50)), 2),

@@ -5,6 +5,11 @@ OK values and the hips' position.
 
     .venv/bin/python tools/vmc_receiver.py --port 39539            # VMC (Ctrl-C to stop)
     .venv/bin/python tools/vmc_receiver.py --port 9000 --seconds 20  # VRChat trackers, 20 s
+    .venv/bin/python tools/vmc_receiver.py --port 0 --times arrivals.txt   # any free port; each frame's arrival
+
+``--times FILE``: one line per VMC frame, ``ARRIVAL_S T_S``: the moment (``time.monotonic()`` seconds, the
+clock of `mocapdb live`'s capture times on the same machine) the datagram holding its ``/VMC/Ext/T`` arrived,
+and that ``T`` (the frame's stream time, seconds): a frame's end-to-end latency seen by a receiver.
 
 A frame ends with its `/VMC/Ext/T` (VMC) or `/tracking/trackers/head/rotation` (VRChat). The hips: VMC's
 root position plus the Hips bone's local position turned by the root's rotation; VRChat's tracker 1.
@@ -14,6 +19,7 @@ from __future__ import annotations
 import argparse
 import time
 from dataclasses import dataclass, field
+from typing import TextIO
 
 import numpy as np
 from pythonosc.dispatcher import Dispatcher
@@ -37,15 +43,18 @@ class Second:
 
 
 class Tally:
-    """The receiver's counts and the last hips position."""
+    """The receiver's counts and the last hips position; with ``times`` (an open text file) each VMC
+    frame's arrival and stream time."""
 
-    def __init__(self) -> None:
+    def __init__(self, times: TextIO | None = None) -> None:
         self.second, self.total_frames = Second(), 0
         self.parts, self.root, self.hips_local = 0, None, None
         self.hips: np.ndarray | None = None
+        self.times, self.arrival_s = times, 0.0
 
     def datagram(self, data: bytes) -> None:
-        """Counts one datagram (before python-osc dispatches its messages)."""
+        """Counts one datagram (before python-osc dispatches its messages) and notes when it arrived."""
+        self.arrival_s = time.monotonic()
         s = self.second
         s.max_bytes = max(s.max_bytes, len(data))
         if OscBundle.dgram_is_bundle(data):
@@ -69,6 +78,8 @@ class Tally:
         elif address == "/VMC/Ext/OK":
             self.second.ok.add(int(args[0]))
         elif address in ("/VMC/Ext/T", "/tracking/trackers/head/rotation"):
+            if self.times is not None and address == "/VMC/Ext/T":
+                self.times.write(f"{self.arrival_s:.6f} {args[0]:.6f}\n")
             self._frame()
 
     def _frame(self) -> None:
@@ -106,14 +117,17 @@ class CountingServer(BlockingOSCUDPServer):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default %(default)s)")
-    parser.add_argument("--port", type=int, default=39539, help="UDP port (default %(default)s: VMC; VRChat 9000)")
+    parser.add_argument("--port", type=int, default=39539,
+                        help="UDP port (default %(default)s: VMC; VRChat 9000; 0: any free one, printed)")
     parser.add_argument("--seconds", type=float, help="stop after this many seconds (default: Ctrl-C)")
+    parser.add_argument("--times", metavar="FILE", help="write each VMC frame's arrival time and T (module notes)")
     args = parser.parse_args()
-    tally, dispatcher = Tally(), Dispatcher()
+    times = None if args.times is None else open(args.times, "w", encoding="utf-8", buffering=1)
+    tally, dispatcher = Tally(times), Dispatcher()
     dispatcher.set_default_handler(tally.message)
     server = CountingServer((args.host, args.port), dispatcher, tally)
     server.timeout = 0.05
-    print(f"listening on {args.host}:{args.port}", flush=True)
+    print(f"listening on {args.host}:{server.server_address[1]}", flush=True)
     start = last = time.monotonic()
     try:
         while args.seconds is None or time.monotonic() - start < args.seconds:
@@ -125,6 +139,8 @@ def main() -> None:
         pass
     finally:
         server.server_close()
+        if times is not None:
+            times.close()
     print(f"frames received {tally.total_frames}", flush=True)
 
 

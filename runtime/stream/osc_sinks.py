@@ -154,13 +154,13 @@ class AvatarSink(Sink):
         """Sends the followed person's avatar at ``time_s`` (seconds), or what says they are absent."""
         pose = self._main.choose(people)
         if pose is None:
-            self._send(self._absent_datagrams(time_s))
+            self._send(self._absent_datagrams(time_s), frame_index)
             return
         avatar = self._avatar(pose)
         if avatar is None:
             self.stats.add(sink_dropped=1)
             return
-        self._send(self._frame_datagrams(avatar, time_s))
+        self._send(self._frame_datagrams(avatar, time_s), frame_index)
 
     def _avatar(self, pose: PersonPose) -> AvatarPose | None:
         """The person's avatar on their floor, from the sink's origin; None if not finite."""
@@ -181,7 +181,9 @@ class AvatarSink(Sink):
             avatar = avatar_pose(pose, up, floor, self._origin)
         return avatar
 
-    def _send(self, datagrams: list[bytes]) -> None:
+    def _send(self, datagrams: list[bytes], frame_index: int) -> None:
+        """Sends frame ``frame_index``'s ``datagrams``: sent (:meth:`_sent`) when there were some and every
+        one went out."""
         failed = False
         for data in datagrams:
             try:
@@ -190,6 +192,8 @@ class AvatarSink(Sink):
                 failed = True
         if failed:
             self.stats.add(sink_dropped=1)
+        elif datagrams:
+            self._sent(frame_index)
 
     @abstractmethod
     def _frame_datagrams(self, avatar: AvatarPose, time_s: float) -> list[bytes]:

@@ -3,7 +3,8 @@
 ``reconstruct`` reads every message of a folder or file in order; ``live`` reads through
 :class:`~mocapdb.runtime.stream.transport.LiveInput`, which drops stale messages when the engine falls behind.
 Malformed messages are counted by reason and skipped; the summary reports them with frame,
-people and track counts, per-frame latency (p50/p99, from a message's arrival to its output line),
+people and track counts, the end-to-end latency (p50/p99, from a frame's capture or a message's
+arrival to the moment the sink sent its output: :mod:`mocapdb.runtime.stream.latency`) with the lag,
 throughput and what the limits held back. Whatever arrives, memory stays bounded: tracks by
 :class:`~mocapdb.runtime.engine_config.TrackLimits`, recordings by BVH parts, the summary's lists by caps.
 A sink that fails stops the session (:class:`SinkError`); :meth:`Session.finish` still writes
@@ -105,6 +106,8 @@ class Session:
             config = engine.config
             self.online = OnlineTake(config.fps, OnlineParams(self.options.lag_frames, smoothing_hz),
                                      (config.focal_px, *config.center_px))
+        summary.latency.fps = engine.config.fps
+        sink.notify_sent(summary.latency.sent)
         self.started = self._checkpointed = time.perf_counter()
         try:
             config = engine.config
@@ -124,7 +127,7 @@ class Session:
         self.handle_frame(frame, message.arrival_s)
 
     def handle_frame(self, frame: KeypointFrame, arrival_s: float) -> None:
-        """Process and write one parsed frame that arrived at ``arrival_s`` (time.monotonic);
+        """Process and write one parsed frame captured or arrived at ``arrival_s`` (time.monotonic);
         raises :class:`SinkError` if the sink fails. A frame outside the image size is refused
         (:class:`InputError`) when the size was assumed or ``strict``, else counted and skipped."""
         problem = self._contradiction(frame)
@@ -136,14 +139,14 @@ class Session:
                 raise InputError(problem)
             self.summary.add_malformed("keypoints outside --image-size")
             return
+        self.summary.latency.captured(frame.index, arrival_s)
         with compile_notice(self._first_frame and not kernels_cached(refine)):
-            poses = self.engine.step(frame, arrival_s if self.options.rate_by_arrival else None)
+            poses = self.engine.step(self._from_reference(frame), arrival_s if self.options.rate_by_arrival else None)
         self._first_frame = False
         t_s = frame.time_s if frame.time_s is not None else frame.index / self.engine.config.fps
         self._write_frame(frame.index, t_s, poses)
         self.summary.frames += 1
         self.summary.person_frames += len(poses)
-        self.summary.add_latency(time.monotonic() - arrival_s)
         self._frame_done()
         self._bvhs()
 
@@ -207,6 +210,12 @@ class Session:
             return (f"frame {frame.index}: keypoints reach x = {hi[0]:.0f} px, y = {hi[1]:.0f} px in an image "
                     f"said to be {width}x{height}{said}{hint}")
         return None
+
+    def _from_reference(self, frame: KeypointFrame) -> KeypointFrame:
+        """``frame`` as the reference camera of a turning camera's path sees it
+        (:meth:`~mocapdb.core.formats.camera_path.CameraPath.derotate`); as it is without a path."""
+        path = self.options.camera_path
+        return frame if path is None else path.derotate(frame)
 
     def finish(self, bvh_dir: Path | None = None) -> SessionSummary:
         """End all tracks, write the track files not yet written (into ``bvh_dir`` if given, else the

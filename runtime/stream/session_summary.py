@@ -7,11 +7,9 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
+from mocapdb.runtime.stream.latency import LatencyBook
 from mocapdb.runtime.stream.transport import StreamStats
 
-MAX_LATENCIES = 100_000  # latency percentiles cover at most the last 2 × this many frames
 MAX_REASONS = 50         # distinct malformed-message reasons counted; further ones as "other"
 MAX_LISTED = 100         # static track ids listed in the summary
 
@@ -47,7 +45,7 @@ class SessionSummary:
     malformed: Counter = field(default_factory=Counter)
     malformed_first: dict = field(default_factory=dict)  # reason → where it was first seen
     stream: StreamStats = field(default_factory=StreamStats)
-    latencies_s: list[float] = field(default_factory=list)
+    latency: LatencyBook = field(default_factory=LatencyBook)   # capture → the sink's send, the lag
     wall_s: float = 0.0
     steady_s: float = 0.0   # from the first frame processed (its output written) to the last
     bvh_files: list[Path] = field(default_factory=list)
@@ -58,11 +56,6 @@ class SessionSummary:
     limits: LimitReport = field(default_factory=LimitReport)
     sink_error: str | None = None  # why the sink failed, which stopped the session
     world_lines: list[str] = field(default_factory=list)  # the take's world and each track's size (world_summary)
-
-    def add_latency(self, latency_s: float) -> None:
-        self.latencies_s.append(latency_s)
-        if len(self.latencies_s) >= 2 * MAX_LATENCIES:
-            del self.latencies_s[:MAX_LATENCIES]
 
     def add_malformed(self, reason: str, origin: str | None = None) -> None:
         if reason not in self.malformed and len(self.malformed) >= MAX_REASONS:
@@ -90,11 +83,9 @@ class SessionSummary:
                 f"session {self.wall_s:.2f} s")
 
     def report(self) -> str:
-        lat = np.array(self.latencies_s) * 1000.0
-        p50, p99 = (np.percentile(lat, 50), np.percentile(lat, 99)) if len(lat) else (float("nan"),) * 2
         lines = [f"frames {self.frames}, people {self.person_frames} person-frames, tracks {self.tracks}, "
                  f"track files {self._files_by_format()}",
-                 f"latency p50 {p50:.2f} ms, p99 {p99:.2f} ms; {self._throughput()}",
+                 f"{self.latency.line()}; {self._throughput()}",
                  f"skipped: stale {self.stream.dropped_stale}, oversized {self.stream.oversized}, "
                  f"not UTF-8 {self.stream.decode_errors}, undelivered output lines {self.stream.sink_dropped}"
                  + (f", folder entries not regular files {self.stream.not_regular}" if self.stream.not_regular else "")]

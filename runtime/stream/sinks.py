@@ -18,6 +18,7 @@ import sys
 import threading
 from abc import ABC, abstractmethod
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Self
 
@@ -31,10 +32,21 @@ MAX_DATAGRAM_BYTES = 60_000   # longest UDP sink datagram; longer lines are drop
 
 class Sink(ABC):
     """Writes one output line per :meth:`write`; an unreachable consumer is counted
-    (``sink_dropped``), never raised and never waited for."""
+    (``sink_dropped``), never raised and never waited for. ``on_sent`` (:meth:`notify_sent`) is told
+    each frame's index the moment its output left the sink (the session's latency)."""
 
     def __init__(self, stats: StreamStats | None = None) -> None:
         self.stats = stats if stats is not None else StreamStats()
+        self.on_sent: Callable[[int], None] | None = None
+
+    def notify_sent(self, callback: Callable[[int], None]) -> None:
+        """Calls ``callback(frame_index)`` as each frame's output leaves the sink (from any thread)."""
+        self.on_sent = callback
+
+    def _sent(self, frame_index: int) -> None:
+        """Frame ``frame_index``'s output left the sink now."""
+        if self.on_sent is not None:
+            self.on_sent(frame_index)
 
     def write(self, line: str) -> None:
         """Writes ``line`` and a newline; ``line`` itself must not contain one."""
@@ -46,6 +58,7 @@ class Sink(ABC):
         """Writes one frame's people; the line sinks write its JSON line (:func:`frame_line`), the
         avatar sinks (:mod:`mocapdb.runtime.stream.osc_sinks`) send it in their protocol."""
         self.write(frame_line(frame_index, time_s, people))
+        self._sent(frame_index)
 
     @abstractmethod
     def _put(self, text: str) -> None:
@@ -64,12 +77,15 @@ class Sink(ABC):
 
 class TeeSink(Sink):
     """Every line and frame to each of ``sinks`` in turn (each in its own way: a line sink its JSON
-    line, an avatar sink its protocol); counts in the first one's stats. :meth:`close` closes them
-    all, then raises the first error any raised."""
+    line, an avatar sink its protocol); counts in the first one's stats, and a frame is sent when the
+    first one sent it. :meth:`close` closes them all, then raises the first error any raised."""
 
     def __init__(self, sinks: list[Sink]) -> None:
         super().__init__(sinks[0].stats)
         self.sinks = sinks
+
+    def notify_sent(self, callback: Callable[[int], None]) -> None:
+        self.sinks[0].notify_sent(callback)
 
     def _put(self, text: str) -> None:
         for sink in self.sinks:
@@ -129,22 +145,26 @@ class TcpSink(Sink):
         self._address = (host, port)
         self._connect_timeout_s, self._send_timeout_s = connect_timeout_s, send_timeout_s
         self._backoff_s = backoff_s
-        self._queue: deque[str] = deque(maxlen=queue_lines)
+        self._queue: deque[tuple[str, int | None]] = deque(maxlen=queue_lines)   # (line, frame index)
         self._cond = threading.Condition()
         self._accepting = True   # False from a failed attempt until the next one
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="mocapdb-tcp-sink", daemon=True)
         self._thread.start()
 
-    def _put(self, text: str) -> None:
+    def _put(self, text: str, frame_index: int | None = None) -> None:
         with self._cond:
             if not self._accepting:
                 self.stats.add(sink_dropped=1)
                 return
             if len(self._queue) == self._queue.maxlen:
                 self.stats.add(sink_dropped=1)   # append() pushes the oldest line out
-            self._queue.append(text)
+            self._queue.append((text, frame_index))
             self._cond.notify()
+
+    def write_frame(self, frame_index: int, time_s: float, people: list[PersonPose]) -> None:
+        """Queues the frame's JSON line; it is sent (:meth:`_sent`) when the sender thread sends it."""
+        self._put(frame_line(frame_index, time_s, people) + "\n", frame_index)
 
     def _set_accepting(self, accepting: bool) -> None:
         with self._cond:
@@ -186,10 +206,13 @@ class TcpSink(Sink):
                 batch, stopping = list(self._queue), self._stop.is_set()
                 self._queue.clear()
             try:
-                sock.sendall("".join(batch).encode("utf-8"))
+                sock.sendall("".join(text for text, _ in batch).encode("utf-8"))
             except OSError:
                 self.stats.add(sink_dropped=len(batch))
                 return
+            for _, frame_index in batch:
+                if frame_index is not None:
+                    self._sent(frame_index)
             if stopping:
                 return
 
