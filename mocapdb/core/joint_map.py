@@ -298,6 +298,15 @@ def _role_kinematics(bvh: Bvh, idx: dict[str, int]) -> tuple[np.ndarray, np.ndar
     return forward_kinematics(bvh, [idx[role] for role in ROLES])
 
 
+def y_up_rotation(bvh: Bvh, mapping: JointMapping, up_axis: str | None = None) -> np.ndarray:
+    """``[3, 3]`` the proper rotation :func:`extract_keypoints` takes the file's axes to y up with
+    (``up_axis`` detected when None): a file rotation ``R`` is ``T @ R`` in its keypoints' frame."""
+    if up_axis is None:
+        up_axis = _body_up_axis(_role_kinematics(bvh, _indexes(bvh, mapping))[0])
+    _check_choice(up_axis, UP_AXES, "up axis")
+    return _TO_Y_UP[up_axis]
+
+
 def _body_up_axis(role_positions: np.ndarray) -> str:
     """The up axis from the roles' positions ``[F, 13, 3]`` (:func:`_role_kinematics`)."""
     col = ROLE_COLUMN

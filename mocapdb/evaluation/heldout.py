@@ -17,6 +17,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from mocapdb.core.clips import ClipOptions, process_clip
+from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import yaw_matrix
 from mocapdb.core.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS, bone_lengths_m
@@ -26,6 +27,8 @@ from mocapdb.runtime.world.detector_prior import Z_AXIS, rotation_between
 
 BODIES = ("universal", "varied")
 SWAP_PAIRS = [(KP[right], KP[left]) for right, left in MIRROR_PAIRS]  # right/left keypoint pairs
+EXTREMITY_SWAP_PAIRS = [(EXTREMITIES.index(name), EXTREMITIES.index("l" + name[1:]))
+                        for name in EXTREMITIES if name.startswith("r_")]
 WORLD_ERROR_FRAMES = 12       # the simulated world landmarks' errors are correlated over this many frames (0.5 s)
 WORLD_ACROSS_SHARE = 1.0 / 3  # their error across the viewing ray, a share of the error along it
 DETECTOR_WORLD_SD_M = 0.08    # the scenarios' error along the ray: raw landmarks ~8-9 cm MPJPE, as MediaPipe's
@@ -205,20 +208,48 @@ def project(cam_points: np.ndarray, focal_px: float, image_size: tuple[int, int]
 
 
 def render(cam_points: np.ndarray, scenario: Scenario, focal_px: float, image_size: tuple[int, int],
-           rng: np.random.Generator) -> list[KeypointFrame]:
+           rng: np.random.Generator, extremities_cam: np.ndarray | None = None) -> list[KeypointFrame]:
     """Detector-like keypoint frames of camera-aligned points ``[F, 15, 3]`` (with the detector's own
-    3D where ``scenario.world_sd_m`` > 0: :func:`detector_world`)."""
-    px = project(cam_points[:, :N_KEYPOINTS_2D], focal_px, image_size)
+    3D where ``scenario.world_sd_m`` > 0: :func:`detector_world`), and of the heels, toes, knuckles and
+    face points ``extremities_cam [F, 14, 3]`` (``keypoint_layouts.EXTREMITIES`` order) where given:
+    the same noise, dropout and left/right swaps (drawn after the body's, so its frames do not change)."""
+    px, conf = _detected(project(cam_points[:, :N_KEYPOINTS_2D], focal_px, image_size), scenario, image_size, rng)
+    swapped = rng.random(len(px)) < scenario.swap
+    _swap(px, swapped, SWAP_PAIRS)
+    world = detector_world(cam_points, scenario.world_sd_m, swapped, rng) if scenario.world_sd_m > 0 else None
+    ends = None if extremities_cam is None else _extremities(extremities_cam, scenario, swapped, focal_px,
+                                                             image_size, rng)
+    return [KeypointFrame(i, None, [Person(px[i], conf[i], world_m=None if world is None else world[i],
+                                           extremities=None if ends is None else ends[i])])
+            for i in range(len(px))]
+
+
+def _detected(px: np.ndarray, scenario: Scenario, image_size: tuple[int, int], rng: np.random.Generator
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels ``[F, K, 2]`` with the scenario's noise, and their confidences ``[F, K]`` (0: dropped or
+    outside the image, as a detector leaves them)."""
     px = px + rng.normal(scale=scenario.noise_px * image_size[1] / IMAGE_HEIGHT_PX, size=px.shape)
     conf = np.where(rng.random(px.shape[:2]) < scenario.dropout, 0.0, 0.9)
     inside = (px >= 0).all(axis=-1) & (px[..., 0] < image_size[0]) & (px[..., 1] < image_size[1])
-    conf[~inside] = 0.0  # outside the image: unseen, as a detector leaves it
-    swapped = rng.random(len(px)) < scenario.swap
-    for right, left in SWAP_PAIRS:
-        px[swapped, right], px[swapped, left] = px[swapped, left].copy(), px[swapped, right].copy()
-    world = detector_world(cam_points, scenario.world_sd_m, swapped, rng) if scenario.world_sd_m > 0 else None
-    return [KeypointFrame(i, None, [Person(px[i], conf[i], world_m=None if world is None else world[i])])
-            for i in range(len(px))]
+    conf[~inside] = 0.0
+    return px, conf
+
+
+def _swap(values: np.ndarray, swapped: np.ndarray, pairs: list[tuple[int, int]]) -> None:
+    """Exchange each pair's entries ``values [F, K, ...]`` in the ``swapped [F]`` frames, in place."""
+    for right, left in pairs:
+        values[swapped, right], values[swapped, left] = values[swapped, left].copy(), values[swapped, right].copy()
+
+
+def _extremities(cam_points: np.ndarray, scenario: Scenario, swapped: np.ndarray, focal_px: float,
+                 image_size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+    """``[F, 14, 3]`` x px, y px, confidence of camera-aligned extremity points (NaN: not rendered, unseen)."""
+    px, conf = _detected(project(cam_points, focal_px, image_size), scenario, image_size, rng)
+    conf[~np.isfinite(px).all(axis=-1)] = 0.0
+    _swap(px, swapped, EXTREMITY_SWAP_PAIRS)
+    _swap(conf, swapped, EXTREMITY_SWAP_PAIRS)
+    px[conf == 0.0] = np.nan
+    return np.concatenate([px, conf[..., None]], axis=-1)
 
 
 def detector_world(cam_points: np.ndarray, sd_m: float, swapped: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -237,6 +268,5 @@ def detector_world(cam_points: np.ndarray, sd_m: float, swapped: np.ndarray, rng
     gain = np.sqrt(1.0 - rho ** 2)   # e[f] = rho e[f-1] + gain steps[f], e[0] = steps[0]: stationary from the start
     error, _ = lfilter([gain], [1.0, -rho], steps, axis=0, zi=((1.0 - gain) * steps[0])[None])
     world = world + error
-    for right, left in SWAP_PAIRS:
-        world[swapped, right], world[swapped, left] = world[swapped, left].copy(), world[swapped, right].copy()
+    _swap(world, swapped, SWAP_PAIRS)
     return world

@@ -146,14 +146,18 @@ def sample_truths(files: list[Path], config: LosoConfig) -> list[Truth]:
         clip = process_clip(path, path.parent, clip_config)
         if clip.source_m is None:
             raise ValueError(f"{path}: retargeted without the source skeleton's own joints")
-        n = len(clip.positions)
-        start = max(0, (n - config.max_frames) // 2)
-        stop = min(n, start + config.max_frames)
+        run = middle_frames(len(clip.positions), config.max_frames)
         yaws = tuple(config.yaws_deg[(config.yaws_per_clip * i + j) % len(config.yaws_deg)]
                      for j in range(config.yaws_per_clip))
-        truths.append(Truth(clip.name, clip.positions[start:stop].astype(np.float64), yaws,
-                            clip.source_m[start:stop].astype(np.float64)))
+        truths.append(Truth(clip.name, clip.positions[run].astype(np.float64), yaws,
+                            clip.source_m[run].astype(np.float64)))
     return truths
+
+
+def middle_frames(n: int, max_frames: int) -> slice:
+    """At most ``max_frames`` of ``n`` frames, from the middle."""
+    start = max(0, (n - max_frames) // 2)
+    return slice(start, min(n, start + max_frames))
 
 
 def _stderr(message: str) -> None:

@@ -1,0 +1,205 @@
+"""The head, hands and feet against synthetic truth (``mocapdb eval --ends``; ``data_specs/evaluation_bodies.md``,
+"Head, hands and feet"): held-out clips re-posed on fixed bodies, their face, hand and foot points attached
+to the clips' own head, hands and feet (:mod:`mocapdb.evaluation.end_truth`), rendered with the body
+(:func:`~mocapdb.evaluation.heldout.render`), run through the engine as users run it, and scored by the
+geodesic angle between the true and the estimated global rotation (view frame) of each humanoid end bone:
+
+* **whole take**: the humanoid BVH of ``reconstruct`` (the engine as it runs for the track files, then the
+  whole-take fit; forward kinematics of ``motion_bvh(…, rig="humanoid")``);
+* **stream**: the default stream at lag 0 (the online take's ``end_quaternions`` on its rotations).
+
+Each is also scored **not turned** (end rotations left at identity: the bone where its parent puts it),
+what the end joints' own measure must beat.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from mocapdb.core.formats.bvh import forward_kinematics
+from mocapdb.core.formats.database import MotionDatabase
+from mocapdb.core.formats.keypoints import KeypointFrame
+from mocapdb.core.geometry import matrix_to_quat
+from mocapdb.core.motion import Motion
+from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose, motion_bvh
+from mocapdb.core.skeleton import END_JOINTS, N_POINTS, PELVIS, stature_m
+from mocapdb.evaluation.bodies import reshape_body
+from mocapdb.evaluation.end_truth import EndTruth, end_points, load_end_truth
+from mocapdb.evaluation.engine_runs import run_sequence, stream_config
+from mocapdb.evaluation.gate import GATE_BODIES, GATE_CLIPS, MAX_FRAMES, GateBody, gate_engine_config
+from mocapdb.evaluation.heldout import EvalConfig, Scenario, Truth, camera_distance, camera_view, render
+from mocapdb.evaluation.loso import LosoConfig, sample_truths
+from mocapdb.runtime.engine import Engine
+from mocapdb.runtime.engine_config import EngineConfig
+from mocapdb.runtime.online_take import OnlineParams, OnlineTake
+from mocapdb.runtime.world.fuse import fit_takes
+
+HUMANOID_ENDS = ("RightFoot", "LeftFoot", "RightHand", "LeftHand", "Head")   # END_JOINTS order
+GROUPS = {"head": (4,), "hands": (2, 3), "feet": (0, 1)}                      # rows of END_JOINTS
+SCENARIOS = (Scenario("exact 2D"),
+             Scenario("sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05))
+VARIANTS = ("whole take", "whole take, not turned", "stream lag 0", "stream lag 0, not turned")
+ENDS_YAWS_DEG = (3.0, 63.0, 123.0, 183.0, 243.0, 303.0)   # all round, 3 deg off the database's 12 deg grid
+
+
+@dataclass
+class EndErrors:
+    """Geodesic errors (degrees) per variant: ``[N, 5]`` rows of frames, END_JOINTS columns (NaN: no output)."""
+
+    errors: dict[str, list[np.ndarray]] = field(default_factory=lambda: {v: [] for v in VARIANTS})
+
+    def add(self, variant: str, errors_deg: np.ndarray) -> None:
+        self.errors[variant].append(errors_deg)
+
+    def extend(self, other: EndErrors) -> None:
+        for variant, rows in other.errors.items():
+            self.errors[variant].extend(rows)
+
+    def medians(self) -> dict[str, dict[str, float]]:
+        """Per variant and :data:`GROUPS` entry the median error (degrees) over frames, views and sides."""
+        out = {}
+        for variant, rows in self.errors.items():
+            stacked = np.concatenate(rows) if rows else np.full((0, len(END_JOINTS)), np.nan)
+            out[variant] = {group: _median(stacked[:, list(cols)]) for group, cols in GROUPS.items()}
+        return out
+
+
+def _median(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    return float(np.median(finite)) if finite.size else float("nan")
+
+
+def geodesic_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The angle (degrees) of the rotation between rotation matrices ``a`` and ``b`` ``[..., 3, 3]``
+    (NaN where either is)."""
+    q = matrix_to_quat(np.nan_to_num(np.swapaxes(a, -1, -2) @ b))
+    angle = np.degrees(2.0 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), np.abs(q[..., 0])))
+    return np.where(np.isfinite(a).all(axis=(-2, -1)) & np.isfinite(b).all(axis=(-2, -1)), angle, np.nan)
+
+
+def end_globals(motion: Motion) -> np.ndarray:
+    """``[F, 5, 3, 3]`` the humanoid end bones' global rotations (the motion's frame) as its BVH poses them."""
+    bvh = motion_bvh(motion, rig="humanoid")
+    return forward_kinematics(bvh, [bvh.names.index(n) for n in HUMANOID_ENDS])[1]
+
+
+def view_rotation(yaw_deg: float, pitch_deg: float = 0.0, roll_deg: float = 0.0) -> np.ndarray:
+    """``[3, 3]`` the rotation taking the truth's world axes to a held-out camera's view frame (x right,
+    y up, z towards the camera) for :func:`~mocapdb.evaluation.heldout.camera_view`'s turn and tilts."""
+    points = np.zeros((1, N_POINTS + 3, 3))
+    points[0, N_POINTS:] = np.eye(3)
+    cam = camera_view(points, yaw_deg, 0.0, 0.0, pitch_deg, roll_deg)[0]
+    return (cam[N_POINTS:] - cam[PELVIS]).T * CAMERA_FROM_VIEW[:, None]
+
+
+def _both(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
+    """The end globals of ``motion`` turned and not turned (its end rotations dropped)."""
+    return end_globals(motion), end_globals(replace(motion, end_rotations=None, finger_rotations=None))
+
+
+def whole_take_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], fps: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """``[F, 5, 3, 3]`` twice (turned, not turned) the main track's end globals (view frame) in the humanoid
+    BVH ``reconstruct`` writes of ``frames`` (NaN where the track has no frame)."""
+    run = run_sequence(Engine(db, engine.for_track_files()), frames)
+    fitted = fit_takes(run.recordings, fps)
+    out = np.full((2, len(frames), len(END_JOINTS), 3, 3), np.nan)
+    if fitted:
+        motion = max((rec.motion(fps) for rec in fitted), key=len)
+        index = motion.first_frame + np.arange(len(motion))
+        keep = (index >= 0) & (index < len(frames))
+        for k, globals_ in enumerate(_both(motion)):
+            out[k, index[keep]] = globals_[keep]
+    return out[0], out[1]
+
+
+def stream_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame]
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """As :func:`whole_take_ends` for the default stream at lag 0 (the online take's rotations and
+    ``end_quaternions``; one person: each frame's first pose)."""
+    config = stream_config(engine)
+    online = OnlineTake(config.fps, OnlineParams(lag_frames=0), (config.focal_px, *config.center_px))
+    run = Engine(db, config)
+    poses: list[PersonPose | None] = [None] * len(frames)
+    for i, frame in enumerate(frames):
+        due = online.push(i, i / config.fps, run.step(frame))
+        for index, _, people in due + (online.flush() if i == len(frames) - 1 else []):
+            poses[index] = people[0] if people else None
+    out = np.full((2, len(frames), len(END_JOINTS), 3, 3), np.nan)
+    have = [i for i, p in enumerate(poses) if p is not None and p.end_quaternions is not None]
+    if have:
+        kept = [poses[i] for i in have]
+        motion = Motion(np.array([p.quaternions for p in kept]), np.array([p.root_m for p in kept]) * CAMERA_FROM_VIEW,
+                        config.fps, "view", end_rotations=np.array([p.end_quaternions for p in kept]))
+        for k, globals_ in enumerate(_both(motion)):
+            out[k, have] = globals_
+    return out[0], out[1]
+
+
+def view_frames(posed_m: np.ndarray, truth: EndTruth, stature: float, yaw_deg: float, scenario: Scenario,
+                config: EvalConfig) -> tuple[list[KeypointFrame], np.ndarray]:
+    """A body ``posed_m [F, 15, 3]`` with its end points seen from ``yaw_deg`` (the held-out camera, 1.5 m
+    high, level) and rendered under ``scenario``: the keypoint frames, and the true end rotations
+    ``[F, 5, 3, 3]`` in the view frame."""
+    points = np.concatenate([posed_m, end_points(posed_m, truth.rotations, stature)], axis=1)
+    distance = camera_distance(posed_m, yaw_deg, config)
+    cam = camera_view(points, yaw_deg, scenario.camera_height_m, distance, scenario.pitch_deg, scenario.roll_deg)
+    rng = np.random.default_rng((config.seed, int(yaw_deg * 10)))
+    frames = render(cam[:, :N_POINTS], scenario, config.focal_px, config.image_size, rng, cam[:, N_POINTS:])
+    view = view_rotation(yaw_deg, scenario.pitch_deg, scenario.roll_deg)
+    return frames, np.einsum("ij,fkjl->fkil", view, truth.rotations)
+
+
+def score_ends(db: MotionDatabase, posed_m: np.ndarray, truth: EndTruth, stature: float, yaw_deg: float,
+               scenario: Scenario, config: EvalConfig) -> EndErrors:
+    """One body, view and scenario through the engine: the errors of every :data:`VARIANTS` entry."""
+    frames, true_view = view_frames(posed_m, truth, stature, yaw_deg, scenario, config)
+    engine = gate_engine_config(config)
+    out = EndErrors()
+    estimates = whole_take_ends(db, engine, frames, config.fps) + stream_ends(db, engine, frames)
+    for variant, estimate in zip(VARIANTS, estimates):
+        out.add(variant, geodesic_deg(estimate, true_view))
+    return out
+
+
+def ends_truths(bvh_files: Iterable[Path], max_frames: int, yaws_deg: tuple[float, ...], fps: float
+                ) -> list[tuple[Truth, EndTruth]]:
+    """Each held-out clip's body truth (:func:`~mocapdb.evaluation.loso.sample_truths`) and end truth."""
+    files = list(bvh_files)
+    config = LosoConfig(max_frames=max_frames, max_clips=len(files), yaws_per_clip=len(yaws_deg), yaws_deg=yaws_deg,
+                        eval=EvalConfig(fps=fps))
+    truths = sample_truths(files, config)
+    return [(t, load_end_truth(f, fps, max_frames)) for t, f in zip(truths, sorted(files))]
+
+
+def evaluate_ends(db: MotionDatabase, bvh_files: Iterable[Path], bodies: tuple[GateBody, ...] = GATE_BODIES,
+                  scenarios: tuple[Scenario, ...] = SCENARIOS, yaws_deg: tuple[float, ...] = ENDS_YAWS_DEG,
+                  max_frames: int = MAX_FRAMES, config: EvalConfig | None = None) -> dict[str, EndErrors]:
+    """Every clip on every body from every yaw under each scenario: the errors per scenario name."""
+    config = config or EvalConfig()
+    out = {s.name: EndErrors() for s in scenarios}
+    for truth, ends in ends_truths(bvh_files, max_frames, yaws_deg, config.fps):
+        for body in bodies:
+            lengths = body.lengths_m()
+            posed = reshape_body(truth.source_joints(), lengths)
+            for scenario in scenarios:
+                for yaw in yaws_deg:
+                    out[scenario.name].extend(score_ends(db, posed, ends, stature_m(lengths), yaw, scenario, config))
+    return out
+
+
+def format_ends(results: dict[str, EndErrors]) -> str:
+    """A Markdown table: a row per scenario and variant, the median geodesic error (degrees) per group."""
+    lines = ["| input | output | " + " | ".join(f"{g} deg" for g in GROUPS) + " |", "|---|---|" + "---|" * len(GROUPS)]
+    for scenario, errors in results.items():
+        for variant, medians in errors.medians().items():
+            lines.append(f"| {scenario} | {variant} | " + " | ".join(f"{medians[g]:.1f}" for g in GROUPS) + " |")
+    return "\n".join(lines)
+
+
+def gate_clip_files(bvh_dir: Path) -> list[Path]:
+    """The accuracy gate's held-out clips in ``bvh_dir``."""
+    return [bvh_dir / f"{clip}.bvh" for clip in GATE_CLIPS]
