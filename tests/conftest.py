@@ -32,6 +32,28 @@ def skip_missing(what: str) -> NoReturn:
     pytest.skip(MISSING + what)
 
 
+def assert_matches_tflite(onnx_path: Path, tflite_path: Path, blobs: list, rel_tolerance: float = 1e-3) -> None:
+    """A converted model's outputs on each input ``blob`` within ``rel_tolerance`` of the largest value of
+    its TFLite original's (run by LiteRT; skips without it)."""
+    import numpy as np
+    litert = pytest.importorskip("ai_edge_litert.interpreter")
+    import onnxruntime as ort
+
+    session = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+    reference = litert.Interpreter(model_path=str(tflite_path))
+    reference.allocate_tensors()
+    (entry,) = reference.get_input_details()
+    for blob in blobs:
+        reference.set_tensor(entry["index"], blob)
+        reference.invoke()
+        got = dict(zip([o.name for o in session.get_outputs()], session.run(None, {entry["name"]: blob})))
+        for detail in reference.get_output_details():
+            expected = reference.get_tensor(detail["index"])
+            scale = float(np.abs(expected).max()) or 1.0
+            assert got[detail["name"]].shape == expected.shape
+            assert np.abs(got[detail["name"]] - expected).max() <= rel_tolerance * scale, detail["name"]
+
+
 def in_ci() -> bool:
     return os.environ.get("CI", "").lower() == "true"
 

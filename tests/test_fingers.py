@@ -23,7 +23,7 @@ from mocapdb.detect.model_store import HAND_LANDMARKS, blazepose_paths, hand_lan
 from mocapdb.detect.openpose_out import openpose_json
 from mocapdb.evaluation.gestures import classify
 
-from .conftest import ROOT, skip_missing
+from .conftest import ROOT, assert_matches_tflite, skip_missing
 
 SAMPLE_HANDS = ROOT / "data" / "sample_hands"
 REL_TOLERANCE = 1e-3   # converted outputs within 1e-3 of the TFLite reference's range (as the pose models)
@@ -47,24 +47,10 @@ def _pose_models() -> tuple[Path, Path]:
 
 def test_hand_model_converted_matches_the_tflite_original_on_real_photos():
     """MEAN and FULLY_CONNECTED (new for this model) and the rest, on real hand photos and a blank input."""
-    litert = pytest.importorskip("ai_edge_litert.interpreter")
-    import onnxruntime as ort
-
-    session = ort.InferenceSession(str(_hand_model()), providers=["CPUExecutionProvider"])
-    reference = litert.Interpreter(model_path=str(tflite_path(HAND_LANDMARKS)))
-    reference.allocate_tensors()
-    (entry,) = reference.get_input_details()
     images = [cv2.imread(str(SAMPLE_HANDS / name)) for name in ("thumb_up_1.jpg", "thumb_up_2.jpg", "pointing_1.jpg")]
-    for image in images + [np.zeros((224, 224, 3), np.uint8)]:
-        blob = (cv2.resize(image, (224, 224))[None, ..., ::-1] / 255.0).astype(np.float32)
-        reference.set_tensor(entry["index"], blob)
-        reference.invoke()
-        got = dict(zip([o.name for o in session.get_outputs()], session.run(None, {entry["name"]: blob})))
-        for detail in reference.get_output_details():
-            expected = reference.get_tensor(detail["index"])
-            scale = float(np.abs(expected).max()) or 1.0
-            assert got[detail["name"]].shape == expected.shape
-            assert np.abs(got[detail["name"]] - expected).max() <= REL_TOLERANCE * scale, detail["name"]
+    blobs = [(cv2.resize(image, (224, 224))[None, ..., ::-1] / 255.0).astype(np.float32)
+             for image in images + [np.zeros((224, 224, 3), np.uint8)]]
+    assert_matches_tflite(_hand_model(), tflite_path(HAND_LANDMARKS), blobs, REL_TOLERANCE)
 
 
 # --- geometry and angles, by hand -------------------------------------------------------------------
@@ -146,8 +132,9 @@ def test_hands_batched_in_one_run_match_one_run_each():
     """All of a frame's hands go through the model in one run: each hand's outputs as the converted model's
     own batch-of-1 run on that crop alone gives them (within 1e-5)."""
     from mocapdb.detect.blazepose import Region
-    from mocapdb.detect.hands import HAND_OUTPUTS, hand_input
+    from mocapdb.detect.hands import HAND_OUTPUTS, HAND_PX
     from mocapdb.detect.model import load_session
+    from mocapdb.detect.with_landmarks import crop_input
 
     path = _hand_model()
     image = cv2.imread(str(SAMPLE_HANDS / "open_palm_1.jpg"))
@@ -157,7 +144,7 @@ def test_hands_batched_in_one_run_match_one_run_each():
     points, flags, rights = HandLandmarker(path).landmarks_batch(image, regions)
     single = load_session(path, HAND_OUTPUTS)   # the converted model as it is: a batch of 1
     for hand, region in enumerate(regions):
-        raw, flag, right = single.run(list(HAND_OUTPUTS), {"input_1": hand_input(image, region)[None]})
+        raw, flag, right = single.run(list(HAND_OUTPUTS), {"input_1": crop_input(image, region, HAND_PX)[None]})
         values = raw.reshape(21, 3)
         px_per_input = region.side / 224
         expected = np.concatenate([region.to_frame(values[:, :2], 224), values[:, 2:] * px_per_input], axis=1)

@@ -18,6 +18,7 @@ from mocapdb.detect.options import (
     DEFAULT_INPUT_SIZE,
     DEFAULT_IOU,
     DETECTORS,
+    FACE,
     FETCH_COMMAND,
     HANDS,
 )
@@ -143,11 +144,11 @@ def add_models_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
                                    "run time. Sources and pins: data_specs/pose_models.md.")
     p.add_argument("action", choices=("fetch", "list"))
     # a str default: argparse checks an empty nargs="*" positional's default against the choices
-    p.add_argument("variants", nargs="*", choices=(*BLAZEPOSE_VARIANTS, HANDS), default=DEFAULT_BLAZEPOSE,
+    p.add_argument("variants", nargs="*", choices=(*BLAZEPOSE_VARIANTS, HANDS, FACE), default=DEFAULT_BLAZEPOSE,
                    metavar="VARIANT", help=f"landmark models to prepare: {', '.join(BLAZEPOSE_VARIANTS)} (default "
                                            f"{DEFAULT_BLAZEPOSE}; the person detector always), and {HANDS}: the hand "
-                                           f"landmark model of detect/live --hands (with {DEFAULT_BLAZEPOSE} when "
-                                           "no variant is named)")
+                                           f"landmark model of detect/live --hands, {FACE}: the face landmark model "
+                                           f"of detect --face (with {DEFAULT_BLAZEPOSE} when no variant is named)")
     p.set_defaults(run=run_models)
     return p
 
@@ -155,13 +156,14 @@ def add_models_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
 def run_models(args: argparse.Namespace) -> int:
     """``mocapdb models fetch|list``: 0 when every model asked for is ready; DetectError otherwise."""
     from mocapdb.detect.errors import DetectError
-    from mocapdb.detect.model_store import blazepose_paths, fetch_models, hand_landmark_path, models_dir
+    from mocapdb.detect.model_store import EXTRA_MODELS, blazepose_paths, extra_model_path, fetch_models, models_dir
 
     named = (args.variants,) if isinstance(args.variants, str) else tuple(args.variants)
-    variants = tuple(v for v in named if v != HANDS) or (DEFAULT_BLAZEPOSE,)
+    variants = tuple(v for v in named if v in BLAZEPOSE_VARIANTS) or (DEFAULT_BLAZEPOSE,)
+    extras = tuple(v for v in EXTRA_MODELS if v in named)
     if args.action == "fetch":
-        paths = fetch_models(variants, hands=HANDS in named)
-        extra = " and the hand landmarks" if HANDS in named else ""
+        paths = fetch_models(variants, extras=extras)
+        extra = "".join(f" and the {e} landmarks" for e in extras)
         print(f"BlazePose {', '.join(variants)}{extra} ready in {models_dir()} ({len(paths)} models)")
         return 0
     ready = []
@@ -170,9 +172,10 @@ def run_models(args: argparse.Namespace) -> int:
             ready.append(f"{variant}: {blazepose_paths(variant)[1]}")
         except DetectError:
             ready.append(f"{variant}: not prepared (`{FETCH_COMMAND} {variant}`)")
-    try:
-        ready.append(f"{HANDS}: {hand_landmark_path()}")
-    except DetectError:
-        ready.append(f"{HANDS}: not prepared (`{FETCH_COMMAND} {HANDS}`)")
+    for name in EXTRA_MODELS:
+        try:
+            ready.append(f"{name}: {extra_model_path(name)}")
+        except DetectError:
+            ready.append(f"{name}: not prepared (`{FETCH_COMMAND} {name}`)")
     print("\n".join([f"models in {models_dir()}"] + ready))
     return 0

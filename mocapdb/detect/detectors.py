@@ -33,28 +33,37 @@ class FrameDetector(Protocol):
 
 
 def open_detector(model: str | Path | None, variant: str, *, conf: float, iou: float, max_people: int | None,
-                  input_size: int, fast, hands: bool = False) -> FrameDetector:
+                  input_size: int, fast, hands: bool = False, faces: bool = False) -> FrameDetector:
     """BlazePose ``variant`` (lite, full, heavy) when ``model`` is None, with ``hands`` also each person's
-    hands (:class:`~mocapdb.detect.hands.WithHands`), else the ONNX export ``model`` with the paths ``fast``
-    allows (:class:`~mocapdb.detect.tracked.FastPath`); DetectError when the model cannot be used, when
-    hands are asked of an export, or when BlazePose (or the hand model) is not prepared on this machine."""
+    hands and with ``faces`` their face mesh (:class:`~mocapdb.detect.with_landmarks.WithLandmarks`), else
+    the ONNX export ``model`` with the paths ``fast`` allows (:class:`~mocapdb.detect.tracked.FastPath`);
+    DetectError when the model cannot be used, when hands or faces are asked of an export, or when BlazePose
+    (or the hand or face model) is not prepared on this machine."""
     if model is None:
-        from mocapdb.detect.blazepose import BlazePose
-        from mocapdb.detect.model_store import blazepose_paths, hand_landmark_path
-
-        detector_path, landmark_path = blazepose_paths(variant)
-        hand_path = hand_landmark_path() if hands else None
-        pose = BlazePose(detector_path, landmark_path, max_people=max_people, name=f"BlazePose {variant}")
-        if hand_path is None:
-            return pose
-        from mocapdb.detect.hands import WithHands
-
-        return WithHands(pose, hand_path)
-    if hands:
+        return _blazepose(variant, max_people, hands, faces)
+    if hands or faces:
         from mocapdb.detect.errors import DetectError
 
-        raise DetectError("--hands needs BlazePose (its hand points give the hands' crops), not --model")
+        raise DetectError("--hands and --face need BlazePose (its points give the crops), not --model")
     from mocapdb.detect.model import PoseModel
     from mocapdb.detect.tracked import TrackedDetector
 
     return TrackedDetector(PoseModel(model, conf=conf, iou=iou, max_people=max_people, input_size=input_size), fast)
+
+
+def _blazepose(variant: str, max_people: int | None, hands: bool, faces: bool) -> FrameDetector:
+    """BlazePose ``variant``, with the hand and face landmark models asked for (:func:`open_detector`)."""
+    from mocapdb.detect.blazepose import BlazePose
+    from mocapdb.detect.model_store import blazepose_paths, extra_model_path
+    from mocapdb.detect.with_landmarks import Landmarker, WithLandmarks
+
+    detector_path, landmark_path = blazepose_paths(variant)
+    landmarkers: dict[str, Landmarker] = {}
+    if hands:
+        from mocapdb.detect.hands import HandLandmarker
+        landmarkers["hands"] = HandLandmarker(extra_model_path("hands"))
+    if faces:
+        from mocapdb.detect.face import FaceLandmarker
+        landmarkers["faces"] = FaceLandmarker(extra_model_path("face"))
+    pose = BlazePose(detector_path, landmark_path, max_people=max_people, name=f"BlazePose {variant}")
+    return WithLandmarks(pose, **landmarkers) if landmarkers else pose

@@ -15,17 +15,14 @@ hand flag below :data:`MIN_PRESENCE`). Decisions and figures: ``data_specs/pose_
 """
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
-import cv2
 import numpy as np
 
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
-from mocapdb.detect.blazepose import BlazePose, Region, region_from_points
-from mocapdb.detect.model import Detections, load_session
+from mocapdb.detect.blazepose import Region, region_from_points
+from mocapdb.detect.with_landmarks import BatchedModel
 
 HAND_PX = 224                # hand landmark model input side, pixels
 N_HAND_POINTS = 21           # MediaPipe's (and OpenPose's) hand points: wrist, thumb 1-4, index 1-4, ... pinky 1-4
@@ -103,31 +100,12 @@ def pose_crop(pose: np.ndarray, side: int) -> Region | str:
     return "small" if size_px < MIN_HAND_PX else region
 
 
-def hand_input(image: np.ndarray, region: Region) -> np.ndarray:
-    """The hand model's input ``[224, 224, 3]`` (RGB in [0, 1]): ``region`` of ``image`` (uint8 BGR)."""
-    crop = cv2.warpAffine(image, region.to_input(HAND_PX), (HAND_PX, HAND_PX), flags=cv2.INTER_LINEAR,
-                          borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
-    return crop[..., ::-1].astype(np.float32) / 255.0
-
-
-def _to_frame(values: np.ndarray, region: Region) -> np.ndarray:
-    """The model's points ``[21, 3]`` (input px) in ``region`` → x, y frame px and z px (scaled like x)."""
-    px_per_input = region.side / HAND_PX
-    return np.concatenate([region.to_frame(values[:, :2], HAND_PX), values[:, 2:] * px_per_input], axis=1)
-
-
-@dataclass
-class HandLandmarker:
+class HandLandmarker(BatchedModel):
     """The hand landmark model at ``path`` (converted ONNX) run on each person's hands: all the hands of
-    a frame in one batched run (the model's layers treat each hand alone: the same outputs as one run each)."""
+    a frame in one batched run."""
 
-    path: Path
-
-    def __post_init__(self) -> None:
-        self._session = load_session(Path(self.path), HAND_OUTPUTS, any_batch=True)
-        self._input = self._session.get_inputs()[0].name
-        self.runs = 0      # hands run through the model
-        self.batches = 0   # model runs (each on one frame's hands)
+    def __init__(self, path: Path) -> None:
+        super().__init__(path, HAND_OUTPUTS, HAND_PX, "hand")
 
     def landmarks(self, image: np.ndarray, region: Region) -> tuple[np.ndarray, float, float]:
         """The model in ``region`` of ``image`` (uint8 BGR): points ``[21, 3]`` (x, y frame px, z px),
@@ -139,12 +117,7 @@ class HandLandmarker:
     def landmarks_batch(self, image: np.ndarray, regions: list[Region]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`landmarks` of each of ``regions`` in one model run: points ``[R, 21, 3]``, flags and
         handedness scores ``[R]``."""
-        blob = np.stack([hand_input(image, region) for region in regions])
-        raw, flags, rights = self._session.run(list(HAND_OUTPUTS), {self._input: blob})
-        self.runs += len(regions)
-        self.batches += 1
-        values = raw.reshape(len(regions), N_HAND_POINTS, 3).astype(np.float64)
-        points = np.stack([_to_frame(hand, region) for hand, region in zip(values, regions)])
+        points, flags, rights = self.run_crops(image, regions)
         return points, np.ravel(flags).astype(np.float64), np.ravel(rights).astype(np.float64)
 
     def __call__(self, image: np.ndarray, keypoints: np.ndarray) -> Hands:
@@ -173,35 +146,3 @@ def _fill(hands: Hands, key: tuple[int, int], points: np.ndarray, flag: float, m
     hands.points[person, side, :, :3] = points
     hands.points[person, side, :, 3] = flag
     return ""
-
-
-class WithHands:
-    """A BlazePose detector whose :class:`~mocapdb.detect.model.Detections` also carry each person's
-    :class:`Hands` (``hands``); its ``fps`` counts the hands' time too."""
-
-    def __init__(self, detector: BlazePose, hand_path: Path) -> None:
-        self.detector, self.hands = detector, HandLandmarker(hand_path)
-        self.keypoint_layout = detector.keypoint_layout
-        self.hand_seconds = 0.0
-
-    @property
-    def path(self) -> Path:
-        return self.detector.path
-
-    @property
-    def fps(self) -> float:
-        frames = self.detector.frames
-        seconds = self.detector.seconds + self.hand_seconds
-        return frames / seconds if seconds > 0 else 0.0
-
-    def describe(self) -> str:
-        return (f"{self.detector.describe()}; hand landmarks {HAND_PX} px per hand, {self.hands.runs} hands in "
-                f"{self.hands.batches} runs")
-
-    def __call__(self, image: np.ndarray) -> Detections:
-        found = self.detector(image)
-        started = time.perf_counter()
-        hands = self.hands(image, found.keypoints)
-        self.hand_seconds += time.perf_counter() - started
-        return found._replace(hands=hands)
-

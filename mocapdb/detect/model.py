@@ -175,6 +175,9 @@ class Detections(NamedTuple):
     # both hands of each person (mocapdb.detect.hands.Hands: 21 points each, presence, why absent); None
     # unless hands were asked for
     hands: Any = None
+    # the face of each person (mocapdb.detect.face.Faces: 468 mesh points, presence, why absent); None unless
+    # faces were asked for
+    faces: Any = None
 
 
 def _first_line(exc: Exception) -> str:

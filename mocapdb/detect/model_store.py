@@ -1,4 +1,4 @@
-"""The BlazePose and hand models on this machine: fetched once from the package indexes, checked, converted.
+"""The BlazePose, hand and face models on this machine: fetched once from the package indexes, checked, converted.
 
 ``mocapdb models fetch`` (run by ``tools/setup.sh``) downloads the pinned packages that carry
 MediaPipe's BlazePose TFLite files (Apache-2.0), checks the sha256 of the package and of each file
@@ -24,7 +24,7 @@ from pathlib import Path
 
 from mocapdb.core.files import write_atomic
 from mocapdb.detect.errors import DetectError
-from mocapdb.detect.options import BLAZEPOSE_VARIANTS, DEFAULT_BLAZEPOSE, FETCH_COMMAND, HANDS
+from mocapdb.detect.options import BLAZEPOSE_VARIANTS, DEFAULT_BLAZEPOSE, FACE, FETCH_COMMAND, HANDS
 
 
 @dataclass(frozen=True)
@@ -73,8 +73,13 @@ LANDMARKS = {
 # MediaPipe Hands' landmark model (224 x 224; 21 points, hand flag, handedness), prepared by `models fetch hands`
 HAND_LANDMARKS = ModelFile(MEDIAPIPE_WHEEL, "mediapipe/modules/hand_landmark/hand_landmark_full.tflite",
                            "11c272b891e1a99ab034208e23937a8008388cf11ed2a9d776ed3d01d0ba00e3")
+# MediaPipe Face Mesh's landmark model (192 x 192; 468 points, face flag), prepared by `models fetch face`
+FACE_LANDMARKS = ModelFile(MEDIAPIPE_WHEEL, "mediapipe/modules/face_landmark/face_landmark.tflite",
+                           "1055cb9d4a9ca8b8c688902a3a5194311138ba256bcc94e336d8373a5f30c814")
+EXTRA_MODELS = {HANDS: HAND_LANDMARKS, FACE: FACE_LANDMARKS}   # `models fetch` names beyond the BlazePose variants
 BLAZEPOSE_AUTHORS = "Google LLC (MediaPipe BlazePose: Bazarevsky et al., 2020, arXiv:2006.10204)"
-_AUTHORS = {HAND_LANDMARKS.stem: "Google LLC (MediaPipe Hands: Zhang et al., 2020, arXiv:2006.10214)"}
+_AUTHORS = {HAND_LANDMARKS.stem: "Google LLC (MediaPipe Hands: Zhang et al., 2020, arXiv:2006.10214)",
+            FACE_LANDMARKS.stem: "Google LLC (MediaPipe Face Mesh: Kartynnik et al., 2019, arXiv:1907.06724)"}
 
 
 def models_dir() -> Path:
@@ -113,10 +118,16 @@ def blazepose_paths(variant: str = DEFAULT_BLAZEPOSE, folder: Path | None = None
 
 def hand_landmark_path(folder: Path | None = None) -> Path:
     """The converted hand landmark model; DetectError naming the command that prepares it when missing."""
-    path = onnx_path(HAND_LANDMARKS, folder)
+    return extra_model_path(HANDS, folder)
+
+
+def extra_model_path(name: str, folder: Path | None = None) -> Path:
+    """The converted model ``name`` of :data:`EXTRA_MODELS` (hands, face); DetectError naming the command
+    that prepares it when missing."""
+    path = onnx_path(EXTRA_MODELS[name], folder)
     if not path.is_file():
-        raise DetectError(f"the hand landmark model is not prepared on this machine ({path} missing): run "
-                          f"`{FETCH_COMMAND} {HANDS}` once, with access to the package index (it downloads the "
+        raise DetectError(f"the {name} landmark model is not prepared on this machine ({path} missing): run "
+                          f"`{FETCH_COMMAND} {name}` once, with access to the package index (it downloads the "
                           f"pinned MediaPipe package and converts the model; nothing is fetched at run time)")
     return path
 
@@ -189,15 +200,16 @@ def _extract(archive: Path, model: ModelFile, into: Path) -> Path:
 
 
 def fetch_models(variants: tuple[str, ...] = (DEFAULT_BLAZEPOSE,), folder: Path | None = None,
-                 say: Callable[[str], None] = print, hands: bool = False) -> list[Path]:
-    """Downloads, checks and converts the person detector, the ``variants`` landmark models and, with
-    ``hands``, the hand landmark model into ``folder`` (default :func:`models_dir`); files already there
-    with their model card are kept. Returns the ONNX paths; DetectError for a download or a checksum that fails."""
+                 say: Callable[[str], None] = print, extras: tuple[str, ...] = ()) -> list[Path]:
+    """Downloads, checks and converts the person detector, the ``variants`` landmark models and the
+    ``extras`` (names of :data:`EXTRA_MODELS`: hands, face) into ``folder`` (default :func:`models_dir`);
+    files already there with their model card are kept. Returns the ONNX paths; DetectError for a download
+    or a checksum that fails."""
     from mocapdb.detect.tflite_onnx import convert_tflite
 
     folder = folder or models_dir()
     folder.mkdir(parents=True, exist_ok=True)
-    wanted = [DETECTOR] + [LANDMARKS[v] for v in variants] + ([HAND_LANDMARKS] if hands else [])
+    wanted = [DETECTOR] + [LANDMARKS[v] for v in variants] + [EXTRA_MODELS[e] for e in extras]
     todo = [m for m in wanted if not _card_matches(m, folder)]
     with tempfile.TemporaryDirectory(prefix="mocapdb-models-") as scratch:
         archives: dict[Package, Path] = {}

@@ -10,3 +10,4 @@ BLAZEPOSE_VARIANTS = ("lite", "full", "heavy")   # landmark models; the person d
 DEFAULT_BLAZEPOSE = "full"
 FETCH_COMMAND = "mocapdb models fetch"          # prepares the BlazePose models (mocapdb.detect.model_store)
 HANDS = "hands"   # `mocapdb models fetch hands` also prepares the hand landmark model (detect/live --hands)
+FACE = "face"     # `mocapdb models fetch face` also prepares the face landmark model (detect --face)

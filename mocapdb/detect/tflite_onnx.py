@@ -1,9 +1,9 @@
 """TFLite → ONNX: mocapdb's own converter for MediaPipe's float models (BlazePose's person detector and
-landmarks, the hand landmarks).
+landmarks, the hand and face landmarks).
 
 The TFLite flatbuffer is read with the ``tflite`` package (the schema's generated readers) and the
 same graph written with ``onnx`` (opset :data:`OPSET`). Operators covered: CONV_2D,
-DEPTHWISE_CONV_2D, MAX_POOL_2D, ADD, PAD, RESIZE_BILINEAR, DEPTH_TO_SPACE, RESHAPE, CONCATENATION,
+DEPTHWISE_CONV_2D, MAX_POOL_2D, ADD, PAD, PRELU, RESIZE_BILINEAR, DEPTH_TO_SPACE, RESHAPE, CONCATENATION,
 LOGISTIC, MEAN (over constant axes), FULLY_CONNECTED (2-D input, float weights), with their fused
 activations (RELU, RELU6); DEQUANTIZE and DENSIFY of constant weights
 (float16, stored dense or sparse) are evaluated here, so the ONNX file holds float32 weights only.
@@ -279,6 +279,10 @@ class _Converter:
             full = array.astype(np.float32).reshape((1,) * (4 - array.ndim) + array.shape)
             return self.g.constant(full.transpose(NHWC_TO_NCHW), "bcast")
         return self.value(index)
+
+    def _prelu(self, op, inputs, output) -> None:
+        slope = self._broadcast(inputs[1], output)
+        self.names[output] = self.g.node("PRelu", [self.value(inputs[0]), slope], "prelu", self.out_name(output))
 
     def _logistic(self, op, inputs, output) -> None:
         self.names[output] = self.g.node("Sigmoid", [self.value(inputs[0])], "sigmoid", self.out_name(output))

@@ -62,9 +62,10 @@ def photo_hands(image: np.ndarray, pose_paths: tuple, hand_path) -> list[tuple[s
     a photo without a body (a close-up of a hand) gets the hand model on the whole image, then
     :data:`CLOSE_UP_ROUNDS` times on the crop around the points it found (``label``: ``close-up``)."""
     from mocapdb.detect.blazepose import BlazePose, Region
-    from mocapdb.detect.hands import MIN_PRESENCE, SIDES, HandLandmarker, WithHands, region_from_hand
+    from mocapdb.detect.hands import MIN_PRESENCE, SIDES, HandLandmarker, region_from_hand
+    from mocapdb.detect.with_landmarks import WithLandmarks
 
-    detector = WithHands(BlazePose(*pose_paths), hand_path)
+    detector = WithLandmarks(BlazePose(*pose_paths), hands=HandLandmarker(hand_path))
     found = detector(image)
     if len(found.scores):
         return [(f"person{p}_{side}", found.hands.points[p, s, :, :3], float(found.hands.presence[p, s]))
