@@ -14,7 +14,8 @@ import tempfile
 from pathlib import Path
 
 # the packages whose modules define cache=True kernels (numba caches each beside its source by default)
-_KERNEL_PACKAGES = ("mocapdb.core", "mocapdb.builder", "mocapdb.evaluation", "mocapdb.runtime")
+_KERNEL_PACKAGES = ("mocapdb.core", "mocapdb.builder", "mocapdb.evaluation", "mocapdb.runtime",
+                    "mocapdb.runtime.world")
 
 
 def choose_kernel_cache() -> str | None:
