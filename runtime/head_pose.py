@@ -74,15 +74,18 @@ def face_points(keypoints: np.ndarray, extremities: np.ndarray) -> np.ndarray:
 
 def fit_head(face_px: np.ndarray, nose_view_m: np.ndarray, prior: np.ndarray, scale: float,
              camera_px: tuple[float, float, float], prior_sd_deg: float | np.ndarray = PRIOR_SD_DEG,
-             model_m: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+             model_m: np.ndarray | None = None, swapped: tuple[int, ...] | None = SWAPPED
+             ) -> tuple[np.ndarray, np.ndarray]:
     """The head's global rotations ``[F, 3, 3]`` (view frame; identity: facing +z upright) and which
-    frames the face fixed ``[F]`` (the others: ``prior``). ``face_px [F, 7, 3]``: :func:`face_points`;
+    frames the face fixed ``[F]`` (the others: ``prior``). ``face_px [F, P, 3]``: :func:`face_points`
+    (or another face's points, the nose first, with its ``model_m``);
     ``nose_view_m [F, 3]``: the body's nose (view frame, metres; its depth is the model's);
     ``prior [F, 3, 3]``: where the head would be without the face (the start, held within
     ``prior_sd_deg``, degrees, one or ``[F]``); ``scale``: the body's (height / 1.75 m); ``camera_px``:
-    focal, cx, cy (pixels); ``model_m [7, 3]``: the face (metres; default :data:`FACE_MODEL_M` scaled).
-    Each frame's face is fitted as labelled and with its left and right exchanged (both in one
-    :func:`_fit_face`: its cost is mostly per call, a stream fits one frame at a time); the lower cost wins."""
+    focal, cx, cy (pixels); ``model_m [P, 3]``: the face (metres; default :data:`FACE_MODEL_M` scaled).
+    Each frame's face is fitted as labelled and, with ``swapped`` (the rows with left and right exchanged;
+    None: not tried), with its left and right exchanged (both in one :func:`_fit_face`: its cost is mostly
+    per call, a stream fits one frame at a time); the lower cost wins."""
     model = FACE_MODEL_M * scale if model_m is None else model_m
     seen = (face_px[..., 2] > 0) & np.isfinite(face_px[..., :2]).all(axis=-1)
     fixed = seen[:, 0] & (seen.sum(axis=1) >= MIN_POINTS)
@@ -92,7 +95,10 @@ def fit_head(face_px: np.ndarray, nose_view_m: np.ndarray, prior: np.ndarray, sc
     count = int(fixed.sum())
     sd = np.broadcast_to(np.radians(prior_sd_deg), fixed.shape)[fixed]
     pixel_sd = camera_px[0] * POINT_SD_M * scale / -nose_view_m[fixed, 2]
-    both_ways = np.concatenate([face_px[fixed], face_px[fixed][:, list(SWAPPED)]])
+    if swapped is None:
+        rotation[fixed] = _fit_face(face_px[fixed], nose_view_m[fixed], prior[fixed], sd, pixel_sd, model, camera_px)[0]
+        return rotation, fixed
+    both_ways = np.concatenate([face_px[fixed], face_px[fixed][:, list(swapped)]])
     nose2, prior2, sd2, pixel_sd2 = (np.concatenate([a, a]) for a in (nose_view_m[fixed], prior[fixed], sd, pixel_sd))
     fitted, cost = _fit_face(both_ways, nose2, prior2, sd2, pixel_sd2, model, camera_px)
     rotation[fixed] = np.where((cost[count:] < cost[:count])[:, None, None], fitted[count:], fitted[:count])
