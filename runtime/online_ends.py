@@ -59,7 +59,7 @@ def measure(pose: PersonPose, camera_px: tuple[float, float, float]) -> Measure:
     scale = pose.height_m / UNIVERSAL_HEIGHT_M
     offsets = None if pose.bones_m is None else body_offsets_m(pose.bones_m / scale)
     quats, root = pose.quaternions[None], (pose.root_m * CAMERA_FROM_VIEW)[None]
-    directions = measured_directions(quats, root, scale, offsets, keypoints[None], extremities[None], camera_px[0])
+    directions = measured_directions(quats, root, scale, offsets, keypoints[None], extremities[None], camera_px)
     face_world_m = None if pose.face_world_m is None else pose.face_world_m[None]
     head = chest_relative_head(quats, root, scale, offsets, face_points(keypoints[None], extremities[None]),
                                camera_px, face_world_m)

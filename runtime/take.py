@@ -162,7 +162,7 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     palms = None if hands is None else palm_frames(hands)
     end_quats = None
     if ends and rec.camera_px is not None:
-        end_quats = end_rotations(quats, root, scale, offsets, keypoints, extremities, rec.camera_px[0],
+        end_quats = end_rotations(quats, root, scale, offsets, keypoints, extremities, rec.camera_px,
                                   planted, floor_up, fps, params, palms)
     head = None if not len(extremities) or rec.camera_px is None else head_rotation(
         quats, root, scale, offsets, face_points(keypoints, extremities), rec.camera_px, fps, params,
@@ -212,8 +212,9 @@ _NO_LIMITS = JointLimits(np.full((N_RIG_JOINTS, 3), -np.inf), np.full((N_RIG_JOI
 
 
 def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
-                  keypoints: np.ndarray, extremities: np.ndarray, focal_px: float, planted: np.ndarray,
-                  up: np.ndarray, fps: float, params: TakeParams, palms: np.ndarray | None = None) -> np.ndarray:
+                  keypoints: np.ndarray, extremities: np.ndarray, camera_px: tuple[float, float, float],
+                  planted: np.ndarray, up: np.ndarray, fps: float, params: TakeParams,
+                  palms: np.ndarray | None = None) -> np.ndarray:
     """Local rotations ``[F, 4, 4]`` of the feet and hands (:data:`~mocapdb.core.skeleton.END_JOINTS`)
     of the fitted motion (``quats [F, R, 4]``, ``root_m [F, 3]`` view frame, body ``scale`` and
     ``offsets_m``): each turned from where its parent (shank, forearm) points it to the measured
@@ -222,11 +223,11 @@ def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
     smoothed as the rotations (:attr:`TakeParams.smoothing_hz`); a ``planted [F, 2]`` foot flat
     on the floor (perpendicular to ``up`` but for the standing foot's slope,
     :data:`~mocapdb.core.skeleton.HEEL_TO_TOE_SLOPE_DEG`); never seen: not turned. ``keypoints [F, 14, 3]``,
-    ``extremities [F, 8, 3]``: x px, y px, confidence; ``focal_px``: the camera's focal length. ``palms
+    ``extremities [F, 8, 3]``: x px, y px, confidence; ``camera_px``: the pinhole (focal, cx, cy: pixels). ``palms
     [F, 2, 3, 3]`` (:func:`~mocapdb.runtime.hand_pose.palm_frames` of the hand model's points; NaN: unseen):
     a hand's direction where seen, and its palm's twist about it, eased to none where unseen."""
     parents, reference = end_frames(quats)
-    direction = measured_directions(quats, root_m, scale, offsets_m, keypoints, extremities, focal_px)
+    direction = measured_directions(quats, root_m, scale, offsets_m, keypoints, extremities, camera_px)
     if palms is not None:
         direction[:, 2:] = np.where(np.isfinite(palms[..., 0, :]), palms[..., 0, :], direction[:, 2:])
     seen = np.isfinite(direction).all(axis=-1)

@@ -21,8 +21,9 @@ from mocapdb.core.skeleton import (
     N_RIG_JOINTS,
     RIG_JOINTS,
     global_rotations,
+    pose_from_rotations,
 )
-from mocapdb.runtime.end_joints import END_PARENTS, END_REST_DIRECTIONS, lift_direction
+from mocapdb.runtime.end_joints import END_PARENTS, END_REST_DIRECTIONS, lift_direction, measured_directions
 from mocapdb.runtime.foot_contacts import FLAT, HEEL_STRIKE, SWING, TOE_OFF, UNSEEN, foot_phases, planted_ankles
 from mocapdb.runtime.take import end_rotations
 from mocapdb.runtime.take_params import TakeParams
@@ -154,18 +155,53 @@ def test_the_lower_slower_foot_carries_the_body_while_the_other_swings(drift_box
     assert not planted_ankles(keypoints, ankles, np.array([0.0, 1.0, 0.0]), FPS, TakeParams())[inner, 0].any()
 
 
-def test_lift_direction_hand_computed():
-    """At 4 m with a 1000 px focal length 37.5 px is 0.15 m; a 0.25 m segment leaves 0.20 m along the
-    view: a 3-4-5 triangle, 36.87° off the view axis, towards or away from the camera as the
-    reference points."""
-    depth, length, focal = np.array(4.0), np.array(0.25), 1000.0
-    towards, away = np.array([0.0, 0.0, 1.0]), np.array([0.1, 0.0, -1.0])
-    np.testing.assert_allclose(lift_direction(np.array([37.5, 0.0]), depth, length, focal, towards), [0.6, 0, 0.8])
-    np.testing.assert_allclose(lift_direction(np.array([37.5, 0.0]), depth, length, focal, away), [0.6, 0, -0.8])
-    pitched = lift_direction(np.array([0.0, -37.5]), depth, length, focal, towards)  # up the image: up
-    assert np.degrees(np.arcsin(pitched[1])) == pytest.approx(36.8699, abs=1e-3)
-    # an image longer than the length: across the view only
-    np.testing.assert_allclose(lift_direction(np.array([0.0, 500.0]), depth, length, focal, towards), [0, -1, 0])
+CAMERA = (1000.0, 960.0, 540.0)   # focal, cx, cy (pixels)
+
+
+def _pixel(view_m: np.ndarray) -> np.ndarray:
+    """The pixel ``[..., 2]`` of view-frame points ``[..., 3]`` (x right, y up, z towards the camera) under CAMERA."""
+    focal, cx, cy = CAMERA
+    return np.stack([cx + focal * view_m[..., 0] / -view_m[..., 2], cy - focal * view_m[..., 1] / -view_m[..., 2]],
+                    axis=-1)
+
+
+def test_lift_direction_inverts_the_perspective():
+    """A 0.25 m segment from a point 4 m in front of the camera, 0.6 across and 0.8 along the view (towards
+    or away from the camera, as the reference points, and off the optical axis): the lifted direction is
+    the segment's own; the image alone has both, one nearer and one farther."""
+    length = np.array(0.25)
+    for start in (np.array([0.0, 0.0, -4.0]), np.array([0.7, -1.2, -4.0])):
+        depth = np.array(-start[2])
+        for direction in ([0.6, 0.0, 0.8], [0.6, 0.0, -0.8], [0.0, -0.6, 0.8]):
+            direction = np.array(direction)
+            end = start + length * direction
+            towards = np.sign(direction[2]) * np.array([0.1, 0.0, 1.0])
+            got = lift_direction(_pixel(start), _pixel(end), depth, length, CAMERA, towards)
+            np.testing.assert_allclose(got, direction, atol=1e-12)
+    # an image longer than the length: the ray's point nearest the start, across the view
+    got = lift_direction(_pixel(np.array([0.0, 0.0, -4.0])), _pixel(np.array([0.0, -0.5, -4.0])), np.array(4.0),
+                         np.array(0.25), CAMERA, np.array([0.0, 0.0, 1.0]))
+    assert np.degrees(np.arccos(-got[1])) < 7.2   # the ray 7.1 deg off the start's: its nearest point
+
+
+def test_a_foot_is_lifted_on_the_side_the_pelvis_faces_not_the_knee():
+    """The right thigh turned in by 120 deg (its knee, and the foot's rest direction with it, faces away from the
+    camera) under a pelvis facing the camera: a foot seen pointing 30 deg to the side is lifted towards the
+    camera, where the hips face, exactly (the perspective inverted)."""
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (1, N_RIG_JOINTS, 1))
+    turn = np.radians(120.0) / 2
+    quats[0, RIG_JOINTS.index("r_hip")] = [np.cos(turn), 0.0, np.sin(turn), 0.0]
+    root = np.array([[0.2, 0.1, -4.0]])
+    ankle = pose_from_rotations(quats, root)[0, KP["r_ankle"]]
+    foot = np.array([np.sin(np.radians(30.0)), -0.2, np.cos(np.radians(30.0))])
+    foot /= np.linalg.norm(foot)
+    keypoints = np.zeros((1, 14, 3))
+    extremities = np.tile(np.array(MISSING), (1, 8, 1))
+    extremities[0, 0] = [*_pixel(ankle), 0.9]
+    extremities[0, 1] = [*_pixel(ankle + HEEL_TO_TOE_M * foot), 0.9]
+    got = measured_directions(quats, root, 1.0, None, keypoints, extremities, CAMERA)[0]
+    np.testing.assert_allclose(got[0], foot, atol=1e-9)
+    assert np.isnan(got[1:]).all()
 
 
 def _directions(quats: np.ndarray, end_quats: np.ndarray) -> np.ndarray:
@@ -185,26 +221,29 @@ def test_end_rotations_turn_feet_and_hands_to_the_image_points():
     yaw, pitch = np.radians(30.0), np.radians(20.0)
     foot = np.array([np.cos(pitch) * np.sin(yaw), np.sin(pitch), np.cos(pitch) * np.cos(yaw)])
     hand = np.array([-np.cos(np.radians(30.0)), -np.sin(np.radians(30.0)), 0.0])
-    # image offsets of the segments at the joints' depth (4 m, the T-pose's depth): x right, y down
-    foot_px = HEEL_TO_TOE_M * foot[:2] * [1.0, -1.0] * focal / 4.0
-    hand_px = HAND_LENGTH_M * hand[:2] * [1.0, -1.0] * focal / 4.0
+    # the segments from points on the heel's and wrist's pixels at the joints' depth (4 m, the T-pose's),
+    # projected exactly
+    heel, wrist = (np.array([(x - CAMERA[1]) * 4.0 / focal, (CAMERA[2] - y) * 4.0 / focal, -4.0])
+                   for x, y in ((420.0, 900.0), (300.0, 500.0)))
     keypoints = np.zeros((n, 14, 3))
     keypoints[:, KP["r_wrist"]] = [300.0, 500.0, 0.9]
     extremities = np.tile(np.array(MISSING), (n, 8, 1))
     extremities[:, 0] = [420.0, 900.0, 0.9]                                 # right heel
-    extremities[:, 1] = [420.0 + foot_px[0], 900.0 + foot_px[1], 0.9]       # right big toe
-    extremities[:, 4] = [300.0 + hand_px[0], 505.0 + hand_px[1], 0.9]       # right index knuckle
-    extremities[:, 5] = [300.0 + hand_px[0], 495.0 + hand_px[1], 0.9]       # right pinky knuckle
+    extremities[:, 1, :2] = _pixel(heel + HEEL_TO_TOE_M * foot)             # right big toe
+    knuckles = _pixel(wrist + HAND_LENGTH_M * hand)
+    extremities[:, 4, :2] = knuckles + [0.0, 5.0]                           # right index knuckle
+    extremities[:, 5, :2] = knuckles - [0.0, 5.0]                           # right pinky knuckle
+    extremities[:, [1, 4, 5], 2] = 0.9
     params, up = TakeParams(smoothing_hz=0.0), np.array([0.0, 1.0, 0.0])
     not_planted = np.zeros((n, 2), dtype=bool)
-    end_quats = end_rotations(quats, root, 1.0, None, keypoints, extremities, focal, not_planted, up, FPS, params)
+    end_quats = end_rotations(quats, root, 1.0, None, keypoints, extremities, CAMERA, not_planted, up, FPS, params)
     got = _directions(quats, end_quats)
     np.testing.assert_allclose(got[:, 0], np.broadcast_to(foot, (n, 3)), atol=1e-9)
     np.testing.assert_allclose(got[:, 2], np.broadcast_to(hand, (n, 3)), atol=1e-9)
     np.testing.assert_allclose(end_quats[:, [1, 3]], np.broadcast_to([1.0, 0, 0, 0], (n, 2, 4)), atol=1e-12)
     planted = not_planted.copy()
     planted[:, 0] = True
-    flat = _directions(quats, end_rotations(quats, root, 1.0, None, keypoints, extremities, focal, planted, up,
+    flat = _directions(quats, end_rotations(quats, root, 1.0, None, keypoints, extremities, CAMERA, planted, up,
                                             FPS, params))[:, 0]
     slope = np.radians(HEEL_TO_TOE_SLOPE_DEG)
     standing = [np.cos(slope) * np.sin(yaw), -np.sin(slope), np.cos(slope) * np.cos(yaw)]

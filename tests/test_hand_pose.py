@@ -108,8 +108,8 @@ def test_the_hand_turns_fully_with_its_palm():
         points[:, 1] = _closed_form_hand("Left", hand, np.zeros((4, 5)))[0]
         quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, N_RIG_JOINTS, 1))
         local = end_rotations(quats, np.tile([0.0, 0.0, -3.0], (n, 1)), 1.0, None, np.zeros((n, 14, 3)),
-                              np.zeros((n, 8, 3)), 1000.0, np.zeros((n, 2), bool), np.array([0.0, 1.0, 0.0]), FPS,
-                              TakeParams(), palm_frames(points))
+                              np.zeros((n, 8, 3)), (1000.0, 960.0, 540.0), np.zeros((n, 2), bool),
+                              np.array([0.0, 1.0, 0.0]), FPS, TakeParams(), palm_frames(points))
         assert _rotation_deg(local[:, 3], _scipy(hand if expected is None else expected)).max() < 1e-4
         np.testing.assert_allclose(local[:, 2], np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), atol=1e-12)   # never seen
 

@@ -22,8 +22,9 @@ SLOPE = np.radians(12.0)          # a standing foot's heel → toe slope (a plan
 # the true directions (view frame: x right, y up, z towards the camera), written out here
 FEET = np.array([[np.cos(SLOPE) * np.sin(h), -np.sin(SLOPE), np.cos(SLOPE) * np.cos(h)]
                  for h in np.radians([-25.0, 20.0])])
-HANDS = np.array([[-0.8, -0.5, 0.3], [0.7, 0.6, 0.2]]) / np.linalg.norm([[-0.8, -0.5, 0.3], [0.7, 0.6, 0.2]],
-                                                                         axis=1, keepdims=True)
+# (the right hand away from the camera along its ray, the side its outward rest direction lifts it to)
+HANDS = np.array([[-0.8, -0.5, -0.3], [0.7, 0.6, 0.2]]) / np.linalg.norm([[-0.8, -0.5, -0.3], [0.7, 0.6, 0.2]],
+                                                                          axis=1, keepdims=True)
 HEAD = Rotation.from_euler("YXZ", [30.0, 10.0, -5.0], degrees=True)
 # the head as the humanoid Head carries it on an unturned neck (head_pose decides which of its components)
 HEAD_AS_CARRIED = Rotation.from_quat(head_local(np.tile([1.0, 0.0, 0.0, 0.0], (1, N_RIG_JOINTS, 1)),
@@ -39,10 +40,8 @@ def _pixels(points_view: np.ndarray) -> np.ndarray:
 
 
 def _segment(start_view: np.ndarray, vector_m: np.ndarray) -> np.ndarray:
-    """``[2, 2]`` pixels of a segment from ``start_view`` along ``vector_m`` (view frame) as the lift models it:
-    both ends at the start's depth (its own perspective neglected, data_specs/stream_output.md)."""
-    start = _pixels(start_view[None])[0]
-    return np.array([start, start + CAMERA[0] * vector_m[:2] * [1.0, -1.0] / -start_view[2]])
+    """``[2, 2]`` pixels of a segment from ``start_view`` along ``vector_m`` (view frame), projected exactly."""
+    return _pixels(np.array([start_view, start_view + vector_m]))
 
 
 def _pose(seen: dict[str, bool]) -> PersonPose:

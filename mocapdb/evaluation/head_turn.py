@@ -33,7 +33,7 @@ ANGLES = ("turn", "nod", "tilt")
 # BlazePose points of the reference (mediapipe33 names) and their partner in a mirrored detection
 REFERENCE_POINTS = ("nose", "right_ear", "left_ear", "right_shoulder", "left_shoulder", "right_hip", "left_hip")
 _PARTNER = {"nose": "nose", **{f"{a}_{p}": f"{b}_{p}" for a, b in (("right", "left"), ("left", "right"))
-                               for p in ("ear", "shoulder", "hip")}}
+                               for p in ("ear", "shoulder", "hip", "heel", "foot_index")}}
 CONFIDENCE = 0.5  # a point takes part in the triangulation from this BlazePose visibility
 
 
@@ -50,16 +50,18 @@ class HeadScore:
     frames: int
 
 
-def triangulated_points(folders: list[Path], cams: list[CameraModel]) -> np.ndarray:
-    """``[T, 7, 3]`` (calibration world, metres; NaN where fewer than two views see a point): the main
-    person's :data:`REFERENCE_POINTS` from BlazePose folders (one per camera, frames aligned)."""
+def triangulated_points(folders: list[Path], cams: list[CameraModel],
+                        names: tuple[str, ...] = REFERENCE_POINTS) -> np.ndarray:
+    """``[T, N, 3]`` (calibration world, metres; NaN where fewer than two views see a point): the main
+    person's ``names`` (mediapipe33; :data:`REFERENCE_POINTS`, or others with a partner in a mirrored
+    detection) from BlazePose folders (one per camera, frames aligned)."""
     frames = [list(read_openpose_folder(folder)) for folder in folders]
     raw = [read_raw_folder(folder) for folder in folders]
     chosen, mirrored = choose_people(frames, cams, CONFIDENCE)
-    names = LAYOUTS["mediapipe33"]
-    straight = np.array([names.index(n) for n in REFERENCE_POINTS])
-    swapped = np.array([names.index(_PARTNER[n]) for n in REFERENCE_POINTS])
-    points = np.full((len(cams), len(frames[0]), len(REFERENCE_POINTS), 3), np.nan)
+    layout = LAYOUTS["mediapipe33"]
+    straight = np.array([layout.index(n) for n in names])
+    swapped = np.array([layout.index(_PARTNER[n]) for n in names])
+    points = np.full((len(cams), len(frames[0]), len(names), 3), np.nan)
     for v in range(len(cams)):
         for t, k in enumerate(chosen[v]):
             if k >= 0:
