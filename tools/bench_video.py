@@ -1,7 +1,8 @@
 """Benchmark video → 3D: what each step costs, end to end, for each detector and detector path.
 
     python tools/bench_video.py VIDEO [--blazepose lite full heavy] [--model POSE.onnx] [--db demo/sample.db]
-                                [--frames 400] [--hands] [--max-people N] [--repeats R] [--mediapipe PYTHON]
+                                [--frames 400] [--hands] [--hands-every N ...] [--max-people N] [--repeats R]
+                                [--realtime] [--mediapipe PYTHON]
 
 BlazePose (the default detector; the variants prepared by `mocapdb models fetch lite full heavy`)
 runs its person detector on a tile scan and one landmark run per person. With ``--model``, a
@@ -18,16 +19,19 @@ it prints, over one thread (decode → detect → engine step → output line, a
 each stage's mean and p99 in ms (detection split by the path each frame took) and the frames per
 second end to end; the 2D keypoints' difference from the full-frame 640 px run (mean and p95 of
 the distance per keypoint, in % of the person's box height; keypoints of confidence ≥ 0.5 in both);
-then the real `mocapdb live --source VIDEO --model POSE.onnx` (detection in its own thread): its
-throughput and latency p50/p99 from a frame's capture to its output line. The file is read as
-fast as detection goes (frames queue as they would behind a camera too fast for the machine), so
-the latency includes waiting in the buffer. Other processes on the machine slow every figure
+then the real `mocapdb live --source VIDEO --model POSE.onnx` (decoding and detection in threads of
+their own): its throughput, latency p50/p99 from a frame's capture to the sink's send (and p99 in
+frame times of the video) and lag. The file is read as fast as detection goes (frames queue as they
+would behind a camera too fast for the machine), so the latency includes waiting in the buffers;
+``--realtime``: `live --realtime`, the file delivered at its frame rate as a camera would (the
+latency a camera gives; late frames dropped). Other processes on the machine slow every figure
 alike: compare the ratios within one run (the load average is printed). ``--repeats R``: every run R
 times, interleaved (stages pooled, frames/s the median). ``--max-people N``: each BlazePose variant (and with
-``--hands`` its hands variant) also with ``--max-people N``. ``--mediapipe PYTHON``: MediaPipe Pose
-(complexity 1) on the same frames in that Python (tools/bench_mediapipe.py; a venv with mediapipe
-0.10.21), in the same sitting: its frames/s on frames decoded first and with decoding, and each
-configuration's over MediaPipe's on decoded frames.
+``--hands`` its hands variant) also with ``--max-people N``. ``--hands-every N ...``: the hands variants
+run with `live --hands-every N` for each N given (default: live's default; in one thread too).
+``--mediapipe PYTHON``: MediaPipe Pose (complexity 1) on the same frames in that Python
+(tools/bench_mediapipe.py; a venv with mediapipe 0.10.21), in the same sitting: its frames/s on frames
+decoded first and with decoding, and each configuration's over MediaPipe's on decoded frames.
 """
 from __future__ import annotations
 
@@ -49,6 +53,7 @@ sys.path.insert(0, str(ROOT))
 from mocapdb.cli.main import parser  # noqa: E402
 from mocapdb.cli.reconstruct import _session, resolve_take  # noqa: E402
 from mocapdb.detect.detectors import open_detector  # noqa: E402
+from mocapdb.detect.hand_schedule import LIVE_HANDS_EVERY  # noqa: E402
 from mocapdb.detect.model import Detections, box_iou  # noqa: E402
 from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU  # noqa: E402
 from mocapdb.detect.tracked import FULL_FRAME, FastPath  # noqa: E402
@@ -62,14 +67,16 @@ STAGES = ("decode", "detect BlazePose", "detect full", "detect crop", "detect cr
           "output")
 
 
-def configurations(crop_px: int, variants: list[str], model: str | None, hands: bool = False,
+def configurations(crop_px: int, variants: list[str], model: str | None, hands_every: list[int] | None = None,
                    max_people: int | None = None) -> dict[str, tuple[FastPath, list[str]]]:
-    """Name → (the detector's paths, the same as `live` options); ``hands``: each BlazePose variant also
-    with ``--hands``; ``max_people``: also with ``--max-people`` (and with both)."""
+    """Name → (the detector's paths, the same as `live` options); ``hands_every``: each BlazePose variant
+    also with ``--hands --hands-every N`` for each N (``+ hands/N``); ``max_people``: also with
+    ``--max-people`` (and with both)."""
     size = ["--crop-size", str(crop_px)]
     people = [("", [])] + ([(f" max {max_people}", ["--max-people", str(max_people)])] if max_people else [])
+    hand_variants = [(f" + hands/{n}", ["--hands", "--hands-every", str(n)]) for n in hands_every or []]
     extra = [(limit + hand, [*limit_flags, *hand_flags]) for limit, limit_flags in people
-             for hand, hand_flags in [("", [])] + ([(" + hands", ["--hands"])] if hands else [])]
+             for hand, hand_flags in [("", []), *hand_variants]]
     blazepose = {f"BlazePose {v}{suffix}": (FULL_FRAME, ["--blazepose", v, *flag]) for v in variants
                  for suffix, flag in extra}
     if model is None:
@@ -93,7 +100,8 @@ def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[d
     """Decode → detect → engine step → output line in one thread: milliseconds per stage, the
     detections of every frame and the frames per second over the timed frames."""
     detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
-                             max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE, fast=fast, hands=args.hands)
+                             max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE, fast=fast, hands=args.hands,
+                             hands_every=args.hands_every)
     session = _session(args, args.sink, strict=False)
     engine_ms: list[float] = []
     step = session.engine.step
@@ -152,7 +160,7 @@ def keypoint_difference(reference: list[Detections], found: list[Detections]) ->
 
 
 def live_run(video: str, db: str, flags: list[str], sink: str) -> dict[str, float]:
-    """The real `mocapdb live --source VIDEO [flags]` (a subprocess): its summary's figures."""
+    """The real `mocapdb live --source VIDEO [flags]` (a subprocess): its summary's figures (latency in ms)."""
     command = [sys.executable, "-m", "mocapdb", "-q", "live", "--source", video, "--db", db, "--sink", sink, *flags]
     err = subprocess.run(command, capture_output=True, text=True, check=True, cwd=ROOT).stderr
     latency = re.search(r"latency capture → send p50 ([\d.]+) ms, p99 ([\d.]+) ms \(\d+ frames\); lag ([\d.]+) frames "
@@ -216,13 +224,18 @@ def main() -> int:
     ap.add_argument("--crop-size", type=int, default=256, help="largest crop input side, pixels (default 256)")
     ap.add_argument("--hands", action="store_true", help="each BlazePose variant also with --hands (`live` frames/s "
                                                          "with hands over without)")
+    ap.add_argument("--hands-every", type=int, nargs="+", metavar="N",
+                    help=f"with --hands: the hands variants with `live --hands-every N` (default {LIVE_HANDS_EVERY})")
+    ap.add_argument("--realtime", action="store_true", help="`live --realtime`: the file at its frame rate")
     ap.add_argument("--max-people", type=int, metavar="N", help="each BlazePose variant also with --max-people N")
     ap.add_argument("--repeats", type=int, default=1, help="runs of each configuration, interleaved (default 1)")
     ap.add_argument("--mediapipe", metavar="PYTHON",
                     help="also MediaPipe Pose in this Python (tools/bench_mediapipe.py)")
     args = ap.parse_args()
     print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())}; {os.cpu_count()} cores")
-    configs = configurations(args.crop_size, args.blazepose, args.model, args.hands, args.max_people)
+    hands_every = (args.hands_every or [LIVE_HANDS_EVERY]) if args.hands else None
+    configs = configurations(args.crop_size, args.blazepose, args.model, hands_every, args.max_people)
+    realtime = ["--realtime"] if args.realtime else []
     runs: dict[str, list] = defaultdict(list)
     lives: dict[str, list] = defaultdict(list)
     detections = {}
@@ -234,13 +247,13 @@ def main() -> int:
                 stages, detections[name], fps = one_thread(live_args(args.video, args.db, sink, flags), fast,
                                                            args.frames)
                 runs[name].append((stages, fps))
-                lives[name].append(live_run(args.video, args.db, flags, sink))
+                lives[name].append(live_run(args.video, args.db, [*flags, *realtime], sink))
         if args.mediapipe:
             mediapipe = mediapipe_run(args.mediapipe, args.video, args.frames, args.repeats)
     results = {name: pooled(rows) for name, rows in runs.items()}
     live = {name: median_live(rows) for name, rows in lives.items()}
     reader = VideoReader(args.video)
-    first = next(reader.frames()).image
+    first, video_fps = next(reader.frames()).image, reader.fps or 30.0
     reader.close()
     print(f"video {args.video}: {first.shape[1]}x{first.shape[0]}, {args.frames} frames (the first "
           f"{WARM_UP_FRAMES} untimed); one thread; (n) frames per stage")
@@ -249,13 +262,15 @@ def main() -> int:
     for name in (n for n in results if "full 640" in results and not n.startswith("BlazePose")):
         diff = keypoint_difference(detections["full 640"], detections[name])
         print(f"{name:24}{diff.mean():10.2f}{np.percentile(diff, 95):10.2f}{diff.max():10.2f}{len(diff):10d}")
-    print(f"\n{'mocapdb live':24}{'frames/s':>10}{'p50 ms':>10}{'p99 ms':>10}{'read':>8}{'dropped':>9}"
-          f"{'detect/s':>10}")
+    frame_ms = 1000.0 / video_fps
+    print(f"\n{'mocapdb live' + (' --realtime' if args.realtime else ''):24}{'frames/s':>10}{'p50 ms':>10}"
+          f"{'p99 ms':>10}{'p99 frames':>11}{'lag':>5}{'read':>8}{'dropped':>9}{'detect/s':>10}")
     for name, row in live.items():
-        print(f"{name:24}{row['fps']:10.1f}{row['p50']:10.1f}{row['p99']:10.1f}{row['read']:8d}{row['dropped']:9d}"
-              f"{row['detect_fps']:10.1f}")
-    for name in (n for n in live if n.endswith(" + hands")):
-        without = live[name.removesuffix(" + hands")]["fps"]
+        print(f"{name:24}{row['fps']:10.1f}{row['p50']:10.1f}{row['p99']:10.1f}{row['p99'] / frame_ms:11.2f}"
+              f"{row['lag']:5g}{row['read']:8d}{row['dropped']:9d}{row['detect_fps']:10.1f}")
+    print(f"(p99 frames: the p99 latency in frame times of the video, {frame_ms:.1f} ms at {video_fps:g} fps)")
+    for name in (n for n in live if " + hands/" in n):
+        without = live[name.split(" + hands/")[0]]["fps"]
         print(f"{name}: {live[name]['fps'] / without:.2f} x the frames/s without hands")
     if mediapipe is not None:
         print(f"\nMediaPipe Pose (complexity 1): {mediapipe[0]:.1f} frames/s on decoded frames, {mediapipe[1]:.1f} "

@@ -8,6 +8,7 @@ import sys
 
 from mocapdb.cli import paths as P
 from mocapdb.cli.detect import add_detector_options, add_model_options, fast_path
+from mocapdb.cli.live_video import add_live_video_options
 from mocapdb.cli.view import add_page_options, open_page
 from mocapdb.core import domains as D
 from mocapdb.core import search_rules as S
@@ -412,6 +413,7 @@ def add_live_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-rate", type=D.MAX_RATE_HZ, default=D.MAX_RATE_HZ.default,
                    help="tcp:// and udp:// sources: messages per second per sender address, the excess "
                         "dropped and counted; 0: no limit (default %(default)s)")
+    add_live_video_options(p)
     p.add_argument("--buffer", type=D.BUFFER_MESSAGES, default=D.BUFFER_MESSAGES.default,
                    help="messages of a live stream (tcp, udp, stdin) buffered before the oldest is dropped (default "
                         "%(default)s); a folder of frames or a .jsonl file is read at the engine's pace, nothing "
@@ -461,8 +463,9 @@ def run_live(args: argparse.Namespace) -> int:
             if _is_video(args.source):
                 detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
                                          max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE,
-                                         fast=fast_path(args), hands=args.hands)
-                video = open_video_source(args.source, detector, capacity=args.buffer, stats=session.summary.stream)
+                                         fast=fast_path(args), hands=args.hands, hands_every=args.hands_every)
+                video = open_video_source(args.source, detector, capacity=args.buffer, stats=session.summary.stream,
+                                          paced=args.realtime)
                 run_video(session, video, stop)
             else:
                 source = open_source(args.source, stats=session.summary.stream, follow=True,

@@ -1,20 +1,24 @@
-"""Video as a live source: decoding and 2D pose detection in their own thread, feeding the live loop.
+"""Video as a live source: decoding and 2D pose detection in two threads of their own, feeding the live loop.
 
-:class:`VideoDetections` decodes a video file or a camera and runs a detector
-(:func:`~mocapdb.detect.detectors.open_detector`: BlazePose, or a YOLO-pose/RTMO export) on each
-frame in a background thread, so detection of the next frame overlaps the engine's retrieval of
-this one. Frames (universal 14 keypoints) wait in a small buffer; when the consumer
-falls behind, the oldest is dropped and counted (``StreamStats.dropped_stale``), as
-:class:`~mocapdb.runtime.stream.buffering.LiveInput` does for messages. Every frame carries the moment it was
-decoded, so the session's latency is end to end: capture → output line. A file is read as fast as
-detection goes (not paced to its frame rate); a camera paces itself. A file's frames carry their
-container timestamps and their numbers on the video's nominal timeline
-(:class:`~mocapdb.detect.video.FrameClock`): a gap in the video is a jump in frame numbers, which
-the engine bridges as frames nobody was seen in, so the BVH keeps the gap's length.
+:class:`VideoDetections` decodes a video file or a camera (:class:`DecodedFrames`, one thread) and runs a
+detector (:func:`~mocapdb.detect.detectors.open_detector`: BlazePose, or a YOLO-pose/RTMO export) on each
+frame in another, so the decoding of the next frame, the detection of this one and the engine's step on
+the one before overlap (OpenCV's decoder and onnxruntime release the GIL). Frames (universal 14
+keypoints) wait in a small buffer; when the consumer falls behind, the oldest is dropped and counted
+(``StreamStats.dropped_stale``), as :class:`~mocapdb.runtime.stream.buffering.LiveInput` does for messages.
+Every frame carries the moment it was decoded (a camera: grabbed), so the session's latency is end to
+end: capture → the sink's send. A file is read as fast as detection goes (not paced to its frame rate:
+its decoder waits for the detector, no frame dropped there), unless ``paced``: then each frame is
+delivered at its time since the first, as a camera would, and a late detector drops the oldest frames
+as behind a camera; a camera paces itself. A file's frames carry their container timestamps and their
+numbers on the video's nominal timeline (:class:`~mocapdb.detect.video.FrameClock`): a gap in the video is
+a jump in frame numbers, which the engine bridges as frames nobody was seen in, so the BVH keeps the
+gap's length.
 """
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -54,39 +58,77 @@ def keypoint_frame(video_frame: VideoFrame, found: Detections, layout: str = "co
     return KeypointFrame(video_frame.index if number is None else number, video_frame.time_s, people, layout)
 
 
+class DecodedFrames(BufferedThread[tuple[VideoFrame, int]]):
+    """The frames of ``reader`` decoded in a thread of their own (every ``every``-th), each with its number
+    on the video's nominal timeline (:attr:`clock`, counted as decoded: a frame dropped here is not a gap
+    in the video), behind a buffer of ``capacity``: a file not ``paced`` waits for room (lossless), a
+    camera or a paced file drops the oldest frame (see the module notes). A paced file's frame is
+    delivered (and its ``capture_s`` set) at its time since the first frame."""
+
+    def __init__(self, reader: VideoReader, every: int, capacity: int, stats: StreamStats, paced: bool = False) -> None:
+        super().__init__(capacity, stats, "mocapdb-video-decode", lossless=not (reader.is_camera or paced))
+        self.reader, self.every, self.paced = reader, every, paced and not reader.is_camera
+        self.clock = FrameClock(None if reader.is_camera or not reader.fps else reader.fps / every)
+        self._stop = threading.Event()
+        self._start()
+
+    def _items(self) -> Iterator[tuple[VideoFrame, int]]:
+        started_s = time.monotonic()
+        for video_frame in self.reader.frames(self.every):
+            if self._stop.is_set():
+                break
+            number = self.clock.number(video_frame.time_s)
+            if self.paced and video_frame.time_s is not None:
+                if self._stop.wait(max(0.0, started_s + video_frame.time_s - time.monotonic())):
+                    break
+                video_frame = video_frame._replace(capture_s=time.monotonic())
+            yield video_frame, number
+
+    def close(self) -> None:
+        """Stops the thread (after the frame in hand) and waits for it; idempotent."""
+        self._stop.set()
+        self._release()
+        self._thread.join()
+
+
 class VideoDetections(BufferedThread[CapturedFrame]):
     """Frames of ``source`` (a video file path, or a camera index) with the people ``model`` finds
     (BlazePose or a :class:`~mocapdb.detect.tracked.TrackedDetector`: both follow them across frames).
 
     ``every``: detect every N-th frame only; ``capacity``: frames buffered before the oldest is
-    dropped (see :class:`~mocapdb.runtime.stream.buffering.BufferedThread`). Opening the video happens here
-    (DetectError if it fails); the thread starts at once.
+    dropped (see :class:`~mocapdb.runtime.stream.buffering.BufferedThread`), after decoding and after
+    detection; ``paced``: a file delivered at its frame rate (module notes). Opening the video happens
+    here (DetectError if it fails); the threads start at once.
     """
 
     def __init__(self, source: str | int, model: FrameDetector, *, every: int = 1, capacity: int = 2,
-                 stats: StreamStats | None = None) -> None:
+                 stats: StreamStats | None = None, paced: bool = False) -> None:
         if every < 1 or capacity < 1:
             raise DetectError("every and capacity must be at least 1")
         super().__init__(capacity, stats if stats is not None else StreamStats(), "mocapdb-video-detect")
         self.model, self.every = model, every
         self.reader = VideoReader(source)
-        self.clock = FrameClock(None if self.reader.is_camera or not self.reader.fps else self.reader.fps / every)
         self.frames_detected = 0
         self._stop = threading.Event()
+        self.decoded = DecodedFrames(self.reader, every, capacity, self.stats, paced)
+        self.clock = self.decoded.clock
         self._start()
 
     def _items(self) -> Iterator[CapturedFrame]:
-        for video_frame in self.reader.frames(self.every):
-            if self._stop.is_set():
-                break
-            captured = CapturedFrame(self._detect(video_frame), video_frame.capture_s)
+        while not self._stop.is_set():
+            item = self.decoded.get(timeout=POLL_S)
+            if item is None:
+                if self.decoded.finished:
+                    break
+                continue
+            video_frame, number = item
+            captured = CapturedFrame(self._detect(video_frame, number), video_frame.capture_s)
             self.frames_detected += 1
             self.stats.add(messages_in=1)
             yield captured
 
-    def _detect(self, video_frame: VideoFrame) -> KeypointFrame:
-        return keypoint_frame(video_frame, self.model(video_frame.image), self.model.keypoint_layout,
-                              self.clock.number(video_frame.time_s))
+    def _detect(self, video_frame: VideoFrame, number: int) -> KeypointFrame:
+        return keypoint_frame(video_frame, self.model(video_frame.image), self.model.keypoint_layout, number)
 
     @property
     def detection_fps(self) -> float:
@@ -101,12 +143,13 @@ class VideoDetections(BufferedThread[CapturedFrame]):
         notes = [f"frame times: {gaps}" for gaps in [self.clock.report()] if gaps]
         notes += [f"warning: {w}" for w in (self.reader.truncation(), *self.reader.time_warnings()) if w]
         return "\n".join([f"video {self.reader.label}: frames read {self.reader.frames_read}, detected "
-                          f"{self.frames_detected}, dropped {self.dropped}; detection {self.detection_fps:.1f} "
-                          f"frames/s ({self.model.describe()})", *notes])
+                          f"{self.frames_detected}, dropped {self.dropped + self.decoded.dropped}; detection "
+                          f"{self.detection_fps:.1f} frames/s ({self.model.describe()})", *notes])
 
     def close(self) -> None:
-        """Stops the thread (after the frame in hand), waits for it and releases the video; idempotent."""
+        """Stops the threads (after the frames in hand), waits for them and releases the video; idempotent."""
         self._stop.set()
+        self.decoded.close()
         self._thread.join()
         self.reader.close()
 
@@ -120,17 +163,17 @@ def is_video_source(spec: str) -> bool:
 
 
 def open_video_source(spec: str, model: FrameDetector, *, every: int = 1, capacity: int = 2,
-                      stats: StreamStats | None = None) -> VideoDetections:
+                      stats: StreamStats | None = None, paced: bool = False) -> VideoDetections:
     """``mocapdb live --source SPEC`` on a video: SPEC of digits is a camera index, anything else a
-    video file, ``model`` the detector (:func:`~mocapdb.detect.detectors.open_detector`); DetectError
-    on failure."""
+    video file (``paced``: delivered at its frame rate), ``model`` the detector
+    (:func:`~mocapdb.detect.detectors.open_detector`); DetectError on failure."""
     source: str | int = int(spec) if spec.isdigit() else spec
-    return VideoDetections(source, model, every=every, capacity=capacity, stats=stats)
+    return VideoDetections(source, model, every=every, capacity=capacity, stats=stats, paced=paced)
 
 
 def run_video(session: Session, video: VideoDetections, stop: threading.Event) -> None:
     """Detected frames as they come until the video ends or ``stop`` is set; closes ``video``.
-    Latency runs from each frame's capture to its output line."""
+    Latency runs from each frame's capture to the sink's send of its output."""
     with video:
         while not stop.is_set():
             item = video.get(timeout=POLL_S)
