@@ -4,15 +4,17 @@ per track, at a fixed lag of ``L`` frames (``--lag-frames``; 0 allowed: causal).
 When frame ``t`` arrives, frame ``t − L`` is written, each person in it through these steps
 (:class:`OnlineTrack`; settings :class:`OnlineParams`):
 
-1. **Rotations and root, smoothed over the window.** The engine's own 1€ filters are off (the
-   per-frame fits come in). ``L = 0``: the rotations through a causal 1€ filter
-   (``causal_rotations``: a still joint smoothed below 0.5 Hz). ``L > 0``: the per-frame fits of
-   frames ``t − 2L … t`` give a zero-phase Gaussian mean (the whole take's response: it smooths twice
-   at ``smoothing_hz``, before and after its re-fit, so one Gaussian √2 as wide; quaternions
-   sign-aligned to the centre frame, then normalised); the per-frame roots the same Gaussian mean.
-   The root then passes the whole take's root model as a causal Kalman filter
-   (:class:`~mocapdb.runtime.root_filter.RootFilter`: precise across the viewing ray, loose along it,
-   smooth; a pop's pull capped) either way.
+1. **Rotations and root, filtered.** The engine's own 1€ filters are off (the per-frame fits come
+   in). The rotations: per joint a Kalman filter at constant angular velocity in the tangent space
+   about its prediction, each frame's fit weighed by its keypoints' confidence, and with ``L > 0`` a
+   fixed-lag Rauch–Tung–Striebel smoother back from frame ``t``
+   (:class:`~mocapdb.runtime.rotation_kalman.RotationKalman`; ``rotation_noise``): it predicts
+   instead of delaying, so at ``L = 0`` a turning joint is not dragged behind what the keypoints show,
+   and each frame of lag adds evidence. The root: the per-frame roots of frames ``t − L … t + L``
+   give a zero-phase Gaussian mean (the whole take's response: it smooths twice at
+   ``smoothing_hz``, before and after its re-fit, so one Gaussian √2 as wide), then the whole take's
+   root model as a causal Kalman filter (:class:`~mocapdb.runtime.root_filter.RootFilter`: precise
+   across the viewing ray, loose along it, smooth; a pop's pull capped).
 2. **Foot contacts with hysteresis.** Each foot's image speed (box heights per second: the slope of
    a line fitted to its keypoints over the frames around it, at most :data:`CONTACT_WINDOW_S` and
    only as far ahead as the lag reaches) is its heel's and big toe's, the faster of the two, where
@@ -41,8 +43,9 @@ The body's size is the engine's per frame (its own proportions, settling as they
 1.75 m tall unless ``--subject-height`` or ``--camera-height``): the world's size of each person
 (:mod:`mocapdb.runtime.world.fuse`) reaches the track files only.
 
-Each extra frame of lag widens the smoothing towards its full window and lets the contacts see
-further ahead. Cost: O(window) per person and frame (a few forward kinematics and one two-leg IK).
+Each extra frame of lag gives the rotations' smoother and the root's window more frames after the
+one written and lets the contacts see further ahead. Cost: O(window) per person and frame (a few
+forward kinematics, one two-leg IK, ``L`` smoother steps).
 """
 from __future__ import annotations
 
@@ -54,11 +57,12 @@ import numpy as np
 from mocapdb.core.geometry import quat_turned_towards
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, RIG_JOINTS, UNIVERSAL_HEIGHT_M, body_offsets_m, pose_from_rotations
-from mocapdb.runtime.filters import OneEuroParams, QuaternionOneEuroFilter
+from mocapdb.runtime.filters import OneEuroParams
 from mocapdb.runtime.foot_contacts import ANKLES, CONTACT_WINDOW_S, HEELS, TOES
 from mocapdb.runtime.online_ends import OnlineEnds
 from mocapdb.runtime.online_fingers import OnlineFingers
 from mocapdb.runtime.root_filter import RootFilter
+from mocapdb.runtime.rotation_kalman import RotationKalman, RotationNoise, joint_confidence
 from mocapdb.runtime.take import plant_feet
 
 Frame = tuple[int, float, list[PersonPose]]  # frame index, time (s), the people in it
@@ -69,9 +73,8 @@ Frame = tuple[int, float, list[PersonPose]]  # frame index, time (s), the people
 JOINT_SPEED_DEG_S = {"pelvis": 900.0, "spine": 900.0, "neck": 900.0, "r_hip": 1400.0, "l_hip": 1400.0,
                      "r_knee": 2000.0, "l_knee": 2000.0, "r_shoulder": 1800.0, "l_shoulder": 1800.0,
                      "r_elbow": 2300.0, "l_elbow": 2300.0}
-# The causal stream's rotation filter (L = 0): the 1€ filter of retrieved poses (runtime.filters) with
-# its still-joint cut-off halved: the online take's jitter is what an avatar shows, its lag (about 0.3 s
-# at rest, less in motion) what a causal stream pays
+# The end joints' and fingers' causal filter (L = 0; online_ends, online_fingers): the 1€ filter of
+# retrieved poses (runtime.filters) with its still-joint cut-off halved
 CAUSAL_ROTATIONS = OneEuroParams(min_cutoff_hz=0.5, beta=0.3)
 FLOOR_SAMPLES = 31  # the floor: the median height of this many last anchors
 
@@ -90,6 +93,7 @@ class OnlineParams:
     settle_s: float = 0.4
     anchor_follow_mps: float = 0.02
     root_speed_mps: float = 6.0
+    rotation_noise: RotationNoise = RotationNoise()
 
     def __post_init__(self) -> None:
         positive = (self.smoothing_hz, self.planted_box_per_s, self.planted_height_m, self.blend_s, self.settle_s,
@@ -168,13 +172,14 @@ class OnlineTrack:
         self.correction = np.zeros(3)       # output root − per-frame root (view frame, metres)
         self.previous: tuple[int, np.ndarray, np.ndarray] | None = None  # index, rotations, root of the last output
         self.root = RootFilter(fps)  # the whole take's root model, causal
-        self.rotations = QuaternionOneEuroFilter(params.causal_rotations)  # the causal stream's (L = 0)
+        self.rotations = RotationKalman(fps, params.lag_frames, params.rotation_noise)
         self.max_turn = np.radians([JOINT_SPEED_DEG_S[j] for j in RIG_JOINTS]) / fps  # radians per frame
 
     def add(self, index: int, pose: PersonPose) -> None:
         """One frame's per-frame pose of the track."""
         self.recent[index] = pose
         self.last_index = index
+        self.rotations.add(index, pose.quaternions, joint_confidence(pose.keypoints_px))
         if self.ends is not None:
             self.ends.add(index, pose)
         if pose.hands_px is not None and (self.fingers is not None or np.isfinite(pose.hands_px).any()):
@@ -195,7 +200,7 @@ class OnlineTrack:
         dt = 1.0 / self.fps
         scale = pose.height_m / UNIVERSAL_HEIGHT_M
         offsets = None if pose.bones_m is None else body_offsets_m(pose.bones_m / scale)
-        quats = self._smoothed(index, pose)
+        quats = self.rotations.estimate(index)
         evidence_root = self._smoothed_root(index)
         up = np.array([0.0, 1.0, 0.0]) if pose.up_view is None else np.asarray(pose.up_view, dtype=np.float64)
         ankles = pose_from_rotations(quats[None], np.zeros((1, 3)), scale, offsets)[0, list(ANKLES)]
@@ -215,18 +220,6 @@ class OnlineTrack:
                        end_quaternions=ends, end_seen=None if seen is None else tuple(bool(s) for s in seen),
                        finger_quaternions=fingers, fingers_seen=None if hands is None else (bool(hands[0]),
                                                                                             bool(hands[1])))
-
-    def _smoothed(self, index: int, pose: PersonPose) -> np.ndarray:
-        """Step 1: the rotations ``[R, 4]`` of frame ``index``."""
-        lag = self.params.lag_frames
-        if lag == 0:
-            return self.rotations(pose.quaternions, index / self.fps)
-        near = [i for i in range(index - lag, index + lag + 1) if i in self.recent]
-        q = np.array([self.recent[i].quaternions for i in near])
-        q = np.where((np.sum(q * pose.quaternions, axis=-1) < 0)[..., None], -q, q)
-        w = np.exp(-0.5 * ((np.array(near) - index) / self.sigma_frames) ** 2)
-        mean_q = np.tensordot(w, q, axes=1)
-        return mean_q / np.linalg.norm(mean_q, axis=-1, keepdims=True)
 
     def _smoothed_root(self, index: int) -> np.ndarray:
         """Step 1's root ``[3]`` (view frame) of frame ``index``: the window's Gaussian mean through

@@ -105,7 +105,8 @@ def test_real_take_command_on_one_camera(small_db_path, tmp_path, capsys):
     report = json.loads(out.read_text())
     assert list(report["cameras"]) == ["cam_01"] and 1.5 < report["cameras"]["cam_01"]["camera_height_m"] < 2.2
     runs = [r for modes in report["cameras"]["cam_01"]["runs"].values() for r in modes.values()]
-    assert len(runs) == 5  # refined and whole take in both size modes, published with nothing given
+    # refined and whole take in both size modes, published and the default stream (lag 0) with nothing given
+    assert len(runs) == 6 and "| cam_01 | stream, lag 0 |" in printed
     whole = report["cameras"]["cam_01"]["runs"]["whole take"]["nothing_given"]
     assert whole["foot_skating_cm_per_s"]["mean"] < report["cameras"]["cam_01"]["runs"]["refined"]["nothing_given"][
         "foot_skating_cm_per_s"]["mean"]  # the whole take holds planted feet still

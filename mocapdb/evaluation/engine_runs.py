@@ -1,6 +1,6 @@
 """The engine over evaluation frames: one sequence's run (:class:`EngineRun`), its whole take, the
-whole take as ``reconstruct`` writes it (:func:`track_files_take`), and the peer: the detector's own
-3D as a run (:func:`world_landmarks_run`)."""
+whole take as ``reconstruct`` writes it (:func:`track_files_take`), the default stream at its lags
+(:func:`stream_runs`), and the peer: the detector's own 3D as a run (:func:`world_landmarks_run`)."""
 from __future__ import annotations
 
 import time
@@ -10,7 +10,7 @@ import numpy as np
 
 from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame
-from mocapdb.core.outputs import CAMERA_FROM_VIEW, TrackRecording
+from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose, TrackRecording
 from mocapdb.core.skeleton import N_POINTS, PELVIS, pose_from_rotations
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
@@ -101,21 +101,31 @@ def stream_config(engine: EngineConfig) -> EngineConfig:
     return replace(engine, smoothing=False, keypoint_filter=None, keep_take=False)
 
 
-def stream_run(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], lag_frames: int,
-               params: OnlineParams | None = None) -> EngineRun:
-    """The default stream of ``frames`` (one person per frame) at ``lag_frames``: the engine as the
-    stream runs it (:func:`stream_config`) then :class:`~mocapdb.runtime.online_take.OnlineTake`, as a
-    run (frame index = position; ``local`` left NaN); ``seconds``: the engine's and the take's time."""
+def stream_runs(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], lags: tuple[int, ...],
+                params: OnlineParams | None = None) -> dict[int, EngineRun]:
+    """The default stream of ``frames`` (one person per frame) at each of ``lags`` (frames): one engine run
+    as the stream runs it (:func:`stream_config`), its poses through an
+    :class:`~mocapdb.runtime.online_take.OnlineTake` per lag, each as a run (frame index = position;
+    ``local`` left NaN; ``seconds``: the engine's time and that take's)."""
     config = stream_config(engine)
-    online = OnlineTake(config.fps, replace(params or OnlineParams(), lag_frames=lag_frames),
-                        (config.focal_px, *config.center_px))
     run = Engine(db, config)
-    joints = np.full((len(frames), N_POINTS, 3), np.nan)
-    root = np.full((len(frames), 3), np.nan)
     t0 = time.perf_counter()
-    for i, frame in enumerate(frames):
-        due = online.push(i, i / config.fps, run.step(frame))
-        for index, _, people in due + (online.flush() if i == len(frames) - 1 else []):
-            for pose in people:
-                joints[index], root[index] = pose.joints_m, pose.root_m
-    return EngineRun(joints, root, np.full_like(joints, np.nan), time.perf_counter() - t0)
+    poses = [run.step(frame) for frame in frames]
+    engine_s = time.perf_counter() - t0
+    return {lag: _online_run(poses, config, replace(params or OnlineParams(), lag_frames=lag), engine_s)
+            for lag in lags}
+
+
+def _online_run(poses: list[list[PersonPose]], config: EngineConfig, params: OnlineParams, engine_s: float
+                ) -> EngineRun:
+    """Each frame's engine ``poses`` through an online take with ``params`` as a run (``engine_s``: the
+    engine's seconds, added to the take's)."""
+    online = OnlineTake(config.fps, params, (config.focal_px, *config.center_px))
+    joints = np.full((len(poses), N_POINTS, 3), np.nan)
+    root = np.full((len(poses), 3), np.nan)
+    t0 = time.perf_counter()
+    due = [frame for i, people in enumerate(poses) for frame in online.push(i, i / config.fps, people)]
+    for index, _, people in due + online.flush():
+        for pose in people:
+            joints[index], root[index] = pose.joints_m, pose.root_m
+    return EngineRun(joints, root, np.full_like(joints, np.nan), engine_s + time.perf_counter() - t0)

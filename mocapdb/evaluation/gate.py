@@ -9,7 +9,9 @@ by the held-out camera 1.5 m high (:mod:`mocapdb.evaluation.heldout`), rendered 
 nothing dropped) in the keypoint layout of mocap-derived 2D such as HumanEva's: no nose
 (:data:`DROPPED`), no heels or toes (never rendered). The engine runs refined (the default); its
 per-frame output and its whole take are scored over the 13 joints below the head
-(:class:`mocapdb.evaluation.reconstruction.VariantStats`), pooled per body and per action.
+(:class:`mocapdb.evaluation.reconstruction.VariantStats`), pooled per body and per action; so is the
+default stream (the online take, as ``live`` sends it) at :data:`STREAM_LAGS`, from every
+:data:`STREAM_YAW_EVERY`-th yaw.
 
 Real part (:func:`real_take_figures`): every camera of a calibrated Pose2Sim take alone
 (:func:`mocapdb.evaluation.real_take.evaluate_real_take`), the mean over the cameras of :data:`REAL_RUNS`.
@@ -30,7 +32,7 @@ from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame
 from mocapdb.core.skeleton import KP, MEASURED_BONE_NAMES, universal_bone_lengths_m
 from mocapdb.evaluation.bodies import Body, reshape_body
-from mocapdb.evaluation.engine_runs import run_sequence, track_files_take
+from mocapdb.evaluation.engine_runs import run_sequence, stream_runs, track_files_take
 from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.heldout import EvalConfig, Scenario, Truth, camera_distance, camera_view, render
 from mocapdb.evaluation.loso import LosoConfig, sample_truths
@@ -39,6 +41,7 @@ from mocapdb.evaluation.reconstruction import (
     TAKE_VARIANT,
     VariantStats,
     View,
+    stream_variant,
     variant_config,
 )
 from mocapdb.runtime.engine import Engine
@@ -51,11 +54,14 @@ MAX_FRAMES = 240     # per clip, at the evaluation's 24 fps
 GATE_YAWS_DEG = tuple(3.0 + 30.0 * k for k in range(12))  # all round, 3° off the database's 12° grid
 DROPPED = ("head",)  # the universal head keypoint is the nose
 EXACT = Scenario("exact 2D, camera 1.5 m, no nose, heels or toes")
-VARIANTS = ("refined", TAKE_VARIANT)
+STREAM_LAGS = (0, 3, 6)   # the default stream (the online take) at these lags (frames) ...
+STREAM_YAW_EVERY = 4      # ... from every 4th of the clip's yaws (3 of 12: the gate's time)
+VARIANTS = ("refined", TAKE_VARIANT) + tuple(stream_variant(lag) for lag in STREAM_LAGS)
 BODY_METRICS = ("mpjpe13_cm", "pa_mpjpe13_cm", "bone_error_cm")  # VariantStats.summary() keys
 CONTEXT_METRICS = ("floor_mpjpe_cm",)  # reported, not gated: the database floor is the database's, not the engine's
 # (variant, size mode) of the real take's runs, and its figures: name, key path in a run's report
-REAL_RUNS = (("refined", "nothing_given"), (TAKE_VARIANT, "nothing_given"), (TAKE_VARIANT, "camera_height_given"))
+REAL_RUNS = (("refined", "nothing_given"), (TAKE_VARIANT, "nothing_given"), (TAKE_VARIANT, "camera_height_given"),
+             (stream_variant(0), "nothing_given"))
 REAL_METRICS = (("mpjpe13_cm", ("mpjpe_cm",)), ("pa_mpjpe13_cm", ("pa_mpjpe_cm",)),
                 ("bone_error_cm", ("bone_length_cm", "mean_error_7")),
                 ("root_error_pct_distance", ("root_error_pct_distance",)))
@@ -120,9 +126,10 @@ def gate_engine_config(config: EvalConfig) -> EngineConfig:
 
 
 def score_view(db: MotionDatabase, positions_m: np.ndarray, yaw_deg: float, floor_m: np.ndarray,
-               config: EvalConfig) -> dict[str, VariantStats]:
+               config: EvalConfig, stream: bool = True) -> dict[str, VariantStats]:
     """World joints ``[F, 15, 3]`` seen from ``yaw_deg``, without :data:`DROPPED`, through the engine:
-    per :data:`VARIANTS` its stats (``floor_m [F]``: the database floor per frame)."""
+    per :data:`VARIANTS` its stats (``floor_m [F]``: the database floor per frame; the stream's left
+    empty unless ``stream``)."""
     height = EXACT.camera_height_m
     distance = camera_distance(positions_m, yaw_deg, config)
     view = View(camera_view(positions_m, yaw_deg, height, distance), height, distance, 0.0)
@@ -133,6 +140,8 @@ def score_view(db: MotionDatabase, positions_m: np.ndarray, yaw_deg: float, floo
     stats["refined"].add(run_sequence(Engine(db, engine), frames), view, floor_m, frames, config)
     take = track_files_take(db, engine, frames, config.fps)
     stats[TAKE_VARIANT].add(take, view, floor_m, frames, config, person_frames=len(frames))
+    for lag, run in (stream_runs(db, engine, frames, STREAM_LAGS) if stream else {}).items():
+        stats[stream_variant(lag)].add(run, view, floor_m, frames, config, person_frames=len(frames))
     return stats
 
 
@@ -148,8 +157,8 @@ def evaluate_bodies(db: MotionDatabase, bvh_dir: Path, config: EvalConfig | None
             posed = reshape_body(truth.source_joints(), body.lengths_m())
             floor = database_floor(index, posed).mpjpe_m
             stats = out.setdefault((body.name, action), {name: VariantStats() for name in VARIANTS})
-            for yaw in truth.yaws_deg or ():
-                for name, view_stats in score_view(db, posed, yaw, floor, config).items():
+            for k, yaw in enumerate(truth.yaws_deg or ()):
+                for name, view_stats in score_view(db, posed, yaw, floor, config, k % STREAM_YAW_EVERY == 0).items():
                     stats[name].extend(view_stats)
     return out
 

@@ -95,6 +95,7 @@ class EvalConfig:
     image_size: tuple[int, int] = (1920, 1080)
     seed: int = 0
     engine: EngineConfig = field(default_factory=EngineConfig)
+    stream_lags: tuple[int, ...] = ()  # also the default stream (the online take) at these lags (frames)
 
 
 @dataclass

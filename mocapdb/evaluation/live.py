@@ -4,7 +4,8 @@ frame by frame, scored beside the track files, at several lags.
 The reference is the same detector's keypoints on every camera of a calibrated take, triangulated
 (:mod:`mocapdb.evaluation.detector_quality`: the main person, DLT over the views that see a joint).
 The first camera is run alone through the engine as ``live`` runs it (:class:`~mocapdb.runtime.engine.Engine`
-then :class:`~mocapdb.runtime.online_take.OnlineTake`, frame by frame), its output taken to the
+unsmoothed, :func:`~mocapdb.evaluation.engine_runs.stream_config`, then
+:class:`~mocapdb.runtime.online_take.OnlineTake`, frame by frame), its output taken to the
 calibration's world by that camera's extrinsics. Variants: the per-frame stream (before the online
 take: the engine's causal 1€ output), the online take at each lag ``L``, and the whole take (the
 track files: :func:`~mocapdb.runtime.world.fuse.fit_takes`). When the keypoints carry the detector's own 3D
@@ -42,6 +43,7 @@ from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointFrame
 from mocapdb.core.formats.openpose import read_openpose_folder
 from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D, N_POINTS
 from mocapdb.evaluation.detector_quality import low_pass, read_detections, residuals
+from mocapdb.evaluation.engine_runs import stream_config
 from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.metrics import pa_mpjpe, planted_feet
 from mocapdb.evaluation.real_take import Y_DOWN, focal_px, world_to_trc
@@ -107,7 +109,7 @@ def run_variants(db: MotionDatabase, frames: list[KeypointFrame], config: Engine
     for lag in lags:
         online = OnlineTake(config.fps, replace(params or OnlineParams(), lag_frames=lag),
                             (config.focal_px, *config.center_px))
-        joints, times, _, _ = _run(db, frames, replace(config, smoothing=False, keep_take=False), online)
+        joints, times, _, _ = _run(db, frames, stream_config(config), online)
         out[f"online take, L = {lag}"] = {"joints": _track_joints(joints, track, len(frames)), "compute_s": times,
                                           "lag": lag}
     return out
@@ -241,10 +243,12 @@ def _finite_pct(values: np.ndarray, q: float) -> float:
 
 
 def evaluate_live(db: MotionDatabase, folders: list[Path], calibration: Path, lags: tuple[int, ...] = LAGS,
-                  base: EngineConfig | None = None, names: list[str] | None = None, fps: float | None = None) -> dict:
+                  base: EngineConfig | None = None, names: list[str] | None = None, fps: float | None = None,
+                  params: OnlineParams | None = None) -> dict:
     """The live evaluation (module docstring) of ``folders`` (one keypoint folder per camera: the
     calibration's cameras ``names``, default its first ones by name; the first is run) against their
-    triangulation: a JSON-able dict. ``fps``: the frame rate where the first folder has no take.json."""
+    triangulation: a JSON-able dict. ``fps``: the frame rate where the first folder has no take.json;
+    ``params``: the online take's settings (its lag set to each of ``lags``)."""
     cams_by_name = read_calibration_toml(calibration)
     names = list(names or sorted(cams_by_name)[:len(folders)])
     if len(folders) < 2:
@@ -265,7 +269,7 @@ def evaluate_live(db: MotionDatabase, folders: list[Path], calibration: Path, la
     report: dict = {"camera": cam.name, "fps": fps, "frames": len(frames), "cameras_triangulated": len(cams),
                     "planted_ankle_frames": int(planted.sum()), "variants": {},
                     "database_floor_mpjpe_cm": floor_cm(db, truth, joint_names)}
-    for name, run in run_variants(db, frames, config, lags).items():
+    for name, run in run_variants(db, frames, config, lags, params).items():
         figures = score(camera_to_world(run["joints"], cam), truth, joint_names, planted, fps)
         if not run.get("root", True):
             figures |= dict.fromkeys(MOTION_FIGURES, float("nan"))

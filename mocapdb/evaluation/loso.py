@@ -15,7 +15,8 @@ rendered frames, the database floor of that fold's database):
 * the camera stands :attr:`EvalConfig.camera_distance_m` (5 m) from the clip's mean pelvis, or
   further, so that it stays :attr:`EvalConfig.min_clearance_m` (3 m) from every pelvis of the
   turned clip (clips that travel towards the camera);
-* :data:`LOSO_SCENARIOS`.
+* :data:`LOSO_SCENARIOS`;
+* the default stream (the online take) at :data:`STREAM_LAGS` beside the per-frame stream (``refined``).
 
 Figures are per fold and overall (all folds' frames pooled).
 """
@@ -45,6 +46,7 @@ from mocapdb.evaluation.reconstruction import (
     compute_floors,
     engine_summary,
     evaluate_scenario,
+    stream_variant,
 )
 
 LOSO_YAWS = (6.0, 51.0, 99.0, 141.0, 186.0, 231.0, 279.0, 321.0)  # 3° or 6° off the 12° grid
@@ -59,6 +61,7 @@ LOSO_SCENARIOS = (
              swap=0.05, body="varied", world_sd_m=DETECTOR_WORLD_SD_M),
 )
 
+STREAM_LAGS = (0, 3, 6)  # the default stream is scored at these lags (frames) beside the per-frame stream
 LOG = logging.getLogger(__name__)
 DESCRIPTIONS_FILE = "cmu_motion_descriptions.csv"
 
@@ -71,7 +74,7 @@ class LosoConfig:
     yaws_deg: tuple[float, ...] = LOSO_YAWS
     subjects: tuple[int, ...] | None = None  # held out in turn; None: every subject
     build: BuildConfig = field(default_factory=lambda: BuildConfig(workers=2))
-    eval: EvalConfig = field(default_factory=lambda: EvalConfig(scenarios=LOSO_SCENARIOS))
+    eval: EvalConfig = field(default_factory=lambda: EvalConfig(scenarios=LOSO_SCENARIOS, stream_lags=STREAM_LAGS))
 
     @classmethod
     def quick(cls, **changes) -> LosoConfig:
@@ -231,13 +234,15 @@ def _fmt(value, spec: str, missing: str = "-") -> str:
 
 def format_table(report: dict, motion_width: int = 24) -> str:
     """Per subject and overall, one row per scenario: frames, the database floor (15 joints), MPJPE
-    over the 13 joints below the head (cm) of the published engine, the refined per-frame engine and
-    the whole-take fit, and for the whole-take fit PA-MPJPE (13 joints), bone-length error (cm),
-    acceleration error (mm/frame²; published in brackets), planted-foot skating (cm/s; refined per
-    frame in brackets) and root error (% of distance)."""
+    over the 13 joints below the head (cm) of the published engine, the refined per-frame engine (the
+    per-frame stream), the default stream at :data:`STREAM_LAGS` and the whole-take fit, and for the
+    whole-take fit PA-MPJPE (13 joints), bone-length error (cm), acceleration error (mm/frame²;
+    published in brackets), planted-foot skating (cm/s; refined per frame in brackets) and root error
+    (% of distance)."""
+    streams = " ".join(f"{f'L{lag}':>6}" for lag in STREAM_LAGS)
     head = (f"{'subject':<8} {'motion':<{motion_width}} {'scenario':<40} {'frames':>6} {'floor':>6} "
-            f"{'pub':>6} {'ref':>6} {'take':>6} {'PA':>6} {'bone':>5} {'accel (pub)':>12} {'skate (ref)':>12} "
-            f"{'root %':>7}")
+            f"{'pub':>6} {'ref':>6} {streams} {'take':>6} {'PA':>6} {'bone':>5} {'accel (pub)':>12} "
+            f"{'skate (ref)':>12} {'root %':>7}")
     lines = [head, "-" * len(head)]
 
     def rows(subject: str, motion: str, scenarios: list[dict]) -> None:
@@ -247,7 +252,8 @@ def format_table(report: dict, motion_width: int = 24) -> str:
             accel = f"{_fmt(accel_take, '.1f')} ({_fmt(accel_pub, '.1f')})"
             skate_take, skate_ref = take["foot_skating_cm_per_s"]["mean"], ref["foot_skating_cm_per_s"]["mean"]
             skate = f"{_fmt(skate_take, '.1f')} ({_fmt(skate_ref, '.0f')})"
-            mpjpe = " ".join(f"{_fmt(v['mpjpe13_cm'], '.2f'):>6}" for v in (pub, ref, take))
+            lagged = [sc.get(stream_variant(lag), {}) for lag in STREAM_LAGS]
+            mpjpe = " ".join(f"{_fmt(v.get('mpjpe13_cm'), '.2f'):>6}" for v in (pub, ref, *lagged, take))
             lines.append(
                 f"{subject:<8} {motion[:motion_width]:<{motion_width}} {sc['scenario']['name'][:40]:<40} "
                 f"{take['frames_with_output']:>6} {_fmt(take['floor_mpjpe_cm'], '.2f'):>6} {mpjpe} "

@@ -5,7 +5,8 @@ A take is a folder holding ``calibration.toml`` (Pose2Sim/OpenCV, z-up world, me
 ``triangulated_4cam.trc`` (the reference, metres) and ``openpose_body25b/camNN_json`` (OpenPose
 frames of camera ``cam_NN``). Per camera the engine runs refined (the default) and as published
 (``--no-refine``), each with nothing given (a 1.75 m body assumed) and, refined only (the floor
-needs the tilt estimate), with the camera's height above the floor given.
+needs the tilt estimate), with the camera's height above the floor given; refined with nothing given
+also as the default stream sends it (the online take at lag 0: ``stream, lag 0``).
 
 Frames. The engine's output is in the camera-aligned frame (x right, y up, z away from the
 camera, origin the camera centre); the OpenCV camera frame has y down; the calibration's
@@ -44,11 +45,20 @@ from mocapdb.core.formats.take import TAKE_FILE, read_take, resolve_camera
 from mocapdb.core.formats.trc import Trc, read_trc, trc_keypoints
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import MEASURED_BONE_NAMES, N_KEYPOINTS_2D, N_POINTS, PELVIS, bone_lengths_m
+from mocapdb.evaluation.engine_runs import stream_config
 from mocapdb.evaluation.metrics import foot_height_error_m, foot_skating_mps, pa_mpjpe, planted_feet
-from mocapdb.evaluation.reconstruction import ANKLES, BELOW_HEAD, BODY_BONES, TAKE_VARIANT, variant_config
+from mocapdb.evaluation.reconstruction import (
+    ANKLES,
+    BELOW_HEAD,
+    BODY_BONES,
+    TAKE_VARIANT,
+    stream_variant,
+    variant_config,
+)
 from mocapdb.evaluation.world_camera import camera_checks, format_rows, score_camera, summary_lines
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
+from mocapdb.runtime.online_take import OnlineParams, OnlineTake
 from mocapdb.runtime.take import take_joints
 from mocapdb.runtime.world.fuse import fit_take_world, fit_takes
 
@@ -155,17 +165,24 @@ def engine_config(base: EngineConfig, cam: CameraModel, fps: float, refine: bool
     return replace(variant_config(cfg, refine), camera_height_m=camera_height, keep_take=refine)
 
 
-def run_camera(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig
+def run_camera(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig, lag: int | None = None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[TrackRecording]]:
     """The person's joints ``[F, 15, 3]`` (camera-aligned, metres; NaN where it has no output), body
     heights ``[F]`` (metres) and, when ``config.keep_take``, the whole-take fit's joints ``[F, 15, 3]``
     (else None): the longest track that is not static (a false detection that never moves is); all
-    NaN when there is none. Last, every track's recording (for the take's world)."""
+    NaN when there is none. Last, every track's recording (for the take's world). ``lag``: the
+    engine's poses through the online take at that lag (frames; the default stream), else as they come."""
     engine = Engine(db, config)
+    online = None if lag is None else OnlineTake(config.fps, OnlineParams(lag_frames=lag),
+                                                 (config.focal_px, *config.center_px))
     joints: dict[int, np.ndarray] = {}
     heights: dict[int, np.ndarray] = {}
+    due: list = []
     for i, frame in enumerate(frames):
-        for pose in engine.step(frame):
+        poses = engine.step(frame)
+        due += [(i, 0.0, poses)] if online is None else online.push(i, 0.0, poses)
+    for i, _, poses in due + ([] if online is None else online.flush()):
+        for pose in poses:
             if pose.track not in joints:
                 joints[pose.track] = np.full((len(frames), N_POINTS, 3), np.nan)
                 heights[pose.track] = np.full(len(frames), np.nan)
@@ -267,6 +284,11 @@ def evaluate_real_take(db: MotionDatabase, folder: str | Path, base: EngineConfi
                 _, _, whole, recordings = run_camera(db, take.frames[name], config.for_track_files())
             if refine and not given:   # the world's camera, as reconstruct finds it with nothing given
                 per_camera[name]["world_camera"] = score_camera(fit_take_world(recordings, take.fps).world, cam)
+                # the default stream, as live sends it
+                stream, sizes, _, _ = run_camera(db, take.frames[name], stream_config(config), lag=0)
+                result = score(camera_to_trc(stream, cam), take.truth, centre, take.fps)
+                result["body_height_m"] = _median(sizes[np.isfinite(sizes)])
+                runs.setdefault(stream_variant(0), {})[mode] = result
             body_height = _median(heights[np.isfinite(heights)])
             outputs = [(variant, joints)] + ([(TAKE_VARIANT, whole)] if whole is not None else [])
             for label, points in outputs:

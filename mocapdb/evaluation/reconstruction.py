@@ -2,7 +2,9 @@
 
 Each (yaw, clip) sequence runs on the same frames refined (the engine's default), as published
 (``EngineConfig(refine=False)``) and as ``reconstruct`` runs it for the whole take (its fits kept, no
-2D clean-up: :func:`~mocapdb.evaluation.engine_runs.track_files_take`). Per scenario and variant
+2D clean-up: :func:`~mocapdb.evaluation.engine_runs.track_files_take`), and, at each of
+``EvalConfig.stream_lags``, as the default stream (:func:`~mocapdb.evaluation.engine_runs.stream_runs`:
+the online take; the refined variant is the per-frame stream, ``--per-frame-stream``). Per scenario and variant
 (JSON): MPJPE (cm, pelvis-aligned in the camera-aligned frame, so a wrong yaw or unseen camera pitch
 counts), PA-MPJPE (cm), facing yaw error (degrees), acceleration error (mm/frame², jitter); the
 database floor (cm,
@@ -37,7 +39,7 @@ from mocapdb.core.skeleton import (
     bone_lengths_m,
     stature_m,
 )
-from mocapdb.evaluation.engine_runs import EngineRun, run_sequence, track_files_take, world_landmarks_run
+from mocapdb.evaluation.engine_runs import EngineRun, run_sequence, stream_runs, track_files_take, world_landmarks_run
 from mocapdb.evaluation.floor import FloorIndex, database_floor
 from mocapdb.evaluation.heldout import (
     UNIVERSAL_HEIGHT_M,
@@ -75,6 +77,11 @@ VARIANTS = (("published", False), ("refined", True))  # report name, EngineConfi
 TAKE_VARIANT = "whole take"  # a track-files run's tracks through the whole-take fit (track_files_take)
 REPORTED = ("published", "refined", TAKE_VARIANT)
 PEER_VARIANT = "detector 3D (raw)"  # the keypoints' world landmarks, where a scenario carries them, at the true root
+
+
+def stream_variant(lag_frames: int) -> str:
+    """The report name of the default stream (the online take, ``stream_runs``) at ``lag_frames``."""
+    return f"stream, lag {lag_frames}"
 
 
 def facing_deg(points: np.ndarray) -> np.ndarray:
@@ -264,8 +271,8 @@ class ScenarioResult:
             self.variants.setdefault(PEER_VARIANT, VariantStats())
 
     def extend(self, other: ScenarioResult) -> None:
-        for name, stats in self.variants.items():
-            stats.extend(other.variants[name])
+        for name, stats in other.variants.items():
+            self.variants.setdefault(name, VariantStats()).extend(stats)
         self.person_frames += other.person_frames
         self.camera_distances_m.extend(other.camera_distances_m)
         self.heights_m.extend(other.heights_m)
@@ -371,6 +378,9 @@ def evaluate_scenario(db: MotionDatabase, truths: list[Truth], scenario: Scenari
                 engine = _engine_config(config, scenario, refine)
                 result.variants[name].add(run_sequence(Engine(db, engine), frames), view, floor, frames, config)
                 if refine:
+                    for lag, run in stream_runs(db, engine, frames, config.stream_lags).items():
+                        stats = result.variants.setdefault(stream_variant(lag), VariantStats())
+                        stats.add(run, view, floor, frames, config, person_frames=len(frames))
                     given = scenario.camera_height_m if scenario.camera_height_given else None
                     take = track_files_take(db, engine, frames, config.fps, given)
                     result.variants[TAKE_VARIANT].add(take, view, floor, frames, config, person_frames=len(frames))
