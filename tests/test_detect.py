@@ -230,7 +230,7 @@ def test_missing_and_corrupt_videos(tmp_path):
 def test_detect_writes_coco18_openpose_files(video, yolo_model, tmp_path, capsys):
     out = tmp_path / "keypoints"
     assert detect(str(video), "--model", str(yolo_model), "--out", str(out)) == 0
-    files = sorted(f for f in out.iterdir() if f.name != "take.json")
+    files = sorted(f for f in out.iterdir() if f.name not in ("take.json", "camera_path.json"))
     assert [f.name for f in files][:2] == ["clip_000000000000_keypoints.json", "clip_000000000001_keypoints.json"]
     assert len(files) == VIDEO_FRAMES
     take = json.loads((out / "take.json").read_text())   # what detect knows of the take, for reconstruct
@@ -250,13 +250,15 @@ def test_detect_writes_coco18_openpose_files(video, yolo_model, tmp_path, capsys
         np.testing.assert_allclose(person.confidence, c, atol=1e-4)
     report = capsys.readouterr().out
     assert "frames read 10, frames written 10" in report and "mean 2.00" in report
+    path = json.loads((out / "camera_path.json").read_text())   # the camera's rotation per frame, from the background
+    assert path["still"] and path["frames"] == list(range(VIDEO_FRAMES)) and "camera still" in report
 
 
 def test_detect_every_and_conf_options(video, rtmo_model, tmp_path):
     out = tmp_path / "sparse"
     assert detect(str(video), "--model", str(rtmo_model), "--out", str(out), "--every", "3", "--conf", "0.1") == 0
     frames = list(read_openpose_folder(out))
-    assert [f.name.split("_")[1] for f in sorted(out.iterdir()) if f.name != "take.json"] == [
+    assert [f.name.split("_")[1] for f in sorted(out.iterdir()) if f.name.startswith("clip")] == [
         "000000000000", "000000000003", "000000000006", "000000000009"]
     assert all(len(f.people) == 3 for f in frames)
     assert json.loads((out / "take.json").read_text())["fps"] == pytest.approx(VIDEO_FPS / 3)  # the keypoints' rate
@@ -408,7 +410,7 @@ def test_a_truncated_video_is_read_to_its_last_frame_with_a_warning(truncated_vi
     assert "frames read 1, frames written 1 (the video ended before its declared frame count)" in captured.out
     assert captured.err.startswith(f"mocapdb: warning: {truncated_video}: the container promised 20 frames, "
                                    "1 could be read") and "Traceback" not in captured.err
-    assert sorted(f.name for f in out.iterdir()) == ["cut_000000000000_keypoints.json", "take.json"]
+    assert sorted(f.name for f in out.iterdir()) == ["camera_path.json", "cut_000000000000_keypoints.json", "take.json"]
     assert len(list(read_openpose_folder(out))[0].people) == 2
     assert detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out), "--every", "3") == 0
     assert "the container promised 20 frames, 1 could be read" in capsys.readouterr().err

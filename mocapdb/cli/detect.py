@@ -81,8 +81,9 @@ def add_detect_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
                                    "BlazePose (33 landmarks each, heels, toes and hands included; onnxruntime, CPU) "
                                    "or a YOLO-pose/RTMO export given with --model, and write "
                                    "OUT/<video>_<frame>_keypoints.json (BlazePose: the mediapipe33 layout; exports: "
-                                   "OpenPose's COCO-18) and OUT/take.json, ready for `mocapdb reconstruct` or `live`. "
-                                   "Models and layouts: data_specs/pose_models.md.")
+                                   "OpenPose's COCO-18), OUT/take.json and OUT/camera_path.json (the camera's "
+                                   "rotation per frame, from the background), ready for `mocapdb reconstruct` or "
+                                   "`live`. Models and layouts: data_specs/pose_models.md.")
     p.add_argument("video", nargs="?", type=P.INPUT_FILE, help="video file (any format OpenCV's FFmpeg decodes)")
     p.add_argument("--camera", type=D.CAMERA_INDEX, metavar="N", help="read camera N instead of a file (Ctrl-C ends)")
     add_model_options(p)
@@ -108,6 +109,7 @@ def run_detect(args: argparse.Namespace) -> int:
     user error; 130 if a video file was interrupted before its end."""
     from mocapdb.cli.signals import install_stop_handlers
     from mocapdb.core.outputs import check_output_folder
+    from mocapdb.detect.camera_motion import BackgroundMotion
     from mocapdb.detect.detectors import open_detector
     from mocapdb.detect.errors import DetectError
     from mocapdb.detect.openpose_out import DETECT_FILES, detect_video
@@ -124,7 +126,7 @@ def run_detect(args: argparse.Namespace) -> int:
     stop = threading.Event()
     try:
         with install_stop_handlers(stop):
-            summary = detect_video(reader, model, Path(args.out), args.every, stop)
+            summary = detect_video(reader, model, Path(args.out), args.every, stop, watchers=[BackgroundMotion()])
     finally:
         reader.close()
     print(f"wrote {len(summary.people)} file(s) in {args.out} (model {model.describe()})")

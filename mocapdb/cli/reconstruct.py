@@ -158,6 +158,7 @@ def resolve_take(args: argparse.Namespace, source: str) -> None:
     from dataclasses import replace
     from pathlib import Path
 
+    from mocapdb.core.formats.camera_path import read_camera_path
     from mocapdb.core.formats.folder_size import size_of_keypoint_folder
     from mocapdb.core.formats.take import DEFAULT_FOCAL_35MM, TAKE_FILE, TakeInfo, read_take, resolve_camera
 
@@ -182,6 +183,7 @@ def resolve_take(args: argparse.Namespace, source: str) -> None:
     args.image_size = settings.image_size
     args.focal = settings.focal_px
     args.camera_sources = settings.sources
+    args.camera_path = read_camera_path(source)   # a turning camera's (data_specs/world.md), if detect wrote one
 
 
 def _given_focal(args: argparse.Namespace, size: tuple[int, int] | None, take) -> float | None:
@@ -277,7 +279,8 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
                                  subject_heights_m=subject_heights(args),
                                  lag_frames=args.lag_frames, online_take=not args.per_frame_stream,
                                  camera_sources=getattr(args, "camera_sources", {}),
-                                 people=parse_people(getattr(args, "people", "all")))
+                                 people=parse_people(getattr(args, "people", "all")),
+                                 camera_path=getattr(args, "camera_path", None))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     engine = _engine(args)

@@ -19,13 +19,15 @@ from __future__ import annotations
 
 import json
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from mocapdb.core.files import os_error_message, write_atomic
+from mocapdb.core.formats.camera_path import CAMERA_PATH_FILE
 from mocapdb.core.formats.hand_keypoints import hand_fields
 from mocapdb.core.formats.keypoints import LAYOUTS
 from mocapdb.core.formats.openpose import WORLD_FIELD
@@ -40,7 +42,20 @@ if TYPE_CHECKING:
     from mocapdb.detect.hands import Hands
 
 N_COCO = len(LAYOUTS["coco17"])
-DETECT_FILES = OutputFiles("detect", ("*_keypoints.json", TAKE_FILE), TAKE_FILE)  # an earlier output holds these
+# what an earlier output holds
+DETECT_FILES = OutputFiles("detect", ("*_keypoints.json", TAKE_FILE, CAMERA_PATH_FILE), TAKE_FILE)
+
+
+class FrameWatcher(Protocol):
+    """Something more `detect` reads from the decoded frames (e.g.
+    :class:`~mocapdb.detect.camera_motion.BackgroundMotion`): it sees every frame written with its
+    number and people, then writes its own file beside the keypoints."""
+
+    def see(self, number: int, image: np.ndarray, keypoints: np.ndarray) -> None:
+        """Frame number ``number`` (``[H, W, 3]`` BGR) and its people ``[P, K, 3]`` (x px, y px, confidence)."""
+
+    def finish(self, out_dir: Path) -> list[str]:
+        """Write its file(s) into ``out_dir``; the lines `detect` reports."""
 
 
 def _coco17_name(openpose_name: str) -> str:
@@ -126,6 +141,7 @@ class DetectSummary:
     truncated: str | None = None   # why the video looks truncated (VideoReader.truncation), else None
     warnings: list[str] = field(default_factory=list)   # the video's truncation and timestamps (the caller's to say)
     gaps: str | None = None        # the gaps in the video's timestamps (FrameClock.report), else None
+    notes: list[str] = field(default_factory=list)   # what the frame watchers report (the camera's path)
 
     def report(self) -> str:
         counts = np.array(self.people, dtype=np.int64)
@@ -136,11 +152,11 @@ class DetectSummary:
             + (" (the video ended before its declared frame count)" if self.truncated else ""),
             f"people per frame: mean {mean:.2f}, max {most}, frames with nobody {int(np.sum(counts == 0))}",
             f"detection {self.detection_fps:.1f} frames/s"]
-            + ([f"frame times: {self.gaps}"] if self.gaps else []))
+            + ([f"frame times: {self.gaps}"] if self.gaps else []) + self.notes)
 
 
 def detect_video(reader: VideoReader, model: FrameDetector, out_dir: Path, every: int = 1,
-                 stop: threading.Event | None = None) -> DetectSummary:
+                 stop: threading.Event | None = None, watchers: Sequence[FrameWatcher] = ()) -> DetectSummary:
     """Detect people in every ``every``-th frame (by the paths ``model`` allows:
     :mod:`mocapdb.detect.tracked`) and write one OpenPose JSON file per frame
     (atomically) into ``out_dir``, then the take description (``take.json``: the keypoints' frame
@@ -150,7 +166,9 @@ def detect_video(reader: VideoReader, model: FrameDetector, out_dir: Path, every
     (OutputFolderError) when it holds anything else (see the module docstring). The summary's
     ``truncated`` says when the video file ended before its declared frame count (every frame read is
     written), its ``warnings`` that and frames without a usable timestamp, its ``gaps`` the jumps in
-    the timestamps; DetectError naming the path when the folder or a file cannot be written."""
+    the timestamps; DetectError naming the path when the folder or a file cannot be written.
+    ``watchers`` see every frame written and write their files at the end (their lines in the
+    summary's ``notes``)."""
     try:
         clear_output_folder(out_dir, DETECT_FILES)
     except OSError as exc:
@@ -164,11 +182,13 @@ def detect_video(reader: VideoReader, model: FrameDetector, out_dir: Path, every
         for frame in reader.frames(every):
             size = size or (int(frame.image.shape[1]), int(frame.image.shape[0]))
             found = model(frame.image)
+            number = clock.number(frame.time_s)
+            for watcher in watchers:
+                watcher.see(number, frame.image, found.keypoints)
             path = out_dir / frame_file_name(reader.name, frame.index)
             try:
                 write_atomic(path, openpose_json(found.keypoints, model.keypoint_layout, found.world,
-                                                 frame=clock.number(frame.time_s), time_s=frame.time_s,
-                                                 hands=found.hands))
+                                                 frame=number, time_s=frame.time_s, hands=found.hands))
             except OSError as exc:
                 raise DetectError(os_error_message(exc, path, "write the keypoints")) from None
             summary.people.append(len(found.scores))
@@ -184,6 +204,7 @@ def detect_video(reader: VideoReader, model: FrameDetector, out_dir: Path, every
                     source=reader.label, model=model.path.name, layout=written_layout(model.keypoint_layout))
     try:
         write_take(out_dir, take)
+        summary.notes = [line for watcher in watchers for line in watcher.finish(out_dir)]
     except OSError as exc:
-        raise DetectError(os_error_message(exc, out_dir / TAKE_FILE, "write the take description")) from None
+        raise DetectError(os_error_message(exc, out_dir, "write the take description and the camera path")) from None
     return summary

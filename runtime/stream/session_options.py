@@ -8,6 +8,7 @@ from pathlib import Path
 
 from mocapdb.core import domains as D
 from mocapdb.core.exports import TrackExport
+from mocapdb.core.formats.camera_path import CameraPath
 from mocapdb.runtime.take_params import TakeParams
 
 
@@ -45,6 +46,7 @@ class SessionOptions:
     subject_heights_m: dict[int | None, float] = field(default_factory=dict)  # track (None: all) → stature
     people: str | tuple[int, ...] = "all"  # the tracks given files at the end: "all", "main" or ids (world.subject)
     write_in_background: bool = False  # track files fitted and written by a thread of their own (live)
+    camera_path: CameraPath | None = None  # a turning camera's path: frames seen from its reference camera
 
     def __post_init__(self) -> None:
         D.MAX_BVH_FILES.check(self.max_bvh_files, "max_bvh_files")

@@ -18,6 +18,7 @@ from mocapdb.core.outputs import TrackRecording
 from mocapdb.runtime.stream.session_options import SessionOptions
 from mocapdb.runtime.stream.session_summary import SessionSummary
 from mocapdb.runtime.take import fit_take
+from mocapdb.runtime.world.camera_path import camera_path_line, camera_path_record
 from mocapdb.runtime.world.fuse import fit_take_world
 from mocapdb.runtime.world.subject import chosen, main_track
 from mocapdb.runtime.world.summary import track_facts, world_line, world_record
@@ -116,6 +117,9 @@ class TrackFiles:
             for f in facts]
         self.summary.world_lines += [f"track {track} joined into track {into} (one person lost and found again)"
                                      for track, into in joined.items()]
+        path = self.options.camera_path
+        if path is not None:
+            self.summary.world_lines.append(camera_path_line(path))
         for rec in fitted:
             if rec.track in written:
                 self._write_files(rec, names.pop(rec.track))
@@ -123,6 +127,8 @@ class TrackFiles:
             self._names.discard(name)
         if self.options.bvh_dir is not None:
             record = world_record(world, facts, main, written, joined, self.options.export.floor)
+            if path is not None:
+                record["camera_path"] = camera_path_record(path, world, self.options.export.floor)
             write_atomic(Path(self.options.bvh_dir) / "world.json", json.dumps(record, indent=1) + "\n")
 
     def _write(self, rec: TrackRecording, name: str, final: bool) -> None:

@@ -16,6 +16,7 @@ from typing import NamedTuple, TypeVar
 import numpy as np
 
 from mocapdb.core.files import MIB, read_input_text
+from mocapdb.core.formats.camera_path import CAMERA_PATH_FILE
 from mocapdb.core.formats.hand_keypoints import read_hands
 from mocapdb.core.formats.keypoints import (
     KeypointError,
@@ -155,8 +156,9 @@ def frame_order_key(name: str) -> tuple[int, int, tuple[str | int, ...], str]:
 
 def is_frame_file(name: str) -> bool:
     """Whether a file in a keypoint folder is a frame: a ``.json`` file other than the take
-    description (``take.json``, :mod:`mocapdb.core.formats.take`)."""
-    return name.lower().endswith(".json") and name != TAKE_FILE
+    description (``take.json``, :mod:`mocapdb.core.formats.take`) and the camera's path
+    (``camera_path.json``, :mod:`mocapdb.core.formats.camera_path`)."""
+    return name.lower().endswith(".json") and name not in (TAKE_FILE, CAMERA_PATH_FILE)
 
 
 def _is_regular(entry: os.DirEntry) -> bool:

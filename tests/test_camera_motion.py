@@ -1,0 +1,214 @@
+"""The camera's rotation from the background (mocapdb/detect/camera_motion.py) and the keypoints seen
+from the reference camera (mocapdb/core/formats/camera_path.py), against independent references:
+images warped by OpenCV with rotations made by SciPy, the closed form of a pan and a roll, a scene
+of two planes filmed by a camera that moves."""
+import json
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from mocapdb.core.formats.camera_path import (
+    CAMERA_PATH_FILE,
+    CameraPath,
+    CameraPathError,
+    derotate_points,
+    intrinsic_matrix,
+    read_camera_path,
+    write_camera_path,
+)
+from mocapdb.core.formats.keypoints import KeypointFrame, Person
+from mocapdb.core.formats.openpose import is_frame_file
+from mocapdb.detect.camera_motion import BackgroundMotion, fit_rotation, people_mask, rays
+
+SIZE = (640, 480)
+FOCAL = 600.0
+K = intrinsic_matrix(FOCAL, (SIZE[0] / 2, SIZE[1] / 2))
+TOLERANCE_DEG = 0.1   # a rotation recovered from a clean warp, at the shrunk image's 480 px
+
+
+def texture(seed: int = 0, size: tuple[int, int] = SIZE) -> np.ndarray:
+    """A BGR image full of corners: blurred noise with rectangles."""
+    rng = np.random.default_rng(seed)
+    image = cv2.GaussianBlur(rng.integers(0, 255, (size[1], size[0])).astype(np.uint8), (0, 0), 2.0)
+    for _ in range(60):
+        x, y = rng.integers(0, size[0]), rng.integers(0, size[1])
+        cv2.rectangle(image, (int(x), int(y)), (int(x) + 25, int(y) + 18), int(rng.integers(0, 255)), -1)
+    return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+
+
+def turned(image: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """``image`` as the camera turned by ``rotation`` (reference → it) sees it: ``K R K⁻¹``."""
+    return cv2.warpPerspective(image, K @ rotation @ np.linalg.inv(K), SIZE)
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle between two rotation matrices, by SciPy."""
+    return float(np.degrees((Rotation.from_matrix(a) * Rotation.from_matrix(b).inv()).magnitude()))
+
+
+def run(images: list[np.ndarray], focal: float = FOCAL) -> CameraPath:
+    motion = BackgroundMotion(focal)
+    for number, image in enumerate(images):
+        motion.see(number, image, np.zeros((0, 17, 3)))
+    return motion.path()
+
+
+@pytest.mark.parametrize("euler", [(4.0, 0.0, 0.0), (0.0, -3.0, 2.0), (2.5, 1.5, -4.0)])
+def test_a_rotation_only_pair_gives_its_rotation(euler):
+    truth = Rotation.from_euler("yxz", euler, degrees=True).as_matrix()
+    image = texture()
+    path = run([image, turned(image, truth)])
+    assert not path.still
+    assert angle_deg(path.rotations[1], truth) < TOLERANCE_DEG
+    assert angle_deg(path.rotations[0], np.eye(3)) == 0.0
+    assert not path.moved.any()
+
+
+def test_a_turn_over_many_frames_keeps_its_error_through_new_keyframes():
+    """A 20 deg pan with tilt and roll over 60 frames: the image leaves most of its first corners
+    behind, so keyframes are renewed; every frame's rotation stays within 0.3 deg (SciPy's)."""
+    image = texture(1, (1400, 700))
+    wide = intrinsic_matrix(FOCAL, (700.0, 350.0))
+    crop = np.array([[1, 0, 700 - SIZE[0] / 2], [0, 1, 350 - SIZE[1] / 2], [0, 0, 1.0]])   # the wide image's middle
+    truths = Rotation.from_euler("yxz", np.linspace(0, 1, 60)[:, None] * [20.0, 3.0, 4.0], degrees=True).as_matrix()
+    frames = [cv2.warpPerspective(image, np.linalg.inv(crop) @ wide @ r @ np.linalg.inv(wide), SIZE) for r in truths]
+    path = run(frames)
+    errors = [angle_deg(m, t) for m, t in zip(path.rotations, truths)]
+    assert max(errors) < 0.3
+
+
+def test_a_still_camera_is_still_and_the_identity():
+    image = texture(2)
+    rng = np.random.default_rng(3)
+    noisy = [np.clip(image + rng.normal(0, 2.0, image.shape), 0, 255).astype(np.uint8) for _ in range(12)]
+    path = run(noisy)
+    assert path.still
+    assert np.array_equal(path.rotations, np.broadcast_to(np.eye(3), (12, 3, 3)))
+    frame = KeypointFrame(5, None, [Person(np.array([[10.0, 20.0]] * 14), np.ones(14))])
+    assert path.derotate(frame) is frame
+
+
+def test_people_are_masked_and_their_motion_does_not_turn_the_camera():
+    """A quarter of the image is a 'person' that slides 30 px a frame: inside its box nothing is
+    tracked, and the camera stays still."""
+    background, person = texture(4), texture(5)
+    frames, boxes = [], []
+    for k in range(8):
+        image = background.copy()
+        x = 100 + 30 * k
+        image[100:400, x:x + 160] = person[100:400, 100:260]
+        frames.append(image)
+        boxes.append(np.array([[[x + 20.0, 140.0, 1.0], [x + 140.0, 360.0, 1.0]]]))
+    motion = BackgroundMotion(FOCAL)
+    for number, (image, box) in enumerate(zip(frames, boxes)):
+        motion.see(number, image, box)
+    assert motion.path().still
+    mask = people_mask((480, 640), boxes[0], 1.0)
+    assert mask[250, 180] == 0 and mask[20, 20] == 255
+
+
+def test_fit_rotation_ignores_outliers():
+    rng = np.random.default_rng(6)
+    truth = Rotation.from_euler("xyz", [3.0, -5.0, 1.0], degrees=True).as_matrix()
+    a = rays(rng.uniform([0, 0], SIZE, (200, 2)), K)
+    b = a @ truth.T
+    b[:60] = rays(rng.uniform([0, 0], SIZE, (60, 2)), K)      # 30 % wrong matches
+    rotation, inliers = fit_rotation(a, b, 1.0 / FOCAL, rng)
+    assert angle_deg(rotation, truth) < 1e-6
+    assert not inliers[:60].any() and inliers[60:].all()
+
+
+def two_planes(translation_m: np.ndarray) -> np.ndarray:
+    """A wall 8 m away with a panel 2 m away in front of its left half, seen by the camera moved by
+    ``translation_m`` (each plane warped by its own plane-induced homography ``K (I − t nᵀ / d) K⁻¹``)."""
+    normal = np.array([0.0, 0.0, 1.0])
+
+    def seen(depth: float) -> np.ndarray:
+        return K @ (np.eye(3) - np.outer(translation_m, normal) / depth) @ np.linalg.inv(K)
+
+    out = cv2.warpPerspective(texture(7), seen(8.0), SIZE, borderMode=cv2.BORDER_REFLECT)
+    panel = np.zeros((SIZE[1], SIZE[0]), np.uint8)
+    panel[:, :300] = 255
+    cover = cv2.warpPerspective(panel, seen(2.0), SIZE) > 0
+    out[cover] = cv2.warpPerspective(texture(8), seen(2.0), SIZE)[cover]
+    return out
+
+
+def test_a_camera_that_moves_is_flagged_and_one_that_turns_is_not():
+    """A sideways step of 15 cm: the panel 2 m away shifts 45 px, the wall 8 m away 11 px: no
+    rotation (and no homography) explains both."""
+    steps = [two_planes(np.array([x, 0.0, 0.0])) for x in np.linspace(0.0, 0.15, 6)]
+    assert run(steps).moved[-1]
+    image = two_planes(np.zeros(3))
+    turn = Rotation.from_euler("y", 3.0, degrees=True).as_matrix()   # 31 px between two frames
+    assert not run([image, turned(image, turn)]).moved.any()
+
+
+def test_derotation_is_the_closed_form_of_a_pan_and_a_roll():
+    cx, cy = SIZE[0] / 2, SIZE[1] / 2
+    pan = np.radians(7.0)
+    pan_matrix = Rotation.from_euler("y", 7.0, degrees=True).as_matrix()
+    xs = np.array([50.0, 320.0, 600.0])
+    seen = derotate_points(np.stack([xs, np.full(3, cy)], axis=1), pan_matrix, K)
+    np.testing.assert_allclose(seen[:, 0], cx + FOCAL * np.tan(np.arctan((xs - cx) / FOCAL) - pan), atol=1e-9)
+    np.testing.assert_allclose(seen[:, 1], cy, atol=1e-9)
+    roll = np.radians(-12.0)
+    points = np.array([[100.0, 50.0], [500.0, 400.0]])
+    seen = derotate_points(points, Rotation.from_euler("z", -12.0, degrees=True).as_matrix(), K)
+    c, s = np.cos(-roll), np.sin(-roll)
+    expected = (points - [cx, cy]) @ np.array([[c, s], [-s, c]]) + [cx, cy]
+    np.testing.assert_allclose(seen, expected, atol=1e-9)
+
+
+def test_derotation_inverts_the_turn_and_drops_rays_behind_the_camera():
+    rotation = Rotation.from_euler("yxz", [20.0, -8.0, 5.0], degrees=True).as_matrix()
+    points = np.array([[10.0, 10.0], [320.0, 240.0], [630.0, 470.0]])
+    ahead = np.c_[points, np.ones(3)] @ (K @ rotation @ np.linalg.inv(K)).T
+    np.testing.assert_allclose(derotate_points(ahead[:, :2] / ahead[:, 2:], rotation, K), points, atol=1e-6)
+    behind = derotate_points(np.array([[320.0, 240.0]]), Rotation.from_euler("y", 120, degrees=True).as_matrix(), K)
+    assert np.isnan(behind).all()
+
+
+def _path(rotation: np.ndarray, still: bool = False) -> CameraPath:
+    return CameraPath(np.array([0, 1]), np.stack([np.eye(3), rotation]), FOCAL, (SIZE[0] / 2, SIZE[1] / 2),
+                      np.array([np.nan, 0.4]), np.array([False, True]), still)
+
+
+def test_a_person_is_seen_from_the_reference_camera():
+    rotation = Rotation.from_euler("yxz", [6.0, 3.0, 3.0], degrees=True).as_matrix()
+    points = np.tile([[300.0, 200.0]], (14, 1))
+    points[3] = np.nan
+    world = np.arange(42, dtype=float).reshape(14, 3) / 40.0
+    person = Person(points, np.where(np.isnan(points[:, 0]), 0.0, 0.9), world_m=world,
+                    extremities=np.array([[310.0, 400.0, 0.8]] * 8))
+    out = _path(rotation).derotate(KeypointFrame(1, 0.1, [person])).people[0]
+    np.testing.assert_allclose(out.points_px[0], derotate_points(points[0], rotation, K))
+    assert out.confidence[3] == 0.0 and np.isnan(out.points_px[3]).all()
+    np.testing.assert_allclose(out.world_m, (rotation.T @ world.T).T)          # the 3D turned back
+    np.testing.assert_allclose(out.extremities[0, :2], derotate_points(np.array([310.0, 400.0]), rotation, K))
+    assert out.extremities[0, 2] == 0.8
+
+
+def test_the_path_file_round_trips_and_is_not_a_frame(tmp_path):
+    rotation = Rotation.from_euler("yxz", [6.0, 3.0, 3.0], degrees=True).as_matrix()
+    write_camera_path(tmp_path, _path(rotation))
+    back = read_camera_path(tmp_path)
+    assert angle_deg(back.rotations[1], rotation) < 1e-4
+    assert back.moved.tolist() == [False, True] and np.isnan(back.residual_px[0])
+    np.testing.assert_allclose(back.rotation(7), back.rotations[1])           # past its end: the last one
+    assert not is_frame_file(CAMERA_PATH_FILE)
+    assert read_camera_path(tmp_path / "nothing") is None
+
+
+def test_a_broken_path_file_names_the_file_and_the_field(tmp_path):
+    write_camera_path(tmp_path, _path(np.eye(3)))
+    body = json.loads((tmp_path / CAMERA_PATH_FILE).read_text())
+    body["quaternions_wxyz"][1] = [2.0, 0.0, 0.0, 0.0]
+    (tmp_path / CAMERA_PATH_FILE).write_text(json.dumps(body))
+    with pytest.raises(CameraPathError, match="camera_path.json: quaternions_wxyz must be unit quaternions"):
+        read_camera_path(tmp_path)
+    (tmp_path / CAMERA_PATH_FILE).write_text("{")
+    with pytest.raises(CameraPathError, match="not a camera path"):
+        read_camera_path(tmp_path)
