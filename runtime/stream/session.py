@@ -141,7 +141,7 @@ class Session:
             return
         self.summary.latency.captured(frame.index, arrival_s)
         with compile_notice(self._first_frame and not kernels_cached(refine)):
-            poses = self.engine.step(frame, arrival_s if self.options.rate_by_arrival else None)
+            poses = self.engine.step(self._from_reference(frame), arrival_s if self.options.rate_by_arrival else None)
         self._first_frame = False
         t_s = frame.time_s if frame.time_s is not None else frame.index / self.engine.config.fps
         self._write_frame(frame.index, t_s, poses)
@@ -210,6 +210,12 @@ class Session:
             return (f"frame {frame.index}: keypoints reach x = {hi[0]:.0f} px, y = {hi[1]:.0f} px in an image "
                     f"said to be {width}x{height}{said}{hint}")
         return None
+
+    def _from_reference(self, frame: KeypointFrame) -> KeypointFrame:
+        """``frame`` as the reference camera of a turning camera's path sees it
+        (:meth:`~mocapdb.core.formats.camera_path.CameraPath.derotate`); as it is without a path."""
+        path = self.options.camera_path
+        return frame if path is None else path.derotate(frame)
 
     def finish(self, bvh_dir: Path | None = None) -> SessionSummary:
         """End all tracks, write the track files not yet written (into ``bvh_dir`` if given, else the
