@@ -18,9 +18,11 @@ import numpy as np
 from mocapdb.core.cameras import CameraModel
 from mocapdb.core.formats.database import MotionDatabase
 from mocapdb.core.formats.keypoints import KeypointFrame
+from mocapdb.core.outputs import TrackRecording
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.world.fuse import World, fit_take_world
+from mocapdb.runtime.world.scene_lines import SceneEvidence, SceneTilt
 
 VIEW_FROM_OPENCV = np.array([1.0, -1.0, -1.0])  # OpenCV camera axes (x right, y down, z forward) → view frame
 # Issue 36's targets over the cameras of a take, each run alone: height off (% of the truth) and pitch
@@ -38,13 +40,31 @@ def true_camera(cam: CameraModel, floor_z_m: float = 0.0) -> dict[str, float]:
             "roll_deg": float(np.degrees(np.arctan2(-normal[0], normal[1])))}
 
 
-def world_of_frames(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig) -> World:
+def world_of_frames(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig,
+                    scene: SceneEvidence | None = None) -> World:
     """The world one camera's ``frames`` give, every track of them, as ``reconstruct`` finds it: its
-    per-frame fits kept unsmoothed (the online and whole takes smooth them)."""
+    per-frame fits kept unsmoothed (the online and whole takes smooth them); ``scene``: the room's
+    vanishing points, if any."""
+    return world_of_tracks(tracks_of_frames(db, frames, config), config, scene)
+
+
+def tracks_of_frames(db: MotionDatabase, frames: list[KeypointFrame], config: EngineConfig) -> list[TrackRecording]:
+    """The engine's tracks of one camera's ``frames``, run as ``reconstruct`` runs it."""
     engine = Engine(db, config.for_track_files())
     for frame in frames:
         engine.step(frame)
-    return fit_take_world(engine.finish(), config.fps, camera_height_m=config.camera_height_m).world
+    return engine.finish()
+
+
+def world_of_tracks(tracks: list[TrackRecording], config: EngineConfig, scene: SceneEvidence | None = None) -> World:
+    """The take's world of the engine's ``tracks`` (:func:`tracks_of_frames`), with the scene's lines if given."""
+    return fit_take_world(tracks, config.fps, camera_height_m=config.camera_height_m, scene=scene).world
+
+
+def scene_world(tilt: SceneTilt) -> World:
+    """The scene's up alone as a :class:`World` (no floor, no height) for :func:`score_world_camera`."""
+    return World(tilt.up, float("nan"), float("inf"), False, pitch_sd_deg=tilt.pitch_sd_deg,
+                 roll_sd_deg=tilt.roll_sd_deg, tilt_from="scene", scene_share=1.0, scene=tilt)
 
 
 def score_camera(world: World, cam: CameraModel, floor_z_m: float = 0.0) -> dict:
@@ -83,6 +103,20 @@ def summary_lines(scores: dict[str, dict]) -> list[str]:
             f"{height.max():.0f} %), pitch off {np.median(pitch):.1f}° (worst {pitch.max():.1f}°), roll off "
             f"{np.median(roll):.1f}° (worst {roll.max():.1f}°); the truth inside the reported ±2 SD: height "
             f"{inside[0]}, pitch {inside[1]}, roll {inside[2]} of {len(scores)}."]
+
+
+def tilt_lines(label: str, scores: dict[str, dict]) -> list[str]:
+    """One line of a mode's pitch and roll errors (median, worst) and how many truths lie inside ±2 SD,
+    over the cameras it found a tilt on (``scores``: camera → :func:`score_world_camera`, None where it found none)."""
+    found = {k: s for k, s in scores.items() if s is not None}
+    if not found:
+        return [f"{label}: no tilt on any of {len(scores)} cameras"]
+    pitch = np.abs([s["pitch_error_deg"] for s in found.values()])
+    roll = np.abs([s["roll_error_deg"] for s in found.values()])
+    inside = [sum(s[f"{what}_inside_2sd"] for s in found.values()) for what in ("pitch", "roll")]
+    return [f"{label}: {len(found)} of {len(scores)} cameras; pitch off {np.median(pitch):.1f}° (median; worst "
+            f"{pitch.max():.1f}°), roll off {np.median(roll):.1f}° (worst {roll.max():.1f}°); truth inside ±2 SD: "
+            f"pitch {inside[0]}, roll {inside[1]} of {len(found)}"]
 
 
 def format_rows(scores: dict[str, dict]) -> list[str]:

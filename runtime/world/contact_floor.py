@@ -1,6 +1,7 @@
 """The floor under a track's planted ankles: its plane (:func:`floor_plane`), the contacts on its
-lowest level (:func:`lowest_level`), whether contacts lie on one plane (:func:`coplanar_spread`),
-and roots lifted so that no ankle sinks below it (:func:`above_floor`). Step 4 of the whole-take
+lowest level (:func:`lowest_level`), whether contacts lie on one plane (:func:`coplanar_spread`)
+and span a floor (:func:`spans_floor`), their steps (:func:`count_steps`), and roots lifted so that
+no ankle sinks below it (:func:`above_floor`). Step 4 of the whole-take
 fit (:mod:`mocapdb.runtime.take`); the take's world (:mod:`mocapdb.runtime.world.fuse`) uses it too."""
 from __future__ import annotations
 
@@ -73,3 +74,21 @@ def above_floor(root_m: np.ndarray, ankle_offsets_m: np.ndarray, normal: np.ndar
     heights = (root_m[:, None] + ankle_offsets_m) @ normal - offset
     deficit = np.maximum(ankle_height_m - heights.min(axis=1), 0.0)
     return root_m + deficit[:, None] * normal
+
+
+STEP_GRID_M = 0.01  # contacts within this of each other are one step (the whole-take fit anchors a step)
+
+
+def count_steps(contacts_m: np.ndarray) -> int:
+    """The steps among contacts ``[N, 3]``: the distinct ones to :data:`STEP_GRID_M` (the whole-take
+    fit holds a planted ankle at one place for its whole contact)."""
+    return len(np.unique(np.round(contacts_m / STEP_GRID_M), axis=0))
+
+
+def spans_floor(contacts: np.ndarray) -> bool:
+    """Whether contacts ``[N, 3]`` spread over about a metre (RMS :data:`MIN_FLOOR_SPREAD_M` along
+    their main direction)."""
+    if len(contacts) < 10:
+        return False
+    return bool(np.linalg.svd(contacts - contacts.mean(axis=0), compute_uv=False)[0] / np.sqrt(len(contacts))
+                >= MIN_FLOOR_SPREAD_M)

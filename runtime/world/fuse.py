@@ -26,21 +26,21 @@ The cost sums each track's ``−log`` mixture (weighted by its length up to 1 s:
 :func:`evidence_weight`), the flatness of its contacts under each floor (:func:`_unevenness`), its
 image's verticals on the roll (:mod:`mocapdb.runtime.world.image_vertical`), the tilt prior
 (:func:`~mocapdb.runtime.world.tilt.tilt_cost`: the bodies' own up estimates with a heavy tail) and
-the camera height's (:func:`~mocapdb.runtime.world.tilt.height_cost`: how high people film from).
-Each piece of evidence counts once: the contacts vote on the tilt through their flatness only, not
-also as the prior's centre or width (a straight walk's contacts lie on a line that the depth's drift
-along the walk tilts, 4° on a walk away from the camera). The grid's minimum is the world, its
+the camera height's (:func:`~mocapdb.runtime.world.tilt.height_cost`: how high people film from),
+and the room's vertical vanishing point where ``detect`` saw lines (``scene_prior``: each weighted
+by its error, the grid centred between the people's up and the scene's). Each piece of evidence
+counts once: the contacts vote on the tilt through their flatness only, not also as the prior's
+centre or width (a straight walk's contacts lie on a line that the depth's drift along the walk
+tilts, 4° away from the camera). The grid's minimum is the world, its
 spread (the tilts marginalised) the camera height's uncertainty. Each track on the floor then
 takes its floor-consistent stature; any other the prior's mode (or its given height), standing in
 the same world where its feet are (above the floor on a box), made smaller where its lowest points
 would sink below the floor. No scale is negative, no stature leaves :data:`HUMAN_STATURE_M`.
-``data_specs/world.md`` gives the decisions and their reasons. The stature prior
-and the kinds' likelihoods are :mod:`mocapdb.runtime.world.stature`; what the summary and ``world.json``
-say of the world, :mod:`mocapdb.runtime.world.summary`.
-
-Costs O(T·H·P) for T tilts, H heights and P people (at most :data:`MAX_FLOOR_POINTS` contacts and
-:data:`~mocapdb.runtime.world.image_vertical.MAX_PLANES` image planes each):
-tens to hundreds of milliseconds per take, independent of its length (``tools/bench_world.py``).
+``data_specs/world.md`` gives the decisions and their reasons. The stature prior and the kinds'
+likelihoods are :mod:`mocapdb.runtime.world.stature`; what the summary and ``world.json`` say of the
+world, :mod:`mocapdb.runtime.world.summary`. Costs O(T·H·P) for T tilts, H heights and P people (at
+most :data:`MAX_FLOOR_POINTS` contacts and :data:`~mocapdb.runtime.world.image_vertical.MAX_PLANES`
+image planes each): tens to hundreds of milliseconds per take, whatever its length (``tools/bench_world.py``).
 """
 from __future__ import annotations
 
@@ -55,8 +55,10 @@ from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
 from mocapdb.runtime.foot_contacts import ANKLES, true_runs
 from mocapdb.runtime.take import TakeResult, fit_take
 from mocapdb.runtime.take_params import TakeParams
-from mocapdb.runtime.world.contact_floor import MIN_FLOOR_SPREAD_M, above_floor, lowest_level
+from mocapdb.runtime.world.contact_floor import above_floor, count_steps, lowest_level, spans_floor
 from mocapdb.runtime.world.image_vertical import vertical_misfit, vertical_sd_deg
+from mocapdb.runtime.world.scene_lines import SceneEvidence, SceneTilt, pitch_roll_deg
+from mocapdb.runtime.world.scene_prior import grid_centre, scene_cost_of, scene_share, tilt_source
 from mocapdb.runtime.world.stature import (
     FLAT_DENSITY,
     HUMAN_STATURE_M,
@@ -83,7 +85,6 @@ from mocapdb.runtime.world.tilt import (
 )
 
 CONTACT_SD = 0.10            # of log stature, one step's (depth and ankle-height noise), over its steps
-STEP_GRID_M = 0.01           # contacts within this of each other are one step (the whole-take fit anchors a step)
 BASE_SD = 0.03               # of log stature, what more contacts do not remove (the body's own fit)
 TILT_RANGE_DEG = 20.0        # the grid's pitch and roll search about the tracks' mean up, each way
 LOG_HEIGHT_STEP = 0.01       # the camera-height grid's step (log metres)
@@ -136,12 +137,6 @@ class TrackEvidence:
 MAX_FLOOR_POINTS = 64  # contacts kept per track for the floor's distance under it (a median)
 
 
-def count_steps(contacts_m: np.ndarray) -> int:
-    """The steps among contacts ``[N, 3]``: the distinct ones to :data:`STEP_GRID_M` (the whole-take
-    fit holds a planted ankle at one place for its whole contact)."""
-    return len(np.unique(np.round(contacts_m / STEP_GRID_M), axis=0))
-
-
 @dataclass(frozen=True)
 class PersonSize:
     """One track in the world: its stature (metres) and that estimate's error (SD of its log: 0.05 ≈
@@ -171,6 +166,9 @@ class World:
     people: dict[int, PersonSize] = field(default_factory=dict)
     pitch_sd_deg: float = float("nan")   # the pitch's and roll's errors (world_tilt.tilt_spread_deg)
     roll_sd_deg: float = float("nan")
+    tilt_from: str = "people"            # what decided the tilt: "people", "scene", "people and scene"
+    scene_share: float | None = None     # the scene's share of the tilt's precision (0-1; None: no scene)
+    scene: SceneTilt | None = None       # the scene's own up, where its lines showed one
 
     @property
     def floor_known(self) -> bool:
@@ -197,15 +195,15 @@ def fit_takes(recordings: list[TrackRecording], fps: float, params: TakeParams =
 
 
 def fit_world(recordings: list[TrackRecording], fps: float, params: TakeParams = TakeParams(),
-              camera_height_m: float | None = None, subject_heights_m: dict[int | None, float] | None = None
-              ) -> tuple[list[TrackRecording], World]:
+              camera_height_m: float | None = None, subject_heights_m: dict[int | None, float] | None = None,
+              scene: SceneEvidence | None = None) -> tuple[list[TrackRecording], World]:
     """:func:`fit_takes` with the :class:`World` found. ``camera_height_m``: the camera's height above
     the floor when known; ``subject_heights_m``: track → stature (metres) where known (key None:
-    everyone's)."""
+    everyone's); ``scene``: the up the room's lines show (:mod:`~mocapdb.runtime.world.scene_lines`)."""
     fits = [fit_take(rec, fps, params) for rec in recordings]
     heights = subject_heights_m or {}
     evidence = [track_evidence(rec, result, fps, heights.get(rec.track, heights.get(None))) for rec, result in fits]
-    world = estimate_world(evidence, camera_height_m)
+    world = estimate_world(evidence, camera_height_m, scene)
     return [place_in_world(rec, world, fps) for rec, _ in fits], world
 
 
@@ -221,14 +219,14 @@ class TakeWorld(NamedTuple):
 
 
 def fit_take_world(recordings: list[TrackRecording], fps: float, params: TakeParams = TakeParams(),
-                   camera_height_m: float | None = None, subject_heights_m: dict[int | None, float] | None = None
-                   ) -> TakeWorld:
+                   camera_height_m: float | None = None, subject_heights_m: dict[int | None, float] | None = None,
+                   scene: SceneEvidence | None = None) -> TakeWorld:
     """What ``reconstruct`` and ``live`` fit at the end of a take: the fragments of one person joined
     (:func:`~mocapdb.runtime.world.subject.join_fragments`), then :func:`fit_world` over every track, static
     ones included (a person standing still shows the vertical and the floor as well as one who
     moves)."""
     joined_recordings, joined = join_fragments(recordings, fps)
-    fitted, world = fit_world(joined_recordings, fps, params, camera_height_m, subject_heights_m)
+    fitted, world = fit_world(joined_recordings, fps, params, camera_height_m, subject_heights_m, scene)
     return TakeWorld(joined_recordings, fitted, world, joined)
 
 
@@ -263,52 +261,63 @@ def track_evidence(rec: TrackRecording, result: TakeResult, fps: float, given_st
                          planes, planes_sd)
 
 
-def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None = None) -> World:
-    """The take's :class:`World` from every track's evidence (module docstring)."""
+def estimate_world(evidence: list[TrackEvidence], camera_height_m: float | None = None,
+                   scene: SceneEvidence | None = None) -> World:
+    """The take's :class:`World` from every track's evidence and the scene's lines (module docstring)."""
     grounded = [e for e in evidence if len(e.contacts_m) > 0]
     if not grounded:
-        return _world_without_contacts(evidence, camera_height_m)
-    world = _grid_world(grounded, _mean_up(grounded), tilt_prior_sds(_tilt_sd_deg(grounded)), camera_height_m)
+        seen = None if scene is None else scene.tilt(_mean_up(evidence) if evidence else None)
+        return _world_without_contacts(evidence, camera_height_m, seen)
+    people_up, sds = _mean_up(grounded), tilt_prior_sds(_tilt_sd_deg(grounded))
+    world = _grid_world(grounded, people_up, sds, camera_height_m, None if scene is None else scene.tilt(people_up))
     return _with_people(world, evidence)
 
 
-def _grid_world(evidence: list[TrackEvidence], normal: np.ndarray, tilt_sds_deg: tuple[float, float],
-                camera_height_m: float | None) -> World:
-    """The cost's minimum over camera tilts about ``normal`` (pitch and roll SDs ``tilt_sds_deg``)
-    and log camera heights (one, when given): tilt grids ever finer about the last one's minimum
+def _grid_world(evidence: list[TrackEvidence], people_up: np.ndarray, tilt_sds_deg: tuple[float, float],
+                camera_height_m: float | None, scene: SceneTilt | None) -> World:
+    """The cost's minimum over camera tilts about the people's up ``people_up`` (pitch and roll SDs
+    ``tilt_sds_deg``), or about its blend with the scene's (``scene_prior.grid_centre``), and log camera
+    heights (one, when given): tilt grids ever finer about the last one's minimum
     (:data:`TILT_PASSES`), the first on every :data:`COARSE_HEIGHT_STRIDE`-th height, the others on
     every height within a window of the last minimum wide enough for the valley along which a
     height and a pitch trade. The height's and the tilt's spreads are the widest grid's, each
-    marginalised over the other (a height traded against a pitch is as uncertain as that pitch)."""
+    marginalised over the other (a height traded against a pitch is as uncertain as that pitch).
+    With a scene, the widest grid also tells how much of the tilt's precision is the scene's."""
+    normal = people_up if scene is None else grid_centre(people_up, tilt_sds_deg, scene)
+    shift = np.subtract(pitch_roll_deg(normal), pitch_roll_deg(people_up))   # the grid's centre about the people's up
     given = None if camera_height_m is None else np.array([np.log(camera_height_m)])
     tilt, log_h = np.zeros(2), _LOG_HEIGHTS[::COARSE_HEIGHT_STRIDE] if given is None else given
-    tilt_sd, sd = (np.nan, np.nan), 0.0
+    tilt_sd, sd, share = (np.nan, np.nan), 0.0, None
     for n, (step, half_width, log_h_window) in enumerate(TILT_PASSES):
         offsets = np.arange(-half_width, half_width + 1e-9, step)
         tilts = tilt + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2)
-        cost = _cost(evidence, normal, tilts, tilt_sds_deg, log_h)
+        cost = _cost(evidence, normal, tilts, tilt_sds_deg, log_h, shift)
+        scene_cost = np.zeros((len(tilts), 1)) if scene is None else scene_cost_of(scene, normal, tilts)
         if n == 0:   # the widest grid's spreads, each marginalised over the other
-            tilt_sd, sd = tilt_spread_deg(tilts, cost, step), height_spread_log(log_h, cost)
-        t, h = np.unravel_index(int(np.argmin(cost)), cost.shape)
+            tilt_sd, sd = tilt_spread_deg(tilts, cost + scene_cost, step), height_spread_log(log_h, cost + scene_cost)
+            share = None if scene is None else scene_share(scene, tilt_spread_deg(tilts, cost, step))
+        t, h = np.unravel_index(int(np.argmin(cost + scene_cost)), cost.shape)
         tilt = tilts[t]
         if given is None:
             log_h = _LOG_HEIGHTS[np.abs(_LOG_HEIGHTS - log_h[h]) <= log_h_window]
     best = tilted_normals(normal, tilt[None])
     log_h = _LOG_HEIGHTS if given is None else given
-    cost = _cost(evidence, normal, tilt[None], tilt_sds_deg, log_h)[0]
+    cost = _cost(evidence, normal, tilt[None], tilt_sds_deg, log_h, shift)[0]
     return World(best[0], float(np.exp(log_h[np.argmin(cost)])), sd, given is not None,
-                 pitch_sd_deg=tilt_sd[0], roll_sd_deg=tilt_sd[1])
+                 pitch_sd_deg=tilt_sd[0], roll_sd_deg=tilt_sd[1], tilt_from=tilt_source(share), scene_share=share,
+                 scene=scene)
 
 
 def _cost(evidence: list[TrackEvidence], normal: np.ndarray, tilts_deg: np.ndarray,
-          tilt_sds_deg: tuple[float, float], log_h: np.ndarray) -> np.ndarray:
+          tilt_sds_deg: tuple[float, float], log_h: np.ndarray, shift_deg: np.ndarray) -> np.ndarray:
     """``−log`` posterior ``[T, H]`` over tilts ``[T, 2]`` (pitch, roll; degrees) about ``normal``
-    and log camera heights ``log_h [H]``. The image's verticals (:mod:`~mocapdb.runtime.world.image_vertical`)
+    and log camera heights ``log_h [H]``; the tilt prior is about the people's up, ``shift_deg``
+    (pitch, roll) from ``normal``. The image's verticals (:mod:`~mocapdb.runtime.world.image_vertical`)
     see each tilt's roll only: a sideways lean of a person off the image's centre would otherwise
     move the pitch several times as far."""
     normals = tilted_normals(normal, tilts_deg)
     rolled = tilted_normals(normal, tilts_deg * [0.0, 1.0])   # the image's verticals vote on the roll alone
-    cost = tilt_cost(tilts_deg, tilt_sds_deg)[:, None] + height_cost(log_h, _LOG_RANGE_WIDTH)[None, :]
+    cost = tilt_cost(tilts_deg + shift_deg, tilt_sds_deg)[:, None] + height_cost(log_h, _LOG_RANGE_WIDTH)[None, :]
     for e in evidence:
         cost -= e.weight * log_likelihood(_observed_log_stature(e, normals)[:, None] + log_h[None, :], e.likelihood)
         cost += e.weight * _unevenness(e, normals)[:, None]
@@ -330,7 +339,7 @@ def _unevenness(e: TrackEvidence, normals: np.ndarray) -> np.ndarray:
     its steps. A walk in depth fixes the floor's pitch, one across its roll. Only contacts spread
     over about a metre count: the depth's noise spreads a standing person's contacts along the
     viewing ray, and a plane containing that ray would fit them best."""
-    if len(e.contact_sample_m) < 2 or not _spans_floor(e.contacts_m):
+    if len(e.contact_sample_m) < 2 or not spans_floor(e.contacts_m):
         return np.zeros(len(normals))
     heights = e.contact_sample_m @ normals.T                                     # [P, T]
     scale = np.hypot(FLATNESS_SD_M, DEPTH_SD_REL * (e.contact_sample_m @ e.up))[:, None]  # one per contact
@@ -452,10 +461,14 @@ def _feet_above_floor(e: TrackEvidence, world: World, k: float) -> float | None:
     return float(k * np.median(points @ world.normal) - ankle_m + world.camera_height_m)
 
 
-def _world_without_contacts(evidence: list[TrackEvidence], camera_height_m: float | None) -> World:
-    """No track stood still anywhere: the mean up, the given height or the people's (prior) size's."""
+def _world_without_contacts(evidence: list[TrackEvidence], camera_height_m: float | None,
+                            scene: SceneTilt | None) -> World:
+    """No track stood still: the scene's up (and its errors), else the people's; the given height or none."""
     up = _mean_up(evidence) if evidence else np.array([0.0, 1.0, 0.0])
     world = World(up, camera_height_m or np.nan, 0.0 if camera_height_m else np.inf, camera_height_m is not None)
+    if scene is not None:
+        world = replace(world, normal=scene.up, pitch_sd_deg=scene.pitch_sd_deg, roll_sd_deg=scene.roll_sd_deg,
+                        tilt_from="scene", scene_share=1.0, scene=scene)
     return _with_people(world, evidence)
 
 
@@ -470,15 +483,6 @@ def _tilt_sd_deg(evidence: list[TrackEvidence]) -> float:
     """The error (degrees) of the tracks' tilt estimates combined (inverse-variance)."""
     sds = np.array([e.up_sd_deg for e in evidence])
     return float(1.0 / np.sqrt(np.sum(1.0 / sds ** 2)))
-
-
-def _spans_floor(contacts: np.ndarray) -> bool:
-    """Whether contacts ``[N, 3]`` spread over about a metre (RMS :data:`MIN_FLOOR_SPREAD_M` along
-    their main direction)."""
-    if len(contacts) < 10:
-        return False
-    return bool(np.linalg.svd(contacts - contacts.mean(axis=0), compute_uv=False)[0] / np.sqrt(len(contacts))
-                >= MIN_FLOOR_SPREAD_M)
 
 
 def place_in_world(rec: TrackRecording, world: World, fps: float) -> TrackRecording:

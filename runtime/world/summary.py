@@ -83,16 +83,22 @@ UNFIXED_HEIGHT_PCT = 50.0  # a camera height estimated more loosely than this is
 
 def world_line(world: World) -> str:
     """The summary's line on the world: the camera's height (given, or estimated with its error),
-    pitch and roll."""
+    pitch and roll, and what decided the tilt (the people, the scene's lines or both)."""
+    pitch = f"{abs(world.pitch_deg):.1f} deg {'down' if world.pitch_deg >= 0 else 'up'}"
+    tilt = (f"pitched {pitch}{_sd_text(world.pitch_sd_deg)}, roll {world.roll_deg:.1f} deg"
+            f"{_sd_text(world.roll_sd_deg)}{TILT_FROM_TEXT[world.tilt_from]}")
     if not world.floor_known:
-        return "world: no floor found (no planted foot, no --camera-height): each track's size is the prior's"
+        return ("world: no floor found (no planted foot, no --camera-height): each track's size is the prior's"
+                + (f"; camera {tilt}" if world.tilt_from == "scene" else ""))
     error = 100 * (np.exp(world.camera_height_log_sd) - 1)
     height = "given" if world.camera_height_given else (
         f"±{error:.0f} %, from the people's sizes" if error <= UNFIXED_HEIGHT_PCT
         else f"±{error:.0f} %: not fixed by this take, the people's assumed sizes; --camera-height fixes it")
-    pitch = f"{abs(world.pitch_deg):.1f} deg {'down' if world.pitch_deg >= 0 else 'up'}"
-    return (f"world: camera {world.camera_height_m:.2f} m above the floor ({height}), pitched {pitch}"
-            f"{_sd_text(world.pitch_sd_deg)}, roll {world.roll_deg:.1f} deg{_sd_text(world.roll_sd_deg)}")
+    return f"world: camera {world.camera_height_m:.2f} m above the floor ({height}), {tilt}"
+
+
+TILT_FROM_TEXT = {"people": "", "scene": ", from the scene's lines",
+                  "people and scene": ", from the people and the scene's lines"}
 
 
 def _sd_text(sd_deg: float) -> str:
@@ -108,7 +114,8 @@ def world_record(world: World, facts: list[TrackFacts], main: int | None, writte
     camera = {"height_m": _finite(world.camera_height_m), "height_given": world.camera_height_given,
               "height_log_sd": _finite(world.camera_height_log_sd), "pitch_deg": round(world.pitch_deg, 2),
               "roll_deg": round(world.roll_deg, 2), "pitch_sd_deg": _finite(world.pitch_sd_deg, 2),
-              "roll_sd_deg": _finite(world.roll_sd_deg, 2),
+              "roll_sd_deg": _finite(world.roll_sd_deg, 2), "tilt_from": world.tilt_from,
+              "scene_share": _finite(world.scene_share, 2), "scene": _scene_record(world),
               "floor_normal_view": [round(float(v), 5) for v in world.normal]}
     tracks = [{"track": f.track, "main": f.track == main, "written": f.track in written,
                "stature_m": round(f.stature_m, 3), "stature_log_sd": _finite(f.size.stature_log_sd),
@@ -120,6 +127,17 @@ def world_record(world: World, facts: list[TrackFacts], main: int | None, writte
     return {"format": "mocapdb-world", "version": 1, "camera": camera, "main_track": main, "tracks": tracks,
             "joined": {str(track): into for track, into in (joined or {}).items()},
             "files": "floor" if files_on_floor else "view"}
+
+
+def _scene_record(world: World) -> dict | None:
+    """The up the room's lines alone showed (its pitch, roll and their errors, degrees; its vertical's
+    segments a frame), or None where they showed none."""
+    tilt = world.scene
+    if tilt is None:
+        return None
+    return {"pitch_deg": round(tilt.pitch_deg, 2), "roll_deg": round(tilt.roll_deg, 2),
+            "pitch_sd_deg": round(tilt.pitch_sd_deg, 2), "roll_sd_deg": round(tilt.roll_sd_deg, 2),
+            "vertical_segments_per_frame": round(tilt.segments_per_frame, 1)}
 
 
 def files_camera_pose(world: World) -> dict:
