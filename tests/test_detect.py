@@ -230,7 +230,7 @@ def test_missing_and_corrupt_videos(tmp_path):
 def test_detect_writes_coco18_openpose_files(video, yolo_model, tmp_path, capsys):
     out = tmp_path / "keypoints"
     assert detect(str(video), "--model", str(yolo_model), "--out", str(out)) == 0
-    files = sorted(f for f in out.iterdir() if f.name not in ("take.json", "camera_path.json"))
+    files = sorted(f for f in out.iterdir() if f.name not in ("take.json", "camera_path.json", "scene.json"))
     assert [f.name for f in files][:2] == ["clip_000000000000_keypoints.json", "clip_000000000001_keypoints.json"]
     assert len(files) == VIDEO_FRAMES
     take = json.loads((out / "take.json").read_text())   # what detect knows of the take, for reconstruct
@@ -410,7 +410,8 @@ def test_a_truncated_video_is_read_to_its_last_frame_with_a_warning(truncated_vi
     assert "frames read 1, frames written 1 (the video ended before its declared frame count)" in captured.out
     assert captured.err.startswith(f"mocapdb: warning: {truncated_video}: the container promised 20 frames, "
                                    "1 could be read") and "Traceback" not in captured.err
-    assert sorted(f.name for f in out.iterdir()) == ["camera_path.json", "cut_000000000000_keypoints.json", "take.json"]
+    assert sorted(f.name for f in out.iterdir()) == ["camera_path.json", "cut_000000000000_keypoints.json", "scene.json",
+                                                     "take.json"]
     assert len(list(read_openpose_folder(out))[0].people) == 2
     assert detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out), "--every", "3") == 0
     assert "the container promised 20 frames, 1 could be read" in capsys.readouterr().err

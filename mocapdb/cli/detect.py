@@ -113,6 +113,7 @@ def run_detect(args: argparse.Namespace) -> int:
     from mocapdb.detect.detectors import open_detector
     from mocapdb.detect.errors import DetectError
     from mocapdb.detect.openpose_out import DETECT_FILES, detect_video
+    from mocapdb.detect.scene import SceneSampler
     from mocapdb.detect.video import VideoReader
 
     if (args.video is None) == (args.camera is None):
@@ -126,7 +127,8 @@ def run_detect(args: argparse.Namespace) -> int:
     stop = threading.Event()
     try:
         with install_stop_handlers(stop):
-            summary = detect_video(reader, model, Path(args.out), args.every, stop, watchers=[BackgroundMotion()])
+            watchers = [BackgroundMotion(), SceneSampler(reader.fps / args.every if reader.fps else None)]
+            summary = detect_video(reader, model, Path(args.out), args.every, stop, watchers=watchers)
     finally:
         reader.close()
     print(f"wrote {len(summary.people)} file(s) in {args.out} (model {model.describe()})")

@@ -158,6 +158,7 @@ def resolve_take(args: argparse.Namespace, source: str) -> None:
     from dataclasses import replace
     from pathlib import Path
 
+    from mocapdb.cli.scene_evidence import use_scene
     from mocapdb.core.formats.camera_path import read_camera_path
     from mocapdb.core.formats.folder_size import size_of_keypoint_folder
     from mocapdb.core.formats.take import DEFAULT_FOCAL_35MM, TAKE_FILE, TakeInfo, read_take, resolve_camera
@@ -184,6 +185,7 @@ def resolve_take(args: argparse.Namespace, source: str) -> None:
     args.focal = settings.focal_px
     args.camera_sources = settings.sources
     args.camera_path = read_camera_path(source)   # a turning camera's (data_specs/world.md), if detect wrote one
+    use_scene(args, source)
 
 
 def _given_focal(args: argparse.Namespace, size: tuple[int, int] | None, take) -> float | None:
@@ -278,7 +280,7 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
                                  shared_floor=strict, camera_height_m=args.camera_height,
                                  subject_heights_m=subject_heights(args),
                                  lag_frames=args.lag_frames, online_take=not args.per_frame_stream,
-                                 camera_sources=getattr(args, "camera_sources", {}),
+                                 camera_sources=getattr(args, "camera_sources", {}), scene=getattr(args, "scene", None),
                                  people=parse_people(getattr(args, "people", "all")),
                                  camera_path=getattr(args, "camera_path", None))
     except ValueError as exc:

@@ -31,6 +31,7 @@ from mocapdb.core.formats.camera_path import CAMERA_PATH_FILE
 from mocapdb.core.formats.hand_keypoints import hand_fields
 from mocapdb.core.formats.keypoints import LAYOUTS
 from mocapdb.core.formats.openpose import WORLD_FIELD
+from mocapdb.core.formats.scene import SCENE_FILE
 from mocapdb.core.formats.take import TAKE_FILE, TakeInfo, write_take
 from mocapdb.core.outputs import OutputFiles, clear_output_folder
 from mocapdb.core.progress import progress
@@ -43,7 +44,7 @@ if TYPE_CHECKING:
 
 N_COCO = len(LAYOUTS["coco17"])
 # what an earlier output holds
-DETECT_FILES = OutputFiles("detect", ("*_keypoints.json", TAKE_FILE, CAMERA_PATH_FILE), TAKE_FILE)
+DETECT_FILES = OutputFiles("detect", ("*_keypoints.json", TAKE_FILE, CAMERA_PATH_FILE, SCENE_FILE), TAKE_FILE)
 
 
 class FrameWatcher(Protocol):

@@ -10,6 +10,7 @@ from mocapdb.core import domains as D
 from mocapdb.core.exports import TrackExport
 from mocapdb.core.formats.camera_path import CameraPath
 from mocapdb.runtime.take_params import TakeParams
+from mocapdb.runtime.world.scene_lines import SceneEvidence
 
 
 @dataclass
@@ -43,6 +44,7 @@ class SessionOptions:
     online_take: bool = True        # the stream through the online whole take; False: as the engine gives it
     camera_sources: dict[str, str] = field(default_factory=dict)  # where fps, image size, focal came from
     camera_height_m: float | None = None  # the shared floor's distance below the camera, when known
+    scene: SceneEvidence | None = None  # the room's vanishing points (runtime.world.scene_lines), if any
     subject_heights_m: dict[int | None, float] = field(default_factory=dict)  # track (None: all) → stature
     people: str | tuple[int, ...] = "all"  # the tracks given files at the end: "all", "main" or ids (world.subject)
     write_in_background: bool = False  # track files fitted and written by a thread of their own (live)

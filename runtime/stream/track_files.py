@@ -107,7 +107,7 @@ class TrackFiles:
         names = {rec.track: name for rec, name in held}
         recordings, fitted, world, joined = fit_take_world([rec for rec, _ in held] + still, self.fps,
                                                            self.options.take, self.options.camera_height_m,
-                                                           self.options.subject_heights_m)
+                                                           self.options.subject_heights_m, self.options.scene)
         filed = [rec for rec in recordings if rec.track in names]   # with their input keypoints
         main = main_track(filed, 2.0 * filed[0].camera_px[1] if filed[0].camera_px else 1.0)
         written = {rec.track for rec in chosen(filed, self.options.people, main)}

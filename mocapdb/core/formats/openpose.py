@@ -33,6 +33,7 @@ from mocapdb.core.formats.keypoints import (
     shown,
     with_scores,
 )
+from mocapdb.core.formats.scene import SCENE_FILE
 from mocapdb.core.formats.take import TAKE_FILE
 
 T = TypeVar("T")
@@ -157,8 +158,9 @@ def frame_order_key(name: str) -> tuple[int, int, tuple[str | int, ...], str]:
 def is_frame_file(name: str) -> bool:
     """Whether a file in a keypoint folder is a frame: a ``.json`` file other than the take
     description (``take.json``, :mod:`mocapdb.core.formats.take`) and the camera's path
-    (``camera_path.json``, :mod:`mocapdb.core.formats.camera_path`)."""
-    return name.lower().endswith(".json") and name not in (TAKE_FILE, CAMERA_PATH_FILE)
+    (``camera_path.json``, :mod:`mocapdb.core.formats.camera_path`) and the scene's lines
+    (``scene.json``, :mod:`mocapdb.core.formats.scene`)."""
+    return name.lower().endswith(".json") and name not in (TAKE_FILE, CAMERA_PATH_FILE, SCENE_FILE)
 
 
 def _is_regular(entry: os.DirEntry) -> bool:
