@@ -5,13 +5,18 @@ the still video's, the feet's height above the floor against the still video's, 
 and roll. The turned video is reconstructed twice: with its camera path (what `reconstruct` does
 with `detect`'s output) and without it (its ``camera_path.json`` left out: as before the path).
 
-    .venv/bin/python tools/eval_moving_camera.py --db demo/sample.db \\
+    .venv/bin/python tools/eval_moving_camera.py real --db demo/sample.db \\
         --video ../shared/data/videos/pose2sim_balancing/cam01.mp4 \\
         --calibration ../shared/data/pose2sim_balancing/calibration.toml --camera cam_01 --work /tmp/turned
 
 BlazePose (full) detects the people, its keypoints carry the detector's 3D, the focal is the
 calibration's (``--focal``) for the engine and for the background's rotation; the rotation is also
 measured with the 26 mm default focal `detect` assumes, whose error scales with the focal's.
+
+Synthetic takes with the truth per frame (eval --world's scenarios, the held-out clips given, nothing
+given to the world), filmed by a camera that pans, tilts and rolls, then also walks:
+
+    .venv/bin/python tools/eval_moving_camera.py synthetic --db demo/sample.db ../shared/data/cmu_bvh/006_*.bvh
 """
 from __future__ import annotations
 
@@ -30,21 +35,29 @@ sys.path.insert(0, str(ROOT))
 
 from mocapdb.core.cameras import read_calibration_toml  # noqa: E402
 from mocapdb.core.formats.camera_path import CAMERA_PATH_FILE, rotation_angle_deg  # noqa: E402
+from mocapdb.core.formats.database_reader import load_database  # noqa: E402
 from mocapdb.detect.camera_motion import BackgroundMotion  # noqa: E402
 from mocapdb.detect.detectors import open_detector  # noqa: E402
 from mocapdb.detect.openpose_out import detect_video  # noqa: E402
 from mocapdb.detect.options import DEFAULT_BLAZEPOSE, DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU  # noqa: E402
 from mocapdb.detect.tracked import FastPath  # noqa: E402
 from mocapdb.detect.video import VideoReader  # noqa: E402
+from mocapdb.evaluation.heldout import load_heldout  # noqa: E402
 from mocapdb.evaluation.moving_camera import (  # noqa: E402
     TARGET_FEET_CM,
     TARGET_ROOT_M,
     TARGET_TURN_DEG,
     compare_tracks,
+    ease,
+    moving_take,
     rotation_errors_deg,
+    score_moving,
+    seen_from_reference,
+    true_path,
     turn_path,
     warp_video,
 )
+from mocapdb.evaluation.world_takes import WorldConfig, build_take  # noqa: E402
 
 
 def detect(video: Path, out: Path, focal_px: float | None) -> BackgroundMotion:
@@ -84,16 +97,8 @@ def reconstruct(db: str, keypoints: Path, out: Path, focal_px: float, fps: float
     return json.loads((out / "world.json").read_text())
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--db", required=True)
-    parser.add_argument("--video", required=True, type=Path)
-    parser.add_argument("--calibration", required=True, type=Path)
-    parser.add_argument("--camera", required=True, help="the video's camera in the calibration")
-    parser.add_argument("--work", required=True, type=Path, help="a folder for the videos, keypoints and outputs")
-    parser.add_argument("--turn", nargs=3, type=float, default=(6.0, 3.0, 3.0), metavar=("PAN", "TILT", "ROLL"),
-                        help="the turn's pan, tilt and roll (degrees; default 6 3 3)")
-    args = parser.parse_args()
+def real(args: argparse.Namespace) -> int:
+    """The calibrated video warped (module docstring): its table."""
     cam = read_calibration_toml(args.calibration)[args.camera]
     focal = float((cam.K[0, 0] + cam.K[1, 1]) / 2.0)
     frames = int(cv2.VideoCapture(str(args.video)).get(cv2.CAP_PROP_FRAME_COUNT))
@@ -138,6 +143,70 @@ def main() -> int:
     print(f"\ntargets: roots within {TARGET_ROOT_M:g} m, feet within {TARGET_FEET_CM:g} cm, rotation within "
           f"{TARGET_TURN_DEG:g} deg")
     return 0
+
+
+
+
+def synthetic(args: argparse.Namespace) -> int:
+    """eval --world's takes filmed by a turning (and walking) camera: roots, feet and the world's tilt
+    against the truth, without the path, with the true path, and with a walk the path cannot undo."""
+    db = load_database(args.db)
+    config = WorldConfig(repeats=args.repeats)
+    truths = load_heldout(args.bvh, config.fps)
+    runs: dict[str, dict[str, list[float]]] = {}
+    for index, scenario in enumerate(config.scenarios):
+        for repeat in range(config.repeats):
+            take = build_take(truths, scenario, index, repeat, config)
+            n = len(take.frames)
+            turns = turn_path(n, *args.turn)
+            walk = ease(n)[:, None] * [args.walk, 0.0, 0.0]
+            path = true_path(turns, config)
+            turned = moving_take(take, turns, np.zeros((n, 3)), config, index)
+            walked = moving_take(take, turns, walk, config, index)
+            for name, run in (("still camera", take), ("turned, without its path", turned),
+                              ("turned, its true path", seen_from_reference(turned, path)),
+                              (f"turned and walked {args.walk:g} m, its true path", seen_from_reference(walked, path))):
+                for given in (False, True):
+                    scores = score_moving(db, run, take, config, take.camera.height_m if given else None)
+                    row = f"{name}, {'camera height given' if given else 'nothing given'}"
+                    for key, values in scores.items():
+                        runs.setdefault(row, {}).setdefault(key, []).extend(values)
+    print(f"{len(config.scenarios) * config.repeats} takes (eval --world's scenarios, {config.frames} frames at "
+          f"{config.fps:g} fps, focal {config.focal_px:g} px), turn pan/tilt/roll {args.turn[0]:g}/{args.turn[1]:g}/"
+          f"{args.turn[2]:g} deg\n")
+    print("| run | root error median / worst (m) | feet off their surface median / worst (cm) | pitch / roll off, "
+          "median (deg) |")
+    print("|---|---|---|---|")
+    for name, r in runs.items():
+        root, feet = np.array(r["root_m"]), np.array(r["feet_cm"])
+        print(f"| {name} | {np.nanmedian(root):.2f} / {np.nanmax(root):.2f} | {np.nanmedian(feet):.1f} / "
+              f"{np.nanmax(feet):.1f} | {np.median(r['pitch_deg']):.1f} / {np.median(r['roll_deg']):.1f} |")
+    print(f"\ntargets: roots within {TARGET_ROOT_M:g} m, feet within {TARGET_FEET_CM:g} cm")
+    return 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="what", required=True)
+    p = sub.add_parser("real", help="a calibrated video warped by a known turn")
+    p.add_argument("--db", required=True)
+    p.add_argument("--video", required=True, type=Path)
+    p.add_argument("--calibration", required=True, type=Path)
+    p.add_argument("--camera", required=True, help="the video's camera in the calibration")
+    p.add_argument("--work", required=True, type=Path, help="a folder for the videos, keypoints and outputs")
+    p.add_argument("--turn", nargs=3, type=float, default=(6.0, 3.0, 3.0), metavar=("PAN", "TILT", "ROLL"),
+                   help="the turn's pan, tilt and roll (degrees; default 6 3 3)")
+    p.set_defaults(run=real)
+    p = sub.add_parser("synthetic", help="eval --world's takes filmed by a turning, walking camera")
+    p.add_argument("--db", required=True)
+    p.add_argument("bvh", nargs="+", type=Path, help="held-out BVH clips (e.g. ../shared/data/cmu_bvh/007_*.bvh)")
+    p.add_argument("--repeats", type=int, default=2, help="takes per scenario (default 2)")
+    p.add_argument("--turn", nargs=3, type=float, default=(15.0, 5.0, 5.0), metavar=("PAN", "TILT", "ROLL"),
+                   help="the turn's pan, tilt and roll (degrees; default 15 5 5)")
+    p.add_argument("--walk", type=float, default=0.5, help="the camera's walk to its right (metres; default 0.5)")
+    p.set_defaults(run=synthetic)
+    args = parser.parse_args()
+    return args.run(args)
 
 
 if __name__ == "__main__":
