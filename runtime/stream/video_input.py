@@ -61,12 +61,13 @@ def keypoint_frame(video_frame: VideoFrame, found: Detections, layout: str = "co
 class DecodedFrames(BufferedThread[tuple[VideoFrame, int]]):
     """The frames of ``reader`` decoded in a thread of their own (every ``every``-th), each with its number
     on the video's nominal timeline (:attr:`clock`, counted as decoded: a frame dropped here is not a gap
-    in the video), behind a buffer of ``capacity``: a file not ``paced`` waits for room (lossless), a
-    camera or a paced file drops the oldest frame (see the module notes). A paced file's frame is
-    delivered (and its ``capture_s`` set) at its time since the first frame."""
+    in the video), one frame ahead of the detector: a file not ``paced`` waits for it to be taken
+    (lossless), a camera or a paced file replaces it by the newer one (the detector always gets the
+    newest: no frame waits behind another). A paced file's frame is delivered (and its ``capture_s``
+    set) at its time since the first frame."""
 
-    def __init__(self, reader: VideoReader, every: int, capacity: int, stats: StreamStats, paced: bool = False) -> None:
-        super().__init__(capacity, stats, "mocapdb-video-decode", lossless=not (reader.is_camera or paced))
+    def __init__(self, reader: VideoReader, every: int, stats: StreamStats, paced: bool = False) -> None:
+        super().__init__(1, stats, "mocapdb-video-decode", lossless=not (reader.is_camera or paced))
         self.reader, self.every, self.paced = reader, every, paced and not reader.is_camera
         self.clock = FrameClock(None if reader.is_camera or not reader.fps else reader.fps / every)
         self._stop = threading.Event()
@@ -96,9 +97,9 @@ class VideoDetections(BufferedThread[CapturedFrame]):
     (BlazePose or a :class:`~mocapdb.detect.tracked.TrackedDetector`: both follow them across frames).
 
     ``every``: detect every N-th frame only; ``capacity``: frames buffered before the oldest is
-    dropped (see :class:`~mocapdb.runtime.stream.buffering.BufferedThread`), after decoding and after
-    detection; ``paced``: a file delivered at its frame rate (module notes). Opening the video happens
-    here (DetectError if it fails); the threads start at once.
+    dropped (see :class:`~mocapdb.runtime.stream.buffering.BufferedThread`), after detection (after
+    decoding: one, :class:`DecodedFrames`); ``paced``: a file delivered at its frame rate (module notes).
+    Opening the video happens here (DetectError if it fails); the threads start at once.
     """
 
     def __init__(self, source: str | int, model: FrameDetector, *, every: int = 1, capacity: int = 2,
@@ -110,7 +111,7 @@ class VideoDetections(BufferedThread[CapturedFrame]):
         self.reader = VideoReader(source)
         self.frames_detected = 0
         self._stop = threading.Event()
-        self.decoded = DecodedFrames(self.reader, every, capacity, self.stats, paced)
+        self.decoded = DecodedFrames(self.reader, every, self.stats, paced)
         self.clock = self.decoded.clock
         self._start()
 
