@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from mocapdb.core.face_shapes import blend_shapes
 from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D
@@ -32,6 +33,7 @@ class Detection:
     world_m: np.ndarray | None = None
     extremities_world_m: np.ndarray | None = None
     hands_px: np.ndarray | None = None
+    blend_shapes: np.ndarray | None = None   # [3] face_shapes.BLEND_SHAPES (NaN: no face this frame; None: no faces)
 
 
 @dataclass(frozen=True)
@@ -49,13 +51,15 @@ class FramePeople:
     world_m: tuple[np.ndarray | None, ...] = ()   # per person, its world landmarks [14, 3] or None
     extremities_world_m: tuple[np.ndarray | None, ...] = ()   # per person, its extremities' [E, 3] or None
     hands_px: tuple[np.ndarray, ...] = ()   # per person, its hands' points [2, 21, 3] (hand_points)
+    blend_shapes: tuple[np.ndarray | None, ...] = ()   # per person, its face's blend shapes [3] or None
 
     def detection(self, person: int) -> Detection:
         """The ``person``-th usable person's detection."""
         return Detection(self.frame_index, self.t_s, self.points_px[person], self.confidence[person],
                          self.extremities[person], self.world_m[person] if self.world_m else None,
                          self.extremities_world_m[person] if self.extremities_world_m else None,
-                         self.hands_px[person] if self.hands_px else None)
+                         self.hands_px[person] if self.hands_px else None,
+                         self.blend_shapes[person] if self.blend_shapes else None)
 
 
 def usable_people(frame: KeypointFrame, config: EngineConfig) -> FramePeople:
@@ -70,7 +74,8 @@ def usable_people(frame: KeypointFrame, config: EngineConfig) -> FramePeople:
     extremities = np.array([_extremities(p, threshold) for p in people]).reshape(-1, len(EXTREMITIES), 3)
     return FramePeople(frame.index, t_s, points, conf, extremities, len(frame.people) - len(people),
                        kinds.count("degenerate"), tuple(p.world_m for p in people),
-                       tuple(p.extremities_world_m for p in people), tuple(hand_points(p) for p in people))
+                       tuple(p.extremities_world_m for p in people), tuple(hand_points(p) for p in people),
+                       tuple(None if p.face is None else blend_shapes(p.face[:, :2]) for p in people))
 
 
 def _kind(person: Person, config: EngineConfig) -> str:

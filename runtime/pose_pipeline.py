@@ -118,7 +118,7 @@ class PosePipeline:
                           root_view * CAMERA_FROM_VIEW, match, state.scale * UNIVERSAL_HEIGHT_M,
                           state.proportions_m * state.scale, up_view=state.up,
                           keypoints_px=np.column_stack([d.points_px, d.confidence]), extremities_px=d.extremities,
-                          face_world_m=face_world_m, hands_px=d.hands_px)
+                          face_world_m=face_world_m, hands_px=d.hands_px, blend_shapes=d.blend_shapes)
 
     def _world(self, state: TrackState, d: Detection
                ) -> tuple[tuple[np.ndarray, np.ndarray] | None, WorldBones | None]:

@@ -47,13 +47,13 @@ def _face_model() -> Path:
 def _poses(names: tuple[str, ...]) -> list[tuple[np.ndarray, np.ndarray]]:
     """Each photo of ``names`` and the BlazePose (full) keypoints ``[33, 3]`` of its one person."""
     try:
-        detector = BlazePose(*blazepose_paths("full"))
+        paths = blazepose_paths("full")
     except DetectError as exc:
         skip_missing(str(exc))
     found = []
-    for name in names:
+    for name in names:   # a fresh detector per photo: BlazePose follows a video's people from frame to frame
         image = cv2.imread(str(SAMPLE / name))
-        found.append((image, detector(image).keypoints[0]))
+        found.append((image, BlazePose(*paths)(image).keypoints[0]))
     return found
 
 

@@ -468,7 +468,8 @@ def run_live(args: argparse.Namespace) -> int:
             if _is_video(args.source):
                 detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
                                          max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE,
-                                         fast=fast_path(args), hands=args.hands, hands_every=args.hands_every)
+                                         fast=fast_path(args), hands=args.hands, hands_every=args.hands_every,
+                                         faces=args.face)
                 video = open_video_source(args.source, detector, capacity=args.buffer, stats=session.summary.stream,
                                           paced=args.realtime)
                 run_video(session, video, stop)

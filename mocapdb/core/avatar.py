@@ -104,6 +104,7 @@ class AvatarPose:
     local_quats: np.ndarray  # [B, 4] local rotations
     world_m: np.ndarray      # [B, 3] bone positions (the joint each bone turns about)
     world_rot: np.ndarray    # [B, 3, 3] global rotations (identity in the T-pose)
+    blend_shapes: np.ndarray | None = None   # [3] the face's (PersonPose.blend_shapes); None: no faces
 
     def is_finite(self) -> bool:
         """Whether every value is a finite number."""
@@ -174,7 +175,7 @@ def avatar_pose(pose: PersonPose, up_view: np.ndarray, floor_offset_m: float,
     local_quats[table.turning] = quats[table.rows]
     local_quats[0] = quat_mul(level_quat, local_quats[0])
     local_quats *= _QUAT_MIRROR
-    return AvatarPose(world_m[0] * _FLOOR_PLANE, local_m, local_quats, world_m, world_rot)
+    return AvatarPose(world_m[0] * _FLOOR_PLANE, local_m, local_quats, world_m, world_rot, pose.blend_shapes)
 
 
 def unity_euler_deg(rotations: np.ndarray) -> np.ndarray:

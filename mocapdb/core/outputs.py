@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.errors import MocapdbError
+from mocapdb.core.face_shapes import BLEND_SHAPES
 from mocapdb.core.files import recover_interrupted, replace_folder, sibling
 from mocapdb.core.formats.bvh import Bvh, motion_from_rotations
 from mocapdb.core.geometry import quat_to_matrix
@@ -73,6 +74,8 @@ class PersonPose:
     # [30, 4] the finger joints' local rotations (hand_rig.FINGER_JOINTS order; None: the input has no hands)
     finger_quaternions: np.ndarray | None = None
     fingers_seen: tuple[bool, bool] | None = None  # (right, left) hand measured in this frame
+    # [3] the face's blend shapes (face_shapes.BLEND_SHAPES, 0-1; NaN: no face this frame; None: no faces)
+    blend_shapes: np.ndarray | None = None
 
 
 MOTION_COLUMNS = ("quaternions", "root_view_m", "scales")  # every recorded frame's (TrackRecording.frames)
@@ -319,6 +322,9 @@ def _online_fields(pose: PersonPose) -> dict:
     if pose.finger_quaternions is not None:
         fields["finger_quaternions"] = _rounded(pose.finger_quaternions.reshape(2, -1, 4), 5)
         fields["fingers_seen"] = [bool(s) for s in (pose.fingers_seen or (False, False))]
+    if pose.blend_shapes is not None:
+        fields["blend_shapes"] = {name: round(float(v), 3) if np.isfinite(v) else None
+                                  for name, v in zip(BLEND_SHAPES, pose.blend_shapes)}
     if pose.up_view is not None:
         fields["up"] = _rounded(pose.up_view, 5)
     if pose.floor_offset_m is not None:

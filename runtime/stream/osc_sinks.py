@@ -43,6 +43,7 @@ from mocapdb.core.avatar import (
     avatar_pose,
     unity_euler_deg,
 )
+from mocapdb.core.face_shapes import BLEND_SHAPES
 from mocapdb.core.outputs import PersonPose
 from mocapdb.runtime.stream.messages import StreamStats, resolve_address
 from mocapdb.runtime.stream.sinks import Sink
@@ -212,30 +213,37 @@ def _xyzw(quats: np.ndarray) -> np.ndarray:
     return quats[..., [1, 2, 3, 0]]
 
 
-def _vmc_frame(bones: tuple[str, ...]) -> OscFrames:
-    """A VMC frame's messages: the root, each of ``bones`` (Unity's names), OK and the time."""
+def _vmc_frame(bones: tuple[str, ...], blend: bool) -> OscFrames:
+    """A VMC frame's messages: the root, each of ``bones`` (Unity's names), with ``blend`` each blend shape's
+    value and their apply, OK and the time."""
+    shapes = [*[("/VMC/Ext/Blend/Val", (name,), 1) for name in BLEND_SHAPES], ("/VMC/Ext/Blend/Apply", (), 0)]
     return OscFrames([("/VMC/Ext/Root/Pos", ("root",), 7), *[("/VMC/Ext/Bone/Pos", (bone,), 7) for bone in bones],
-                      ("/VMC/Ext/OK", (1,), 0), ("/VMC/Ext/T", (), 1)], MAX_BUNDLE_BYTES)
+                      *(shapes if blend else []), ("/VMC/Ext/OK", (1,), 0), ("/VMC/Ext/T", (), 1)], MAX_BUNDLE_BYTES)
 
 
 class VmcSink(AvatarSink):
     """The VMC protocol (Performer → Marionette): per frame ``/VMC/Ext/Root/Pos``, ``/VMC/Ext/Bone/Pos``
     for every bone of :data:`~mocapdb.core.avatar.UNITY_BONES` (then of
     :data:`~mocapdb.core.avatar.UNITY_FINGER_BONES` where the stream has fingers), ``/VMC/Ext/OK 1`` and
-    ``/VMC/Ext/T``, in bundles of at most :data:`MAX_BUNDLE_BYTES`; a frame without the person:
-    ``/VMC/Ext/OK 0`` and ``/VMC/Ext/T``. ``track``: the track to send (default: the main one)."""
+    ``/VMC/Ext/T``, in bundles of at most :data:`MAX_BUNDLE_BYTES`; where the stream has blend shapes
+    (``live --face``), before OK: ``/VMC/Ext/Blend/Val NAME VALUE`` for each of
+    :data:`~mocapdb.core.face_shapes.BLEND_SHAPES` (0, the neutral face, while the face is not seen) and
+    ``/VMC/Ext/Blend/Apply``; a frame without the person: ``/VMC/Ext/OK 0`` and ``/VMC/Ext/T``. ``track``:
+    the track to send (default: the main one)."""
 
     def __init__(self, host: str, port: int = VMC_PORT, stats: StreamStats | None = None,
                  track: int | None = None) -> None:
         super().__init__(host, port, stats, track)
-        self._frame, self._finger_frame = (_vmc_frame(UNITY_BONES), _vmc_frame(UNITY_BONES + UNITY_FINGER_BONES))
+        self._frames = {(len(bones), blend): _vmc_frame(bones, blend) for blend in (False, True)
+                        for bones in (UNITY_BONES, UNITY_BONES + UNITY_FINGER_BONES)}
         self._absent = OscFrames([("/VMC/Ext/OK", (0,), 0), ("/VMC/Ext/T", (), 1)], MAX_BUNDLE_BYTES)
 
     def _frame_datagrams(self, avatar: AvatarPose, time_s: float) -> list[bytes]:
         root = np.concatenate([avatar.root_m, _xyzw(ROOT_QUAT)])
         bones = np.hstack([avatar.local_m, _xyzw(avatar.local_quats)])
-        frame = self._frame if len(bones) == len(UNITY_BONES) else self._finger_frame
-        return frame.datagrams(np.concatenate([root, bones.ravel(), [time_s]]))
+        shapes = [] if avatar.blend_shapes is None else np.nan_to_num(avatar.blend_shapes, nan=0.0)
+        frame = self._frames[len(bones), avatar.blend_shapes is not None]
+        return frame.datagrams(np.concatenate([root, bones.ravel(), shapes, [time_s]]))
 
     def _absent_datagrams(self, time_s: float) -> list[bytes]:
         return self._absent.datagrams(np.array([time_s]))

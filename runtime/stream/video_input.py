@@ -53,8 +53,10 @@ def keypoint_frame(video_frame: VideoFrame, found: Detections, layout: str = "co
     extremities = to_extremities(found.keypoints, layout)   # heels, toes, knuckles (BlazePose), else None
     world = None if found.world is None else to_universal_world(found.world, layout)
     hands = None if found.hands is None else found.hands.points   # [P, 2, 21, 4] with --hands
+    faces = None if found.faces is None else found.faces.points   # [P, 468, 4] with --face
     people = [Person(p, c, None, None if extremities is None else extremities[i], None if world is None else world[i],
-                     None if hands is None else hands[i]) for i, (p, c) in enumerate(zip(points, confidence))]
+                     None if hands is None else hands[i], face=None if faces is None else faces[i])
+              for i, (p, c) in enumerate(zip(points, confidence))]
     return KeypointFrame(video_frame.index if number is None else number, video_frame.time_s, people, layout)
 
 

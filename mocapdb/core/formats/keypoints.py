@@ -59,6 +59,9 @@ class Person:
     # [E, 3] the detector's own 3D of the EXTREMITIES rows (heels, toes, knuckles, face), as ``world_m``;
     # None when the input carries no world landmarks or the layout has no such rows
     extremities_world_m: np.ndarray | None = None
+    # [468, 4] the face mesh (MediaPipe's face landmark model: x px, y px, z px, confidence; NaN and 0 where
+    # the face is absent); None when the input carries no faces (live --face)
+    face: np.ndarray | None = None
 
 
 @dataclass
