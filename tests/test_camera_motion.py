@@ -212,3 +212,20 @@ def test_a_broken_path_file_names_the_file_and_the_field(tmp_path):
     (tmp_path / CAMERA_PATH_FILE).write_text("{")
     with pytest.raises(CameraPathError, match="not a camera path"):
         read_camera_path(tmp_path)
+
+
+def test_live_uses_the_path_known_so_far():
+    """Online (live): no rotation while the camera has not turned 0.1 deg, then each frame's own, the
+    same the whole path gives at the end."""
+    image = texture(9)
+    truths = Rotation.from_euler("y", [[0.0], [0.02], [1.0], [2.0]], degrees=True).as_matrix()
+    motion = BackgroundMotion(FOCAL)
+    online = []
+    for number, turn in enumerate(truths):
+        motion.see(number, turned(image, turn), np.zeros((0, 17, 3)))
+        online.append(motion.online())
+    assert online[0] is None and online[1] is None
+    path = motion.path()
+    for k in (2, 3):
+        np.testing.assert_allclose(online[k], path.rotations[k])
+        assert angle_deg(online[k], truths[k]) < TOLERANCE_DEG

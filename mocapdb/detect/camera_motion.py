@@ -122,6 +122,7 @@ class BackgroundMotion:
         self._points = np.zeros((0, 2), np.float32)    # where they are now (shrunk px)
         self._key_count = 0
         self._key_rotation = np.eye(3)
+        self._turned = False    # a frame has turned STILL_DEG from the first (online)
 
     def _start(self, image_size: tuple[int, int]) -> None:
         """The shrunk image's size and the intrinsics, from the first frame's ``image_size`` (px)."""
@@ -157,6 +158,19 @@ class BackgroundMotion:
         if len(self._points) < max(MIN_TRACKS, KEEP_SHARE * self._key_count):
             self._new_keyframe(grey, mask, rotation)
         self._grey = grey
+
+    def online(self) -> np.ndarray | None:
+        """The rotation (reference → the last frame seen) the path known so far gives, as ``live``
+        uses it; None (still) while no frame has turned :data:`STILL_DEG` (as :meth:`path` decides
+        at the end)."""
+        if self.frames and not self._turned:
+            self._turned = bool(rotation_angle_deg(self.rotations[-1]) >= STILL_DEG)
+        return self.rotations[-1] if self._turned else None
+
+    @property
+    def full_intrinsics(self) -> np.ndarray:
+        """``K`` of the full image (the first frame's size; its focal and centre)."""
+        return intrinsic_matrix(self.focal_px, self.center_px)
 
     def _track(self, grey: np.ndarray, mask: np.ndarray) -> None:
         """The tracks followed into ``grey``: those that track back to where they were and stay out

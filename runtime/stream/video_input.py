@@ -22,7 +22,9 @@ import time
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, NamedTuple
 
+from mocapdb.core.formats.camera_path import derotate_frame
 from mocapdb.core.formats.keypoints import KeypointFrame, Person, to_extremities, to_universal, to_universal_world
+from mocapdb.detect.camera_motion import BackgroundMotion
 from mocapdb.detect.detectors import FrameDetector
 from mocapdb.detect.errors import DetectError
 from mocapdb.detect.model import Detections
@@ -105,11 +107,11 @@ class VideoDetections(BufferedThread[CapturedFrame]):
     """
 
     def __init__(self, source: str | int, model: FrameDetector, *, every: int = 1, capacity: int = 2,
-                 stats: StreamStats | None = None, paced: bool = False) -> None:
+                 stats: StreamStats | None = None, paced: bool = False, motion: BackgroundMotion | None = None) -> None:
         if every < 1 or capacity < 1:
             raise DetectError("every and capacity must be at least 1")
         super().__init__(capacity, stats if stats is not None else StreamStats(), "mocapdb-video-detect")
-        self.model, self.every = model, every
+        self.model, self.every, self.motion = model, every, motion
         self.reader = VideoReader(source)
         self.frames_detected = 0
         self._stop = threading.Event()
@@ -131,7 +133,15 @@ class VideoDetections(BufferedThread[CapturedFrame]):
             yield captured
 
     def _detect(self, video_frame: VideoFrame, number: int) -> KeypointFrame:
-        return keypoint_frame(video_frame, self.model(video_frame.image), self.model.keypoint_layout, number)
+        """The frame's people; with ``motion``, seen from the first frame's camera by the path known
+        so far (data_specs/world.md, "A camera that turns")."""
+        found = self.model(video_frame.image)
+        frame = keypoint_frame(video_frame, found, self.model.keypoint_layout, number)
+        if self.motion is None:
+            return frame
+        self.motion.see(number, video_frame.image, found.keypoints)
+        turn = self.motion.online()
+        return frame if turn is None else derotate_frame(frame, turn, self.motion.full_intrinsics)
 
     @property
     def detection_fps(self) -> float:
@@ -169,9 +179,12 @@ def open_video_source(spec: str, model: FrameDetector, *, every: int = 1, capaci
                       stats: StreamStats | None = None, paced: bool = False) -> VideoDetections:
     """``mocapdb live --source SPEC`` on a video: SPEC of digits is a camera index, anything else a
     video file (``paced``: delivered at its frame rate), ``model`` the detector
-    (:func:`~mocapdb.detect.detectors.open_detector`); DetectError on failure."""
+    (:func:`~mocapdb.detect.detectors.open_detector`), the camera's path measured from the
+    background as the frames come (:class:`~mocapdb.detect.camera_motion.BackgroundMotion`);
+    DetectError on failure."""
     source: str | int = int(spec) if spec.isdigit() else spec
-    return VideoDetections(source, model, every=every, capacity=capacity, stats=stats, paced=paced)
+    return VideoDetections(source, model, every=every, capacity=capacity, stats=stats, paced=paced,
+                           motion=BackgroundMotion())
 
 
 def run_video(session: Session, video: VideoDetections, stop: threading.Event) -> None:

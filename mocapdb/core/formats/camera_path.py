@@ -91,15 +91,19 @@ class CameraPath:
     def derotate(self, frame: KeypointFrame) -> KeypointFrame:
         """``frame``'s people seen from the reference camera (:func:`derotate_points`; the detector's
         3D turned by ``R_tᵀ``); the frame itself when the camera was still."""
-        if self.still:
-            return frame
-        turn = self.rotation(frame.index)
-        return replace(frame, people=[_derotated_person(p, turn, self.intrinsics) for p in frame.people])
+        return frame if self.still else derotate_frame(frame, self.rotation(frame.index), self.intrinsics)
 
 
 def intrinsic_matrix(focal_px: float, center_px: tuple[float, float]) -> np.ndarray:
     """``K``: a pinhole's focal (pixels, square pixels) and principal point (pixels)."""
     return np.array([[focal_px, 0.0, center_px[0]], [0.0, focal_px, center_px[1]], [0.0, 0.0, 1.0]])
+
+
+def derotate_frame(frame: KeypointFrame, rotation: np.ndarray, intrinsics: np.ndarray) -> KeypointFrame:
+    """``frame``'s people as the reference camera sees them, the frame's camera turned by ``rotation``
+    (reference → it, OpenCV axes) through ``intrinsics`` (``K``): :func:`derotate_points` on every
+    pixel, the detector's 3D turned by ``Rᵀ``."""
+    return replace(frame, people=[_derotated_person(p, rotation, intrinsics) for p in frame.people])
 
 
 def rotation_angle_deg(rotations: np.ndarray) -> np.ndarray:
