@@ -1,11 +1,12 @@
 """The head's turn, nod and tilt on the balancing take, each camera alone, against the 4 cameras'
 triangulation of BlazePose's own nose, ears, shoulders and hips (mocapdb/evaluation/head_turn.py).
 
-    .venv/bin/python tools/eval_head.py [--work /tmp/headeval] [--db demo/sample.db]
+    .venv/bin/python tools/eval_head.py [--work /tmp/headeval] [--db demo/sample.db] [--mesh]
 
 BlazePose runs once per video (``mocapdb detect``; its folders are kept in ``--work``, outside the
 repository, and reused); each camera's folder then goes through ``mocapdb reconstruct --rig humanoid``
-and its BVH is posed by forward kinematics. Prints a Markdown table (docs/benchmarks.md).
+and its BVH is posed by forward kinematics. Prints a Markdown table (docs/benchmarks.md). ``--mesh``: also
+how the face landmark model (``mocapdb models fetch face``) fares on each camera's main person.
 """
 from __future__ import annotations
 
@@ -17,7 +18,15 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.cameras import read_calibration_toml
-from mocapdb.evaluation.head_turn import bvh_angles, format_table, reference_angles, score, triangulated_points
+from mocapdb.detect.model_store import extra_model_path
+from mocapdb.evaluation.head_turn import (
+    bvh_angles,
+    face_mesh_presence,
+    format_table,
+    reference_angles,
+    score,
+    triangulated_points,
+)
 from mocapdb.evaluation.real_take import focal_px
 
 VIDEOS = Path("/work/shared/data/videos/pose2sim_balancing")
@@ -46,6 +55,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=Path("/tmp/headeval"), help="detections and reconstructions")
     parser.add_argument("--db", type=Path, default=Path("demo/sample.db"))
+    parser.add_argument("--mesh", action="store_true", help="also the face mesh's outcome per camera")
     args = parser.parse_args()
     cams = read_calibration_toml(CALIBRATION)
     folders = [detected(args.work, name) for name in CAMERAS]
@@ -58,6 +68,12 @@ def main() -> None:
         estimate[:len(angles)] = angles[:len(reference)]
         scores[name] = score(estimate, reference)
     print(format_table(scores))
+    if args.mesh:
+        videos = [VIDEOS / f"{name.replace('_', '')}.mp4" for name in CAMERAS]
+        presence = face_mesh_presence(folders, [cams[n] for n in CAMERAS], videos, extra_model_path("face"))
+        print("\n| camera | face mesh: frames by outcome | largest face flag |\n|---|---|---|")
+        for name, (outcomes, best) in zip(CAMERAS, presence):
+            print(f"| {name} | {', '.join(f'{k} {v}' for k, v in sorted(outcomes.items()))} | {best:.4f} |")
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ scored about its mean offset, the turn and tilt as they are (with their offset r
 """
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -129,3 +130,31 @@ def format_table(scores: dict[str, HeadScore]) -> str:
                      f"{s.rms_deg['tilt']:.1f}° / {s.r['tilt']:.2f} | {s.reference_sd_deg['turn']:.1f}°, "
                      f"{s.reference_sd_deg['nod']:.1f}°, {s.reference_sd_deg['tilt']:.1f}° |")
     return "\n".join(lines)
+
+
+def face_mesh_presence(folders: list[Path], cams: list[CameraModel], videos: list[Path], model_path: Path
+                       ) -> list[tuple[Counter[str], float]]:
+    """Per camera, how the face landmark model (``detect/face.py``, at ``model_path``) fares on the main
+    person of each frame (BlazePose folders ``folders`` of ``videos``, the person chosen as the reference's):
+    the frames by outcome ("found" or the reason it is absent; "no person") and the largest face flag."""
+    import cv2
+
+    from mocapdb.detect.face import FaceLandmarker
+
+    chosen, _ = choose_people([list(read_openpose_folder(f)) for f in folders], cams, CONFIDENCE)
+    landmarker, out = FaceLandmarker(model_path), []
+    for view, (folder, video) in enumerate(zip(folders, videos)):
+        raw, capture = read_raw_folder(folder), cv2.VideoCapture(str(video))
+        outcomes: Counter[str] = Counter()
+        best = 0.0
+        for t, k in enumerate(chosen[view]):
+            ok, image = capture.read()
+            if not ok or k < 0:
+                outcomes["no person"] += 1
+                continue
+            faces = landmarker(image, raw[t][k].raw[None])
+            outcomes[faces.absent[0] or "found"] += 1
+            best = max(best, float(faces.presence[0]))
+        capture.release()
+        out.append((outcomes, best))
+    return out
