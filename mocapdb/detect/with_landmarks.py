@@ -9,7 +9,7 @@ from typing import Any, Protocol
 import cv2
 import numpy as np
 
-from mocapdb.detect.blazepose import BlazePose, Region
+from mocapdb.detect.blazepose import BlazePose, Region, model_input
 from mocapdb.detect.model import Detections, load_session
 
 
@@ -18,7 +18,7 @@ def crop_input(image: np.ndarray, region: Region, size_px: int) -> np.ndarray:
     BGR), black beyond the image."""
     crop = cv2.warpAffine(image, region.to_input(size_px), (size_px, size_px), flags=cv2.INTER_LINEAR,
                           borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
-    return crop[..., ::-1].astype(np.float32) / 255.0
+    return model_input(crop, 1.0 / 255.0)
 
 
 class BatchedModel:
