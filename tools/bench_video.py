@@ -52,6 +52,7 @@ sys.path.insert(0, str(ROOT))
 
 from mocapdb.cli.main import parser  # noqa: E402
 from mocapdb.cli.reconstruct import _session, resolve_take  # noqa: E402
+from mocapdb.detect.camera_motion import BackgroundMotion  # noqa: E402
 from mocapdb.detect.detectors import open_detector  # noqa: E402
 from mocapdb.detect.hand_schedule import LIVE_HANDS_EVERY  # noqa: E402
 from mocapdb.detect.model import Detections, box_iou  # noqa: E402
@@ -63,8 +64,8 @@ from mocapdb.runtime.stream.video_input import keypoint_frame  # noqa: E402
 WARM_UP_FRAMES = 10     # left out of the timings: onnxruntime's first runs, the engine's first frames
 MIN_CONFIDENCE = 0.5    # keypoints compared: confident in both runs
 MIN_IOU = 0.3           # a person of the reference run is compared with the best-overlapping one found
-STAGES = ("decode", "detect BlazePose", "detect full", "detect crop", "detect crop+full", "flow", "engine step",
-          "output")
+STAGES = ("decode", "detect BlazePose", "detect full", "detect crop", "detect crop+full", "flow", "camera path",
+          "engine step", "output")
 
 
 def configurations(crop_px: int, variants: list[str], model: str | None, hands_every: list[int] | None = None,
@@ -115,6 +116,7 @@ def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[d
 
     session.engine.step = timed_step
     reader = VideoReader(args.source)
+    motion = BackgroundMotion()   # the camera's path from the background, as live measures it
     stages: dict[str, list[float]] = defaultdict(list)
     found_all: list[Detections] = []
     frame_iter = reader.frames()
@@ -127,6 +129,8 @@ def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[d
         t1 = time.perf_counter()
         found = detector(frame.image)
         t2 = time.perf_counter()
+        motion.see(i, frame.image, found.keypoints)
+        t_path = time.perf_counter()
         session.handle_frame(keypoint_frame(frame, found, detector.keypoint_layout), frame.capture_s)
         t3 = time.perf_counter()
         found_all.append(found)
@@ -135,8 +139,9 @@ def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[d
             path = "flow" if last_path == "flow" else f"detect {last_path}"
             stages["decode"].append((t1 - t0) * 1000.0)
             stages[path].append((t2 - t1) * 1000.0)
+            stages["camera path"].append((t_path - t2) * 1000.0)
             stages["engine step"].append(engine_ms[-1])
-            stages["output"].append((t3 - t2) * 1000.0 - engine_ms[-1])
+            stages["output"].append((t3 - t_path) * 1000.0 - engine_ms[-1])
             wall += t3 - t0
     session.finish()
     reader.close()
