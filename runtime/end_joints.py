@@ -35,21 +35,26 @@ END_REST_DIRECTIONS = np.array([_FOOT_REST, _FOOT_REST, [-1.0, 0.0, 0.0], [1.0, 
 END_LENGTHS_M = np.array([HEEL_TO_TOE_M, HEEL_TO_TOE_M, HAND_LENGTH_M, HAND_LENGTH_M])  # of a 1.75 m body
 
 
-def lift_direction(start_px: np.ndarray, end_px: np.ndarray, depth_m: np.ndarray, length_m: np.ndarray,
-                   camera_px: tuple[float, float, float], reference: np.ndarray) -> np.ndarray:
-    """Unit directions ``[..., 3]`` (view frame: x right, y up, z towards the camera) of segments of
-    ``length_m [...]`` seen from ``start_px`` to ``end_px`` (``[..., 2]``, pixels, y down) by the pinhole
-    ``camera_px`` (focal, cx, cy: pixels), the start ``depth_m [...]`` metres in front of the camera: the
-    end is where its pixel's ray meets the sphere of that length about the start (perspective, exact),
-    the farther or the nearer meeting as ``reference [..., 3]`` (where the segment points without this
-    measure) points away from the camera along that ray or towards it; where the ray passes outside
-    the sphere (an image longer than the length), its point nearest the start."""
+def lift_candidates(start_px: np.ndarray, end_px: np.ndarray, depth_m: np.ndarray, length_m: np.ndarray,
+                    camera_px: tuple[float, float, float]) -> np.ndarray:
+    """``[..., 2, 3]`` the two unit directions (view frame: x right, y up, z towards the camera) a segment
+    of ``length_m [...]`` seen from ``start_px`` to ``end_px`` (``[..., 2]``, pixels, y down) by the pinhole
+    ``camera_px`` (focal, cx, cy: pixels) may have, its start ``depth_m [...]`` metres in front of the
+    camera: its end where that pixel's ray meets the sphere of that length about the start (perspective,
+    exact), the farther meeting first, then the nearer; where the ray passes outside the sphere (an image
+    longer than the length), its point nearest the start, twice."""
     start = _ray(start_px, camera_px) * depth_m[..., None]
     ray = _unit(_ray(end_px, camera_px))
     along = np.sum(ray * start, axis=-1)                          # the ray's point nearest the start
     half = np.sqrt(np.maximum(along ** 2 - np.sum(start ** 2, axis=-1) + length_m ** 2, 0.0))
-    away = np.sum(reference * ray, axis=-1) > 0
-    return _unit((along + np.where(away, half, -half))[..., None] * ray - start)
+    meetings = (along[..., None] + half[..., None] * [1.0, -1.0])[..., None] * ray[..., None, :]
+    return _unit(meetings - start[..., None, :])
+
+
+def nearest_candidate(candidates: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``[..., 3]`` of each pair ``candidates [..., 2, 3]`` the one nearer ``reference [..., 3]``."""
+    nearer = np.sum(candidates * reference[..., None, :], axis=-1).argmax(axis=-1)
+    return np.take_along_axis(candidates, nearer[..., None, None], axis=-2)[..., 0, :]
 
 
 def _ray(px: np.ndarray, camera_px: tuple[float, float, float]) -> np.ndarray:
@@ -65,22 +70,21 @@ def end_frames(quats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return parents, np.einsum("fkij,kj->fki", parents, END_REST_DIRECTIONS)
 
 
-def measured_directions(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
+def measured_candidates(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
                         keypoints: np.ndarray, extremities: np.ndarray, camera_px: tuple[float, float, float]
                         ) -> np.ndarray:
-    """``[F, 4, 3]`` the feet's heel → big toe and the hands' wrist → mid-knuckles directions (view
-    frame, unit; NaN where a point is unseen) of a motion (``quats [F, R, 4]``, ``root_m [F, 3]`` view
-    frame, body ``scale``, ``offsets_m``) seen as ``keypoints [F, 14, 3]`` and ``extremities [F, E, 3]``
-    (x px, y px, confidence; 0: unseen) by the pinhole ``camera_px`` (focal, cx, cy): :func:`lift_direction`
-    from the ankle's or wrist's depth, lengths :data:`END_LENGTHS_M` × ``scale``, the feet on the side the
-    pelvis faces (:func:`sign_references`), the hands on the side the forearm points them."""
+    """``[F, 4, 2, 3]`` the feet's heel → big toe and the hands' wrist → mid-knuckles directions (view
+    frame, unit; NaN where a point is unseen), each both ways :func:`lift_candidates` leaves it, of a motion
+    (``quats [F, R, 4]``, ``root_m [F, 3]`` view frame, body ``scale``, ``offsets_m``) seen as ``keypoints
+    [F, 14, 3]`` and ``extremities [F, E, 3]`` (x px, y px, confidence; 0: unseen) by the pinhole
+    ``camera_px`` (focal, cx, cy): from the ankle's or wrist's depth, lengths :data:`END_LENGTHS_M` × ``scale``."""
     joints = pose_from_rotations(quats, root_m, scale, offsets_m)
     xy = np.where(extremities[..., 2:] > 0, extremities[..., :2], np.nan)
     wrists = np.where(keypoints[:, WRISTS, 2:] > 0, keypoints[:, WRISTS, :2], np.nan)
     starts = np.concatenate([xy[:, HEELS], wrists], axis=1)
     ends = np.concatenate([xy[:, TOES], 0.5 * (xy[:, INDEX_KNUCKLES] + xy[:, PINKY_KNUCKLES])], axis=1)
     depth = -joints[:, list(ANKLES) + list(WRISTS), 2]
-    return lift_direction(starts, ends, depth, END_LENGTHS_M * scale, camera_px, sign_references(quats))
+    return lift_candidates(starts, ends, depth, END_LENGTHS_M * scale, camera_px)
 
 
 def sign_references(quats: np.ndarray) -> np.ndarray:

@@ -5,15 +5,16 @@ them in the track files (:func:`mocapdb.runtime.take.end_rotations`, :func:`~moc
 Per track (:class:`OnlineEnds`), per frame:
 
 1. **Measured** on the frame's per-frame pose as the whole take measures them: the feet's heel → big toe
-   and the hands' wrist → mid-knuckles directions (:func:`~mocapdb.runtime.end_joints.measured_directions`),
+   and the hands' wrist → mid-knuckles directions (:func:`~mocapdb.runtime.end_joints.measured_candidates`,
+   each one's depth the end of the cheapest path so far: :class:`~mocapdb.runtime.end_branches.BranchPath`),
    the head's rotation relative to the chest (:func:`~mocapdb.runtime.head_pose.chest_relative_head`; with
    the detector's world landmarks of the face as its prior where the frame has them, but the default face
    model: the whole take's own face pattern is a median over the take's frames).
 2. **Smoothed** as the online take smooths the rig's rotations: lag 0, a causal 1€ filter (its
    ``causal_rotations``; the directions as vectors, the head as a quaternion); lag ``L``, the Gaussian
    mean of the frames ``t − L … t + L`` measured. A planted foot is laid flat on the floor, blended in
-   with its IK weight, and keeps the heading it was put down with (following the measure at most
-   :data:`PLANTED_FOLLOW_DEG_S`): its ankle is held in place, so is the ball of the foot.
+   with its IK weight, and once it has stood :data:`PLANTED_SETTLE_S` keeps its heading (the mean since,
+   followed at most :data:`PLANTED_FOLLOW_DEG_S`): its ankle is held in place, so is the ball of the foot.
 3. **Unseen**: an end joint keeps its last value for :data:`HOLD_S`, then eases to rest (the identity,
    where the rig puts it unturned) over :data:`EASE_S` (smoothstep); seen again, or seen first, it eases
    in from there over :data:`EASE_S`. Every frame says which end joints were measured (``end_seen``).
@@ -29,7 +30,14 @@ from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
 from mocapdb.core.geometry import matrix_to_quat, quat_turned_towards, slerp
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose
 from mocapdb.core.skeleton import END_JOINTS, RIG_JOINTS, UNIVERSAL_HEIGHT_M, body_offsets_m, global_rotations
-from mocapdb.runtime.end_joints import end_frames, end_locals, measured_directions, standing_directions
+from mocapdb.runtime.end_branches import BranchPath
+from mocapdb.runtime.end_joints import (
+    end_frames,
+    end_locals,
+    measured_candidates,
+    sign_references,
+    standing_directions,
+)
 from mocapdb.runtime.filters import OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
 from mocapdb.runtime.hand_pose import smoothstep
 from mocapdb.runtime.head_pose import chest_relative_head, face_points, head_local
@@ -42,16 +50,21 @@ END_SPEED_DEG_S = np.array([2000.0, 2000.0, 2300.0, 2300.0, 900.0])
 # A planted foot's heading follows its measure at most this fast (degrees per second): about the online
 # take's anchor following of 2 cm/s at the ball of the foot, 14 cm ahead of the ankle
 PLANTED_FOLLOW_DEG_S = 8.0
+# ... once it has stood this long (seconds), the mean since then; before, the measure as it comes (the first
+# frames still carry the smoothing's transient: held from the first, a foot misread as it landed stayed
+# misread for seconds)
+PLANTED_SETTLE_S = 0.5
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 _N_ENDS = len(END_JOINTS)
 _SPINE, _NECK = RIG_JOINTS.index("spine"), RIG_JOINTS.index("neck")
 Measure = tuple[np.ndarray, np.ndarray]   # the feet's and hands' directions [4, 3], the head [4]; NaN: unseen
 
 
-def measure(pose: PersonPose, camera_px: tuple[float, float, float]) -> Measure:
-    """The feet's and hands' directions ``[4, 3]`` (view frame, unit) and the head's rotation relative to
-    the chest ``[4]`` of one per-frame ``pose``, seen by the pinhole ``camera_px`` (focal, cx, cy: pixels);
-    NaN where its keypoints do not give them."""
+def measure(pose: PersonPose, camera_px: tuple[float, float, float], branches: BranchPath, time_s: float) -> Measure:
+    """The feet's and hands' directions ``[4, 3]`` (view frame, unit; each one's depth the end of the track's
+    cheapest path so far, ``branches``, to which this frame at ``time_s`` is added) and the head's rotation
+    relative to the chest ``[4]`` of one per-frame ``pose``, seen by the pinhole ``camera_px`` (focal, cx, cy:
+    pixels); NaN where its keypoints do not give them."""
     unseen = np.full((4, 3), np.nan), np.full(4, np.nan)
     keypoints, extremities = pose.keypoints_px, pose.extremities_px
     if keypoints is None or extremities is None or len(extremities) < len(EXTREMITIES):
@@ -59,11 +72,12 @@ def measure(pose: PersonPose, camera_px: tuple[float, float, float]) -> Measure:
     scale = pose.height_m / UNIVERSAL_HEIGHT_M
     offsets = None if pose.bones_m is None else body_offsets_m(pose.bones_m / scale)
     quats, root = pose.quaternions[None], (pose.root_m * CAMERA_FROM_VIEW)[None]
-    directions = measured_directions(quats, root, scale, offsets, keypoints[None], extremities[None], camera_px)
+    candidates = measured_candidates(quats, root, scale, offsets, keypoints[None], extremities[None], camera_px)
+    directions = branches.step(time_s, candidates[0], sign_references(quats)[0])[0]
     face_world_m = None if pose.face_world_m is None else pose.face_world_m[None]
     head = chest_relative_head(quats, root, scale, offsets, face_points(keypoints[None], extremities[None]),
                                camera_px, face_world_m)
-    return directions[0], head[0]
+    return directions, head[0]
 
 
 class EaseToRest:
@@ -98,13 +112,15 @@ class OnlineEnds:
         self.head_filter = QuaternionOneEuroFilter(causal)
         self.held: Measure | None = None          # the last smoothed values (what an unseen end keeps)
         self.ease = EaseToRest(_N_ENDS, fps, HOLD_S, EASE_S)
+        self.branches = BranchPath(4)             # the feet's and hands' depths (end_branches)
         self.previous: tuple[int, np.ndarray] | None = None   # index and end rotations [5, 4] of the last output
         self.planted = np.full((2, 3), np.nan)    # each planted foot's direction (view frame); NaN: not planted
-        self.planted_sum = np.zeros((2, 3))       # the sum of its standing directions since put down
+        self.planted_sum = np.zeros((2, 3))       # the sum of its standing directions since it settled
+        self.planted_frames = np.zeros(2)         # frames since each foot was put down
 
     def add(self, index: int, pose: PersonPose) -> None:
         """One frame's per-frame pose of the track: measured, kept while the window needs it."""
-        self.measured[index] = measure(pose, self.camera_px)
+        self.measured[index] = measure(pose, self.camera_px, self.branches, index / self.fps)
         for old in [i for i in self.measured if i < index - 2 * self.lag - 1]:
             del self.measured[old]
 
@@ -130,16 +146,18 @@ class OnlineEnds:
         return ends, seen
 
     def _planted(self, standing: np.ndarray, plant_weights: np.ndarray) -> np.ndarray:
-        """``[2, 3]`` the feet's directions: while planted (``plant_weights [2]`` above 0) the mean of their
-        ``standing [2, 3]`` directions since put down, followed no faster than :data:`PLANTED_FOLLOW_DEG_S`;
-        else ``standing``."""
+        """``[2, 3]`` the feet's directions: ``standing [2, 3]``, but for a foot planted (``plant_weights [2]``
+        above 0) longer than :data:`PLANTED_SETTLE_S` the mean of its standing directions since then, followed
+        no faster than :data:`PLANTED_FOLLOW_DEG_S`."""
         planted = (plant_weights > 0)[:, None]
-        self.planted_sum = np.where(planted, self.planted_sum + standing, 0.0)
-        mean = np.where(planted, self.planted_sum, standing)
+        self.planted_frames = np.where(planted[:, 0], self.planted_frames + 1, 0)
+        settled = (self.planted_frames > PLANTED_SETTLE_S * self.fps)[:, None]
+        self.planted_sum = np.where(settled, self.planted_sum + standing, 0.0)
+        mean = np.where(settled, self.planted_sum, standing)
         mean /= np.linalg.norm(mean, axis=-1, keepdims=True)
         held = np.where(np.isnan(self.planted), mean, self.planted)
         angle = np.arccos(np.clip(np.sum(held * mean, axis=-1), -1.0, 1.0))
-        limit = np.radians(PLANTED_FOLLOW_DEG_S) / self.fps
+        limit = np.where(settled[:, 0], np.radians(PLANTED_FOLLOW_DEG_S) / self.fps, np.pi)
         followed = slerp(held, mean, np.minimum(1.0, limit / np.maximum(angle, 1e-12)))
         self.planted = np.where(planted, followed, np.nan)
         return np.where(planted, followed, standing)

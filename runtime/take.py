@@ -78,7 +78,14 @@ from mocapdb.core.skeleton import (
     pose_from_rotations,
     swing_matrices,
 )
-from mocapdb.runtime.end_joints import end_frames, end_locals, measured_directions, standing_directions
+from mocapdb.runtime.end_branches import continuous_directions
+from mocapdb.runtime.end_joints import (
+    end_frames,
+    end_locals,
+    measured_candidates,
+    sign_references,
+    standing_directions,
+)
 from mocapdb.runtime.foot_contacts import (
     ANKLES,
     box_height_px,
@@ -219,7 +226,8 @@ def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
     of the fitted motion (``quats [F, R, 4]``, ``root_m [F, 3]`` view frame, body ``scale`` and
     ``offsets_m``): each turned from where its parent (shank, forearm) points it to the measured
     direction, heel → big toe for a foot, wrist → mid-knuckles for a hand
-    (:func:`~mocapdb.runtime.end_joints.measured_directions`); gaps interpolated,
+    (:func:`~mocapdb.runtime.end_joints.measured_candidates`, each frame's depth the cheapest path's:
+    :func:`~mocapdb.runtime.end_branches.continuous_directions`); gaps interpolated,
     smoothed as the rotations (:attr:`TakeParams.smoothing_hz`); a ``planted [F, 2]`` foot flat
     on the floor (perpendicular to ``up`` but for the standing foot's slope,
     :data:`~mocapdb.core.skeleton.HEEL_TO_TOE_SLOPE_DEG`); never seen: not turned. ``keypoints [F, 14, 3]``,
@@ -227,7 +235,8 @@ def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
     [F, 2, 3, 3]`` (:func:`~mocapdb.runtime.hand_pose.palm_frames` of the hand model's points; NaN: unseen):
     a hand's direction where seen, and its palm's twist about it, eased to none where unseen."""
     parents, reference = end_frames(quats)
-    direction = measured_directions(quats, root_m, scale, offsets_m, keypoints, extremities, camera_px)
+    candidates = measured_candidates(quats, root_m, scale, offsets_m, keypoints, extremities, camera_px)
+    direction = continuous_directions(candidates, sign_references(quats), fps)
     if palms is not None:
         direction[:, 2:] = np.where(np.isfinite(palms[..., 0, :]), palms[..., 0, :], direction[:, 2:])
     seen = np.isfinite(direction).all(axis=-1)

@@ -23,7 +23,15 @@ from mocapdb.core.skeleton import (
     global_rotations,
     pose_from_rotations,
 )
-from mocapdb.runtime.end_joints import END_PARENTS, END_REST_DIRECTIONS, lift_direction, measured_directions
+from mocapdb.runtime.end_branches import BranchPath, continuous_directions
+from mocapdb.runtime.end_joints import (
+    END_PARENTS,
+    END_REST_DIRECTIONS,
+    lift_candidates,
+    measured_candidates,
+    nearest_candidate,
+    sign_references,
+)
 from mocapdb.runtime.foot_contacts import FLAT, HEEL_STRIKE, SWING, TOE_OFF, UNSEEN, foot_phases, planted_ankles
 from mocapdb.runtime.take import end_rotations
 from mocapdb.runtime.take_params import TakeParams
@@ -165,23 +173,52 @@ def _pixel(view_m: np.ndarray) -> np.ndarray:
                     axis=-1)
 
 
-def test_lift_direction_inverts_the_perspective():
+def test_lifting_inverts_the_perspective():
     """A 0.25 m segment from a point 4 m in front of the camera, 0.6 across and 0.8 along the view (towards
-    or away from the camera, as the reference points, and off the optical axis): the lifted direction is
-    the segment's own; the image alone has both, one nearer and one farther."""
+    or away from the camera, on and off the optical axis): the image gives it and its mirror about the ray
+    through its end, farther first; the reference picks it."""
     length = np.array(0.25)
     for start in (np.array([0.0, 0.0, -4.0]), np.array([0.7, -1.2, -4.0])):
         depth = np.array(-start[2])
         for direction in ([0.6, 0.0, 0.8], [0.6, 0.0, -0.8], [0.0, -0.6, 0.8]):
             direction = np.array(direction)
-            end = start + length * direction
+            candidates = lift_candidates(_pixel(start), _pixel(start + length * direction), depth, length, CAMERA)
             towards = np.sign(direction[2]) * np.array([0.1, 0.0, 1.0])
-            got = lift_direction(_pixel(start), _pixel(end), depth, length, CAMERA, towards)
-            np.testing.assert_allclose(got, direction, atol=1e-12)
-    # an image longer than the length: the ray's point nearest the start, across the view
-    got = lift_direction(_pixel(np.array([0.0, 0.0, -4.0])), _pixel(np.array([0.0, -0.5, -4.0])), np.array(4.0),
-                         np.array(0.25), CAMERA, np.array([0.0, 0.0, 1.0]))
-    assert np.degrees(np.arccos(-got[1])) < 7.2   # the ray 7.1 deg off the start's: its nearest point
+            np.testing.assert_allclose(nearest_candidate(candidates, towards), direction, atol=1e-12)
+            np.testing.assert_allclose(candidates[0 if direction[2] < 0 else 1], direction, atol=1e-12)
+            np.testing.assert_allclose(np.linalg.norm(candidates, axis=-1), 1.0)
+    # an image longer than the length: the ray's point nearest the start, across the view, both ways
+    got = lift_candidates(_pixel(np.array([0.0, 0.0, -4.0])), _pixel(np.array([0.0, -0.5, -4.0])), np.array(4.0),
+                          np.array(0.25), CAMERA)
+    np.testing.assert_allclose(got[0], got[1])
+    assert np.degrees(np.arccos(-got[0, 1])) < 7.2   # the ray 7.1 deg off the start's: its nearest point
+
+
+def test_the_depth_follows_the_path_not_each_frame_alone():
+    """A foot turning slowly 55 -> 65 deg from the camera's axis, its mirror image about the view ray the other
+    depth; the prior (the pelvis's forward) faces the camera but every fifth frame is misread as 150 deg: one
+    frame at a time those frames take the mirror image, the path never does (whole take and online); a path
+    started on misread frames leaves the mirror image for good once the prior is right."""
+    fps, n = 24.0, 40
+    heading = np.radians(np.linspace(55.0, 65.0, n))
+    truth = np.stack([np.sin(heading), np.full(n, -0.2), np.cos(heading)], axis=-1)
+    truth /= np.linalg.norm(truth, axis=-1, keepdims=True)
+    mirror = truth * [1.0, 1.0, -1.0]                                  # about the ray along the optical axis
+    candidates = np.stack([mirror, truth], axis=1)[:, None]            # [F, 1, 2, 3]: farther, nearer
+    misread = np.arange(n) % 5 == 2
+    facing = np.radians(np.where(misread, 150.0, 0.0))
+    prior = np.stack([np.sin(facing), np.zeros(n), np.cos(facing)], axis=-1)[:, None]
+    single = nearest_candidate(candidates, prior)[:, 0]
+    np.testing.assert_allclose(single[misread], mirror[misread], atol=1e-12)
+    np.testing.assert_allclose(continuous_directions(candidates, prior, fps)[:, 0], truth, atol=1e-12)
+    online = BranchPath(1)
+    steps = np.array([online.step(f / fps, candidates[f], prior[f])[0][0] for f in range(n)])
+    np.testing.assert_allclose(steps, truth, atol=1e-12)
+    late = BranchPath(1)
+    start = np.where(np.arange(n) < 3, np.pi * 150.0 / 180.0, 0.0)
+    prior = np.stack([np.sin(start), np.zeros(n), np.cos(start)], axis=-1)[:, None]
+    picks = [np.allclose(late.step(f / fps, candidates[f], prior[f])[0][0], truth[f]) for f in range(n)]
+    assert not picks[0] and picks[-1] and all(picks[picks.index(True):])
 
 
 def test_a_foot_is_lifted_on_the_side_the_pelvis_faces_not_the_knee():
@@ -199,7 +236,8 @@ def test_a_foot_is_lifted_on_the_side_the_pelvis_faces_not_the_knee():
     extremities = np.tile(np.array(MISSING), (1, 8, 1))
     extremities[0, 0] = [*_pixel(ankle), 0.9]
     extremities[0, 1] = [*_pixel(ankle + HEEL_TO_TOE_M * foot), 0.9]
-    got = measured_directions(quats, root, 1.0, None, keypoints, extremities, CAMERA)[0]
+    got = nearest_candidate(measured_candidates(quats, root, 1.0, None, keypoints, extremities, CAMERA),
+                            sign_references(quats))[0]
     np.testing.assert_allclose(got[0], foot, atol=1e-9)
     assert np.isnan(got[1:]).all()
 
