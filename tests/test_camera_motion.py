@@ -229,3 +229,28 @@ def test_live_uses_the_path_known_so_far():
     for k in (2, 3):
         np.testing.assert_allclose(online[k], path.rotations[k])
         assert angle_deg(online[k], truths[k]) < TOLERANCE_DEG
+
+
+def test_world_json_carries_each_frames_floor_and_orientation():
+    """world.json's camera_path: frame t's floor normal is the reference's turned into its view frame
+    (a 10 deg tilt down adds 10 deg of pitch), its view → files rotation takes that frame's forward
+    ray to where the reference sees it; a still camera's record is short."""
+    from mocapdb.core.geometry import quat_to_matrix
+    from mocapdb.runtime.world.camera_path import camera_path_record
+    from mocapdb.runtime.world.fuse import World
+    from mocapdb.runtime.world.summary import files_camera_pose
+
+    pitch = np.radians(20.0)
+    world = World(np.array([0.0, np.cos(pitch), np.sin(pitch)]), 1.6, 0.1, False)
+    down = Rotation.from_euler("x", 10.0, degrees=True).as_matrix()   # OpenCV axes: the camera looks 10 deg lower
+    record = camera_path_record(_path(down), world, files_on_floor=True)
+    normal = np.array(record["floor_normal_view"][1])
+    assert np.degrees(np.arctan2(normal[2], normal[1])) == pytest.approx(30.0, abs=1e-3)
+    view_to_files = quat_to_matrix(np.array(record["view_to_files_wxyz"]))
+    np.testing.assert_allclose(view_to_files[0], files_camera_pose(world)["view_to_files"], atol=1e-5)
+    forward_then = view_to_files[1] @ [0.0, 0.0, -1.0]           # frame 1's optical axis in the files
+    lower = np.radians(10.0)
+    forward_ref = view_to_files[0] @ [0.0, -np.sin(lower), -np.cos(lower)]   # the reference's view: 10 deg lower
+    np.testing.assert_allclose(forward_then, forward_ref, atol=1e-5)
+    assert set(camera_path_record(_path(np.eye(3), still=True), world, True)) == {
+        "reference_frame", "still", "focal_px", "moved_frames"}

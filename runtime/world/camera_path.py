@@ -35,18 +35,21 @@ def camera_path_record(path: CameraPath, world: World, files_on_floor: bool) -> 
     """``world.json``'s ``camera_path`` (data_specs/world.md, "A camera that turns"): the frames,
     each frame's rotation to the files' frame (on the floor) or to the reference's view frame
     (quaternions w, x, y, z), its floor normal in its own view frame, how far it turned from the
-    reference (degrees), the rotation-only fit's residual (px) and the frames that showed parallax."""
+    reference (degrees), the rotation-only fit's residual (px) and the frames that showed parallax.
+    A still camera's: the reference, its focal and the frames that showed parallax only."""
+    short = {"reference_frame": int(path.frames[0]), "still": path.still, "focal_px": round(path.focal_px, 3),
+             "moved_frames": int(path.moved.sum())}
+    if path.still:
+        return short
     turns = view_turns(path)
     if files_on_floor and world.floor_known:
         key, turns = "view_to_files_wxyz", np.array(files_camera_pose(world)["view_to_files"]) @ turns
     else:
         key = "view_to_reference_wxyz"
-    return {"reference_frame": int(path.frames[0]), "still": path.still, "focal_px": round(path.focal_px, 3),
-            "frames": path.frames.tolist(), key: np.round(matrix_to_quat(turns), 6).tolist(),
-            "floor_normal_view": np.round(frame_normals(path, world), 5).tolist(),
-            "turn_deg": np.round(path.turn_deg(), 3).tolist(),
-            "residual_px": [None if not np.isfinite(r) else round(float(r), 3) for r in path.residual_px],
-            "moved_frames": int(path.moved.sum())}
+    return short | {"frames": path.frames.tolist(), key: np.round(matrix_to_quat(turns), 6).tolist(),
+                    "floor_normal_view": np.round(frame_normals(path, world), 5).tolist(),
+                    "turn_deg": np.round(path.turn_deg(), 3).tolist(),
+                    "residual_px": [None if not np.isfinite(r) else round(float(r), 3) for r in path.residual_px]}
 
 
 def camera_path_line(path: CameraPath) -> str:
