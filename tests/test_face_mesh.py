@@ -6,6 +6,7 @@ The model tests need `mocapdb models fetch face`; without it they skip with that
 """
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -14,6 +15,8 @@ import numpy as np
 import pytest
 
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
+from mocapdb.core.formats.keypoints import KeypointError
+from mocapdb.core.formats.openpose import parse_openpose_json
 from mocapdb.detect.blazepose import BlazePose
 from mocapdb.detect.errors import DetectError
 from mocapdb.detect.face import (
@@ -21,10 +24,12 @@ from mocapdb.detect.face import (
     FACE_SCALE,
     MIN_FACE_PX,
     FaceLandmarker,
+    Faces,
     face_region,
     pose_crop,
 )
 from mocapdb.detect.model_store import FACE_LANDMARKS, blazepose_paths, extra_model_path, tflite_path
+from mocapdb.detect.openpose_out import openpose_json
 from mocapdb.detect.with_landmarks import crop_input
 
 from .conftest import ROOT, assert_matches_tflite, skip_missing
@@ -109,3 +114,27 @@ def test_faces_of_a_frame_in_one_batch_match_single_runs_and_land_on_the_pose_fa
         assert error < 0.4 * eyes
         assert error < np.linalg.norm(mesh_points[[1, 0, 3, 2]] - pose_points, axis=1).max()
     assert landmarker.runs == 4 * len(PHOTOS) and landmarker.batches == 2 * len(PHOTOS)
+
+
+def test_the_mesh_in_keypoint_json_and_back():
+    """`detect --face` writes each person's mesh in mocapdb's face_mesh field (OpenPose's 70-point
+    face_keypoints_2d stays empty); reading gives Person.face, to 0.01 px; an absent face reads NaN, a body
+    without the field None; a malformed field is refused naming it."""
+    pose = np.zeros((2, 33, 3))
+    pose[..., :2] = np.arange(66, dtype=float).reshape(2, 33, 1) + 100.0
+    pose[..., 2] = 0.9
+    faces = Faces.empty(2)
+    mesh = np.random.default_rng(2).uniform(50.0, 900.0, (468, 3))
+    faces.points[0, :, :3], faces.points[0, :, 3], faces.presence[0] = mesh, 0.97, 0.97
+    faces.absent[1] = "small"
+    text = openpose_json(pose, "mediapipe33", faces=faces)
+    assert json.loads(text)["people"][0]["face_keypoints_2d"] == []
+    first, second = parse_openpose_json(text, 0).people
+    np.testing.assert_allclose(first.face[:, :3], mesh, atol=0.005 + 1e-9)
+    assert (first.face[:, 3] == 0.97).all()
+    assert np.isnan(second.face[:, :3]).all() and (second.face[:, 3] == 0).all()
+    assert parse_openpose_json(openpose_json(pose, "mediapipe33"), 0).people[0].face is None
+    broken = json.loads(text)
+    broken["people"][0]["face_mesh"]["points"] = broken["people"][0]["face_mesh"]["points"][:400]
+    with pytest.raises(KeypointError, match="person 0 face_mesh points must be 468"):
+        parse_openpose_json(json.dumps(broken), 0)

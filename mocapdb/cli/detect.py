@@ -30,8 +30,8 @@ LOG = logging.getLogger(__name__)
 
 
 def add_model_options(p: argparse.ArgumentParser) -> None:
-    """``--blazepose VARIANT`` (the default detector), ``--model POSE.onnx`` (an export instead), ``--hands``
-    and ``--max-people N``."""
+    """``--blazepose VARIANT`` (the default detector), ``--model POSE.onnx`` (an export instead), ``--hands``,
+    ``--face`` and ``--max-people N``."""
     p.add_argument("--blazepose", choices=BLAZEPOSE_VARIANTS, default=DEFAULT_BLAZEPOSE,
                    help="BlazePose landmark model, the detector used without --model (prepared by "
                         f"`{FETCH_COMMAND} [VARIANT]`; default %(default)s)")
@@ -41,6 +41,10 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
                    help="BlazePose only: also 21 points per hand from MediaPipe's hand landmark model on crops the "
                         f"pose's hand points give (prepared by `{FETCH_COMMAND} {HANDS}`; data_specs/pose_models.md, "
                         "\"Hands\")")
+    p.add_argument("--face", action="store_true",
+                   help="BlazePose only: also the face mesh (468 points) from MediaPipe's face landmark model on crops "
+                        f"the pose's face points give (prepared by `{FETCH_COMMAND} {FACE}`): blinks and the mouth's "
+                        "opening in the stream and over VMC (data_specs/head.md, \"Face mesh\")")
     p.add_argument("--max-people", type=D.MAX_PEOPLE, metavar="N",
                    help="follow at most N people, no landmark run spent on the others (BlazePose: the most "
                         "prominent, region area x score, kept until lost or one twice as prominent comes; an export: "
@@ -122,7 +126,8 @@ def run_detect(args: argparse.Namespace) -> int:
         raise DetectError("--every must be at least 1")
     check_output_folder(args.out, DETECT_FILES)  # before any work; emptied once the model and the video open
     model = open_detector(args.model, args.blazepose, conf=args.conf, iou=args.iou, max_people=args.max_people,
-                          input_size=args.input_size, fast=fast_path(args), hands=args.hands)
+                          input_size=args.input_size, fast=fast_path(args), hands=args.hands,
+                          faces=args.face)
     reader = VideoReader(args.camera if args.camera is not None else args.video)
     stop = threading.Event()
     try:

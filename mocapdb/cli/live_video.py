@@ -1,5 +1,4 @@
-"""`mocapdb live`'s options for a video source: the hands' rate, the face mesh and a file delivered at its frame
-rate."""
+"""`mocapdb live`'s options for a video source: the hands' rate and a file delivered at its frame rate."""
 from __future__ import annotations
 
 import argparse
@@ -9,15 +8,11 @@ from mocapdb.detect.hand_schedule import LIVE_HANDS_EVERY
 
 
 def add_live_video_options(p: argparse.ArgumentParser) -> None:
-    """``--hands-every N`` (:mod:`mocapdb.detect.hand_schedule`), ``--face`` and ``--realtime``
+    """``--hands-every N`` (:mod:`mocapdb.detect.hand_schedule`) and ``--realtime``
     (:class:`~mocapdb.runtime.stream.video_input.DecodedFrames`, ``paced``)."""
     p.add_argument("--hands-every", type=D.MODEL_EVERY, default=LIVE_HANDS_EVERY, metavar="N",
                    help="with --hands on a video: each hand's landmarks every N-th frame, carried with the pose's "
                         "hand between (sooner when it moves fast); 1: every frame (default %(default)s)")
-    p.add_argument("--face", action="store_true",
-                   help="BlazePose only: also the face mesh (MediaPipe's face landmark model, prepared by `mocapdb "
-                        "models fetch face`) on crops the pose's face points give: the stream's blend_shapes (blinks "
-                        "and the mouth's opening) and VMC's /VMC/Ext/Blend/Val (data_specs/head.md, \"Blend shapes\")")
     p.add_argument("--realtime", action="store_true",
                    help="a video file delivered at its frame rate, as a camera would (late frames dropped; the "
                         "latency a camera would give); default: as fast as detection goes")

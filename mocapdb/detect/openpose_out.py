@@ -28,6 +28,7 @@ import numpy as np
 
 from mocapdb.core.files import os_error_message, write_atomic
 from mocapdb.core.formats.camera_path import CAMERA_PATH_FILE
+from mocapdb.core.formats.face_keypoints import face_field
 from mocapdb.core.formats.hand_keypoints import hand_fields
 from mocapdb.core.formats.keypoints import LAYOUTS
 from mocapdb.core.formats.openpose import WORLD_FIELD
@@ -40,6 +41,7 @@ from mocapdb.detect.video import FrameClock, VideoReader
 
 if TYPE_CHECKING:
     from mocapdb.detect.detectors import FrameDetector
+    from mocapdb.detect.face import Faces
     from mocapdb.detect.hands import Hands
 
 N_COCO = len(LAYOUTS["coco17"])
@@ -94,7 +96,8 @@ def written_layout(layout: str) -> str:
 
 
 def openpose_json(keypoints: np.ndarray, layout: str = "coco17", world: np.ndarray | None = None, *,
-                  frame: int | None = None, time_s: float | None = None, hands: Hands | None = None) -> str:
+                  frame: int | None = None, time_s: float | None = None, hands: Hands | None = None,
+                  faces: Faces | None = None) -> str:
     """One OpenPose ``--write_json`` frame (version 1.3) for people ``[P, K, 3]`` in ``layout``:
     COCO-17 becomes COCO-18 (:func:`coco17_to_coco18`), other layouts (BlazePose's 33) stay; non-finite
     points become (0, 0, 0), "not found". ``world [P, K, 3]`` (metres; BlazePose's world landmarks) is
@@ -103,7 +106,8 @@ def openpose_json(keypoints: np.ndarray, layout: str = "coco17", world: np.ndarr
     rate) and ``time_s`` (seconds since the first frame, to 1 µs) are written as ``frame`` and ``time``
     when given, the fields the JSON-lines stream reads (``data_specs/keypoint_formats.md``). ``hands``
     (:class:`~mocapdb.detect.hands.Hands`): each person's hands in OpenPose's ``hand_right_keypoints_2d``
-    and ``hand_left_keypoints_2d`` and mocapdb's ``hands`` details (:func:`hand_fields`)."""
+    and ``hand_left_keypoints_2d`` and mocapdb's ``hands`` details (:func:`hand_fields`); ``faces``
+    (:class:`~mocapdb.detect.face.Faces`): each person's face mesh in mocapdb's ``face_mesh`` (:func:`face_field`)."""
     size = len(LAYOUTS[layout])
     rows = np.asarray(keypoints, dtype=np.float64).reshape(-1, size, 3)
     rows = coco17_to_coco18(rows) if layout == "coco17" else \
@@ -120,6 +124,9 @@ def openpose_json(keypoints: np.ndarray, layout: str = "coco17", world: np.ndarr
     if hands is not None:
         for i, person in enumerate(people):
             person.update(hand_fields(hands.points[i], hands.presence[i], hands.handedness[i], hands.absent[i]))
+    if faces is not None:
+        for i, person in enumerate(people):
+            person.update(face_field(faces.points[i], faces.presence[i], faces.absent[i]))
     timing: dict[str, float] = {"frame": frame} if frame is not None else {}
     if time_s is not None:
         timing["time"] = round(time_s, 6)
@@ -189,7 +196,8 @@ def detect_video(reader: VideoReader, model: FrameDetector, out_dir: Path, every
             path = out_dir / frame_file_name(reader.name, frame.index)
             try:
                 write_atomic(path, openpose_json(found.keypoints, model.keypoint_layout, found.world,
-                                                 frame=number, time_s=frame.time_s, hands=found.hands))
+                                                 frame=number, time_s=frame.time_s, hands=found.hands,
+                                                 faces=found.faces))
             except OSError as exc:
                 raise DetectError(os_error_message(exc, path, "write the keypoints")) from None
             summary.people.append(len(found.scores))

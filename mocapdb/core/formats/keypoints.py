@@ -79,6 +79,7 @@ class RawPerson(NamedTuple):
     layout: str | None   # the person's own layout, if the input names one
     world: np.ndarray | None = None   # [K, 3] world landmarks (metres; NaN: none) in the source layout, if given
     hands: np.ndarray | None = None   # [2, 21, 4] the person's hands (Person.hands), if given
+    face: np.ndarray | None = None    # [468, 4] the person's face mesh (Person.face), if given
 
 
 def visible(person: Person, threshold: float = CONFIDENCE_THRESHOLD) -> np.ndarray:
@@ -306,7 +307,7 @@ def build_frame(index: int, time_s: float | None, people: list[RawPerson], layou
             ends_world = None if world is None else to_extremities_world(world[None], name)
             out[i] = Person(points[j], conf[j], people[i].person_id, None if extremities is None else extremities[j],
                             None if world is None else to_universal_world(world[None], name)[0], people[i].hands,
-                            None if ends_world is None else ends_world[0])
+                            None if ends_world is None else ends_world[0], people[i].face)
     return KeypointFrame(index, time_s, [out[i] for i in range(len(people))],
                          names[0] if len(set(names)) == 1 else None)
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from mocapdb.core.files import MIB, read_input_text
 from mocapdb.core.formats.camera_path import CAMERA_PATH_FILE
+from mocapdb.core.formats.face_keypoints import read_face
 from mocapdb.core.formats.hand_keypoints import read_hands
 from mocapdb.core.formats.keypoints import (
     KeypointError,
@@ -104,7 +105,7 @@ def _raw_person(obj: object, i: int) -> RawPerson:
         what = f"person {i} {WORLD_FIELD}"
         world = check_world(numeric(given, what), len(raw), what)
     return RawPerson(raw, _person_id(obj.get("id", obj.get("person_id"))), optional_layout(obj.get("layout")), world,
-                     read_hands(obj, f"person {i}"))
+                     read_hands(obj, f"person {i}"), read_face(obj, f"person {i}"))
 
 
 def _raw_people(obj: dict | list) -> list[RawPerson]:
