@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from mocapdb.evaluation.ends import GATE_ENDS_VARIANTS, GROUPS
 from mocapdb.evaluation.gate import (
     BODY_METRICS,
     GATE_BODIES,
@@ -85,6 +86,7 @@ def test_the_stored_thresholds_cover_every_gated_figure_with_a_margin():
              for row in rows for variant in VARIANTS for metric in BODY_METRICS}
     names |= {f"real take/{variant}, {mode.replace('_', ' ')}/{metric}"
               for variant, mode in REAL_RUNS for metric, _ in REAL_METRICS}
+    names |= {f"ends/{variant}/{group}_deg" for variant in GATE_ENDS_VARIANTS for group in GROUPS}
     assert set(data["figures"]) == names
     assert data["measured_on"]["code"] and data["measured_on"]["date"]
     assert all(0 < entry["measured"] < entry["max"] for entry in data["figures"].values())
@@ -113,7 +115,7 @@ def test_without_its_data_the_gate_fails_having_checked_nothing(small_db_path, t
     monkeypatch.delenv("CI", raising=False)
     absent = ["--bvh-dir", str(tmp_path / "no clips"), "--real-take", str(tmp_path / "no take")]
     assert _tool().main(["--db", str(small_db_path), *absent]) == 1
-    assert "accuracy gate: FAIL (0 passed, 0 failed, 48 skipped of 48 checks" in capsys.readouterr().out
+    assert "accuracy gate: FAIL (0 passed, 0 failed, 54 skipped of 54 checks" in capsys.readouterr().out
 
 
 def test_the_gate_data_live_in_the_repository_where_the_tool_looks():

@@ -150,3 +150,18 @@ def test_rendering_the_ends_leaves_the_body_frames_as_they_were(clip):
     body_swapped = [np.allclose(f.people[0].points_px[KP["r_wrist"]],
                                 project(cam[i, KP["l_wrist"]], 1000.0, (1920, 1080))) for i, f in enumerate(exact)]
     assert any(swapped) and swapped == body_swapped
+
+
+def test_the_gates_ends_part_has_its_thresholds():
+    """Every figure the gate's part ``ends`` makes has a threshold set with the part's own margin."""
+    import json
+
+    from mocapdb.evaluation.ends import GATE_ENDS_VARIANTS, GATE_MARGIN, GROUPS
+    from mocapdb.evaluation.gate import thresholds_from
+
+    data = json.loads((CLIP.parents[3] / "data_specs" / "accuracy_gate.json").read_text())
+    assert data["margin"]["ends"] == {"relative": GATE_MARGIN[0], "absolute": GATE_MARGIN[1]}
+    names = [f"ends/{variant}/{group}_deg" for variant in GATE_ENDS_VARIANTS for group in GROUPS]
+    for name in names:
+        entry = data["figures"][name]
+        assert entry == thresholds_from({name: entry["measured"]}, *GATE_MARGIN)[name]
