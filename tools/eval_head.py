@@ -6,7 +6,9 @@ triangulation of BlazePose's own nose, ears, shoulders and hips (mocapdb/evaluat
 BlazePose runs once per video (``mocapdb detect``; its folders are kept in ``--work``, outside the
 repository, and reused); each camera's folder then goes through ``mocapdb reconstruct --rig humanoid``
 and its BVH is posed by forward kinematics. Prints a Markdown table (docs/benchmarks.md). ``--mesh``: also
-how the face landmark model (``mocapdb models fetch face``) fares on each camera's main person.
+how the face landmark model (``mocapdb models fetch face``) fares on each camera's main person and, where
+its mesh runs through, the head fitted to the mesh (``runtime/mesh_head.py``) against the triangulation
+(against the triangulated chest: the head alone, not the BVH).
 """
 from __future__ import annotations
 
@@ -21,8 +23,9 @@ from mocapdb.core.cameras import read_calibration_toml
 from mocapdb.detect.model_store import extra_model_path
 from mocapdb.evaluation.head_turn import (
     bvh_angles,
-    face_mesh_presence,
+    face_mesh_runs,
     format_table,
+    mesh_angles,
     reference_angles,
     score,
     triangulated_points,
@@ -51,6 +54,25 @@ def reconstructed_bvh(folder: Path, out: Path, db: Path, focal: float) -> Path:
     return next(iter(sorted(out.glob("track_*.bvh"))))
 
 
+def mesh_table(folders: list[Path], cams: list, reference: np.ndarray, points: np.ndarray) -> str:
+    """Per camera, the face mesh's outcome and, where it ran through, the head fitted to it against the
+    triangulation (its chest too: the head alone)."""
+    videos = [VIDEOS / f"{name.replace('_', '')}.mp4" for name in CAMERAS]
+    lines = ["", "| camera | face mesh: frames by outcome | largest face flag | the mesh's head: turn RMS / r, "
+             "nod RMS / r, tilt RMS / r |", "|---|---|---|---|"]
+    for name, cam, run in zip(CAMERAS, cams, face_mesh_runs(folders, cams, videos, extra_model_path("face"))):
+        angles = mesh_angles(run.meshes, cam, points)
+        if np.isfinite(angles).all(axis=1).sum() < 2:
+            fitted = "no frames with a mesh"
+        else:
+            s = score(angles, reference)
+            fitted = ", ".join(f"{s.rms_deg[a]:.1f}° / {s.r[a]:.2f}" for a in ("turn", "nod", "tilt")) + \
+                f" ({s.frames} frames)"
+        outcomes = ", ".join(f"{k} {v}" for k, v in sorted(run.outcomes.items()))
+        lines.append(f"| {name} | {outcomes} | {run.best_flag:.4f} | {fitted} |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=Path("/tmp/headeval"), help="detections and reconstructions")
@@ -59,7 +81,8 @@ def main() -> None:
     args = parser.parse_args()
     cams = read_calibration_toml(CALIBRATION)
     folders = [detected(args.work, name) for name in CAMERAS]
-    reference = reference_angles(triangulated_points(folders, [cams[n] for n in CAMERAS]))
+    points = triangulated_points(folders, [cams[n] for n in CAMERAS])
+    reference = reference_angles(points)
     scores = {}
     for name, folder in zip(CAMERAS, folders):
         bvh = reconstructed_bvh(folder, args.work / f"out_{name}", args.db, focal_px(cams[name]))
@@ -69,12 +92,7 @@ def main() -> None:
         scores[name] = score(estimate, reference)
     print(format_table(scores))
     if args.mesh:
-        videos = [VIDEOS / f"{name.replace('_', '')}.mp4" for name in CAMERAS]
-        presence = face_mesh_presence(folders, [cams[n] for n in CAMERAS], videos, extra_model_path("face"))
-        print("\n| camera | face mesh: frames by outcome | largest face flag |\n|---|---|---|")
-        for name, (outcomes, best) in zip(CAMERAS, presence):
-            print(f"| {name} | {', '.join(f'{k} {v}' for k, v in sorted(outcomes.items()))} | {best:.4f} |")
-
+        print(mesh_table(folders, [cams[n] for n in CAMERAS], reference, points))
 
 if __name__ == "__main__":
     main()

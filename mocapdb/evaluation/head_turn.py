@@ -132,29 +132,62 @@ def format_table(scores: dict[str, HeadScore]) -> str:
     return "\n".join(lines)
 
 
-def face_mesh_presence(folders: list[Path], cams: list[CameraModel], videos: list[Path], model_path: Path
-                       ) -> list[tuple[Counter[str], float]]:
-    """Per camera, how the face landmark model (``detect/face.py``, at ``model_path``) fares on the main
-    person of each frame (BlazePose folders ``folders`` of ``videos``, the person chosen as the reference's):
-    the frames by outcome ("found" or the reason it is absent; "no person") and the largest face flag."""
+@dataclass
+class MeshRun:
+    """The face landmark model on one camera's main person: the frames by outcome ("found", the reason it is
+    absent, "no person"), the largest face flag and the meshes ``[T, 468, 4]`` (NaN where absent)."""
+
+    outcomes: Counter[str]
+    best_flag: float
+    meshes: np.ndarray
+
+
+def face_mesh_runs(folders: list[Path], cams: list[CameraModel], videos: list[Path], model_path: Path
+                   ) -> list[MeshRun]:
+    """Per camera, the face landmark model (``detect/face.py``, at ``model_path``) on the main person of
+    each frame (BlazePose folders ``folders`` of ``videos``, the person chosen as the reference's)."""
     import cv2
 
-    from mocapdb.detect.face import FaceLandmarker
+    from mocapdb.detect.face import FaceLandmarker, Faces
 
     chosen, _ = choose_people([list(read_openpose_folder(f)) for f in folders], cams, CONFIDENCE)
     landmarker, out = FaceLandmarker(model_path), []
     for view, (folder, video) in enumerate(zip(folders, videos)):
         raw, capture = read_raw_folder(folder), cv2.VideoCapture(str(video))
-        outcomes: Counter[str] = Counter()
-        best = 0.0
+        run = MeshRun(Counter(), 0.0, np.repeat(Faces.empty(1).points, len(chosen[view]), axis=0))
         for t, k in enumerate(chosen[view]):
             ok, image = capture.read()
             if not ok or k < 0:
-                outcomes["no person"] += 1
+                run.outcomes["no person"] += 1
                 continue
             faces = landmarker(image, raw[t][k].raw[None])
-            outcomes[faces.absent[0] or "found"] += 1
-            best = max(best, float(faces.presence[0]))
+            run.outcomes[faces.absent[0] or "found"] += 1
+            run.best_flag = max(run.best_flag, float(faces.presence[0]))
+            run.meshes[t] = faces.points[0]
         capture.release()
-        out.append((outcomes, best))
+        out.append(run)
     return out
+
+
+def mesh_angles(meshes: np.ndarray, cam: CameraModel, points_m: np.ndarray) -> np.ndarray:
+    """``[T, 3]`` turn, nod, tilt (degrees; NaN without a mesh) of the head fitted to one camera's meshes
+    ``[T, 468, 4]`` (``runtime/mesh_head.py``: the person's own model from these meshes, the head's depth
+    from the mesh's 3D breadth, an upright prior facing the camera) against the chest of the triangulated
+    :data:`REFERENCE_POINTS` ``[T, 7, 3]``: the head alone, the body fit left out."""
+    from mocapdb.runtime.mesh_head import MESH_BREADTH_M, MESH_LEFT, MESH_NOSE, MESH_RIGHT, fit_mesh_head, mesh_model
+
+    model = mesh_model(meshes, 1.0)
+    if model is None:
+        return np.full((len(meshes), 3), np.nan)
+    focal, cx, cy = float(cam.K[0, 0]), float(cam.K[0, 2]), float(cam.K[1, 2])
+    # the breadth in 3D (the mesh's z is scaled like x): not shortened by the head's turn
+    depth = focal * MESH_BREADTH_M / np.linalg.norm(meshes[:, MESH_LEFT, :3] - meshes[:, MESH_RIGHT, :3], axis=-1)
+    nose = np.stack([(meshes[:, MESH_NOSE, 0] - cx) * depth / focal, (cy - meshes[:, MESH_NOSE, 1]) * depth / focal,
+                     -depth], axis=-1)
+    prior = np.broadcast_to(np.eye(3), (len(meshes), 3, 3)).copy()
+    head_view, fixed = fit_mesh_head(np.nan_to_num(meshes), np.nan_to_num(nose, nan=1.0), prior, 1.0,
+                                     (focal, cx, cy), model)
+    head_world = cam.R.T @ np.diag([1.0, -1.0, -1.0]) @ head_view       # view (y up, z to the camera) → world
+    _, _, _, r_sh, l_sh, r_hip, l_hip = np.moveaxis(points_m, 1, 0)
+    chest = frame_from_x_and_hint(l_sh - r_sh, 0.5 * (l_sh + r_sh) - 0.5 * (l_hip + r_hip), "y")
+    return np.where(fixed[:, None], relative_angles(chest, head_world), np.nan)
