@@ -410,8 +410,8 @@ def test_a_truncated_video_is_read_to_its_last_frame_with_a_warning(truncated_vi
     assert "frames read 1, frames written 1 (the video ended before its declared frame count)" in captured.out
     assert captured.err.startswith(f"mocapdb: warning: {truncated_video}: the container promised 20 frames, "
                                    "1 could be read") and "Traceback" not in captured.err
-    assert sorted(f.name for f in out.iterdir()) == ["camera_path.json", "cut_000000000000_keypoints.json", "scene.json",
-                                                     "take.json"]
+    assert sorted(f.name for f in out.iterdir()) == ["camera_path.json", "cut_000000000000_keypoints.json",
+                                                     "scene.json", "take.json"]
     assert len(list(read_openpose_folder(out))[0].people) == 2
     assert detect(str(truncated_video), "--model", str(yolo_model), "--out", str(out), "--every", "3") == 0
     assert "the container promised 20 frames, 1 could be read" in capsys.readouterr().err

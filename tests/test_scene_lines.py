@@ -123,13 +123,13 @@ def test_lines_on_the_people_are_not_the_scenes():
     assert people_boxes(keypoints) == pytest.approx(np.array([[450.0, 120.0, 850.0, 680.0]]))
 
 
-def test_the_sampler_takes_a_frame_a_second(tmp_path):
+def test_the_sampler_takes_a_frame_every_two_seconds(tmp_path):
     rotation, translation = _camera(15.0, 0.0)
     image = cv2.cvtColor(_render(rotation, translation), cv2.COLOR_GRAY2BGR)
     sampler = SceneSampler(30.0)
-    for number in range(95):
+    for number in range(185):
         sampler.see(number, image, np.zeros((0, 33, 3)))
-    assert sampler.frames == [0, 30, 60, 90]
+    assert sampler.frames == [0, 60, 120, 180]
     assert sampler.finish(tmp_path)[0].startswith("scene: ") and (tmp_path / "scene.json").exists()
 
 

@@ -161,7 +161,7 @@ def resolve_take(args: argparse.Namespace, source: str) -> None:
     from mocapdb.cli.scene_evidence import use_scene
     from mocapdb.core.formats.camera_path import read_camera_path
     from mocapdb.core.formats.folder_size import size_of_keypoint_folder
-    from mocapdb.core.formats.take import DEFAULT_FOCAL_35MM, TAKE_FILE, TakeInfo, read_take, resolve_camera
+    from mocapdb.core.formats.take import TAKE_FILE, TakeInfo, read_take, resolve_camera
 
     if getattr(args, "blazepose", None) and _is_video(source):
         take, where = _video_take(source), source
@@ -175,17 +175,13 @@ def resolve_take(args: argparse.Namespace, source: str) -> None:
     settings = resolve_camera(take, where, args.fps, given_size, _given_focal(args, given_size, take))
     if seen_size:
         settings.sources["image_size"] = "keypoints"
-    if settings.sources["focal_px"] == "default":
-        LOG.warning("no focal length given: assuming a typical phone main camera, %g mm equivalent (%.0f px for "
-                    "%dx%d); give --focal PX, --fov DEG or --focal-35mm MM", DEFAULT_FOCAL_35MM, settings.focal_px,
-                    *settings.image_size)
     if settings.sources["fps"] != "default":
         args.fps = settings.fps
     args.image_size = settings.image_size
     args.focal = settings.focal_px
     args.camera_sources = settings.sources
     args.camera_path = read_camera_path(source)   # a turning camera's (data_specs/world.md), if detect wrote one
-    use_scene(args, source)
+    use_scene(args, source)   # the scene's lines (scene.json): the focal where none was given (else the guess, warned)
 
 
 def _given_focal(args: argparse.Namespace, size: tuple[int, int] | None, take) -> float | None:

@@ -14,29 +14,41 @@ DEFAULT_FOCAL_SD = 0.25   # the guessed focal's error, relative (phones' main ca
 def use_scene(args: argparse.Namespace, source: str) -> None:
     """Sets ``args.scene`` (a :class:`~mocapdb.runtime.world.scene_lines.SceneEvidence` or None) from
     ``source/scene.json``; where the focal was the default guess and the scene's orthogonal vanishing
-    points give one, ``args.focal`` becomes that (``args.camera_sources["focal_px"]``: "scene"). A
-    given focal the scene contradicts by more than 3 SD is kept, with a warning."""
-    from mocapdb.core.formats.scene import SCENE_FILE, read_scene
+    points give one, ``args.focal`` becomes that (``args.camera_sources["focal_px"]``: "scene"),
+    else the guess is warned about. A given focal the scene contradicts by more than 3 SD is kept,
+    with a warning."""
     from mocapdb.runtime.world.scene_lines import SceneEvidence, vanishing_points
 
-    args.scene = None
-    scene = read_scene(source) if source and Path(source).is_dir() else None
-    if scene is None:
-        return
-    if tuple(scene.image_size) != tuple(args.image_size):
-        LOG.warning("%s: its lines were seen in a %dx%d image, the keypoints' is %dx%d: not used",
-                    Path(source) / SCENE_FILE, *scene.image_size, *args.image_size)
-        return
-    points = vanishing_points(scene)
-    found = points.focal()
+    scene = _readable_scene(source, tuple(args.image_size))
+    points = None if scene is None else vanishing_points(scene)
+    found = None if points is None else points.focal()
     how = args.camera_sources.get("focal_px")
     focal_sd = DEFAULT_FOCAL_SD * args.focal if how == "default" else 0.0
-    if found is not None and how == "default":
-        LOG.warning("focal length from the scene's lines: %.0f px (±%.0f), not the %.0f px guess",
-                    found.focal_px, found.sd_px, args.focal)
+    if how == "default" and found is None:
+        from mocapdb.core.formats.take import DEFAULT_FOCAL_35MM
+
+        LOG.warning("no focal length given: assuming a typical phone main camera, %g mm equivalent (%.0f px for "
+                    "%dx%d); give --focal PX, --fov DEG or --focal-35mm MM", DEFAULT_FOCAL_35MM, args.focal,
+                    *args.image_size)
+    elif how == "default" and found is not None:
+        LOG.warning("no focal length given: %.0f px (±%.0f) from the scene's lines (scene.json)",
+                    found.focal_px, found.sd_px)
         args.focal, focal_sd = found.focal_px, found.sd_px
         args.camera_sources["focal_px"] = "scene"
     elif found is not None and abs(found.focal_px - args.focal) > 3 * found.sd_px:
         LOG.warning("the scene's lines give a focal of %.0f px (±%.0f), the %s one is %.0f px: using %.0f px",
                     found.focal_px, found.sd_px, how, args.focal, args.focal)
-    args.scene = SceneEvidence(points, args.focal, focal_sd)
+    args.scene = None if points is None else SceneEvidence(points, args.focal, focal_sd)
+
+
+def _readable_scene(source: str, image_size: tuple[int, int]):
+    """The folder's :class:`~mocapdb.core.formats.scene.SceneLines`, or None: no folder, no file, or
+    lines seen in an image of another size than the keypoints' (warned)."""
+    from mocapdb.core.formats.scene import SCENE_FILE, read_scene
+
+    scene = read_scene(source) if source and Path(source).is_dir() else None
+    if scene is not None and tuple(scene.image_size) != image_size:
+        LOG.warning("%s: its lines were seen in a %dx%d image, the keypoints' is %dx%d: not used",
+                    Path(source) / SCENE_FILE, *scene.image_size, *image_size)
+        return None
+    return scene

@@ -1,13 +1,14 @@
 """The room's straight lines in a few video frames, for the camera's tilt and focal (issue 51).
 
 :class:`SceneSampler` is handed every frame ``detect`` writes with the people found in it
-(:meth:`SceneSampler.see`); about one frame a second (:data:`SAMPLE_PERIOD_S`, at most
+(:meth:`SceneSampler.see`); one frame every 2 s (:data:`SAMPLE_PERIOD_S`, at most
 :data:`MAX_FRAMES`, thinned evenly when a take is longer) it finds the frame's line segments
 (:func:`line_segments`: OpenCV's LSD on the grey image scaled to :data:`WORK_SIDE_PX`, else Canny and
 the probabilistic Hough transform where an OpenCV build lacks LSD), drops those that cross a
 person's box, keeps the :data:`MAX_SEGMENTS` longest and gives them as
 :class:`~mocapdb.core.formats.scene.SceneLines`, written as ``scene.json`` (:meth:`SceneSampler.finish`).
-Cost: ~10-20 ms a sampled frame (1080p), under 1 % of a 30 fps video's detection.
+Cost (1080 × 1920, 2 shared cores): 35-85 ms a sampled frame, 0.3-0.7 ms a frame of a 60 fps
+video, 2-4 % of BlazePose's detection (``tools/scene_lines.py`` prints it).
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ import numpy as np
 
 from mocapdb.core.formats.scene import SCENE_FILE, SceneLines, write_scene
 
-SAMPLE_PERIOD_S = 1.0     # one frame a second: a still camera's lines do not change
+SAMPLE_PERIOD_S = 2.0     # one frame every 2 s: a still camera's lines do not change
 MAX_FRAMES = 60           # frames kept; a longer take keeps every other one, the period doubled
 WORK_SIDE_PX = 640        # the image's long side for the line detector (pixels)
 MIN_LENGTH = 0.025        # shortest segment kept, a share of the image's long side
@@ -76,7 +77,7 @@ def people_boxes(keypoints: np.ndarray) -> np.ndarray:
 
 
 class SceneSampler:
-    """Collects the line segments of about one frame every :data:`SAMPLE_PERIOD_S` of a take at
+    """Collects the line segments of one frame every :data:`SAMPLE_PERIOD_S` of a take at
     ``rate_hz`` frames a second (the keypoints' rate; None: :data:`UNKNOWN_RATE_HZ`), and writes them
     as ``scene.json``: a frame watcher of ``detect``
     (:class:`~mocapdb.detect.openpose_out.FrameWatcher`)."""
