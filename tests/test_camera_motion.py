@@ -3,6 +3,7 @@ from the reference camera (mocapdb/core/formats/camera_path.py), against indepen
 images warped by OpenCV with rotations made by SciPy, the closed form of a pan and a roll, a scene
 of two planes filmed by a camera that moves."""
 import json
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -254,3 +255,28 @@ def test_world_json_carries_each_frames_floor_and_orientation():
     np.testing.assert_allclose(forward_then, forward_ref, atol=1e-5)
     assert set(camera_path_record(_path(np.eye(3), still=True), world, True)) == {
         "reference_frame", "still", "focal_px", "moved_frames"}
+
+
+def test_the_viewer_draws_the_turned_camera_where_it_looked():
+    """`mocapdb view`'s frustums along a turning camera's path: frame t's axes, written in the
+    reference camera's (right, down, forward), are R_tᵀ's columns (OpenCV axes): a pan to the left
+    looks towards the reference's left."""
+    from mocapdb.render.tracks import FileScene, WorldFloor
+    from mocapdb.runtime.world.camera_path import camera_path_record
+    from mocapdb.runtime.world.fuse import World
+    from mocapdb.view.take import path_cameras
+
+    world = World(np.array([0.0, np.cos(0.3), np.sin(0.3)]), 1.7, 0.1, False)
+    turn = Rotation.from_euler("yxz", [6.0, 3.0, 3.0], degrees=True).as_matrix()
+    record = camera_path_record(_path(turn), world, files_on_floor=True)
+    floor = WorldFloor(world.normal, 1.7, None, {}, {}, "floor", record)
+    reference = (np.eye(3) * [1.0, -1.0, -1.0]) @ floor.level().T * [1.0, 1.0, -1.0]   # as render's file_scene
+    scene = FileScene([], floor, "floor", True, np.array([0.0, 1.7, 0.0]), reference)
+    image = {"focal": FOCAL, "cx": SIZE[0] / 2, "cy": SIZE[1] / 2, "width": SIZE[0], "height": SIZE[1]}
+    (camera,) = path_cameras(scene, image)
+    in_reference = np.array(camera["axes"]) @ np.linalg.inv(reference)   # rows: frame 1's axes in the reference's
+    np.testing.assert_allclose(in_reference, turn, atol=1e-5)            # R's rows: the turned axes
+    angle = np.degrees(Rotation.from_matrix(turn).magnitude())
+    assert camera["label"] == f"frame 1, {angle:.1f} deg" and camera["position"] == [0.0, 1.7, 0.0]
+    still = replace(scene, world=replace(floor, camera_path=camera_path_record(_path(turn, True), world, True)))
+    assert path_cameras(still, image) == []

@@ -50,6 +50,7 @@ class WorldFloor:
     tracks: dict[int, dict]
     camera: dict | None = None
     files: str | None = None  # "floor" or "view": the frame its track files were written in (None: not said)
+    camera_path: dict | None = None  # a turning camera's path (data_specs/world.md, "A camera that turns")
 
     @property
     def known(self) -> bool:
@@ -96,7 +97,7 @@ def read_world(folder: str | Path) -> WorldFloor | None:
         raise RenderError(f"{path}: not a world file of `mocapdb reconstruct` ({exc})") from None
     return WorldFloor(None if normal is None else normal / np.linalg.norm(normal),
                       None if height is None else float(height), main if isinstance(main, int) else None, tracks,
-                      camera, files)
+                      camera, files, obj.get("camera_path"))
 
 
 @dataclass

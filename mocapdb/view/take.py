@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.formats.take import read_take, resolve_camera
+from mocapdb.core.geometry import quat_to_matrix
 from mocapdb.core.outputs import CAMERA_FROM_VIEW
 from mocapdb.core.skeleton import KEYPOINTS
 from mocapdb.render.draw import project_pinhole
@@ -176,6 +177,24 @@ def _stream_tracks(stream: ResultStream, image: dict, scene_from_aligned: np.nda
     return tracks
 
 
+PATH_CAMERAS = 6   # a turning camera's frustums drawn along its path, first frame to last
+
+
+def path_cameras(scene: FileScene, image: dict) -> list[dict]:
+    """A turning camera's frustums at :data:`PATH_CAMERAS` frames spread over its path (``world.json``'s
+    ``camera_path``, files on the floor), each labelled with its frame and turn; none for a still
+    camera or without a floor. Frame ``t``'s rows are its right, down and forward: ``view_to_files_t``
+    applied to the view frame's (as the reference camera's, ``FileScene.camera_axes``)."""
+    path = None if scene.world is None else scene.world.camera_path
+    if scene.camera_scene is None or not path or path.get("still") or "view_to_files_wxyz" not in path:
+        return []
+    turns = quat_to_matrix(np.array(path["view_to_files_wxyz"], dtype=np.float64))
+    picks = np.unique(np.linspace(0, len(turns) - 1, PATH_CAMERAS).round().astype(int))[1:]
+    return [payload.camera(f"path {path['frames'][i]}", scene.camera_scene,
+                           payload.VIEW_AXES @ turns[i].T * CAMERA_FROM_VIEW, payload.fov(image),
+                           f"frame {path['frames'][i]}, {path['turn_deg'][i]:.1f} deg") for i in picks]
+
+
 def _world_summary(scene: FileScene) -> tuple[list[str], str]:
     """The summary's line on the camera and the camera's label in the 3D view."""
     camera = (scene.world.camera if scene.world is not None else None) or {}
@@ -265,6 +284,8 @@ def open_take(result: str | Path, keypoints: str | Path | None = None, video: st
                 position = np.zeros(3) if scene.camera_scene is None else scene.camera_scene
                 note = scene.describe()
             cameras = [payload.camera("camera", position, axes, payload.fov(image), label)]
+            if scene is not None:
+                cameras += path_cameras(scene, image)
         if frames_in is not None and tuple(frames_in.size) != (image["width"], image["height"]):
             warn(f"the video is {frames_in.size[0]}×{frames_in.size[1]} px, the image {image['width']}×"
                  f"{image['height']} px: the video is stretched to the image")
