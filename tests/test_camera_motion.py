@@ -183,13 +183,15 @@ def test_a_person_is_seen_from_the_reference_camera():
     points[3] = np.nan
     world = np.arange(42, dtype=float).reshape(14, 3) / 40.0
     person = Person(points, np.where(np.isnan(points[:, 0]), 0.0, 0.9), world_m=world,
-                    extremities=np.array([[310.0, 400.0, 0.8]] * 8))
+                    extremities=np.array([[310.0, 400.0, 0.8]] * 8), face=np.array([[280.0, 150.0, 4.0, 0.7]] * 468))
     out = _path(rotation).derotate(KeypointFrame(1, 0.1, [person])).people[0]
     np.testing.assert_allclose(out.points_px[0], derotate_points(points[0], rotation, K))
     assert out.confidence[3] == 0.0 and np.isnan(out.points_px[3]).all()
     np.testing.assert_allclose(out.world_m, (rotation.T @ world.T).T)          # the 3D turned back
     np.testing.assert_allclose(out.extremities[0, :2], derotate_points(np.array([310.0, 400.0]), rotation, K))
     assert out.extremities[0, 2] == 0.8
+    np.testing.assert_allclose(out.face[5, :2], derotate_points(np.array([280.0, 150.0]), rotation, K))
+    assert out.face[5, 2:].tolist() == [4.0, 0.7]                            # the mesh's depth and confidence kept
 
 
 def test_the_path_file_round_trips_and_is_not_a_frame(tmp_path):

@@ -137,14 +137,15 @@ def _derotated_rows(rows: np.ndarray, turn: np.ndarray, intrinsics: np.ndarray, 
 
 
 def _derotated_person(person: Person, turn: np.ndarray, intrinsics: np.ndarray) -> Person:
-    """One person's keypoints, extremities and hands derotated (pixels), the detector's 3D turned by
-    ``Rᵀ`` (its axes are the image's: x right, y down, z away from the camera)."""
+    """One person's keypoints, extremities, hands and face mesh derotated (pixels), the detector's 3D
+    turned by ``Rᵀ`` (its axes are the image's: x right, y down, z away from the camera)."""
     points = derotate_points(person.points_px, turn, intrinsics)
     lost = ~np.isfinite(points).all(axis=-1)
     return replace(
         person, points_px=points, confidence=np.where(lost, 0.0, person.confidence),
         extremities=None if person.extremities is None else _derotated_rows(person.extremities, turn, intrinsics),
         hands=None if person.hands is None else _derotated_rows(person.hands, turn, intrinsics),
+        face=None if person.face is None else _derotated_rows(person.face, turn, intrinsics),
         world_m=None if person.world_m is None else person.world_m @ turn,
         extremities_world_m=None if person.extremities_world_m is None else person.extremities_world_m @ turn)
 
