@@ -12,6 +12,7 @@ video, 2-4 % of BlazePose's detection (``tools/scene_lines.py`` prints it).
 """
 from __future__ import annotations
 
+from functools import cache
 from pathlib import Path
 
 import cv2
@@ -43,14 +44,26 @@ def line_segments(image: np.ndarray, boxes: np.ndarray) -> np.ndarray:
 
 
 def _detect(grey: np.ndarray) -> np.ndarray:
-    """Segments ``[N, 4]`` of a grey image: LSD where OpenCV has it, else Canny + HoughLinesP."""
-    if hasattr(cv2, "createLineSegmentDetector"):
+    """Segments ``[N, 4]`` of a grey image: LSD where OpenCV has it (:func:`detector_name`), else
+    Canny + HoughLinesP."""
+    if detector_name() == "lsd":
         found = cv2.createLineSegmentDetector().detect(grey)[0]
     else:
         edges = cv2.Canny(grey, 50, 150)
         side = max(grey.shape)
         found = cv2.HoughLinesP(edges, 1, np.pi / 360, 40, minLineLength=MIN_LENGTH * side, maxLineGap=3)
     return np.zeros((0, 4)) if found is None else found.reshape(-1, 4).astype(np.float64)
+
+
+@cache
+def detector_name() -> str:
+    """"lsd" where this OpenCV's line segment detector runs (OpenCV 3.x and >= 4.5.1; 4.0-4.5.0 have
+    the function but raise: its code was withdrawn over its licence, then restored), else "hough"."""
+    try:
+        cv2.createLineSegmentDetector().detect(np.zeros((16, 16), np.uint8))
+    except (AttributeError, cv2.error):
+        return "hough"
+    return "lsd"
 
 
 def _crosses_boxes(segments: np.ndarray, boxes: np.ndarray) -> np.ndarray:
@@ -105,8 +118,7 @@ class SceneSampler:
         """What was sampled (None: no frame)."""
         if self.image_size is None:
             return None
-        return SceneLines(self.image_size, tuple(self.frames), tuple(self.segments),
-                          "lsd" if hasattr(cv2, "createLineSegmentDetector") else "hough")
+        return SceneLines(self.image_size, tuple(self.frames), tuple(self.segments), detector_name())
 
     def finish(self, out_dir: Path) -> list[str]:
         """Writes ``out_dir/scene.json`` (none when no frame was seen); the line ``detect`` reports."""

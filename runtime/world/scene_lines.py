@@ -33,7 +33,7 @@ image's centre) fix the focal length: their rays are orthogonal, ``v₁ · v₂ 
   :data:`ORTHOGONAL_TOL_DEG` and the focal inside :data:`FOCAL_RANGE`; its SD from the draws.
 
 Costs: :data:`HYPOTHESES` per point against at most 15 000 segments (60 frames × 256), vectorised:
-~0.1-0.5 s a take, once, at the world's fit.
+0.1 s (one sampled frame) to 2.1 s (60 frames) a take, once, at the world's fit.
 """
 from __future__ import annotations
 
