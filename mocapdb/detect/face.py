@@ -8,9 +8,11 @@ relative to the face's centre, in the same units as x; smaller: nearer) and a fa
 mapped back to frame pixels. All the faces of a frame go through the model in one batched run.
 
 A face is **absent** (confidence 0, positions NaN) with a reason (:data:`ABSENT_REASONS`): its pose
-points hidden (the nose's or an eye's visibility below :data:`MIN_POSE_VISIBILITY`: a camera behind the
-head; the model is not run), too small (the box's longer side below :data:`MIN_FACE_PX` pixels: not run)
-or unsure (the face flag below :data:`MIN_PRESENCE`). Decisions and figures: ``data_specs/head.md``, "Face mesh".
+points hidden (the nose's or an eye's visibility below :data:`MIN_POSE_VISIBILITY`; the model is not run),
+too small (the box's longer side below :data:`MIN_FACE_PX` pixels: not run) or unsure (the face flag below
+:data:`MIN_PRESENCE`). A camera behind the head is mostly caught by the face flag, not the visibility:
+BlazePose guesses the face there and calls it visible (the balancing take's cameras 3 and 4). Decisions and
+figures: ``data_specs/head.md``, "Face mesh".
 """
 from __future__ import annotations
 
