@@ -7,8 +7,9 @@ environment: ``python3 -m venv /tmp/mpvenv && /tmp/mpvenv/bin/pip install mediap
 opencv-python-headless``. MediaPipe's legacy Pose solution (one person, tracking between frames, the
 given model complexity) on the video's first ``--frames`` frames, twice per repeat: the frames decoded
 first (``decoded``: BGR → RGB and the graph only), and decoding on the same thread (``with decoding``).
-Prints one line per repeat and the medians: ``mediapipe decoded F frames/s, with decoding G frames/s``
-(tools/bench_video.py --mediapipe PYTHON reads that line).
+Prints one line per repeat and the medians: ``mediapipe decoded F frames/s, with decoding G frames/s;
+CPU H ms a decoded frame`` (the process's CPU time, all threads, mean over the repeats; tools/bench_video.py
+--mediapipe PYTHON reads that line).
 """
 from __future__ import annotations
 
@@ -34,16 +35,17 @@ def decoded_frames(video: str, frames: int) -> list:
     return images
 
 
-def frames_per_second(images, complexity: int) -> float:
-    """MediaPipe Pose over ``images`` (any iterable of BGR frames): frames per second after the warm-up."""
+def frames_per_second(images, complexity: int) -> tuple[float, float]:
+    """MediaPipe Pose over ``images`` (any iterable of BGR frames): frames per second after the warm-up,
+    and the process's CPU time per frame (ms, all its threads)."""
     with mp.solutions.pose.Pose(static_image_mode=False, model_complexity=complexity) as pose:
-        timed, started = 0, 0.0
+        timed, started, cpu = 0, 0.0, 0.0
         for i, image in enumerate(images):
             if i == WARM_UP_FRAMES:
-                started = time.perf_counter()
+                started, cpu = time.perf_counter(), time.process_time()
             pose.process(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
             timed += i >= WARM_UP_FRAMES
-        return timed / (time.perf_counter() - started)
+        return timed / (time.perf_counter() - started), (time.process_time() - cpu) * 1000.0 / timed
 
 
 def read_as_decoded(video: str, frames: int):
@@ -65,14 +67,17 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3, help="runs of each kind (default 3)")
     args = ap.parse_args()
     images = decoded_frames(args.video, args.frames)
-    decoded, with_decoding = [], []
+    decoded, with_decoding, cpu = [], [], []
     for repeat in range(args.repeats):
-        decoded.append(frames_per_second(images, args.complexity))
-        with_decoding.append(frames_per_second(read_as_decoded(args.video, args.frames), args.complexity))
-        print(f"repeat {repeat + 1}: decoded {decoded[-1]:.1f}, with decoding {with_decoding[-1]:.1f} frames/s "
-              f"({len(images)} frames, complexity {args.complexity}, mediapipe {mp.__version__})")
+        fps, cpu_ms = frames_per_second(images, args.complexity)
+        decoded.append(fps)
+        cpu.append(cpu_ms)
+        with_decoding.append(frames_per_second(read_as_decoded(args.video, args.frames), args.complexity)[0])
+        print(f"repeat {repeat + 1}: decoded {decoded[-1]:.1f} ({cpu_ms:.2f} ms CPU a frame), with decoding "
+              f"{with_decoding[-1]:.1f} frames/s ({len(images)} frames, complexity {args.complexity}, mediapipe "
+              f"{mp.__version__})")
     print(f"mediapipe decoded {statistics.median(decoded):.1f} frames/s, with decoding "
-          f"{statistics.median(with_decoding):.1f} frames/s")
+          f"{statistics.median(with_decoding):.1f} frames/s; CPU {statistics.mean(cpu):.2f} ms a decoded frame")
     return 0
 
 

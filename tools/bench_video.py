@@ -64,6 +64,8 @@ from mocapdb.runtime.stream.video_input import keypoint_frame  # noqa: E402
 WARM_UP_FRAMES = 10     # left out of the timings: onnxruntime's first runs, the engine's first frames
 MIN_CONFIDENCE = 0.5    # keypoints compared: confident in both runs
 MIN_IOU = 0.3           # a person of the reference run is compared with the best-overlapping one found
+CPU = "CPU"             # the process's CPU time per frame, all its threads (onnxruntime's too): what the
+                        # machine's other load moves least (wall-clock stages wait for a core when it is busy)
 STAGES = ("decode", "detect BlazePose", "detect full", "detect crop", "detect crop+full", "flow", "camera path",
           "engine step", "output")
 
@@ -98,8 +100,9 @@ def live_args(video: str, db: str, sink: str, flags: list[str]) -> argparse.Name
 
 
 def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[dict, list[Detections], float]:
-    """Decode → detect → engine step → output line in one thread: milliseconds per stage, the
-    detections of every frame and the frames per second over the timed frames."""
+    """Decode → detect → engine step → output line in one thread: milliseconds per stage (and the
+    process's CPU time per frame, :data:`CPU`), the detections of every frame and the frames per second
+    over the timed frames."""
     detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
                              max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE, fast=fast, hands=args.hands,
                              hands_every=args.hands_every)
@@ -122,7 +125,7 @@ def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[d
     frame_iter = reader.frames()
     wall = 0.0
     for i in range(frames):
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         frame = next(frame_iter, None)
         if frame is None:
             break
@@ -142,6 +145,7 @@ def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[d
             stages["camera path"].append((t_path - t2) * 1000.0)
             stages["engine step"].append(engine_ms[-1])
             stages["output"].append((t3 - t_path) * 1000.0 - engine_ms[-1])
+            stages[CPU].append((time.process_time() - cpu0) * 1000.0)
             wall += t3 - t0
     session.finish()
     reader.close()
@@ -178,16 +182,16 @@ def live_run(video: str, db: str, flags: list[str], sink: str) -> dict[str, floa
             "read": int(video_line[1]), "dropped": int(video_line[3]), "detect_fps": float(video_line[4])}
 
 
-def mediapipe_run(python: str, video: str, frames: int, repeats: int) -> tuple[float, float]:
-    """MediaPipe Pose's median frames/s (frames decoded first, decoding on the same thread) from
-    tools/bench_mediapipe.py run by ``python``."""
+def mediapipe_run(python: str, video: str, frames: int, repeats: int) -> tuple[float, float, float]:
+    """MediaPipe Pose's median frames/s (frames decoded first, decoding on the same thread) and CPU ms
+    per decoded frame (all its threads) from tools/bench_mediapipe.py run by ``python``."""
     command = [python, str(ROOT / "tools" / "bench_mediapipe.py"), video, "--frames", str(frames),
                "--repeats", str(repeats)]
     out = subprocess.run(command, capture_output=True, text=True, check=True).stdout
-    found = re.search(r"mediapipe decoded ([\d.]+) frames/s, with decoding ([\d.]+) frames/s", out)
+    found = re.search(r"mediapipe decoded ([\d.]+) frames/s, with decoding ([\d.]+) frames/s; CPU ([\d.]+) ms", out)
     if found is None:
         raise RuntimeError(f"unexpected output from {' '.join(command)}:\n{out}")
-    return float(found[1]), float(found[2])
+    return float(found[1]), float(found[2]), float(found[3])
 
 
 def pooled(runs: list[tuple[dict, float]]) -> tuple[dict, float]:
@@ -215,6 +219,7 @@ def stage_table(results: dict[str, tuple[dict, float]]) -> list[str]:
             cells.append(f"{ms.mean():8.2f} / {np.percentile(ms, 99):6.2f} ({len(ms):3d})" if len(ms) else "-")
         rows.append(f"{stage:24}" + "".join(f"{c:>22}" for c in cells))
     rows.append(f"{'end to end, frames/s':24}" + "".join(f"{results[n][1]:>22.1f}" for n in names))
+    rows.append(f"{'CPU ms/frame, all threads':24}" + "".join(f"{np.mean(results[n][0][CPU]):>22.2f}" for n in names))
     return rows
 
 
@@ -279,10 +284,12 @@ def main() -> int:
         print(f"{name}: {live[name]['fps'] / without:.2f} x the frames/s without hands")
     if mediapipe is not None:
         print(f"\nMediaPipe Pose (complexity 1): {mediapipe[0]:.1f} frames/s on decoded frames, {mediapipe[1]:.1f} "
-              "with decoding; frames/s over MediaPipe's on decoded frames:")
+              f"with decoding, CPU {mediapipe[2]:.2f} ms a decoded frame; frames/s over MediaPipe's on decoded "
+              "frames, and MediaPipe's CPU time a frame over the one thread's (decoding included):")
         for name in results:
             print(f"{name:24}one thread {results[name][1] / mediapipe[0]:.2f} x, mocapdb live "
-                  f"{live[name]['fps'] / mediapipe[0]:.2f} x")
+                  f"{live[name]['fps'] / mediapipe[0]:.2f} x; CPU "
+                  f"{mediapipe[2] / np.mean(results[name][0][CPU]):.2f} x")
     print(f"\nload average after: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     return 0
 
