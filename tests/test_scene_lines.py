@@ -51,16 +51,16 @@ def _room_edges():
     return edges
 
 
-def _render(rotation, translation, seed=0) -> np.ndarray:
+def _render(rotation, translation, seed=0, size=SIZE, intrinsics=K) -> np.ndarray:
     """The room drawn (anti-aliased, 2 px, grey noise) by cv2.projectPoints and cv2.line."""
-    image = np.full((SIZE[1], SIZE[0]), 110, np.uint8)
+    image = np.full((size[1], size[0]), 110, np.uint8)
     rvec = cv2.Rodrigues(rotation)[0]
     for a, b in _room_edges():
         points = np.linspace(a, b, 40)
         points = points[(points @ rotation.T + translation)[:, 2] > 0.2]   # in front of the camera
         if len(points) < 2:
             continue
-        ends = np.round(cv2.projectPoints(points[[0, -1]], rvec, translation, K, None)[0].reshape(2, 2) * 16)
+        ends = np.round(cv2.projectPoints(points[[0, -1]], rvec, translation, intrinsics, None)[0].reshape(2, 2) * 16)
         cv2.line(image, tuple(map(int, ends[0])), tuple(map(int, ends[1])), 30, 2, cv2.LINE_AA, 4)
     noise = np.random.default_rng(seed).normal(0.0, 4.0, image.shape)
     return np.clip(image + noise, 0, 255).astype(np.uint8)
@@ -170,3 +170,36 @@ def test_nobody_standing_still_leaves_the_tilt_to_the_scene():
     assert world.tilt_from == "scene" and not world.floor_known
     assert world.pitch_deg == pytest.approx(12.0, abs=0.5) and world.roll_deg == pytest.approx(-6.0, abs=0.5)
     assert estimate_world([walker]).tilt_from == "people"
+
+
+def test_reconstruct_takes_the_focal_and_the_tilt_from_the_scene(small_db_path, tmp_path):
+    """The bundled BlazePose take of the balancing camera 1 (1080 × 1920; calibrated: focal 1681 px,
+    pitch 23.1°, roll −13.4°) with a ``scene.json`` of a room rendered through that camera:
+    ``reconstruct`` without ``--focal`` takes the scene's focal (not the 26 mm guess, 1324 px) and
+    its world's tilt comes from the scene (the people alone, focal given: roll −8.5°)."""
+    import json
+    import shutil
+    from pathlib import Path
+
+    from mocapdb.cli.main import main
+    from mocapdb.core.formats.scene import write_scene
+
+    folder = tmp_path / "kp"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "data" / "sample_keypoints" / "blazepose_cam01", folder)
+    take = json.loads((folder / "take.json").read_text())
+    (folder / "take.json").write_text(json.dumps({**take, "focal_px": None}))   # as detect writes it: no focal
+    size, focal = (1080, 1920), 1681.0
+    intrinsics = np.array([[focal, 0.0, size[0] / 2], [0.0, focal, size[1] / 2], [0.0, 0.0, 1.0]])
+    rotation, translation = _camera(23.1, -13.4, 10.0, height_m=1.9)
+    image = _render(rotation, translation, size=size, intrinsics=intrinsics)
+    write_scene(folder, SceneLines(size, (0,), (line_segments(image, np.zeros((0, 4))),), "lsd"))
+    out = tmp_path / "rec"
+    assert main(["reconstruct", str(folder), "--db", str(small_db_path), "--out", str(out)]) == 0
+    header = json.loads((out / "result.jsonl").read_text().splitlines()[0])
+    assert header["camera_sources"]["focal_px"] == "scene"
+    assert header["focal_px"] == pytest.approx(focal, rel=0.03)
+    camera = json.loads((out / "world.json").read_text())["camera"]
+    true_pitch, true_roll = _truth(rotation)
+    assert camera["tilt_from"] in ("scene", "people and scene") and camera["scene"] is not None
+    assert camera["pitch_deg"] == pytest.approx(true_pitch, abs=1.5)
+    assert camera["roll_deg"] == pytest.approx(true_roll, abs=1.5)
