@@ -203,3 +203,23 @@ def test_reconstruct_takes_the_focal_and_the_tilt_from_the_scene(small_db_path, 
     assert camera["tilt_from"] in ("scene", "people and scene") and camera["scene"] is not None
     assert camera["pitch_deg"] == pytest.approx(true_pitch, abs=1.5)
     assert camera["roll_deg"] == pytest.approx(true_roll, abs=1.5)
+
+
+def test_a_turning_cameras_lines_are_seen_from_its_reference_camera():
+    """A camera that pans 8°, tilts 4° and rolls 5° between two sampled frames (about its centre,
+    as ``camera_path.json`` holds it): its second frame's lines, turned back by the path, give the
+    reference camera's tilt, as the keypoints are turned back; unturned they give their own."""
+    from mocapdb.cli.scene_evidence import in_reference_camera
+    from mocapdb.core.formats.camera_path import CameraPath
+
+    rotation, translation = _camera(15.0, 3.0)
+    turn = cv2.Rodrigues(np.radians([4.0, 8.0, 5.0]))[0]
+    frames = (_scene(rotation, translation).segments[0], _scene(turn @ rotation, turn @ translation).segments[0])
+    path = CameraPath(np.array([0, 60]), np.stack([np.eye(3), turn]), FOCAL, (SIZE[0] / 2, SIZE[1] / 2),
+                      np.array([np.nan, 0.1]), np.zeros(2), False)
+    second = SceneLines(SIZE, (60,), (frames[1],), "lsd")
+    as_seen = SceneEvidence(vanishing_points(second), FOCAL, 0.0).tilt(None)
+    turned_back = SceneEvidence(vanishing_points(in_reference_camera(second, path)), FOCAL, 0.0).tilt(None)
+    assert (as_seen.pitch_deg, as_seen.roll_deg) == pytest.approx(_truth(turn @ rotation), abs=0.5)
+    assert (turned_back.pitch_deg, turned_back.roll_deg) == pytest.approx(_truth(rotation), abs=0.5)
+    assert np.degrees(np.arccos(as_seen.up @ turned_back.up)) > 4.0   # the turn moved the up this far

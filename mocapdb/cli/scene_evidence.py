@@ -16,10 +16,14 @@ def use_scene(args: argparse.Namespace, source: str) -> None:
     ``source/scene.json``; where the focal was the default guess and the scene's orthogonal vanishing
     points give one, ``args.focal`` becomes that (``args.camera_sources["focal_px"]``: "scene"),
     else the guess is warned about. A given focal the scene contradicts by more than 3 SD is kept,
-    with a warning."""
+    with a warning. A turning camera's lines (``args.camera_path``) are first seen from its
+    reference camera, as its keypoints are (:func:`in_reference_camera`)."""
     from mocapdb.runtime.world.scene_lines import SceneEvidence, vanishing_points
 
     scene = _readable_scene(source, tuple(args.image_size))
+    path = getattr(args, "camera_path", None)
+    if scene is not None and path is not None and not path.still:
+        scene = in_reference_camera(scene, path)
     points = None if scene is None else vanishing_points(scene)
     found = None if points is None else points.focal()
     how = args.camera_sources.get("focal_px")
@@ -52,3 +56,20 @@ def _readable_scene(source: str, image_size: tuple[int, int]):
                     Path(source) / SCENE_FILE, *scene.image_size, *image_size)
         return None
     return scene
+
+
+def in_reference_camera(scene, path):
+    """``scene``'s segments as the reference camera of a turning camera's ``path``
+    (:class:`~mocapdb.core.formats.camera_path.CameraPath`) sees them: each sampled frame's turned
+    back by its rotation (a homography keeps lines straight); a segment with an end behind the
+    reference camera is dropped. The world's tilt is then the reference camera's, as the people's."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from mocapdb.core.formats.camera_path import derotate_points
+
+    def turned(frame: int, segments: np.ndarray) -> np.ndarray:
+        ends = derotate_points(segments.reshape(-1, 2), path.rotation(frame), path.intrinsics).reshape(-1, 4)
+        return ends[np.isfinite(ends).all(axis=1)]
+    return replace(scene, segments=tuple(turned(f, s) for f, s in zip(scene.frames, scene.segments)))
