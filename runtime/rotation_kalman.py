@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit
 
 from mocapdb.core.kernels import quat_exp_into, quat_mul_into, quat_relative_log_into
-from mocapdb.core.skeleton import KP, RIG_JOINTS
+from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D, RIG_JOINTS
 
 # The RMS angular acceleration (rad/s², per tangent axis) of each rig joint's local rotation in the
 # 62 CMU clips of ../shared/data/cmu_bvh retargeted at 24 fps, left and right pooled
@@ -69,7 +69,9 @@ class RotationNoise:
 
 
 ACCEL = np.array([ROTATION_ACCEL_RAD_S2[j] for j in RIG_JOINTS])
-_JOINT_POINTS = [[KP[k] for k in JOINT_KEYPOINTS[j]] for j in RIG_JOINTS]
+# [R, 14]: each rig joint's mean over its JOINT_KEYPOINTS
+_JOINT_MEAN = np.array([[float(k in [KP[n] for n in JOINT_KEYPOINTS[j]]) / len(JOINT_KEYPOINTS[j])
+                         for k in range(N_KEYPOINTS_2D)] for j in RIG_JOINTS])
 
 
 def joint_confidence(keypoints_px: np.ndarray | None) -> np.ndarray:
@@ -78,7 +80,7 @@ def joint_confidence(keypoints_px: np.ndarray | None) -> np.ndarray:
     if keypoints_px is None:
         return np.ones(len(RIG_JOINTS))
     conf = np.nan_to_num(np.asarray(keypoints_px, dtype=np.float64)[:, 2], nan=0.0)
-    return np.clip([conf[k].mean() for k in _JOINT_POINTS], MIN_CONFIDENCE, 1.0)
+    return np.clip(_JOINT_MEAN @ conf, MIN_CONFIDENCE, 1.0)
 
 
 def process_noise(spectral: np.ndarray, dt_s: float) -> np.ndarray:
@@ -134,11 +136,10 @@ class RotationKalman:
     def estimate(self, index: int) -> np.ndarray:
         """``[R, 4]`` the rotations of frame ``index`` (one of those kept) given every frame added:
         the filtered state of the newest, smoothed back from it for an older one."""
+        if self.history[-1].index == index:
+            return self.history[-1].q.copy()
         entries = list(self.history)
-        k = next(i for i, e in enumerate(entries) if e.index == index)
-        if k == len(entries) - 1:
-            return entries[k].q.copy()
-        later = entries[k:]
+        later = entries[next(i for i, e in enumerate(entries) if e.index == index):]
         q, w = np.empty_like(later[0].q), np.empty_like(later[0].w)
         _smooth_back(np.stack([e.q for e in later]), np.stack([e.w for e in later]), np.stack([e.cov for e in later]),
                      np.stack([e.q_pred for e in later]), np.stack([e.w_pred for e in later]),
