@@ -187,7 +187,6 @@ def test_a_person_is_seen_from_the_reference_camera():
     out = _path(rotation).derotate(KeypointFrame(1, 0.1, [person])).people[0]
     np.testing.assert_allclose(out.points_px[0], derotate_points(points[0], rotation, K))
     assert out.confidence[3] == 0.0 and np.isnan(out.points_px[3]).all()
-    np.testing.assert_allclose(out.world_m, (rotation.T @ world.T).T)          # the 3D turned back
     np.testing.assert_allclose(out.extremities[0, :2], derotate_points(np.array([310.0, 400.0]), rotation, K))
     assert out.extremities[0, 2] == 0.8
     np.testing.assert_allclose(out.face[5, :2], derotate_points(np.array([280.0, 150.0]), rotation, K))
@@ -282,3 +281,18 @@ def test_the_viewer_draws_the_turned_camera_where_it_looked():
     assert camera["label"] == f"frame 1, {angle:.1f} deg" and camera["position"] == [0.0, 1.7, 0.0]
     still = replace(scene, world=replace(floor, camera_path=camera_path_record(_path(turn, True), world, True)))
     assert path_cameras(still, image) == []
+
+
+@pytest.mark.parametrize(("euler", "turned_back"), [("z", True), ("y", False), ("x", False)])
+def test_the_detectors_3d_turns_with_the_image_about_the_person(euler, turned_back):
+    """A person at the principal point: a roll of the camera rolls the detector's 3D back by Rᵀ (the
+    crop about the person rolls with the image); a pan or a tilt leaves it as it was (the crop about
+    the person looks the same)."""
+    rotation = Rotation.from_euler(euler, 8.0, degrees=True).as_matrix()
+    centre = np.array([SIZE[0] / 2, SIZE[1] / 2])
+    points = centre + np.linspace(-1.0, 1.0, 14)[:, None] * [3.0, 60.0]      # around the principal point
+    seen = np.c_[points, np.ones(14)] @ (K @ rotation @ np.linalg.inv(K)).T   # where the turned camera sees them
+    world = np.random.default_rng(10).normal(size=(14, 3))
+    person = Person(seen[:, :2] / seen[:, 2:], np.ones(14), world_m=world)
+    out = _path(rotation).derotate(KeypointFrame(1, 0.1, [person])).people[0]
+    np.testing.assert_allclose(out.world_m, world @ rotation if turned_back else world, atol=2e-3)
