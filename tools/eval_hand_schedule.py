@@ -3,9 +3,10 @@
     python tools/eval_hand_schedule.py VIDEO [VIDEO ...] [--every 2 3] [--max-people 1] [--frames 300]
 
 Per video, BlazePose full (``--max-people``) then the hand landmark model with every hand on every frame
-(the reference: what `detect --hands` writes) and with each ``--every N`` (:mod:`mocapdb.detect.hand_schedule`),
-on the same decoded frames. Prints per N: the hand model's time per frame (wall clock, mean; the machine's
-load moves it: compare within one run), hands run and carried, and on the hand-frames both found, how far
+(the reference: what `detect --hands` writes) and with each ``--every N``
+(:mod:`mocapdb.detect.hand_schedule`), on the same decoded frames. Prints BlazePose's CPU time per frame
+and per N the hands' (the process's, all threads: what the machine's other load moves least), hands run
+and carried, and on the hand-frames both found, how far
 the N run's hand lies from the reference (mean distance of the 21 points, % of the reference's wrist to
 middle knuckle; mean and p95) and how far its fingers' curls do (degrees, the mean over the five fingers;
 mean and p95); hand-frames found only by the reference or only by the N run.
@@ -29,11 +30,12 @@ from mocapdb.detect.video import VideoReader  # noqa: E402
 
 
 def run_hands(images: list[np.ndarray], poses: list[np.ndarray], every: int) -> tuple[list[Hands], float, int, int]:
-    """The hands of every frame with the model run every ``every`` frames: hands, ms per frame, hands run, carried."""
+    """The hands of every frame with the model run every ``every`` frames: hands, CPU ms per frame, hands
+    run, carried."""
     model = HandLandmarker(hand_landmark_path(), every)
-    started = time.perf_counter()
+    started = time.process_time()
     found = [model(image, pose) for image, pose in zip(images, poses)]
-    return found, (time.perf_counter() - started) * 1000.0 / len(images), model.runs, model.schedule.carries
+    return found, (time.process_time() - started) * 1000.0 / len(images), model.runs, model.schedule.carries
 
 
 def differences(reference: list[Hands], got: list[Hands]) -> tuple[np.ndarray, np.ndarray, int, int]:
@@ -61,14 +63,17 @@ def main() -> int:
     ap.add_argument("--max-people", type=int, default=1, help="people BlazePose follows (default 1)")
     ap.add_argument("--frames", type=int, default=300, help="frames per video at most (default 300)")
     args = ap.parse_args()
-    print(f"{'video':16}{'every':>6}{'hand ms/frame':>14}{'run':>6}{'carried':>8}{'compared':>9}"
+    print(f"{'video':16}{'every':>6}{'hand CPU ms':>14}{'run':>6}{'carried':>8}{'compared':>9}"
           f"{'points % mean/p95':>19}{'curl deg mean/p95':>19}{'only ref':>9}{'only N':>7}")
     for video in args.videos:
         reader = VideoReader(video)
         images = [frame.image for _, frame in zip(range(args.frames), reader.frames())]
         reader.close()
         pose = BlazePose(*blazepose_paths("full"), max_people=args.max_people)
+        started = time.process_time()
         poses = [pose(image).keypoints for image in images]
+        print(f"{Path(video).stem:16}  BlazePose full: {(time.process_time() - started) * 1000.0 / len(images):.2f} "
+              "CPU ms a frame")
         reference, ref_ms, ref_runs, _ = run_hands(images, poses, 1)
         print(f"{Path(video).stem:16}{1:6d}{ref_ms:14.2f}{ref_runs:6d}{0:8d}")
         for every in args.every:
