@@ -88,11 +88,11 @@ def measured_candidates(quats: np.ndarray, root_m: np.ndarray, scale: float, off
 
 
 def sign_references(quats: np.ndarray) -> np.ndarray:
-    """``[F, 4, 3]`` the directions that choose between a measured segment's two depths (:func:`lift_direction`)
-    for the rig rotations ``quats [F, R, 4]``: for the feet the pelvis's forward (a foot points about where the
-    hips face; the knee's twist, which the rest direction follows, is the rig's least sure: on synthetic takes
-    of the database's clips it chose right 92 % of the ambiguous frames, the pelvis 98 %), for the hands where
-    their forearms point them."""
+    """``[F, 4, 3]`` the side priors of a measured segment's two depths (:func:`lift_candidates`; weighed by
+    :mod:`mocapdb.runtime.end_branches`) for the rig rotations ``quats [F, R, 4]``: for the feet the pelvis's
+    forward (a foot points about where the hips face; the knee's twist, which the rest direction follows, is
+    the rig's least sure: on synthetic takes of the database's clips it chose right 92 % of the ambiguous
+    frames, the pelvis 98 %), for the hands where their forearms point them."""
     reference = end_frames(quats)[1]
     forward = global_rotations(quats)[:, RIG_JOINTS.index("pelvis"), :, 2]
     reference[:, :2] = forward[:, None]

@@ -4,7 +4,7 @@ rig (:mod:`mocapdb.core.hand_rig`), eased to a relaxed hand where a hand is abse
 
 The points (x, y frame px; z px, the depth from the wrist at x's scale, smaller: nearer) become
 view-frame offsets from the wrist ``(x, −y, −z)`` px. Lifted at the wrist's depth
-(:func:`~mocapdb.runtime.end_joints.lift_direction`) every offset would scale by one factor, depth /
+(:func:`~mocapdb.runtime.end_joints.lift_candidates`) every offset would scale by one factor, depth /
 focal, on which no direction or angle depends: the pixels are used as they are.
 
 **Palm frame** (:func:`palm_frames`): ``u`` wrist → the index and pinky knuckles' midpoint, ``t`` pinky →
