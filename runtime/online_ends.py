@@ -10,9 +10,10 @@ Per track (:class:`OnlineEnds`), per frame:
    the head's rotation relative to the chest (:func:`~mocapdb.runtime.head_pose.chest_relative_head`; with
    the detector's world landmarks of the face as its prior where the frame has them, but the default face
    model: the whole take's own face pattern is a median over the take's frames).
-2. **Smoothed** as the online take smooths the rig's rotations: lag 0, a causal 1€ filter (its
-   ``causal_rotations``; the directions as vectors, the head as a quaternion); lag ``L``, the Gaussian
-   mean of the frames ``t − L … t + L`` measured. A planted foot is laid flat on the floor, blended in
+2. **Smoothed**: lag 0, a causal 1€ filter (the online take's ``causal_rotations``; the directions as
+   vectors, the head as a quaternion; the rig's own rotations have a Kalman filter instead,
+   :mod:`mocapdb.runtime.rotation_kalman`); lag ``L``, the Gaussian mean of the frames ``t − L … t + L``
+   measured. A planted foot is laid flat on the floor, blended in
    with its IK weight, and once it has stood :data:`PLANTED_SETTLE_S` keeps its heading (the mean since,
    followed at most :data:`PLANTED_FOLLOW_DEG_S`): its ankle is held in place, so is the ball of the foot.
 3. **Unseen**: an end joint keeps its last value for :data:`HOLD_S`, then eases to rest (the identity,
