@@ -90,9 +90,9 @@ def _add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lag-frames", type=D.LAG_FRAMES, default=D.LAG_FRAMES.default, metavar="N",
                    help="the stream's lag: each frame's line written N frames late, through the online whole take "
                         "(planted feet locked, the root carried by them, speed limits, the size settled) with "
-                        "rotations smoothed over the N frames before and after it (--smoothing-hz) instead of by "
-                        "the causal 1€ filters: a latency of N / fps for steadier motion (default %(default)s: "
-                        "causal; data_specs/stream_output.md)")
+                        "the rotations' Kalman filter smoothed over the N frames after it: a latency of N / fps "
+                        "for steadier, more accurate motion (default %(default)s: causal, the filter predicting; "
+                        "data_specs/stream_output.md)")
     p.add_argument("--per-frame-stream", action="store_true",
                    help="write the stream as the per-frame engine gives it, without the online whole take "
                         "(no foot locking, no speed limits; no --lag-frames)")
