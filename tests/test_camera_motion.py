@@ -265,7 +265,7 @@ def test_the_viewer_draws_the_turned_camera_where_it_looked():
     from mocapdb.render.tracks import FileScene, WorldFloor
     from mocapdb.runtime.world.camera_path import camera_path_record
     from mocapdb.runtime.world.fuse import World
-    from mocapdb.view.take import path_cameras
+    from mocapdb.view.take import path_cameras, seen_by_frame_cameras
 
     world = World(np.array([0.0, np.cos(0.3), np.sin(0.3)]), 1.7, 0.1, False)
     turn = Rotation.from_euler("yxz", [6.0, 3.0, 3.0], degrees=True).as_matrix()
@@ -281,6 +281,14 @@ def test_the_viewer_draws_the_turned_camera_where_it_looked():
     assert camera["label"] == f"frame 1, {angle:.1f} deg" and camera["position"] == [0.0, 1.7, 0.0]
     still = replace(scene, world=replace(floor, camera_path=camera_path_record(_path(turn, True), world, True)))
     assert path_cameras(still, image) == []
+    # the re-projection onto the frames as filmed: a reference camera-aligned point (x right, y up, z
+    # ahead) as the turned camera sees it, OpenCV's R applied in OpenCV's axes
+    point = np.array([[0.4, -0.2, 5.0]])
+    aligned = np.array([1.0, -1.0, 1.0])
+    seen = seen_by_frame_cameras(scene, np.array([0, 1, 5]), np.repeat(point[None], 3, axis=0))
+    np.testing.assert_allclose(seen[0], point, atol=1e-9)
+    np.testing.assert_allclose(seen[1:, 0], np.tile((turn @ (point[0] * aligned)) * aligned, (2, 1)), atol=1e-4)
+    np.testing.assert_array_equal(seen_by_frame_cameras(still, np.array([1]), point[None]), point[None])
 
 
 @pytest.mark.parametrize(("euler", "turned_back"), [("z", True), ("y", False), ("x", False)])

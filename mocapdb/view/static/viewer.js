@@ -103,6 +103,7 @@ class Scene3D {
         p, new THREE.Vector3(p.x, floorY, p.z)];
       const geometry = new THREE.BufferGeometry().setFromPoints(points);
       this.cameras.add(new THREE.LineSegments(geometry, new THREE.LineBasicMaterial({ color: '#e8e8e8' })));
+      if (!c.label) continue;   // a turning camera's frustums along its path: the last one is labelled
       const label = textSprite(c.label, '#e8e8e8');
       label.position.copy(p).addScaledVector(down, -0.15);
       this.cameras.add(label);
