@@ -260,12 +260,12 @@ def test_world_json_carries_each_frames_floor_and_orientation():
 
 def test_the_viewer_draws_the_turned_camera_where_it_looked():
     """`mocapdb view`'s frustums along a turning camera's path: frame t's axes, written in the
-    reference camera's (right, down, forward), are R_tᵀ's columns (OpenCV axes): a pan to the left
-    looks towards the reference's left."""
-    from mocapdb.render.tracks import FileScene, WorldFloor
+    reference camera's (right, down, forward), are R_t's rows (OpenCV axes); `render` and `view`
+    re-project the files through each frame's own camera."""
+    from mocapdb.render.tracks import FileScene, WorldFloor, as_filmed
     from mocapdb.runtime.world.camera_path import camera_path_record
     from mocapdb.runtime.world.fuse import World
-    from mocapdb.view.take import path_cameras, seen_by_frame_cameras
+    from mocapdb.view.take import path_cameras
 
     world = World(np.array([0.0, np.cos(0.3), np.sin(0.3)]), 1.7, 0.1, False)
     turn = Rotation.from_euler("yxz", [6.0, 3.0, 3.0], degrees=True).as_matrix()
@@ -285,10 +285,10 @@ def test_the_viewer_draws_the_turned_camera_where_it_looked():
     # ahead) as the turned camera sees it, OpenCV's R applied in OpenCV's axes
     point = np.array([[0.4, -0.2, 5.0]])
     aligned = np.array([1.0, -1.0, 1.0])
-    seen = seen_by_frame_cameras(scene, np.array([0, 1, 5]), np.repeat(point[None], 3, axis=0))
+    seen = as_filmed(floor, np.array([0, 1, 5]), np.repeat(point[None], 3, axis=0))
     np.testing.assert_allclose(seen[0], point, atol=1e-9)
     np.testing.assert_allclose(seen[1:, 0], np.tile((turn @ (point[0] * aligned)) * aligned, (2, 1)), atol=1e-4)
-    np.testing.assert_array_equal(seen_by_frame_cameras(still, np.array([1]), point[None]), point[None])
+    np.testing.assert_array_equal(as_filmed(still.world, np.array([1]), point[None]), point[None])
 
 
 @pytest.mark.parametrize(("euler", "turned_back"), [("z", True), ("y", False), ("x", False)])

@@ -25,6 +25,7 @@ import numpy as np
 
 from mocapdb.core.errors import MocapdbError
 from mocapdb.core.files import MIB, read_input_text
+from mocapdb.core.geometry import quat_to_matrix
 from mocapdb.core.outputs import CAMERA_FROM_VIEW
 from mocapdb.core.skeleton import KEYPOINTS, N_POINTS, PELVIS, swing_matrices
 from mocapdb.render.results import RenderError, ResultFrame, ResultStream, TrackPose
@@ -345,11 +346,35 @@ def file_scene(folder: str | Path, stream: ResultStream) -> tuple[FileScene | No
         else:
             scene = (world.to_floor(view) if world.known else view) * CAMERA_FROM_VIEW
         label, legend = track_texts(t.track, world.tracks.get(t.track), t.track == world.main_track)
-        tracks.append(SceneTrack(t.track, t.frames, view * CAMERA_FROM_VIEW, scene, label, legend))
+        filmed = as_filmed(world, t.frames, view * CAMERA_FROM_VIEW)
+        tracks.append(SceneTrack(t.track, t.frames, filmed, scene, label, legend))
     if not world.known:
         return FileScene(tracks, world, frame, False), ""
     axes = (np.eye(3) * [1.0, -1.0, -1.0]) @ world.level().T * CAMERA_FROM_VIEW  # view right, down, forward
     return FileScene(tracks, world, frame, True, np.array([0.0, world.height_m, 0.0]), axes), ""
+
+
+def turning_path(world: WorldFloor) -> dict | None:
+    """``world.json``'s ``camera_path`` of a camera that turned, its files on the floor; else None."""
+    path = world.camera_path
+    if not world.known or not path or path.get("still") or "view_to_files_wxyz" not in path:
+        return None
+    return path
+
+
+def as_filmed(world: WorldFloor, frames: np.ndarray, camera_aligned: np.ndarray) -> np.ndarray:
+    """Camera-aligned points ``[F, J, 3]`` of the take's reference camera as each input frame's camera
+    filmed them (a turning camera's path: the re-projection onto the frames as filmed; a frame the
+    path does not hold takes the last one before it); as they are for a still camera."""
+    path = turning_path(world)
+    if path is None:
+        return camera_aligned
+    to_files = quat_to_matrix(np.array(path["view_to_files_wxyz"], dtype=np.float64))
+    to_reference = np.einsum("ji,njk->nik", to_files[0], to_files)        # frame t's view frame → the reference's
+    at = np.clip(np.searchsorted(np.array(path["frames"]), frames, side="right") - 1, 0, len(to_files) - 1)
+    flip = np.diag(CAMERA_FROM_VIEW)
+    turns = flip @ np.transpose(to_reference[at], (0, 2, 1)) @ flip       # camera-aligned, reference → frame t
+    return np.einsum("fij,fkj->fki", turns, camera_aligned)
 
 
 def people_at(scene: FileScene, frame: ResultFrame) -> tuple[list[TrackPose], list[TrackPose]]:

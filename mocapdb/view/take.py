@@ -30,7 +30,7 @@ from mocapdb.render.results import (
     recorded_camera,
 )
 from mocapdb.render.stereo_plot import stereo_basis
-from mocapdb.render.tracks import FileScene, file_scene, track_texts
+from mocapdb.render.tracks import FileScene, file_scene, track_texts, turning_path
 from mocapdb.view import payload
 
 FILE_PATTERNS = ("track_*.bvh", "track_*.trc", "track_*.csv", "stereo*.bvh", "world.json", "result.jsonl",
@@ -180,20 +180,12 @@ def _stream_tracks(stream: ResultStream, image: dict, scene_from_aligned: np.nda
 PATH_CAMERAS = 6   # a turning camera's frustums drawn along its path, first frame to last
 
 
-def _turning_path(scene: FileScene) -> dict | None:
-    """``world.json``'s ``camera_path`` of a camera that turned, its files on the floor; else None."""
-    path = None if scene.world is None else scene.world.camera_path
-    if scene.camera_scene is None or not path or path.get("still") or "view_to_files_wxyz" not in path:
-        return None
-    return path
-
-
 def path_cameras(scene: FileScene, image: dict) -> list[dict]:
     """A turning camera's frustums at :data:`PATH_CAMERAS` frames spread over its path (``world.json``'s
     ``camera_path``, files on the floor), the last labelled with its frame and turn; none for a still
     camera or without a floor. Frame ``t``'s rows are its right, down and forward: ``view_to_files_t``
     applied to the view frame's (as the reference camera's, ``FileScene.camera_axes``)."""
-    path = _turning_path(scene)
+    path = None if scene.world is None or scene.camera_scene is None else turning_path(scene.world)
     if path is None:
         return []
     turns = quat_to_matrix(np.array(path["view_to_files_wxyz"], dtype=np.float64))
@@ -202,21 +194,6 @@ def path_cameras(scene: FileScene, image: dict) -> list[dict]:
                            payload.VIEW_AXES @ turns[i].T * CAMERA_FROM_VIEW, payload.fov(image),
                            f"frame {path['frames'][i]}, {path['turn_deg'][i]:.1f} deg" if i == picks[-1] else "")
             for i in picks]
-
-
-def seen_by_frame_cameras(scene: FileScene, frames: np.ndarray, camera_aligned: np.ndarray) -> np.ndarray:
-    """Camera-aligned points ``[F, J, 3]`` of the reference camera as each input frame's camera saw
-    them (a turning camera's path: its re-projection onto the frames as filmed; a frame the path does
-    not hold takes the last one before it); as they are for a still camera."""
-    path = _turning_path(scene)
-    if path is None:
-        return camera_aligned
-    to_files = quat_to_matrix(np.array(path["view_to_files_wxyz"], dtype=np.float64))
-    to_reference = np.einsum("ji,njk->nik", to_files[0], to_files)        # frame t's view frame → the reference's
-    at = np.clip(np.searchsorted(np.array(path["frames"]), frames, side="right") - 1, 0, len(to_files) - 1)
-    flip = np.diag(CAMERA_FROM_VIEW)
-    turns = flip @ np.transpose(to_reference[at], (0, 2, 1)) @ flip       # camera-aligned, reference → frame t
-    return np.einsum("fij,fkj->fki", turns, camera_aligned)
 
 
 def _world_summary(scene: FileScene) -> tuple[list[str], str]:
@@ -249,8 +226,7 @@ def _file_tracks(scene: FileScene, image: dict, ends: dict[int, dict[int, dict]]
         distance = facts.get("distance_m")
         if isinstance(distance, list) and len(distance) == 2:
             legend += f"; {distance[0]:.1f}–{distance[1]:.1f} m away"
-        pixels = _project(image, seen_by_frame_cameras(scene, t.frames, t.camera))
-        tracks.append(ViewTrack(t.track, t.frames, t.scene * CAMERA_FROM_VIEW, pixels,
+        tracks.append(ViewTrack(t.track, t.frames, t.scene * CAMERA_FROM_VIEW, _project(image, t.camera),
                                 {"track": t.track, "label": label, "legend": legend,
                                  "colour": payload.colour(t.track), "main": main}, ends.get(t.track, {})))
     return tracks
