@@ -30,34 +30,40 @@ FRAME_GAP_S = 0.04   # the frames are handed to the session this far apart, as a
 
 
 def test_percentiles_and_lag_from_known_timestamps():
-    """Five frames captured 100 ms apart at 10 fps, each sent two frames later: latencies 250, 230, 270,
-    210, 290 ms; by hand, p50 250 ms, p99 270 + 0.96 × 20 = 289.2 ms (linear between the 4th and 5th);
-    the lag 2 frames, 200 ms at 10 fps."""
+    """A start-up frame (captured at 0 s, sent at 1 s), then five frames captured 100 ms apart from 1.1 s at
+    10 fps, each sent two frames later: latencies 250, 230, 270, 210, 290 ms; by hand, p50 250 ms, p99
+    270 + 0.96 × 20 = 289.2 ms (linear between the 4th and 5th); the lag 2 frames, 200 ms at 10 fps; the
+    start-up frame left out."""
     book = LatencyBook(fps=10.0)
+    book.captured(0, 0.0)
+    book.sent(0, 1.0)
     latencies = [0.25, 0.23, 0.27, 0.21, 0.29]
-    for i in range(7):
-        book.captured(i, 0.1 * i)
-        if i >= 2:
-            book.sent(i - 2, 0.1 * (i - 2) + latencies[i - 2])
+    for i in range(2, 9):
+        book.captured(i, 1.1 + 0.1 * (i - 2))
+        if i >= 4:
+            book.sent(i - 2, 1.1 + 0.1 * (i - 4) + latencies[i - 4])
+    assert book.startup_frames == 1               # frame 0, captured before the first send
     assert book.percentiles_ms() == pytest.approx((250.0, 289.2))
     assert book.lag() == pytest.approx((2.0, 200.0))
-    assert book.line() == ("latency capture → send p50 250.00 ms, p99 289.20 ms (5 frames); "
-                           "lag 2 frames (200.0 ms at 10 fps)")
+    assert book.line() == ("latency capture → send p50 250.00 ms, p99 289.20 ms (5 frames, 1 start-up frames left "
+                           "out); lag 2 frames (200.0 ms at 10 fps)")
 
 
 def test_a_frame_is_counted_once_and_frames_never_sent_are_forgotten():
     book = LatencyBook(fps=30.0)
+    book.captured(5, 0.0)
+    book.sent(5, 0.9)           # the first send (its frame a start-up one)
     book.captured(0, 1.0)
     book.captured(1, 1.1)
     book.sent(1, 1.2)           # frame 0 was never sent (an avatar not finite): forgotten, not counted
     book.sent(1, 5.0)           # sent again (a second sink): the first send counts
     book.sent(0, 1.3)
     book.sent(7, 1.4)           # never taken
-    assert book.latencies_s == pytest.approx([0.1]) and book.lags == [0]
+    assert book.latencies_s == pytest.approx([0.1]) and book.lags == [0] and book.startup_frames == 1
     for i in range(MAX_PENDING + 10):   # frames taken, none sent: memory stays bounded
         book.captured(100 + i, 2.0)
     assert len(book._pending) == MAX_PENDING
-    assert LatencyBook().line().startswith("latency capture → send p50 nan ms, p99 nan ms (0 frames)")
+    assert LatencyBook().line().startswith("latency capture → send p50 nan ms, p99 nan ms (0 frames, 0 start-up")
 
 
 class _Recording(Sink):
@@ -114,7 +120,8 @@ def test_a_vmc_receiver_sees_the_latency_and_the_lag_the_session_reports(small_d
     """A person walking (30 frames) handed to the session 40 ms apart, each captured 0-16 ms before it is
     taken (as if it waited in the input buffer), sent by the VMC sink to tools/vmc_receiver.py in its own
     process. Each frame's arrival there less its capture time is the latency the session reports within
-    3 ms at the median and 10 ms at p99 (loopback delivery and the receiver's wake-up on a busy machine);
+    3 ms at the median and 10 ms at p99 (loopback delivery and the receiver's wake-up on a busy machine),
+    the frames captured before the first one arrived (start-up: lag + 1 of them) left out on both sides;
     frame k arrives after frame k + lag was taken and before frame k + lag + 1 was (the lag reported)."""
     times = tmp_path / "arrivals.txt"
     proc, port = _receiver(times)
@@ -137,9 +144,11 @@ def test_a_vmc_receiver_sees_the_latency_and_the_lag_the_session_reports(small_d
     arrivals = np.loadtxt(times, ndmin=2)
     frames = np.rint(arrivals[:, 1] * FPS).astype(int)
     assert list(frames) == list(range(len(capture)))          # every frame, in order, once
-    seen_ms = (arrivals[:, 0] - np.array([capture[k] for k in frames])) * 1000.0
+    steady = [k for k in frames if capture[k] >= arrivals[0, 0]]   # captured after the first frame arrived
+    seen_ms = (arrivals[steady, 0] - np.array([capture[k] for k in steady])) * 1000.0
     reported = summary.latency
-    assert len(reported.latencies_s) == len(frames)
+    assert reported.startup_frames == lag + 1
+    assert len(reported.latencies_s) == len(steady) == len(frames) - lag - 1
     p50, p99 = reported.percentiles_ms()
     assert abs(np.percentile(seen_ms, 50) - p50) <= 3.0 and abs(np.percentile(seen_ms, 99) - p99) <= 10.0
     assert reported.lag() == pytest.approx((lag, lag * 1000.0 / FPS))

@@ -6,7 +6,10 @@ camera's or a video file's frame when it was decoded, a keypoint message when it
 after the socket send, the file write, the TCP sender thread's ``sendall``). A frame's **latency** is
 its send less its capture; its **lag**, the frames the session had taken after it by then (the online
 take's hold: ``--lag-frames``), in frames and in milliseconds at the stream's frame rate. The
-latency includes the lag and the time a frame waited in the input buffer. Memory stays bounded:
+latency includes the lag and the time a frame waited in the input buffer. As the throughput counts
+from the first frame processed, the figures leave out the **start-up** frames: those captured before
+the first frame's output left the sink (they waited for the models' first runs and the first frame's
+compiling; counted in ``startup_frames``, and in the line). Memory stays bounded:
 capture times of at most :data:`MAX_PENDING` frames not yet sent, percentiles over at most the last
 ``2 × MAX_SAMPLES`` frames.
 """
@@ -33,6 +36,8 @@ class LatencyBook:
         self.lags: list[int] = []            # frames taken after it when each frame was sent
         self._pending: dict[int, float] = {}   # frame index → capture time, frames not yet sent
         self._newest: int | None = None   # the frame taken last
+        self._first_sent_s: float | None = None
+        self.startup_frames = 0   # frames captured before the first send, left out of the figures
         self._lock = threading.Lock()
 
     def captured(self, index: int, capture_s: float) -> None:
@@ -53,6 +58,11 @@ class LatencyBook:
                 del self._pending[older]
             if capture_s is None or self._newest is None:
                 return
+            if self._first_sent_s is None:
+                self._first_sent_s = sent_s
+            if capture_s < self._first_sent_s:
+                self.startup_frames += 1
+                return
             self.latencies_s.append(sent_s - capture_s)
             self.lags.append(self._newest - index)
             if len(self.latencies_s) >= 2 * MAX_SAMPLES:
@@ -72,8 +82,10 @@ class LatencyBook:
         return frames, frames * 1000.0 / self.fps if self.fps > 0 else float("nan")
 
     def line(self) -> str:
-        """``latency capture → send p50 A ms, p99 B ms (N frames); lag L frames (M ms at F fps)``."""
+        """``latency capture → send p50 A ms, p99 B ms (N frames, S start-up frames left out); lag L frames
+        (M ms at F fps)``."""
         p50, p99 = self.percentiles_ms()
         frames, ms = self.lag()
-        return (f"latency capture → send p50 {p50:.2f} ms, p99 {p99:.2f} ms ({len(self.latencies_s)} frames); "
-                f"lag {frames:g} frames ({ms:.1f} ms at {self.fps:g} fps)")
+        return (f"latency capture → send p50 {p50:.2f} ms, p99 {p99:.2f} ms ({len(self.latencies_s)} frames, "
+                f"{self.startup_frames} start-up frames left out); lag {frames:g} frames ({ms:.1f} ms at "
+                f"{self.fps:g} fps)")
