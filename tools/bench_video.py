@@ -172,8 +172,8 @@ def live_run(video: str, db: str, flags: list[str], sink: str) -> dict[str, floa
     """The real `mocapdb live --source VIDEO [flags]` (a subprocess): its summary's figures (latency in ms)."""
     command = [sys.executable, "-m", "mocapdb", "-q", "live", "--source", video, "--db", db, "--sink", sink, *flags]
     err = subprocess.run(command, capture_output=True, text=True, check=True, cwd=ROOT).stderr
-    latency = re.search(r"latency capture → send p50 ([\d.]+) ms, p99 ([\d.]+) ms \(\d+ frames[^)]*\); lag ([\d.]+) frames "
-                        r"\(([\d.]+) ms at [\d.]+ fps\); throughput ([\d.]+) frames/s", err)
+    latency = re.search(r"latency capture → send p50 ([\d.]+) ms, p99 ([\d.]+) ms \(\d+ frames[^)]*\); "
+                        r"lag ([\d.]+) frames \(([\d.]+) ms at [\d.]+ fps\); throughput ([\d.]+) frames/s", err)
     video_line = re.search(r"frames read (\d+), detected (\d+), dropped (\d+); detection ([\d.]+) frames/s", err)
     if latency is None or video_line is None:
         raise RuntimeError(f"unexpected summary from {' '.join(command)}:\n{err}")
