@@ -294,12 +294,16 @@ def test_leave_one_subject_out_end_to_end(tmp_path, monkeypatch):
         for sc in fold["scenarios"]:
             for variant in ("published", "refined"):
                 _check_variant(sc[variant])
+            for lag in (0, 3, 6):   # the default stream beside the per-frame one, on the same frames
+                assert sc[f"stream, lag {lag}"]["frames_with_output"] == sc["refined"]["frames_with_output"]
+                assert np.isfinite(sc[f"stream, lag {lag}"]["mpjpe13_cm"])
     overall = report["overall"]["scenarios"]
     assert len(overall) == 2
     assert overall[0]["refined"]["frames_with_output"] == sum(f["scenarios"][0]["refined"]["frames_with_output"]
                                                               for f in report["folds"])
     table = format_table(report)
     assert "overall" in table and "total wall time" in table and table.count("\n") >= 10
+    assert table.split("\n")[0].split()[7:11] == ["L0", "L3", "L6", "take"]
 
 
 def test_leave_one_subject_out_needs_two_subjects_and_known_subjects():
