@@ -22,6 +22,7 @@ from mocapdb.core.formats.camera_path import (
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.formats.openpose import is_frame_file
 from mocapdb.detect.camera_motion import BackgroundMotion, fit_rotation, people_mask, rays
+from mocapdb.detect.errors import DetectError
 
 SIZE = (640, 480)
 FOCAL = 600.0
@@ -304,3 +305,10 @@ def test_the_detectors_3d_turns_with_the_image_about_the_person(euler, turned_ba
     person = Person(seen[:, :2] / seen[:, 2:], np.ones(14), world_m=world)
     out = _path(rotation).derotate(KeypointFrame(1, 0.1, [person])).people[0]
     np.testing.assert_allclose(out.world_m, world @ rotation if turned_back else world, atol=2e-3)
+
+
+def test_a_video_that_changes_size_is_refused_by_name():
+    motion = BackgroundMotion(FOCAL)
+    motion.see(0, texture(), np.zeros((0, 17, 3)))
+    with pytest.raises(DetectError, match="frame 1 is 320x240 px, the video's first 640x480"):
+        motion.see(1, cv2.resize(texture(), (320, 240)), np.zeros((0, 17, 3)))

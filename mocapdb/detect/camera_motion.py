@@ -35,6 +35,7 @@ import numpy as np
 
 from mocapdb.core.formats.camera_path import CameraPath, intrinsic_matrix, rotation_angle_deg, write_camera_path
 from mocapdb.core.formats.take import default_focal_px
+from mocapdb.detect.errors import DetectError
 
 WORK_SIDE_PX = 320        # the longer side of the grey image tracked (pixels)
 MAX_FEATURES = 100        # corners found per keyframe
@@ -141,8 +142,8 @@ class BackgroundMotion:
         if not self.frames:
             self._start((int(image.shape[1]), int(image.shape[0])))
         elif (image.shape[1], image.shape[0]) != self.image_size:
-            raise ValueError(f"frame {number} is {image.shape[1]}x{image.shape[0]} px, the video's first "
-                             f"{self.image_size[0]}x{self.image_size[1]}: no camera path across a change of size")
+            raise DetectError(f"frame {number} is {image.shape[1]}x{image.shape[0]} px, the video's first "
+                              f"{self.image_size[0]}x{self.image_size[1]}: no camera path across a change of size")
         # the green channel as the grey (most of the luminance), shrunk: half the cost of a colour conversion
         grey = cv2.resize(cv2.extractChannel(image, 1), self.small, interpolation=cv2.INTER_AREA)
         mask = people_mask(grey.shape, keypoints, self.scale)
