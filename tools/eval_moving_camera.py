@@ -11,7 +11,7 @@ with `detect`'s output) and without it (its ``camera_path.json`` left out: as be
 
 BlazePose (full) detects the people, its keypoints carry the detector's 3D, the focal is the
 calibration's (``--focal``) for the engine and for the background's rotation; the rotation is also
-measured with the 26 mm default focal `detect` assumes, whose error scales with the focal's.
+measured as `detect` does with no focal given (the 26 mm default, then the focal the turn shows).
 
 Synthetic takes with the truth per frame (eval --world's scenarios, the held-out clips given, nothing
 given to the world), filmed by a camera that pans, tilts and rolls, then also walks:
@@ -74,7 +74,8 @@ def detect(video: Path, out: Path, focal_px: float | None) -> BackgroundMotion:
 
 
 def path_at_default_focal(video: Path, keypoint_folder: Path) -> BackgroundMotion:
-    """The background's rotation with `detect`'s default focal, the people masked as detected."""
+    """The background's rotation as `detect` measures it, no focal given (the 26 mm default, then
+    the focal the turn shows), the people masked as detected."""
     from mocapdb.core.formats.openpose import read_raw_folder
 
     people = read_raw_folder(keypoint_folder)
@@ -122,7 +123,7 @@ def real(args: argparse.Namespace) -> int:
     print(f"{args.video.name} ({args.camera}, {frames} frames, focal {focal:.0f} px), turned pan/tilt/roll "
           f"{args.turn[0]:g}/{args.turn[1]:g}/{args.turn[2]:g} deg (largest {rotation_angle_deg(truth).max():.2f} deg)")
     print(f"still video's path: still={still_path.still}, largest turn {still_path.turn_deg().max():.3f} deg")
-    for name, motion in (("calibrated focal", turned_motion), ("26 mm default focal", default_motion)):
+    for name, motion in (("calibrated focal", turned_motion), ("no focal given", default_motion)):
         errors = rotation_errors_deg(motion.path(), truth)
         path = motion.path()
         print(f"turned video's rotation per frame ({name}, {path.focal_px:.0f} px): error median "

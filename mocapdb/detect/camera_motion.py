@@ -24,7 +24,8 @@ as still (identity rotations: a tripod gives the figures it gave before). A turn
 frames at a 600 px focal on a 640 px image (16 px of the shrunk image) is followed
 (``tests/test_camera_motion.py``); a faster whip can lose the tracks (Lucas-Kanade's pyramid of
 :data:`LK_LEVELS` levels), and a frame without tracks keeps the rotation before it until a new keyframe. Cost: a few
-milliseconds a frame on the shrunk image (``tools/bench_video.py``).
+milliseconds a frame on the shrunk image (``tools/bench_video.py``). Without a given focal, the
+path is refitted at the end at the focal the turn shows (:mod:`mocapdb.detect.focal_from_turn`).
 """
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ import numpy as np
 from mocapdb.core.formats.camera_path import CameraPath, intrinsic_matrix, rotation_angle_deg, write_camera_path
 from mocapdb.core.formats.take import default_focal_px
 from mocapdb.detect.errors import DetectError
+from mocapdb.detect.focal_from_turn import Matches, best_focal, kabsch, kept, rays, rotations_at, turn_from_key_deg
 
 WORK_SIDE_PX = 320        # the longer side of the grey image tracked (pixels)
 MAX_FEATURES = 100        # corners found per keyframe
@@ -52,21 +54,6 @@ STILL_DEG = 0.1           # a camera whose every frame turned less than this fro
 MIN_CONFIDENCE = 0.3      # keypoints that count for a person's box
 LK_WINDOW = (11, 11)
 LK_LEVELS = 3
-
-
-def rays(points_px: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
-    """Unit viewing rays ``[N, 3]`` (OpenCV axes) of pixels ``[N, 2]``."""
-    out = np.concatenate([points_px, np.ones((len(points_px), 1))], axis=1) @ np.linalg.inv(intrinsics).T
-    return out / np.linalg.norm(out, axis=1, keepdims=True)
-
-
-def kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Rotations ``[..., 3, 3]`` best taking rays ``a [..., N, 3]`` to ``b [..., N, 3]`` (least squares)."""
-    u, _, vt = np.linalg.svd(np.einsum("...ni,...nj->...ij", b, a))
-    d = np.sign(np.linalg.det(u @ vt))
-    fix = np.ones(u.shape[:-2] + (3,))
-    fix[..., 2] = d
-    return (u * fix[..., None, :]) @ vt
 
 
 def fit_rotation(a: np.ndarray, b: np.ndarray, threshold_rad: float, rng: np.random.Generator
@@ -125,6 +112,8 @@ class BackgroundMotion:
         self._key_count = 0
         self._key_rotation = np.eye(3)
         self._turned = False    # a frame has turned STILL_DEG from the first (online)
+        self._key_index = 0     # the keyframe's frame (an index into frames)
+        self._matches: list[Matches | None] = []   # each frame's tracks against its keyframe (focal_from_turn)
 
     def _start(self, image_size: tuple[int, int]) -> None:
         """The shrunk image's size and the intrinsics, from the first frame's ``image_size`` (px)."""
@@ -148,16 +137,18 @@ class BackgroundMotion:
         grey = cv2.resize(cv2.extractChannel(image, 1), self.small, interpolation=cv2.INTER_AREA)
         mask = people_mask(grey.shape, keypoints, self.scale)
         rotation, residual, parallax = self._key_rotation, float("nan"), float("nan")
+        matches = None if self._grey is None else Matches(self._key_index, np.zeros((0, 2)), np.zeros((0, 2)))
         if self._grey is not None and len(self._points):
             self._track(grey, mask)
             if len(self._points) >= 3:
-                relative, residual = self._fit()
+                relative, residual, matches = self._fit()
                 rotation = relative @ self._key_rotation
                 parallax = self._parallax()
         self.frames.append(int(number))
         self.rotations.append(rotation)
         self.residual_px.append(residual)
         self.parallax_px.append(parallax)
+        self._matches.append(matches)
         if len(self._points) < max(MIN_TRACKS, KEEP_SHARE * self._key_count):
             self._new_keyframe(grey, mask, rotation)
         self._grey = grey
@@ -190,14 +181,15 @@ class BackgroundMotion:
         keep[keep] &= mask[y[keep], x[keep]] > 0
         self._points, self._key_rays, self._key_points = ahead[keep], self._key_rays[keep], self._key_points[keep]
 
-    def _fit(self) -> tuple[np.ndarray, float]:
-        """The rotation from the keyframe to now and the rotation-only fit's median residual over the
-        tracks (full-image px)."""
+    def _fit(self) -> tuple[np.ndarray, float, Matches]:
+        """The rotation from the keyframe to now, the rotation-only fit's median residual over the
+        tracks (full-image px) and its inliers' matches (for the focal, :meth:`path`)."""
         now = rays(self._points.astype(np.float64), self.intrinsics)
-        relative, _ = fit_rotation(self._key_rays, now, INLIER_PX / self.intrinsics[0, 0], self.rng)
+        relative, inliers = fit_rotation(self._key_rays, now, INLIER_PX / self.intrinsics[0, 0], self.rng)
         predicted = (self._key_rays @ relative.T) @ self.intrinsics.T
         error = np.linalg.norm(predicted[:, :2] / predicted[:, 2:] - self._points, axis=1)
-        return relative, float(np.median(error)) / self.scale
+        matches = Matches(self._key_index, kept(self._key_points[inliers]), kept(self._points[inliers]))
+        return relative, float(np.median(error)) / self.scale, matches
 
     def _parallax(self) -> float:
         """The residual (full-image px, its :data:`PARALLAX_QUANTILE` over the tracks) of a free
@@ -219,6 +211,7 @@ class BackgroundMotion:
         self._key_points = self._points.copy()
         self._key_rays = rays(self._points.astype(np.float64), self.intrinsics)
         self._key_count, self._key_rotation = len(self._points), rotation
+        self._key_index = len(self.frames) - 1
 
     def path(self) -> CameraPath:
         """The path of the frames seen: the rotations from the first frame's camera, each frame's
@@ -227,13 +220,27 @@ class BackgroundMotion:
         (then every rotation is the identity)."""
         if not self.frames:
             raise ValueError("no frame seen: no camera path")
-        rotations = np.array(self.rotations)
+        rotations, focal_px = self._focal_from_turn()
         residual = np.array(self.residual_px)
         still = bool(np.all(rotation_angle_deg(rotations) < STILL_DEG))
         if still:
             rotations = np.broadcast_to(np.eye(3), rotations.shape).copy()
         moved = np.nan_to_num(np.array(self.parallax_px), nan=0.0) > PARALLAX_PX / self.scale
-        return CameraPath(np.array(self.frames), rotations, self.focal_px, self.center_px, residual, moved, still)
+        return CameraPath(np.array(self.frames), rotations, focal_px, self.center_px, residual, moved, still)
+
+    def _focal_from_turn(self) -> tuple[np.ndarray, float]:
+        """The rotations and the focal (full-image px): refitted at the focal the background's turn
+        shows (:mod:`~mocapdb.detect.focal_from_turn`) when none was given and it shows one, else
+        as measured."""
+        rotations = np.array(self.rotations)
+        if self.given_focal_px is not None:
+            return rotations, self.focal_px
+        keys = np.array([0 if m is None else m.key_frame for m in self._matches])
+        centre = (self.center_px[0] * self.scale, self.center_px[1] * self.scale)
+        focal = best_focal(self._matches, turn_from_key_deg(rotations, keys), self.intrinsics[0, 0], centre)
+        if focal is None:
+            return rotations, self.focal_px
+        return rotations_at(self._matches, focal, centre), focal / self.scale
 
     def finish(self, out_dir: Path) -> list[str]:
         """Write the path (``camera_path.json``) into ``out_dir``; returns the lines `detect` reports
