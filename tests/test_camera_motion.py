@@ -218,12 +218,18 @@ def test_live_uses_the_path_known_so_far():
     same the whole path gives at the end."""
     image = texture(9)
     truths = Rotation.from_euler("y", [[0.0], [0.02], [1.0], [2.0]], degrees=True).as_matrix()
-    motion = BackgroundMotion(FOCAL)
+    motion, live = BackgroundMotion(FOCAL), BackgroundMotion(FOCAL, history=False)
     online = []
     for number, turn in enumerate(truths):
-        motion.see(number, turned(image, turn), np.zeros((0, 17, 3)))
+        for m in (motion, live):
+            m.see(number, turned(image, turn), np.zeros((0, 17, 3)))
         online.append(motion.online())
+        np.testing.assert_array_equal(live.online() if online[-1] is not None else np.eye(3),
+                                      online[-1] if online[-1] is not None else np.eye(3))
     assert online[0] is None and online[1] is None
+    assert len(live.frames) == len(live.rotations) == 1          # live keeps the last frame only
+    with pytest.raises(ValueError, match="none kept"):
+        live.path()
     path = motion.path()
     for k in (2, 3):
         np.testing.assert_allclose(online[k], path.rotations[k])

@@ -96,10 +96,12 @@ class BackgroundMotion:
     """The camera's rotation per frame (module docstring) through a camera of ``focal_px`` (pixels;
     None: :func:`~mocapdb.core.formats.take.default_focal_px` of the first frame's size; the principal
     point at the image's centre): :meth:`see` each frame with its people, then :meth:`path`, or
-    :meth:`finish` to write it beside the keypoints (a `detect` frame watcher)."""
+    :meth:`finish` to write it beside the keypoints (a `detect` frame watcher). Without ``history``
+    (``live``) only the last frame is kept, for :meth:`online`: memory stays bounded however long
+    it runs, and there is no whole path."""
 
-    def __init__(self, focal_px: float | None = None) -> None:
-        self.given_focal_px = focal_px
+    def __init__(self, focal_px: float | None = None, history: bool = True) -> None:
+        self.given_focal_px, self.history = focal_px, history
         self.rng = np.random.default_rng(0)
         self.frames: list[int] = []
         self.rotations: list[np.ndarray] = []
@@ -152,6 +154,9 @@ class BackgroundMotion:
         if len(self._points) < max(MIN_TRACKS, KEEP_SHARE * self._key_count):
             self._new_keyframe(grey, mask, rotation)
         self._grey = grey
+        if not self.history:
+            for kept_so_far in (self.frames, self.rotations, self.residual_px, self.parallax_px, self._matches):
+                del kept_so_far[:-1]
 
     def online(self) -> np.ndarray | None:
         """The rotation (reference → the last frame seen) the path known so far gives, as ``live``
@@ -218,8 +223,8 @@ class BackgroundMotion:
         residual, ``moved`` where a free homography leaves over :data:`PARALLAX_PX`, ``still`` when no
         turn reached :data:`STILL_DEG`
         (then every rotation is the identity)."""
-        if not self.frames:
-            raise ValueError("no frame seen: no camera path")
+        if not self.frames or not self.history:
+            raise ValueError("no camera path: no frame seen, or none kept (history=False)")
         rotations, focal_px = self._focal_from_turn()
         residual = np.array(self.residual_px)
         still = bool(np.all(rotation_angle_deg(rotations) < STILL_DEG))

@@ -184,7 +184,7 @@ def open_video_source(spec: str, model: FrameDetector, *, every: int = 1, capaci
     DetectError on failure."""
     source: str | int = int(spec) if spec.isdigit() else spec
     return VideoDetections(source, model, every=every, capacity=capacity, stats=stats, paced=paced,
-                           motion=BackgroundMotion())
+                           motion=BackgroundMotion(history=False))
 
 
 def run_video(session: Session, video: VideoDetections, stop: threading.Event) -> None:
