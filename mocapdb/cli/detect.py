@@ -116,7 +116,7 @@ def run_detect(args: argparse.Namespace) -> int:
     from mocapdb.detect.camera_motion import BackgroundMotion
     from mocapdb.detect.detectors import open_detector
     from mocapdb.detect.errors import DetectError
-    from mocapdb.detect.openpose_out import DETECT_FILES, detect_video
+    from mocapdb.detect.openpose_out import DETECT_FILES, FrameWatcher, detect_video
     from mocapdb.detect.scene import SceneSampler
     from mocapdb.detect.video import VideoReader
 
@@ -132,7 +132,8 @@ def run_detect(args: argparse.Namespace) -> int:
     stop = threading.Event()
     try:
         with install_stop_handlers(stop):
-            watchers = [BackgroundMotion(), SceneSampler(reader.fps / args.every if reader.fps else None)]
+            scene_fps = reader.fps / args.every if reader.fps else None
+            watchers: list[FrameWatcher] = [BackgroundMotion(), SceneSampler(scene_fps)]
             summary = detect_video(reader, model, Path(args.out), args.every, stop, watchers=watchers)
     finally:
         reader.close()

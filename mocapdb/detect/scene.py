@@ -46,6 +46,7 @@ def line_segments(image: np.ndarray, boxes: np.ndarray) -> np.ndarray:
 def _detect(grey: np.ndarray) -> np.ndarray:
     """Segments ``[N, 4]`` of a grey image: LSD where OpenCV has it (:func:`detector_name`), else
     Canny + HoughLinesP."""
+    found: np.ndarray | None
     if detector_name() == "lsd":
         found = cv2.createLineSegmentDetector().detect(grey)[0]
     else:
