@@ -88,6 +88,18 @@ def test_a_still_camera_is_still_and_the_identity():
     assert path.derotate(frame) is frame
 
 
+
+def test_a_background_with_too_few_corners_holds_the_camera_still():
+    """Flat frames whose only corners are a counter's changing digits (as tests' synthetic videos are):
+    a handful of tracks that once read a 10 deg turn; now fewer than MIN_AGREE agree, so nothing turns."""
+    frames = []
+    for i in range(20):
+        image = np.full((SIZE[1], SIZE[0], 3), (i * 7) % 256, np.uint8)
+        cv2.putText(image, str(i), (10, SIZE[1] - 20), cv2.FONT_HERSHEY_SIMPLEX, 2, (255, 255, 255), 3)
+        frames.append(image)
+    path = run(frames)
+    assert path.still
+
 def test_people_are_masked_and_their_motion_does_not_turn_the_camera():
     """A quarter of the image is a 'person' that slides 30 px a frame: inside its box nothing is
     tracked, and the camera stays still."""

@@ -46,7 +46,8 @@ BOX_MARGIN = 0.25         # a person's keypoint box grown by this share of its s
 BACK_TRACK_PX = 0.5       # forward-backward disagreement tolerated (shrunk image pixels)
 INLIER_PX = 1.0           # RANSAC: a track this close to the rotation's prediction agrees (shrunk pixels)
 RANSAC_SAMPLES = 96       # two-ray hypotheses per frame
-MIN_TRACKS = 12           # fewer tracks than this: a new keyframe (fewer than 3: the rotation is held)
+MIN_TRACKS = 12           # fewer tracks than this: a new keyframe
+MIN_AGREE = 8             # fewer tracks than this agreeing on a rotation: the last frame's rotation is held
 KEEP_SHARE = 0.5          # a keyframe whose tracks fell under this share of those it began with is renewed
 PARALLAX_PX = 1.0         # a free homography's residual over this (shrunk image px, PARALLAX_QUANTILE): it moved
 PARALLAX_QUANTILE = 0.75  # of the tracks: a quarter of the background off (one plane may hold the rest)
@@ -138,14 +139,16 @@ class BackgroundMotion:
         # the green channel as the grey (most of the luminance), shrunk: half the cost of a colour conversion
         grey = cv2.resize(cv2.extractChannel(image, 1), self.small, interpolation=cv2.INTER_AREA)
         mask = people_mask(grey.shape, keypoints, self.scale)
-        rotation, residual, parallax = self._key_rotation, float("nan"), float("nan")
+        rotation = self.rotations[-1] if self.rotations else self._key_rotation
+        residual, parallax = float("nan"), float("nan")
         matches = None if self._grey is None else Matches(self._key_index, np.zeros((0, 2)), np.zeros((0, 2)))
         if self._grey is not None and len(self._points):
-            self._track(grey, mask)
-            if len(self._points) >= 3:
-                relative, residual, matches = self._fit()
-                rotation = relative @ self._key_rotation
-                parallax = self._parallax()
+            self._track(self._grey, grey, mask)
+            if len(self._points) >= MIN_AGREE:
+                relative, fit_residual, fit_matches, agreeing = self._fit()
+                if agreeing >= MIN_AGREE:   # else too little background to say: held
+                    rotation, residual, matches = relative @ self._key_rotation, fit_residual, fit_matches
+                    parallax = self._parallax()
         self.frames.append(int(number))
         self.rotations.append(rotation)
         self.residual_px.append(residual)
@@ -171,12 +174,12 @@ class BackgroundMotion:
         """``K`` of the full image (the first frame's size; its focal and centre)."""
         return intrinsic_matrix(self.focal_px, self.center_px)
 
-    def _track(self, grey: np.ndarray, mask: np.ndarray) -> None:
-        """The tracks followed into ``grey``: those that track back to where they were and stay out
-        of the people's boxes."""
-        ahead, ok, _ = cv2.calcOpticalFlowPyrLK(self._grey, grey, self._points, None, winSize=LK_WINDOW,
+    def _track(self, previous: np.ndarray, grey: np.ndarray, mask: np.ndarray) -> None:
+        """The tracks followed from ``previous`` into ``grey``: those that track back to where they
+        were and stay out of the people's boxes."""
+        ahead, ok, _ = cv2.calcOpticalFlowPyrLK(previous, grey, self._points, None, winSize=LK_WINDOW,
                                                 maxLevel=LK_LEVELS)
-        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(grey, self._grey, ahead, None, winSize=LK_WINDOW,
+        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(grey, previous, ahead, None, winSize=LK_WINDOW,
                                                     maxLevel=LK_LEVELS)
         returned = np.linalg.norm(back - self._points, axis=1) < BACK_TRACK_PX
         keep = (ok.ravel() == 1) & (ok_back.ravel() == 1) & returned
@@ -186,15 +189,15 @@ class BackgroundMotion:
         keep[keep] &= mask[y[keep], x[keep]] > 0
         self._points, self._key_rays, self._key_points = ahead[keep], self._key_rays[keep], self._key_points[keep]
 
-    def _fit(self) -> tuple[np.ndarray, float, Matches]:
+    def _fit(self) -> tuple[np.ndarray, float, Matches, int]:
         """The rotation from the keyframe to now, the rotation-only fit's median residual over the
-        tracks (full-image px) and its inliers' matches (for the focal, :meth:`path`)."""
+        tracks (full-image px), its inliers' matches (for the focal, :meth:`path`) and their count."""
         now = rays(self._points.astype(np.float64), self.intrinsics)
         relative, inliers = fit_rotation(self._key_rays, now, INLIER_PX / self.intrinsics[0, 0], self.rng)
         predicted = (self._key_rays @ relative.T) @ self.intrinsics.T
         error = np.linalg.norm(predicted[:, :2] / predicted[:, 2:] - self._points, axis=1)
         matches = Matches(self._key_index, kept(self._key_points[inliers]), kept(self._points[inliers]))
-        return relative, float(np.median(error)) / self.scale, matches
+        return relative, float(np.median(error)) / self.scale, matches, int(inliers.sum())
 
     def _parallax(self) -> float:
         """The residual (full-image px, its :data:`PARALLAX_QUANTILE` over the tracks) of a free
