@@ -76,7 +76,7 @@ def warp_video(source: str | Path, target: str | Path, intrinsics: np.ndarray, r
                 raise ValueError(f"{source}: more frames than the {len(rotations)} rotations given")
             height, width = image.shape[:2]
             if writer is None:
-                writer = cv2.VideoWriter(str(target), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+                writer = cv2.VideoWriter(str(target), cv2.VideoWriter.fourcc(*"mp4v"), fps, (width, height))
                 if not writer.isOpened():
                     raise ValueError(f"{target}: cannot be written")
             homography = intrinsics @ rotations[count] @ np.linalg.inv(intrinsics)
@@ -184,7 +184,8 @@ def feet_error_cm(fit: TrackFit, take: WorldTake, person: TruePerson, fps: float
     the frames its true foot is planted."""
     _, true = _sole_heights_m(fit, take.camera, person.spec.support_m)
     world = camera_to_world(person.cam_m[:, ANKLES], take.camera.height_m, 0.0, take.camera.pitch_deg)
-    planted = planted_feet(world, fps).any(axis=1)[np.clip(fit.frames, 0, len(world) - 1)]
+    feet = planted_feet(world, fps)
+    planted = (feet[:, 0] | feet[:, 1])[np.clip(fit.frames, 0, len(world) - 1)]
     return float(100.0 * np.median(np.abs(true[planted]))) if planted.any() else float("nan")
 
 

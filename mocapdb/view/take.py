@@ -185,7 +185,9 @@ def path_cameras(scene: FileScene, image: dict) -> list[dict]:
     ``camera_path``, files on the floor), the last labelled with its frame and turn; none for a still
     camera or without a floor. Frame ``t``'s rows are its right, down and forward: ``view_to_files_t``
     applied to the view frame's (as the reference camera's, ``FileScene.camera_axes``)."""
-    path = None if scene.world is None or scene.camera_scene is None else turning_path(scene.world)
+    if scene.world is None or scene.camera_scene is None:
+        return []
+    path = turning_path(scene.world)
     if path is None:
         return []
     turns = quat_to_matrix(np.array(path["view_to_files_wxyz"], dtype=np.float64))
