@@ -6,6 +6,7 @@ from __future__ import annotations
 import ctypes
 import errno
 import functools
+import json
 import os
 import re
 import shutil
@@ -89,6 +90,25 @@ def read_input_text(path: str | os.PathLike, max_bytes: int, error: type[Excepti
     except UnicodeDecodeError as exc:
         line = data[:exc.start].count(b"\n") + 1
         raise error(f"{os.fspath(path)}, line {line}: not UTF-8 text, not a {what}") from None
+
+
+def read_sidecar(folder: str | os.PathLike, name: str, max_bytes: int, error: type[Exception], what: str,
+                 form: str, version: int) -> tuple[Path, dict] | None:
+    """The JSON object of file ``name`` beside a take's files in ``folder`` and its path, checked to be
+    of ``form`` at ``version`` (None when there is no such file); ``error`` naming the file when it is
+    not (``what`` names the kind: "scene file", "camera path")."""
+    path = Path(folder) / name
+    if not Path(folder).is_dir() or not path.exists():
+        return None
+    try:
+        body = json.loads(read_input_text(path, max_bytes, error, what))
+    except (ValueError, RecursionError) as exc:
+        raise error(f"{path}: not a {what} ({exc})") from None
+    if not isinstance(body, dict) or body.get("format") != form:
+        raise error(f"{path}: not a {what} (format {form!r} expected)")
+    if body.get("version") != version:
+        raise error(f"{path}: version {body.get('version')!r}; this mocapdb reads version {version}")
+    return path, body
 
 
 # --- folders written whole: a temporary sibling, then swapped in --------------------------------

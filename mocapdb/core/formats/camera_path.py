@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.errors import MocapdbError
-from mocapdb.core.files import read_input_text, write_atomic
+from mocapdb.core.files import read_sidecar, write_atomic
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
 
@@ -189,18 +189,11 @@ def write_camera_path(folder: str | Path, path: CameraPath) -> Path:
 def read_camera_path(folder: str | Path) -> CameraPath | None:
     """The camera path in ``folder`` (None when there is none); CameraPathError naming the file and
     the field when it is broken."""
-    target = Path(folder) / CAMERA_PATH_FILE
-    if not Path(folder).is_dir() or not target.exists():
+    found = read_sidecar(folder, CAMERA_PATH_FILE, MAX_PATH_BYTES, CameraPathError, "camera path",
+                         CAMERA_PATH_FORMAT, CAMERA_PATH_VERSION)
+    if found is None:
         return None
-    try:
-        body = json.loads(read_input_text(target, MAX_PATH_BYTES, CameraPathError, "camera path"))
-    except (ValueError, RecursionError) as exc:
-        raise CameraPathError(f"{target}: not a camera path ({exc})") from None
-    if not isinstance(body, dict) or body.get("format") != CAMERA_PATH_FORMAT:
-        raise CameraPathError(f"{target}: not a camera path (format {CAMERA_PATH_FORMAT!r} expected)")
-    if body.get("version") != CAMERA_PATH_VERSION:
-        raise CameraPathError(f"{target}: version {body.get('version')!r}; this mocapdb reads version "
-                              f"{CAMERA_PATH_VERSION}")
+    target, body = found
     try:
         quats = np.asarray(body["quaternions_wxyz"], dtype=np.float64)
         if quats.ndim != 2 or quats.shape[1] != 4 or not np.allclose(np.linalg.norm(quats, axis=1), 1.0, atol=1e-5):

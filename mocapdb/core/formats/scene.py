@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.errors import MocapdbError
-from mocapdb.core.files import read_input_text, write_atomic
+from mocapdb.core.files import read_sidecar, write_atomic
 
 SCENE_FILE = "scene.json"
 SCENE_FORMAT = "mocapdb-scene"
@@ -68,17 +68,10 @@ def write_scene(folder: str | Path, scene: SceneLines) -> Path:
 def read_scene(folder: str | Path) -> SceneLines | None:
     """The scene's lines in ``folder`` (None when there is no ``scene.json``); SceneError when it is
     broken."""
-    path = Path(folder) / SCENE_FILE
-    if not Path(folder).is_dir() or not path.exists():
+    found = read_sidecar(folder, SCENE_FILE, MAX_SCENE_BYTES, SceneError, "scene file", SCENE_FORMAT, SCENE_VERSION)
+    if found is None:
         return None
-    try:
-        body = json.loads(read_input_text(path, MAX_SCENE_BYTES, SceneError, "scene file"))
-    except (ValueError, RecursionError) as exc:
-        raise SceneError(f"{path}: not a scene file ({exc})") from None
-    if not isinstance(body, dict) or body.get("format") != SCENE_FORMAT:
-        raise SceneError(f"{path}: not a scene file (format {SCENE_FORMAT!r} expected)")
-    if body.get("version") != SCENE_VERSION:
-        raise SceneError(f"{path}: version {body.get('version')!r}; this mocapdb reads version {SCENE_VERSION}")
+    path, body = found
     try:
         frames = body["frames"]
         size = tuple(int(v) for v in body["image_size"])

@@ -17,7 +17,7 @@ from typing import TypedDict, TypeVar
 
 from mocapdb.core import domains as D
 from mocapdb.core.errors import MocapdbError, UsageError
-from mocapdb.core.files import read_input_text, write_atomic
+from mocapdb.core.files import read_sidecar, write_atomic
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 
 TAKE_FILE = "take.json"
@@ -133,17 +133,10 @@ def write_take(folder: str | Path, info: TakeInfo) -> Path:
 
 def read_take(folder: str | Path) -> TakeInfo | None:
     """The take description in ``folder`` (None when there is none); TakeError when it is broken."""
-    path = Path(folder) / TAKE_FILE
-    if not Path(folder).is_dir() or not path.exists():
+    found = read_sidecar(folder, TAKE_FILE, MAX_TAKE_BYTES, TakeError, "take description", TAKE_FORMAT, TAKE_VERSION)
+    if found is None:
         return None
-    try:
-        body = json.loads(read_input_text(path, MAX_TAKE_BYTES, TakeError, "take description"))
-    except (ValueError, RecursionError) as exc:
-        raise TakeError(f"{path}: not a take description ({exc})") from None
-    if not isinstance(body, dict) or body.get("format") != TAKE_FORMAT:
-        raise TakeError(f"{path}: not a take description (format {TAKE_FORMAT!r} expected)")
-    if body.get("version") != TAKE_VERSION:
-        raise TakeError(f"{path}: version {body.get('version')!r}; this mocapdb reads version {TAKE_VERSION}")
+    path, body = found
     size = body.get("image_size")
     try:
         return TakeInfo(fps=body.get("fps"), image_size=tuple(size) if isinstance(size, list) else size,
