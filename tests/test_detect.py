@@ -319,6 +319,14 @@ def test_run_video_hands_every_frame_to_the_session(video, yolo_model):
     assert not live._thread.is_alive()
 
 
+def test_a_video_file_measures_its_camera_path_unless_filmed_still(video, yolo_model):
+    """live measures a file's camera path from the background; --still-camera (turning=False) skips it."""
+    for turning, measured in ((True, True), (False, False)):
+        live = open_video_source(str(video), PoseModel(yolo_model), turning=turning)
+        assert (live.motion is not None) is measured
+        live.close()
+
+
 def test_open_video_source_reads_digits_as_a_camera(yolo_model):
     with pytest.raises(DetectError, match="camera 99: cannot be opened"):
         open_video_source("99", PoseModel(yolo_model))

@@ -1,4 +1,4 @@
-"""`mocapdb live`'s options for a video source: the hands' rate and a file delivered at its frame rate."""
+"""`mocapdb live`'s options for a video source: the hands' rate, a still camera, a file delivered at its frame rate."""
 from __future__ import annotations
 
 import argparse
@@ -8,11 +8,14 @@ from mocapdb.detect.hand_schedule import LIVE_HANDS_EVERY
 
 
 def add_live_video_options(p: argparse.ArgumentParser) -> None:
-    """``--hands-every N`` (:mod:`mocapdb.detect.hand_schedule`) and ``--realtime``
+    """``--hands-every N`` (:mod:`mocapdb.detect.hand_schedule`), ``--still-camera`` and ``--realtime``
     (:class:`~mocapdb.runtime.stream.video_input.DecodedFrames`, ``paced``)."""
     p.add_argument("--hands-every", type=D.MODEL_EVERY, default=LIVE_HANDS_EVERY, metavar="N",
                    help="with --hands on a video: each hand's landmarks every N-th frame, carried with the pose's "
                         "hand between (sooner when it moves fast); 1: every frame (default %(default)s)")
+    p.add_argument("--still-camera", action="store_true",
+                   help="a video file filmed from a tripod: no camera path measured from the background (about "
+                        "2.5 ms a frame saved); a camera device (an index) is always taken as still")
     p.add_argument("--realtime", action="store_true",
                    help="a video file delivered at its frame rate, as a camera would (late frames dropped; the "
                         "latency a camera would give); default: as fast as detection goes")

@@ -467,7 +467,7 @@ def run_live(args: argparse.Namespace) -> int:
                                          fast=fast_path(args), hands=args.hands, hands_every=args.hands_every,
                                          faces=args.face)
                 video = open_video_source(args.source, detector, capacity=args.buffer, stats=session.summary.stream,
-                                          paced=args.realtime)
+                                          paced=args.realtime, turning=not args.still_camera)
                 run_video(session, video, stop)
             else:
                 source = open_source(args.source, stats=session.summary.stream, follow=True,

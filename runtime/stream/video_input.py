@@ -176,15 +176,17 @@ def is_video_source(spec: str) -> bool:
 
 
 def open_video_source(spec: str, model: FrameDetector, *, every: int = 1, capacity: int = 2,
-                      stats: StreamStats | None = None, paced: bool = False) -> VideoDetections:
+                      stats: StreamStats | None = None, paced: bool = False, turning: bool = True
+                      ) -> VideoDetections:
     """``mocapdb live --source SPEC`` on a video: SPEC of digits is a camera index, anything else a
     video file (``paced``: delivered at its frame rate), ``model`` the detector
-    (:func:`~mocapdb.detect.detectors.open_detector`), the camera's path measured from the
-    background as the frames come (:class:`~mocapdb.detect.camera_motion.BackgroundMotion`);
-    DetectError on failure."""
+    (:func:`~mocapdb.detect.detectors.open_detector`); on a file that may have ``turning``, the
+    camera's path measured from the background as the frames come
+    (:class:`~mocapdb.detect.camera_motion.BackgroundMotion`); a camera device stands still (a webcam
+    on a desk or a tripod: data_specs/world.md, "A camera that turns"). DetectError on failure."""
     source: str | int = int(spec) if spec.isdigit() else spec
-    return VideoDetections(source, model, every=every, capacity=capacity, stats=stats, paced=paced,
-                           motion=BackgroundMotion(history=False))
+    motion = BackgroundMotion(history=False) if turning and isinstance(source, str) else None
+    return VideoDetections(source, model, every=every, capacity=capacity, stats=stats, paced=paced, motion=motion)
 
 
 def run_video(session: Session, video: VideoDetections, stop: threading.Event) -> None:
