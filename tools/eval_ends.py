@@ -1,7 +1,7 @@
 """The head, hands and feet against synthetic truth (issue 49, item 6; mocapdb/evaluation/ends.py): held-out
 clips on the accuracy gate's three bodies, their face, hand and foot points attached to the clips' own head,
 hands and feet, seen from 6 yaws, exact and with noise; the median geodesic error (degrees) of each end
-bone's global rotation in the humanoid BVH (whole take) and in the stream at lag 0, and not turned.
+bone's global rotation in the humanoid BVH (whole take) and in the stream at lag 0 (``--lag``), and not turned.
 
     .venv/bin/python tools/eval_ends.py [--db demo/sample.db] [--bvh data/gate/cmu_bvh/007_01.bvh ...]
 
@@ -26,9 +26,11 @@ def main() -> None:
                         help="held-out clips (Character Creator rigs, none of them in the database)")
     parser.add_argument("--yaws", type=float, nargs="+", default=list(ENDS_YAWS_DEG))
     parser.add_argument("--max-frames", type=int, default=MAX_FRAMES)
+    parser.add_argument("--lag", type=int, default=0, help="the stream's lag (frames)")
     args = parser.parse_args()
     t0 = time.perf_counter()
-    results = evaluate_ends(load_database(args.db), args.bvh, yaws_deg=tuple(args.yaws), max_frames=args.max_frames)
+    results = evaluate_ends(load_database(args.db), args.bvh, yaws_deg=tuple(args.yaws), max_frames=args.max_frames,
+                            lag_frames=args.lag)
     print(format_ends(results))
     print(f"\n{len(args.bvh)} clips x 3 bodies x {len(args.yaws)} yaws per input; {time.perf_counter() - t0:.0f} s")
 

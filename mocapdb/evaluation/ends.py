@@ -6,7 +6,8 @@ geodesic angle between the true and the estimated global rotation (view frame) o
 
 * **whole take**: the humanoid BVH of ``reconstruct`` (the engine as it runs for the track files, then the
   whole-take fit; forward kinematics of ``motion_bvh(…, rig="humanoid")``);
-* **stream**: the default stream at lag 0 (the online take's ``end_quaternions`` on its rotations).
+* **stream**: the default stream at lag 0, or another lag (the online take's ``end_quaternions`` on its
+  rotations).
 
 Each is also scored **not turned** (end rotations left at identity: the bone where its parent puts it),
 what the end joints' own measure must beat.
@@ -41,7 +42,6 @@ HUMANOID_ENDS = ("RightFoot", "LeftFoot", "RightHand", "LeftHand", "Head")   # E
 GROUPS = {"head": (4,), "hands": (2, 3), "feet": (0, 1)}                      # rows of END_JOINTS
 SCENARIOS = (Scenario("exact 2D"),
              Scenario("sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05))
-VARIANTS = ("whole take", "whole take, not turned", "stream lag 0", "stream lag 0, not turned")
 ENDS_YAWS_DEG = (3.0, 63.0, 123.0, 183.0, 243.0, 303.0)   # all round, 3 deg off the database's 12 deg grid
 
 
@@ -49,14 +49,14 @@ ENDS_YAWS_DEG = (3.0, 63.0, 123.0, 183.0, 243.0, 303.0)   # all round, 3 deg off
 class EndErrors:
     """Geodesic errors (degrees) per variant: ``[N, 5]`` rows of frames, END_JOINTS columns (NaN: no output)."""
 
-    errors: dict[str, list[np.ndarray]] = field(default_factory=lambda: {v: [] for v in VARIANTS})
+    errors: dict[str, list[np.ndarray]] = field(default_factory=dict)
 
     def add(self, variant: str, errors_deg: np.ndarray) -> None:
-        self.errors[variant].append(errors_deg)
+        self.errors.setdefault(variant, []).append(errors_deg)
 
     def extend(self, other: EndErrors) -> None:
         for variant, rows in other.errors.items():
-            self.errors[variant].extend(rows)
+            self.errors.setdefault(variant, []).extend(rows)
 
     def medians(self) -> dict[str, dict[str, float]]:
         """Per variant and :data:`GROUPS` entry the median error (degrees) over frames, views and sides."""
@@ -116,12 +116,12 @@ def whole_take_ends(db: MotionDatabase, engine: EngineConfig, frames: list[Keypo
     return out[0], out[1]
 
 
-def stream_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame]
+def stream_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], lag_frames: int = 0
                 ) -> tuple[np.ndarray, np.ndarray]:
     """As :func:`whole_take_ends` for the default stream at lag 0 (the online take's rotations and
     ``end_quaternions``; one person: each frame's first pose)."""
     config = stream_config(engine)
-    online = OnlineTake(config.fps, OnlineParams(lag_frames=0), (config.focal_px, *config.center_px))
+    online = OnlineTake(config.fps, OnlineParams(lag_frames=lag_frames), (config.focal_px, *config.center_px))
     run = Engine(db, config)
     poses: list[PersonPose | None] = [None] * len(frames)
     for i, frame in enumerate(frames):
@@ -153,14 +153,19 @@ def view_frames(posed_m: np.ndarray, truth: EndTruth, stature: float, yaw_deg: f
     return frames, np.einsum("ij,fkjl->fkil", view, truth.rotations)
 
 
+def variants(lag_frames: int = 0) -> tuple[str, ...]:
+    """The outputs scored: the whole take and the stream at ``lag_frames``, each turned and not turned."""
+    return ("whole take", "whole take, not turned", f"stream lag {lag_frames}", f"stream lag {lag_frames}, not turned")
+
+
 def score_ends(db: MotionDatabase, posed_m: np.ndarray, truth: EndTruth, stature: float, yaw_deg: float,
-               scenario: Scenario, config: EvalConfig) -> EndErrors:
-    """One body, view and scenario through the engine: the errors of every :data:`VARIANTS` entry."""
+               scenario: Scenario, config: EvalConfig, lag_frames: int = 0) -> EndErrors:
+    """One body, view and scenario through the engine: the errors of every output (:func:`variants`)."""
     frames, true_view = view_frames(posed_m, truth, stature, yaw_deg, scenario, config)
     engine = gate_engine_config(config)
     out = EndErrors()
-    estimates = whole_take_ends(db, engine, frames, config.fps) + stream_ends(db, engine, frames)
-    for variant, estimate in zip(VARIANTS, estimates):
+    estimates = whole_take_ends(db, engine, frames, config.fps) + stream_ends(db, engine, frames, lag_frames)
+    for variant, estimate in zip(variants(lag_frames), estimates):
         out.add(variant, geodesic_deg(estimate, true_view))
     return out
 
@@ -177,8 +182,10 @@ def ends_truths(bvh_files: Iterable[Path], max_frames: int, yaws_deg: tuple[floa
 
 def evaluate_ends(db: MotionDatabase, bvh_files: Iterable[Path], bodies: tuple[GateBody, ...] = GATE_BODIES,
                   scenarios: tuple[Scenario, ...] = SCENARIOS, yaws_deg: tuple[float, ...] = ENDS_YAWS_DEG,
-                  max_frames: int = MAX_FRAMES, config: EvalConfig | None = None) -> dict[str, EndErrors]:
-    """Every clip on every body from every yaw under each scenario: the errors per scenario name."""
+                  max_frames: int = MAX_FRAMES, config: EvalConfig | None = None, lag_frames: int = 0
+                  ) -> dict[str, EndErrors]:
+    """Every clip on every body from every yaw under each scenario (the stream at ``lag_frames``): the errors
+    per scenario name."""
     config = config or EvalConfig()
     out = {s.name: EndErrors() for s in scenarios}
     for truth, ends in ends_truths(bvh_files, max_frames, yaws_deg, config.fps):
@@ -187,7 +194,8 @@ def evaluate_ends(db: MotionDatabase, bvh_files: Iterable[Path], bodies: tuple[G
             posed = reshape_body(truth.source_joints(), lengths)
             for scenario in scenarios:
                 for yaw in yaws_deg:
-                    out[scenario.name].extend(score_ends(db, posed, ends, stature_m(lengths), yaw, scenario, config))
+                    out[scenario.name].extend(score_ends(db, posed, ends, stature_m(lengths), yaw, scenario, config,
+                                                         lag_frames))
     return out
 
 
