@@ -27,6 +27,7 @@ BlazePose gives: heels, foot tips, index and little-finger knuckles, eyes, ears,
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -142,7 +143,7 @@ def load_end_truth(path: Path, fps: float, max_frames: int) -> EndTruth:
     return EndTruth(path.stem, resampled[middle_frames(len(resampled), max_frames)])
 
 
-def _layout(points: dict[str, tuple[float, ...]], mirror: bool) -> np.ndarray:
+def _layout(points: Mapping[str, tuple[float, ...]], mirror: bool) -> np.ndarray:
     out = np.array(list(points.values()))
     return out * [-1.0, 1.0, 1.0] if mirror else out
 

@@ -131,7 +131,7 @@ def stream_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointF
     out = np.full((2, len(frames), len(END_JOINTS), 3, 3), np.nan)
     have = [i for i, p in enumerate(poses) if p is not None and p.end_quaternions is not None]
     if have:
-        kept = [poses[i] for i in have]
+        kept = [p for p in poses if p is not None and p.end_quaternions is not None]
         motion = Motion(np.array([p.quaternions for p in kept]), np.array([p.root_m for p in kept]) * CAMERA_FROM_VIEW,
                         config.fps, "view", end_rotations=np.array([p.end_quaternions for p in kept]))
         for k, globals_ in enumerate(_both(motion)):
@@ -191,11 +191,10 @@ def evaluate_ends(db: MotionDatabase, bvh_files: Iterable[Path], bodies: tuple[G
     for truth, ends in ends_truths(bvh_files, max_frames, yaws_deg, config.fps):
         for body in bodies:
             lengths = body.lengths_m()
-            posed = reshape_body(truth.source_joints(), lengths)
+            posed, stature = reshape_body(truth.source_joints(), lengths), float(stature_m(lengths))
             for scenario in scenarios:
                 for yaw in yaws_deg:
-                    out[scenario.name].extend(score_ends(db, posed, ends, stature_m(lengths), yaw, scenario, config,
-                                                         lag_frames))
+                    out[scenario.name].extend(score_ends(db, posed, ends, stature, yaw, scenario, config, lag_frames))
     return out
 
 
