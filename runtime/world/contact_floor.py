@@ -10,6 +10,7 @@ import numpy as np
 MIN_FLOOR_SPREAD_M = 0.3  # RMS extent of the contacts (≈ 1 m end to end) along a direction they fix
 MAX_FLOOR_RMS_M = 0.03    # contacts farther off their plane (RMS) are not one floor: their plane is not trusted
 FLOOR_BAND_M = 0.15       # contacts within this of the lowest are on the floor; higher: steps (risers 15-20 cm)
+FLOOR_MIN_SHARE = 0.25    # the floor holds at least this share of a track's contacts (data_specs/world.md)
 
 
 def floor_plane(ankles_view_m: np.ndarray, planted: np.ndarray, up: np.ndarray,
@@ -57,10 +58,16 @@ def coplanar_spread(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def lowest_level(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """The contacts ``[N, 3]`` within :data:`FLOOR_BAND_M` of the lowest ones along ``normal`` (their
-    5th percentile): those on the floor, not on a step or platform above it."""
+    """The contacts ``[N, 3]`` on the lowest level along ``normal``: those on the floor, not on a step
+    or platform above it. A level is a band :data:`FLOOR_BAND_M` high from one contact up; the lowest
+    that holds :data:`FLOOR_MIN_SHARE` of the contacts (or as many as the fullest band, if fewer) is
+    the floor. A few strays below it (an ankle whose depth drifts as the body leaves the image: 10 %
+    of a take's contacts 20 cm low) do not make a floor of their own."""
     heights = points @ normal
-    return points[heights <= np.quantile(heights, 0.05) + FLOOR_BAND_M]
+    order = np.sort(heights)
+    held = np.searchsorted(order, order + FLOOR_BAND_M, side="right") - np.arange(len(order))
+    base = order[np.argmax(held >= min(FLOOR_MIN_SHARE * len(order), held.max()))]
+    return points[(heights >= base) & (heights <= base + FLOOR_BAND_M)]
 
 
 def _floor_height(points: np.ndarray, normal: np.ndarray) -> float:
