@@ -21,7 +21,9 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    the layout gives them, else its ankle's. A foot is planted when it is slower than
    ``planted_box_per_s`` and within ``planted_height_m`` of the lower ankle (along the track's
    estimated up), and stays planted until it is faster than ``release_factor`` times that, or rises
-   ``release_factor`` times that height above the other foot.
+   ``release_factor`` times that height above the other foot while its image is no longer still
+   (faster than ``planted_box_per_s``): a lag-0 fit that raises a foot the image shows still (a pose
+   retrieved with the legs' depth wrong) does not lift it.
 3. **The root carried by the planted foot.** When a foot is planted its ankle's place becomes its
    anchor; while a foot is planted the root is where its anchor puts it (both planted: the mean),
    blended in and out with the feet's IK weights (rising and falling over ``blend_s``, eased by a
@@ -29,6 +31,10 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    per-frame root is kept as a correction that fades with time constant ``settle_s`` once no foot
    carries the body. A planted anchor follows the per-frame evidence at most
    ``anchor_follow_mps``: a depth error cannot hold it forever, and it slides no faster than that.
+   The root so carried moves with every shake of the legs' rotations (the anchor less the ankle),
+   so it goes through one more constant-velocity Kalman filter (:class:`RootFilter`, as precise
+   along the viewing ray as across it: ``carried_root_sd_m``), whose pull is kept level and short
+   enough that every planted leg still reaches its anchor (:meth:`OnlineTrack._steadied`).
 4. **A planted foot locked in place**: the legs turned by the whole take's two-bone IK
    (:func:`~mocapdb.runtime.take.plant_feet`) onto their anchors, the weight blended in and out over
    ``blend_s``. The floor (reported, not enforced) is the median height of the last anchors along
@@ -56,7 +62,14 @@ import numpy as np
 
 from mocapdb.core.geometry import quat_turned_towards
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose
-from mocapdb.core.skeleton import ANKLE_HEIGHT_M, RIG_JOINTS, UNIVERSAL_HEIGHT_M, body_offsets_m, pose_from_rotations
+from mocapdb.core.skeleton import (
+    ANKLE_HEIGHT_M,
+    KP,
+    RIG_JOINTS,
+    UNIVERSAL_HEIGHT_M,
+    body_offsets_m,
+    pose_from_rotations,
+)
 from mocapdb.runtime.filters import OneEuroParams
 from mocapdb.runtime.foot_contacts import ANKLES, CONTACT_WINDOW_S, HEELS, TOES
 from mocapdb.runtime.online_ends import OnlineEnds
@@ -64,6 +77,7 @@ from mocapdb.runtime.online_fingers import OnlineFingers
 from mocapdb.runtime.root_filter import RootFilter
 from mocapdb.runtime.rotation_kalman import RotationKalman, RotationNoise, joint_confidence
 from mocapdb.runtime.take import plant_feet
+from mocapdb.runtime.take_params import TakeParams
 
 Frame = tuple[int, float, list[PersonPose]]  # frame index, time (s), the people in it
 
@@ -77,6 +91,7 @@ JOINT_SPEED_DEG_S = {"pelvis": 900.0, "spine": 900.0, "neck": 900.0, "r_hip": 14
 # retrieved poses (runtime.filters) with its still-joint cut-off halved
 CAUSAL_ROTATIONS = OneEuroParams(min_cutoff_hz=0.5, beta=0.3)
 FLOOR_SAMPLES = 31  # the floor: the median height of this many last anchors
+HIPS, KNEES = (KP["r_hip"], KP["l_hip"]), (KP["r_knee"], KP["l_knee"])
 
 
 @dataclass(frozen=True)
@@ -93,11 +108,12 @@ class OnlineParams:
     settle_s: float = 0.4
     anchor_follow_mps: float = 0.02
     root_speed_mps: float = 6.0
+    carried_root_sd_m: float = 0.05
     rotation_noise: RotationNoise = RotationNoise()
 
     def __post_init__(self) -> None:
         positive = (self.smoothing_hz, self.planted_box_per_s, self.planted_height_m, self.blend_s, self.settle_s,
-                    self.root_speed_mps)
+                    self.root_speed_mps, self.carried_root_sd_m)
         if self.lag_frames < 0 or self.release_factor < 1 or self.anchor_follow_mps < 0 \
                 or not all(np.isfinite(v) and v > 0 for v in positive):
             raise ValueError(f"online take settings out of range: {self}")
@@ -172,6 +188,8 @@ class OnlineTrack:
         self.correction = np.zeros(3)       # output root − per-frame root (view frame, metres)
         self.previous: tuple[int, np.ndarray, np.ndarray] | None = None  # index, rotations, root of the last output
         self.root = RootFilter(fps)  # the whole take's root model, causal
+        sd = params.carried_root_sd_m   # the carried root's: a measurement as precise along the ray as across
+        self.carried = RootFilter(fps, TakeParams(root_across_m=sd, root_depth_m=sd))
         self.rotations = RotationKalman(fps, params.lag_frames, params.rotation_noise)
         self.max_turn = np.radians([JOINT_SPEED_DEG_S[j] for j in RIG_JOINTS]) / fps  # radians per frame
 
@@ -203,9 +221,10 @@ class OnlineTrack:
         quats = self.rotations.estimate(index)
         evidence_root = self._smoothed_root(index)
         up = np.array([0.0, 1.0, 0.0]) if pose.up_view is None else np.asarray(pose.up_view, dtype=np.float64)
-        ankles = pose_from_rotations(quats[None], np.zeros((1, 3)), scale, offsets)[0, list(ANKLES)]
+        body = pose_from_rotations(quats[None], np.zeros((1, 3)), scale, offsets)[0]   # about the root
+        ankles = body[list(ANKLES)]
         self._contacts(index, ankles @ up, scale)
-        root = self._carried_root(evidence_root, ankles, up, scale, dt)
+        root = self._steadied(index, self._carried_root(evidence_root, ankles, up, scale, dt), body, up)
         quats, root = self._speed_limited(index, quats, root)
         feet = self.feet
         if feet.weight.any():
@@ -237,9 +256,9 @@ class OnlineTrack:
         lowest = ankle_heights_m.min()
         for k in range(2):
             above = ankle_heights_m[k] - lowest
-            if feet.planted[k]:
+            if feet.planted[k]:   # risen in the fit while still in the image: the fit's pop, not a step
                 release = speed[k] > p.release_factor * p.planted_box_per_s \
-                    or above > p.release_factor * p.planted_height_m * scale
+                    or (above > p.release_factor * p.planted_height_m * scale and speed[k] >= p.planted_box_per_s)
                 feet.planted[k] = not release
             else:
                 feet.planted[k] = speed[k] < p.planted_box_per_s and above <= p.planted_height_m * scale
@@ -281,6 +300,29 @@ class OnlineTrack:
         step = evidence_root + ankles[planted] - feet.anchor[planted]
         length = np.linalg.norm(step, axis=-1, keepdims=True)
         feet.anchor[planted] += step * np.minimum(1.0, p.anchor_follow_mps * dt / np.maximum(length, 1e-12))
+        return root
+
+    def _steadied(self, index: int, root: np.ndarray, body: np.ndarray, up: np.ndarray) -> np.ndarray:
+        """Step 3's root ``[3]`` (view frame, m) through :attr:`carried`, a filter as precise along the
+        viewing ray as across it (``carried_root_sd_m``): the legs' rotations that carry the root
+        shake it no more. Its pull is level (a planted leg reaches no higher) and no longer than
+        keeps every planted anchor within its leg's reach (thigh + shank of ``body [15, 3]``, the
+        joints about the root) from the hip."""
+        pull = self.carried(index, root) - root
+        pull -= (pull @ up) * up
+        feet = self.feet
+        carrying = np.flatnonzero(feet.weight > 0)
+        if not len(carrying):
+            return root + pull
+        hips, knees, ankles = (body[list(j)][carrying] for j in (HIPS, KNEES, ANKLES))
+        reach = np.linalg.norm(knees - hips, axis=-1) + np.linalg.norm(ankles - knees, axis=-1)
+        c = root + hips - feet.anchor[carrying]          # anchor → hip now; |c + s pull| ≤ reach for s ≤ 1
+        a, b, slack = pull @ pull, c @ pull, reach ** 2 - np.einsum("ij,ij->i", c, c)
+        slack = np.maximum(slack, 0.0)
+        if a < 1e-18:
+            return root + pull
+        root = root + pull * float(np.clip((-b + np.sqrt(b * b + a * slack)) / a, 0.0, 1.0).min())
+        self.carried.constrain(root)
         return root
 
     def _speed_limited(self, index: int, quats: np.ndarray, root: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -63,6 +63,12 @@ class RootFilter:
         self.last = (index, state, 0.5 * (covariance + covariance.T))
         return state[:3].copy()
 
+    def constrain(self, root_m: np.ndarray) -> None:
+        """Move the last estimate to ``root_m [3]`` (view frame, metres; a constraint the caller put
+        on it): the next frame is predicted from where the root was put, at the same velocity."""
+        if self.last is not None:
+            self.last[1][:3] = root_m
+
     def _measurement_noise(self, root_m: np.ndarray) -> np.ndarray:
         """``[3, 3]``: ``root_across_m`` across the viewing ray, ``root_depth_m`` along it (SDs)."""
         p = self.params
