@@ -4,6 +4,7 @@ hands and feet, seen from 6 yaws, exact and with noise; the median geodesic erro
 bone's global rotation in the humanoid BVH (whole take) and in the stream at lag 0 (``--lag``), and not turned.
 
     .venv/bin/python tools/eval_ends.py [--db demo/sample.db] [--bvh data/gate/cmu_bvh/007_01.bvh ...]
+        [--hand-points 21]
 
 The default clips are the gate's (data/gate/cmu_bvh: 007_01, 007_12, 002_05, none in demo/sample.db).
 Prints a Markdown table (docs/benchmarks.md, "Head, hands and feet against synthetic truth").
@@ -27,10 +28,13 @@ def main() -> None:
     parser.add_argument("--yaws", type=float, nargs="+", default=list(ENDS_YAWS_DEG))
     parser.add_argument("--max-frames", type=int, default=MAX_FRAMES)
     parser.add_argument("--lag", type=int, default=0, help="the stream's lag (frames)")
+    parser.add_argument("--hand-points", type=int, choices=(3, 21), default=3,
+                        help="the hands as BlazePose's 3 points, or with the hand landmark model's 21 (detect --hands)"
+                             " and the fingers' bends scored")
     args = parser.parse_args()
     t0 = time.perf_counter()
     results = evaluate_ends(load_database(args.db), args.bvh, yaws_deg=tuple(args.yaws), max_frames=args.max_frames,
-                            lag_frames=args.lag)
+                            lag_frames=args.lag, hand_points=args.hand_points)
     print(format_ends(results))
     print(f"\n{len(args.bvh)} clips x 3 bodies x {len(args.yaws)} yaws per input; {time.perf_counter() - t0:.0f} s")
 

@@ -67,6 +67,10 @@ class EndTruth:
 
     name: str
     rotations: np.ndarray
+    # [F, 2, 21, 3] the right then the left hand's 21 points (the hand landmark model's order: wrist, thumb
+    # CMC-MCP-IP-tip, index, middle, ring, pinky MCP-PIP-DIP-tip) in the hand's own frame (metres of a
+    # 1.75 m adult: the rig's hand scaled so the index knuckle is as far from the wrist as in HAND_M)
+    hand_points_m: np.ndarray | None = None
 
 
 def _cc(name: str) -> str:
@@ -124,6 +128,34 @@ def end_frames_of(bvh: Bvh, up: np.ndarray, metres: float) -> np.ndarray:
     return np.stack(feet + hands + [rotations[:, -1]], axis=1)
 
 
+FINGER_BONES = ("Thumb", "Index", "Mid", "Ring", "Pinky")   # the CC rig's, in core.fingers.FINGERS order
+# The distal bone's length as a share of the one before it (hand_rig.PHALANX_SHARES: the thumb's distal /
+# proximal phalanx, the fingers' distal / middle): the CC rig's last finger joints end in zero-length sites
+TIP_SHARES = (0.158 / 0.196, 0.097 / 0.143, 0.108 / 0.170, 0.107 / 0.165, 0.093 / 0.117)
+
+
+def hand_points_of(bvh: Bvh, up: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """``[F, 2, 21, 3]`` each hand's 21 points (:class:`EndTruth`, file units) of a CC_Base rig ``bvh`` in the
+    hand frames ``frames [F, 5, 3, 3]`` (:func:`end_frames_of`; ``up`` as there). Each fingertip continues its
+    last joint's bone (that joint's rest offset, turned by it) by :data:`TIP_SHARES`."""
+    hands = []
+    for h, (side, _) in enumerate(SIDES):
+        chains = [[_cc(f"{side}_{bone}{k}") for k in (1, 2, 3)] for bone in FINGER_BONES]
+        names = [_cc(f"{side}_Hand")] + [n for chain in chains for n in chain]
+        positions, rotations = forward_kinematics(bvh, [bvh.index(n) for n in names])
+        joints = positions[:, 1:].reshape(len(positions), 5, 3, 3)
+        last = rotations[:, 3::3]                                                  # [F, 5, 3, 3] each finger's 3rd
+        offsets = np.array([bvh.offsets[bvh.index(chain[2])] for chain in chains]) * np.array(TIP_SHARES)[:, None]
+        tips = joints[:, :, 2] + np.einsum("gfij,fj->gfi", last, offsets)
+        points = np.concatenate([positions[:, :1], np.concatenate([joints, tips[:, :, None]], axis=2)
+                                .reshape(len(positions), 20, 3)], axis=1) @ up.T
+        local = np.einsum("fji,fkj->fki", frames[:, 2 + h], points - points[:, :1])
+        hands.append(local)
+    out = np.stack(hands, axis=1)
+    index_length = np.median(np.linalg.norm(out[:, :, 5], axis=-1))
+    return out * (np.linalg.norm(HAND_M["index"]) / index_length)
+
+
 def orthonormal(m: np.ndarray) -> np.ndarray:
     """The nearest rotations ``[..., 3, 3]`` to matrices ``m`` (polar decomposition)."""
     u, _, vt = np.linalg.svd(m)
@@ -138,9 +170,12 @@ def load_end_truth(path: Path, fps: float, max_frames: int) -> EndTruth:
     if not runs:
         raise ValueError(f"{path}: no continuous run")
     run = max(runs, key=lambda r: r.stop - r.start)
-    frames = end_frames_of(bvh, y_up_rotation(bvh, mapping), UNITS[detect_unit(bvh, mapping)])[run]
-    resampled = orthonormal(resample(frames, bvh.fps, fps))
-    return EndTruth(path.stem, resampled[middle_frames(len(resampled), max_frames)])
+    up = y_up_rotation(bvh, mapping)
+    frames = end_frames_of(bvh, up, UNITS[detect_unit(bvh, mapping)])
+    hands = resample(hand_points_of(bvh, up, frames)[run], bvh.fps, fps)
+    resampled = orthonormal(resample(frames[run], bvh.fps, fps))
+    kept = middle_frames(len(resampled), max_frames)
+    return EndTruth(path.stem, resampled[kept], hands[kept])
 
 
 def _layout(points: Mapping[str, tuple[float, ...]], mirror: bool) -> np.ndarray:

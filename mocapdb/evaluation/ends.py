@@ -11,6 +11,11 @@ geodesic angle between the true and the estimated global rotation (view frame) o
 
 Each is also scored **not turned** (end rotations left at identity: the bone where its parent puts it),
 what the end joints' own measure must beat.
+
+The hands are given as BlazePose gives them (wrist, index and little-finger knuckles: ``hand_points=3``) or,
+as ``detect --hands`` adds them, with the hand landmark model's 21 points a hand (``hand_points=21``,
+:mod:`mocapdb.evaluation.hand_render`); with 21, each finger joint's bend is scored too (the absolute
+difference of its flexion from the truth's, degrees; not turned: straight fingers).
 """
 from __future__ import annotations
 
@@ -31,6 +36,7 @@ from mocapdb.evaluation.bodies import reshape_body
 from mocapdb.evaluation.end_truth import EndTruth, end_points, load_end_truth
 from mocapdb.evaluation.engine_runs import run_sequence, stream_config
 from mocapdb.evaluation.gate import GATE_BODIES, GATE_CLIPS, MAX_FRAMES, GateBody, gate_engine_config
+from mocapdb.evaluation.hand_render import bend_errors_deg, finger_medians, hands_world, motion_hand_points
 from mocapdb.evaluation.heldout import EvalConfig, Scenario, Truth, camera_distance, camera_view, render
 from mocapdb.evaluation.loso import LosoConfig, sample_truths
 from mocapdb.runtime.engine import Engine
@@ -50,13 +56,19 @@ class EndErrors:
     """Geodesic errors (degrees) per variant: ``[N, 5]`` rows of frames, END_JOINTS columns (NaN: no output)."""
 
     errors: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    # per variant the fingers' bend errors (degrees) ``[N, 2, 5, 3]`` (hand_render.bend_errors_deg), if scored
+    fingers: dict[str, list[np.ndarray]] = field(default_factory=dict)
 
-    def add(self, variant: str, errors_deg: np.ndarray) -> None:
+    def add(self, variant: str, errors_deg: np.ndarray, bends_deg: np.ndarray | None = None) -> None:
         self.errors.setdefault(variant, []).append(errors_deg)
+        if bends_deg is not None:
+            self.fingers.setdefault(variant, []).append(bends_deg)
 
     def extend(self, other: EndErrors) -> None:
         for variant, rows in other.errors.items():
             self.errors.setdefault(variant, []).extend(rows)
+        for variant, rows in other.fingers.items():
+            self.fingers.setdefault(variant, []).extend(rows)
 
     def medians(self) -> dict[str, dict[str, float]]:
         """Per variant and :data:`GROUPS` entry the median error (degrees) over frames, views and sides."""
@@ -95,31 +107,39 @@ def view_rotation(yaw_deg: float, pitch_deg: float = 0.0, roll_deg: float = 0.0)
     return (cam[N_POINTS:] - cam[PELVIS]).T * CAMERA_FROM_VIEW[:, None]
 
 
-def _both(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
-    """The end globals of ``motion`` turned and not turned (its end rotations dropped)."""
-    return end_globals(motion), end_globals(replace(motion, end_rotations=None, finger_rotations=None))
+class Estimates:
+    """What an output gives over ``n`` frames, turned and not turned (rows 0, 1; NaN: no frame): the end
+    globals ``ends [2, n, 5, 3, 3]`` (view frame) and the hands' 21 points ``hands [2, n, 2, 21, 3]``."""
+
+    def __init__(self, n: int) -> None:
+        self.ends = np.full((2, n, len(END_JOINTS), 3, 3), np.nan)
+        self.hands = np.full((2, n, 2, 21, 3), np.nan)
+
+    def put(self, index: np.ndarray, motion: Motion, keep: np.ndarray | slice = slice(None)) -> None:
+        """Frames ``index`` of the outputs from ``motion`` (its frames ``keep``), turned and not turned (its end
+        and finger rotations dropped)."""
+        for k, m in enumerate((motion, replace(motion, end_rotations=None, finger_rotations=None))):
+            self.ends[k, index] = end_globals(m)[keep]
+            self.hands[k, index] = motion_hand_points(m)[keep]
 
 
-def whole_take_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], fps: float
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """``[F, 5, 3, 3]`` twice (turned, not turned) the main track's end globals (view frame) in the humanoid
-    BVH ``reconstruct`` writes of ``frames`` (NaN where the track has no frame)."""
+def whole_take_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], fps: float) -> Estimates:
+    """The main track's outputs (:class:`Estimates`) in the humanoid BVH ``reconstruct`` writes of ``frames``."""
     run = run_sequence(Engine(db, engine.for_track_files()), frames)
     fitted = fit_takes(run.recordings, fps)
-    out = np.full((2, len(frames), len(END_JOINTS), 3, 3), np.nan)
+    out = Estimates(len(frames))
     if fitted:
         motion = max((rec.motion(fps) for rec in fitted), key=len)
         index = motion.first_frame + np.arange(len(motion))
         keep = (index >= 0) & (index < len(frames))
-        for k, globals_ in enumerate(_both(motion)):
-            out[k, index[keep]] = globals_[keep]
-    return out[0], out[1]
+        out.put(index[keep], motion, keep)
+    return out
 
 
 def stream_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], lag_frames: int = 0
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """As :func:`whole_take_ends` for the default stream at lag 0 (the online take's rotations and
-    ``end_quaternions``; one person: each frame's first pose)."""
+                ) -> Estimates:
+    """As :func:`whole_take_ends` for the default stream at lag 0 (the online take's rotations,
+    ``end_quaternions`` and ``finger_quaternions``; one person: each frame's first pose)."""
     config = stream_config(engine)
     online = OnlineTake(config.fps, OnlineParams(lag_frames=lag_frames), (config.focal_px, *config.center_px))
     run = Engine(db, config)
@@ -128,27 +148,33 @@ def stream_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointF
         due = online.push(i, i / config.fps, run.step(frame))
         for index, _, people in due + (online.flush() if i == len(frames) - 1 else []):
             poses[index] = people[0] if people else None
-    out = np.full((2, len(frames), len(END_JOINTS), 3, 3), np.nan)
+    out = Estimates(len(frames))
     have = [i for i, p in enumerate(poses) if p is not None and p.end_quaternions is not None]
     if have:
         kept = [p for p in poses if p is not None and p.end_quaternions is not None]
+        fingers = [p.finger_quaternions for p in kept]
         motion = Motion(np.array([p.quaternions for p in kept]), np.array([p.root_m for p in kept]) * CAMERA_FROM_VIEW,
-                        config.fps, "view", end_rotations=np.array([p.end_quaternions for p in kept]))
-        for k, globals_ in enumerate(_both(motion)):
-            out[k, have] = globals_
-    return out[0], out[1]
+                        config.fps, "view", end_rotations=np.array([p.end_quaternions for p in kept]),
+                        finger_rotations=None if any(f is None for f in fingers) else np.array(fingers))
+        out.put(np.array(have), motion)
+    return out
 
 
 def view_frames(posed_m: np.ndarray, truth: EndTruth, stature: float, yaw_deg: float, scenario: Scenario,
-                config: EvalConfig) -> tuple[list[KeypointFrame], np.ndarray]:
-    """A body ``posed_m [F, 15, 3]`` with its end points seen from ``yaw_deg`` (the held-out camera, 1.5 m
-    high, level) and rendered under ``scenario``: the keypoint frames, and the true end rotations
-    ``[F, 5, 3, 3]`` in the view frame."""
-    points = np.concatenate([posed_m, end_points(posed_m, truth.rotations, stature)], axis=1)
+                config: EvalConfig, hand_points: int = 3) -> tuple[list[KeypointFrame], np.ndarray]:
+    """A body ``posed_m [F, 15, 3]`` with its end points (and with ``hand_points`` 21, its hands' 21 points)
+    seen from ``yaw_deg`` (the held-out camera, 1.5 m high, level) and rendered under ``scenario``: the
+    keypoint frames, and the true end rotations ``[F, 5, 3, 3]`` in the view frame."""
+    ends = end_points(posed_m, truth.rotations, stature)
+    n_ends = N_POINTS + ends.shape[1]
+    hands = (np.zeros((len(posed_m), 0, 3)) if hand_points == 3 or truth.hand_points_m is None
+             else hands_world(posed_m, truth.rotations, truth.hand_points_m, stature).reshape(len(posed_m), 42, 3))
+    points = np.concatenate([posed_m, ends, hands], axis=1)
     distance = camera_distance(posed_m, yaw_deg, config)
     cam = camera_view(points, yaw_deg, scenario.camera_height_m, distance, scenario.pitch_deg, scenario.roll_deg)
     rng = np.random.default_rng((config.seed, int(yaw_deg * 10)))
-    frames = render(cam[:, :N_POINTS], scenario, config.focal_px, config.image_size, rng, cam[:, N_POINTS:])
+    frames = render(cam[:, :N_POINTS], scenario, config.focal_px, config.image_size, rng, cam[:, N_POINTS:n_ends],
+                    cam[:, n_ends:].reshape(len(posed_m), 2, 21, 3) if hands.shape[1] else None)
     view = view_rotation(yaw_deg, scenario.pitch_deg, scenario.roll_deg)
     return frames, np.einsum("ij,fkjl->fkil", view, truth.rotations)
 
@@ -159,14 +185,18 @@ def variants(lag_frames: int = 0) -> tuple[str, ...]:
 
 
 def score_ends(db: MotionDatabase, posed_m: np.ndarray, truth: EndTruth, stature: float, yaw_deg: float,
-               scenario: Scenario, config: EvalConfig, lag_frames: int = 0) -> EndErrors:
-    """One body, view and scenario through the engine: the errors of every output (:func:`variants`)."""
-    frames, true_view = view_frames(posed_m, truth, stature, yaw_deg, scenario, config)
+               scenario: Scenario, config: EvalConfig, lag_frames: int = 0, hand_points: int = 3) -> EndErrors:
+    """One body, view and scenario through the engine: the errors of every output (:func:`variants`; the
+    fingers' bends too with ``hand_points`` 21)."""
+    frames, true_view = view_frames(posed_m, truth, stature, yaw_deg, scenario, config, hand_points)
     engine = gate_engine_config(config)
     out = EndErrors()
-    estimates = whole_take_ends(db, engine, frames, config.fps) + stream_ends(db, engine, frames, lag_frames)
-    for variant, estimate in zip(variants(lag_frames), estimates):
-        out.add(variant, geodesic_deg(estimate, true_view))
+    outputs = (whole_take_ends(db, engine, frames, config.fps), stream_ends(db, engine, frames, lag_frames))
+    true_hands = truth.hand_points_m if hand_points == 21 else None
+    for k, variant in enumerate(variants(lag_frames)):
+        estimate = outputs[k // 2]
+        out.add(variant, geodesic_deg(estimate.ends[k % 2], true_view),
+                None if true_hands is None else bend_errors_deg(estimate.hands[k % 2], true_hands))
     return out
 
 
@@ -182,10 +212,10 @@ def ends_truths(bvh_files: Iterable[Path], max_frames: int, yaws_deg: tuple[floa
 
 def evaluate_ends(db: MotionDatabase, bvh_files: Iterable[Path], bodies: tuple[GateBody, ...] = GATE_BODIES,
                   scenarios: tuple[Scenario, ...] = SCENARIOS, yaws_deg: tuple[float, ...] = ENDS_YAWS_DEG,
-                  max_frames: int = MAX_FRAMES, config: EvalConfig | None = None, lag_frames: int = 0
-                  ) -> dict[str, EndErrors]:
-    """Every clip on every body from every yaw under each scenario (the stream at ``lag_frames``): the errors
-    per scenario name."""
+                  max_frames: int = MAX_FRAMES, config: EvalConfig | None = None, lag_frames: int = 0,
+                  hand_points: int = 3) -> dict[str, EndErrors]:
+    """Every clip on every body from every yaw under each scenario (the stream at ``lag_frames``; the hands
+    as ``hand_points`` 3 or 21 points): the errors per scenario name."""
     config = config or EvalConfig()
     out = {s.name: EndErrors() for s in scenarios}
     for truth, ends in ends_truths(bvh_files, max_frames, yaws_deg, config.fps):
@@ -194,7 +224,8 @@ def evaluate_ends(db: MotionDatabase, bvh_files: Iterable[Path], bodies: tuple[G
             posed, stature = reshape_body(truth.source_joints(), lengths), float(stature_m(lengths))
             for scenario in scenarios:
                 for yaw in yaws_deg:
-                    out[scenario.name].extend(score_ends(db, posed, ends, stature, yaw, scenario, config, lag_frames))
+                    out[scenario.name].extend(score_ends(db, posed, ends, stature, yaw, scenario, config, lag_frames,
+                                                                    hand_points))
     return out
 
 
@@ -204,6 +235,12 @@ def format_ends(results: dict[str, EndErrors]) -> str:
     for scenario, errors in results.items():
         for variant, medians in errors.medians().items():
             lines.append(f"| {scenario} | {variant} | " + " | ".join(f"{medians[g]:.1f}" for g in GROUPS) + " |")
+    fingers = [(s, v, finger_medians(rows)) for s, e in results.items() for v, rows in e.fingers.items()]
+    if fingers:
+        lines += ["", "| input | output | " + " | ".join(f"{f} bend deg" for f in fingers[0][2]) + " |",
+                  "|---|---|" + "---|" * len(fingers[0][2])]
+        lines += [f"| {s} | {v} | " + " | ".join(f"{m:.1f}" for m in medians.values()) + " |"
+                  for s, v, medians in fingers]
     return "\n".join(lines)
 
 
