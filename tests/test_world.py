@@ -9,7 +9,7 @@ import pytest
 from mocapdb.core.skeleton import ANKLE_HEIGHT_M, UNIVERSAL_HEIGHT_M
 from mocapdb.runtime.world.fuse import TrackEvidence, estimate_world, floor_stature_m
 from mocapdb.runtime.world.stature import HUMAN_STATURE_M
-from mocapdb.runtime.world.tilt import track_tilt_sd_deg
+from mocapdb.runtime.world.tilt import height_spread_log, tilt_spread_deg, track_tilt_sd_deg
 
 
 def _normal(pitch_deg: float) -> np.ndarray:
@@ -222,3 +222,29 @@ def test_the_floor_is_the_level_most_contacts_stand_on_not_a_few_strays_below():
         assert noisy.pitch_deg == pytest.approx(clean.pitch_deg, abs=0.3)
         assert noisy.people[1].stature_m == pytest.approx(clean.people[1].stature_m, rel=0.02)
     assert estimate_world(strayed, 1.9).people[1].stature_m == pytest.approx(1.80, rel=0.04)
+
+
+def test_the_reported_spreads_are_the_posteriors_by_hand_on_a_tiny_grid():
+    """Two tilts and three log heights, the posterior exp(−cost) by hand: the height's SD over the
+    column sums, the tilt's over the row sums (at least the grid's step over √12)."""
+    log_h = np.log([1.5, 2.0, 2.5])
+    tilts = np.array([[0.0, 0.0], [4.0, -2.0]])
+    cost = np.array([[0.0, np.log(2.0), np.log(4.0)],       # weights 1, 1/2, 1/4: 1.75 in all
+                     [np.log(4.0), 0.0, np.log(4.0)]])       # weights 1/4, 1, 1/4: 1.5 in all
+    heights = np.array([1.25, 1.5, 0.5]) / 3.25
+    mean = heights @ log_h
+    assert height_spread_log(log_h, cost) == pytest.approx(np.sqrt(heights @ (log_h - mean) ** 2), abs=1e-12)
+    rows = np.array([1.75, 1.5]) / 3.25                      # the tilts' weights
+    sd = np.sqrt(rows[0] * rows[1]) * np.array([4.0, 2.0])   # two points: SD = √(p q) × their distance
+    assert tilt_spread_deg(tilts, cost, 0.5) == pytest.approx(tuple(sd), abs=1e-12)
+    assert tilt_spread_deg(tilts[:1], cost[:1], 2.0) == pytest.approx((2.0 / np.sqrt(12.0),) * 2)
+
+
+def test_two_equally_likely_heights_report_the_spread_between_them():
+    """A posterior with two modes as likely, 1.2 m and 2.4 m apart by a factor of 2: the reported
+    SD of the log height is half their distance, so ±2 SD about either holds the other."""
+    log_h = np.linspace(np.log(0.5), np.log(5.0), 901)
+    two = np.logaddexp(-0.5 * ((log_h - np.log(1.2)) / 0.05) ** 2, -0.5 * ((log_h - np.log(2.4)) / 0.05) ** 2)
+    spread = height_spread_log(log_h, -two[None])
+    assert spread == pytest.approx(np.hypot(np.log(2.0) / 2, 0.05), rel=0.01)
+    assert 2 * spread > np.log(2.0)
