@@ -225,10 +225,12 @@ def face_world(world_m: np.ndarray | None, extremities_world_m: np.ndarray | Non
 
 def _frames(x: np.ndarray, hint: np.ndarray, hint_axis: int) -> np.ndarray:
     """Rotations ``[..., 3, 3]`` (columns x, y, z) with x along ``x`` and axis ``hint_axis`` (1: y,
-    2: z) along ``hint`` made perpendicular to it; right-handed."""
-    x = x / np.linalg.norm(x, axis=-1, keepdims=True)
-    second = hint - np.sum(hint * x, axis=-1, keepdims=True) * x
-    second /= np.linalg.norm(second, axis=-1, keepdims=True)
+    2: z) along ``hint`` made perpendicular to it; right-handed. NaN where ``x`` is zero or along
+    ``hint`` (two landmarks at one place: no frame; callers treat NaN as unseen)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        x = x / np.linalg.norm(x, axis=-1, keepdims=True)
+        second = hint - np.sum(hint * x, axis=-1, keepdims=True) * x
+        second /= np.linalg.norm(second, axis=-1, keepdims=True)
     third = np.cross(x, second) if hint_axis == 1 else np.cross(second, x)
     return np.stack([x, second, third] if hint_axis == 1 else [x, third, second], axis=-1)
 
