@@ -9,7 +9,11 @@ Per track (:class:`OnlineEnds`), per frame:
    each one's depth the end of the cheapest path so far: :class:`~mocapdb.runtime.end_branches.BranchPath`),
    the head's rotation relative to the chest (:func:`~mocapdb.runtime.head_pose.chest_relative_head`; with
    the detector's world landmarks of the face as its prior where the frame has them, but the default face
-   model: the whole take's own face pattern is a median over the take's frames).
+   model: the whole take's own face pattern is a median over the take's frames). Where the hand landmark
+   model saw a hand (``hands_px``), its palm (:func:`~mocapdb.runtime.hand_pose.palm_frames`) gives the
+   hand's direction and, by its thumb side, the palm's twist about it
+   (:func:`~mocapdb.runtime.hand_pose.hand_twist_deg`), as in the whole take; the thumb side is smoothed
+   with the directions (from the rest palm's before it is seen), the twist eased in and out as an end joint.
 2. **Smoothed**: lag 0, a causal 1€ filter (the online take's ``causal_rotations``; the directions as
    vectors, the head as a quaternion; the rig's own rotations have a Kalman filter instead,
    :mod:`mocapdb.runtime.rotation_kalman`); lag ``L``, the Gaussian mean of the frames ``t − L … t + L``
@@ -40,7 +44,7 @@ from mocapdb.runtime.end_joints import (
     standing_directions,
 )
 from mocapdb.runtime.filters import OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
-from mocapdb.runtime.hand_pose import smoothstep
+from mocapdb.runtime.hand_pose import HAND_BASES, hand_points_view, hand_twist_deg, palm_frames, smoothstep, twisted
 from mocapdb.runtime.head_pose import chest_relative_head, face_points, head_local
 
 HOLD_S = 0.5   # an end joint unseen this long keeps its last value (the whole take interpolates such gaps)
@@ -58,15 +62,17 @@ PLANTED_SETTLE_S = 0.5
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 _N_ENDS = len(END_JOINTS)
 _SPINE, _NECK = RIG_JOINTS.index("spine"), RIG_JOINTS.index("neck")
-Measure = tuple[np.ndarray, np.ndarray]   # the feet's and hands' directions [4, 3], the head [4]; NaN: unseen
+# the feet's and hands' directions and the palms' thumb sides [6, 3], the head [4]; NaN: unseen
+Measure = tuple[np.ndarray, np.ndarray]
 
 
 def measure(pose: PersonPose, camera_px: tuple[float, float, float], branches: BranchPath, time_s: float) -> Measure:
-    """The feet's and hands' directions ``[4, 3]`` (view frame, unit; each one's depth the end of the track's
-    cheapest path so far, ``branches``, to which this frame at ``time_s`` is added) and the head's rotation
-    relative to the chest ``[4]`` of one per-frame ``pose``, seen by the pinhole ``camera_px`` (focal, cx, cy:
-    pixels); NaN where its keypoints do not give them."""
-    unseen = np.full((4, 3), np.nan), np.full(4, np.nan)
+    """The feet's and hands' directions and the palms' thumb sides ``[6, 3]`` (view frame, unit; each foot's and
+    hand's depth the end of the track's cheapest path so far, ``branches``, to which this frame at ``time_s`` is
+    added; a hand's the palm's where the hand model saw it) and the head's rotation relative to the chest ``[4]``
+    of one per-frame ``pose``, seen by the pinhole ``camera_px`` (focal, cx, cy: pixels); NaN where its
+    keypoints do not give them."""
+    unseen = np.full((6, 3), np.nan), np.full(4, np.nan)
     keypoints, extremities = pose.keypoints_px, pose.extremities_px
     if keypoints is None or extremities is None or len(extremities) < len(EXTREMITIES):
         return unseen
@@ -75,6 +81,10 @@ def measure(pose: PersonPose, camera_px: tuple[float, float, float], branches: B
     quats, root = pose.quaternions[None], (pose.root_m * CAMERA_FROM_VIEW)[None]
     candidates = measured_candidates(quats, root, scale, offsets, keypoints[None], extremities[None], camera_px)
     directions = branches.step(time_s, candidates[0], sign_references(quats)[0])[0]
+    palms = np.full((2, 3, 3), np.nan) if pose.hands_px is None else palm_frames(hand_points_view(
+        np.asarray(pose.hands_px, dtype=np.float64)))
+    directions[2:] = np.where(np.isfinite(palms[:, 0]), palms[:, 0], directions[2:])
+    directions = np.vstack([directions, palms[:, 1]])
     face_world_m = None if pose.face_world_m is None else pose.face_world_m[None]
     head = chest_relative_head(quats, root, scale, offsets, face_points(keypoints[None], extremities[None]),
                                camera_px, face_world_m)
@@ -113,6 +123,7 @@ class OnlineEnds:
         self.head_filter = QuaternionOneEuroFilter(causal)
         self.held: Measure | None = None          # the last smoothed values (what an unseen end keeps)
         self.ease = EaseToRest(_N_ENDS, fps, HOLD_S, EASE_S)
+        self.palm_ease = EaseToRest(2, fps, HOLD_S, EASE_S)   # the palms' twist (a hand's direction: ``ease``)
         self.branches = BranchPath(4)             # the feet's and hands' depths (end_branches)
         self.previous: tuple[int, np.ndarray] | None = None   # index and end rotations [5, 4] of the last output
         self.planted = np.full((2, 3), np.nan)    # each planted foot's direction (view frame); NaN: not planted
@@ -131,12 +142,17 @@ class OnlineEnds:
         ``index`` on the output rotations ``quats [R, 4]``, the feet flat by ``plant_weights [2]`` on the
         floor of normal ``up`` (view frame), and which were seen ``[5]``."""
         parents, reference = end_frames(quats[None])
-        rest = (reference[0], _rest_head(quats))
-        directions, head, seen = self._smoothed(index, rest)
+        thumb_sides = np.einsum("hij,hj->hi", parents[0, 2:], HAND_BASES[:, :, 1])     # the palms' at rest
+        rest = (np.vstack([reference[0], thumb_sides]), _rest_head(quats))
+        directions, head, seen, palm_seen = self._smoothed(index, rest)
         flat = plant_weights[:, None]
         directions[:2] = (1.0 - flat) * directions[:2] + flat * self._planted(standing_directions(directions[:2], up),
                                                                               plant_weights)
-        ends = np.vstack([end_locals(parents, reference, directions[None])[0], head_local(quats[None], head[None])])
+        locals_ = end_locals(parents, reference, directions[None, :4])[0]
+        palms = np.stack([directions[2:4], directions[4:]], axis=1)[None]               # [1, 2, 2 (u, t), 3]
+        twist = np.nan_to_num(hand_twist_deg(parents[:, 2:], locals_[None, 2:], palms)[0])
+        locals_[2:] = twisted(locals_[None, 2:], twist[None] * self.palm_ease.weight(palm_seen)[None])[0]
+        ends = np.vstack([locals_, head_local(quats[None], head[None])])
         ends *= np.where(ends[:, :1] < 0, -1.0, 1.0)
         ends = slerp(np.tile(_IDENTITY, (_N_ENDS, 1)), ends, self.ease.weight(seen))
         ends = np.where(np.isfinite(ends).all(axis=-1, keepdims=True), ends, _IDENTITY)   # a degenerate pose: rest
@@ -163,27 +179,28 @@ class OnlineEnds:
         self.planted = np.where(planted, followed, np.nan)
         return np.where(planted, followed, standing)
 
-    def _smoothed(self, index: int, rest: Measure) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Step 2 at frame ``index``: the directions ``[4, 3]``, the head ``[4]`` and which ends were seen
-        ``[5]``; an end not seen keeps its held value (``rest`` before it was ever seen)."""
-        directions, head = self.measured.get(index, (np.full((4, 3), np.nan), np.full(4, np.nan)))
-        seen = np.append(np.isfinite(directions).all(axis=-1), np.isfinite(head).all())
+    def _smoothed(self, index: int, rest: Measure) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Step 2 at frame ``index``: the directions and thumb sides ``[6, 3]``, the head ``[4]``, which ends were
+        seen ``[5]`` and which palms ``[2]``; one not seen keeps its held value (``rest`` before it was ever seen)."""
+        directions, head = self.measured.get(index, (np.full((6, 3), np.nan), np.full(4, np.nan)))
+        rows_seen = np.asarray(np.isfinite(directions).all(axis=-1))
+        seen = np.append(rows_seen[:4], np.isfinite(head).all())
         held = rest if self.held is None else self.held
         if self.lag == 0:
-            directions = self.direction_filter(np.where(seen[:4, None], directions, held[0]), index / self.fps)
+            directions = self.direction_filter(np.where(rows_seen[:, None], directions, held[0]), index / self.fps)
             head = self.head_filter(np.where(seen[4], head, held[1])[None], index / self.fps)[0]
         else:
             directions, head = self._window_mean(index, held)
         directions = directions / np.linalg.norm(directions, axis=-1, keepdims=True)
         self.held = (directions, head)
-        return directions.copy(), head, seen
+        return directions.copy(), head, seen, rows_seen[4:]
 
     def _window_mean(self, index: int, held: Measure) -> Measure:
         """The Gaussian means of the directions and the head over the frames measured in ``index`` ± lag;
         ``held`` where none is."""
         near = [i for i in range(index - self.lag, index + self.lag + 1) if i in self.measured]
         weights = np.exp(-0.5 * ((np.array(near) - index) / self.sigma_frames) ** 2)
-        directions = np.array([self.measured[i][0] for i in near])          # [n, 4, 3]
+        directions = np.array([self.measured[i][0] for i in near])          # [n, 6, 3]
         heads = np.array([self.measured[i][1] for i in near])               # [n, 4]
         heads = np.where((np.sum(heads * held[1], axis=-1) < 0)[:, None], -heads, heads)
         return _mean_or(directions, weights, held[0]), _mean_or(heads, weights, held[1])
