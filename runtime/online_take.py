@@ -108,7 +108,7 @@ class OnlineParams:
     settle_s: float = 0.4
     anchor_follow_mps: float = 0.02
     root_speed_mps: float = 6.0
-    carried_root_sd_m: float = 0.05
+    carried_root_sd_m: float = 0.02
     rotation_noise: RotationNoise = RotationNoise()
 
     def __post_init__(self) -> None:
