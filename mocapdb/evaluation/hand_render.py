@@ -7,9 +7,10 @@ stature, turned by the truth's hand rotation and put at the re-posed body's wris
 
 **Detecting** (:func:`detected_hands`): as ``detect --hands`` writes ``Person.hands``: x, y px, z the depth
 from the wrist in px at x's scale (smaller: nearer), the confidence. With noise (the scenario's
-``noise_px`` > 0) every coordinate gets an independent normal error of :data:`HAND_NOISE_OF_PALM` of the
-hand's palm size (wrist → middle knuckle, px): the landmark model's own error, in its own image space,
-not the body's pixels. A hand drops whole (as the model's ``unsure``) with the scenario's dropout, or when
+``noise_px`` > 0) every coordinate gets an independent normal error, of SD :data:`HAND_NOISE_OF_PALM` of the
+hand's palm size (wrist → middle knuckle, px) over √2: each point's image error is then
+:data:`HAND_NOISE_OF_PALM` of the palm (root mean square), the landmark model's own error in its own image
+space, not the body's pixels. A hand drops whole (as the model's ``unsure``) with the scenario's dropout, or when
 any point leaves the image; a frame whose body is swapped left/right swaps the hands too (the model's crops
 follow the pose's wrists). Every draw comes after the body's and the extremities', so they stay as they were.
 """
@@ -25,9 +26,9 @@ from mocapdb.core.outputs import motion_bvh
 from mocapdb.core.skeleton import END_JOINTS, KP, UNIVERSAL_HEIGHT_M
 
 # The full hand landmark model's error: about 10 % of the palm's size (Zhang et al. 2020, "MediaPipe Hands",
-# arXiv:2006.10214, Table 1: the full model's mean error normalised by the palm's size, 10.05 %); mocapdb
-# has measured none of its own (data_specs/pose_models.md, "Hands"), so the paper's figure is used as the SD
-# of each coordinate's error
+# arXiv:2006.10214, Table 1: the full model's error normalised by the palm's size, about 10 %); mocapdb has
+# measured none of its own (data_specs/pose_models.md, "Hands"), so the paper's figure is each point's image
+# error (root mean square over x and y; the depth's as large again)
 HAND_NOISE_OF_PALM = 0.10
 MIDDLE_MCP = 9
 
@@ -49,7 +50,7 @@ def detected_hands(px: np.ndarray, cam_points: np.ndarray, focal_px: float, nois
     depth = focal_px * (cam_points[..., 2] - cam_points[..., :1, 2]) / cam_points[..., :1, 2]
     points = np.concatenate([px, depth[..., None]], axis=-1)
     palm = np.linalg.norm(points[..., MIDDLE_MCP, :] - points[..., 0, :], axis=-1)          # [F, 2] px
-    sd = HAND_NOISE_OF_PALM * palm if noisy else np.zeros_like(palm)
+    sd = HAND_NOISE_OF_PALM / np.sqrt(2.0) * palm if noisy else np.zeros_like(palm)
     points = points + rng.normal(size=points.shape) * sd[..., None, None]
     kept = rng.random(palm.shape) >= dropout
     inside = ((points[..., :2] >= 0).all(axis=-1) & (points[..., 0] < image_size[0])
