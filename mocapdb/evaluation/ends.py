@@ -109,25 +109,30 @@ def view_rotation(yaw_deg: float, pitch_deg: float = 0.0, roll_deg: float = 0.0)
 
 class Estimates:
     """What an output gives over ``n`` frames, turned and not turned (rows 0, 1; NaN: no frame): the end
-    globals ``ends [2, n, 5, 3, 3]`` (view frame) and the hands' 21 points ``hands [2, n, 2, 21, 3]``."""
+    globals ``ends [2, n, 5, 3, 3]`` (view frame) and, if ``fingers``, the hands' 21 points
+    ``hands [2, n, 2, 21, 3]``."""
 
-    def __init__(self, n: int) -> None:
+    def __init__(self, n: int, fingers: bool) -> None:
+        self.fingers = fingers
         self.ends = np.full((2, n, len(END_JOINTS), 3, 3), np.nan)
-        self.hands = np.full((2, n, 2, 21, 3), np.nan)
+        self.hands = np.full((2, n if fingers else 0, 2, 21, 3), np.nan)
 
     def put(self, index: np.ndarray, motion: Motion, keep: np.ndarray | slice = slice(None)) -> None:
         """Frames ``index`` of the outputs from ``motion`` (its frames ``keep``), turned and not turned (its end
         and finger rotations dropped)."""
         for k, m in enumerate((motion, replace(motion, end_rotations=None, finger_rotations=None))):
             self.ends[k, index] = end_globals(m)[keep]
-            self.hands[k, index] = motion_hand_points(m)[keep]
+            if self.fingers:
+                self.hands[k, index] = motion_hand_points(m)[keep]
 
 
-def whole_take_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], fps: float) -> Estimates:
-    """The main track's outputs (:class:`Estimates`) in the humanoid BVH ``reconstruct`` writes of ``frames``."""
+def whole_take_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], fps: float,
+                    fingers: bool = False) -> Estimates:
+    """The main track's outputs (:class:`Estimates`; the hands' points if ``fingers``) in the humanoid BVH
+    ``reconstruct`` writes of ``frames``."""
     run = run_sequence(Engine(db, engine.for_track_files()), frames)
     fitted = fit_takes(run.recordings, fps)
-    out = Estimates(len(frames))
+    out = Estimates(len(frames), fingers)
     if fitted:
         motion = max((rec.motion(fps) for rec in fitted), key=len)
         index = motion.first_frame + np.arange(len(motion))
@@ -136,8 +141,8 @@ def whole_take_ends(db: MotionDatabase, engine: EngineConfig, frames: list[Keypo
     return out
 
 
-def stream_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], lag_frames: int = 0
-                ) -> Estimates:
+def stream_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointFrame], lag_frames: int = 0,
+                fingers: bool = False) -> Estimates:
     """As :func:`whole_take_ends` for the default stream at lag 0 (the online take's rotations,
     ``end_quaternions`` and ``finger_quaternions``; one person: each frame's first pose)."""
     config = stream_config(engine)
@@ -148,14 +153,14 @@ def stream_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointF
         due = online.push(i, i / config.fps, run.step(frame))
         for index, _, people in due + (online.flush() if i == len(frames) - 1 else []):
             poses[index] = people[0] if people else None
-    out = Estimates(len(frames))
+    out = Estimates(len(frames), fingers)
     have = [i for i, p in enumerate(poses) if p is not None and p.end_quaternions is not None]
     if have:
         kept = [p for p in poses if p is not None and p.end_quaternions is not None]
-        fingers = [p.finger_quaternions for p in kept]
+        turned = [p.finger_quaternions for p in kept]
         motion = Motion(np.array([p.quaternions for p in kept]), np.array([p.root_m for p in kept]) * CAMERA_FROM_VIEW,
                         config.fps, "view", end_rotations=np.array([p.end_quaternions for p in kept]),
-                        finger_rotations=None if any(f is None for f in fingers) else np.array(fingers))
+                        finger_rotations=None if any(f is None for f in turned) else np.array(turned))
         out.put(np.array(have), motion)
     return out
 
@@ -191,8 +196,10 @@ def score_ends(db: MotionDatabase, posed_m: np.ndarray, truth: EndTruth, stature
     frames, true_view = view_frames(posed_m, truth, stature, yaw_deg, scenario, config, hand_points)
     engine = gate_engine_config(config)
     out = EndErrors()
-    outputs = (whole_take_ends(db, engine, frames, config.fps), stream_ends(db, engine, frames, lag_frames))
     true_hands = truth.hand_points_m if hand_points == 21 else None
+    fingers = true_hands is not None
+    outputs = (whole_take_ends(db, engine, frames, config.fps, fingers),
+               stream_ends(db, engine, frames, lag_frames, fingers))
     for k, variant in enumerate(variants(lag_frames)):
         estimate = outputs[k // 2]
         out.add(variant, geodesic_deg(estimate.ends[k % 2], true_view),
