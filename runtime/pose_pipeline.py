@@ -112,13 +112,14 @@ class PosePipeline:
         if self.config.smoothing:
             quats = state.rotations(quats, d.t_s)
             root_view = state.root(root_view, d.t_s)
+        shapes = None if d.blend_shapes is None else state.blend_shapes(d.blend_shapes, d.t_s)
         state.record(d.frame_index, d.t_s, quats, root_view, fit)
         joints_view = pose_from_rotations(quats[None], root_view[None], state.scale, state.offsets_m)[0]
         return PersonPose(state.recording.track, joints_view * CAMERA_FROM_VIEW, quats,
                           root_view * CAMERA_FROM_VIEW, match, state.scale * UNIVERSAL_HEIGHT_M,
                           state.proportions_m * state.scale, up_view=state.up,
                           keypoints_px=np.column_stack([d.points_px, d.confidence]), extremities_px=d.extremities,
-                          face_world_m=face_world_m, hands_px=d.hands_px, blend_shapes=d.blend_shapes)
+                          face_world_m=face_world_m, hands_px=d.hands_px, blend_shapes=shapes)
 
     def _world(self, state: TrackState, d: Detection
                ) -> tuple[tuple[np.ndarray, np.ndarray] | None, WorldBones | None]:

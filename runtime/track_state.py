@@ -8,6 +8,7 @@ from collections import deque
 import numpy as np
 from numba import njit
 
+from mocapdb.core.face_shapes import BlendSmoother
 from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
 from mocapdb.core.outputs import TrackRecording
 from mocapdb.core.skeleton import (
@@ -50,6 +51,7 @@ class TrackState:
         rotation_params, root_params = config.one_euro_params()
         self.rotations = QuaternionOneEuroFilter(rotation_params)
         self.root = OneEuroFilter(root_params)
+        self.blend_shapes = BlendSmoother()   # the face's blend shapes, fast attack (face_shapes)
         self.recording = TrackRecording(track, frame)
         self.last_frame = frame - 1
         self.world_joints: np.ndarray | None = None   # the detector's 3D (view frame) of the last frame with it
