@@ -1,7 +1,8 @@
 """Benchmark video → 3D: what each step costs, end to end, for each detector and detector path.
 
     python tools/bench_video.py VIDEO [--blazepose lite full heavy] [--model POSE.onnx] [--db demo/sample.db]
-                                [--frames 400] [--hands] [--hands-every N ...] [--max-people N] [--repeats R]
+                                [--frames 400] [--hands] [--hands-every N ...] [--face] [--face-every N ...]
+                                [--max-people N] [--repeats R]
                                 [--realtime] [--mediapipe PYTHON]
 
 BlazePose (the default detector; the variants prepared by `mocapdb models fetch lite full heavy`)
@@ -29,6 +30,7 @@ alike: compare the ratios within one run (the load average is printed). ``--repe
 times, interleaved (stages pooled, frames/s the median). ``--max-people N``: each BlazePose variant (and with
 ``--hands`` its hands variant) also with ``--max-people N``. ``--hands-every N ...``: the hands variants
 run with `live --hands-every N` for each N given (default: live's default; in one thread too).
+``--face``, ``--face-every N ...``: each BlazePose variant also with `live --face --face-every N`, alike.
 ``--mediapipe PYTHON``: MediaPipe Pose (complexity 1) on the same frames in that Python
 (tools/bench_mediapipe.py; a venv with mediapipe 0.10.21), in the same sitting: its frames/s on frames
 decoded first and with decoding, and each configuration's over MediaPipe's on decoded frames.
@@ -54,7 +56,7 @@ from mocapdb.cli.main import parser  # noqa: E402
 from mocapdb.cli.reconstruct import _session, resolve_take  # noqa: E402
 from mocapdb.detect.camera_motion import BackgroundMotion  # noqa: E402
 from mocapdb.detect.detectors import open_detector  # noqa: E402
-from mocapdb.detect.hand_schedule import LIVE_HANDS_EVERY  # noqa: E402
+from mocapdb.detect.landmark_schedule import LIVE_FACE_EVERY, LIVE_HANDS_EVERY  # noqa: E402
 from mocapdb.detect.model import Detections, box_iou  # noqa: E402
 from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU  # noqa: E402
 from mocapdb.detect.tracked import FULL_FRAME, FastPath  # noqa: E402
@@ -71,13 +73,15 @@ STAGES = ("decode", "detect BlazePose", "detect full", "detect crop", "detect cr
 
 
 def configurations(crop_px: int, variants: list[str], model: str | None, hands_every: list[int] | None = None,
-                   max_people: int | None = None) -> dict[str, tuple[FastPath, list[str]]]:
+                   max_people: int | None = None, face_every: list[int] | None = None
+                   ) -> dict[str, tuple[FastPath, list[str]]]:
     """Name → (the detector's paths, the same as `live` options); ``hands_every``: each BlazePose variant
-    also with ``--hands --hands-every N`` for each N (``+ hands/N``); ``max_people``: also with
-    ``--max-people`` (and with both)."""
+    also with ``--hands --hands-every N`` for each N (``+ hands/N``), ``face_every`` with ``--face
+    --face-every N`` (``+ face/N``); ``max_people``: also with ``--max-people`` (and with both)."""
     size = ["--crop-size", str(crop_px)]
     people = [("", [])] + ([(f" max {max_people}", ["--max-people", str(max_people)])] if max_people else [])
     hand_variants = [(f" + hands/{n}", ["--hands", "--hands-every", str(n)]) for n in hands_every or []]
+    hand_variants += [(f" + face/{n}", ["--face", "--face-every", str(n)]) for n in face_every or []]
     extra = [(limit + hand, [*limit_flags, *hand_flags]) for limit, limit_flags in people
              for hand, hand_flags in [("", []), *hand_variants]]
     blazepose = {f"BlazePose {v}{suffix}": (FULL_FRAME, ["--blazepose", v, *flag]) for v in variants
@@ -105,7 +109,7 @@ def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[d
     over the timed frames."""
     detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
                              max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE, fast=fast, hands=args.hands,
-                             hands_every=args.hands_every)
+                             hands_every=args.hands_every, faces=args.face, face_every=args.face_every)
     session = _session(args, args.sink, strict=False)
     engine_ms: list[float] = []
     step = session.engine.step
@@ -236,6 +240,9 @@ def main() -> int:
                                                          "with hands over without)")
     ap.add_argument("--hands-every", type=int, nargs="+", metavar="N",
                     help=f"with --hands: the hands variants with `live --hands-every N` (default {LIVE_HANDS_EVERY})")
+    ap.add_argument("--face", action="store_true", help="each BlazePose variant also with --face")
+    ap.add_argument("--face-every", type=int, nargs="+", metavar="N",
+                    help=f"with --face: the face variants with `live --face-every N` (default {LIVE_FACE_EVERY})")
     ap.add_argument("--realtime", action="store_true", help="`live --realtime`: the file at its frame rate")
     ap.add_argument("--max-people", type=int, metavar="N", help="each BlazePose variant also with --max-people N")
     ap.add_argument("--repeats", type=int, default=1, help="runs of each configuration, interleaved (default 1)")
@@ -244,7 +251,8 @@ def main() -> int:
     args = ap.parse_args()
     print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())}; {os.cpu_count()} cores")
     hands_every = (args.hands_every or [LIVE_HANDS_EVERY]) if args.hands else None
-    configs = configurations(args.crop_size, args.blazepose, args.model, hands_every, args.max_people)
+    face_every = (args.face_every or [LIVE_FACE_EVERY]) if args.face else None
+    configs = configurations(args.crop_size, args.blazepose, args.model, hands_every, args.max_people, face_every)
     realtime = ["--realtime"] if args.realtime else []
     runs: dict[str, list] = defaultdict(list)
     lives: dict[str, list] = defaultdict(list)

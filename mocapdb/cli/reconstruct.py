@@ -465,7 +465,7 @@ def run_live(args: argparse.Namespace) -> int:
                 detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
                                          max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE,
                                          fast=fast_path(args), hands=args.hands, hands_every=args.hands_every,
-                                         faces=args.face)
+                                         faces=args.face, face_every=args.face_every)
                 video = open_video_source(args.source, detector, capacity=args.buffer, stats=session.summary.stream,
                                           paced=args.realtime, turning=not args.still_camera)
                 run_video(session, video, stop)

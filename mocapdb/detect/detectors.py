@@ -34,15 +34,16 @@ class FrameDetector(Protocol):
 
 def open_detector(model: str | Path | None, variant: str, *, conf: float, iou: float, max_people: int | None,
                   input_size: int, fast, hands: bool = False, faces: bool = False,
-                  hands_every: int = 1) -> FrameDetector:
+                  hands_every: int = 1, face_every: int = 1) -> FrameDetector:
     """BlazePose ``variant`` (lite, full, heavy) when ``model`` is None, with ``hands`` also each person's
-    hands (run every ``hands_every`` frames, carried between: :mod:`~mocapdb.detect.hand_schedule`) and
-    with ``faces`` their face mesh (:class:`~mocapdb.detect.with_landmarks.WithLandmarks`), else the ONNX
+    hands (run every ``hands_every`` frames, carried between: :mod:`~mocapdb.detect.landmark_schedule`) and
+    with ``faces`` their face mesh (every ``face_every`` frames alike;
+    :class:`~mocapdb.detect.with_landmarks.WithLandmarks`), else the ONNX
     export ``model`` with the paths ``fast`` allows (:class:`~mocapdb.detect.tracked.FastPath`); DetectError
     when the model cannot be used, when hands or faces are asked of an export, or when BlazePose (or the
     hand or face model) is not prepared on this machine."""
     if model is None:
-        return _blazepose(variant, max_people, hands_every if hands else 0, faces)
+        return _blazepose(variant, max_people, hands_every if hands else 0, face_every if faces else 0)
     if hands or faces:
         from mocapdb.detect.errors import DetectError
 
@@ -53,9 +54,9 @@ def open_detector(model: str | Path | None, variant: str, *, conf: float, iou: f
     return TrackedDetector(PoseModel(model, conf=conf, iou=iou, max_people=max_people, input_size=input_size), fast)
 
 
-def _blazepose(variant: str, max_people: int | None, hands_every: int, faces: bool) -> FrameDetector:
-    """BlazePose ``variant``, with the hand (``hands_every`` > 0) and face landmark models asked for
-    (:func:`open_detector`)."""
+def _blazepose(variant: str, max_people: int | None, hands_every: int, face_every: int) -> FrameDetector:
+    """BlazePose ``variant``, with the hand (``hands_every`` > 0) and face (``face_every`` > 0) landmark models
+    asked for (:func:`open_detector`)."""
     from mocapdb.detect.blazepose import BlazePose
     from mocapdb.detect.model_store import blazepose_paths, extra_model_path
     from mocapdb.detect.with_landmarks import Landmarker, WithLandmarks
@@ -65,8 +66,8 @@ def _blazepose(variant: str, max_people: int | None, hands_every: int, faces: bo
     if hands_every:
         from mocapdb.detect.hands import HandLandmarker
         landmarkers["hands"] = HandLandmarker(extra_model_path("hands"), hands_every)
-    if faces:
+    if face_every:
         from mocapdb.detect.face import FaceLandmarker
-        landmarkers["faces"] = FaceLandmarker(extra_model_path("face"))
+        landmarkers["faces"] = FaceLandmarker(extra_model_path("face"), face_every)
     pose = BlazePose(detector_path, landmark_path, max_people=max_people, name=f"BlazePose {variant}")
     return WithLandmarks(pose, **landmarkers) if landmarkers else pose

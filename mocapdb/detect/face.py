@@ -5,7 +5,9 @@ BlazePose's 11 face points (nose, eyes, ears, mouth corners) in the frame turned
 level, its centre the crop's, :data:`FACE_SCALE` × its longer side the crop's side. The landmark model
 (192 × 192, converted at set-up by ``mocapdb models fetch face``) gives 468 points (x, y, and z: depth
 relative to the face's centre, in the same units as x; smaller: nearer) and a face flag (a logit),
-mapped back to frame pixels. All the faces of a frame go through the model in one batched run.
+mapped back to frame pixels. All the faces of a frame go through the model in one batched run. With
+``every`` N > 1 (``live --face-every``) a face is run every N-th frame and carried between by the
+similarity of BlazePose's 11 face points (:mod:`~mocapdb.detect.landmark_schedule`).
 
 A face is **absent** (confidence 0, positions NaN) with a reason (:data:`ABSENT_REASONS`): its pose
 points hidden (the nose's or an eye's visibility below :data:`MIN_POSE_VISIBILITY`; the model is not run),
@@ -24,6 +26,7 @@ import numpy as np
 
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 from mocapdb.detect.blazepose import Region
+from mocapdb.detect.landmark_schedule import LastRun
 from mocapdb.detect.with_landmarks import BatchedModel
 
 FACE_INPUT_PX = 192          # face landmark model input side, pixels
@@ -83,8 +86,8 @@ class FaceLandmarker(BatchedModel):
     """The face landmark model at ``path`` (converted ONNX) run on each person's face: all the faces of
     a frame in one batched run."""
 
-    def __init__(self, path: Path) -> None:
-        super().__init__(path, FACE_OUTPUTS, FACE_INPUT_PX, "face")
+    def __init__(self, path: Path, every: int = 1) -> None:
+        super().__init__(path, FACE_OUTPUTS, FACE_INPUT_PX, "face", every)
 
     def landmarks_batch(self, image: np.ndarray, regions: list[Region]) -> tuple[np.ndarray, np.ndarray]:
         """The model in each of ``regions`` of ``image`` (uint8 BGR), one run: points ``[R, 468, 3]`` (x, y
@@ -93,19 +96,25 @@ class FaceLandmarker(BatchedModel):
         return points, 1.0 / (1.0 + np.exp(-np.ravel(flags).astype(np.float64)))
 
     def __call__(self, image: np.ndarray, keypoints: np.ndarray) -> Faces:
-        """The face of each person ``keypoints [P, 33, 3]`` (mediapipe33: x, y px, visibility) in ``image``."""
+        """The face of each person ``keypoints [P, 33, 3]`` (mediapipe33: x, y px, visibility) in ``image``:
+        the ones :attr:`schedule` says are due run, the others carried."""
         faces = Faces.empty(len(keypoints))
         crops = [pose_crop(pose) for pose in keypoints]
         regions = {person: crop for person, crop in enumerate(crops) if isinstance(crop, Region)}
         reasons = [crop if isinstance(crop, str) else "" for crop in crops]
-        if regions:
-            points, flags = self.landmarks_batch(image, list(regions.values()))
-            for person, face, flag in zip(regions, points, flags):
-                faces.presence[person] = flag
-                if flag < MIN_PRESENCE:
-                    reasons[person] = "unsure"
-                    continue
-                faces.points[person, :, :3] = face
-                faces.points[person, :, 3] = flag
+        at = {person: keypoints[person, list(POSE_FACE), :2] for person in regions}
+
+        def run(due: list) -> list[LastRun]:
+            points, flags = self.landmarks_batch(image, [regions[person] for person in due])
+            return [LastRun(face, flag, 0.0, bool(flag < MIN_PRESENCE)) for face, flag in zip(points, flags)]
+
+        runs = self.schedule.frame_runs(at, {person: region.side for person, region in regions.items()}, run)
+        for person, last in runs.items():
+            faces.presence[person] = last.presence
+            if last.empty:
+                reasons[person] = "unsure"
+                continue
+            faces.points[person, :, :3] = last.points
+            faces.points[person, :, 3] = last.presence
         faces.absent[:] = reasons
         return faces

@@ -22,7 +22,7 @@ import numpy as np
 
 from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 from mocapdb.detect.blazepose import Region, region_from_points
-from mocapdb.detect.hand_schedule import HandSchedule, LastRun
+from mocapdb.detect.landmark_schedule import LastRun
 from mocapdb.detect.with_landmarks import BatchedModel
 
 HAND_PX = 224                # hand landmark model input side, pixels
@@ -106,12 +106,7 @@ class HandLandmarker(BatchedModel):
     a frame in one batched run."""
 
     def __init__(self, path: Path, every: int = 1) -> None:
-        super().__init__(path, HAND_OUTPUTS, HAND_PX, "hand")
-        self.schedule = HandSchedule(every)
-
-    def describe(self) -> str:
-        every = self.schedule.every
-        return super().describe() + (f", {self.schedule.carries} carried (every {every} frames)" if every > 1 else "")
+        super().__init__(path, HAND_OUTPUTS, HAND_PX, "hand", every)
 
     def landmarks(self, image: np.ndarray, region: Region) -> tuple[np.ndarray, float, float]:
         """The model in ``region`` of ``image`` (uint8 BGR): points ``[21, 3]`` (x, y frame px, z px),
@@ -128,23 +123,21 @@ class HandLandmarker(BatchedModel):
 
     def __call__(self, image: np.ndarray, keypoints: np.ndarray) -> Hands:
         """Both hands of each person ``keypoints [P, 33, 3]`` (mediapipe33: x, y px, visibility) in ``image``:
-        the ones :attr:`schedule` says are due run, the others carried (:mod:`~mocapdb.detect.hand_schedule`)."""
+        the ones :attr:`schedule` says are due run, the others carried (:mod:`~mocapdb.detect.landmark_schedule`)."""
         hands = Hands.empty(len(keypoints))
         sides = range(len(SIDES))
         crops = {(person, side): pose_crop(pose, side) for person, pose in enumerate(keypoints) for side in sides}
         reasons = {key: crop for key, crop in crops.items() if isinstance(crop, str)}
         regions = {key: crop for key, crop in crops.items() if isinstance(crop, Region)}
         at = {key: keypoints[key[0], list(POSE_HAND[SIDES[key[1]]]), :2] for key in regions}
-        due = [key for key in regions if self.schedule.due(key, at[key], regions[key].side)]
-        runs = {}
-        if due:
-            for key, points, flag, right in zip(due, *self.landmarks_batch(image, [regions[key] for key in due])):
-                found = LastRun(points, flag, right, bool(flag < MIN_PRESENCE))
-                runs[key] = self.schedule.ran(key, at[key], regions[key].side, found)
-        for key in regions:
-            run = runs[key] if key in runs else self.schedule.carried(key, at[key])
-            reasons[key] = _fill(hands, key, run.points, run.presence, run.handedness)
-        self.schedule.end_frame(set(regions))
+
+        def run(due: list) -> list[LastRun]:
+            found = self.landmarks_batch(image, [regions[key] for key in due])
+            return [LastRun(points, flag, right, bool(flag < MIN_PRESENCE)) for points, flag, right in zip(*found)]
+
+        runs = self.schedule.frame_runs(at, {key: region.side for key, region in regions.items()}, run)
+        for key, last in runs.items():
+            reasons[key] = _fill(hands, key, last.points, last.presence, last.score)
         hands.absent[:] = [(reasons[person, 0], reasons[person, 1]) for person in range(len(keypoints))]
         return hands
 

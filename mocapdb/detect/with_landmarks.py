@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 
 from mocapdb.detect.blazepose import BlazePose, Region, model_input
+from mocapdb.detect.landmark_schedule import LandmarkSchedule
 from mocapdb.detect.model import Detections, load_session
 
 
@@ -24,17 +25,22 @@ def crop_input(image: np.ndarray, region: Region, size_px: int) -> np.ndarray:
 class BatchedModel:
     """A landmark model at ``path`` (converted ONNX; square input of ``input_px``) run on all the crops of
     a frame in one batch (its layers treat each crop alone: the same outputs as one run each);
-    ``outputs``: the ones computed, the first the points (x, y, z input px); ``what``: what a crop holds."""
+    ``outputs``: the ones computed, the first the points (x, y, z input px); ``what``: what a crop holds;
+    ``every``: each crop run every this many frames, carried between (:attr:`schedule`,
+    :mod:`~mocapdb.detect.landmark_schedule`)."""
 
-    def __init__(self, path: Path, outputs: tuple[str, ...], input_px: int, what: str) -> None:
+    def __init__(self, path: Path, outputs: tuple[str, ...], input_px: int, what: str, every: int = 1) -> None:
         self.path, self.outputs, self.input_px, self.what = Path(path), outputs, input_px, what
+        self.schedule = LandmarkSchedule(every)
         self._session = load_session(self.path, outputs, any_batch=True)
         self._input = self._session.get_inputs()[0].name
         self.runs = 0      # crops run through the model
         self.batches = 0   # model runs (each on one frame's crops)
 
     def describe(self) -> str:
-        return f"{self.what} landmarks {self.input_px} px per {self.what}, {self.runs} in {self.batches} runs"
+        every = self.schedule.every
+        carried = f", {self.schedule.carries} carried (every {every} frames)" if every > 1 else ""
+        return f"{self.what} landmarks {self.input_px} px per {self.what}, {self.runs} in {self.batches} runs{carried}"
 
     def run_crops(self, image: np.ndarray, regions: list[Region]) -> list[np.ndarray]:
         """The :attr:`outputs` of ``regions`` of ``image`` (uint8 BGR), one run; the points ``[R, N, 3]``

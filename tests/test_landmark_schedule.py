@@ -1,7 +1,8 @@
-"""Hands at a lower rate (issue 49's cost in live): the schedule by hand, the similarity that carries a hand,
-and on a real photo moved rigidly, the carried hand against the model's own run on the moved image.
+"""Hands and faces at a lower rate (issue 49's cost in live): the schedule by hand, the similarity that
+carries a hand or face, and on real photos moved rigidly, the carried hand against the model's own run on
+the moved image, the carried face against the known similarity and the model's own run.
 
-The photo tests need `mocapdb models fetch full hands`; without them they skip with that command."""
+The photo tests need `mocapdb models fetch full hands face`; without them they skip with that command."""
 from __future__ import annotations
 
 import cv2
@@ -9,9 +10,13 @@ import numpy as np
 import pytest
 
 from mocapdb.detect.blazepose import BlazePose
-from mocapdb.detect.hand_schedule import MOVED, HandSchedule, LastRun, carry, similarity
+from mocapdb.detect.errors import DetectError
+from mocapdb.detect.face import FaceLandmarker
 from mocapdb.detect.hands import POSE_HAND, HandLandmarker
+from mocapdb.detect.landmark_schedule import MOVED, LandmarkSchedule, LastRun, carry, similarity
+from mocapdb.detect.model_store import blazepose_paths, extra_model_path
 
+from .conftest import ROOT, skip_missing
 from .test_fingers import SAMPLE_HANDS, _hand_model, _pose_models
 
 KEY = (0, 1)
@@ -35,7 +40,7 @@ def _found(empty: bool = False) -> LastRun:
 
 
 def test_a_found_hand_runs_every_nth_frame_an_empty_one_less_often_a_moved_or_new_one_at_once():
-    schedule = HandSchedule(every=2, empty_every=6)
+    schedule = LandmarkSchedule(every=2, empty_every=6)
     still = np.array([[100.0, 100.0], [110.0, 80.0], [90.0, 80.0]])
     ran = []
     for frame in range(7):
@@ -46,7 +51,7 @@ def test_a_found_hand_runs_every_nth_frame_an_empty_one_less_often_a_moved_or_ne
             schedule.carried(KEY, still)
         schedule.end_frame({KEY})
     assert ran == [0, 2, 4, 6] and schedule.carries == 3
-    schedule = HandSchedule(every=2, empty_every=6)
+    schedule = LandmarkSchedule(every=2, empty_every=6)
     ran = []
     for frame in range(13):
         if schedule.due(KEY, still, 80.0):
@@ -58,7 +63,7 @@ def test_a_found_hand_runs_every_nth_frame_an_empty_one_less_often_a_moved_or_ne
     assert not schedule.due(KEY, still + [MOVED * 80.0 - 1.0, 0.0], 80.0) and schedule.due(KEY, moved, 80.0)
     schedule.end_frame(set())            # the hand not shown (hidden): forgotten, run when it comes back
     assert schedule.due(KEY, still, 80.0)
-    assert all(HandSchedule(every=1).due(KEY, still, 80.0) for _ in range(3))
+    assert all(LandmarkSchedule(every=1).due(KEY, still, 80.0) for _ in range(3))
 
 
 def _moved(image: np.ndarray, pose: np.ndarray, turn_deg: float, shift: tuple[float, float]):
@@ -95,3 +100,34 @@ def test_a_carried_hand_is_where_the_model_finds_it_after_a_rigid_move(turn_deg,
         error = np.linalg.norm(carried.points[0, side, :, :2] - run.points[0, side, :, :2], axis=1).max()
         assert error <= tolerance * length
         assert carried.presence[0, side] == first.presence[0, side]
+
+
+@pytest.mark.parametrize("turn_deg, scale, shift", [(0.0, 1.0, (9.0, -6.0)), (8.0, 1.05, (4.0, 3.0))])
+def test_a_carried_face_is_the_first_mesh_moved_by_the_known_similarity(turn_deg, scale, shift):
+    """A real photo (sergey.jpg, 600 px), its pose by BlazePose; the photo and pose moved by a known
+    similarity (turned ``turn_deg`` and scaled about the nose, shifted, px). Faces every 2nd frame: frame 0
+    run, frame 1 carried, frame 2 (the same moved image) run. The carried mesh is the first mesh moved by
+    that similarity (depth times the scale) to 1e-6 px, and within 3 % of the eyes' distance of the
+    model's own run on the moved photo."""
+    try:
+        detector, model = BlazePose(*blazepose_paths("full")), FaceLandmarker(extra_model_path("face"), every=2)
+    except DetectError as exc:
+        skip_missing(str(exc))
+    image = cv2.imread(str(ROOT / "data" / "sample_faces" / "sergey.jpg"))
+    pose = detector(image).keypoints[:1]
+    first = model(image, pose)
+    assert first.absent == [""] and model.runs == 1
+    matrix = cv2.getRotationMatrix2D(tuple(pose[0, 0, :2]), turn_deg, scale)
+    matrix[:, 2] += shift
+    moved_image = cv2.warpAffine(image, matrix, image.shape[1::-1], flags=cv2.INTER_LINEAR)
+    moved_pose = pose.copy()
+    moved_pose[..., :2] = pose[..., :2] @ matrix[:, :2].T + matrix[:, 2]
+    carried = model(moved_image, moved_pose)
+    assert model.runs == 1 and model.schedule.carries == 1 and carried.absent == [""]
+    expected = first.points[0, :, :2] @ matrix[:, :2].T + matrix[:, 2]
+    np.testing.assert_allclose(carried.points[0, :, :2], expected, atol=1e-6)
+    np.testing.assert_allclose(carried.points[0, :, 2], first.points[0, :, 2] * scale, atol=1e-6)
+    run = model(moved_image, moved_pose)
+    assert model.runs == 2
+    eyes = np.linalg.norm(run.points[0, 33, :2] - run.points[0, 263, :2])
+    assert np.linalg.norm(carried.points[0, :, :2] - run.points[0, :, :2], axis=1).mean() <= 0.03 * eyes
