@@ -177,10 +177,11 @@ class BackgroundMotion:
     def _track(self, previous: np.ndarray, grey: np.ndarray, mask: np.ndarray) -> None:
         """The tracks followed from ``previous`` into ``grey``: those that track back to where they
         were and stay out of the people's boxes."""
-        ahead, ok, _ = cv2.calcOpticalFlowPyrLK(previous, grey, self._points, None, winSize=LK_WINDOW,
-                                                maxLevel=LK_LEVELS)
-        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(grey, previous, ahead, None, winSize=LK_WINDOW,
-                                                    maxLevel=LK_LEVELS)
+        # output arrays given: OpenCV 4's stubs take no None for them
+        ahead, ok, _ = cv2.calcOpticalFlowPyrLK(previous, grey, self._points, np.empty_like(self._points),
+                                                winSize=LK_WINDOW, maxLevel=LK_LEVELS)
+        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(grey, previous, ahead, np.empty_like(self._points),
+                                                    winSize=LK_WINDOW, maxLevel=LK_LEVELS)
         returned = np.linalg.norm(back - self._points, axis=1) < BACK_TRACK_PX
         keep = (ok.ravel() == 1) & (ok_back.ravel() == 1) & returned
         x, y = np.round(ahead[:, 0]).astype(int), np.round(ahead[:, 1]).astype(int)
