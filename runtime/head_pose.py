@@ -223,7 +223,7 @@ def face_world(world_m: np.ndarray | None, extremities_world_m: np.ndarray | Non
     return np.concatenate([world_m[:1], extremities_world_m[list(FACE_ROWS)], world_m[list(WORLD_BODY)]])
 
 
-def _frames(x: np.ndarray, hint: np.ndarray, hint_axis: int) -> np.ndarray:
+def frames_along(x: np.ndarray, hint: np.ndarray, hint_axis: int) -> np.ndarray:
     """Rotations ``[..., 3, 3]`` (columns x, y, z) with x along ``x`` and axis ``hint_axis`` (1: y,
     2: z) along ``hint`` made perpendicular to it; right-handed. NaN where ``x`` is zero or along
     ``hint`` (two landmarks at one place: no frame; callers treat NaN as unseen)."""
@@ -239,7 +239,7 @@ def _world_head(face_view: np.ndarray) -> np.ndarray:
     """``[..., 3, 3]`` the head frame (x: right → left ear, z: ears' mid-point → nose) of view-frame
     :func:`face_world` points ``[..., 11, 3]``."""
     mid = 0.5 * (face_view[..., 3, :] + face_view[..., 4, :])
-    return _frames(face_view[..., 4, :] - face_view[..., 3, :], face_view[..., 0, :] - mid, 2)
+    return frames_along(face_view[..., 4, :] - face_view[..., 3, :], face_view[..., 0, :] - mid, 2)
 
 
 def face_model(face_world_m: np.ndarray) -> np.ndarray | None:
@@ -262,7 +262,8 @@ def world_relative(face_world_m: np.ndarray) -> np.ndarray:
     the head about its forwards) against the other: of the four labellings, the smallest rotation."""
     view = face_world_m * _VIEW_OF_WORLD
     r_sh, l_sh, r_hip, l_hip = np.moveaxis(view[:, 7:], 1, 0)
-    relative = np.swapaxes(_frames(l_sh - r_sh, 0.5 * (r_sh + l_sh - r_hip - l_hip), 1), -1, -2) @ _world_head(view)
+    chest = frames_along(l_sh - r_sh, 0.5 * (r_sh + l_sh - r_hip - l_hip), 1)
+    relative = np.swapaxes(chest, -1, -2) @ _world_head(view)
     candidates = np.stack([relative, relative * _BODY_SWAP[:, None], relative * _FACE_SWAP,
                            relative * _BODY_SWAP[:, None] * _FACE_SWAP])             # [4, F, 3, 3]
     best = np.argmax(np.trace(candidates, axis1=-2, axis2=-1), axis=0)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapdb.runtime.head_pose import MIN_MODEL_FRAMES, PRIOR_SD_DEG, fit_head
+from mocapdb.runtime.head_pose import MIN_MODEL_FRAMES, PRIOR_SD_DEG, fit_head, frames_along
 
 MESH_NOSE, MESH_RIGHT, MESH_LEFT = 1, 234, 454   # mesh vertices: the nose tip, the cheek contours at the ears
 MESH_BREADTH_M = 0.14    # 234 ↔ 454 of a 1.75 m adult: about the bizygomatic breadth (rounded mean, 14 cm)
@@ -31,12 +31,8 @@ def mesh_3d(mesh_px: np.ndarray) -> np.ndarray:
 
 def _head_frames(points: np.ndarray) -> np.ndarray:
     """``[F, 3, 3]`` the head frames (columns x, y, z; module docstring) of meshes ``[F, 468, 3]`` (:func:`mesh_3d`)."""
-    x = points[:, MESH_LEFT] - points[:, MESH_RIGHT]
-    x /= np.linalg.norm(x, axis=-1, keepdims=True)
     forward = points[:, MESH_NOSE] - 0.5 * (points[:, MESH_LEFT] + points[:, MESH_RIGHT])
-    z = forward - np.sum(forward * x, axis=-1, keepdims=True) * x
-    z /= np.linalg.norm(z, axis=-1, keepdims=True)
-    return np.stack([x, np.cross(z, x), z], axis=-1)
+    return frames_along(points[:, MESH_LEFT] - points[:, MESH_RIGHT], forward, 2)
 
 
 def mesh_model(mesh_px: np.ndarray, scale: float) -> np.ndarray | None:

@@ -11,12 +11,11 @@ from mocapdb.detect.landmark_schedule import LIVE_FACE_EVERY, LIVE_HANDS_EVERY
 def add_live_video_options(p: argparse.ArgumentParser) -> None:
     """``--hands-every N``, ``--face-every N`` (:mod:`mocapdb.detect.landmark_schedule`),
     ``--still-camera`` and ``--realtime`` (:class:`~mocapdb.runtime.stream.video_input.DecodedFrames`, ``paced``)."""
-    p.add_argument("--hands-every", type=D.MODEL_EVERY, default=LIVE_HANDS_EVERY, metavar="N",
-                   help="with --hands on a video: each hand's landmarks every N-th frame, carried with the pose's "
-                        "hand between (sooner when it moves fast); 1: every frame (default %(default)s)")
-    p.add_argument("--face-every", type=D.MODEL_EVERY, default=LIVE_FACE_EVERY, metavar="N",
-                   help="with --face on a video: each face's mesh every N-th frame, carried with the pose's "
-                        "face points between (sooner when it moves fast); 1: every frame (default %(default)s)")
+    for part, what, carrier, every in (("hands", "each hand's landmarks", "hand", LIVE_HANDS_EVERY),
+                                       ("face", "each face's mesh", "face points", LIVE_FACE_EVERY)):
+        p.add_argument(f"--{part}-every", type=D.MODEL_EVERY, default=every, metavar="N",
+                       help=f"with --{part} on a video: {what} every N-th frame, carried with the pose's {carrier} "
+                            "between (sooner when it moves fast); 1: every frame (default %(default)s)")
     p.add_argument("--still-camera", action="store_true",
                    help="a video file filmed from a tripod: no camera path measured from the background (about "
                         "2.5 ms a frame saved); a camera device (an index) is always taken as still")

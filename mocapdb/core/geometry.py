@@ -179,6 +179,15 @@ def frame_from_axes(primary: np.ndarray, secondary: np.ndarray) -> np.ndarray:
     return np.stack([p, s, np.cross(p, s)], axis=-1)
 
 
+def kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The rotation ``R [..., 3, 3]`` best taking directions ``a [..., N, 3]`` to ``b`` (Kabsch: least
+    squares, no reflection)."""
+    u, _, vt = np.linalg.svd(np.einsum("...ni,...nj->...ij", b, a))
+    fix = np.ones(u.shape[:-2] + (3,))
+    fix[..., 2] = np.sign(np.linalg.det(u @ vt))
+    return (u * fix[..., None, :]) @ vt
+
+
 def camera_axes_world() -> np.ndarray:
     """World→camera rotation of ``cameras.DatabaseCamera`` in OpenCV axes (x right, y down, z forward)."""
     return np.diag([1.0, -1.0, -1.0])

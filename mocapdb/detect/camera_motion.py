@@ -36,8 +36,9 @@ import numpy as np
 
 from mocapdb.core.formats.camera_path import CameraPath, intrinsic_matrix, rotation_angle_deg, write_camera_path
 from mocapdb.core.formats.take import default_focal_px
+from mocapdb.core.geometry import kabsch
 from mocapdb.detect.errors import DetectError
-from mocapdb.detect.focal_from_turn import Matches, best_focal, kabsch, kept, rays, rotations_at, turn_from_key_deg
+from mocapdb.detect.focal_from_turn import Matches, best_focal, kept, rays, rotations_at, turn_from_key_deg
 
 WORK_SIDE_PX = 320        # the longer side of the grey image tracked (pixels)
 MAX_FEATURES = 100        # corners found per keyframe

@@ -17,6 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from mocapdb.core.formats.camera_path import intrinsic_matrix, rotation_angle_deg
+from mocapdb.core.geometry import kabsch
 
 FOCAL_FACTORS = np.exp(np.linspace(np.log(0.5), np.log(2.0), 57))   # of the focal assumed, 2.5 % apart
 MIN_TURN_DEG = 3.0      # the frames used turned at least this far from their keyframe
@@ -44,14 +45,6 @@ def rays(points_px: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
     """Unit viewing rays ``[..., N, 3]`` (OpenCV axes) of pixels ``[..., N, 2]``."""
     out = np.concatenate([points_px, np.ones(points_px.shape[:-1] + (1,))], axis=-1) @ np.linalg.inv(intrinsics).T
     return out / np.linalg.norm(out, axis=-1, keepdims=True)
-
-
-def kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The rotation ``R [..., 3, 3]`` best taking rays ``a [..., N, 3]`` to ``b`` (Kabsch)."""
-    u, _, vt = np.linalg.svd(np.einsum("...ni,...nj->...ij", b, a))
-    fix = np.ones(u.shape[:-2] + (3,))
-    fix[..., 2] = np.sign(np.linalg.det(u @ vt))
-    return (u * fix[..., None, :]) @ vt
 
 
 def residual_px(matches: Matches, intrinsics: np.ndarray) -> float:

@@ -36,6 +36,7 @@ import numpy as np
 from mocapdb.core.clips import continuous_runs
 from mocapdb.core.formats.bvh import Bvh, forward_kinematics, read_bvh
 from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
+from mocapdb.core.geometry import frame_from_axes
 from mocapdb.core.joint_map import detect_mapping, detect_unit, extract_keypoints, y_up_rotation
 from mocapdb.core.motion_ops import resample
 from mocapdb.core.skeleton import END_JOINTS, KP, UNIVERSAL_HEIGHT_M
@@ -84,9 +85,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def frame_from(forward: np.ndarray, left: np.ndarray) -> np.ndarray:
     """``[..., 3, 3]`` right-handed frames with z along ``forward [..., 3]`` and x along ``left`` made
     perpendicular to it (columns x, y, z)."""
-    z = _unit(forward)
-    x = _unit(left - np.sum(left * z, axis=-1, keepdims=True) * z)
-    return np.stack([x, np.cross(z, x), z], axis=-1)
+    return frame_from_axes(forward, left)[..., [1, 2, 0]]   # columns (z, x, z × x = y) reordered
 
 
 def _hand_frames(positions: np.ndarray, names: list[str], side: str) -> np.ndarray:
