@@ -12,6 +12,7 @@ from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D
 from mocapdb.runtime.engine_config import EngineConfig
+from mocapdb.runtime.mesh_head import head_vertices
 from mocapdb.runtime.track_state import NO_EXTREMITIES, NO_HANDS
 
 R_HIP, L_HIP = KP["r_hip"], KP["l_hip"]
@@ -34,6 +35,7 @@ class Detection:
     extremities_world_m: np.ndarray | None = None
     hands_px: np.ndarray | None = None
     blend_shapes: np.ndarray | None = None   # [3] face_shapes.BLEND_SHAPES (NaN: no face this frame; None: no faces)
+    mesh_px: np.ndarray | None = None   # [N_HEAD, 3] the face mesh's head vertices (mesh_head; NaN: none; None: none)
 
 
 @dataclass(frozen=True)
@@ -52,6 +54,7 @@ class FramePeople:
     extremities_world_m: tuple[np.ndarray | None, ...] = ()   # per person, its extremities' [E, 3] or None
     hands_px: tuple[np.ndarray, ...] = ()   # per person, its hands' points [2, 21, 3] (hand_points)
     blend_shapes: tuple[np.ndarray | None, ...] = ()   # per person, its face's blend shapes [3] or None
+    mesh_px: tuple[np.ndarray | None, ...] = ()   # per person, its face mesh's head vertices [N_HEAD, 3] or None
 
     def detection(self, person: int) -> Detection:
         """The ``person``-th usable person's detection."""
@@ -59,7 +62,8 @@ class FramePeople:
                          self.extremities[person], self.world_m[person] if self.world_m else None,
                          self.extremities_world_m[person] if self.extremities_world_m else None,
                          self.hands_px[person] if self.hands_px else None,
-                         self.blend_shapes[person] if self.blend_shapes else None)
+                         self.blend_shapes[person] if self.blend_shapes else None,
+                         self.mesh_px[person] if self.mesh_px else None)
 
 
 def usable_people(frame: KeypointFrame, config: EngineConfig) -> FramePeople:
@@ -75,7 +79,8 @@ def usable_people(frame: KeypointFrame, config: EngineConfig) -> FramePeople:
     return FramePeople(frame.index, t_s, points, conf, extremities, len(frame.people) - len(people),
                        kinds.count("degenerate"), tuple(p.world_m for p in people),
                        tuple(p.extremities_world_m for p in people), tuple(hand_points(p) for p in people),
-                       tuple(None if p.face is None else blend_shapes(p.face[:, :2]) for p in people))
+                       tuple(None if p.face is None else blend_shapes(p.face[:, :2]) for p in people),
+                       tuple(None if p.face is None else head_vertices(p.face) for p in people))
 
 
 def _kind(person: Person, config: EngineConfig) -> str:

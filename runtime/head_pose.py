@@ -272,11 +272,16 @@ def world_relative(face_world_m: np.ndarray) -> np.ndarray:
 
 def chest_relative_head(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
                         face_px: np.ndarray, camera_px: tuple[float, float, float],
-                        face_world_m: np.ndarray | None = None) -> np.ndarray:
+                        face_world_m: np.ndarray | None = None,
+                        mesh: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``[F, 4]`` the head's rotation relative to the chest (the ``spine`` joint's frame; w ≥ 0, NaN
     where neither the face nor the world landmarks fix it) of a motion (``quats [F, R, 4]``, ``root_m
     [F, 3]`` view frame, body ``scale`` and ``offsets_m``) seen as ``face_px [F, 7, 3]``
-    (:func:`face_points`), with the detector's ``face_world_m [F, 11, 3]`` (:func:`face_world`) if any."""
+    (:func:`face_points`), with the detector's ``face_world_m [F, 11, 3]`` (:func:`face_world`) if any,
+    and the frames the face mesh fixed ``[F]``: with ``mesh`` (its head vertices as points ``[F, H, 3]``,
+    :func:`~mocapdb.runtime.mesh_head.mesh_observations`, and the person's model ``[H, 3]``) the head is
+    fitted to the mesh where it is present (the prior as the face points', held within
+    :data:`PRIOR_SD_DEG`), to the face points elsewhere."""
     chest = global_rotations(quats)[:, RIG_JOINTS.index("spine")]
     nose = pose_from_rotations(quats, root_m, scale, offsets_m)[:, KP["head"]]
     prior, known, model = chest, np.zeros(len(chest), dtype=bool), None
@@ -287,20 +292,30 @@ def chest_relative_head(quats: np.ndarray, root_m: np.ndarray, scale: float, off
         prior = np.where(known[:, None, None], chest @ np.nan_to_num(measured), chest)
         sd = np.where(known, WORLD_PRIOR_SD_DEG, PRIOR_SD_DEG)
         model = face_model(face_world_m)
+    from_mesh = np.zeros(len(chest), dtype=bool)
+    if mesh is not None:
+        on_mesh, from_mesh = fit_head(mesh[0], nose, prior, scale, camera_px, PRIOR_SD_DEG, mesh[1], swapped=None)
+        face_px = np.where(from_mesh[:, None, None], 0.0, face_px)          # the face points where no mesh is
     head, fixed = fit_head(face_px, nose, prior, scale, camera_px, sd, model)
+    if mesh is not None:
+        head = np.where(from_mesh[:, None, None], on_mesh, head)
     relative = matrix_to_quat(np.swapaxes(chest, -1, -2) @ head)
     relative *= np.where(relative[:, :1] < 0, -1.0, 1.0)
-    return np.where((fixed | known)[:, None], relative, np.nan)
+    return np.where((fixed | known | from_mesh)[:, None], relative, np.nan), from_mesh
 
 
-def head_local(quats: np.ndarray, chest_relative: np.ndarray) -> np.ndarray:
+def head_local(quats: np.ndarray, chest_relative: np.ndarray, mesh_weight: np.ndarray | None = None
+               ) -> np.ndarray:
     """``[F, 4]`` the humanoid ``Head``'s local rotation (relative to the ``Neck``, which carries the
     universal ``neck`` joint) that puts the head at ``chest_relative [F, 4]`` from the chest in the
     components :data:`HEAD_GAINS` keeps (intrinsic Y-X-Z angles against the chest: turn, nod, tilt) and
-    where the neck holds it (the head rigid on the neck) in the others."""
+    where the neck holds it (the head rigid on the neck) in the others; by ``mesh_weight [F]`` (0-1: how
+    much the face mesh fixed the frame, eased in and out) every component is kept (the mesh's rotation
+    whole: data_specs/head.md, "Decision rule")."""
     rotations = global_rotations(quats)
     chest, neck = rotations[:, RIG_JOINTS.index("spine")], rotations[:, RIG_JOINTS.index("neck")]
     fitted = matrix_to_euler(quat_to_matrix(chest_relative), "YXZ")
     rigid = matrix_to_euler(np.swapaxes(chest, -1, -2) @ neck, "YXZ")
-    kept = euler_to_matrix(HEAD_GAINS * fitted + (1.0 - HEAD_GAINS) * rigid, "YXZ")
+    gains = HEAD_GAINS if mesh_weight is None else HEAD_GAINS + mesh_weight[:, None] * (1.0 - HEAD_GAINS)
+    kept = euler_to_matrix(gains * fitted + (1.0 - gains) * rigid, "YXZ")
     return matrix_to_quat(np.swapaxes(neck, -1, -2) @ chest @ kept)

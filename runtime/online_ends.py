@@ -46,6 +46,9 @@ from mocapdb.runtime.end_joints import (
 from mocapdb.runtime.filters import OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
 from mocapdb.runtime.hand_pose import HAND_BASES, hand_points_view, hand_twist_deg, palm_frames, smoothstep, twisted
 from mocapdb.runtime.head_pose import chest_relative_head, face_points, head_local
+from mocapdb.runtime.mesh_head import EASE_S as MESH_EASE_S
+from mocapdb.runtime.mesh_head import HOLD_S as MESH_HOLD_S
+from mocapdb.runtime.mesh_head import MeshModel, mesh_observations
 
 HOLD_S = 0.5   # an end joint unseen this long keeps its last value (the whole take interpolates such gaps)
 EASE_S = 0.3   # then it turns to rest over this long; seen (again), it turns from there to its measure as long
@@ -66,16 +69,18 @@ _SPINE, _NECK = RIG_JOINTS.index("spine"), RIG_JOINTS.index("neck")
 Measure = tuple[np.ndarray, np.ndarray]
 
 
-def measure(pose: PersonPose, camera_px: tuple[float, float, float], branches: BranchPath, time_s: float) -> Measure:
+def measure(pose: PersonPose, camera_px: tuple[float, float, float], branches: BranchPath, time_s: float,
+            face: MeshModel) -> tuple[Measure, bool]:
     """The feet's and hands' directions and the palms' thumb sides ``[6, 3]`` (view frame, unit; each foot's and
     hand's depth the end of the track's cheapest path so far, ``branches``, to which this frame at ``time_s`` is
     added; a hand's the palm's where the hand model saw it) and the head's rotation relative to the chest ``[4]``
     of one per-frame ``pose``, seen by the pinhole ``camera_px`` (focal, cx, cy: pixels); NaN where its
-    keypoints do not give them."""
+    keypoints do not give them; and whether the face mesh fixed the head (the person's ``face``, to which the
+    frame's mesh is added)."""
     unseen = np.full((6, 3), np.nan), np.full(4, np.nan)
     keypoints, extremities = pose.keypoints_px, pose.extremities_px
     if keypoints is None or extremities is None or len(extremities) < len(EXTREMITIES):
-        return unseen
+        return unseen, False
     scale = pose.height_m / UNIVERSAL_HEIGHT_M
     offsets = None if pose.bones_m is None else body_offsets_m(pose.bones_m / scale)
     quats, root = pose.quaternions[None], (pose.root_m * CAMERA_FROM_VIEW)[None]
@@ -86,9 +91,13 @@ def measure(pose: PersonPose, camera_px: tuple[float, float, float], branches: B
     directions[2:] = np.where(np.isfinite(palms[:, 0]), palms[:, 0], directions[2:])
     directions = np.vstack([directions, palms[:, 1]])
     face_world_m = None if pose.face_world_m is None else pose.face_world_m[None]
-    head = chest_relative_head(quats, root, scale, offsets, face_points(keypoints[None], extremities[None]),
-                               camera_px, face_world_m)
-    return directions, head[0]
+    if pose.mesh_px is not None:
+        face.add(pose.mesh_px)
+    model = face.model(scale)
+    mesh = None if model is None or pose.mesh_px is None else (mesh_observations(pose.mesh_px[None]), model)
+    head, from_mesh = chest_relative_head(quats, root, scale, offsets, face_points(keypoints[None], extremities[None]),
+                                          camera_px, face_world_m, mesh)
+    return (directions, head[0]), bool(from_mesh[0])
 
 
 class EaseToRest:
@@ -119,6 +128,9 @@ class OnlineEnds:
                  camera_px: tuple[float, float, float]) -> None:
         self.fps, self.lag, self.sigma_frames, self.camera_px = fps, lag_frames, sigma_frames, camera_px
         self.measured: dict[int, Measure] = {}
+        self.from_mesh: dict[int, bool] = {}      # whether the face mesh fixed each measured frame's head
+        self.face = MeshModel()                   # the person's face from the first meshes (mesh_head)
+        self.mesh_ease = EaseToRest(1, fps, MESH_HOLD_S, MESH_EASE_S)   # the mesh's share of the head
         self.direction_filter = OneEuroFilter(causal)
         self.head_filter = QuaternionOneEuroFilter(causal)
         self.held: Measure | None = None          # the last smoothed values (what an unseen end keeps)
@@ -132,9 +144,10 @@ class OnlineEnds:
 
     def add(self, index: int, pose: PersonPose) -> None:
         """One frame's per-frame pose of the track: measured, kept while the window needs it."""
-        self.measured[index] = measure(pose, self.camera_px, self.branches, index / self.fps)
+        self.measured[index], self.from_mesh[index] = measure(pose, self.camera_px, self.branches,
+                                                              index / self.fps, self.face)
         for old in [i for i in self.measured if i < index - 2 * self.lag - 1]:
-            del self.measured[old]
+            del self.measured[old], self.from_mesh[old]
 
     def output(self, index: int, quats: np.ndarray, plant_weights: np.ndarray, up: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -152,7 +165,11 @@ class OnlineEnds:
         palms = np.stack([directions[2:4], directions[4:]], axis=1)[None]               # [1, 2, 2 (u, t), 3]
         twist = np.nan_to_num(hand_twist_deg(parents[:, 2:], locals_[None, 2:], palms)[0])
         locals_[2:] = twisted(locals_[None, 2:], twist[None] * self.palm_ease.weight(palm_seen)[None])[0]
-        ends = np.vstack([locals_, head_local(quats[None], head[None])])
+        mesh_seen = np.array([self.from_mesh.get(index, False)])
+        if self.previous is None:                 # a track's first frame: nothing shown before, no easing
+            self.mesh_ease.progress[:] = mesh_seen
+        mesh_weight = self.mesh_ease.weight(mesh_seen)
+        ends = np.vstack([locals_, head_local(quats[None], head[None], mesh_weight)])
         ends *= np.where(ends[:, :1] < 0, -1.0, 1.0)
         ends = slerp(np.tile(_IDENTITY, (_N_ENDS, 1)), ends, self.ease.weight(seen))
         ends = np.where(np.isfinite(ends).all(axis=-1, keepdims=True), ends, _IDENTITY)   # a degenerate pose: rest

@@ -21,6 +21,7 @@ from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D, N_RIG_JOINTS, PELVIS, UNIV
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.frame_people import Detection
 from mocapdb.runtime.head_pose import face_world
+from mocapdb.runtime.mesh_head import NO_HEAD_POINTS
 from mocapdb.runtime.refine import JointLimits, Refiner, WorldBones
 from mocapdb.runtime.search import SearchIndex, search_clustered, search_exact, yaw_offset
 from mocapdb.runtime.temporal import temporal_costs, yaw_quaternion, yawed_rotations
@@ -108,7 +109,7 @@ class PosePipeline:
         if self.config.keep_take:
             fit = (quats.copy(), root_view.copy(), np.column_stack([d.points_px, d.confidence]), d.extremities,
                    NO_FIT_BONES if bones is None else bones, face_world_m,
-                   NO_HANDS if d.hands_px is None else d.hands_px)
+                   NO_HANDS if d.hands_px is None else d.hands_px, NO_HEAD_POINTS if d.mesh_px is None else d.mesh_px)
         if self.config.smoothing:
             quats = state.rotations(quats, d.t_s)
             root_view = state.root(root_view, d.t_s)
@@ -119,7 +120,7 @@ class PosePipeline:
                           root_view * CAMERA_FROM_VIEW, match, state.scale * UNIVERSAL_HEIGHT_M,
                           state.proportions_m * state.scale, up_view=state.up,
                           keypoints_px=np.column_stack([d.points_px, d.confidence]), extremities_px=d.extremities,
-                          face_world_m=face_world_m, hands_px=d.hands_px, blend_shapes=shapes)
+                          face_world_m=face_world_m, hands_px=d.hands_px, blend_shapes=shapes, mesh_px=d.mesh_px)
 
     def _world(self, state: TrackState, d: Detection
                ) -> tuple[tuple[np.ndarray, np.ndarray] | None, WorldBones | None]:

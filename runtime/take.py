@@ -104,6 +104,7 @@ from mocapdb.runtime.hand_pose import (
     twisted,
 )
 from mocapdb.runtime.head_pose import chest_relative_head, face_points, head_local
+from mocapdb.runtime.mesh_head import eased_presence, mesh_model, mesh_observations
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
 from mocapdb.runtime.take_params import TakeParams
 from mocapdb.runtime.take_smoothing import smooth_rotations, smoothed_keypoints, zero_phase_smoothed
@@ -173,7 +174,7 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
                                   planted, floor_up, fps, params, palms)
     head = None if not len(extremities) or rec.camera_px is None else head_rotation(
         quats, root, scale, offsets, face_points(keypoints, extremities), rec.camera_px, fps, params,
-        rec.column("face_world_m"))
+        rec.column("face_world_m"), rec.column("mesh_px"))
     fingers = None if hands is None or palms is None else finger_rotations(hands, palms, fps, params)
     motion = Motion(quats, root, fps, "view", rec.first_frame, scale, rec.proportions_m, _ends(end_quats, head),
                     fingers)
@@ -253,17 +254,22 @@ def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
 
 def head_rotation(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
                   face_px: np.ndarray, camera_px: tuple[float, float, float], fps: float, params: TakeParams,
-                  face_world_m: np.ndarray | None = None) -> np.ndarray | None:
+                  face_world_m: np.ndarray | None = None, mesh_px: np.ndarray | None = None) -> np.ndarray | None:
     """``[F, 4]`` the humanoid ``Head``'s local rotation of the fitted motion (``quats [F, R, 4]``, ``root_m``
-    view frame, body ``scale``, ``offsets_m``) from the face points ``face_px [F, 7, 3]``
-    and the detector's ``face_world_m [F, 11, 3]`` if recorded
-    (:func:`~mocapdb.runtime.head_pose.chest_relative_head`): gaps interpolated, de-popped and smoothed
-    as the rotations; None when no frame's face fixes it."""
-    relative = chest_relative_head(quats, root_m, scale, offsets_m, face_px, camera_px, face_world_m)
+    view frame, body ``scale``, ``offsets_m``) from the face points ``face_px [F, 7, 3]``, the detector's
+    ``face_world_m [F, 11, 3]`` and the face mesh's head vertices ``mesh_px [F, N_HEAD, 3]`` if recorded
+    (:func:`~mocapdb.runtime.head_pose.chest_relative_head`; the person's face from the take's meshes,
+    :func:`~mocapdb.runtime.mesh_head.mesh_model`): gaps interpolated, de-popped and smoothed as the
+    rotations, the mesh's frames carried whole (:func:`~mocapdb.runtime.mesh_head.eased_presence`); None
+    when no frame's face fixes it."""
+    model = None if mesh_px is None or not len(mesh_px) else mesh_model(mesh_px, scale)
+    mesh = None if model is None or mesh_px is None else (mesh_observations(mesh_px), model)
+    relative, from_mesh = chest_relative_head(quats, root_m, scale, offsets_m, face_px, camera_px, face_world_m,
+                                              mesh)
     if not np.isfinite(relative).any():
         return None
     relative = smooth_rotations(interpolated(relative)[:, None], fps, params)[:, 0]
-    return head_local(quats, relative)
+    return head_local(quats, relative, eased_presence(from_mesh, fps) if from_mesh.any() else None)
 
 
 def _ends(feet_hands: np.ndarray | None, head: np.ndarray | None) -> np.ndarray | None:

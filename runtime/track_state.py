@@ -23,6 +23,7 @@ from mocapdb.core.skeleton import (
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.filters import KeypointFilter, OneEuroFilter, QuaternionOneEuroFilter
 from mocapdb.runtime.head_pose import NO_FACE_WORLD
+from mocapdb.runtime.mesh_head import NO_HEAD_POINTS
 from mocapdb.runtime.world.body_size import BoneLengths, CameraTilt, FloorScale
 from mocapdb.runtime.world.detector_prior import MIN_VERTICAL_FRAMES, VERTICAL_WINDOW_S
 
@@ -86,9 +87,10 @@ class TrackState:
         unfiltered rotations and root, the keypoints ``[14, 3]``, the heels, toes and knuckles
         ``[8, 3]`` (x, y px, confidence) and the world bones the fit used ``[B, 4]`` (direction,
         weight; :data:`~mocapdb.runtime.world.detector_prior.FIT_BONES`) and the face's world landmarks ``[11, 3]``
-        (:func:`~mocapdb.runtime.head_pose.face_world`) and the hands' points ``[2, 21, 3]`` (x, y, z px,
-        float32; NaN: absent), kept for the whole-take fit (missed frames get the last fit and no keypoint,
-        world landmark nor hand)."""
+        (:func:`~mocapdb.runtime.head_pose.face_world`), the hands' points ``[2, 21, 3]`` (x, y, z px,
+        float32; NaN: absent) and the face mesh's head vertices ``[N_HEAD, 3]`` (x, y, z px, float32; NaN:
+        absent; :func:`~mocapdb.runtime.mesh_head.head_vertices`), kept for the whole-take fit (missed
+        frames get the last fit and no keypoint, world landmark, hand nor mesh)."""
         rec = self.recording
         if not len(rec):
             rec.first_frame, rec.first_s = frame, t_s
@@ -98,13 +100,13 @@ class TrackState:
             if "keypoints" in held:
                 held.update(keypoints=np.zeros_like(held["keypoints"]), extremities=NO_EXTREMITIES,
                             world_bones=np.zeros_like(held["world_bones"]), face_world_m=NO_FACE_WORLD,
-                            hands_px=NO_HANDS)
+                            hands_px=NO_HANDS, mesh_px=NO_HEAD_POINTS)
             rec.frames.append(**held)
         row: dict[str, np.ndarray | float] = dict(quaternions=quats, root_view_m=root_view, scales=self.scale)
         if fit is not None:
             row.update(fit_quaternions=fit[0], fit_root_view_m=fit[1], keypoints=fit[2], extremities=fit[3],
                        world_bones=fit[4], face_world_m=fit[5],
-                       hands_px=fit[6])
+                       hands_px=fit[6], mesh_px=fit[7])
             rec.up_view, rec.up_sd_deg = self.tilt.up, self.tilt.sd_deg
         rec.frames.append(**row)
         rec.proportions_m = self.proportions_m

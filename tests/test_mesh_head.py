@@ -7,12 +7,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mocapdb.runtime.mesh_head import (
+    HEAD_VERTICES,
     MESH_BREADTH_M,
     MESH_LEFT,
     MESH_NOSE,
     MESH_RIGHT,
     N_MESH,
     fit_mesh_head,
+    head_vertices,
     mesh_model,
 )
 
@@ -29,6 +31,11 @@ def _face(seed: int = 1) -> np.ndarray:
     face[MESH_NOSE] = (0.0, 0.0, 0.115)
     face[MESH_RIGHT], face[MESH_LEFT] = (-0.07, 0.0, 0.0), (0.07, 0.0, 0.0)
     return face
+
+
+def _head(seed: int = 1) -> np.ndarray:
+    """``[N_HEAD, 3]`` :func:`_face`'s head vertices (mesh_head.HEAD_VERTICES)."""
+    return _face(seed)[list(HEAD_VERTICES)]
 
 
 def _project(points_view: np.ndarray) -> np.ndarray:
@@ -55,32 +62,35 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def test_known_rotations_are_recovered_from_a_projected_face():
-    """From an upright prior (identity) with 1 px noise: within a median 0.5°, every frame within 2°."""
+    """From an upright prior (identity) with 1 px noise on the 37 head vertices of faces 50-130 px across: within
+    a median 1°, every frame within 3° (measured on 200 frames: median 0.69°, p90 1.36°, at most 2.07°)."""
     truth, mesh, nose = _scene(60, noise_px=1.0)
     prior = np.broadcast_to(np.eye(3), truth.shape).copy()
-    rotation, fixed = fit_mesh_head(mesh, nose * 1.1, prior, 1.0, CAMERA, _face())   # the nose's depth 10 % off
+    # the nose's depth 10 % off
+    rotation, fixed = fit_mesh_head(head_vertices(mesh), nose * 1.1, prior, 1.0, CAMERA, _head())
     error = _angle_deg(rotation, truth)
     assert fixed.all()
-    assert np.median(error) < 0.5 and error.max() < 2.0, (np.median(error), error.max())
+    assert np.median(error) < 1.0 and error.max() < 3.0, (np.median(error), error.max())
 
 
 def test_the_fit_agrees_with_opencv_solvepnp_on_the_same_points():
     """OpenCV's solvePnP (SQPnP, its camera x right, y down, z forwards = our view frame turned 180°
-    about x) on the same noisy points and model: within 1° of ours in every frame (measured: median 0.18°, at most
-    0.58°, the larger at 3.5-4 m: ours without the rotation prior's pull, which solvePnP does not have, but
-    with the depth held near the body's nose, which couples with the turn there)."""
+    about x) on the same noisy points and model (the 37 head vertices, 1.5 px noise): within 1° of ours in every
+    frame (measured: median 0.11°, at most 0.41°: ours without the rotation prior's pull, which solvePnP does
+    not have, but with the depth held near the body's nose, which couples with the turn at 3.5-4 m); both near
+    the truth (measured: median 1.1° each, at most 4.8° ours, 5.0° solvePnP's, on faces 50 px across)."""
     truth, mesh, nose = _scene(30, noise_px=1.5, seed=3)
     prior = np.broadcast_to(np.eye(3), truth.shape).copy()
-    rotation, _ = fit_mesh_head(mesh, nose, prior, 1.0, CAMERA, _face(), prior_sd_deg=1e6)
+    rotation, _ = fit_mesh_head(head_vertices(mesh), nose, prior, 1.0, CAMERA, _head(), prior_sd_deg=1e6)
     focal, cx, cy = CAMERA
     matrix = np.array([[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]])
     flip = np.diag([1.0, -1.0, -1.0])
     for f in range(len(truth)):
-        ok, rvec, _ = cv2.solvePnP(_face(), mesh[f, :, :2].copy(), matrix, None, flags=cv2.SOLVEPNP_SQPNP)
+        ok, rvec, _ = cv2.solvePnP(_head(), mesh[f, HEAD_VERTICES, :2].copy(), matrix, None, flags=cv2.SOLVEPNP_SQPNP)
         assert ok
         theirs = flip @ cv2.Rodrigues(rvec)[0]
         assert _angle_deg(rotation[f], theirs) < 1.0
-        assert _angle_deg(theirs, truth[f]) < 3.0            # and both near the truth
+        assert _angle_deg(theirs, truth[f]) < 6.0            # and both near the truth
 
 
 def test_the_persons_own_model_comes_back_from_weak_perspective_meshes():
@@ -92,10 +102,12 @@ def test_the_persons_own_model_comes_back_from_weak_perspective_meshes():
     turned = np.einsum("fij,pj->fpi", truth, face) * focal / 2.5                   # px at 2.5 m
     meshes = np.concatenate([cx + turned[..., :1], cy - turned[..., 1:2], -turned[..., 2:]], axis=-1)
     meshes[4] = np.nan                                                               # an absent face
-    model = mesh_model(meshes, scale=1.1)
-    expected = face * MESH_BREADTH_M * 1.1 / 0.14        # the face's own frame is its model's (breadth 14 cm)
-    np.testing.assert_allclose(model, expected, atol=1e-9)
-    assert mesh_model(meshes[:4], 1.0) is None                                       # too few meshes
+    meshes = np.concatenate([meshes, np.ones_like(meshes[..., :1])], axis=-1)       # confidence
+    meshes[4, :, 3] = 0.0
+    model = mesh_model(head_vertices(meshes), scale=1.1)
+    expected = _head() * MESH_BREADTH_M * 1.1 / 0.14     # the face's own frame is its model's (breadth 14 cm)
+    np.testing.assert_allclose(model, expected, atol=1e-6)                          # float32 vertices
+    assert mesh_model(head_vertices(meshes[4:5]), 1.0) is None                       # no mesh
 
 
 def test_frames_without_a_mesh_keep_the_prior():
@@ -103,10 +115,11 @@ def test_frames_without_a_mesh_keep_the_prior():
     mesh[1] = np.nan
     mesh[2, :, 3] = 0.0
     prior = Rotation.from_euler("Y", [[5], [10], [15], [20]], degrees=True).as_matrix()
-    rotation, fixed = fit_mesh_head(mesh, nose, prior, 1.0, CAMERA, _face(), prior_sd_deg=1e6)   # no pull: exact
+    # no pull: exact
+    rotation, fixed = fit_mesh_head(head_vertices(mesh), nose, prior, 1.0, CAMERA, _head(), prior_sd_deg=1e6)
     assert fixed.tolist() == [True, False, False, True]
     np.testing.assert_allclose(rotation[1:3], prior[1:3])
-    assert _angle_deg(rotation[[0, 3]], truth[[0, 3]]).max() < 1e-3
+    assert _angle_deg(rotation[[0, 3]], truth[[0, 3]]).max() < 1e-2     # float32 pixels (head_vertices)
 
 
 def test_eval_head_scores_a_known_head_against_a_known_chest():

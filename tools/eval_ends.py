@@ -4,7 +4,7 @@ hands and feet, seen from 6 yaws, exact and with noise; the median geodesic erro
 bone's global rotation in the humanoid BVH (whole take) and in the stream at lag 0 (``--lag``), and not turned.
 
     .venv/bin/python tools/eval_ends.py [--db demo/sample.db] [--bvh data/gate/cmu_bvh/007_01.bvh ...]
-        [--hand-points 21]
+        [--hand-points 21] [--face-mesh]
 
 The default clips are the gate's (data/gate/cmu_bvh: 007_01, 007_12, 002_05, none in demo/sample.db).
 Prints a Markdown table (docs/benchmarks.md, "Head, hands and feet against synthetic truth").
@@ -31,10 +31,13 @@ def main() -> None:
     parser.add_argument("--hand-points", type=int, choices=(3, 21), default=3,
                         help="the hands as BlazePose's 3 points, or with the hand landmark model's 21 (detect --hands)"
                              " and the fingers' bends scored")
+    parser.add_argument("--face-mesh", action="store_true",
+                        help="also render the face mesh (a real face's rigid head vertices, detect --face): the head "
+                             "from the mesh where the face looks within 60 deg of the camera")
     args = parser.parse_args()
     t0 = time.perf_counter()
     results = evaluate_ends(load_database(args.db), args.bvh, yaws_deg=tuple(args.yaws), max_frames=args.max_frames,
-                            lag_frames=args.lag, hand_points=args.hand_points)
+                            lag_frames=args.lag, hand_points=args.hand_points, face_mesh=args.face_mesh)
     print(format_ends(results))
     print(f"\n{len(args.bvh)} clips x 3 bodies x {len(args.yaws)} yaws per input; {time.perf_counter() - t0:.0f} s")
 

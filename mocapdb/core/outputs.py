@@ -76,11 +76,14 @@ class PersonPose:
     fingers_seen: tuple[bool, bool] | None = None  # (right, left) hand measured in this frame
     # [3] the face's blend shapes (face_shapes.BLEND_SHAPES, 0-1; NaN: no face this frame; None: no faces)
     blend_shapes: np.ndarray | None = None
+    # [N_HEAD, 3] the face mesh's head vertices (runtime/mesh_head.head_vertices: x, y, z px; NaN: no mesh
+    # this frame; None: the input has no faces)
+    mesh_px: np.ndarray | None = None
 
 
 MOTION_COLUMNS = ("quaternions", "root_view_m", "scales")  # every recorded frame's (TrackRecording.frames)
 FIT_COLUMNS = ("fit_quaternions", "fit_root_view_m", "keypoints", "extremities",  # with EngineConfig.keep_take
-               "world_bones", "face_world_m", "hands_px")
+               "world_bones", "face_world_m", "hands_px", "mesh_px")
 
 
 @dataclass
@@ -95,7 +98,9 @@ class TrackRecording:
     detector's world bones the fit was turned towards ``world_bones [B, 4]`` (unit direction in the
     view frame, weight; weight 0: none; ``runtime/world/detector_prior.py``) and its world landmarks of the face,
     shoulders and hips ``face_world_m [11, 3]`` (NaN: none; ``runtime/head_pose.face_world``) and the hands'
-    points ``hands_px [2, 21, 3]`` (x, y, z px, float32; NaN: absent; ``runtime/frame_people.hand_points``).
+    points ``hands_px [2, 21, 3]`` (x, y, z px, float32; NaN: absent; ``runtime/frame_people.hand_points``) and
+    the face mesh's head vertices ``mesh_px [N_HEAD, 3]`` (x, y, z px, float32; NaN: absent;
+    ``runtime/mesh_head.head_vertices``).
     :meth:`motion` gives the track as a :class:`~mocapdb.core.motion.Motion`.
     """
 

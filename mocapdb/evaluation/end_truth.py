@@ -27,8 +27,10 @@ BlazePose gives: heels, foot tips, index and little-finger knuckles, eyes, ears,
 """
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +44,7 @@ from mocapdb.core.motion_ops import resample
 from mocapdb.core.skeleton import END_JOINTS, KP, UNIVERSAL_HEIGHT_M
 from mocapdb.core.units import UNITS
 from mocapdb.evaluation.loso import middle_frames
+from mocapdb.runtime.mesh_head import HEAD_VERTICES, MESH_BREADTH_M, NOSE
 
 SIDES = (("R", "r"), ("L", "l"))
 FLAT_FOOT_M = 0.02   # a foot is flat where its ankle and toe base are both this close to their lowest
@@ -202,3 +205,23 @@ def end_points(positions_m: np.ndarray, rotations: np.ndarray, stature_m: float)
             for k, row in enumerate(rows):
                 out[:, EXTREMITIES.index(f"{short}_{row}")] = world[:, k]
     return out
+
+
+@cache
+def face_shape() -> np.ndarray:
+    """``[N_HEAD, 3]`` a real face's rigid head vertices (``runtime/mesh_head.HEAD_VERTICES``) in the head
+    frame, in units of its breadth: ``face_shape.json`` (the face landmark model's mesh of
+    ``data/sample_faces/sergey.jpg``)."""
+    stored = json.loads((Path(__file__).parent / "face_shape.json").read_text())
+    if tuple(stored["vertices"]) != HEAD_VERTICES:
+        raise ValueError("face_shape.json was made for other head vertices than mesh_head.HEAD_VERTICES")
+    return np.array(stored["shape"])
+
+
+def face_mesh_points(positions_m: np.ndarray, rotations: np.ndarray, stature_m: float) -> np.ndarray:
+    """``[F, N_HEAD, 3]`` the face mesh's head vertices (world, metres) of a body ``positions_m [F, 15, 3]``
+    whose head turns by ``rotations [F, 5, 3, 3]`` (:class:`EndTruth`): :func:`face_shape` at the mesh's
+    breadth for ``stature_m``, its nose tip at the body's nose, its frame the head's."""
+    shape = face_shape() * MESH_BREADTH_M * stature_m / UNIVERSAL_HEIGHT_M
+    head = rotations[:, END_JOINTS.index("head")]
+    return positions_m[:, KP["head"], None] + np.einsum("fij,kj->fki", head, shape - shape[NOSE])

@@ -33,7 +33,7 @@ from mocapdb.core.motion import Motion
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose, motion_bvh
 from mocapdb.core.skeleton import END_JOINTS, N_POINTS, PELVIS, stature_m
 from mocapdb.evaluation.bodies import reshape_body
-from mocapdb.evaluation.end_truth import EndTruth, end_points, load_end_truth
+from mocapdb.evaluation.end_truth import EndTruth, end_points, face_mesh_points, load_end_truth
 from mocapdb.evaluation.engine_runs import run_sequence, stream_config
 from mocapdb.evaluation.gate import GATE_BODIES, GATE_CLIPS, MAX_FRAMES, GateBody, gate_engine_config
 from mocapdb.evaluation.hand_render import bend_errors_deg, finger_medians, hands_world, motion_hand_points
@@ -46,6 +46,7 @@ from mocapdb.runtime.world.fuse import fit_takes
 
 HUMANOID_ENDS = ("RightFoot", "LeftFoot", "RightHand", "LeftHand", "Head")   # END_JOINTS order
 GROUPS = {"head": (4,), "hands": (2, 3), "feet": (0, 1)}                      # rows of END_JOINTS
+MESH_GROUPS = ("head, mesh seen", "head, no mesh")    # the head's frames with and without a face mesh
 SCENARIOS = (Scenario("exact 2D"),
              Scenario("sigma 5 px + 10% dropout + 5% swaps", noise_px=5.0, dropout=0.1, swap=0.05))
 ENDS_YAWS_DEG = (3.0, 63.0, 123.0, 183.0, 243.0, 303.0)   # all round, 3 deg off the database's 12 deg grid
@@ -58,24 +59,33 @@ class EndErrors:
     errors: dict[str, list[np.ndarray]] = field(default_factory=dict)
     # per variant the fingers' bend errors (degrees) ``[N, 2, 5, 3]`` (hand_render.bend_errors_deg), if scored
     fingers: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    # per variant which frames had a face mesh ``[N]`` (bool), if rendered
+    meshes: dict[str, list[np.ndarray]] = field(default_factory=dict)
 
-    def add(self, variant: str, errors_deg: np.ndarray, bends_deg: np.ndarray | None = None) -> None:
+    def add(self, variant: str, errors_deg: np.ndarray, bends_deg: np.ndarray | None = None,
+            mesh_seen: np.ndarray | None = None) -> None:
         self.errors.setdefault(variant, []).append(errors_deg)
         if bends_deg is not None:
             self.fingers.setdefault(variant, []).append(bends_deg)
+        if mesh_seen is not None:
+            self.meshes.setdefault(variant, []).append(mesh_seen)
 
     def extend(self, other: EndErrors) -> None:
-        for variant, rows in other.errors.items():
-            self.errors.setdefault(variant, []).extend(rows)
-        for variant, rows in other.fingers.items():
-            self.fingers.setdefault(variant, []).extend(rows)
+        for mine, theirs in ((self.errors, other.errors), (self.fingers, other.fingers), (self.meshes, other.meshes)):
+            for variant, rows in theirs.items():
+                mine.setdefault(variant, []).extend(rows)
 
     def medians(self) -> dict[str, dict[str, float]]:
-        """Per variant and :data:`GROUPS` entry the median error (degrees) over frames, views and sides."""
+        """Per variant and :data:`GROUPS` entry the median error (degrees) over frames, views and sides; where
+        face meshes were rendered also the head's where one was seen and where none was (:data:`MESH_GROUPS`)."""
         out = {}
         for variant, rows in self.errors.items():
             stacked = np.concatenate(rows) if rows else np.full((0, len(END_JOINTS)), np.nan)
             out[variant] = {group: _median(stacked[:, list(cols)]) for group, cols in GROUPS.items()}
+            if variant in self.meshes:
+                seen = np.concatenate(self.meshes[variant])
+                head = stacked[:, GROUPS["head"][0]]
+                out[variant].update(zip(MESH_GROUPS, (_median(head[seen]), _median(head[~seen]))))
         return out
 
 
@@ -166,20 +176,25 @@ def stream_ends(db: MotionDatabase, engine: EngineConfig, frames: list[KeypointF
 
 
 def view_frames(posed_m: np.ndarray, truth: EndTruth, stature: float, yaw_deg: float, scenario: Scenario,
-                config: EvalConfig, hand_points: int = 3) -> tuple[list[KeypointFrame], np.ndarray]:
-    """A body ``posed_m [F, 15, 3]`` with its end points (and with ``hand_points`` 21, its hands' 21 points)
-    seen from ``yaw_deg`` (the held-out camera, 1.5 m high, level) and rendered under ``scenario``: the
-    keypoint frames, and the true end rotations ``[F, 5, 3, 3]`` in the view frame."""
+                config: EvalConfig, hand_points: int = 3, face_mesh: bool = False
+                ) -> tuple[list[KeypointFrame], np.ndarray]:
+    """A body ``posed_m [F, 15, 3]`` with its end points (and with ``hand_points`` 21, its hands' 21 points; with
+    ``face_mesh``, its face mesh: :func:`~mocapdb.evaluation.end_truth.face_mesh_points`) seen from ``yaw_deg``
+    (the held-out camera, 1.5 m high, level) and rendered under ``scenario``: the keypoint frames, and the true
+    end rotations ``[F, 5, 3, 3]`` in the view frame."""
     ends = end_points(posed_m, truth.rotations, stature)
     n_ends = N_POINTS + ends.shape[1]
     hands = (np.zeros((len(posed_m), 0, 3)) if hand_points == 3 or truth.hand_points_m is None
              else hands_world(posed_m, truth.rotations, truth.hand_points_m, stature).reshape(len(posed_m), 42, 3))
-    points = np.concatenate([posed_m, ends, hands], axis=1)
+    n_hands = n_ends + hands.shape[1]
+    faces = face_mesh_points(posed_m, truth.rotations, stature) if face_mesh else np.zeros((len(posed_m), 0, 3))
+    points = np.concatenate([posed_m, ends, hands, faces], axis=1)
     distance = camera_distance(posed_m, yaw_deg, config)
     cam = camera_view(points, yaw_deg, scenario.camera_height_m, distance, scenario.pitch_deg, scenario.roll_deg)
     rng = np.random.default_rng((config.seed, int(yaw_deg * 10)))
     frames = render(cam[:, :N_POINTS], scenario, config.focal_px, config.image_size, rng, cam[:, N_POINTS:n_ends],
-                    cam[:, n_ends:].reshape(len(posed_m), 2, 21, 3) if hands.shape[1] else None)
+                    cam[:, n_ends:n_hands].reshape(len(posed_m), 2, 21, 3) if hands.shape[1] else None,
+                    cam[:, n_hands:] if face_mesh else None)
     view = view_rotation(yaw_deg, scenario.pitch_deg, scenario.roll_deg)
     return frames, np.einsum("ij,fkjl->fkil", view, truth.rotations)
 
@@ -190,20 +205,23 @@ def variants(lag_frames: int = 0) -> tuple[str, ...]:
 
 
 def score_ends(db: MotionDatabase, posed_m: np.ndarray, truth: EndTruth, stature: float, yaw_deg: float,
-               scenario: Scenario, config: EvalConfig, lag_frames: int = 0, hand_points: int = 3) -> EndErrors:
+               scenario: Scenario, config: EvalConfig, lag_frames: int = 0, hand_points: int = 3,
+               face_mesh: bool = False) -> EndErrors:
     """One body, view and scenario through the engine: the errors of every output (:func:`variants`; the
-    fingers' bends too with ``hand_points`` 21)."""
-    frames, true_view = view_frames(posed_m, truth, stature, yaw_deg, scenario, config, hand_points)
+    fingers' bends too with ``hand_points`` 21; the face mesh rendered with ``face_mesh``)."""
+    frames, true_view = view_frames(posed_m, truth, stature, yaw_deg, scenario, config, hand_points, face_mesh)
     engine = gate_engine_config(config)
     out = EndErrors()
     true_hands = truth.hand_points_m if hand_points == 21 else None
     fingers = true_hands is not None
     outputs = (whole_take_ends(db, engine, frames, config.fps, fingers),
                stream_ends(db, engine, frames, lag_frames, fingers))
+    mesh_seen = np.array([bool(f.people) and f.people[0].face is not None and f.people[0].face[1, 3] > 0
+                          for f in frames]) if face_mesh else None
     for k, variant in enumerate(variants(lag_frames)):
         estimate = outputs[k // 2]
         out.add(variant, geodesic_deg(estimate.ends[k % 2], true_view),
-                None if true_hands is None else bend_errors_deg(estimate.hands[k % 2], true_hands))
+                None if true_hands is None else bend_errors_deg(estimate.hands[k % 2], true_hands), mesh_seen)
     return out
 
 
@@ -220,9 +238,9 @@ def ends_truths(bvh_files: Iterable[Path], max_frames: int, yaws_deg: tuple[floa
 def evaluate_ends(db: MotionDatabase, bvh_files: Iterable[Path], bodies: tuple[GateBody, ...] = GATE_BODIES,
                   scenarios: tuple[Scenario, ...] = SCENARIOS, yaws_deg: tuple[float, ...] = ENDS_YAWS_DEG,
                   max_frames: int = MAX_FRAMES, config: EvalConfig | None = None, lag_frames: int = 0,
-                  hand_points: int = 3) -> dict[str, EndErrors]:
+                  hand_points: int = 3, face_mesh: bool = False) -> dict[str, EndErrors]:
     """Every clip on every body from every yaw under each scenario (the stream at ``lag_frames``; the hands
-    as ``hand_points`` 3 or 21 points): the errors per scenario name."""
+    as ``hand_points`` 3 or 21 points; the face mesh rendered with ``face_mesh``): the errors per scenario name."""
     config = config or EvalConfig()
     out = {s.name: EndErrors() for s in scenarios}
     for truth, ends in ends_truths(bvh_files, max_frames, yaws_deg, config.fps):
@@ -232,16 +250,17 @@ def evaluate_ends(db: MotionDatabase, bvh_files: Iterable[Path], bodies: tuple[G
             for scenario in scenarios:
                 for yaw in yaws_deg:
                     out[scenario.name].extend(score_ends(db, posed, ends, stature, yaw, scenario, config, lag_frames,
-                                                                    hand_points))
+                                                         hand_points, face_mesh))
     return out
 
 
 def format_ends(results: dict[str, EndErrors]) -> str:
     """A Markdown table: a row per scenario and variant, the median geodesic error (degrees) per group."""
-    lines = ["| input | output | " + " | ".join(f"{g} deg" for g in GROUPS) + " |", "|---|---|" + "---|" * len(GROUPS)]
+    groups = list(GROUPS) + (list(MESH_GROUPS) if any(e.meshes for e in results.values()) else [])
+    lines = ["| input | output | " + " | ".join(f"{g} deg" for g in groups) + " |", "|---|---|" + "---|" * len(groups)]
     for scenario, errors in results.items():
         for variant, medians in errors.medians().items():
-            lines.append(f"| {scenario} | {variant} | " + " | ".join(f"{medians[g]:.1f}" for g in GROUPS) + " |")
+            lines.append(f"| {scenario} | {variant} | " + " | ".join(f"{medians[g]:.1f}" for g in groups) + " |")
     fingers = [(s, v, finger_medians(rows)) for s, e in results.items() for v, rows in e.fingers.items()]
     if fingers:
         lines += ["", "| input | output | " + " | ".join(f"{f} bend deg" for f in fingers[0][2]) + " |",

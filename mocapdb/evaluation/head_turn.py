@@ -174,9 +174,17 @@ def mesh_angles(meshes: np.ndarray, cam: CameraModel, points_m: np.ndarray) -> n
     ``[T, 468, 4]`` (``runtime/mesh_head.py``: the person's own model from these meshes, the head's depth
     from the mesh's 3D breadth, an upright prior facing the camera) against the chest of the triangulated
     :data:`REFERENCE_POINTS` ``[T, 7, 3]``: the head alone, the body fit left out."""
-    from mocapdb.runtime.mesh_head import MESH_BREADTH_M, MESH_LEFT, MESH_NOSE, MESH_RIGHT, fit_mesh_head, mesh_model
+    from mocapdb.runtime.mesh_head import (
+        MESH_BREADTH_M,
+        MESH_LEFT,
+        MESH_NOSE,
+        MESH_RIGHT,
+        fit_mesh_head,
+        head_vertices,
+        mesh_model,
+    )
 
-    model = mesh_model(meshes, 1.0)
+    model = mesh_model(head_vertices(meshes), 1.0)
     if model is None:
         return np.full((len(meshes), 3), np.nan)
     focal, cx, cy = float(cam.K[0, 0]), float(cam.K[0, 2]), float(cam.K[1, 2])
@@ -185,7 +193,7 @@ def mesh_angles(meshes: np.ndarray, cam: CameraModel, points_m: np.ndarray) -> n
     nose = np.stack([(meshes[:, MESH_NOSE, 0] - cx) * depth / focal, (cy - meshes[:, MESH_NOSE, 1]) * depth / focal,
                      -depth], axis=-1)
     prior = np.broadcast_to(np.eye(3), (len(meshes), 3, 3)).copy()
-    head_view, fixed = fit_mesh_head(np.nan_to_num(meshes), np.nan_to_num(nose, nan=1.0), prior, 1.0,
+    head_view, fixed = fit_mesh_head(head_vertices(meshes), np.nan_to_num(nose, nan=1.0), prior, 1.0,
                                      (focal, cx, cy), model)
     head_world = cam.R.T @ np.diag([1.0, -1.0, -1.0]) @ head_view       # view (y up, z to the camera) → world
     _, _, _, r_sh, l_sh, r_hip, l_hip = np.moveaxis(points_m, 1, 0)

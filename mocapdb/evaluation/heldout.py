@@ -22,6 +22,7 @@ from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import yaw_matrix
 from mocapdb.core.skeleton import KP, MIRROR_PAIRS, N_KEYPOINTS_2D, PELVIS, bone_lengths_m
 from mocapdb.evaluation.bodies import reshape_body, sample_body
+from mocapdb.evaluation.face_render import detected_faces
 from mocapdb.evaluation.hand_render import detected_hands
 from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.world.detector_prior import Z_AXIS, rotation_between
@@ -211,13 +212,15 @@ def project(cam_points: np.ndarray, focal_px: float, image_size: tuple[int, int]
 
 def render(cam_points: np.ndarray, scenario: Scenario, focal_px: float, image_size: tuple[int, int],
            rng: np.random.Generator, extremities_cam: np.ndarray | None = None,
-           hands_cam: np.ndarray | None = None) -> list[KeypointFrame]:
+           hands_cam: np.ndarray | None = None, faces_cam: np.ndarray | None = None) -> list[KeypointFrame]:
     """Detector-like keypoint frames of camera-aligned points ``[F, 15, 3]`` (with the detector's own
     3D where ``scenario.world_sd_m`` > 0: :func:`detector_world`), and of the heels, toes, knuckles and
     face points ``extremities_cam [F, 14, 3]`` (``keypoint_layouts.EXTREMITIES`` order) where given:
     the same noise, dropout and left/right swaps (drawn after the body's, so its frames do not change);
     and of the hands' 21 points ``hands_cam [F, 2, 21, 3]`` where given (``Person.hands``, drawn last:
-    :func:`~mocapdb.evaluation.hand_render.detected_hands`)."""
+    :func:`~mocapdb.evaluation.hand_render.detected_hands`) and of the face mesh's head vertices ``faces_cam
+    [F, N_HEAD, 3]`` where given (``Person.face``, drawn after the hands:
+    :func:`~mocapdb.evaluation.face_render.detected_faces`)."""
     px, conf = _detected(project(cam_points[:, :N_KEYPOINTS_2D], focal_px, image_size), scenario, image_size, rng)
     swapped = rng.random(len(px)) < scenario.swap
     _swap(px, swapped, SWAP_PAIRS)
@@ -227,9 +230,12 @@ def render(cam_points: np.ndarray, scenario: Scenario, focal_px: float, image_si
     hands = None if hands_cam is None else detected_hands(project(hands_cam, focal_px, image_size), hands_cam,
                                                           focal_px, scenario.noise_px > 0, scenario.dropout,
                                                           swapped, image_size, rng)
+    faces = None if faces_cam is None else detected_faces(project(faces_cam, focal_px, image_size), faces_cam,
+                                                          focal_px, scenario.noise_px > 0, rng)
     return [KeypointFrame(i, None, [Person(px[i], conf[i], world_m=None if world is None else world[i],
                                            extremities=None if ends is None else ends[i],
-                                           hands=None if hands is None else hands[i])])
+                                           hands=None if hands is None else hands[i],
+                                           face=None if faces is None else faces[i])])
             for i in range(len(px))]
 
 
