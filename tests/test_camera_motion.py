@@ -21,7 +21,7 @@ from mocapdb.core.formats.camera_path import (
 )
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.formats.openpose import is_frame_file
-from mocapdb.detect.camera_motion import BackgroundMotion, fit_rotation, people_mask, rays
+from mocapdb.detect.camera_motion import BackgroundMotion, fit_rotation, people_mask, rays, shrink_factor
 from mocapdb.detect.errors import DetectError
 
 SIZE = (640, 480)
@@ -75,6 +75,26 @@ def test_a_turn_over_many_frames_keeps_its_error_through_new_keyframes():
     path = run(_panning_frames(truths))
     errors = [angle_deg(m, t) for m, t in zip(path.rotations, truths)]
     assert max(errors) < 0.3
+
+
+def test_a_frame_of_no_whole_factor_is_cut_and_averaged_and_its_turn_found():
+    """A 1000 x 700 frame (no whole factor gives 320 px): shrunk by 3 to 333 x 233, each pixel the mean
+    of its 3 x 3 box of the green channel (NumPy's, within a grey level of rounding), the last row and
+    column cut; a turn through its own camera is found to the tolerance."""
+    size, focal = (1000, 700), 900.0
+    assert shrink_factor(size) == 3 and shrink_factor((1768, 994)) == 6 and shrink_factor((1080, 1920)) == 6
+    intrinsics = intrinsic_matrix(focal, (size[0] / 2, size[1] / 2))
+    image = texture(11, size)
+    image[:, :, 1] = cv2.GaussianBlur(texture(12, size)[:, :, 1], (0, 0), 1.0)   # green unlike blue and red
+    motion = BackgroundMotion(focal)
+    motion.see(0, image, np.zeros((0, 17, 3)))
+    shrunk = motion._shrink(image)
+    boxes = image[:699, :999, 1].reshape(233, 3, 333, 3).mean(axis=(1, 3))
+    assert shrunk.shape == (233, 333) and np.abs(shrunk - boxes).max() <= 1.0
+    truth = Rotation.from_euler("yxz", (3.0, -1.5, 1.0), degrees=True).as_matrix()
+    motion.see(1, cv2.warpPerspective(image, intrinsics @ truth @ np.linalg.inv(intrinsics), size),
+               np.zeros((0, 17, 3)))
+    assert angle_deg(motion.path().rotations[1], truth) < TOLERANCE_DEG
 
 
 def test_a_still_camera_is_still_and_the_identity():

@@ -1,7 +1,8 @@
 """The camera's rotation per frame from the background (issue 51, item 2), measured where `mocapdb
 detect` reads the frames.
 
-Each frame's green channel is shrunk to a grey image of :data:`WORK_SIDE_PX` on its longer side. Corners
+Each frame's green channel is shrunk to a grey image of about :data:`WORK_SIDE_PX` on its longer side
+(a whole factor of it: :func:`shrink_factor`). Corners
 (``cv2.goodFeaturesToTrack``) are found outside the people's boxes (their keypoints' box grown by
 :data:`BOX_MARGIN`) in a *keyframe* and followed frame to frame by pyramidal Lucas-Kanade, each
 kept only if tracking it back lands within :data:`BACK_TRACK_PX` of where it came from and it stays
@@ -40,7 +41,7 @@ from mocapdb.core.geometry import kabsch
 from mocapdb.detect.errors import DetectError
 from mocapdb.detect.focal_from_turn import Matches, best_focal, kept, rays, rotations_at, turn_from_key_deg
 
-WORK_SIDE_PX = 320        # the longer side of the grey image tracked (pixels)
+WORK_SIDE_PX = 320        # the longer side of the grey image tracked, about (pixels; a whole factor of the frame's)
 MAX_FEATURES = 100        # corners found per keyframe
 MIN_DISTANCE_PX = 8       # between two corners (on the shrunk image)
 BOX_MARGIN = 0.25         # a person's keypoint box grown by this share of its size on each side
@@ -66,8 +67,9 @@ def fit_rotation(a: np.ndarray, b: np.ndarray, threshold_rad: float, rng: np.ran
     first = rng.integers(len(a), size=RANSAC_SAMPLES)
     picks = np.stack([first, (first + rng.integers(1, len(a), size=RANSAC_SAMPLES)) % len(a)], axis=1)  # distinct
     hypotheses = kabsch(a[picks], b[picks])                               # [S, 3, 3]
-    predicted = np.einsum("sij,nj->sni", hypotheses, a)                   # [S, N, 3]
-    agree = np.einsum("sni,ni->sn", predicted, b) > np.cos(threshold_rad)
+    # b·(R a) = Σ_ij R_ij b_i a_j: every hypothesis against every ray in one [S, 9] @ [9, N] product
+    outer = (b[:, :, None] * a[:, None, :]).reshape(len(a), 9)
+    agree = hypotheses.reshape(-1, 9) @ outer.T > np.cos(threshold_rad)   # [S, N]
     inliers = agree[int(np.argmax(agree.sum(axis=1)))]
     rotation = np.eye(3)
     for _ in range(2):
@@ -76,6 +78,14 @@ def fit_rotation(a: np.ndarray, b: np.ndarray, threshold_rad: float, rng: np.ran
         rotation = kabsch(a[inliers], b[inliers])
         inliers = (a @ rotation.T * b).sum(axis=1) > np.cos(threshold_rad)
     return rotation, inliers
+
+
+def shrink_factor(image_size: tuple[int, int]) -> int:
+    """The whole factor by which a frame of ``image_size`` (width, height px) is shrunk for tracking
+    (boxes of ``factor × factor`` pixels averaged): the nearest to its longer side over
+    :data:`WORK_SIDE_PX`. A whole factor keeps OpenCV's area resize on its fast path (1768 × 994:
+    a quarter of the cost of a shrink to exactly 320 px)."""
+    return max(1, round(max(image_size) / WORK_SIDE_PX))
 
 
 def people_mask(shape: tuple[int, int], keypoints: np.ndarray, scale: float) -> np.ndarray:
@@ -123,8 +133,9 @@ class BackgroundMotion:
         """The shrunk image's size and the intrinsics, from the first frame's ``image_size`` (px)."""
         focal_px = self.given_focal_px or default_focal_px(image_size)
         self.image_size = image_size
-        self.scale = WORK_SIDE_PX / max(image_size)
-        self.small = (max(round(image_size[0] * self.scale), 1), max(round(image_size[1] * self.scale), 1))
+        self.factor = shrink_factor(image_size)
+        self.scale = 1.0 / self.factor
+        self.small = (max(image_size[0] // self.factor, 1), max(image_size[1] // self.factor, 1))
         self.focal_px, self.center_px = float(focal_px), (image_size[0] / 2.0, image_size[1] / 2.0)
         self.intrinsics = intrinsic_matrix(focal_px * self.scale, (self.center_px[0] * self.scale,
                                                                    self.center_px[1] * self.scale))
@@ -137,8 +148,7 @@ class BackgroundMotion:
         elif (image.shape[1], image.shape[0]) != self.image_size:
             raise DetectError(f"frame {number} is {image.shape[1]}x{image.shape[0]} px, the video's first "
                               f"{self.image_size[0]}x{self.image_size[1]}: no camera path across a change of size")
-        # the green channel as the grey (most of the luminance), shrunk: half the cost of a colour conversion
-        grey = cv2.resize(cv2.extractChannel(image, 1), self.small, interpolation=cv2.INTER_AREA)
+        grey = self._shrink(image)
         mask = people_mask(grey.shape, keypoints, self.scale)
         rotation = self.rotations[-1] if self.rotations else self._key_rotation
         residual, parallax = float("nan"), float("nan")
@@ -149,7 +159,7 @@ class BackgroundMotion:
                 relative, fit_residual, fit_matches, agreeing = self._fit()
                 if agreeing >= MIN_AGREE:   # else too little background to say: held
                     rotation, residual, matches = relative @ self._key_rotation, fit_residual, fit_matches
-                    parallax = self._parallax()
+                    parallax = self._parallax() if self.history else parallax   # live reports no parallax
         self.frames.append(int(number))
         self.rotations.append(rotation)
         self.residual_px.append(residual)
@@ -161,6 +171,13 @@ class BackgroundMotion:
         if not self.history:
             for kept_so_far in (self.frames, self.rotations, self.residual_px, self.parallax_px, self._matches):
                 del kept_so_far[:-1]
+
+    def _shrink(self, image: np.ndarray) -> np.ndarray:
+        """``image``'s (``[H, W, 3]`` BGR) green channel (most of the luminance: half the cost of a colour
+        conversion) as the grey image tracked, :attr:`small` (px): the frame cut to a whole number of
+        :attr:`factor` boxes (the last few rows and columns), each box averaged."""
+        cut = image[:self.small[1] * self.factor, :self.small[0] * self.factor]
+        return cv2.resize(cv2.extractChannel(cut, 1), self.small, interpolation=cv2.INTER_AREA)
 
     def online(self) -> np.ndarray | None:
         """The rotation (reference → the last frame seen) the path known so far gives, as ``live``
