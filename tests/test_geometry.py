@@ -45,6 +45,25 @@ def test_quaternions_match_scipy():
     np.testing.assert_allclose(quat_to_matrix(quat_mul(q, _scipy_quat(s))), (r * s).as_matrix(), atol=1e-12)
 
 
+def test_quaternions_keep_any_leading_shape_and_propagate_nan():
+    """The numba kernels behind matrix_to_quat and quat_to_matrix: any leading axes (none, several,
+    empty) as SciPy gives them, a half turn (w = 0: the largest component is not w), and NaN out
+    where a matrix's diagonal holds NaN."""
+    r = Rotation.random(12, random_state=8)
+    q = _scipy_quat(r).reshape(3, 4, 4)
+    np.testing.assert_allclose(quat_to_matrix(q), r.as_matrix().reshape(3, 4, 3, 3), atol=1e-12)
+    np.testing.assert_allclose(matrix_to_quat(r.as_matrix().reshape(3, 4, 3, 3)), q, atol=1e-12)
+    np.testing.assert_allclose(matrix_to_quat(r.as_matrix()[0]), q[0, 0], atol=1e-12)
+    assert quat_to_matrix(np.zeros((0, 4))).shape == (0, 3, 3) and matrix_to_quat(np.zeros((0, 3, 3))).shape == (0, 4)
+    half_turns = Rotation.from_rotvec(np.pi * np.eye(3))
+    np.testing.assert_allclose(np.abs(matrix_to_quat(half_turns.as_matrix())), np.abs(_scipy_quat(half_turns)),
+                               atol=1e-12)
+    broken = r.as_matrix()[:2].copy()
+    broken[0, 1, 1] = np.nan
+    out = matrix_to_quat(broken)
+    assert np.isnan(out[0]).all() and np.isfinite(out[1]).all()
+
+
 def test_geodesic_is_half_angle_and_sign_blind():
     r = Rotation.random(100, random_state=5)
     s = Rotation.random(100, random_state=6)

@@ -13,9 +13,11 @@ from mocapdb.core.skeleton import (
     N_RIG_JOINTS,
     PELVIS,
     RIG_JOINTS,
+    global_rotations,
     pose_from_rotations,
     rest_positions_m,
     retarget,
+    swing_matrices,
 )
 
 LIMBS = [("r_hip", "r_knee", "thigh"), ("r_knee", "r_ankle", "shin"), ("l_hip", "l_knee", "thigh"),
@@ -30,6 +32,43 @@ def _noisy_people(n_frames: int, seed: int = 0) -> np.ndarray:
     rest = rest_positions_m() * rng.uniform(0.8, 1.2, size=(n_frames, 1, 3))
     turn = Rotation.random(n_frames, random_state=seed).as_matrix()
     return np.einsum("fab,fjb->fja", turn, rest + rng.normal(scale=0.05, size=rest.shape)) + 1.0
+
+
+def test_swing_is_scipys_smallest_rotation_and_a_half_turn_for_opposites():
+    """swing_matrices against SciPy's align_vectors (the smallest rotation taking a to b), broadcast
+    against one b; opposite vectors give a half turn about an axis perpendicular to a."""
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(20, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = rng.normal(size=(20, 3))
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    expected = [Rotation.align_vectors(b[i:i + 1], a[i:i + 1])[0].as_matrix() for i in range(20)]
+    np.testing.assert_allclose(swing_matrices(a, b), expected, atol=1e-12)
+    up = np.array([0.0, 1.0, 0.0])
+    np.testing.assert_allclose(swing_matrices(a, up) @ a[..., None], np.broadcast_to(up[:, None], (20, 3, 1)),
+                               atol=1e-12)
+    assert swing_matrices(a[0], up).shape == (3, 3)
+    for v in (a[0], np.array([0.95, np.sqrt(1 - 0.95 ** 2), 0.0])):
+        half = swing_matrices(v, -v)
+        np.testing.assert_allclose(half @ v, -v, atol=1e-12)
+        assert abs(Rotation.from_matrix(half).magnitude() - np.pi) < 1e-9
+
+
+def test_global_rotations_chain_each_parent_as_scipy_composes_them():
+    """global_rotations against SciPy: each joint's global rotation is its parent's composed with its
+    own, the parents found by name in the rig's forward kinematics (a bone's end turns with it)."""
+    quats = Rotation.random(3 * N_RIG_JOINTS, random_state=4).as_quat()[:, [3, 0, 1, 2]].reshape(3, N_RIG_JOINTS, 4)
+    glob = global_rotations(quats)
+    local = Rotation.from_quat(quats[..., [1, 2, 3, 0]].reshape(-1, 4)).as_matrix().reshape(3, N_RIG_JOINTS, 3, 3)
+    spine, neck = RIG_JOINTS.index("spine"), RIG_JOINTS.index("neck")
+    np.testing.assert_allclose(glob[:, 0], local[:, 0], atol=1e-12)
+    np.testing.assert_allclose(glob[:, neck], glob[:, spine] @ local[:, neck], atol=1e-12)
+    points = pose_from_rotations(quats, np.zeros((3, 3)))
+    rest = rest_positions_m()
+    for joint, end in (("r_hip", "r_knee"), ("l_knee", "l_ankle"), ("r_elbow", "r_wrist")):
+        bone = rest[KP[end]] - rest[KP[joint]]
+        np.testing.assert_allclose(points[:, KP[end]] - points[:, KP[joint]], glob[:, RIG_JOINTS.index(joint)] @ bone,
+                                   atol=1e-9)
 
 
 def test_rest_pose_has_identity_rotations():

@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from mocapdb.core.kernels import NORMALISED_HEIGHT as NORMALISED_HEIGHT
-from mocapdb.core.kernels import pose_normalisation_into
+from mocapdb.core.kernels import pose_normalisation_into, quat_to_matrix_into
 from mocapdb.core.keypoint_order import KP
 
 if TYPE_CHECKING:  # cameras imports cv2 (slow); geometry only needs the camera's fields
@@ -75,45 +75,63 @@ def matrix_to_euler(matrices: np.ndarray, order: str) -> np.ndarray:
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices ``[..., 3, 3]`` of unit quaternions ``[..., 4]`` (w, x, y, z)."""
     q = np.asarray(q, dtype=np.float64)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     out = np.empty(q.shape[:-1] + (3, 3))
-    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    out[..., 0, 1] = 2 * (x * y - w * z)
-    out[..., 0, 2] = 2 * (x * z + w * y)
-    out[..., 1, 0] = 2 * (x * y + w * z)
-    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    out[..., 1, 2] = 2 * (y * z - w * x)
-    out[..., 2, 0] = 2 * (x * z - w * y)
-    out[..., 2, 1] = 2 * (y * z + w * x)
-    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    _quats_to_matrices(np.ascontiguousarray(q.reshape(-1, 4)), out.reshape(-1, 3, 3))
     return out
 
 
+@njit(cache=True)
+def _quats_to_matrices(quats: np.ndarray, out: np.ndarray) -> None:
+    """``out [N, 3, 3]``: the rotation matrix of each unit quaternion of ``quats [N, 4]``."""
+    for i in range(quats.shape[0]):
+        quat_to_matrix_into(quats[i], out[i])
+
+
 def matrix_to_quat(m: np.ndarray) -> np.ndarray:
-    """Unit quaternions ``[..., 4]`` with ``w >= 0`` of rotation matrices ``[..., 3, 3]``."""
+    """Unit quaternions ``[..., 4]`` with ``w >= 0`` of rotation matrices ``[..., 3, 3]`` (NaN where a
+    matrix's diagonal is)."""
     m = np.asarray(m, dtype=np.float64)
-    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
-    # Four candidate magnitudes; pick the largest component for numerical stability.
-    cand = np.stack([1 + trace,
-                     1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
-                     1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
-                     1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2]], axis=-1)
-    best = np.argmax(cand, axis=-1)
-    q = np.empty(m.shape[:-2] + (4,))
-    r = np.sqrt(np.maximum(np.take_along_axis(cand, best[..., None], -1)[..., 0], 1e-300))
-    s = 0.5 / r
-    d21, d02, d10 = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
-    s21, s02, s10 = m[..., 2, 1] + m[..., 1, 2], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 0] + m[..., 0, 1]
-    choices = [
-        np.stack([0.5 * r, d21 * s, d02 * s, d10 * s], -1),
-        np.stack([d21 * s, 0.5 * r, s10 * s, s02 * s], -1),
-        np.stack([d02 * s, s10 * s, 0.5 * r, s21 * s], -1),
-        np.stack([d10 * s, s02 * s, s21 * s, 0.5 * r], -1),
-    ]
-    for k in range(4):
-        q = np.where((best == k)[..., None], choices[k], q)
-    q /= np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0, -q, q)
+    out = np.empty(m.shape[:-2] + (4,))
+    _matrices_to_quats(np.ascontiguousarray(m.reshape(-1, 3, 3)), out.reshape(-1, 4))
+    return out
+
+
+@njit(cache=True)
+def _matrices_to_quats(matrices: np.ndarray, out: np.ndarray) -> None:
+    """``out [N, 4]``: the unit quaternion (``w >= 0``) of each rotation matrix of ``matrices [N, 3, 3]``,
+    from its largest component's magnitude (numerically stable; the first of equals, the first NaN)."""
+    cand = np.empty(4)
+    for i in range(matrices.shape[0]):
+        m = matrices[i]
+        trace = m[0, 0] + m[1, 1] + m[2, 2]
+        cand[0] = 1 + trace
+        cand[1] = 1 + m[0, 0] - m[1, 1] - m[2, 2]
+        cand[2] = 1 - m[0, 0] + m[1, 1] - m[2, 2]
+        cand[3] = 1 - m[0, 0] - m[1, 1] + m[2, 2]
+        best = 0
+        for k in range(4):
+            if cand[k] != cand[k] or cand[k] > cand[best]:
+                best = k
+                if cand[k] != cand[k]:
+                    break
+        largest = cand[best]
+        r = np.sqrt(largest if not largest <= 1e-300 else 1e-300)   # NaN stays NaN
+        s = 0.5 / r
+        d21, d02, d10 = m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]
+        s21, s02, s10 = m[2, 1] + m[1, 2], m[0, 2] + m[2, 0], m[1, 0] + m[0, 1]
+        q = out[i]
+        if best == 0:
+            q[0], q[1], q[2], q[3] = 0.5 * r, d21 * s, d02 * s, d10 * s
+        elif best == 1:
+            q[0], q[1], q[2], q[3] = d21 * s, 0.5 * r, s10 * s, s02 * s
+        elif best == 2:
+            q[0], q[1], q[2], q[3] = d02 * s, s10 * s, 0.5 * r, s21 * s
+        else:
+            q[0], q[1], q[2], q[3] = d10 * s, s02 * s, s21 * s, 0.5 * r
+        norm = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+        sign = -1.0 if q[0] / norm < 0 else 1.0
+        for k in range(4):
+            q[k] = sign * (q[k] / norm)
 
 
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from mocapdb.core.geometry import frame_from_axes, matrix_to_quat, quat_to_matrix
+from mocapdb.core.geometry import frame_from_axes, matrix_to_quat
 from mocapdb.core.hand_rig import finger_nodes
 from mocapdb.core.kernels import mat3_mul_into, quat_to_matrix_into
 from mocapdb.core.keypoint_order import KEYPOINTS, KP, N_KEYPOINTS_2D  # noqa: F401 - the order, re-exported
@@ -221,19 +221,41 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def swing_matrices(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Smallest rotations ``[..., 3, 3]`` taking unit vectors ``a`` to unit vectors ``b``."""
-    v = np.cross(a, b)
-    c = np.sum(a * b, axis=-1)
-    # Opposite vectors: rotate by π about an axis perpendicular to a.
-    helper = np.where(np.abs(a[..., :1]) < 0.9, _X, _Y)
-    perp = _unit(np.cross(a, helper))
-    anti = c < -1 + 1e-9
-    k = np.zeros(a.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    r = np.eye(3) + k + k @ k / np.maximum(1.0 + c, 1e-12)[..., None, None]
-    flip = 2.0 * perp[..., :, None] * perp[..., None, :] - np.eye(3)
-    return np.where(anti[..., None, None], flip, r)
+    """Smallest rotations ``[..., 3, 3]`` taking unit vectors ``a [..., 3]`` to unit vectors ``b [..., 3]``
+    (broadcast); opposite vectors: a half turn about an axis perpendicular to ``a``."""
+    a, b = np.broadcast_arrays(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
+    out = np.empty(a.shape + (3,))
+    _swings_into(np.ascontiguousarray(a.reshape(-1, 3)), np.ascontiguousarray(b.reshape(-1, 3)),
+                 out.reshape(-1, 3, 3))
+    return out
+
+
+@njit(cache=True)
+def _swings_into(a, b, out) -> None:
+    """``out [N, 3, 3]`` of :func:`swing_matrices` for ``a, b [N, 3]``: ``I + [v]× + [v]×² / (1 + c)``,
+    ``v = a × b``, ``c = a · b``; for ``c < −1 + 1e-9`` the half turn ``2 p pᵀ − I`` about
+    ``p = a × (x or y)``, normalised."""
+    k = np.empty((3, 3))
+    for n in range(a.shape[0]):
+        x, y, z = a[n, 0], a[n, 1], a[n, 2]
+        v0, v1, v2 = y * b[n, 2] - z * b[n, 1], z * b[n, 0] - x * b[n, 2], x * b[n, 1] - y * b[n, 0]
+        c = x * b[n, 0] + y * b[n, 1] + z * b[n, 2]
+        r = out[n]
+        if c < -1 + 1e-9:
+            p = np.array([0.0, z, -y]) if abs(x) < 0.9 else np.array([-z, 0.0, x])   # a × x, a × y
+            p /= max(np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]), 1e-12)
+            for i in range(3):
+                for j in range(3):
+                    r[i, j] = 2.0 * p[i] * p[j] - (1.0 if i == j else 0.0)
+            continue
+        k[0, 0], k[0, 1], k[0, 2] = 0.0, -v2, v1
+        k[1, 0], k[1, 1], k[1, 2] = v2, 0.0, -v0
+        k[2, 0], k[2, 1], k[2, 2] = -v1, v0, 0.0
+        denominator = max(1.0 + c, 1e-12)
+        for i in range(3):
+            for j in range(3):
+                square = k[i, 0] * k[0, j] + k[i, 1] * k[1, j] + k[i, 2] * k[2, j]
+                r[i, j] = (1.0 if i == j else 0.0) + k[i, j] + square / denominator
 
 
 def _point(points: np.ndarray, name: str) -> np.ndarray:
@@ -353,17 +375,29 @@ def rig_globals_into(quats, root_m, scale, parents, offsets, node_joint, local, 
                                                  + g_rot[p, a, 2] * offsets[j, 2])
 
 
-_JOINT_PARENT = [-1 if p < 0 else RIG_JOINTS.index(NODE_NAMES[p]) for p in NODE_PARENTS[JOINT_NODE]]
+_JOINT_PARENT = np.array([-1 if p < 0 else RIG_JOINTS.index(NODE_NAMES[p]) for p in NODE_PARENTS[JOINT_NODE]])
 
 
 def global_rotations(quats: np.ndarray) -> np.ndarray:
     """Global rotation matrices ``[F, R, 3, 3]`` (:data:`RIG_JOINTS` order; the root's frame) of local
     rotations ``[F, R, 4]``: each joint's parent's global rotation times its own local one."""
-    local = quat_to_matrix(quats)
-    out = np.empty_like(local)
-    for r, parent in enumerate(_JOINT_PARENT):
-        out[:, r] = local[:, r] if parent < 0 else out[:, parent] @ local[:, r]
+    quats = np.ascontiguousarray(quats, dtype=np.float64)
+    out = np.empty(quats.shape[:-1] + (3, 3))
+    _global_rotations_into(quats, _JOINT_PARENT, out)
     return out
+
+
+@njit(cache=True)
+def _global_rotations_into(quats, parents, out) -> None:
+    """``out [F, R, 3, 3]`` of :func:`global_rotations` (numba: one call for one frame or many)."""
+    local = np.empty((3, 3))
+    for f in range(quats.shape[0]):
+        for r in range(parents.shape[0]):
+            if parents[r] < 0:
+                quat_to_matrix_into(quats[f, r], out[f, r])
+            else:
+                quat_to_matrix_into(quats[f, r], local)
+                mat3_mul_into(out[f, parents[r]], local, out[f, r])
 
 
 _BONE_PAIRS = [[(KP[a], KP[b]) for a, b in pairs] for pairs in MEASURED_BONES.values()]
