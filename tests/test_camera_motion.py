@@ -268,6 +268,30 @@ def test_live_uses_the_path_known_so_far():
         assert angle_deg(online[k], truths[k]) < TOLERANCE_DEG
 
 
+def test_live_every_second_frame_extrapolates_a_steady_pan_and_holds_without_background():
+    """Live measured every 2nd frame: on a pan at a steady 0.5 deg a frame the frames between are the
+    measured ones turned on at that pace (within the tolerance of the truth, SciPy's; frame 1, before
+    a pace is known, holds frame 0's), each measured one as every-frame live gives it; a background too
+    bare to measure holds, never extrapolates.
+    The whole path (history) is measured on every frame only."""
+    image = texture(13)
+    truths = Rotation.from_euler("y", 0.5 * np.arange(8)[:, None], degrees=True).as_matrix()
+    every_frame, every_2nd = BackgroundMotion(FOCAL, history=False), BackgroundMotion(FOCAL, history=False, every=2)
+    for number, turn in enumerate(truths):
+        frame = turned(image, turn)
+        for motion in (every_frame, every_2nd):
+            motion.see(number, frame, np.zeros((0, 17, 3)))
+        assert angle_deg(every_2nd.rotations[-1], turn if number != 1 else truths[0]) < TOLERANCE_DEG
+        if number % 2 == 0:
+            np.testing.assert_allclose(every_2nd.rotations[-1], every_frame.rotations[-1], atol=0.05 * np.pi / 180)
+    bare = BackgroundMotion(FOCAL, history=False, every=2)
+    for number in range(6):
+        bare.see(number, np.full((SIZE[1], SIZE[0], 3), 90, np.uint8), np.zeros((0, 17, 3)))
+        assert np.array_equal(bare.rotations[-1], np.eye(3))
+    with pytest.raises(ValueError, match="every frame"):
+        BackgroundMotion(FOCAL, every=2)
+
+
 def test_world_json_carries_each_frames_floor_and_orientation():
     """world.json's camera_path: frame t's floor normal is the reference's turned into its view frame
     (a 10 deg tilt down adds 10 deg of pitch), its view → files rotation takes that frame's forward

@@ -54,7 +54,7 @@ sys.path.insert(0, str(ROOT))
 
 from mocapdb.cli.main import parser  # noqa: E402
 from mocapdb.cli.reconstruct import _session, resolve_take  # noqa: E402
-from mocapdb.detect.camera_motion import BackgroundMotion  # noqa: E402
+from mocapdb.detect.camera_motion import LIVE_EVERY, BackgroundMotion  # noqa: E402
 from mocapdb.detect.detectors import open_detector  # noqa: E402
 from mocapdb.detect.landmark_schedule import LIVE_FACE_EVERY, LIVE_HANDS_EVERY  # noqa: E402
 from mocapdb.detect.model import Detections, box_iou  # noqa: E402
@@ -123,7 +123,7 @@ def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[d
 
     session.engine.step = timed_step
     reader = VideoReader(args.source)
-    motion = BackgroundMotion()   # the camera's path from the background, as live measures it
+    motion = BackgroundMotion(history=False, every=LIVE_EVERY)   # the camera's path, as live measures it
     stages: dict[str, list[float]] = defaultdict(list)
     found_all: list[Detections] = []
     frame_iter = reader.frames()

@@ -11,7 +11,9 @@ with `detect`'s output) and without it (its ``camera_path.json`` left out: as be
 
 BlazePose (full) detects the people, its keypoints carry the detector's 3D, the focal is the
 calibration's (``--focal``) for the engine and for the background's rotation; the rotation is also
-measured as `detect` does with no focal given (the 26 mm default, then the focal the turn shows).
+measured as `detect` does with no focal given (the 26 mm default, then the focal the turn shows), and
+as `live` does (the path known so far; measured on every frame and on every ``LIVE_EVERY``-th, the
+frames between extrapolated), on the video and on every 3rd of its frames (a turn 3 times as fast).
 
 Synthetic takes with the truth per frame (eval --world's scenarios, the held-out clips given, nothing
 given to the world), filmed by a camera that pans, tilts and rolls, then also walks:
@@ -36,7 +38,7 @@ sys.path.insert(0, str(ROOT))
 from mocapdb.core.cameras import read_calibration_toml  # noqa: E402
 from mocapdb.core.formats.camera_path import CAMERA_PATH_FILE, rotation_angle_deg  # noqa: E402
 from mocapdb.core.formats.database_reader import load_database  # noqa: E402
-from mocapdb.detect.camera_motion import BackgroundMotion  # noqa: E402
+from mocapdb.detect.camera_motion import LIVE_EVERY, BackgroundMotion  # noqa: E402
 from mocapdb.detect.detectors import open_detector  # noqa: E402
 from mocapdb.detect.openpose_out import detect_video  # noqa: E402
 from mocapdb.detect.options import DEFAULT_BLAZEPOSE, DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU  # noqa: E402
@@ -73,21 +75,41 @@ def detect(video: Path, out: Path, focal_px: float | None) -> BackgroundMotion:
     return motion
 
 
-def path_at_default_focal(video: Path, keypoint_folder: Path) -> BackgroundMotion:
-    """The background's rotation as `detect` measures it, no focal given (the 26 mm default, then
-    the focal the turn shows), the people masked as detected."""
+def frames_with_people(video: Path, keypoint_folder: Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The video's frames (BGR) with their people as detected into ``keypoint_folder`` (``[P, K, 3]``)."""
     from mocapdb.core.formats.openpose import read_raw_folder
 
-    people = read_raw_folder(keypoint_folder)
-    motion = BackgroundMotion()
+    out = []
     capture = cv2.VideoCapture(str(video))
-    for number, persons in enumerate(people):
+    for persons in read_raw_folder(keypoint_folder):
         ok, image = capture.read()
         if not ok:
             break
-        motion.see(number, image, np.array([p.raw for p in persons]).reshape(len(persons), -1, 3))
+        out.append((image, np.array([p.raw for p in persons]).reshape(len(persons), -1, 3)))
     capture.release()
+    return out
+
+
+def path_at_default_focal(frames: list[tuple[np.ndarray, np.ndarray]]) -> BackgroundMotion:
+    """The background's rotation as `detect` measures it, no focal given (the 26 mm default, then
+    the focal the turn shows), the people masked as detected."""
+    motion = BackgroundMotion()
+    for number, (image, people) in enumerate(frames):
+        motion.see(number, image, people)
     return motion
+
+
+def live_errors_deg(frames: list[tuple[np.ndarray, np.ndarray]], truth: np.ndarray, focal_px: float, every: int,
+                    step: int) -> np.ndarray:
+    """``[N]`` the angle (degrees) between the true rotation and the one `live` uses on each frame (the
+    path known so far, measured every ``every``-th frame), on every ``step``-th frame of the video (a
+    turn ``step`` times as fast per frame)."""
+    motion = BackgroundMotion(focal_px, history=False, every=every)
+    errors = []
+    for number, at in enumerate(range(0, len(frames), step)):
+        motion.see(number, *frames[at])
+        errors.append(float(rotation_angle_deg(motion.rotations[-1] @ truth[at].T)))
+    return np.array(errors)
 
 
 def reconstruct(db: str, keypoints: Path, out: Path, focal_px: float, fps: float) -> dict:
@@ -111,7 +133,8 @@ def real(args: argparse.Namespace) -> int:
     warp_video(args.video, turned, cam.K, truth)
     still_motion = detect(args.video, work / "kp_still", focal)
     turned_motion = detect(turned, work / "kp_turned", focal)
-    default_motion = path_at_default_focal(turned, work / "kp_turned")
+    turned_frames = frames_with_people(turned, work / "kp_turned")
+    default_motion = path_at_default_focal(turned_frames)
     without = work / "kp_turned_without_path"
     shutil.rmtree(without, ignore_errors=True)
     shutil.copytree(work / "kp_turned", without, ignore=shutil.ignore_patterns(CAMERA_PATH_FILE))
@@ -130,6 +153,11 @@ def real(args: argparse.Namespace) -> int:
               f"{np.median(errors):.3f}"
               f" / max {errors.max():.3f} deg (target {TARGET_TURN_DEG:g}); residual median "
               f"{np.nanmedian(path.residual_px):.2f} px; frames flagged moved {int(path.moved.sum())}")
+    for step in (1, 3):
+        for every in sorted({1, LIVE_EVERY}):
+            errors = live_errors_deg(turned_frames, truth, focal, every, step)
+            print(f"live's rotation per frame (calibrated focal), measured every {every} frame(s), every {step} "
+                  f"frame(s) of the video taken: error median {np.median(errors):.3f} / max {errors.max():.3f} deg")
     print()
     print("| run | pitch / roll (deg) | root vs still: median / max (m) | lower ankle vs still: median / p95 (cm) |")
     print("|---|---|---|---|")

@@ -57,6 +57,7 @@ STILL_DEG = 0.1           # a camera whose every frame turned less than this fro
 MIN_CONFIDENCE = 0.3      # keypoints that count for a person's box
 LK_WINDOW = (11, 11)
 LK_LEVELS = 3
+LIVE_EVERY = 2            # live measures every this many frames; the rotation between is extrapolated
 
 
 def fit_rotation(a: np.ndarray, b: np.ndarray, threshold_rad: float, rng: np.random.Generator
@@ -110,10 +111,16 @@ class BackgroundMotion:
     point at the image's centre): :meth:`see` each frame with its people, then :meth:`path`, or
     :meth:`finish` to write it beside the keypoints (a `detect` frame watcher). Without ``history``
     (``live``) only the last frame is kept, for :meth:`online`: memory stays bounded however long
-    it runs, and there is no whole path."""
+    it runs, and there is no whole path; there the background may be measured on every ``every``-th
+    frame only, the frames between turned on at the pace of the last two measured
+    (:meth:`_extrapolated`)."""
 
-    def __init__(self, focal_px: float | None = None, history: bool = True) -> None:
-        self.given_focal_px, self.history = focal_px, history
+    def __init__(self, focal_px: float | None = None, history: bool = True, every: int = 1) -> None:
+        if every < 1 or (every > 1 and history):
+            raise ValueError("the camera path measures every frame when it keeps the whole path (every 1)")
+        self.given_focal_px, self.history, self.every = focal_px, history, every
+        self._seen = 0          # frames seen
+        self._paced: list[tuple[int, np.ndarray]] = []   # the last two measured frames that agreed: number, rotation
         self.rng = np.random.default_rng(0)
         self.frames: list[int] = []
         self.rotations: list[np.ndarray] = []
@@ -148,11 +155,16 @@ class BackgroundMotion:
         elif (image.shape[1], image.shape[0]) != self.image_size:
             raise DetectError(f"frame {number} is {image.shape[1]}x{image.shape[0]} px, the video's first "
                               f"{self.image_size[0]}x{self.image_size[1]}: no camera path across a change of size")
+        self._seen += 1
+        if (self._seen - 1) % self.every:
+            self._keep(number, self._extrapolated(number), float("nan"), float("nan"), None)
+            return
         grey = self._shrink(image)
         mask = people_mask(grey.shape, keypoints, self.scale)
         rotation = self.rotations[-1] if self.rotations else self._key_rotation
         residual, parallax = float("nan"), float("nan")
         matches = None if self._grey is None else Matches(self._key_index, np.zeros((0, 2)), np.zeros((0, 2)))
+        measured = self._grey is None   # the first frame is the reference: its rotation the identity
         if self._grey is not None and len(self._points):
             self._track(self._grey, grey, mask)
             if len(self._points) >= MIN_AGREE:
@@ -160,17 +172,36 @@ class BackgroundMotion:
                 if agreeing >= MIN_AGREE:   # else too little background to say: held
                     rotation, residual, matches = relative @ self._key_rotation, fit_residual, fit_matches
                     parallax = self._parallax() if self.history else parallax   # live reports no parallax
+                    measured = True
+        self._paced = [*self._paced, (int(number), rotation)][-2:] if measured else []
+        self._keep(number, rotation, residual, parallax, matches)
+        if len(self._points) < max(MIN_TRACKS, KEEP_SHARE * self._key_count):
+            self._new_keyframe(grey, mask, rotation)
+        self._grey = grey
+
+    def _keep(self, number: int, rotation: np.ndarray, residual: float, parallax: float,
+              matches: Matches | None) -> None:
+        """Frame ``number``'s rotation, residual and parallax (px) and matches, noted (without
+        ``history``: in place of the last frame's)."""
         self.frames.append(int(number))
         self.rotations.append(rotation)
         self.residual_px.append(residual)
         self.parallax_px.append(parallax)
         self._matches.append(matches)
-        if len(self._points) < max(MIN_TRACKS, KEEP_SHARE * self._key_count):
-            self._new_keyframe(grey, mask, rotation)
-        self._grey = grey
         if not self.history:
             for kept_so_far in (self.frames, self.rotations, self.residual_px, self.parallax_px, self._matches):
                 del kept_so_far[:-1]
+
+    def _extrapolated(self, number: int) -> np.ndarray:
+        """Frame ``number``'s rotation, not measured (``every`` > 1): the last measured one turned on by
+        the turn between the last two measured (the same axis, its angle in proportion to the frames
+        since); the last frame's rotation when the last two did not both agree on a rotation."""
+        if len(self._paced) < 2:
+            return self.rotations[-1] if self.rotations else self._key_rotation
+        (first, before), (last, after) = self._paced
+        turn, _ = cv2.Rodrigues(after @ before.T)
+        ahead, _ = cv2.Rodrigues(turn * ((number - last) / max(last - first, 1)))
+        return ahead @ after
 
     def _shrink(self, image: np.ndarray) -> np.ndarray:
         """``image``'s (``[H, W, 3]`` BGR) green channel (most of the luminance: half the cost of a colour

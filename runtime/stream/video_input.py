@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 from mocapdb.core.formats.camera_path import derotate_frame
 from mocapdb.core.formats.keypoints import KeypointFrame, Person, to_extremities, to_universal, to_universal_world
-from mocapdb.detect.camera_motion import BackgroundMotion
+from mocapdb.detect.camera_motion import LIVE_EVERY, BackgroundMotion
 from mocapdb.detect.detectors import FrameDetector
 from mocapdb.detect.errors import DetectError
 from mocapdb.detect.model import Detections
@@ -182,10 +182,12 @@ def open_video_source(spec: str, model: FrameDetector, *, every: int = 1, capaci
     video file (``paced``: delivered at its frame rate), ``model`` the detector
     (:func:`~mocapdb.detect.detectors.open_detector`); on a file that may have ``turning``, the
     camera's path measured from the background as the frames come
-    (:class:`~mocapdb.detect.camera_motion.BackgroundMotion`); a camera device stands still (a webcam
-    on a desk or a tripod: data_specs/world.md, "A camera that turns"). DetectError on failure."""
+    (:class:`~mocapdb.detect.camera_motion.BackgroundMotion`, measured every
+    :data:`~mocapdb.detect.camera_motion.LIVE_EVERY` frames, extrapolated between); a camera device
+    stands still (a webcam on a desk or a tripod: data_specs/world.md, "A camera that turns").
+    DetectError on failure."""
     source: str | int = int(spec) if spec.isdigit() else spec
-    motion = BackgroundMotion(history=False) if turning and isinstance(source, str) else None
+    motion = BackgroundMotion(history=False, every=LIVE_EVERY) if turning and isinstance(source, str) else None
     return VideoDetections(source, model, every=every, capacity=capacity, stats=stats, paced=paced, motion=motion)
 
 
