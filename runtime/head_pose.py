@@ -29,22 +29,10 @@ from mocapdb.core.kernels import (
     quat_mul_into,
     quat_to_matrix_into,
 )
-from mocapdb.core.skeleton import KP, RIG_JOINTS, global_rotations, pose_from_rotations
+from mocapdb.core.skeleton import FACE_MODEL_M, FACE_NAMES, KP, RIG_JOINTS, global_rotations, pose_from_rotations
 
-# The face points after the nose, as rows of the extremities array (keypoint_layouts.EXTREMITIES)
-FACE_NAMES = ("r_eye", "l_eye", "r_ear", "l_ear", "r_mouth", "l_mouth")
+# The face points after the nose (skeleton.FACE_NAMES), as rows of the extremities array (keypoint_layouts.EXTREMITIES)
 FACE_ROWS = tuple(EXTREMITIES.index(n) for n in FACE_NAMES)
-# The face model of a 1.75 m adult (metres; head frame: x left, y up, z forwards; origin between the
-# ears), rows: nose, then FACE_NAMES. Rounded adult means of craniofacial anthropometry, not fitted to
-# any take: bitragion breadth about 15 cm (ears ±7.5 cm); interpupillary distance about 6.3 cm (eyes
-# ±3.2 cm), the pupils about 2 cm above the ear-eye (Frankfort) plane and 8.5 cm ahead of the tragion;
-# the nose tip 10.5 cm ahead of the tragion and 1.5 cm below it; mouth width about 5 cm (corners
-# ±2.5 cm), 5.5 cm below the tragion and 8 cm ahead of it.
-FACE_MODEL_M = np.array([
-    [0.0, -0.015, 0.105],
-    [-0.032, 0.02, 0.085], [0.032, 0.02, 0.085],
-    [-0.075, 0.0, 0.0], [0.075, 0.0, 0.0],
-    [-0.025, -0.055, 0.08], [0.025, -0.055, 0.08]])
 MIN_POINTS = 3            # seen face points (the nose one of them) a frame needs
 POINT_SD_M = 0.01         # a face point's detection noise, metres at the head (1 cm)
 HUBER_SD = 2.0            # residuals beyond this many SDs weigh less (Huber)

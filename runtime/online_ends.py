@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
-from mocapdb.core.geometry import matrix_to_quat, quat_turned_towards, slerp
+from mocapdb.core.geometry import matrix_to_quat, quat_conj, quat_mul, quat_turned_towards, slerp
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose
 from mocapdb.core.skeleton import END_JOINTS, RIG_JOINTS, UNIVERSAL_HEIGHT_M, body_offsets_m, global_rotations
 from mocapdb.runtime.end_branches import BranchPath
@@ -62,6 +62,12 @@ PLANTED_FOLLOW_DEG_S = 8.0
 # frames still carry the smoothing's transient: held from the first, a foot misread as it landed stayed
 # misread for seconds)
 PLANTED_SETTLE_S = 0.5
+# The head's causal filter on frames the face mesh fixed (else the end joints' ``causal``): the mesh's head
+# is measured within about a degree, so it is smoothed lightly. Chosen on the gate's clips and bodies with
+# the mesh rendered (tools/eval_ends.py --face-mesh; the only head truth here): cut-off / beta 0.5 / 0.3 →
+# 2.0 / 2.0 took the stream's head where the mesh is seen from 3.9° to 1.5° (exact) and 4.3° to 1.7° (noisy),
+# its acceleration from 0.7 to 0.9 and 2.3 to 2.9 deg/frame² (the truth's 1.0; unfiltered 1.3 and 4.3)
+MESH_HEAD_FILTER = OneEuroParams(min_cutoff_hz=2.0, beta=2.0)
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 _N_ENDS = len(END_JOINTS)
 _SPINE, _NECK = RIG_JOINTS.index("spine"), RIG_JOINTS.index("neck")
@@ -73,7 +79,8 @@ def measure(pose: PersonPose, camera_px: tuple[float, float, float], branches: B
             face: MeshModel) -> tuple[Measure, bool]:
     """The feet's and hands' directions and the palms' thumb sides ``[6, 3]`` (view frame, unit; each foot's and
     hand's depth the end of the track's cheapest path so far, ``branches``, to which this frame at ``time_s`` is
-    added; a hand's the palm's where the hand model saw it) and the head's rotation relative to the chest ``[4]``
+    added; a hand's the palm's where the hand model saw it) and the head's global rotation ``[4]`` (view frame:
+    the per-frame chest's times the head's relative to it, so a mesh's head carries none of the chest's noise)
     of one per-frame ``pose``, seen by the pinhole ``camera_px`` (focal, cx, cy: pixels); NaN where its
     keypoints do not give them; and whether the face mesh fixed the head (the person's ``face``, to which the
     frame's mesh is added)."""
@@ -97,7 +104,7 @@ def measure(pose: PersonPose, camera_px: tuple[float, float, float], branches: B
     mesh = None if model is None or pose.mesh_px is None else (mesh_observations(pose.mesh_px[None]), model)
     head, from_mesh = chest_relative_head(quats, root, scale, offsets, face_points(keypoints[None], extremities[None]),
                                           camera_px, face_world_m, mesh)
-    return (directions, head[0]), bool(from_mesh[0])
+    return (directions, quat_mul(matrix_to_quat(global_rotations(quats)[0, _SPINE]), head[0])), bool(from_mesh[0])
 
 
 class EaseToRest:
@@ -132,6 +139,7 @@ class OnlineEnds:
         self.face = MeshModel()                   # the person's face from the first meshes (mesh_head)
         self.mesh_ease = EaseToRest(1, fps, MESH_HOLD_S, MESH_EASE_S)   # the mesh's share of the head
         self.direction_filter = OneEuroFilter(causal)
+        self.causal = causal
         self.head_filter = QuaternionOneEuroFilter(causal)
         self.held: Measure | None = None          # the last smoothed values (what an unseen end keeps)
         self.ease = EaseToRest(_N_ENDS, fps, HOLD_S, EASE_S)
@@ -169,7 +177,9 @@ class OnlineEnds:
         if self.previous is None:                 # a track's first frame: nothing shown before, no easing
             self.mesh_ease.progress[:] = mesh_seen
         mesh_weight = self.mesh_ease.weight(mesh_seen)
-        ends = np.vstack([locals_, head_local(quats[None], head[None], mesh_weight)])
+        chest = matrix_to_quat(global_rotations(quats[None])[0, _SPINE])
+        relative = quat_mul(quat_conj(chest), head)                              # against the output's chest
+        ends = np.vstack([locals_, head_local(quats[None], relative[None], mesh_weight)])
         ends *= np.where(ends[:, :1] < 0, -1.0, 1.0)
         ends = slerp(np.tile(_IDENTITY, (_N_ENDS, 1)), ends, self.ease.weight(seen))
         ends = np.where(np.isfinite(ends).all(axis=-1, keepdims=True), ends, _IDENTITY)   # a degenerate pose: rest
@@ -205,6 +215,7 @@ class OnlineEnds:
         held = rest if self.held is None else self.held
         if self.lag == 0:
             directions = self.direction_filter(np.where(rows_seen[:, None], directions, held[0]), index / self.fps)
+            self.head_filter.params = MESH_HEAD_FILTER if self.from_mesh.get(index, False) else self.causal
             head = self.head_filter(np.where(seen[4], head, held[1])[None], index / self.fps)[0]
         else:
             directions, head = self._window_mean(index, held)
@@ -234,7 +245,6 @@ def _mean_or(values: np.ndarray, weights: np.ndarray, fallback: np.ndarray) -> n
 
 
 def _rest_head(quats: np.ndarray) -> np.ndarray:
-    """``[4]`` the head's rotation relative to the chest at rest on the neck (its local rotation the
-    identity) of the rig rotations ``quats [R, 4]``."""
-    rotations = global_rotations(quats[None])[0]
-    return matrix_to_quat(rotations[_SPINE].T @ rotations[_NECK])
+    """``[4]`` the head's global rotation at rest on the neck (its local rotation the identity) of the rig
+    rotations ``quats [R, 4]``: the neck's."""
+    return matrix_to_quat(global_rotations(quats[None])[0, _NECK])

@@ -5,6 +5,7 @@ import subprocess
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.spatial.transform import Rotation
 
 from mocapdb.core import exports
 from mocapdb.core.clips import ClipOptions, process_clip
@@ -19,9 +20,11 @@ from mocapdb.core.motion_ops import on_floor
 from mocapdb.core.outputs import TrackRecording, motion_bvh
 from mocapdb.core.skeleton import (
     ANKLE_HEIGHT_M,
+    FACE_NAMES,
     HUMANOID_NODE_OF_KEYPOINT,
     KEYPOINTS,
     KP,
+    N_RIG_JOINTS,
     NODE_OF_POINT,
     PELVIS,
     pose_from_rotations,
@@ -93,14 +96,37 @@ def test_trc_and_csv_carry_the_joints(walk, tmp_path):
     assert [p.name for p in paths] == ["track_3.bvh", "track_3.trc", "track_3.csv"]
     joints = pose_from_rotations(quats[:40], root[:40] + [0.0, 0.0, -4.0], 1.1)
     trc = read_trc(tmp_path / "track_3.trc")
-    assert trc.markers == list(KEYPOINTS) and trc.rate_hz == 30.0 and trc.frame_numbers[0] == 11  # input frame 10
-    np.testing.assert_allclose(trc.positions, joints, atol=1e-5)
+    assert trc.markers == list(KEYPOINTS + FACE_NAMES) and trc.rate_hz == 30.0 and trc.frame_numbers[0] == 11
+    np.testing.assert_allclose(trc.positions[:, :len(KEYPOINTS)], joints, atol=1e-5)     # input frame 10 above
     np.testing.assert_allclose(trc.times_s, (10 + np.arange(40)) / 30.0, atol=1e-6)
     table = pd.read_csv(tmp_path / "track_3.csv")
     assert table["frame"].dtype == np.int64 and list(table.columns[:5]) == ["frame", "time_s", "head_x", "head_y",
                                                                             "head_z"]
     np.testing.assert_allclose(table[["l_ankle_x", "l_ankle_y", "l_ankle_z"]].to_numpy(), joints[:, KP["l_ankle"]],
                                atol=1e-5)
+    np.testing.assert_allclose(table[["l_ear_x", "l_ear_y", "l_ear_z"]].to_numpy(),
+                               trc.positions[:, trc.markers.index("l_ear")], atol=1e-5)
+
+
+def test_the_face_points_turn_with_the_head(tmp_path):
+    """At rest (every global rotation the identity) with the Head turned 40 deg about the vertical and 10 about its
+    side: the face's points are the face model's, scaled and turned by that, about the humanoid's nose (by hand:
+    the ears' line (0.15 cos 40, 0, -0.15 sin 40) m x scale; the eyes' mid-point 0.035 up and 0.02 back from the
+    nose, turned)."""
+    turn = Rotation.from_euler("YX", [40.0, 10.0], degrees=True)
+    ends = np.tile([1.0, 0.0, 0.0, 0.0], (3, 5, 1))
+    ends[:, 4] = turn.as_quat(scalar_first=True)
+    motion = Motion(np.tile([1.0, 0.0, 0.0, 0.0], (3, N_RIG_JOINTS, 1)), np.zeros((3, 3)), 30.0, "view", scale=1.2,
+                    end_rotations=ends)
+    exports.write_motion(motion, tmp_path, "m", TrackExport(("trc",)))
+    trc = read_trc(tmp_path / "m.trc")
+    face = {name: trc.positions[:, trc.markers.index(name)] for name in FACE_NAMES}
+    ears = face["l_ear"] - face["r_ear"]
+    np.testing.assert_allclose(ears, np.tile(0.15 * 1.2 * turn.apply([1.0, 0.0, 0.0]), (3, 1)), atol=1e-5)
+    bvh = motion_bvh(motion, "m", "humanoid")
+    nose = forward_kinematics(bvh, [bvh.names.index("Head_End")])[0][:, 0]
+    eyes = 0.5 * (face["l_eye"] + face["r_eye"])
+    np.testing.assert_allclose(eyes - nose, np.tile(turn.apply([0.0, 0.035, -0.02]) * 1.2, (3, 1)), atol=1e-5)
 
 
 def test_track_files_line_up_with_the_input(walk, tmp_path):

@@ -9,9 +9,9 @@ from scipy.spatial.transform import Rotation
 
 from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, Match, PersonPose, frame_line, header_line
-from mocapdb.core.skeleton import KP, N_RIG_JOINTS, pose_from_rotations, universal_bone_lengths_m
+from mocapdb.core.skeleton import FACE_MODEL_M, KP, N_RIG_JOINTS, pose_from_rotations, universal_bone_lengths_m
 from mocapdb.render.results import RenderError, read_result
-from mocapdb.runtime.head_pose import FACE_MODEL_M, head_local
+from mocapdb.runtime.head_pose import head_local
 from mocapdb.runtime.online_ends import EASE_S, HOLD_S
 from mocapdb.runtime.online_take import OnlineParams, OnlineTake
 

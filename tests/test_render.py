@@ -300,7 +300,8 @@ def test_the_preview_with_floor_draws_the_track_files_on_their_floor(small_db_pa
     assert main(["reconstruct", str(SAMPLE_KEYPOINTS), "--db", str(small_db_path), "--out", str(out), "--fps", "60",
                  "--image-size", "1088x1920", "--focal", "1681", "--floor", "--format", "csv", "--preview"]) == 0
     rows = np.loadtxt(out / "track_1.csv", delimiter=",", skiprows=1)  # the one track file (track 0 is static)
-    on_floor = {int(r[0]): r[2:].reshape(N_POINTS, 3) * [1.0, 1.0, -1.0] for r in rows}  # drawn in camera axes
+    # drawn in camera axes; the face's points after the joints
+    on_floor = {int(r[0]): r[2:2 + 3 * N_POINTS].reshape(N_POINTS, 3) * [1.0, 1.0, -1.0] for r in rows}
     tiles = np.round(np.linspace(0, 99, 12)).astype(int)  # the sheet's 12 frames of 100
     assert len(drawn) == len(tiles)  # one person a tile, frame 0 included; not the static one
     for frame, (joints, view) in zip(tiles, drawn):

@@ -24,15 +24,17 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.files import write_atomic
-from mocapdb.core.formats.bvh import format_bvh
+from mocapdb.core.formats.bvh import format_bvh, forward_kinematics
 from mocapdb.core.formats.trc import format_trc
 from mocapdb.core.motion import Motion
 from mocapdb.core.motion_ops import on_floor
 from mocapdb.core.outputs import RIGS, TrackRecording, motion_bvh
-from mocapdb.core.skeleton import KEYPOINTS
+from mocapdb.core.skeleton import FACE_MODEL_M, FACE_NAMES, KEYPOINTS
 
 LOG = logging.getLogger("mocapdb")
 FORMATS = ("bvh", "trc", "csv")
+# The TRC's markers and the CSV's joints: the universal keypoints, then the face's points on the fitted head
+MARKERS = KEYPOINTS + FACE_NAMES
 # A track starting later than this input frame gets an unpadded BVH (its own frames only, with a
 # warning): an hour at 30 fps, 45-80 MB of BVH text, keeps a numbered stream's far-off frame (or
 # a long live session) from writing files of gigabytes.
@@ -72,9 +74,20 @@ def track_motion(rec: TrackRecording, fps: float, floor: bool) -> Motion:
     return on_floor(motion, plane)
 
 
+def face_points_m(motion: Motion) -> np.ndarray:
+    """``[F, 6, 3]`` the face's points (:data:`~mocapdb.core.skeleton.FACE_NAMES`; the motion's frame, metres) on
+    the humanoid rig's head: :data:`~mocapdb.core.skeleton.FACE_MODEL_M` scaled with the body, turned by the
+    ``Head``'s global rotation about the nose where the rig puts it (``Head_End``)."""
+    bvh = motion_bvh(motion, "m", "humanoid")
+    positions, rotations = forward_kinematics(bvh, [bvh.names.index("Head"), bvh.names.index("Head_End")])
+    model = FACE_MODEL_M * motion.scale
+    return positions[:, 1, None] + np.einsum("fij,kj->fki", rotations[:, 0], model[1:] - model[0])
+
+
 def csv_text(joints_m: np.ndarray, frames: np.ndarray, times_s: np.ndarray) -> str:
-    """CSV with a header row: ``frame,time_s,<joint>_x,<joint>_y,<joint>_z,...`` (metres)."""
-    columns = ["frame", "time_s"] + [f"{name}_{axis}" for name in KEYPOINTS for axis in "xyz"]
+    """CSV with a header row: ``frame,time_s,<joint>_x,<joint>_y,<joint>_z,...`` (metres; the joints
+    :data:`MARKERS`)."""
+    columns = ["frame", "time_s"] + [f"{name}_{axis}" for name in MARKERS for axis in "xyz"]
     values = np.char.mod("%.5f", np.round(joints_m.reshape(len(joints_m), -1), 5) + 0.0)
     rows = [f"{f},{t:.6f}," + ",".join(v) for f, t, v in zip(frames, times_s, values)]
     return "\n".join([",".join(columns), *rows]) + "\n"
@@ -127,9 +140,9 @@ def write_motion(motion: Motion, folder: str | Path, stem: str, export: TrackExp
     if "bvh" in export.formats:
         texts["bvh"] = format_bvh(motion_bvh(motion, export.unit, export.rig), lead_frames=lead_frames)
     if "trc" in export.formats or "csv" in export.formats:
-        joints_m = motion.joints_m()
+        joints_m = np.concatenate([motion.joints_m(), face_points_m(motion)], axis=1)
         if "trc" in export.formats:
-            texts["trc"] = format_trc(list(KEYPOINTS), joints_m, motion.fps, frames + 1, times_s, f"{stem}.trc")
+            texts["trc"] = format_trc(list(MARKERS), joints_m, motion.fps, frames + 1, times_s, f"{stem}.trc")
         if "csv" in export.formats:
             texts["csv"] = csv_text(joints_m, frames, times_s)
     paths = []

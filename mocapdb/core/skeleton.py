@@ -123,6 +123,19 @@ FOOT_FORWARD_M = 0.14     # ankle → ball of the foot, forwards (+z at rest)
 TOE_LENGTH_M = 0.05
 HEAD_BASE_M = 0.10        # neck → head joint (skull base), up; the head bone ends at the nose
 CLAVICLE_M = 0.04         # spine-top → clavicle joint, outwards of the shoulder line
+# The face points after the nose (the extremities' names: keypoint_layouts.EXTREMITIES)
+FACE_NAMES = ("r_eye", "l_eye", "r_ear", "l_ear", "r_mouth", "l_mouth")
+# The face model of a 1.75 m adult (metres; head frame: x left, y up, z forwards; origin between the
+# ears), rows: nose, then FACE_NAMES. Rounded adult means of craniofacial anthropometry, not fitted to
+# any take: bitragion breadth about 15 cm (ears ±7.5 cm); interpupillary distance about 6.3 cm (eyes
+# ±3.2 cm), the pupils about 2 cm above the ear-eye (Frankfort) plane and 8.5 cm ahead of the tragion;
+# the nose tip 10.5 cm ahead of the tragion and 1.5 cm below it; mouth width about 5 cm (corners
+# ±2.5 cm), 5.5 cm below the tragion and 8 cm ahead of it.
+FACE_MODEL_M = np.array([
+    [0.0, -0.015, 0.105],
+    [-0.032, 0.02, 0.085], [0.032, 0.02, 0.085],
+    [-0.075, 0.0, 0.0], [0.075, 0.0, 0.0],
+    [-0.025, -0.055, 0.08], [0.025, -0.055, 0.08]])
 _HALF_TORSO = _B["torso"] / 2
 _ANKLE_TO_BALL = (0.0, -ANKLE_HEIGHT_M + 0.02, FOOT_FORWARD_M)
 

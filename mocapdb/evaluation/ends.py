@@ -278,6 +278,9 @@ def gate_clip_files(bvh_dir: Path) -> list[Path]:
 GATE_ENDS_BODY = GATE_BODIES[1]   # short legs: the body furthest from the engine's assumed size
 GATE_ENDS_YAWS_DEG = (3.0, 93.0, 183.0, 273.0)
 GATE_ENDS_VARIANTS = ("whole take", "stream lag 0")
+# the groups the gate checks and their figures' names
+GATE_ENDS_GROUPS = {**{group: group for group in GROUPS}, MESH_GROUPS[0]: "head_mesh_seen",
+                    MESH_GROUPS[1]: "head_no_mesh"}
 # The part's threshold margin (relative, absolute degrees): 0.05 px of noise on the exact input (3 draws)
 # moved its figures by up to +4.4 % (the stream's feet; the others within 1.5 %), beyond the gate's 3 %
 GATE_MARGIN = (0.10, 0.1)
@@ -285,9 +288,11 @@ GATE_MARGIN = (0.10, 0.1)
 
 def gate_figures(db: MotionDatabase, bvh_dir: Path) -> dict[str, float]:
     """The accuracy gate's part ``ends``: the gate's clips on :data:`GATE_ENDS_BODY` from
-    :data:`GATE_ENDS_YAWS_DEG`, exact 2D; figures ``ends/<variant>/<group>_deg`` (median geodesic error,
-    degrees) of :data:`GATE_ENDS_VARIANTS`."""
-    errors = evaluate_ends(db, gate_clip_files(bvh_dir), (GATE_ENDS_BODY,), SCENARIOS[:1], GATE_ENDS_YAWS_DEG)
+    :data:`GATE_ENDS_YAWS_DEG`, exact 2D with the face mesh rendered; figures ``ends/<variant>/<group>_deg``
+    (median geodesic error, degrees) of :data:`GATE_ENDS_VARIANTS`: :data:`GROUPS` and the head where a mesh is
+    seen and where none is (``head_mesh_seen``, ``head_no_mesh``)."""
+    errors = evaluate_ends(db, gate_clip_files(bvh_dir), (GATE_ENDS_BODY,), SCENARIOS[:1], GATE_ENDS_YAWS_DEG,
+                           face_mesh=True)
     medians = errors[SCENARIOS[0].name].medians()
-    return {f"ends/{variant}/{group}_deg": medians[variant][group] for variant in GATE_ENDS_VARIANTS
-            for group in GROUPS}
+    return {f"ends/{variant}/{key}_deg": medians[variant][group] for variant in GATE_ENDS_VARIANTS
+            for group, key in GATE_ENDS_GROUPS.items()}

@@ -117,7 +117,8 @@ def read_csv_joints(path: Path) -> tuple[np.ndarray, np.ndarray]:
     text = read_input_text(path, MAX_TRACK_FILE_BYTES, RenderError, "track CSV")
     lines = text.splitlines()
     columns = ["frame", "time_s"] + [f"{name}_{axis}" for name in KEYPOINTS for axis in "xyz"]
-    if not lines or lines[0].strip().split(",") != columns:
+    header = lines[0].strip().split(",") if lines else []
+    if header[:len(columns)] != columns:
         raise RenderError(f"{path}: not a track CSV of mocapdb (its header is not frame,time_s,head_x,...)")
     try:
         rows = np.loadtxt(lines[1:], delimiter=",", ndmin=2, dtype=np.float64)
@@ -125,9 +126,9 @@ def read_csv_joints(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise RenderError(f"{path}: a row is not {len(columns)} numbers ({exc})") from None
     if rows.shape[0] == 0:
         raise RenderError(f"{path}: no frame")
-    if rows.shape[1] != len(columns):
-        raise RenderError(f"{path}: rows of {rows.shape[1]} values, not {len(columns)}")
-    return rows[:, 0].astype(np.int64), rows[:, 2:].reshape(-1, N_POINTS, 3)
+    if rows.shape[1] != len(header):
+        raise RenderError(f"{path}: rows of {rows.shape[1]} values, not {len(header)}")
+    return rows[:, 0].astype(np.int64), rows[:, 2:len(columns)].reshape(-1, N_POINTS, 3)
 
 
 def read_bvh_joints(path: Path) -> np.ndarray:
