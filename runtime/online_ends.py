@@ -66,7 +66,8 @@ PLANTED_SETTLE_S = 0.5
 # is measured within about a degree, so it is smoothed lightly. Chosen on the gate's clips and bodies with
 # the mesh rendered (tools/eval_ends.py --face-mesh; the only head truth here): cut-off / beta 0.5 / 0.3 →
 # 2.0 / 2.0 took the stream's head where the mesh is seen from 3.9° to 1.5° (exact) and 4.3° to 1.7° (noisy),
-# its acceleration from 0.7 to 0.9 and 2.3 to 2.9 deg/frame² (the truth's 1.0; unfiltered 1.3 and 4.3)
+# its acceleration from 0.5 to 0.7 and 1.5 to 2.1 deg/frame² (the truth's 1.0; unfiltered 1.1 and 3.5;
+# tools/eval_head_filter.py)
 MESH_HEAD_FILTER = OneEuroParams(min_cutoff_hz=2.0, beta=2.0)
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 _N_ENDS = len(END_JOINTS)
