@@ -9,20 +9,26 @@ Per track (:class:`OnlineEnds`), per frame:
    each one's depth the end of the cheapest path so far: :class:`~mocapdb.runtime.end_branches.BranchPath`),
    the head's rotation relative to the chest (:func:`~mocapdb.runtime.head_pose.chest_relative_head`; with
    the detector's world landmarks of the face as its prior where the frame has them, but the default face
-   model: the whole take's own face pattern is a median over the take's frames). Where the hand landmark
+   model: the whole take's own face pattern is a median over the take's frames; fitted to the face mesh
+   where ``mesh_px`` gives one, with the person's face from the track's first meshes:
+   :class:`~mocapdb.runtime.mesh_head.MeshModel`), kept as a global rotation (the per-frame chest's times
+   it) and taken against the output's chest after smoothing. Where the hand landmark
    model saw a hand (``hands_px``), its palm (:func:`~mocapdb.runtime.hand_pose.palm_frames`) gives the
    hand's direction and, by its thumb side, the palm's twist about it
    (:func:`~mocapdb.runtime.hand_pose.hand_twist_deg`), as in the whole take; the thumb side is smoothed
    with the directions (from the rest palm's before it is seen), the twist eased in and out as an end joint.
-2. **Smoothed**: lag 0, a causal 1€ filter (the online take's ``causal_rotations``; the directions as
-   vectors, the head as a quaternion; the rig's own rotations have a Kalman filter instead,
+2. **Smoothed**: lag 0, a causal 1€ filter (the online take's ``causal_rotations``, the head on frames the mesh
+   fixed :data:`MESH_HEAD_FILTER`; the directions as vectors, the head as a quaternion; the rig's own
+   rotations have a Kalman filter instead,
    :mod:`mocapdb.runtime.rotation_kalman`); lag ``L``, the Gaussian mean of the frames ``t − L … t + L``
    measured. A planted foot is laid flat on the floor, blended in
    with its IK weight, and once it has stood :data:`PLANTED_SETTLE_S` keeps its heading (the mean since,
    followed at most :data:`PLANTED_FOLLOW_DEG_S`): its ankle is held in place, so is the ball of the foot.
 3. **Unseen**: an end joint keeps its last value for :data:`HOLD_S`, then eases to rest (the identity,
    where the rig puts it unturned) over :data:`EASE_S` (smoothstep); seen again, or seen first, it eases
-   in from there over :data:`EASE_S`. Every frame says which end joints were measured (``end_seen``).
+   in from there over :data:`EASE_S`. Every frame says which end joints were measured (``end_seen``). The
+   mesh's share of the head (every component carried, else ``head_pose.HEAD_GAINS``) eases alike
+   (``mesh_head.HOLD_S``, ``EASE_S``), from the track's first frame without easing.
 4. **Speed limits**: no end joint's local rotation turns faster than :data:`END_SPEED_DEG_S`.
 
 Cost: one face fit and a few forward kinematics of one frame per person and frame.
@@ -67,7 +73,7 @@ PLANTED_SETTLE_S = 0.5
 # the mesh rendered (tools/eval_ends.py --face-mesh; the only head truth here): cut-off / beta 0.5 / 0.3 →
 # 2.0 / 2.0 took the stream's head where the mesh is seen from 3.9° to 1.5° (exact) and 4.3° to 1.7° (noisy),
 # its acceleration from 0.5 to 0.7 and 1.5 to 2.1 deg/frame² (the truth's 1.0; unfiltered 1.1 and 3.5;
-# tools/eval_head_filter.py)
+# tools/eval_end_filter.py --end head)
 MESH_HEAD_FILTER = OneEuroParams(min_cutoff_hz=2.0, beta=2.0)
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 _N_ENDS = len(END_JOINTS)
