@@ -15,6 +15,8 @@ from mocapdb.core.geometry import (
     quat_geodesic,
     quat_mul,
     quat_to_matrix,
+    quat_turned_towards,
+    slerp,
     yaw_matrix,
 )
 from mocapdb.core.skeleton import KP, PELVIS
@@ -62,6 +64,31 @@ def test_quaternions_keep_any_leading_shape_and_propagate_nan():
     broken[0, 1, 1] = np.nan
     out = matrix_to_quat(broken)
     assert np.isnan(out[0]).all() and np.isfinite(out[1]).all()
+
+
+def test_slerp_and_the_turn_limit_match_scipy():
+    """slerp against SciPy's Slerp (quaternions, each pair, shares per pair or one for all, one start
+    broadcast against many ends); quat_turned_towards: the end where it is within the limit, else SciPy's
+    rotation that far along the shorter way (an end of the other sign is the same rotation); NaN stays NaN."""
+    from scipy.spatial.transform import Slerp
+
+    r, s = Rotation.random(30, random_state=9), Rotation.random(30, random_state=10)
+    a, b = _scipy_quat(r), _scipy_quat(s)
+    b = np.where(np.sum(a * b, axis=-1, keepdims=True) < 0, -b, b)   # a's hemisphere, as slerp's callers give
+    share = np.linspace(0.0, 1.0, 30)
+    expected = [Slerp([0.0, 1.0], Rotation.from_quat(np.stack([a[i], b[i]])[:, [1, 2, 3, 0]]))(share[i]).as_quat()
+                for i in range(30)]
+    expected = np.array(expected)[:, [3, 0, 1, 2]]
+    np.testing.assert_allclose(np.abs(np.sum(slerp(a, b, share) * expected, axis=-1)), 1.0, atol=1e-12)
+    assert slerp(a, b, 0.3).shape == (30, 4) and slerp(a[0], b, share).shape == (30, 4)
+    angle = 2.0 * np.arccos(np.clip(np.abs(np.sum(a * b, axis=-1)), 0.0, 1.0))
+    limit = 0.5 * angle
+    limit[:10] = angle[:10] + 0.1    # within the limit: the end itself
+    turned = quat_turned_towards(a, -b, limit)
+    np.testing.assert_allclose(turned[:10], b[:10], atol=1e-12)
+    along = (r[10:].inv() * Rotation.from_quat(turned[10:, [1, 2, 3, 0]])).magnitude()
+    np.testing.assert_allclose(along, limit[10:], atol=1e-9)
+    assert np.isnan(slerp(np.full(4, np.nan), b[0], 0.5)).all()
 
 
 def test_geodesic_is_half_angle_and_sign_blind():

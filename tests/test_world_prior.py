@@ -15,11 +15,22 @@ from mocapdb.runtime.world.detector_prior import (
     VIEW_FROM_IMAGE_AXES,
     candidate_costs,
     database_bones,
+    rotation_between,
     temporal_weights,
     world_bones,
 )
 
 FOCAL, SIZE = 1000.0, (1000, 1000)
+
+
+def test_rotation_between_is_scipys_smallest_rotation_and_the_identity_when_parallel():
+    rng = np.random.default_rng(5)
+    for a, b in rng.normal(size=(20, 2, 3)):
+        a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+        expected = Rotation.align_vectors(b[None], a[None])[0].as_matrix()
+        np.testing.assert_allclose(rotation_between(a, b), expected, atol=1e-12)
+    z = np.array([0.0, 0.0, 1.0])
+    assert np.array_equal(rotation_between(z, z), np.eye(3))
 
 
 def _seen(db, frame: int, yaw_deg: float, depth_m: float = 4.0) -> tuple[np.ndarray, np.ndarray]:

@@ -161,24 +161,82 @@ def quat_geodesic(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def slerp(a: np.ndarray, b: np.ndarray, share: np.ndarray | float) -> np.ndarray:
     """``share [...]`` of the way from unit vectors ``a [..., n]`` to ``b [..., n]`` along the great circle
-    (directions, or quaternions in ``a``'s hemisphere: the caller aligns their signs)."""
-    dot = np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)
-    theta = np.arccos(dot)
-    small = theta < 1e-6
-    sin = np.where(small, 1.0, np.sin(theta))
-    wa = np.where(small, 1.0 - share, np.sin((1.0 - share) * theta) / sin)
-    wb = np.where(small, share, np.sin(share * theta) / sin)
-    out = wa[..., None] * a + wb[..., None] * b
-    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+    (directions, or quaternions in ``a``'s hemisphere: the caller aligns their signs); broadcast."""
+    a, b, share, shape = _rows(a, b, share)
+    out = np.empty(share.shape + (shape[-1],))
+    _slerp_rows(a, b, share, out)
+    return out.reshape(shape)
 
 
 def quat_turned_towards(a: np.ndarray, b: np.ndarray, max_angle_rad: np.ndarray | float) -> np.ndarray:
     """Unit quaternions ``b [..., 4]``, or where ``b`` is more than ``max_angle_rad [...]`` from ``a [..., 4]``,
     the rotation that far from ``a`` towards it (a speed limit over one step); ``b``'s sign aligned to ``a``."""
-    dots = np.sum(a * b, axis=-1)
-    b = np.where((dots < 0)[..., None], -b, b)
-    angle = 2.0 * np.arccos(np.clip(np.abs(dots), 0.0, 1.0))
-    return slerp(a, b, np.minimum(1.0, max_angle_rad / np.maximum(angle, 1e-12)))
+    a, b, limit, shape = _rows(a, b, max_angle_rad)
+    out = np.empty(limit.shape + (shape[-1],))
+    _turned_towards_rows(a, b, limit, out)
+    return out.reshape(shape)
+
+
+def _rows(a: np.ndarray, b: np.ndarray, per_row: np.ndarray | float
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, ...]]:
+    """``a, b [..., n]`` and ``per_row [...]`` broadcast together and flattened to rows ``[R, n]``,
+    ``[R, n]``, ``[R]`` (contiguous float64), and the broadcast shape ``(..., n)``."""
+    a, b, per_row = (np.asarray(v, dtype=np.float64) for v in (a, b, per_row))
+    rows = (-1, a.shape[-1])
+    if a.shape == b.shape and per_row.shape in ((), a.shape[:-1]):   # the usual case, without broadcasting's cost
+        return (np.ascontiguousarray(a.reshape(rows)), np.ascontiguousarray(b.reshape(rows)),
+                np.ascontiguousarray(np.broadcast_to(per_row, a.shape[:-1]).reshape(-1)), a.shape)
+    shape = np.broadcast_shapes(a.shape, b.shape, per_row.shape + (1,))
+    rows = (-1, shape[-1])
+    return (np.ascontiguousarray(np.broadcast_to(a, shape).reshape(rows)),
+            np.ascontiguousarray(np.broadcast_to(b, shape).reshape(rows)),
+            np.ascontiguousarray(np.broadcast_to(per_row[..., None], shape)[..., 0].reshape(-1)), shape)
+
+
+@njit(cache=True, error_model="numpy")   # x / 0: inf or NaN, as NumPy
+def _slerp_row(a: np.ndarray, b: np.ndarray, share: float, out: np.ndarray) -> None:
+    """``out [n]``: :func:`slerp` of one row (NaN in, NaN out)."""
+    dot = 0.0
+    for k in range(a.shape[0]):
+        dot += a[k] * b[k]
+    dot = 1.0 if dot > 1.0 else (-1.0 if dot < -1.0 else dot)
+    theta = np.arccos(dot)
+    if theta < 1e-6:
+        wa, wb = 1.0 - share, share
+    else:
+        sin = np.sin(theta)
+        wa, wb = np.sin((1.0 - share) * theta) / sin, np.sin(share * theta) / sin
+    norm = 0.0
+    for k in range(a.shape[0]):
+        out[k] = wa * a[k] + wb * b[k]
+        norm += out[k] * out[k]
+    norm = np.sqrt(norm)
+    for k in range(a.shape[0]):
+        out[k] /= norm
+
+
+@njit(cache=True, error_model="numpy")   # x / 0: inf or NaN, as NumPy
+def _slerp_rows(a: np.ndarray, b: np.ndarray, share: np.ndarray, out: np.ndarray) -> None:
+    """``out [R, n]``: :func:`slerp` row by row."""
+    for r in range(a.shape[0]):
+        _slerp_row(a[r], b[r], share[r], out[r])
+
+
+@njit(cache=True, error_model="numpy")   # x / 0: inf or NaN, as NumPy
+def _turned_towards_rows(a: np.ndarray, b: np.ndarray, limit: np.ndarray, out: np.ndarray) -> None:
+    """``out [R, 4]``: :func:`quat_turned_towards` row by row (NaN in, NaN out)."""
+    aligned = np.empty(a.shape[1])
+    for r in range(a.shape[0]):
+        dot = 0.0
+        for k in range(a.shape[1]):
+            dot += a[r, k] * b[r, k]
+        sign = -1.0 if dot < 0 else 1.0
+        for k in range(a.shape[1]):
+            aligned[k] = sign * b[r, k]
+        cos = abs(dot)
+        angle = 2.0 * np.arccos(1.0 if cos > 1.0 else cos)
+        share = limit[r] / (1e-12 if angle < 1e-12 else angle)
+        _slerp_row(a[r], aligned, 1.0 if share > 1.0 else share, out[r])
 
 
 def yaw_matrix(yaw_deg: float | np.ndarray) -> np.ndarray:
