@@ -18,8 +18,8 @@ Per track (:class:`OnlineEnds`), per frame:
    (:func:`~mocapdb.runtime.hand_pose.hand_twist_deg`), as in the whole take; the thumb side is smoothed
    with the directions (from the rest palm's before it is seen), the twist eased in and out as an end joint.
 2. **Smoothed**: lag 0, a causal 1€ filter (the online take's ``causal_rotations``, the head on frames the mesh
-   fixed :data:`MESH_HEAD_FILTER`; the directions as vectors, the head as a quaternion; the rig's own
-   rotations have a Kalman filter instead,
+   fixed :data:`MESH_HEAD_FILTER`, a hand the hand model saw :data:`HAND_MODEL_FILTER`; the directions as
+   vectors, the head as a quaternion; the rig's own rotations have a Kalman filter instead,
    :mod:`mocapdb.runtime.rotation_kalman`); lag ``L``, the Gaussian mean of the frames ``t − L … t + L``
    measured. A planted foot is laid flat on the floor, blended in
    with its IK weight, and once it has stood :data:`PLANTED_SETTLE_S` keeps its heading (the mean since,
@@ -75,6 +75,11 @@ PLANTED_SETTLE_S = 0.5
 # its acceleration from 0.5 to 0.7 and 1.5 to 2.1 deg/frame² (the truth's 1.0; unfiltered 1.1 and 3.5;
 # tools/eval_end_filter.py --end head)
 MESH_HEAD_FILTER = OneEuroParams(min_cutoff_hz=2.0, beta=2.0)
+# The hands' directions and thumb sides where the hand landmark model saw the hand (else ``causal``), chosen
+# alike with the hands' 21 points rendered (tools/eval_end_filter.py --end hands --hand-points 21): 0.5 / 0.3
+# → 1.5 / 1.0 took the stream's hands from 13.1° to 7.0° (exact) and 15.1° to 10.8° (noisy), their
+# acceleration from 2.9 to 3.3 and 9.6 to 16.7 deg/frame² (the truth's 3.3; unfiltered 3.8° and 12.1°)
+HAND_MODEL_FILTER = OneEuroParams(min_cutoff_hz=1.5, beta=1.0)
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 _N_ENDS = len(END_JOINTS)
 _SPINE, _NECK = RIG_JOINTS.index("spine"), RIG_JOINTS.index("neck")
@@ -146,6 +151,7 @@ class OnlineEnds:
         self.face = MeshModel()                   # the person's face from the first meshes (mesh_head)
         self.mesh_ease = EaseToRest(1, fps, MESH_HOLD_S, MESH_EASE_S)   # the mesh's share of the head
         self.direction_filter = OneEuroFilter(causal)
+        self.hand_model_filter = OneEuroFilter(HAND_MODEL_FILTER)   # the rows the hand model measured
         self.causal = causal
         self.head_filter = QuaternionOneEuroFilter(causal)
         self.held: Measure | None = None          # the last smoothed values (what an unseen end keeps)
@@ -221,7 +227,10 @@ class OnlineEnds:
         seen = np.append(rows_seen[:4], np.isfinite(head).all())
         held = rest if self.held is None else self.held
         if self.lag == 0:
-            directions = self.direction_filter(np.where(rows_seen[:, None], directions, held[0]), index / self.fps)
+            given = np.where(rows_seen[:, None], directions, held[0])
+            by_model = np.concatenate([[False, False], rows_seen[4:], rows_seen[4:]])   # the palms' rows
+            directions = np.where(by_model[:, None], self.hand_model_filter(given, index / self.fps),
+                                  self.direction_filter(given, index / self.fps))
             self.head_filter.params = MESH_HEAD_FILTER if self.from_mesh.get(index, False) else self.causal
             head = self.head_filter(np.where(seen[4], head, held[1])[None], index / self.fps)[0]
         else:

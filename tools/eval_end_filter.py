@@ -2,9 +2,11 @@
 per 1-euro setting, the stream's error (median geodesic, degrees) and acceleration (mean frame-to-frame change of
 the angular step, deg/frame^2) beside the truth's, exact and noisy. ``--end head``: the head on frames the face
 mesh fixed (runtime/online_ends.MESH_HEAD_FILTER; the mesh rendered, its frames only); ``feet`` or ``hands``: the
-feet's and hands' directions (OnlineEnds.direction_filter, the online take's ``causal_rotations``), every frame.
+feet's and hands' directions (OnlineEnds.direction_filter, the online take's ``causal_rotations``), every frame;
+``hands`` with ``--hand-points 21``: where the hand model saw the hand (online_ends.HAND_MODEL_FILTER).
 
-    .venv/bin/python tools/eval_end_filter.py [--end head|feet|hands] [--every-yaw 2] [--settings 0.5,0.3 2,2 ...]
+    .venv/bin/python tools/eval_end_filter.py [--end head|feet|hands] [--hand-points 21] [--every-yaw 2]
+        [--settings 0.5,0.3 2,2 ...]
 
 The views: the gate's clips on its bodies from every --every-yaw-th of the 6 yaws (with --end head, those with more
 than 10 frames of mesh). Prints a Markdown table (docs/benchmarks.md, "The head from the face mesh", "The feet and
@@ -47,9 +49,10 @@ def step_change_deg(rotations: np.ndarray) -> np.ndarray:
     return np.degrees(np.linalg.norm(np.diff(steps, axis=0), axis=-1))
 
 
-def views(every_yaw: int, config: EvalConfig, mesh: bool) -> list[tuple[str, list, np.ndarray, np.ndarray]]:
-    """(scenario, keypoint frames, true end rotations, frames scored) of each view; with ``mesh`` the face mesh
-    rendered, the views showing a face and their frames with a mesh."""
+def views(every_yaw: int, config: EvalConfig, mesh: bool, hand_points: int
+          ) -> list[tuple[str, list, np.ndarray, np.ndarray]]:
+    """(scenario, keypoint frames, true end rotations, frames scored) of each view (the hands as ``hand_points``
+    3 or 21); with ``mesh`` the face mesh rendered, the views showing a face and their frames with a mesh."""
     out = []
     for truth, ends in ends_truths(gate_clip_files(Path("data/gate/cmu_bvh")), MAX_FRAMES, ENDS_YAWS_DEG, config.fps):
         for body in GATE_BODIES:
@@ -57,7 +60,7 @@ def views(every_yaw: int, config: EvalConfig, mesh: bool) -> list[tuple[str, lis
             posed, stature = reshape_body(truth.source_joints(), lengths), float(stature_m(lengths))
             for scenario in SCENARIOS:
                 for yaw in ENDS_YAWS_DEG[::every_yaw]:
-                    frames, true_view = view_frames(posed, ends, stature, yaw, scenario, config, 3, mesh)
+                    frames, true_view = view_frames(posed, ends, stature, yaw, scenario, config, hand_points, mesh)
                     seen = np.array([not mesh or (bool(f.people) and f.people[0].face is not None
                                                   and f.people[0].face[1, 3] > 0) for f in frames])
                     if seen.sum() > 10:
@@ -83,10 +86,14 @@ def score(db, engine, rendered, rows: tuple[int, ...]) -> dict[str, tuple[float,
                    float(np.mean(np.concatenate(t)))) for name, (e, a, t) in errors.items()}
 
 
-def use_filter(end: str, params: OneEuroParams) -> None:
-    """The stream's filter of ``end`` becomes ``params``: the head's on mesh frames, or the directions'."""
+def use_filter(end: str, hand_points: int, params: OneEuroParams) -> None:
+    """The stream's filter of ``end`` becomes ``params``: the head's on mesh frames, the hands' where the hand
+    model saw them (``hand_points`` 21), else the directions'."""
     if end == "head":
         online_ends.MESH_HEAD_FILTER = params
+        return
+    if end == "hands" and hand_points == 21:
+        online_ends.HAND_MODEL_FILTER = params
         return
     init = ONLINE_ENDS_INIT
 
@@ -102,18 +109,20 @@ def main() -> None:
     parser.add_argument("--db", type=Path, default=Path("demo/sample.db"))
     parser.add_argument("--end", choices=list(ROWS), default="head")
     parser.add_argument("--every-yaw", type=int, default=2)
+    parser.add_argument("--hand-points", type=int, choices=(3, 21), default=3,
+                        help="the hands as BlazePose's 3 points or with the hand model's 21 (detect --hands)")
     parser.add_argument("--settings", nargs="+", default=["none", "0.5,0.3", "1,0.5", "1.5,1", "2,2", "3,3"],
                         help="1-euro cut-off (Hz),beta pairs; 'none': unfiltered")
     args = parser.parse_args()
     config = EvalConfig()
     db, engine = load_database(args.db), gate_engine_config(config)
-    rendered = views(args.every_yaw, config, args.end == "head")
+    rendered = views(args.every_yaw, config, args.end == "head", args.hand_points)
     print(f"{len(rendered)} views{' with a face mesh' if args.end == 'head' else ''}\n")
     print(f"| cut-off Hz / beta | input | {args.end} error | acceleration deg/frame² | truth's |")
     print("|---|---|---|---|---|")
     for setting in args.settings:
         params = UNFILTERED if setting == "none" else OneEuroParams(*map(float, setting.split(",")))
-        use_filter(args.end, params)
+        use_filter(args.end, args.hand_points, params)
         for name, (error, accel, truth) in score(db, engine, rendered, ROWS[args.end]).items():
             print(f"| {setting} | {name} | {error:.2f}° | {accel:.2f} | {truth:.2f} |", flush=True)
 
