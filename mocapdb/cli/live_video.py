@@ -18,7 +18,7 @@ def add_live_video_options(p: argparse.ArgumentParser) -> None:
                             "between (sooner when it moves fast); 1: every frame (default %(default)s)")
     p.add_argument("--still-camera", action="store_true",
                    help="a video file filmed from a tripod: no camera path measured from the background (about "
-                        "2.5 ms a frame saved); a camera device (an index) is always taken as still")
+                        "1 ms a frame saved); a camera device (an index) is always taken as still")
     p.add_argument("--realtime", action="store_true",
                    help="a video file delivered at its frame rate, as a camera would (late frames dropped; the "
                         "latency a camera would give); default: as fast as detection goes")
