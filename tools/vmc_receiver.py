@@ -127,6 +127,7 @@ def main() -> None:
     dispatcher.set_default_handler(tally.message)
     server = CountingServer((args.host, args.port), dispatcher, tally)
     server.timeout = 0.05
+    quat_to_matrix(np.array([1.0, 0.0, 0.0, 0.0]))   # its numba kernel loaded now, not while the first frames wait
     print(f"listening on {args.host}:{server.server_address[1]}", flush=True)
     start = last = time.monotonic()
     try:

@@ -4,8 +4,10 @@
 detector (:func:`~mocapdb.detect.detectors.open_detector`: BlazePose, or a YOLO-pose/RTMO export) on each
 frame in another, so the decoding of the next frame, the detection of this one and the engine's step on
 the one before overlap (OpenCV's decoder and onnxruntime release the GIL). Frames (universal 14
-keypoints) wait in a small buffer; when the consumer falls behind, the oldest is dropped and counted
-(``StreamStats.dropped_stale``), as :class:`~mocapdb.runtime.stream.buffering.LiveInput` does for messages.
+keypoints) wait in a small buffer; when the consumer falls behind a camera or a paced file, the oldest is dropped
+and counted (``StreamStats.dropped_stale``), as :class:`~mocapdb.runtime.stream.buffering.LiveInput` does for
+messages; a file read as fast as it goes waits for the consumer instead (lossless: nothing is gained by
+dropping where no clock runs).
 Every frame carries the moment it was decoded (a camera: grabbed), so the session's latency is end to
 end: capture → the sink's send. A file is read as fast as detection goes (not paced to its frame rate:
 its decoder waits for the detector, no frame dropped there), unless ``paced``: then each frame is
@@ -101,8 +103,9 @@ class VideoDetections(BufferedThread[CapturedFrame]):
     (BlazePose or a :class:`~mocapdb.detect.tracked.TrackedDetector`: both follow them across frames).
 
     ``every``: detect every N-th frame only; ``capacity``: frames buffered before the oldest is
-    dropped (see :class:`~mocapdb.runtime.stream.buffering.BufferedThread`), after detection (after
-    decoding: one, :class:`DecodedFrames`); ``paced``: a file delivered at its frame rate (module notes).
+    dropped (a camera, a paced file) or the detector waits (a file not paced; see
+    :class:`~mocapdb.runtime.stream.buffering.BufferedThread`), after detection (after decoding: one,
+    :class:`DecodedFrames`); ``paced``: a file delivered at its frame rate (module notes).
     Opening the video happens here (DetectError if it fails); the threads start at once.
     """
 
@@ -110,9 +113,11 @@ class VideoDetections(BufferedThread[CapturedFrame]):
                  stats: StreamStats | None = None, paced: bool = False, motion: BackgroundMotion | None = None) -> None:
         if every < 1 or capacity < 1:
             raise DetectError("every and capacity must be at least 1")
-        super().__init__(capacity, stats if stats is not None else StreamStats(), "mocapdb-video-detect")
+        reader = VideoReader(source)
+        super().__init__(capacity, stats if stats is not None else StreamStats(), "mocapdb-video-detect",
+                         lossless=not (reader.is_camera or paced))
         self.model, self.every, self.motion = model, every, motion
-        self.reader = VideoReader(source)
+        self.reader = reader
         self.frames_detected = 0
         self._stop = threading.Event()
         self.decoded = DecodedFrames(self.reader, every, self.stats, paced)
