@@ -40,7 +40,7 @@ def _planted_gap_m(csv_path, fps: float) -> np.ndarray:
     """Per planted frame, the lower ankle's height above the floor (y = 0) less the ankle height
     (metres), from a track's CSV (on the floor: y up)."""
     data = np.loadtxt(csv_path, delimiter=",", skiprows=1)
-    joints = data[:, 2:].reshape(len(data), len(KEYPOINTS), 3)
+    joints = data[:, 2:2 + 3 * len(KEYPOINTS)].reshape(len(data), len(KEYPOINTS), 3)   # the face points after
     ankles = joints[:, [KEYPOINTS.index("r_ankle"), KEYPOINTS.index("l_ankle")]]
     lower = ankles[np.arange(len(ankles)), np.argmin(ankles[..., 1], axis=1)]
     speed = np.linalg.norm(np.gradient(lower, axis=0), axis=1) * fps
