@@ -46,8 +46,10 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    rig's end joints measured as the whole take measures them, smoothed as the rotations, an unseen one
    held, then eased to rest (:mod:`mocapdb.runtime.online_ends`).
 The body's size is the engine's per frame (its own proportions, settling as they are measured;
-1.75 m tall unless ``--subject-height`` or ``--camera-height``): the world's size of each person
-(:mod:`mocapdb.runtime.world.fuse`) reaches the track files only.
+1.75 m tall unless ``--subject-height`` or ``--camera-height``), eased in over ``body_ease_s``
+(:meth:`OnlineTrack._eased_body`): the engine re-measures it in steps, which would move every joint
+at once. The world's size of each person (:mod:`mocapdb.runtime.world.fuse`) reaches the track files
+only.
 
 Each extra frame of lag gives the rotations' smoother and the root's window more frames after the
 one written and lets the contacts see further ahead. Cost: O(window) per person and frame (a few
@@ -69,12 +71,13 @@ from mocapdb.core.skeleton import (
     UNIVERSAL_HEIGHT_M,
     body_offsets_m,
     pose_from_rotations,
+    universal_bone_lengths_m,
 )
 from mocapdb.runtime.filters import OneEuroParams
 from mocapdb.runtime.foot_contacts import ANKLES, CONTACT_WINDOW_S, HEELS, TOES
 from mocapdb.runtime.online_ends import OnlineEnds
 from mocapdb.runtime.online_fingers import OnlineFingers
-from mocapdb.runtime.root_filter import RootFilter
+from mocapdb.runtime.root_filter import RESTART_GAP_S, RootFilter
 from mocapdb.runtime.rotation_kalman import RotationKalman, RotationNoise, joint_confidence
 from mocapdb.runtime.take import plant_feet
 from mocapdb.runtime.take_params import TakeParams
@@ -91,6 +94,7 @@ JOINT_SPEED_DEG_S = {"pelvis": 900.0, "spine": 900.0, "neck": 900.0, "r_hip": 14
 # retrieved poses (runtime.filters) with its still-joint cut-off halved
 CAUSAL_ROTATIONS = OneEuroParams(min_cutoff_hz=0.5, beta=0.3)
 FLOOR_SAMPLES = 31  # the floor: the median height of this many last anchors
+UNIVERSAL_BONES_M = universal_bone_lengths_m()   # [8] metres, 1.75 m: a pose without its own bones
 HIPS, KNEES = (KP["r_hip"], KP["l_hip"]), (KP["r_knee"], KP["l_knee"])
 
 
@@ -109,11 +113,12 @@ class OnlineParams:
     anchor_follow_mps: float = 0.02
     root_speed_mps: float = 6.0
     carried_root_sd_m: float = 0.02
+    body_ease_s: float = 0.05
     rotation_noise: RotationNoise = RotationNoise()
 
     def __post_init__(self) -> None:
         positive = (self.smoothing_hz, self.planted_box_per_s, self.planted_height_m, self.blend_s, self.settle_s,
-                    self.root_speed_mps, self.carried_root_sd_m)
+                    self.root_speed_mps, self.carried_root_sd_m, self.body_ease_s)
         if self.lag_frames < 0 or self.release_factor < 1 or self.anchor_follow_mps < 0 \
                 or not all(np.isfinite(v) and v > 0 for v in positive):
             raise ValueError(f"online take settings out of range: {self}")
@@ -187,6 +192,7 @@ class OnlineTrack:
         self.feet = _Feet()
         self.correction = np.zeros(3)       # output root − per-frame root (view frame, metres)
         self.previous: tuple[int, np.ndarray, np.ndarray] | None = None  # index, rotations, root of the last output
+        self.body: tuple[int, np.ndarray] | None = None   # index, [2, 9] the eased body's two stages (_eased_body)
         self.root = RootFilter(fps)  # the whole take's root model, causal
         sd = params.carried_root_sd_m   # the carried root's: a measurement as precise along the ray as across
         self.carried = RootFilter(fps, TakeParams(root_across_m=sd, root_depth_m=sd))
@@ -216,8 +222,9 @@ class OnlineTrack:
     def output(self, index: int, pose: PersonPose) -> PersonPose:
         """The pose of frame ``index`` (whose per-frame pose is ``pose``) through the steps."""
         dt = 1.0 / self.fps
-        scale = pose.height_m / UNIVERSAL_HEIGHT_M
-        offsets = None if pose.bones_m is None else body_offsets_m(pose.bones_m / scale)
+        height_m, bones_m = self._eased_body(index, pose)
+        scale = height_m / UNIVERSAL_HEIGHT_M
+        offsets = body_offsets_m(bones_m / scale)
         quats = self.rotations.estimate(index)
         evidence_root = self._smoothed_root(index)
         up = np.array([0.0, 1.0, 0.0]) if pose.up_view is None else np.asarray(pose.up_view, dtype=np.float64)
@@ -235,10 +242,29 @@ class OnlineTrack:
         ends, seen = (None, None) if self.ends is None else self.ends.output(index, quats, feet.weight, up)
         fingers, hands = (None, None) if self.fingers is None else self.fingers.output(index)
         return replace(pose, joints_m=joints * CAMERA_FROM_VIEW, quaternions=quats, root_m=root * CAMERA_FROM_VIEW,
-                       up_view=up, floor_offset_m=floor, contacts=(bool(feet.planted[0]), bool(feet.planted[1])),
+                       height_m=height_m, bones_m=None if pose.bones_m is None else bones_m, up_view=up,
+                       floor_offset_m=floor, contacts=(bool(feet.planted[0]), bool(feet.planted[1])),
                        end_quaternions=ends, end_seen=None if seen is None else tuple(bool(s) for s in seen),
                        finger_quaternions=fingers, fingers_seen=None if hands is None else (bool(hands[0]),
                                                                                             bool(hands[1])))
+
+    def _eased_body(self, index: int, pose: PersonPose) -> tuple[float, np.ndarray]:
+        """The body's height (m) and bone lengths ``[8]`` (m; the universal body's scaled where the pose
+        has none) at frame ``index``: the engine's, which it re-measures every few frames in steps, through
+        two exponentials of time constant ``body_ease_s`` (critically damped: a step eases in without a
+        jump in speed, so a re-measured body shakes no joint)."""
+        bones = UNIVERSAL_BONES_M * (pose.height_m / UNIVERSAL_HEIGHT_M) if pose.bones_m is None \
+            else np.asarray(pose.bones_m, dtype=np.float64)
+        target = np.concatenate([[pose.height_m], bones])
+        if self.body is None or (index - self.body[0]) / self.fps > RESTART_GAP_S:
+            stages = np.stack([target, target])
+        else:
+            alpha = 1.0 - np.exp(-(index - self.body[0]) / (self.fps * self.params.body_ease_s))
+            stages = self.body[1].copy()
+            stages[0] += alpha * (target - stages[0])
+            stages[1] += alpha * (stages[0] - stages[1])
+        self.body = (index, stages)
+        return float(stages[1, 0]), stages[1, 1:]
 
     def _smoothed_root(self, index: int) -> np.ndarray:
         """Step 1's root ``[3]`` (view frame) of frame ``index``: the window's Gaussian mean through

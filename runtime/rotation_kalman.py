@@ -8,8 +8,9 @@ Per joint (the three tangent axes alike and independent, so one 2 × 2 covarianc
   own frame: ``q(t + dt) = q ⊗ exp(ω dt)``);
 * **motion**: ``ω`` changes by white angular acceleration of spectral density ``a_j² · τ`` (``a_j``:
   :data:`ROTATION_ACCEL_RAD_S2`, the joint's RMS angular acceleration per axis in real motion, times
-  ``accel_factor``; ``τ`` = :data:`ACCEL_FRAME_S`, the frame time it was measured at), so the
-  prediction over ``T`` seconds adds ``q_c [[T³/3, T²/2], [T²/2, T]]``;
+  ``accel_factor``, the shoulders' also times ``shoulder_factor``; ``τ`` = :data:`ACCEL_FRAME_S`, the
+  frame time it was measured at; :func:`spectral_density`), so the prediction over ``T`` seconds adds
+  ``q_c [[T³/3, T²/2], [T²/2, T]]``;
 * **measurement**: the frame's per-frame fit ``z``; the innovation is ``log(q_pred⁻¹ z)`` (its
   rotation vector in the prediction's frame), its noise SD ``fit_sd_rad`` divided by the frame's
   confidence in the joint (the mean confidence of the keypoints that place the joint's child bones,
@@ -54,21 +55,28 @@ RESTART_GAP_S = 0.5        # a track unseen this long starts its rotations anew
 
 @dataclass(frozen=True)
 class RotationNoise:
-    """The filter's model: the fit's SD (radians, at confidence 1) and the factor on
-    :data:`ROTATION_ACCEL_RAD_S2` (unitless). The defaults were chosen on unseen bodies (two
-    leave-one-subject-out folds, clean and noisy 2D, and the accuracy gate's bodies; a 5 × 4 grid,
-    ``docs/benchmarks.md``): the lag-0 stream's MPJPE within 3 % of the per-frame stream's, pooled,
-    at the least acceleration."""
+    """The filter's model: the fit's SD (radians, at confidence 1), the factor on
+    :data:`ROTATION_ACCEL_RAD_S2` (unitless) and the shoulders' further factor (unitless). The
+    first two were chosen on unseen bodies (two leave-one-subject-out folds, clean and noisy 2D,
+    and the accuracy gate's bodies; a 5 × 4 grid, ``docs/benchmarks.md``): the lag-0 stream's MPJPE
+    within 3 % of the per-frame stream's, pooled, at the least acceleration. The shoulders' half
+    their measured acceleration (31.4 rad/s², the largest; they turn the whole arm, so their noise
+    shakes the elbow and wrist most): of the joint groups halved in turn (shoulders, hips, elbows and
+    knees, the trunk; four leave-one-subject-out folds and the gate's bodies), the only one that took
+    acceleration off the real take (4 % at lags 0 and 6) for at most 0.4 % of the lag-0 MPJPE on
+    unseen bodies; the others cost 1.5–4 % (hips, trunk) or shook more (elbows and knees)."""
 
     fit_sd_rad: float = float(np.radians(4.0))
     accel_factor: float = 1.0
+    shoulder_factor: float = 0.5
 
     def __post_init__(self) -> None:
-        if not (self.fit_sd_rad > 0 and self.accel_factor > 0):
+        if not (self.fit_sd_rad > 0 and self.accel_factor > 0 and self.shoulder_factor > 0):
             raise ValueError(f"rotation noise out of range: {self}")
 
 
 ACCEL = np.array([ROTATION_ACCEL_RAD_S2[j] for j in RIG_JOINTS])
+SHOULDERS = np.array([j in ("r_shoulder", "l_shoulder") for j in RIG_JOINTS])
 # [R, 14]: each rig joint's mean over its JOINT_KEYPOINTS
 _JOINT_MEAN = np.array([[float(k in [KP[n] for n in JOINT_KEYPOINTS[j]]) / len(JOINT_KEYPOINTS[j])
                          for k in range(N_KEYPOINTS_2D)] for j in RIG_JOINTS])
@@ -81,6 +89,12 @@ def joint_confidence(keypoints_px: np.ndarray | None) -> np.ndarray:
         return np.ones(len(RIG_JOINTS))
     conf = np.nan_to_num(np.asarray(keypoints_px, dtype=np.float64)[:, 2], nan=0.0)
     return np.clip(_JOINT_MEAN @ conf, MIN_CONFIDENCE, 1.0)
+
+
+def spectral_density(noise: RotationNoise) -> np.ndarray:
+    """``[R]`` each rig joint's spectral density of white angular acceleration (rad²/s³) under ``noise``."""
+    accel = noise.accel_factor * ACCEL * np.where(SHOULDERS, noise.shoulder_factor, 1.0)
+    return accel ** 2 * ACCEL_FRAME_S
 
 
 def process_noise(spectral: np.ndarray, dt_s: float) -> np.ndarray:
@@ -111,7 +125,7 @@ class RotationKalman:
     def __init__(self, fps: float, lag_frames: int, noise: RotationNoise = RotationNoise()):
         self.dt = 1.0 / fps
         self.noise = noise
-        self.spectral = (noise.accel_factor * ACCEL) ** 2 * ACCEL_FRAME_S
+        self.spectral = spectral_density(noise)
         self.history: deque[_Entry] = deque(maxlen=lag_frames + 1)
 
     def add(self, index: int, quats: np.ndarray, confidence: np.ndarray) -> None:

@@ -2,6 +2,7 @@
 foot held where it was put down while the per-frame root wanders in depth; pops held to the speed limits."""
 import json
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -193,6 +194,37 @@ def test_the_root_carried_by_shaking_legs_is_steadied_and_the_feet_stay_planted(
     assert slide[OnlineParams.carried_root_sd_m] <= slide[1e-6] < 0.04
 
 
+def test_a_remeasured_body_is_eased_in_without_a_jump():
+    """The engine re-measures a body in steps: the forearms of a still person (no image: no contacts)
+    lengthened by 5 cm at once follow as two exponentials of time constant ``body_ease_s``: at the
+    ``k``-th frame of the new length the output's forearm is short of it by the step times
+    ``(1 − α)^k (1 + k α)``, ``α = 1 − exp(−1 / (fps τ))``; so the wrist's largest second difference is
+    ``α²`` of the step (8 % at 60 fps), where passed through (τ → 0) it is the step. The stream's
+    ``bones`` are its joints'."""
+    fps, step_m = 60.0, 0.05
+    bones = universal_bone_lengths_m()
+    longer = bones.copy()
+    longer[3] += step_m                                   # MEASURED_BONE_NAMES[3]: the forearm
+    out = {}
+    for tau in (OnlineParams.body_ease_s, 1e-6):
+        take = OnlineTake(fps, OnlineParams(body_ease_s=tau))
+        frames = []
+        for t in range(90):
+            pose = replace(_pose(0, [0.0, 0.0, 4.0], image=False), bones_m=longer if t >= 30 else bones)
+            frames += take.push(t, t / fps, [pose])
+        out[tau] = [f[2][0] for f in frames]
+    eased = out[OnlineParams.body_ease_s]
+    forearm = np.array([bone_lengths_m(p.joints_m)[3] for p in eased])
+    np.testing.assert_allclose([p.bones_m[3] for p in eased], forearm, atol=1e-9)   # the stream's bones: its joints'
+    alpha = 1.0 - np.exp(-1.0 / (fps * OnlineParams.body_ease_s))
+    k = np.arange(1, 61)
+    np.testing.assert_allclose(forearm[30:], longer[3] - step_m * (1 - alpha) ** k * (1 + k * alpha), atol=1e-9)
+    wrist = {tau: np.linalg.norm(np.diff([p.joints_m[KP["r_wrist"]] for p in poses], 2, axis=0), axis=-1).max()
+             for tau, poses in out.items()}
+    assert wrist[1e-6] == pytest.approx(step_m, rel=1e-6)     # passed through: a 5 cm jump
+    assert wrist[OnlineParams.body_ease_s] == pytest.approx(alpha ** 2 * step_m, rel=1e-6)   # eased: α² of it, at most
+
+
 def test_a_pop_is_held_to_the_joint_speed_limit():
     fps = 60.0
     take = OnlineTake(fps)
@@ -208,7 +240,7 @@ def test_a_pop_is_held_to_the_joint_speed_limit():
 
 
 @pytest.mark.parametrize("bad", [dict(lag_frames=-1), dict(smoothing_hz=0.0), dict(release_factor=0.5),
-                                 dict(root_speed_mps=float("nan"))])
+                                 dict(root_speed_mps=float("nan")), dict(body_ease_s=0.0)])
 def test_online_take_refuses_bad_settings(bad):
     with pytest.raises(ValueError):
         OnlineParams(**bad)

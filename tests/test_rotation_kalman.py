@@ -11,13 +11,14 @@ from scipy.spatial.transform import Rotation
 
 from mocapdb.core.skeleton import KP, N_RIG_JOINTS, RIG_JOINTS
 from mocapdb.runtime.rotation_kalman import (
-    ACCEL,
     ACCEL_FRAME_S,
     MIN_CONFIDENCE,
+    ROTATION_ACCEL_RAD_S2,
     RotationKalman,
     RotationNoise,
     joint_confidence,
     process_noise,
+    spectral_density,
 )
 
 FPS = 60.0
@@ -79,7 +80,7 @@ def test_steady_state_gain_is_the_riccati_equations():
     gain = entry.cov_pred[:, :, 0] / (entry.cov_pred[:, 0, 0] + NOISE.fit_sd_rad ** 2)[:, None]   # [R, 2]
     f = np.array([[1.0, 1.0 / FPS], [0.0, 1.0]])
     h = np.array([[1.0, 0.0]])
-    spectral = (NOISE.accel_factor * ACCEL) ** 2 * ACCEL_FRAME_S
+    spectral = spectral_density(NOISE)
     for j in range(N_RIG_JOINTS):
         q = process_noise(spectral[j:j + 1], 1.0 / FPS)[0]
         p = solve_discrete_are(f.T, h.T, q, np.array([[NOISE.fit_sd_rad ** 2]]))   # a priori covariance
@@ -104,7 +105,7 @@ def test_one_axis_is_the_linear_filter_and_smoother(lag):
             q = kalman.estimate(index - lag)[RIG_JOINTS.index("r_elbow")]
             got[index - lag] = 2.0 * np.arctan2(q[1], q[0])
     j = RIG_JOINTS.index("r_elbow")   # any joint: its own process noise
-    spectral = (NOISE.accel_factor * ACCEL[j]) ** 2 * ACCEL_FRAME_S
+    spectral = spectral_density(NOISE)[j]
     filtered, lagged = _linear_filter_and_smoother(angles, spectral, NOISE.fit_sd_rad ** 2, 1.0 / FPS, lag)
     expected = filtered if lag == 0 else lagged
     ok = np.isfinite(got)
@@ -146,6 +147,15 @@ def test_a_step_is_followed_within_a_tenth_of_a_second():
     assert (np.abs(errors) < 2.0).any(axis=0).all() and reached.max() <= 8
     assert errors.max() < 0.2 * 40.0
     assert np.abs(errors[30:]).max() < 1.5
+
+
+def test_the_shoulders_noise_is_their_measured_acceleration_times_both_factors():
+    """Each joint's spectral density is (factor × its RMS angular acceleration)² × the frame time it was
+    measured at; the shoulders' acceleration also times ``shoulder_factor``."""
+    noise = RotationNoise(accel_factor=2.0, shoulder_factor=0.25)
+    got = dict(zip(RIG_JOINTS, spectral_density(noise)))
+    assert got["r_shoulder"] == pytest.approx((2.0 * 0.25 * 31.4) ** 2 / 24.0)
+    assert got["l_elbow"] == pytest.approx((2.0 * ROTATION_ACCEL_RAD_S2["l_elbow"]) ** 2 * ACCEL_FRAME_S)
 
 
 def test_each_frame_of_lag_buys_accuracy():
@@ -192,3 +202,5 @@ def test_rotation_noise_refuses_bad_settings():
         RotationNoise(fit_sd_rad=0.0)
     with pytest.raises(ValueError):
         RotationNoise(accel_factor=-1.0)
+    with pytest.raises(ValueError):
+        RotationNoise(shoulder_factor=0.0)
