@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from mocapdb.evaluation.ends import GATE_ENDS_GROUPS, GATE_ENDS_VARIANTS
+from mocapdb.evaluation.ends import GATE_ENDS_FIGURES, GATE_ENDS_VARIANTS
 from mocapdb.evaluation.gate import (
     BODY_METRICS,
     GATE_BODIES,
@@ -86,7 +86,7 @@ def test_the_stored_thresholds_cover_every_gated_figure_with_a_margin():
              for row in rows for variant in VARIANTS for metric in BODY_METRICS}
     names |= {f"real take/{variant}, {mode.replace('_', ' ')}/{metric}"
               for variant, mode in REAL_RUNS for metric, _ in REAL_METRICS}
-    names |= {f"ends/{variant}/{key}_deg" for variant in GATE_ENDS_VARIANTS for key in GATE_ENDS_GROUPS.values()}
+    names |= {f"ends/{variant}/{key}_deg" for variant in GATE_ENDS_VARIANTS for key in GATE_ENDS_FIGURES}
     assert set(data["figures"]) == names
     assert data["measured_on"]["code"] and data["measured_on"]["date"]
     assert all(0 < entry["measured"] < entry["max"] for entry in data["figures"].values())

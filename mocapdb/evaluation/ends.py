@@ -278,9 +278,10 @@ def gate_clip_files(bvh_dir: Path) -> list[Path]:
 GATE_ENDS_BODY = GATE_BODIES[1]   # short legs: the body furthest from the engine's assumed size
 GATE_ENDS_YAWS_DEG = (3.0, 93.0, 183.0, 273.0)
 GATE_ENDS_VARIANTS = ("whole take", "stream lag 0")
-# the groups the gate checks and their figures' names
+# the groups the gate checks and their figures' names (and, from the hands' 21 points, ``hands_21_points``)
 GATE_ENDS_GROUPS = {**{group: group for group in GROUPS}, MESH_GROUPS[0]: "head_mesh_seen",
                     MESH_GROUPS[1]: "head_no_mesh"}
+GATE_ENDS_FIGURES = tuple(GATE_ENDS_GROUPS.values()) + ("hands_21_points",)
 # The part's threshold margin (relative, absolute degrees): 0.05 px of noise on the exact input (3 draws)
 # moved its figures by up to +4.4 % (the stream's feet; the others within 1.5 %), beyond the gate's 3 %
 GATE_MARGIN = (0.10, 0.1)
@@ -290,9 +291,14 @@ def gate_figures(db: MotionDatabase, bvh_dir: Path) -> dict[str, float]:
     """The accuracy gate's part ``ends``: the gate's clips on :data:`GATE_ENDS_BODY` from
     :data:`GATE_ENDS_YAWS_DEG`, exact 2D with the face mesh rendered; figures ``ends/<variant>/<group>_deg``
     (median geodesic error, degrees) of :data:`GATE_ENDS_VARIANTS`: :data:`GROUPS` and the head where a mesh is
-    seen and where none is (``head_mesh_seen``, ``head_no_mesh``)."""
-    errors = evaluate_ends(db, gate_clip_files(bvh_dir), (GATE_ENDS_BODY,), SCENARIOS[:1], GATE_ENDS_YAWS_DEG,
-                           face_mesh=True)
-    medians = errors[SCENARIOS[0].name].medians()
-    return {f"ends/{variant}/{key}_deg": medians[variant][group] for variant in GATE_ENDS_VARIANTS
-            for group, key in GATE_ENDS_GROUPS.items()}
+    seen and where none is (``head_mesh_seen``, ``head_no_mesh``); and rendered again with the hands' 21 points
+    (``detect --hands``), the hands' (``hands_21_points``)."""
+    clips, scenario = gate_clip_files(bvh_dir), SCENARIOS[0]
+    medians = evaluate_ends(db, clips, (GATE_ENDS_BODY,), (scenario,), GATE_ENDS_YAWS_DEG,
+                            face_mesh=True)[scenario.name].medians()
+    with_hands = evaluate_ends(db, clips, (GATE_ENDS_BODY,), (scenario,), GATE_ENDS_YAWS_DEG,
+                               hand_points=21)[scenario.name].medians()
+    figures = {f"ends/{variant}/{key}_deg": medians[variant][group] for variant in GATE_ENDS_VARIANTS
+               for group, key in GATE_ENDS_GROUPS.items()}
+    return figures | {f"ends/{variant}/hands_21_points_deg": with_hands[variant]["hands"]
+                      for variant in GATE_ENDS_VARIANTS}
