@@ -34,7 +34,8 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    The root so carried moves with every shake of the legs' rotations (the anchor less the ankle),
    so it goes through one more constant-velocity Kalman filter (:class:`RootFilter`, as precise
    along the viewing ray as across it: ``carried_root_sd_m``), whose pull is kept level and short
-   enough that every planted leg still reaches its anchor (:meth:`OnlineTrack._steadied`).
+   enough that every planted leg still reaches its anchor, in proportion to the leg's IK weight
+   (:meth:`OnlineTrack._steadied`).
 4. **A planted foot locked in place**: the legs turned by the whole take's two-bone IK
    (:func:`~mocapdb.runtime.take.plant_feet`) onto their anchors, the weight blended in and out over
    ``blend_s``. The floor (reported, not enforced) is the median height of the last anchors along
@@ -333,7 +334,9 @@ class OnlineTrack:
         viewing ray as across it (``carried_root_sd_m``): the legs' rotations that carry the root
         shake it no more. Its pull is level (a planted leg reaches no higher) and no longer than
         keeps every planted anchor within its leg's reach (thigh + shank of ``body [15, 3]``, the
-        joints about the root) from the hip."""
+        joints about the root) from the hip, each leg's limit weighed by its IK weight (a foot
+        blending in or out limits the pull as much as it carries the root: no jump when it starts or
+        ends)."""
         pull = self.carried(index, root) - root
         pull -= (pull @ up) * up
         feet = self.feet
@@ -347,7 +350,9 @@ class OnlineTrack:
         slack = np.maximum(slack, 0.0)
         if a < 1e-18:
             return root + pull
-        root = root + pull * float(np.clip((-b + np.sqrt(b * b + a * slack)) / a, 0.0, 1.0).min())
+        reach_share = np.clip((-b + np.sqrt(b * b + a * slack)) / a, 0.0, 1.0)    # per planted leg
+        weight = feet.weight[carrying]          # a leg's limit comes in with its IK weight: no jump at 0
+        root = root + pull * float((1.0 - weight * (1.0 - reach_share)).min())
         self.carried.constrain(root)
         return root
 

@@ -17,7 +17,7 @@ from mocapdb.core.skeleton import (
     pose_from_rotations,
     universal_bone_lengths_m,
 )
-from mocapdb.runtime.online_take import JOINT_SPEED_DEG_S, OnlineParams, OnlineTake
+from mocapdb.runtime.online_take import JOINT_SPEED_DEG_S, OnlineParams, OnlineTake, OnlineTrack
 
 MATCH = Match("clip", 0, 0.0, 0.1)
 FOCAL, CENTRE = 1000.0, np.array([540.0, 960.0])
@@ -223,6 +223,25 @@ def test_a_remeasured_body_is_eased_in_without_a_jump():
              for tau, poses in out.items()}
     assert wrist[1e-6] == pytest.approx(step_m, rel=1e-6)     # passed through: a 5 cm jump
     assert wrist[OnlineParams.body_ease_s] == pytest.approx(alpha ** 2 * step_m, rel=1e-6)   # eased: α² of it, at most
+
+
+def test_a_legs_reach_limit_on_the_carried_root_comes_in_with_its_weight():
+    """The steadied root's pull is held within a planted leg's reach in proportion to the leg's IK
+    weight: with the right leg straight under its anchor any level pull leaves its reach, so at weight
+    ``w`` the root moves ``1 − w`` of the free pull (was: all of it at 0, none at 0.01: a jump as a foot
+    blends out)."""
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (N_RIG_JOINTS, 1))
+    body = pose_from_rotations(quats[None], np.zeros((1, 3)))[0]             # about the root, legs straight
+    root, up = np.array([0.0, 0.0, 4.0]), np.array([0.0, 1.0, 0.0])
+    moved = {}
+    for weight in (0.0, 0.01, 0.5, 1.0):
+        track = OnlineTrack(60.0, OnlineParams())
+        track.carried(0, np.array([0.3, 0.0, 4.0]))                       # the filter 30 cm to the side
+        track.feet.weight[0], track.feet.anchor[0] = weight, root + body[KP["r_ankle"]]
+        moved[weight] = track._steadied(1, root.copy(), body, up) - root
+    assert np.linalg.norm(moved[0.0]) > 0.01 and abs(moved[0.0] @ up) < 1e-12
+    for weight in (0.01, 0.5, 1.0):
+        np.testing.assert_allclose(moved[weight], (1.0 - weight) * moved[0.0], atol=1e-12)
 
 
 def test_a_pop_is_held_to_the_joint_speed_limit():
