@@ -43,8 +43,9 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
                         "\"Hands\")")
     p.add_argument("--face", action="store_true",
                    help="BlazePose only: also the face mesh (468 points) from MediaPipe's face landmark model on crops "
-                        f"the pose's face points give (prepared by `{FETCH_COMMAND} {FACE}`): blinks and the mouth's "
-                        "opening in the stream and over VMC (data_specs/head.md, \"Face mesh\")")
+                        f"the pose's face points give (prepared by `{FETCH_COMMAND} {FACE}`): the head turns, nods and "
+                        "tilts with it in the BVH, the stream and over VMC, with blinks and the mouth's opening "
+                        "(data_specs/head.md, \"The head from the mesh\", \"Face mesh\")")
     p.add_argument("--max-people", type=D.MAX_PEOPLE, metavar="N",
                    help="follow at most N people, no landmark run spent on the others (BlazePose: the most "
                         "prominent, region area x score, kept until lost or one twice as prominent comes; an export: "
