@@ -267,6 +267,25 @@ def test_sides_swapped_by_the_model_are_swapped_back():
     assert names[MIRROR[names.index("left_heel")]] == "right_heel" and MIRROR[0] == 0
 
 
+def test_live_one_thread_models_find_the_same_people_and_points():
+    """`live`'s detector (each model in one intra-op thread: PIPELINE_MODEL_THREADS) gives the default
+    sessions' (one thread per core) boxes, points and world points on real frames, the subject and the
+    bystander, to the float: the thread count splits the work, not the sums."""
+    from mocapdb.detect.detectors import PIPELINE_MODEL_THREADS, open_detector
+
+    def detector(threads):
+        return open_detector(None, "full", conf=0.5, iou=0.5, max_people=None, input_size=256, fast=None,
+                             model_threads=threads)
+
+    live, default = detector(PIPELINE_MODEL_THREADS), detector(None)
+    assert live._landmarks.get_session_options().intra_op_num_threads == PIPELINE_MODEL_THREADS == 1
+    for image in _frames(BALANCING, tuple(range(45))):
+        a, b = live(image), default(image)
+        for x, y in ((a.boxes, b.boxes), (a.keypoints, b.keypoints), (a.world, b.world)):
+            np.testing.assert_allclose(x, y, rtol=0, atol=1e-5)
+    assert len(a.scores) == 2
+
+
 def test_live_video_frames_carry_blazepose_feet_and_hands():
     from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
     from mocapdb.detect.model import Detections

@@ -185,3 +185,23 @@ def test_nothing_writable_compiles_on_every_run(unshare, tmp_path):
     assert "convention:  character_creator" in out.stdout and "CC_Base_Head" in out.stdout
     assert [line.split(" (")[0] for line in _warnings(out.stderr)] == [f"mocapdb: warning: {UNCACHED}"], out.stderr
     assert not list(home.rglob("*.nb?"))
+
+
+def test_cached_kernels_load_before_their_first_call():
+    """load_cached_kernels gives an imported module's kernels their cached code without running them: the
+    first call then neither loads nor compiles (numba's own count of cache hits and misses)."""
+    first_run = "import numpy as np; from mocapdb.core import geometry; geometry.matrix_to_quat(np.eye(3))"
+    subprocess.run([sys.executable, "-c", first_run], check=True, cwd=ROOT)   # cached here if not before
+    probe = (
+        "import numpy as np; from mocapdb.core import geometry; from mocapdb.core.kernel_cache import "
+        "load_cached_kernels\n"
+        "kernel = geometry._matrices_to_quats\n"
+        "before = len(kernel.signatures); loaded = load_cached_kernels()\n"
+        "hits, misses = sum(kernel.stats.cache_hits.values()), sum(kernel.stats.cache_misses.values())\n"
+        "signatures = len(kernel.signatures); geometry.matrix_to_quat(np.eye(3))\n"
+        "print(before, loaded, hits, misses, signatures, len(kernel.signatures), "
+        "sum(kernel.stats.cache_misses.values()))")
+    out = subprocess.run([sys.executable, "-c", probe], check=True, cwd=ROOT, capture_output=True, text=True).stdout
+    before, loaded, hits, misses, signatures, after_call, misses_after = map(int, out.split())
+    assert before == 0 and loaded >= 1 and hits >= 1 and misses == 0
+    assert signatures >= 1 and after_call == signatures and misses_after == 0   # the call found it loaded

@@ -14,7 +14,7 @@ import pytest
 
 from mocapdb.runtime.engine import Engine
 from mocapdb.runtime.engine_config import EngineConfig
-from mocapdb.runtime.stream.latency import MAX_PENDING, LatencyBook
+from mocapdb.runtime.stream.latency import MAX_PENDING, LatencyBook, steady_stream
 from mocapdb.runtime.stream.osc_sinks import VmcSink
 from mocapdb.runtime.stream.session import FrameParser, Session
 from mocapdb.runtime.stream.session_options import SessionOptions
@@ -76,6 +76,29 @@ class _Recording(Sink):
 
     def close(self) -> None:
         pass
+
+
+def test_a_steady_stream_sets_the_start_up_aside_from_the_collector_and_gives_it_back(monkeypatch):
+    """Inside steady_stream the objects alive at its start are frozen (gc.get_freeze_count), a cycle made
+    inside is still collected, and on leaving (an error too) nothing stays frozen; the cached kernels are
+    loaded on entry (load_cached_kernels: tests/test_kernel_cache.py)."""
+    import gc
+
+    from mocapdb.runtime.stream import latency
+
+    loads = []
+    monkeypatch.setattr(latency, "load_cached_kernels", lambda: loads.append(gc.get_freeze_count()))
+    alive = [object() for _ in range(1000)]
+    with steady_stream():
+        assert loads == [0] and gc.get_freeze_count() >= len(alive)
+        cycle: list = []
+        cycle.append(cycle)
+        del cycle
+        assert gc.collect() >= 1
+    assert gc.get_freeze_count() == 0
+    with pytest.raises(RuntimeError), steady_stream():
+        raise RuntimeError("the stream failed")
+    assert gc.get_freeze_count() == 0 and len(loads) == 2
 
 
 def test_a_tee_reports_its_first_sink_s_send_and_tcp_its_sender_thread_s(tmp_path):

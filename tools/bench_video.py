@@ -55,7 +55,7 @@ sys.path.insert(0, str(ROOT))
 from mocapdb.cli.main import parser  # noqa: E402
 from mocapdb.cli.reconstruct import _session, resolve_take  # noqa: E402
 from mocapdb.detect.camera_motion import LIVE_EVERY, BackgroundMotion  # noqa: E402
-from mocapdb.detect.detectors import open_detector  # noqa: E402
+from mocapdb.detect.detectors import PIPELINE_MODEL_THREADS, open_detector  # noqa: E402
 from mocapdb.detect.landmark_schedule import LIVE_FACE_EVERY, LIVE_HANDS_EVERY  # noqa: E402
 from mocapdb.detect.model import Detections, box_iou  # noqa: E402
 from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU  # noqa: E402
@@ -109,7 +109,8 @@ def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[d
     over the timed frames."""
     detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
                              max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE, fast=fast, hands=args.hands,
-                             hands_every=args.hands_every, faces=args.face, face_every=args.face_every)
+                             hands_every=args.hands_every, faces=args.face, face_every=args.face_every,
+                             model_threads=PIPELINE_MODEL_THREADS)
     session = _session(args, args.sink, strict=False)
     engine_ms: list[float] = []
     step = session.engine.step

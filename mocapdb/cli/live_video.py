@@ -1,11 +1,16 @@
-"""`mocapdb live`'s options for a video source: the hands' and face's rates, a still
-camera, a file delivered at its frame rate."""
+"""`mocapdb live`'s options for a video source (the hands' and face's rates, a still camera, a file
+delivered at its frame rate) and the source they open."""
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from mocapdb.core import domains as D
 from mocapdb.detect.landmark_schedule import LIVE_FACE_EVERY, LIVE_HANDS_EVERY
+
+if TYPE_CHECKING:
+    from mocapdb.runtime.stream.messages import StreamStats
+    from mocapdb.runtime.stream.video_input import VideoDetections
 
 
 def add_live_video_options(p: argparse.ArgumentParser) -> None:
@@ -22,3 +27,20 @@ def add_live_video_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--realtime", action="store_true",
                    help="a video file delivered at its frame rate, as a camera would (late frames dropped; the "
                         "latency a camera would give); default: as fast as detection goes")
+
+
+def open_live_video(args: argparse.Namespace, stats: StreamStats) -> VideoDetections:
+    """`live --source VIDEO`'s detector (each model in one intra-op thread:
+    :data:`~mocapdb.detect.detectors.PIPELINE_MODEL_THREADS`) on the video, its threads started
+    (:func:`~mocapdb.runtime.stream.video_input.open_video_source`); DetectError on failure."""
+    from mocapdb.cli.detect import fast_path
+    from mocapdb.detect.detectors import PIPELINE_MODEL_THREADS, open_detector
+    from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU
+    from mocapdb.runtime.stream.video_input import open_video_source
+
+    detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
+                             max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE, fast=fast_path(args),
+                             hands=args.hands, hands_every=args.hands_every, faces=args.face,
+                             face_every=args.face_every, model_threads=PIPELINE_MODEL_THREADS)
+    return open_video_source(args.source, detector, capacity=args.buffer, stats=stats, paced=args.realtime,
+                             turning=not args.still_camera)

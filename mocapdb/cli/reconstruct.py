@@ -7,8 +7,8 @@ import os
 import sys
 
 from mocapdb.cli import paths as P
-from mocapdb.cli.detect import add_detector_options, add_model_options, fast_path
-from mocapdb.cli.live_video import add_live_video_options
+from mocapdb.cli.detect import add_detector_options, add_model_options
+from mocapdb.cli.live_video import add_live_video_options, open_live_video
 from mocapdb.cli.view import add_page_options, open_page
 from mocapdb.core import domains as D
 from mocapdb.core import search_rules as S
@@ -433,11 +433,10 @@ def run_live(args: argparse.Namespace) -> int:
 
     from mocapdb.cli.signals import install_stop_handlers
     from mocapdb.core.outputs import check_no_track_files
-    from mocapdb.detect.detectors import open_detector
-    from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU
+    from mocapdb.runtime.stream.latency import steady_stream
     from mocapdb.runtime.stream.session import SinkError, run_live
     from mocapdb.runtime.stream.transport import NetworkLimits, check_sink, open_source
-    from mocapdb.runtime.stream.video_input import open_video_source, run_video
+    from mocapdb.runtime.stream.video_input import run_video
 
     limits = NetworkLimits(args.max_clients, args.client_timeout, args.max_rate)   # checked before any work
     check_sink(args.sink, args.vmc_track)
@@ -462,17 +461,14 @@ def run_live(args: argparse.Namespace) -> int:
     with install_stop_handlers(stop, force_quit=False):
         try:
             if _is_video(args.source):
-                detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
-                                         max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE,
-                                         fast=fast_path(args), hands=args.hands, hands_every=args.hands_every,
-                                         faces=args.face, face_every=args.face_every)
-                video = open_video_source(args.source, detector, capacity=args.buffer, stats=session.summary.stream,
-                                          paced=args.realtime, turning=not args.still_camera)
-                run_video(session, video, stop)
+                with steady_stream():
+                    video = open_live_video(args, session.summary.stream)
+                    run_video(session, video, stop)
             else:
                 source = open_source(args.source, stats=session.summary.stream, follow=True,
                                      idle_timeout_s=args.idle_timeout, limits=limits)
-                run_live(session, source, stop, args.buffer)
+                with steady_stream():
+                    run_live(session, source, stop, args.buffer)
         except SinkError:
             pass  # recorded in the summary; reported below
         finally:

@@ -3,6 +3,7 @@
 numba caches a kernel in ``NUMBA_CACHE_DIR``, else in ``__pycache__`` beside its source, else in the user's cache
 folder, and raises "cannot cache function …: no locator available" when it can write to none of them (a service
 account, a read-only container). :func:`choose_kernel_cache` runs at ``import mocapdb``, before numba chooses.
+:func:`load_cached_kernels` loads the cached code before a stream's first frame (`live`).
 """
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import stat
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 # the packages whose modules define cache=True kernels (numba caches each beside its source by default)
 _KERNEL_PACKAGES = ("mocapdb.core", "mocapdb.builder", "mocapdb.evaluation", "mocapdb.runtime",
@@ -46,6 +48,34 @@ def choose_kernel_cache() -> str | None:
         why = f"NUMBA_CACHE_DIR {user} and mocapdb's folder are" if user else "mocapdb's folder is"
         _note(f"compiled kernels are cached in {folder} ({why} not writable)")
     return str(folder)
+
+
+def load_cached_kernels(prefix: str = "mocapdb.") -> int:
+    """Load the cached compiled code of every kernel (``cache=True``) of the modules named ``prefix``… imported so
+    far, without running any: their first calls then run at once. Otherwise each first call loads its code from the
+    cache (2–5 ms, holding the GIL), and `live`'s first frames paid about 60 ms for the dozens their first engine
+    steps call, which held up the detector's thread and were most of the latency's p99 on a short take
+    (docs/benchmarks.md, "Live latency and speed: one thread a model, kernels loaded before the first frame"). Only
+    this machine's entries for the kernels' present source are loaded (numba's cache index); a kernel cached for
+    none compiles at its first call as before. Returns the overloads loaded."""
+    from numba.core.dispatcher import Dispatcher
+
+    modules = [m for name, m in list(sys.modules.items()) if name.startswith(prefix) and m is not None]
+    kernels = {id(k): k for m in modules for k in list(vars(m).values()) if isinstance(k, Dispatcher)}
+    return sum(_load_cached(kernel) for kernel in kernels.values())
+
+
+def _load_cached(kernel: Any) -> int:
+    """Load ``kernel``'s overloads cached for this machine and its present source (:func:`load_cached_kernels`);
+    how many."""
+    cache = kernel._cache
+    if not hasattr(cache, "_cache_file"):  # numba's null cache: a kernel without cache=True
+        return 0
+    codegen = kernel.targetctx.codegen()
+    signatures = [key[0] for key in cache._cache_file._load_index() if key == cache._index_key(key[0], codegen)]
+    for signature in signatures:
+        kernel.compile(signature)   # found in the cache: loaded, not compiled
+    return len(signatures)
 
 
 def _kernel_folders() -> list[Path]:

@@ -214,16 +214,18 @@ class BlazePose:
     (module docstring). ``detector_path`` and ``landmark_path``: the converted ONNX models;
     ``max_people``: the people followed at most; ``scan_every``: the detector's schedule (frames).
     ``fps`` is the rate sustained (frames per second of detection time). ``world_landmarks``: compute
-    the world landmarks too (:attr:`Detections.world <mocapdb.detect.model.Detections>`; else None)."""
+    the world landmarks too (:attr:`Detections.world <mocapdb.detect.model.Detections>`; else None).
+    ``threads``: each model's intra-op threads (:func:`~mocapdb.detect.model.load_session`)."""
 
     keypoint_layout = "mediapipe33"
 
     def __init__(self, detector_path: Path, landmark_path: Path, *, max_people: int | None = None,
-                 scan_every: int = DEFAULT_SCAN_EVERY, name: str = "BlazePose", world_landmarks: bool = True) -> None:
+                 scan_every: int = DEFAULT_SCAN_EVERY, name: str = "BlazePose", world_landmarks: bool = True,
+                 threads: int | None = None) -> None:
         self.path = Path(landmark_path)
-        self._detector = load_session(Path(detector_path))
+        self._detector = load_session(Path(detector_path), threads=threads)
         self._outputs = LANDMARK_OUTPUTS + ((WORLD_OUTPUT,) if world_landmarks else ())
-        self._landmarks = load_session(self.path, self._outputs)
+        self._landmarks = load_session(self.path, self._outputs, threads=threads)
         self.world_landmarks = world_landmarks
         self.max_people, self.scan_every, self.name = max_people, scan_every, name
         self.people: list[_Person] = []

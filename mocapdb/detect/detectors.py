@@ -15,6 +15,11 @@ import numpy as np
 
 from mocapdb.detect.model import Detections
 
+# intra-op threads of each model in `live`'s pipeline, whose decoder, detector and engine threads share the cores:
+# there a second intra-op thread cost CPU and gained no speed (docs/benchmarks.md, "Live latency and speed: one
+# thread a model, kernels loaded before the first frame")
+PIPELINE_MODEL_THREADS = 1
+
 
 class FrameDetector(Protocol):
     """A detector run on the consecutive frames of one video."""
@@ -34,16 +39,18 @@ class FrameDetector(Protocol):
 
 def open_detector(model: str | Path | None, variant: str, *, conf: float, iou: float, max_people: int | None,
                   input_size: int, fast, hands: bool = False, faces: bool = False,
-                  hands_every: int = 1, face_every: int = 1) -> FrameDetector:
+                  hands_every: int = 1, face_every: int = 1, model_threads: int | None = None) -> FrameDetector:
     """BlazePose ``variant`` (lite, full, heavy) when ``model`` is None, with ``hands`` also each person's
     hands (run every ``hands_every`` frames, carried between: :mod:`~mocapdb.detect.landmark_schedule`) and
     with ``faces`` their face mesh (every ``face_every`` frames alike;
     :class:`~mocapdb.detect.with_landmarks.WithLandmarks`), else the ONNX
-    export ``model`` with the paths ``fast`` allows (:class:`~mocapdb.detect.tracked.FastPath`); DetectError
+    export ``model`` with the paths ``fast`` allows (:class:`~mocapdb.detect.tracked.FastPath`);
+    ``model_threads``: each model's intra-op threads (default the cores: :func:`~mocapdb.detect.model.load_session`;
+    `live` runs one, :data:`PIPELINE_MODEL_THREADS`); DetectError
     when the model cannot be used, when hands or faces are asked of an export, or when BlazePose (or the
     hand or face model) is not prepared on this machine."""
     if model is None:
-        return _blazepose(variant, max_people, hands_every if hands else 0, face_every if faces else 0)
+        return _blazepose(variant, max_people, hands_every if hands else 0, face_every if faces else 0, model_threads)
     if hands or faces:
         from mocapdb.detect.errors import DetectError
 
@@ -51,12 +58,14 @@ def open_detector(model: str | Path | None, variant: str, *, conf: float, iou: f
     from mocapdb.detect.model import PoseModel
     from mocapdb.detect.tracked import TrackedDetector
 
-    return TrackedDetector(PoseModel(model, conf=conf, iou=iou, max_people=max_people, input_size=input_size), fast)
+    return TrackedDetector(PoseModel(model, conf=conf, iou=iou, max_people=max_people, input_size=input_size,
+                                     threads=model_threads), fast)
 
 
-def _blazepose(variant: str, max_people: int | None, hands_every: int, face_every: int) -> FrameDetector:
+def _blazepose(variant: str, max_people: int | None, hands_every: int, face_every: int,
+               threads: int | None) -> FrameDetector:
     """BlazePose ``variant``, with the hand (``hands_every`` > 0) and face (``face_every`` > 0) landmark models
-    asked for (:func:`open_detector`)."""
+    asked for, each model with ``threads`` intra-op threads (:func:`open_detector`)."""
     from mocapdb.detect.blazepose import BlazePose
     from mocapdb.detect.model_store import blazepose_paths, extra_model_path
     from mocapdb.detect.with_landmarks import Landmarker, WithLandmarks
@@ -65,9 +74,9 @@ def _blazepose(variant: str, max_people: int | None, hands_every: int, face_ever
     landmarkers: dict[str, Landmarker] = {}
     if hands_every:
         from mocapdb.detect.hands import HandLandmarker
-        landmarkers["hands"] = HandLandmarker(extra_model_path("hands"), hands_every)
+        landmarkers["hands"] = HandLandmarker(extra_model_path("hands"), hands_every, threads)
     if face_every:
         from mocapdb.detect.face import FaceLandmarker
-        landmarkers["faces"] = FaceLandmarker(extra_model_path("face"), face_every)
-    pose = BlazePose(detector_path, landmark_path, max_people=max_people, name=f"BlazePose {variant}")
+        landmarkers["faces"] = FaceLandmarker(extra_model_path("face"), face_every, threads)
+    pose = BlazePose(detector_path, landmark_path, max_people=max_people, name=f"BlazePose {variant}", threads=threads)
     return WithLandmarks(pose, **landmarkers) if landmarkers else pose

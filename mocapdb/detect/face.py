@@ -86,8 +86,8 @@ class FaceLandmarker(BatchedModel):
     """The face landmark model at ``path`` (converted ONNX) run on each person's face: all the faces of
     a frame in one batched run."""
 
-    def __init__(self, path: Path, every: int = 1) -> None:
-        super().__init__(path, FACE_OUTPUTS, FACE_INPUT_PX, "face", every)
+    def __init__(self, path: Path, every: int = 1, threads: int | None = None) -> None:
+        super().__init__(path, FACE_OUTPUTS, FACE_INPUT_PX, "face", every, threads)
 
     def landmarks_batch(self, image: np.ndarray, regions: list[Region]) -> tuple[np.ndarray, np.ndarray]:
         """The model in each of ``regions`` of ``image`` (uint8 BGR), one run: points ``[R, 468, 3]`` (x, y

@@ -105,8 +105,8 @@ class HandLandmarker(BatchedModel):
     """The hand landmark model at ``path`` (converted ONNX) run on each person's hands: all the hands of
     a frame in one batched run."""
 
-    def __init__(self, path: Path, every: int = 1) -> None:
-        super().__init__(path, HAND_OUTPUTS, HAND_PX, "hand", every)
+    def __init__(self, path: Path, every: int = 1, threads: int | None = None) -> None:
+        super().__init__(path, HAND_OUTPUTS, HAND_PX, "hand", every, threads)
 
     def landmarks(self, image: np.ndarray, region: Region) -> tuple[np.ndarray, float, float]:
         """The model in ``region`` of ``image`` (uint8 BGR): points ``[21, 3]`` (x, y frame px, z px),

@@ -191,12 +191,15 @@ def cpu_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def load_session(path: Path, outputs: tuple[str, ...] | None = None, *, any_batch: bool = False) -> Any:
-    """An onnxruntime CPU session for ``path`` set for this machine (intra-op threads = its cores, not
-    spinning when idle; sequential execution; all graph optimisations); DetectError when missing or
-    not loadable. ``outputs``: only the part of the graph these outputs need is loaded (the rest is
-    never computed); ``any_batch``: the inputs' and outputs' first dimension (a converted model's fixed
-    batch of 1) left free, for a model whose layers treat each batch item alone."""
+def load_session(path: Path, outputs: tuple[str, ...] | None = None, *, any_batch: bool = False,
+                 threads: int | None = None) -> Any:
+    """An onnxruntime CPU session for ``path`` set for this machine (intra-op threads: ``threads``, by
+    default its cores, not spinning when idle; sequential execution; all graph optimisations); DetectError
+    when missing or not loadable. ``outputs``: only the part of the graph these outputs need is loaded
+    (the rest is never computed); ``any_batch``: the inputs' and outputs' first dimension (a converted
+    model's fixed batch of 1) left free, for a model whose layers treat each batch item alone. ``threads``
+    = 1 runs the model in the calling thread alone: what a pipeline whose own threads (decoder, detector,
+    engine) fill the cores wants (:data:`~mocapdb.detect.detectors.PIPELINE_MODEL_THREADS`)."""
     if not path.exists():
         raise DetectError(f"pose model not found: {path}")
     check_readable(path, "pose model")
@@ -204,7 +207,7 @@ def load_session(path: Path, outputs: tuple[str, ...] | None = None, *, any_batc
 
     options = ort.SessionOptions()
     options.log_severity_level = 3   # errors only
-    options.intra_op_num_threads = cpu_cores()   # one thread per core: ORT's default may count differently
+    options.intra_op_num_threads = threads or cpu_cores()   # one per core: ORT's default may count differently
     options.inter_op_num_threads = 1
     options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL   # one model, one branch at a time
     options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
@@ -257,10 +260,11 @@ class PoseModel:
     keypoint_layout = "coco17"
 
     def __init__(self, path: str | Path, *, conf: float = DEFAULT_CONF, iou: float = DEFAULT_IOU,
-                 max_people: int | None = None, input_size: int = DEFAULT_INPUT_SIZE) -> None:
+                 max_people: int | None = None, input_size: int = DEFAULT_INPUT_SIZE,
+                 threads: int | None = None) -> None:
         _check_options(conf, iou, max_people, input_size)
         self.path = Path(path)
-        self._session = load_session(self.path)
+        self._session = load_session(self.path, threads=threads)
         inputs, outputs = self._session.get_inputs(), self._session.get_outputs()
         layout = identify_layout([i.shape for i in inputs], [o.shape for o in outputs])
         if layout is None or inputs[0].type not in _INPUT_TYPES:

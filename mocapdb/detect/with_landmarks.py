@@ -27,12 +27,14 @@ class BatchedModel:
     a frame in one batch (its layers treat each crop alone: the same outputs as one run each);
     ``outputs``: the ones computed, the first the points (x, y, z input px); ``what``: what a crop holds;
     ``every``: each crop run every this many frames, carried between (:attr:`schedule`,
-    :mod:`~mocapdb.detect.landmark_schedule`)."""
+    :mod:`~mocapdb.detect.landmark_schedule`); ``threads``: the model's intra-op threads
+    (:func:`~mocapdb.detect.model.load_session`)."""
 
-    def __init__(self, path: Path, outputs: tuple[str, ...], input_px: int, what: str, every: int = 1) -> None:
+    def __init__(self, path: Path, outputs: tuple[str, ...], input_px: int, what: str, every: int = 1,
+                 threads: int | None = None) -> None:
         self.path, self.outputs, self.input_px, self.what = Path(path), outputs, input_px, what
         self.schedule = LandmarkSchedule(every)
-        self._session = load_session(self.path, outputs, any_batch=True)
+        self._session = load_session(self.path, outputs, any_batch=True, threads=threads)
         self._input = self._session.get_inputs()[0].name
         self.runs = 0      # crops run through the model
         self.batches = 0   # model runs (each on one frame's crops)

@@ -15,12 +15,17 @@ capture times of at most :data:`MAX_PENDING` frames not yet sent, percentiles ov
 """
 from __future__ import annotations
 
+import gc
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 
-__all__ = ["MAX_PENDING", "MAX_SAMPLES", "LatencyBook"]
+from mocapdb.core.kernel_cache import load_cached_kernels
+
+__all__ = ["MAX_PENDING", "MAX_SAMPLES", "LatencyBook", "steady_stream"]
 
 MAX_PENDING = 1024       # capture times kept for frames not yet sent (the oldest forgotten beyond)
 MAX_SAMPLES = 100_000    # latency percentiles cover at most the last 2 × this many frames sent
@@ -89,3 +94,19 @@ class LatencyBook:
         return (f"latency capture → send p50 {p50:.2f} ms, p99 {p99:.2f} ms ({len(self.latencies_s)} frames, "
                 f"{self.startup_frames} start-up frames left out); lag {frames:g} frames ({ms:.1f} ms at "
                 f"{self.fps:g} fps)")
+
+
+@contextmanager
+def steady_stream() -> Iterator[None]:
+    """Around a live stream, once its session and detector are made: mocapdb's cached kernels loaded before
+    the first frame (:func:`~mocapdb.core.kernel_cache.load_cached_kernels`: their first calls held up the
+    first frames), and the objects of the start-up (the database, the models: about 50 ms for Python's
+    oldest-generation collection to walk) set aside from the garbage collector while the stream runs
+    (``gc.freeze``), so that a collection during the stream walks only what the stream made."""
+    load_cached_kernels()
+    gc.collect()
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
