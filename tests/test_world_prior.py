@@ -12,7 +12,9 @@ from mocapdb.runtime.engine_config import EngineConfig
 from mocapdb.runtime.refine import RefineParams
 from mocapdb.runtime.world.detector_prior import (
     BONES,
+    FIT_BONES,
     VIEW_FROM_IMAGE_AXES,
+    bone_directions,
     candidate_costs,
     database_bones,
     rotation_between,
@@ -31,6 +33,30 @@ def test_rotation_between_is_scipys_smallest_rotation_and_the_identity_when_para
         np.testing.assert_allclose(rotation_between(a, b), expected, atol=1e-12)
     z = np.array([0.0, 0.0, 1.0])
     assert np.array_equal(rotation_between(z, z), np.eye(3))
+
+
+def test_bone_directions_are_numpys_unit_vectors_and_smaller_confidences():
+    """The kernel against the NumPy formula it replaced (unit vectors of end − start, NaN-free: 0 and weight
+    0 where the ends coincide within 1e-9 m or are not finite; the smaller confidence, NaN if either is, in
+    the confidences' dtype), on random joints with coincident, NaN and infinite ones, both bone sets."""
+    rng = np.random.default_rng(7)
+    for trial in range(300):
+        joints = rng.normal(0.0, 0.4, (15, 3))
+        joints[rng.integers(15)] = joints[rng.integers(15)]
+        joints[rng.integers(15), rng.integers(3)] = [np.nan, np.inf, -np.inf, 1e-12][trial % 4]
+        conf = rng.uniform(0, 1, 15).astype(np.float32 if trial % 2 else np.float64)
+        conf[rng.integers(15)] = np.nan if trial % 3 == 0 else 0.0
+        for bones in (BONES, FIT_BONES):
+            start, end = np.array([b[0] for b in bones]), np.array([b[1] for b in bones])
+            d = joints[end] - joints[start]
+            norm = np.linalg.norm(d, axis=-1, keepdims=True)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                u = np.where(norm > 1e-9, d / norm, np.nan)
+            ok = np.isfinite(u).all(axis=-1)
+            directions, weights = bone_directions(joints, conf, bones)
+            np.testing.assert_allclose(directions, np.where(ok[:, None], u, 0.0), rtol=0, atol=1e-15)
+            np.testing.assert_array_equal(weights, np.where(ok, np.minimum(conf[start], conf[end]), 0.0))
+            assert weights.dtype == conf.dtype
 
 
 def _seen(db, frame: int, yaw_deg: float, depth_m: float = 4.0) -> tuple[np.ndarray, np.ndarray]:

@@ -22,7 +22,10 @@ in the view frame, with the same kind of weights, become the refinement's world 
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
+from numba import njit
 
 from mocapdb.core.geometry import yaw_matrix
 from mocapdb.core.outputs import TrackRecording
@@ -91,12 +94,38 @@ def view_joints(world_m: np.ndarray, points_px: np.ndarray, confidence: np.ndarr
 
 def bone_directions(joints: np.ndarray, conf: np.ndarray, bones: tuple[tuple[int, int], ...] = BONES
                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Unit directions ``[B, 3]`` of ``bones`` (start, end among ``joints [15, 3]``) and their
-    confidences ``[B]`` (the smaller of the ends' ``conf``); a missing direction: 0 and 0."""
-    start, end = np.array([b[0] for b in bones]), np.array([b[1] for b in bones])
-    directions = unit(joints[end] - joints[start])
-    ok = np.isfinite(directions).all(axis=-1)
-    return np.where(ok[:, None], directions, 0.0), np.where(ok, np.minimum(conf[start], conf[end]), 0.0)
+    """Unit directions ``[B, 3]`` of ``bones`` (start, end among ``joints [15, 3]``, metres) and their
+    confidences ``[B]`` (the smaller of the ends' ``conf``, its dtype); a missing direction (ends under
+    1e-9 m apart, or not finite): 0 and 0. Four times a person-frame: a kernel (:func:`_bone_directions`)."""
+    start, end = _bone_ends(bones)
+    directions, weights = np.empty((len(start), 3)), np.empty(len(start), conf.dtype)
+    _bone_directions(np.ascontiguousarray(joints, dtype=np.float64), np.ascontiguousarray(conf), start, end,
+                     directions, weights)
+    return directions, weights
+
+
+@functools.cache
+def _bone_ends(bones: tuple[tuple[int, int], ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The start and end joints ``[B]`` of ``bones``."""
+    return np.array([b[0] for b in bones]), np.array([b[1] for b in bones])
+
+
+@njit(cache=True, error_model="numpy")   # x / 0: inf or NaN, as NumPy
+def _bone_directions(joints: np.ndarray, conf: np.ndarray, start: np.ndarray, end: np.ndarray,
+                     directions: np.ndarray, weights: np.ndarray) -> None:
+    """:func:`bone_directions` into ``directions [B, 3]`` and ``weights [B]``, as :func:`unit` computes it
+    (the norm summed x, y, z in order, then divided)."""
+    for b in range(len(start)):
+        d = joints[end[b]] - joints[start[b]]
+        norm = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        u = d / norm
+        if norm > 1e-9 and np.isfinite(u[0]) and np.isfinite(u[1]) and np.isfinite(u[2]):
+            directions[b] = u
+            a, c = conf[start[b]], conf[end[b]]
+            weights[b] = a if (c > a or np.isnan(a)) else c   # np.minimum's: NaN if either is
+        else:
+            directions[b] = 0.0
+            weights[b] = 0.0
 
 
 def level(joints: np.ndarray, up_view: np.ndarray) -> np.ndarray:
