@@ -253,8 +253,9 @@ class PoseModel:
 
     ``conf``: least person score kept; ``iou``: NMS threshold; ``max_people``: the best ones kept
     (None: all); ``input_size``: side in pixels for a dynamic input (``dynamic``: the export takes
-    any input size, which :meth:`run` may be given). ``fps`` is the rate detection sustains (frames
-    per second of pre-processing, inference and post-processing time).
+    any input size, which :meth:`run` may be given); ``threads``: onnxruntime's intra-op threads
+    (:func:`load_session`). ``fps`` is the rate detection sustains (frames per second of
+    pre-processing, inference and post-processing time).
     """
 
     keypoint_layout = "coco17"
