@@ -177,7 +177,8 @@ class OnlineEnds:
         floor of normal ``up`` (view frame), and which were seen ``[5]``."""
         parents, reference = end_frames(quats[None])
         thumb_sides = np.einsum("hij,hj->hi", parents[0, 2:], HAND_BASES[:, :, 1])     # the palms' at rest
-        rest = (np.vstack([reference[0], thumb_sides]), _rest_head(quats))
+        chest, neck = matrix_to_quat(global_rotations(quats[None])[0, [_SPINE, _NECK]])
+        rest = (np.vstack([reference[0], thumb_sides]), neck)   # the head at rest on the neck: the neck's rotation
         directions, head, seen, palm_seen = self._smoothed(index, rest)
         flat = plant_weights[:, None]
         directions[:2] = (1.0 - flat) * directions[:2] + flat * self._planted(standing_directions(directions[:2], up),
@@ -190,7 +191,6 @@ class OnlineEnds:
         if self.previous is None:                 # a track's first frame: nothing shown before, no easing
             self.mesh_ease.progress[:] = mesh_seen
         mesh_weight = self.mesh_ease.weight(mesh_seen)
-        chest = matrix_to_quat(global_rotations(quats[None])[0, _SPINE])
         relative = quat_mul(quat_conj(chest), head)                              # against the output's chest
         ends = np.vstack([locals_, head_local(quats[None], relative[None], mesh_weight)])
         ends *= np.where(ends[:, :1] < 0, -1.0, 1.0)
@@ -259,8 +259,3 @@ def _mean_or(values: np.ndarray, weights: np.ndarray, fallback: np.ndarray) -> n
     norm = np.linalg.norm(total, axis=-1, keepdims=True)
     return np.where(norm > 1e-9, total / np.maximum(norm, 1e-12), fallback)
 
-
-def _rest_head(quats: np.ndarray) -> np.ndarray:
-    """``[4]`` the head's global rotation at rest on the neck (its local rotation the identity) of the rig
-    rotations ``quats [R, 4]``: the neck's."""
-    return matrix_to_quat(global_rotations(quats[None])[0, _NECK])
