@@ -336,6 +336,54 @@ def test_run_video_hands_every_frame_to_the_session(video, yolo_model):
     assert not live._thread.is_alive()
 
 
+def test_the_landmark_models_run_on_a_frame_while_the_pose_model_takes_the_next(video):
+    """live runs the hand and face models in a thread of their own: the landmarks of frame k wait until the
+    pose model has started on frame k + 1 (one thread would wait forever: 10 s, then the test fails), and
+    every frame still arrives in order with its landmarks."""
+    from mocapdb.detect.hands import Hands
+    from mocapdb.detect.model import Detections
+    from mocapdb.detect.with_landmarks import WithLandmarks
+
+    pose_started = [threading.Event() for _ in range(VIDEO_FRAMES)]
+
+    class Pose:
+        keypoint_layout, path, seconds, frames = "mediapipe33", Path("pose.onnx"), 0.0, 0
+
+        def __call__(self, image):
+            pose_started[self.frames].set()
+            self.frames += 1
+            return Detections(np.zeros((1, 4)), np.ones(1), np.full((1, 33, 3), 100.0))
+
+        def describe(self):
+            return "pose"
+
+    class Landmarks:
+        def __init__(self):
+            self.frames, self.overlapped, self.threads = 0, [], set()
+
+        def __call__(self, image, keypoints):
+            if self.frames + 1 < VIDEO_FRAMES and all(self.overlapped):
+                self.overlapped.append(pose_started[self.frames + 1].wait(10.0))
+            self.frames += 1
+            self.threads.add(threading.current_thread().name)
+            hands = Hands.empty(len(keypoints))
+            hands.points[..., :3], hands.points[..., 3] = self.frames, 1.0
+            return hands
+
+        def describe(self):
+            return "hands"
+
+    landmarks = Landmarks()
+    live = VideoDetections(str(video), WithLandmarks(Pose(), hands=landmarks), capacity=VIDEO_FRAMES)
+    got = []
+    while (item := live.get(timeout=15.0)) is not None:
+        got.append(item.frame)
+    live.close()
+    assert [frame.index for frame in got] == list(range(VIDEO_FRAMES))
+    assert landmarks.overlapped == [True] * (VIDEO_FRAMES - 1) and landmarks.threads == {"mocapdb-video-landmarks"}
+    assert [frame.people[0].hands[0, 0, 0] for frame in got] == list(range(1, VIDEO_FRAMES + 1))
+
+
 def test_a_video_file_measures_its_camera_path_unless_filmed_still(video, yolo_model):
     """live measures a file's camera path from the background; --still-camera (turning=False) skips it."""
     for turning, measured in ((True, True), (False, False)):

@@ -3,6 +3,7 @@ given by its points, as MediaPipe Holistic does: :class:`WithLandmarks`."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -91,8 +92,28 @@ class WithLandmarks:
         return "; ".join([self.detector.describe(), *(lm.describe() for lm in self.landmarkers.values())])
 
     def __call__(self, image: np.ndarray) -> Detections:
-        found = self.detector(image)
+        return self.landmarks(image, self.detector(image))
+
+    def landmarks(self, image: np.ndarray, found: Detections) -> Detections:
+        """``found`` (this detector's people in ``image``) with what each landmarker finds on them; `live`
+        runs this in a thread of its own while the detector takes the next frame (:func:`detection_stages`)."""
         started = time.perf_counter()
         extra = {name: landmarker(image, found.keypoints) for name, landmarker in self.landmarkers.items()}
         self.landmark_seconds += time.perf_counter() - started
         return found._replace(**extra)
+
+
+def no_landmarks(image: np.ndarray, found: Detections) -> Detections:
+    """A detector's people as found: the second stage of one without landmark models."""
+    return found
+
+
+def detection_stages(model: Any) -> tuple[Callable[[np.ndarray], Detections],
+                                          Callable[[np.ndarray, Detections], Detections]]:
+    """A frame detector (:func:`~mocapdb.detect.detectors.open_detector`) as two stages that can run in two
+    threads, one frame apart: the people (BlazePose, an export), then their landmarks (hands, face:
+    :meth:`WithLandmarks.landmarks`; :func:`no_landmarks` without). A stage keeps its own state across frames
+    (the pose's tracking, the landmarks' schedule); neither reads the other's."""
+    if isinstance(model, WithLandmarks):
+        return model.detector, model.landmarks
+    return model, no_landmarks

@@ -1,9 +1,11 @@
-"""Video as a live source: decoding and 2D pose detection in two threads of their own, feeding the live loop.
+"""Video as a live source: decoding, 2D pose detection and the landmark models in threads of their own,
+feeding the live loop.
 
 :class:`VideoDetections` decodes a video file or a camera (:class:`DecodedFrames`, one thread) and runs a
 detector (:func:`~mocapdb.detect.detectors.open_detector`: BlazePose, or a YOLO-pose/RTMO export) on each
-frame in another, so the decoding of the next frame, the detection of this one and the engine's step on
-the one before overlap (OpenCV's decoder and onnxruntime release the GIL). Frames (universal 14
+frame in another (:class:`PoseFrames`), and the landmark models (hands, face) and the camera's path in a
+third, so the decoding of the next frame, the pose of this one, the landmarks of the one before and the
+engine's step overlap (OpenCV's decoder and onnxruntime release the GIL). Frames (universal 14
 keypoints) wait in a small buffer; when the consumer falls behind a camera or a paced file, the oldest is dropped
 and counted (``StreamStats.dropped_stale``), as :class:`~mocapdb.runtime.stream.buffering.LiveInput` does for
 messages; a file read as fast as it goes waits for the consumer instead (lossless: nothing is gained by
@@ -21,8 +23,10 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
-from typing import TYPE_CHECKING, NamedTuple
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING, NamedTuple, TypeVar
+
+import numpy as np
 
 from mocapdb.core.formats.camera_path import derotate_frame
 from mocapdb.core.formats.keypoints import KeypointFrame, Person, to_extremities, to_universal, to_universal_world
@@ -31,6 +35,7 @@ from mocapdb.detect.detectors import FrameDetector
 from mocapdb.detect.errors import DetectError
 from mocapdb.detect.model import Detections
 from mocapdb.detect.video import FrameClock, VideoFrame, VideoReader
+from mocapdb.detect.with_landmarks import detection_stages
 from mocapdb.runtime.stream.buffering import BufferedThread
 from mocapdb.runtime.stream.messages import StreamStats
 
@@ -39,6 +44,7 @@ if TYPE_CHECKING:
 
 POLL_S = 0.05   # how often the live loop checks ``stop`` while no frame is ready
 KEYPOINT_FILE_SUFFIXES = (".jsonl", ".json", ".ndjson", ".txt")   # a --source file with these is keypoints
+T = TypeVar("T")
 
 
 class CapturedFrame(NamedTuple):
@@ -98,14 +104,49 @@ class DecodedFrames(BufferedThread[tuple[VideoFrame, int]]):
         self._thread.join()
 
 
+def _taken(buffer: BufferedThread[T], stop: threading.Event) -> Iterator[T]:
+    """The items of ``buffer`` as its thread gives them, until it is finished or ``stop`` is set."""
+    while not stop.is_set():
+        item = buffer.get(timeout=POLL_S)
+        if item is not None:
+            yield item
+        elif buffer.finished:
+            break
+
+
+class PoseFrames(BufferedThread[tuple[VideoFrame, int, Detections]]):
+    """The people ``detect`` finds in each frame of ``decoded``, in a thread of its own, one frame ahead of
+    the landmark models (:func:`~mocapdb.detect.with_landmarks.detection_stages`): it waits for them to take
+    its frame (lossless), so a late stage behind it drops frames only where the decoder does."""
+
+    def __init__(self, decoded: DecodedFrames, detect: Callable[[np.ndarray], Detections], stats: StreamStats) -> None:
+        super().__init__(1, stats, "mocapdb-video-pose", lossless=True)
+        self.decoded, self.detect = decoded, detect
+        self._stop = threading.Event()
+        self._start()
+
+    def _items(self) -> Iterator[tuple[VideoFrame, int, Detections]]:
+        for video_frame, number in _taken(self.decoded, self._stop):
+            yield video_frame, number, self.detect(video_frame.image)
+
+    def close(self) -> None:
+        """Stops the thread (after the frame in hand) and waits for it; idempotent."""
+        self._stop.set()
+        self._release()
+        self._thread.join()
+
+
 class VideoDetections(BufferedThread[CapturedFrame]):
     """Frames of ``source`` (a video file path, or a camera index) with the people ``model`` finds
     (BlazePose or a :class:`~mocapdb.detect.tracked.TrackedDetector`: both follow them across frames).
 
+    Three threads: decoding (:class:`DecodedFrames`), the people (:class:`PoseFrames`), then their hands and
+    faces (the landmark models of ``--hands``, ``--face``) and the camera's path (``motion``) in this one's, so
+    the landmark models of a frame run while the pose model takes the next.
     ``every``: detect every N-th frame only; ``capacity``: frames buffered before the oldest is
     dropped (a camera, a paced file) or the detector waits (a file not paced; see
-    :class:`~mocapdb.runtime.stream.buffering.BufferedThread`), after detection (after decoding: one,
-    :class:`DecodedFrames`); ``paced``: a file delivered at its frame rate (module notes).
+    :class:`~mocapdb.runtime.stream.buffering.BufferedThread`), after detection (after decoding and after
+    the people: one); ``paced``: a file delivered at its frame rate (module notes).
     Opening the video happens here (DetectError if it fails); the threads start at once.
     """
 
@@ -114,33 +155,29 @@ class VideoDetections(BufferedThread[CapturedFrame]):
         if every < 1 or capacity < 1:
             raise DetectError("every and capacity must be at least 1")
         reader = VideoReader(source)
-        super().__init__(capacity, stats if stats is not None else StreamStats(), "mocapdb-video-detect",
+        super().__init__(capacity, stats if stats is not None else StreamStats(), "mocapdb-video-landmarks",
                          lossless=not (reader.is_camera or paced))
         self.model, self.every, self.motion = model, every, motion
         self.reader = reader
         self.frames_detected = 0
         self._stop = threading.Event()
+        detect, self._landmarks = detection_stages(model)
         self.decoded = DecodedFrames(self.reader, every, self.stats, paced)
+        self.poses = PoseFrames(self.decoded, detect, self.stats)
         self.clock = self.decoded.clock
         self._start()
 
     def _items(self) -> Iterator[CapturedFrame]:
-        while not self._stop.is_set():
-            item = self.decoded.get(timeout=POLL_S)
-            if item is None:
-                if self.decoded.finished:
-                    break
-                continue
-            video_frame, number = item
-            captured = CapturedFrame(self._detect(video_frame, number), video_frame.capture_s)
+        for video_frame, number, found in _taken(self.poses, self._stop):
+            captured = CapturedFrame(self._detect(video_frame, found, number), video_frame.capture_s)
             self.frames_detected += 1
             self.stats.add(messages_in=1)
             yield captured
 
-    def _detect(self, video_frame: VideoFrame, number: int) -> KeypointFrame:
-        """The frame's people; with ``motion``, seen from the first frame's camera by the path known
-        so far (data_specs/world.md, "A camera that turns")."""
-        found = self.model(video_frame.image)
+    def _detect(self, video_frame: VideoFrame, found: Detections, number: int) -> KeypointFrame:
+        """The frame's people ``found`` with their landmarks; with ``motion``, seen from the first frame's
+        camera by the path known so far (data_specs/world.md, "A camera that turns")."""
+        found = self._landmarks(video_frame.image, found)
         frame = keypoint_frame(video_frame, found, self.model.keypoint_layout, number)
         if self.motion is None:
             return frame
@@ -168,6 +205,7 @@ class VideoDetections(BufferedThread[CapturedFrame]):
         """Stops the threads (after the frames in hand), waits for them and releases the video; idempotent."""
         self._stop.set()
         self.decoded.close()
+        self.poses.close()
         self._thread.join()
         self.reader.close()
 
@@ -200,9 +238,5 @@ def run_video(session: Session, video: VideoDetections, stop: threading.Event) -
     """Detected frames as they come until the video ends or ``stop`` is set; closes ``video``.
     Latency runs from each frame's capture to the sink's send of its output."""
     with video:
-        while not stop.is_set():
-            item = video.get(timeout=POLL_S)
-            if item is not None:
-                session.handle_frame(item.frame, item.capture_s)
-            elif video.finished:
-                break
+        for item in _taken(video, stop):
+            session.handle_frame(item.frame, item.capture_s)
