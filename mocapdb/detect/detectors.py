@@ -15,7 +15,7 @@ import numpy as np
 
 from mocapdb.detect.model import Detections
 
-# intra-op threads of each model in `live`'s pipeline, whose decoder, detector and engine threads share the cores:
+# intra-op threads of each model in `live`'s pipeline, whose decoder, pose, landmark and engine threads share the cores:
 # there a second intra-op thread cost CPU and gained no speed (docs/benchmarks.md, "Live latency and speed: one
 # thread a model, kernels loaded before the first frame")
 PIPELINE_MODEL_THREADS = 1
