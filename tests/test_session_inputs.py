@@ -13,7 +13,7 @@ from mocapdb.cli.main import main
 from mocapdb.core.cameras import DatabaseCamera
 from mocapdb.core.formats.bvh import read_bvh
 from mocapdb.core.formats.database_reader import load_database
-from mocapdb.core.formats.keypoint_layouts import LAYOUTS, SOURCE_INDEX
+from mocapdb.core.formats.keypoint_layouts import EXTREMITIES, LAYOUTS, SOURCE_INDEX
 from mocapdb.core.formats.keypoints import KeypointFrame, Person
 from mocapdb.core.geometry import project_views
 from mocapdb.core.skeleton import PELVIS
@@ -79,6 +79,25 @@ def test_keypoints_outside_the_image_size_name_the_likely_swap(small_db, tmp_pat
     live = _session(small_db, tmp_path, strict=False)
     live.handle_frame(KeypointFrame(0, None, [Person(px[0], np.full(14, 0.9))]), 0.0)
     assert live.summary.malformed["keypoints outside --image-size"] == 1 and live.summary.frames == 0
+
+
+def test_points_a_detector_put_beyond_its_own_video_are_unseen_not_a_contradiction(small_db, tmp_path):
+    """Where the size is the video's own (read from it or detect's take description), a keypoint beyond it is a
+    part out of frame whose place the detector guessed (BlazePose does, below a webcam's frame): unseen and
+    counted, the frame kept, even strict; a size given or assumed still refuses such a frame."""
+    px = _walking_px(small_db, 3)
+    height = 1080   # the session's image: 1920 x 1080
+    px[0, [0, 1]] = [500.0, height * 1.1 + 5.0]    # two points just beyond the margin below the image
+    extremities = np.full((len(EXTREMITIES), 3), [800.0, 500.0, 0.9])
+    extremities[0] = [800.0, height * 1.2, 0.9]
+    frame = KeypointFrame(0, None, [Person(px[0], np.full(14, 0.9), extremities=extremities)])
+    session = _session(small_db, tmp_path, strict=True, camera_sources={"image_size": "read"})
+    session.handle_frame(frame, 0.0)
+    assert session.summary.frames == 1 and session.summary.points_out_of_frame == 3
+    assert "taken as unseen: 3" in session.summary.report()
+    assert frame.people[0].confidence[0] == 0.9   # the caller's frame is left as it was
+    with pytest.raises(InputError, match="keypoints reach"):
+        _session(small_db, tmp_path, strict=True, camera_sources={"image_size": "given"}).handle_frame(frame, 0.0)
 
 
 def test_cli_warns_about_an_assumed_frame_rate_and_refuses_empty_input(small_db_path, tmp_path, capsys):

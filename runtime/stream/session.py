@@ -17,12 +17,15 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterable
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from mocapdb.core.errors import MocapdbError
-from mocapdb.core.formats.keypoints import LAYOUTS, KeypointError, KeypointFrame
+from mocapdb.core.formats.keypoints import LAYOUTS, KeypointError, KeypointFrame, Person
 from mocapdb.core.formats.openpose import parse_stream_line
-from mocapdb.core.formats.take import holds_keypoints
+from mocapdb.core.formats.take import beyond_image, holds_keypoints
 from mocapdb.core.outputs import header_line
 from mocapdb.core.progress import compile_notice, kernels_cached
 from mocapdb.runtime import refine
@@ -81,6 +84,21 @@ SIZE_ORIGINS = {"given": " by --image-size", "read": " by the take description",
 ASSUMED_SIZES = ("default", "keypoints")  # a frame outside these stops the run (live too)
 
 
+def _unseen_beyond(person: Person, size: tuple[int, int]) -> tuple[Person, int]:
+    """``person`` with their keypoints and extremities (heels, toes, knuckles, face points) beyond an image of
+    ``size`` (width, height px; :func:`~mocapdb.core.formats.take.beyond_image`) made unseen (confidence 0, NaN
+    place), and how many were."""
+    beyond = beyond_image(size, person.points_px) & (person.confidence > 0)
+    changes: dict = {"points_px": np.where(beyond[:, None], np.nan, person.points_px),
+                     "confidence": np.where(beyond, 0.0, person.confidence)}
+    count = int(beyond.sum())
+    if person.extremities is not None:
+        far = beyond_image(size, person.extremities[:, :2]) & (person.extremities[:, 2] > 0)
+        changes["extremities"] = np.where(far[:, None], [np.nan, np.nan, 0.0], person.extremities)
+        count += int(far.sum())
+    return (replace(person, **changes) if count else person), count
+
+
 class SinkError(OSError):
     """The sink could not take a line (disk full, closed pipe): the session stops there."""
 
@@ -129,7 +147,10 @@ class Session:
     def handle_frame(self, frame: KeypointFrame, arrival_s: float) -> None:
         """Process and write one parsed frame captured or arrived at ``arrival_s`` (time.monotonic);
         raises :class:`SinkError` if the sink fails. A frame outside the image size is refused
-        (:class:`InputError`) when the size was assumed or ``strict``, else counted and skipped."""
+        (:class:`InputError`) when the size was assumed or ``strict``, else counted and skipped; where the size
+        is the video's own (read from it or its take description), points beyond it are unseen instead."""
+        if self.options.camera_sources.get("image_size") == "read":
+            frame = self._out_of_frame_unseen(frame)
         problem = self._contradiction(frame)
         if problem:
             if self.options.camera_sources.get("image_size") in ASSUMED_SIZES:
@@ -189,6 +210,17 @@ class Session:
         if self.options.bvh_dir is not None and time.perf_counter() - self._checkpointed >= self.options.checkpoint_s:
             self._checkpointed = time.perf_counter()
             self.files.checkpoint(self.engine.open_recordings())
+
+    def _out_of_frame_unseen(self, frame: KeypointFrame) -> KeypointFrame:
+        """``frame`` with the keypoints and extremities a detector placed beyond its own video's image (by more
+        than :data:`~mocapdb.core.formats.take.IMAGE_MARGIN`: a body part out of the frame, its place guessed)
+        unseen, counted in ``summary.points_out_of_frame``."""
+        people = []
+        for person in frame.people:
+            kept, beyond = _unseen_beyond(person, self.engine.config.image_size)
+            people.append(kept)
+            self.summary.points_out_of_frame += beyond
+        return replace(frame, people=people)
 
     def _contradiction(self, frame: KeypointFrame) -> str | None:
         """Why ``frame`` contradicts the parameters, or None; warns once about an assumed rate."""

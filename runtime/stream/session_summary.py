@@ -53,6 +53,7 @@ class SessionSummary:
     n_static: int = 0
     gaps: int = 0
     degenerate: int = 0
+    points_out_of_frame: int = 0   # keypoints a detector put beyond its video's image, taken as unseen
     limits: LimitReport = field(default_factory=LimitReport)
     sink_error: str | None = None  # why the sink failed, which stopped the session
     world_lines: list[str] = field(default_factory=list)  # the take's world and each track's size (world_summary)
@@ -97,6 +98,9 @@ class SessionSummary:
             more = f" and {unlisted} more" if unlisted else ""
             lines.append(f"static tracks (keypoints never moved; no BVH, --keep-static keeps them): "
                          f"{', '.join(map(str, self.static_tracks))}{more}")
+        if self.points_out_of_frame:
+            lines.append(f"keypoints beyond the video's image (a part out of frame, its place guessed), taken as "
+                         f"unseen: {self.points_out_of_frame}")
         if self.degenerate:
             lines.append(f"people skipped with all keypoints within 4 px (no size, no depth): {self.degenerate}")
         if self.gaps:

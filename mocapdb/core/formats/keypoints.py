@@ -45,8 +45,8 @@ class Person:
     points_px: np.ndarray   # [14, 2] float64, pixels, x right, y down
     confidence: np.ndarray  # [14] float64 in [0, 1], 0 = missing
     person_id: int | None = None
-    # [8, 3] heels, big toes and knuckles (EXTREMITIES order): x px, y px, confidence (0 and NaN
-    # position = missing); None when the layout has none of them
+    # [14, 3] heels, big toes, knuckles, then eyes, ears and mouth corners (EXTREMITIES order): x px, y px,
+    # confidence (0 and NaN position = missing); None when the layout has none of them
     extremities: np.ndarray | None = None
     # [14, 3] the detector's own 3D of the 14 keypoints (BlazePose's world landmarks): metres, origin at
     # the hips' centre, x right and y down along the image's axes, z away from the camera; NaN where it

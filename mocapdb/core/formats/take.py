@@ -15,6 +15,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TypedDict, TypeVar
 
+import numpy as np
+
 from mocapdb.core import domains as D
 from mocapdb.core.errors import MocapdbError, UsageError
 from mocapdb.core.files import read_sidecar, write_atomic
@@ -60,12 +62,19 @@ def default_focal_px(image_size: tuple[int, int]) -> float:
     return focal_from_35mm(DEFAULT_FOCAL_35MM, image_size)
 
 
+def beyond_image(size: tuple[int, int], points_px: np.ndarray) -> np.ndarray:
+    """``[N]`` whether each point ``[N, 2]`` (x, y px) lies outside an image of ``size`` (width, height) px
+    by more than :data:`IMAGE_MARGIN` of it (a NaN point does not)."""
+    width, height = size
+    points_px = np.asarray(points_px, dtype=np.float64)
+    return ((points_px < -IMAGE_MARGIN * min(width, height)).any(axis=-1)
+            | (points_px[..., 0] > (1 + IMAGE_MARGIN) * width) | (points_px[..., 1] > (1 + IMAGE_MARGIN) * height))
+
+
 def holds_keypoints(size: tuple[int, int], low: tuple[float, float], high: tuple[float, float]) -> bool:
     """Whether an image of ``size`` (width, height) px holds keypoints from ``low`` to ``high`` (the
     smallest and largest x, y, px), each side allowed :data:`IMAGE_MARGIN` outside it."""
-    width, height = size
-    return (min(low) >= -IMAGE_MARGIN * min(width, height) and high[0] <= (1 + IMAGE_MARGIN) * width
-            and high[1] <= (1 + IMAGE_MARGIN) * height)
+    return not beyond_image(size, np.array([low, high])).any()
 
 
 def standard_size_holding(low: tuple[float, float], high: tuple[float, float]) -> tuple[int, int] | None:
