@@ -15,15 +15,20 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    ``smoothing_hz``, before and after its re-fit, so one Gaussian √2 as wide), then the whole take's
    root model as a causal Kalman filter (:class:`~mocapdb.runtime.root_filter.RootFilter`: precise
    across the viewing ray, loose along it, smooth; a pop's pull capped).
-2. **Foot contacts with hysteresis.** Each foot's image speed (box heights per second: the slope of
-   a line fitted to its keypoints over the frames around it, at most :data:`CONTACT_WINDOW_S` and
-   only as far ahead as the lag reaches) is its heel's and big toe's, the faster of the two, where
-   the layout gives them, else its ankle's. A foot is planted when it is slower than
-   ``planted_box_per_s`` and within ``planted_height_m`` of the lower ankle (along the track's
-   estimated up), and stays planted until it is faster than ``release_factor`` times that, or rises
-   ``release_factor`` times that height above the other foot while its image is no longer still
-   (faster than ``planted_box_per_s``): a lag-0 fit that raises a foot the image shows still (a pose
-   retrieved with the legs' depth wrong) does not lift it.
+2. **Foot contacts with hysteresis.** Each foot's image speed (box heights per second: the Theil–Sen
+   slope of its keypoints over the frames around it, at most :data:`CONTACT_WINDOW_S` and only as far
+   ahead as the lag reaches, which a detector's one-frame left/right swap does not move) is its
+   heel's and big toe's, the faster of the two, where the layout gives them, else its ankle's. A foot
+   is planted when it is slower than ``planted_box_per_s`` and within ``planted_height_m`` of the
+   lower ankle (along the track's estimated up), and stays planted until it is faster than
+   ``release_factor`` times that, or rises ``release_factor`` times that height above the other foot
+   while its image is no longer still (faster than ``planted_box_per_s``): a lag-0 fit that raises a
+   foot the image shows still (a pose retrieved with the legs' depth wrong) does not lift it. Where
+   both feet's heels and toes are seen, the whole take's carrying rule
+   (:func:`~mocapdb.runtime.foot_contacts.planted_ankles`): while the other foot swings (its heel and
+   toe both faster than ``planted_box_per_s``) the foot whose ankle is the slower carries the body,
+   and its ankle's speed is held to ``carrying_box_per_s`` instead (``release_factor`` times that to
+   stay planted): a foot under the body's weight drifts in the image more than an idle one.
 3. **The root carried by the planted foot.** When a foot is planted its ankle's place becomes its
    anchor; while a foot is planted the root is where its anchor puts it (both planted: the mean),
    blended in and out with the feet's IK weights (rising and falling over ``blend_s``, eased by a
@@ -62,6 +67,7 @@ from collections import deque
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numba import njit
 
 from mocapdb.core.geometry import quat_turned_towards
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose
@@ -107,6 +113,7 @@ class OnlineParams:
     smoothing_hz: float = 4.0
     causal_rotations: OneEuroParams = CAUSAL_ROTATIONS
     planted_box_per_s: float = 0.25
+    carrying_box_per_s: float = TakeParams.carrying_box_per_s
     release_factor: float = 2.0
     planted_height_m: float = 0.05
     blend_s: float = 0.08
@@ -121,6 +128,7 @@ class OnlineParams:
         positive = (self.smoothing_hz, self.planted_box_per_s, self.planted_height_m, self.blend_s, self.settle_s,
                     self.root_speed_mps, self.carried_root_sd_m, self.body_ease_s)
         if self.lag_frames < 0 or self.release_factor < 1 or self.anchor_follow_mps < 0 \
+                or self.carrying_box_per_s < self.planted_box_per_s \
                 or not all(np.isfinite(v) and v > 0 for v in positive):
             raise ValueError(f"online take settings out of range: {self}")
 
@@ -277,31 +285,33 @@ class OnlineTrack:
         return self.root(index, mean)
 
     def _contacts(self, index: int, ankle_heights_m: np.ndarray, scale: float) -> None:
-        """Step 2: each foot planted or not at frame ``index`` (hysteresis)."""
+        """Step 2: each foot planted or not at frame ``index`` (hysteresis; module docstring)."""
         p, feet = self.params, self.feet
-        speed = self._foot_speeds(index)
-        lowest = ankle_heights_m.min()
-        for k in range(2):
-            above = ankle_heights_m[k] - lowest
-            if feet.planted[k]:   # risen in the fit while still in the image: the fit's pop, not a step
-                release = speed[k] > p.release_factor * p.planted_box_per_s \
-                    or (above > p.release_factor * p.planted_height_m * scale and speed[k] >= p.planted_box_per_s)
-                feet.planted[k] = not release
-            else:
-                feet.planted[k] = speed[k] < p.planted_box_per_s and above <= p.planted_height_m * scale
+        ankle, heel, toe = self._foot_speeds(index)
+        ends = np.isfinite(heel) & np.isfinite(toe)
+        speed = np.where(ends, np.maximum(heel, toe), ankle)     # flat: heel and toe both still
+        swinging = ends & (np.minimum(heel, toe) >= p.planted_box_per_s)   # heel and toe both moving
+        carrying = ends & swinging[::-1] & (ankle <= ankle[::-1])   # the slower foot while the other swings
+        above = ankle_heights_m - ankle_heights_m.min()
+        f = p.release_factor
+        kept = ((speed <= f * p.planted_box_per_s) | (carrying & (ankle <= f * p.carrying_box_per_s))) \
+            & ~((above > f * p.planted_height_m * scale) & (speed >= p.planted_box_per_s))  # risen, its image moving
+        new = (above <= p.planted_height_m * scale) \
+            & ((speed < p.planted_box_per_s) | (carrying & (ankle < p.carrying_box_per_s)))
+        feet.planted = np.where(feet.planted, kept, new)
 
     def _foot_speeds(self, index: int) -> np.ndarray:
-        """Each foot's image speed ``[2]`` (box heights per second; inf where not seen) at frame
-        ``index``: its heel's and toe's (the faster), else its ankle's."""
+        """Each foot's ankle, heel and big toe image speeds ``[3, 2]`` (rows; right, left; box heights per
+        second, inf where not seen) at frame ``index``: the Theil–Sen slopes over the contact window
+        (:func:`_robust_speeds`)."""
         h = self.half_window
         near = [i for i in range(index - h, index + min(h, self.params.lag_frames) + 1)
                 if i in self.recent and self.recent[i].keypoints_px is not None]
         if len(near) < 3:
-            return np.full(2, np.inf)
+            return np.full((3, 2), np.inf)
         points = np.array([_foot_points(self.recent[i]) for i in near])     # [n, 6, 3]: ankles, heels, toes
-        speeds = _slopes(np.array(near, dtype=np.float64), points) * self.fps / max(np.median(self.boxes), 1.0)
-        ends = np.maximum(speeds[[2, 3]], speeds[[4, 5]])
-        return np.where(np.isfinite(ends), ends, speeds[[0, 1]])
+        speeds = _robust_speeds(np.array(near, dtype=np.float64), points)
+        return (speeds * self.fps / max(np.median(self.boxes), 1.0)).reshape(3, 2)
 
     def _carried_root(self, evidence_root: np.ndarray, ankles: np.ndarray, up: np.ndarray, scale: float,
                       dt: float) -> np.ndarray:
@@ -382,16 +392,22 @@ def _foot_points(pose: PersonPose) -> np.ndarray:
     return np.vstack([kp[list(ANKLES)], feet])
 
 
-def _slopes(frames: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Per point of ``points [n, K, 3]`` (x, y px, confidence) over ``frames [n]``, the speed (px per
-    frame) of the least-squares line through its seen positions; inf with fewer than 3."""
-    seen = (points[..., 2] > 0).astype(np.float64)                       # [n, K]
-    count = seen.sum(axis=0)
-    t_mean = (seen * frames[:, None]).sum(axis=0) / np.maximum(count, 1)
-    dt = (frames[:, None] - t_mean) * seen                              # [n, K]
-    xy_mean = (seen[..., None] * points[..., :2]).sum(axis=0) / np.maximum(count, 1)[:, None]
-    cov = (dt[..., None] * (points[..., :2] - xy_mean)).sum(axis=0)     # [K, 2]
-    var = (dt ** 2).sum(axis=0)
-    speed = np.linalg.norm(cov, axis=-1) / np.maximum(var, 1e-12)
-    return np.where(count >= 3, speed, np.inf)
-
+@njit(cache=True)
+def _robust_speeds(frames: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Per point of ``points [n, K, 3]`` (x, y px, confidence) over ``frames [n]``, its speed (px per
+    frame): the Theil–Sen slope of its seen positions (per axis the median of the slopes between every
+    two of them), which a detector's swap or stray in fewer than about 3 in 10 frames does not move;
+    inf with fewer than 3 seen."""
+    n, k = points.shape[0], points.shape[1]
+    out = np.full(k, np.inf)
+    slopes = np.empty((n * (n - 1) // 2, 2))
+    for p in range(k):
+        m = 0
+        for i in range(n):
+            for j in range(i + 1, n):
+                if points[i, p, 2] > 0 and points[j, p, 2] > 0:
+                    slopes[m] = (points[j, p, :2] - points[i, p, :2]) / (frames[j] - frames[i])
+                    m += 1
+        if m >= 3:   # 3 pairs: 3 seen positions
+            out[p] = np.hypot(np.median(slopes[:m, 0]), np.median(slopes[:m, 1]))
+    return out

@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.stats import theilslopes
 
 from mocapdb.core.geometry import quat_geodesic
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, Match, PersonPose
@@ -17,7 +18,7 @@ from mocapdb.core.skeleton import (
     pose_from_rotations,
     universal_bone_lengths_m,
 )
-from mocapdb.runtime.online_take import JOINT_SPEED_DEG_S, OnlineParams, OnlineTake, OnlineTrack
+from mocapdb.runtime.online_take import JOINT_SPEED_DEG_S, OnlineParams, OnlineTake, OnlineTrack, _robust_speeds
 
 MATCH = Match("clip", 0, 0.0, 0.1)
 FOCAL, CENTRE = 1000.0, np.array([540.0, 960.0])
@@ -163,6 +164,68 @@ def test_a_planted_foot_is_released_when_its_image_moves_not_when_the_fit_alone_
     assert np.linalg.norm(ankle[20:] - ankle[20], axis=-1).max() < OnlineParams.anchor_follow_mps * 0.5 + 0.001
     ankle, planted = _stepping(np.arange(n) >= lift, rising)
     assert planted[20:lift].all() and not planted[lift + 6:].any()
+
+
+def test_robust_speeds_are_theil_sen_and_ignore_a_swapped_frame():
+    """A keypoint moving 2 px a frame to the right, one frame of 9 swapped 300 px away (the other foot's
+    place): its speed is exactly 2 px/frame (28 of the 36 pairs give it; the least-squares slope is
+    pulled off), per axis the median of the pairwise slopes as SciPy's ``theilslopes`` gives it; fewer
+    than 3 seen positions: inf."""
+    frames = np.arange(9, dtype=np.float64)
+    points = np.zeros((9, 2, 3))
+    points[:, 0] = np.column_stack([100.0 + 2.0 * frames, np.full(9, 500.0), np.ones(9)])
+    points[6, 0, :2] += [300.0, -40.0]                                       # the swap
+    rng = np.random.default_rng(3)
+    points[:, 1] = np.column_stack([rng.normal(size=(9, 2)) * 5.0, (np.arange(9) % 3 > 0).astype(float)])
+    speeds = _robust_speeds(frames, points)
+    assert speeds[0] == pytest.approx(2.0, abs=1e-12)
+    seen = points[:, 1, 2] > 0
+    reference = np.hypot(*(theilslopes(points[seen, 1, axis], frames[seen]).slope for axis in (0, 1)))
+    assert speeds[1] == pytest.approx(reference, rel=1e-12)
+    least_squares = np.polyfit(frames, points[:, 0, :2], 1)[0]
+    assert abs(np.linalg.norm(least_squares) - 2.0) > 1.0
+    points[3:, 1, 2] = 0.0
+    assert _robust_speeds(frames, points)[1] == np.inf                     # 2 seen of 9
+
+
+def _carrying(left_px_per_frame: np.ndarray, right_swings: np.ndarray, fps: float = 60.0) -> np.ndarray:
+    """A person standing 4 m away (both ankles at one height in the fit) whose left foot's ankle, heel and
+    big toe drift sideways ``left_px_per_frame [n]`` and whose right foot's sweep 15 px a frame (the foot
+    in the air) where ``right_swings [n]``, else stand; each frame's left contact ``[n]`` at lag 0."""
+    pose = _pose(0, [0.0, 0.0, 4.0])
+    still = pose.keypoints_px
+    feet = np.zeros((8, 3))
+    feet[:4] = np.vstack([still[KP["r_ankle"]], still[KP["r_ankle"]], still[KP["l_ankle"]], still[KP["l_ankle"]]])
+    feet[:4, 1] += [20.0, 20.0, 20.0, 20.0]
+    feet[[1, 3], 0] += [-30.0, 30.0]                                        # the big toes ahead of the heels
+    take, out, shift = OnlineTake(fps), [], np.zeros(2)
+    for t, (left, swings) in enumerate(zip(left_px_per_frame, right_swings)):
+        shift += [15.0 * swings, left]
+        kp, ends = still.copy(), feet.copy()
+        kp[KP["r_ankle"], 0] += shift[0]
+        kp[KP["l_ankle"], 0] += shift[1]
+        ends[:2, 0] += shift[0]
+        ends[2:4, 0] += shift[1]
+        out += take.push(t, t / fps, [replace(pose, keypoints_px=kp, extremities_px=ends)])
+    out += take.flush()
+    return np.array([f[2][0].contacts[1] for f in out])
+
+
+def test_the_slower_foot_carries_the_body_while_the_other_swings():
+    """The whole take's carrying rule at lag 0: the left foot drifting 0.4 box heights a second (above
+    the planting speed, 0.25, below ``carrying_box_per_s``, 0.5) is planted while the right foot's heel
+    and toe sweep (1.4 box/s), and not while the right foot stands; once carrying, drifting 0.8 box/s
+    (below twice the carrying speed) keeps it planted until the right foot stops swinging (the slope over
+    the last 9 frames falls below the planting speed within 9 frames), then it is released."""
+    box = np.ptp(_pose(0, [0.0, 0.0, 4.0]).keypoints_px[:, 1])
+    slow, fast = 0.4 * box / 60.0, 0.8 * box / 60.0                        # px a frame
+    n = 120
+    assert not _carrying(np.full(n, slow), np.zeros(n, dtype=bool))[10:].any()
+    assert _carrying(np.full(n, slow), np.ones(n, dtype=bool))[10:].all()
+    drift = np.where(np.arange(n) < 40, slow, fast)
+    swings = np.arange(n) < 80
+    planted = _carrying(drift, swings)
+    assert planted[10:80].all() and not planted[89:].any()
 
 
 def test_the_root_carried_by_shaking_legs_is_steadied_and_the_feet_stay_planted():
