@@ -24,6 +24,8 @@ Per track (:class:`OnlineEnds`), per frame:
    measured. A planted foot is laid flat on the floor, blended in
    with its IK weight, and once it has stood :data:`PLANTED_SETTLE_S` keeps its heading (the mean since,
    followed at most :data:`PLANTED_FOLLOW_DEG_S`): its ankle is held in place, so is the ball of the foot.
+   Every foot is rolled about its direction until its lateral axis lies level on the floor
+   (:func:`~mocapdb.runtime.end_joints.levelled_feet`), as in the whole take.
 3. **Unseen**: an end joint keeps its last value for :data:`HOLD_S`, then eases to rest (the identity,
    where the rig puts it unturned) over :data:`EASE_S` (smoothstep); seen again, or seen first, it eases
    in from there over :data:`EASE_S`. Every frame says which end joints were measured (``end_seen``). The
@@ -45,6 +47,7 @@ from mocapdb.runtime.end_branches import BranchPath
 from mocapdb.runtime.end_joints import (
     end_frames,
     end_locals,
+    levelled_feet,
     measured_candidates,
     sign_references,
     standing_directions,
@@ -183,7 +186,7 @@ class OnlineEnds:
         flat = plant_weights[:, None]
         directions[:2] = (1.0 - flat) * directions[:2] + flat * self._planted(standing_directions(directions[:2], up),
                                                                               plant_weights)
-        locals_ = end_locals(parents, reference, directions[None, :4])[0]
+        locals_ = levelled_feet(parents, end_locals(parents, reference, directions[None, :4]), up)[0]
         palms = np.stack([directions[2:4], directions[4:]], axis=1)[None]               # [1, 2, 2 (u, t), 3]
         twist = np.nan_to_num(hand_twist_deg(parents[:, 2:], locals_[None, 2:], palms)[0])
         locals_[2:] = twisted(locals_[None, 2:], twist[None] * self.palm_ease.weight(palm_seen)[None])[0]

@@ -82,6 +82,7 @@ from mocapdb.runtime.end_branches import continuous_directions
 from mocapdb.runtime.end_joints import (
     end_frames,
     end_locals,
+    levelled_feet,
     measured_candidates,
     sign_references,
     standing_directions,
@@ -231,7 +232,8 @@ def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
     :func:`~mocapdb.runtime.end_branches.continuous_directions`); gaps interpolated,
     smoothed as the rotations (:attr:`TakeParams.smoothing_hz`); a ``planted [F, 2]`` foot flat
     on the floor (perpendicular to ``up`` but for the standing foot's slope,
-    :data:`~mocapdb.core.skeleton.HEEL_TO_TOE_SLOPE_DEG`); never seen: not turned. ``keypoints [F, 14, 3]``,
+    :data:`~mocapdb.core.skeleton.HEEL_TO_TOE_SLOPE_DEG`); a foot's lateral axis level
+    (:func:`~mocapdb.runtime.end_joints.levelled_feet`); never seen: not turned. ``keypoints [F, 14, 3]``,
     ``extremities [F, 8, 3]``: x px, y px, confidence; ``camera_px``: the pinhole (focal, cx, cy: pixels). ``palms
     [F, 2, 3, 3]`` (:func:`~mocapdb.runtime.hand_pose.palm_frames` of the hand model's points; NaN: unseen):
     a hand's direction where seen, and its palm's twist about it, eased to none where unseen."""
@@ -246,6 +248,7 @@ def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
     direction = np.where(flat[..., None], standing_directions(direction, up), direction)
     direction = zero_phase_smoothed(direction, fps, params.smoothing_hz)
     local = end_locals(parents, reference, direction)
+    local = np.where(seen.any(axis=0)[None, :, None], levelled_feet(parents, local, up), local)
     if palms is not None:
         twist = hand_twist_deg(parents[:, 2:], local[:, 2:], palms)
         local[:, 2:] = twisted(local[:, 2:], eased_smoothed(twist, np.isfinite(twist), 0.0, fps, params))

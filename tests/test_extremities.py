@@ -1,10 +1,11 @@
 """Heels, big toes and knuckles: which layout point each is, foot phases on a synthetic walk, the
-foot's and hand's direction from hand-made image points, the humanoid BVH's feet and hands turning,
-and layouts without them giving exactly what they gave before."""
+foot's and hand's direction from hand-made image points, a foot's roll levelled, the humanoid BVH's feet and
+hands turning, and layouts without them giving exactly what they gave before."""
 import json
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from mocapdb.core.formats.bvh import format_bvh, forward_kinematics, parse_bvh, read_bvh
 from mocapdb.core.formats.keypoint_layouts import EXTREMITIES, LAYOUTS, N_FEET_HANDS
@@ -27,6 +28,7 @@ from mocapdb.runtime.end_branches import BranchPath, continuous_directions
 from mocapdb.runtime.end_joints import (
     END_PARENTS,
     END_REST_DIRECTIONS,
+    levelled_feet,
     lift_candidates,
     measured_candidates,
     nearest_candidate,
@@ -357,3 +359,28 @@ def test_without_heels_and_toes_a_reconstruction_is_what_it_was(small_db_path, t
         local = np.swapaxes(rotations[:, leg], -1, -2) @ rotations[:, foot]
         angle = np.degrees(np.arccos(np.clip((np.trace(local, axis1=-2, axis2=-1) - 1) / 2, -1, 1)))
         assert (angle.max() > 10.0) if turning else (angle.max() < 1e-3), (name, angle.max())  # text precision
+
+
+def test_a_foot_is_rolled_about_its_direction_until_its_lateral_axis_is_level():
+    """Random shanks and feet (SciPy's rotations), up tilted: each foot keeps its heel → toe, its lateral axis
+    (the humanoid foot's x) ends perpendicular to up on the nearer side (the smaller roll); a foot rolled 20 deg
+    about its own heel → toe on an unturned shank comes back to rest; one along up is not rolled; hands as given."""
+    n = 200
+    up = np.array([0.1, 0.95, -0.2]) / np.linalg.norm([0.1, 0.95, -0.2])
+    parents = Rotation.random(n * 4, random_state=5).as_matrix().reshape(n, 4, 3, 3)
+    locals_ = Rotation.random(n * 4, random_state=6).as_quat()[:, [3, 0, 1, 2]].reshape(n, 4, 4)
+    got = levelled_feet(parents, locals_, up)
+    before = parents @ quat_to_matrix(locals_)
+    after = parents @ quat_to_matrix(got)
+    d0 = END_REST_DIRECTIONS[0]
+    np.testing.assert_allclose(after[:, :2] @ d0, before[:, :2] @ d0, atol=1e-12)
+    off_vertical = np.linalg.norm(np.cross(up, after[:, :2] @ d0), axis=-1) >= 0.5
+    assert np.abs(after[:, :2, :, 0] @ up)[off_vertical].max() < 1e-12
+    assert (np.sum(after[:, :2, :, 0] * before[:, :2, :, 0], axis=-1) >= 0).all()
+    np.testing.assert_array_equal(got[:, 2:], locals_[:, 2:])
+    rolled = Rotation.from_rotvec(np.radians(20.0) * d0).as_quat()[[3, 0, 1, 2]]
+    rest = levelled_feet(np.tile(np.eye(3), (1, 4, 1, 1)), np.tile(rolled, (1, 4, 1)), np.array([0.0, 1.0, 0.0]))
+    np.testing.assert_allclose(np.abs(rest[0, :2, 0]), 1.0, atol=1e-12)
+    upright = Rotation.align_vectors([up], [d0])[0].as_quat()[[3, 0, 1, 2]]
+    along = np.tile(upright, (1, 4, 1))
+    np.testing.assert_allclose(levelled_feet(np.tile(np.eye(3), (1, 4, 1, 1)), along, up), along, atol=1e-12)
