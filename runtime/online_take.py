@@ -37,10 +37,11 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    carries the body. A planted anchor follows the per-frame evidence at most
    ``anchor_follow_mps``: a depth error cannot hold it forever, and it slides no faster than that.
    The root so carried moves with every shake of the legs' rotations (the anchor less the ankle),
-   so it goes through one more constant-velocity Kalman filter (:class:`RootFilter`, as precise
-   along the viewing ray as across it: ``carried_root_sd_m``), whose pull is kept level and short
-   enough that every planted leg still reaches its anchor, in proportion to the leg's IK weight
-   (:meth:`OnlineTrack._steadied`).
+   so it goes through one more constant-velocity Kalman filter (:class:`RootFilter`,
+   ``carried_root_sd_m`` across the viewing ray and, as the whole take's contacts, looser along it:
+   ``carried_root_depth_m``, the legs' depth being the pose's least sure); its pull is kept level,
+   and the root so pulled is moved into every planted leg's reach of its anchor, by the leg's IK
+   weight of the way (:meth:`OnlineTrack._steadied`).
 4. **A planted foot locked in place**: the legs turned by the whole take's two-bone IK
    (:func:`~mocapdb.runtime.take.plant_feet`) onto their anchors, the weight blended in and out over
    ``blend_s``. The floor (reported, not enforced) is the median height of the last anchors along
@@ -103,6 +104,7 @@ CAUSAL_ROTATIONS = OneEuroParams(min_cutoff_hz=0.5, beta=0.3)
 FLOOR_SAMPLES = 31  # the floor: the median height of this many last anchors
 UNIVERSAL_BONES_M = universal_bone_lengths_m()   # [8] metres, 1.75 m: a pose without its own bones
 HIPS, KNEES = (KP["r_hip"], KP["l_hip"]), (KP["r_knee"], KP["l_knee"])
+REACH_PASSES = 3   # the root moved into both planted legs' reach in turn this many times
 
 
 @dataclass(frozen=True)
@@ -121,12 +123,13 @@ class OnlineParams:
     anchor_follow_mps: float = 0.02
     root_speed_mps: float = 6.0
     carried_root_sd_m: float = 0.02
+    carried_root_depth_m: float = TakeParams.contact_depth_m
     body_ease_s: float = 0.05
     rotation_noise: RotationNoise = RotationNoise()
 
     def __post_init__(self) -> None:
         positive = (self.smoothing_hz, self.planted_box_per_s, self.planted_height_m, self.blend_s, self.settle_s,
-                    self.root_speed_mps, self.carried_root_sd_m, self.body_ease_s)
+                    self.root_speed_mps, self.carried_root_sd_m, self.carried_root_depth_m, self.body_ease_s)
         if self.lag_frames < 0 or self.release_factor < 1 or self.anchor_follow_mps < 0 \
                 or self.carrying_box_per_s < self.planted_box_per_s \
                 or not all(np.isfinite(v) and v > 0 for v in positive):
@@ -203,8 +206,8 @@ class OnlineTrack:
         self.previous: tuple[int, np.ndarray, np.ndarray] | None = None  # index, rotations, root of the last output
         self.body: tuple[int, np.ndarray] | None = None   # index, [2, 9] the eased body's two stages (_eased_body)
         self.root = RootFilter(fps)  # the whole take's root model, causal
-        sd = params.carried_root_sd_m   # the carried root's: a measurement as precise along the ray as across
-        self.carried = RootFilter(fps, TakeParams(root_across_m=sd, root_depth_m=sd))
+        self.carried = RootFilter(fps, TakeParams(root_across_m=params.carried_root_sd_m,
+                                                  root_depth_m=params.carried_root_depth_m))
         self.rotations = RotationKalman(fps, params.lag_frames, params.rotation_noise)
         self.max_turn = np.radians([JOINT_SPEED_DEG_S[j] for j in RIG_JOINTS]) / fps  # radians per frame
 
@@ -340,29 +343,33 @@ class OnlineTrack:
         return root
 
     def _steadied(self, index: int, root: np.ndarray, body: np.ndarray, up: np.ndarray) -> np.ndarray:
-        """Step 3's root ``[3]`` (view frame, m) through :attr:`carried`, a filter as precise along the
-        viewing ray as across it (``carried_root_sd_m``): the legs' rotations that carry the root
-        shake it no more. Its pull is level (a planted leg reaches no higher) and no longer than
-        keeps every planted anchor within its leg's reach (thigh + shank of ``body [15, 3]``, the
-        joints about the root) from the hip, each leg's limit weighed by its IK weight (a foot
-        blending in or out limits the pull as much as it carries the root: no jump when it starts or
-        ends)."""
+        """Step 3's root ``[3]`` (view frame, m) through :attr:`carried`, a filter of the carried root
+        (``carried_root_sd_m`` across the viewing ray, ``carried_root_depth_m`` along it): the legs'
+        rotations that carry the root shake it no more. Its pull is level (a planted leg reaches no
+        higher); the root so pulled is then moved towards each planted anchor until the leg (thigh +
+        shank of ``body [15, 3]``, the joints about the root) reaches it from the hip, by the leg's IK
+        weight of the way (a foot blending in or out limits the root as much as it carries it: no jump
+        when it starts or ends): a straight leg's root keeps the level pull and lowers by the little
+        it takes (a pull ``d`` across a leg of length ``L``: ``L − √(L² − d²)``)."""
         pull = self.carried(index, root) - root
-        pull -= (pull @ up) * up
+        pulled = root + pull - (pull @ up) * up
         feet = self.feet
         carrying = np.flatnonzero(feet.weight > 0)
         if not len(carrying):
-            return root + pull
+            return pulled
         hips, knees, ankles = (body[list(j)][carrying] for j in (HIPS, KNEES, ANKLES))
+        anchors, weights = feet.anchor[carrying], feet.weight[carrying]
         reach = np.linalg.norm(knees - hips, axis=-1) + np.linalg.norm(ankles - knees, axis=-1)
-        c = root + hips - feet.anchor[carrying]          # anchor → hip now; |c + s pull| ≤ reach for s ≤ 1
-        a, b, slack = pull @ pull, c @ pull, reach ** 2 - np.einsum("ij,ij->i", c, c)
-        slack = np.maximum(slack, 0.0)
-        if a < 1e-18:
-            return root + pull
-        reach_share = np.clip((-b + np.sqrt(b * b + a * slack)) / a, 0.0, 1.0)    # per planted leg
-        weight = feet.weight[carrying]          # a leg's limit comes in with its IK weight: no jump at 0
-        root = root + pull * float((1.0 - weight * (1.0 - reach_share)).min())
+        reach = np.maximum(reach, np.linalg.norm(root + hips - anchors, axis=-1))   # never less than carried
+        over = np.maximum(np.linalg.norm(pulled + hips - anchors, axis=-1) - reach, 0.0)
+        radius = reach + (1.0 - weights) * over          # the leg's weight of the way into its reach
+        root = pulled
+        for _ in range(REACH_PASSES):
+            for hip, anchor, limit in zip(hips, anchors, radius):
+                leg = root + hip - anchor
+                length = float(np.linalg.norm(leg))
+                if length > limit:
+                    root = root + (limit / length - 1.0) * leg
         self.carried.constrain(root)
         return root
 
