@@ -12,8 +12,10 @@ Contract: ``data_specs/stream_output.md`` (``--rig``).
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
-from mocapdb.core.geometry import matrix_to_quat, quat_mul, quat_to_matrix
+from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
+from mocapdb.core.kernels import quat_mul_into
 from mocapdb.core.skeleton import (
     HAND_LENGTH_M,
     HEEL_TO_TOE_M,
@@ -128,18 +130,41 @@ def levelled_feet(parents: np.ndarray, locals_: np.ndarray, up: np.ndarray) -> n
     of the database's own clips (``tools/eval_ends.py --bvh`` 002_02, 002_07, 006_10) the whole take's feet
     went from 9.6 to 5.0 deg (median geodesic, exact 2D; 14.7 to 10.3 noisy): their direction was within
     2.8 deg, the rest had been the roll the shank gave them."""
-    up = _unit(np.broadcast_to(up, parents.shape[:1] + (3,)))[:, None]
-    feet = parents[:, :2] @ quat_to_matrix(locals_[:, :2])                  # [F, 2, 3, 3] global
-    direction, lateral = feet @ END_REST_DIRECTIONS[0], feet[..., 0]
-    level = np.cross(up, direction)
-    sine = np.linalg.norm(level, axis=-1)
-    level *= np.where(np.sum(level * lateral, axis=-1) < 0, -1.0, 1.0)[..., None]
-    roll = np.arctan2(np.sum(np.cross(lateral, level) * direction, axis=-1), np.sum(lateral * level, axis=-1))
-    half = 0.5 * roll * np.clip(sine / LEVEL_FULL_SIN, 0.0, 1.0)
-    about = np.concatenate([np.cos(half)[..., None], np.sin(half)[..., None] * END_REST_DIRECTIONS[0]], axis=-1)
-    out = locals_.copy()
-    out[:, :2] = quat_mul(locals_[:, :2], about)                            # a roll about its own heel → toe
+    up = _unit(np.broadcast_to(np.asarray(up, dtype=np.float64), parents.shape[:1] + (3,)))
+    feet = (parents[:, :2] @ quat_to_matrix(locals_[:, :2])).reshape(-1, 3, 3)     # global, [F · 2, 3, 3]
+    out = np.array(locals_, dtype=np.float64)
+    rolled = np.empty((len(feet), 4))
+    _levelled_into(feet, np.ascontiguousarray(out[:, :2].reshape(-1, 4)), np.repeat(up, 2, axis=0),
+                   END_REST_DIRECTIONS[0], LEVEL_FULL_SIN, rolled)
+    out[:, :2] = rolled.reshape(-1, 2, 4)
     return out
+
+
+@njit(cache=True)
+def _levelled_into(feet, locals_, up, rest, full_sin, out) -> None:  # pragma: no cover - numba
+    """Per foot ``n``: its global rotation ``feet [N, 3, 3]``, local ``locals_ [N, 4]``, the unit ``up [N, 3]`` and
+    its rest direction ``rest [3]``: into ``out [N, 4]`` the local rolled about ``rest`` (its own heel → toe) by
+    the smaller roll that lays its x perpendicular to up, times min(1, |up × direction| / ``full_sin``)."""
+    d, level, turn = np.empty(3), np.empty(3), np.empty(4)
+    for n in range(feet.shape[0]):
+        for i in range(3):
+            d[i] = feet[n, i, 0] * rest[0] + feet[n, i, 1] * rest[1] + feet[n, i, 2] * rest[2]
+        level[0] = up[n, 1] * d[2] - up[n, 2] * d[1]
+        level[1] = up[n, 2] * d[0] - up[n, 0] * d[2]
+        level[2] = up[n, 0] * d[1] - up[n, 1] * d[0]
+        sine = np.sqrt(level[0] ** 2 + level[1] ** 2 + level[2] ** 2)
+        x0, x1, x2 = feet[n, 0, 0], feet[n, 1, 0], feet[n, 2, 0]
+        if level[0] * x0 + level[1] * x1 + level[2] * x2 < 0:
+            for i in range(3):
+                level[i] = -level[i]
+        across = ((x1 * level[2] - x2 * level[1]) * d[0] + (x2 * level[0] - x0 * level[2]) * d[1]
+                  + (x0 * level[1] - x1 * level[0]) * d[2])
+        roll = np.arctan2(across, x0 * level[0] + x1 * level[1] + x2 * level[2])
+        half = 0.5 * roll * min(max(sine / full_sin, 0.0), 1.0)
+        turn[0] = np.cos(half)
+        for i in range(3):
+            turn[i + 1] = np.sin(half) * rest[i]
+        quat_mul_into(locals_[n], turn, out[n])
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
