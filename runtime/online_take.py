@@ -28,7 +28,9 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    (:func:`~mocapdb.runtime.foot_contacts.planted_ankles`): while the other foot swings (its heel and
    toe both faster than ``planted_box_per_s``) the foot whose ankle is the slower carries the body,
    and its ankle's speed is held to ``carrying_box_per_s`` instead (``release_factor`` times that to
-   stay planted): a foot under the body's weight drifts in the image more than an idle one.
+   stay planted): a foot under the body's weight drifts in the image more than an idle one; and its
+   flat-foot rule: a foot whose heel and toe are still while the other's are not carries the body,
+   and is planted (and kept) whatever the fit's heights.
 3. **The root carried by the planted foot.** When a foot is planted its ankle's place becomes its
    anchor; while a foot is planted the root is where its anchor puts it (both planted: the mean),
    blended in and out with the feet's IK weights (rising and falling over ``blend_s``, eased by a
@@ -295,12 +297,13 @@ class OnlineTrack:
         speed = np.where(ends, np.maximum(heel, toe), ankle)     # flat: heel and toe both still
         swinging = ends & (np.minimum(heel, toe) >= p.planted_box_per_s)   # heel and toe both moving
         carrying = ends & swinging[::-1] & (ankle <= ankle[::-1])   # the slower foot while the other swings
+        supported = ends & ends[::-1] & (speed[::-1] >= p.planted_box_per_s)   # the other foot seen, not flat
         above = ankle_heights_m - ankle_heights_m.min()
         f = p.release_factor
-        kept = ((speed <= f * p.planted_box_per_s) | (carrying & (ankle <= f * p.carrying_box_per_s))) \
-            & ~((above > f * p.planted_height_m * scale) & (speed >= p.planted_box_per_s))  # risen, its image moving
-        new = (above <= p.planted_height_m * scale) \
-            & ((speed < p.planted_box_per_s) | (carrying & (ankle < p.carrying_box_per_s)))
+        low, still = above <= p.planted_height_m * scale, speed <= f * p.planted_box_per_s
+        risen = (above > f * p.planted_height_m * scale) & (speed >= p.planted_box_per_s)   # its image moving
+        kept = (still | (carrying & (ankle <= f * p.carrying_box_per_s))) & (~risen | (supported & still))
+        new = ((speed < p.planted_box_per_s) & (low | supported)) | (low & carrying & (ankle < p.carrying_box_per_s))
         feet.planted = np.where(feet.planted, kept, new)
 
     def _foot_speeds(self, index: int) -> np.ndarray:

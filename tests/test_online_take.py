@@ -190,11 +190,14 @@ def test_robust_speeds_are_theil_sen_and_ignore_a_swapped_frame():
     assert _robust_speeds(frames, points)[1] == np.inf                     # 2 seen of 9
 
 
-def _carrying(left_px_per_frame: np.ndarray, right_swings: np.ndarray, fps: float = 60.0) -> np.ndarray:
-    """A person standing 4 m away (both ankles at one height in the fit) whose left foot's ankle, heel and
+def _carrying(left_px_per_frame: np.ndarray, right_swings: np.ndarray, fps: float = 60.0,
+              left_raised_rad: float = 0.0) -> np.ndarray:
+    """A person standing 4 m away (both ankles at one height in the fit, unless its left hip is turned
+    ``left_raised_rad`` about the camera's axis: the foot raised sideways) whose left foot's ankle, heel and
     big toe drift sideways ``left_px_per_frame [n]`` and whose right foot's sweep 15 px a frame (the foot
     in the air) where ``right_swings [n]``, else stand; each frame's left contact ``[n]`` at lag 0."""
     pose = _pose(0, [0.0, 0.0, 4.0])
+    pose = replace(pose, quaternions=_pose(0, [0.0, 0.0, 4.0], left_raised_rad).quaternions)
     still = pose.keypoints_px
     feet = np.zeros((8, 3))
     feet[:4] = np.vstack([still[KP["r_ankle"]], still[KP["r_ankle"]], still[KP["l_ankle"]], still[KP["l_ankle"]]])
@@ -228,6 +231,16 @@ def test_the_slower_foot_carries_the_body_while_the_other_swings():
     swings = np.arange(n) < 80
     planted = _carrying(drift, swings)
     assert planted[10:80].all() and not planted[89:].any()
+
+
+def test_a_flat_foot_is_planted_whatever_its_height_while_the_other_moves():
+    """The whole take's flat-foot rule at lag 0: a foot whose heel and toe stand still in the image but
+    which the fit raises 15 cm (the left hip turned 0.6 rad: 0.85 m × (1 − cos 0.6)) is planted while
+    the other foot's heel and toe move (it carries the body), not while the other stands still too (a
+    foot held still in the air)."""
+    n = 60
+    assert _carrying(np.zeros(n), np.ones(n, dtype=bool), left_raised_rad=0.6)[10:].all()
+    assert not _carrying(np.zeros(n), np.zeros(n, dtype=bool), left_raised_rad=0.6).any()
 
 
 def test_the_root_carried_by_shaking_legs_is_steadied_and_the_feet_stay_planted():
