@@ -3,14 +3,16 @@ per 1-euro setting, the stream's error (median geodesic, degrees) and accelerati
 the angular step, deg/frame^2) beside the truth's, exact and noisy. ``--end head``: the head on frames the face
 mesh fixed (runtime/online_ends.MESH_HEAD_FILTER; the mesh rendered, its frames only); ``feet`` or ``hands``: the
 feet's and hands' directions (OnlineEnds.direction_filter, the online take's ``causal_rotations``), every frame;
-``hands`` with ``--hand-points 21``: where the hand model saw the hand (online_ends.HAND_MODEL_FILTER).
+``hands`` with ``--hand-points 21``: where the hand model saw the hand (online_ends.HAND_MODEL_FILTER). The engine
+runs once per view; each setting replays the online take's calls into its end joints (OnlineEnds) on that run
+(the same outputs as a run of its own: the stream's end joints depend on nothing else).
 
     .venv/bin/python tools/eval_end_filter.py [--end head|feet|hands] [--hand-points 21] [--every-yaw 2]
-        [--settings 0.5,0.3 2,2 ...]
+        [--bvh data/gate/cmu_bvh/007_01.bvh ...] [--settings 0.5,0.3 2,2 ...]
 
-The views: the gate's clips on its bodies from every --every-yaw-th of the 6 yaws (with --end head, those with more
-than 10 frames of mesh). Prints a Markdown table (docs/benchmarks.md, "The head from the face mesh", "The feet and
-hands in the stream").
+The views: the clips (default the gate's; ``--bvh`` to choose on others) on the gate's bodies from every
+--every-yaw-th of the 6 yaws (with --end head, those with more than 10 frames of mesh). Prints a Markdown table
+(docs/benchmarks.md, "The head from the face mesh", "The feet's and hands' filter in the stream").
 """
 from __future__ import annotations
 
@@ -20,12 +22,15 @@ from pathlib import Path
 import numpy as np
 
 import mocapdb.runtime.online_ends as online_ends
+import mocapdb.runtime.online_take as online_take
 from mocapdb.core.formats.database_reader import load_database
 from mocapdb.core.geometry import matrix_to_quat
+from mocapdb.core.motion import Motion
 from mocapdb.evaluation.bodies import reshape_body, stature_m
 from mocapdb.evaluation.ends import (
     ENDS_YAWS_DEG,
     SCENARIOS,
+    end_globals,
     ends_truths,
     gate_clip_files,
     geodesic_deg,
@@ -37,7 +42,6 @@ from mocapdb.evaluation.heldout import EvalConfig
 from mocapdb.runtime.filters import OneEuroFilter, OneEuroParams
 
 ROWS = {"head": (4,), "feet": (0, 1), "hands": (2, 3)}   # END_JOINTS rows
-ONLINE_ENDS_INIT = online_ends.OnlineEnds.__init__
 UNFILTERED = OneEuroParams(min_cutoff_hz=1000.0, beta=0.0)   # the highest cut-off allowed: no smoothing at 24 fps
 
 
@@ -49,12 +53,68 @@ def step_change_deg(rotations: np.ndarray) -> np.ndarray:
     return np.degrees(np.linalg.norm(np.diff(steps, axis=0), axis=-1))
 
 
-def views(every_yaw: int, config: EvalConfig, mesh: bool, hand_points: int
+class RecordedEnds(online_ends.OnlineEnds):
+    """The online take's end joints, their arguments and every call into them (in order) kept in :data:`MADE`."""
+
+    def __init__(self, *args) -> None:
+        super().__init__(*args)
+        self.args, self.calls = args, []
+        MADE.append(self)
+
+    def add(self, *call) -> None:
+        self.calls.append(call)
+        super().add(*call)
+
+    def output(self, *call) -> tuple[np.ndarray, np.ndarray]:
+        self.calls.append(call)
+        return super().output(*call)
+
+
+MADE: list[RecordedEnds] = []
+
+
+def recorded_stream(db, engine, frames: list) -> list[RecordedEnds]:
+    """The default stream of ``frames`` run once: each track's end joints with their calls."""
+    MADE.clear()
+    online_take.OnlineEnds = RecordedEnds   # type: ignore[misc]
+    try:
+        stream_ends(db, engine, frames)
+    finally:
+        online_take.OnlineEnds = online_ends.OnlineEnds   # type: ignore[misc]
+    return list(MADE)
+
+
+def replayed(tracks: list[RecordedEnds], n: int, end: str, hand_points: int, params: OneEuroParams) -> np.ndarray:
+    """``[n, 5, 3, 3]`` the end globals (view frame; NaN: no output) of the stream ``tracks`` recorded, replayed
+    with the filter of ``end`` at ``params`` (:func:`use_filter`); per frame the first track's output, as the
+    stream scored gives each frame's first person (the synthetic takes hold one)."""
+    use_filter(end, hand_points, params)
+    outputs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for track in tracks:
+        ends = online_ends.OnlineEnds(*track.args)
+        if end == "feet" or (end == "hands" and hand_points == 3):
+            ends.direction_filter = OneEuroFilter(params)
+        for call in track.calls:
+            if len(call) == 2:
+                ends.add(*call)
+            else:
+                outputs.setdefault(call[0], (call[1], ends.output(*call)[0]))
+    out = np.full((n, 5, 3, 3), np.nan)
+    if outputs:
+        index = np.array(sorted(outputs))
+        quats, turned = (np.array([outputs[i][k] for i in index]) for k in (0, 1))
+        motion = Motion(quats, np.zeros((len(index), 3)), tracks[0].args[0], "view", end_rotations=turned)
+        out[index] = end_globals(motion)
+    return out
+
+
+def views(files: list[Path], every_yaw: int, config: EvalConfig, mesh: bool, hand_points: int
           ) -> list[tuple[str, list, np.ndarray, np.ndarray]]:
-    """(scenario, keypoint frames, true end rotations, frames scored) of each view (the hands as ``hand_points``
-    3 or 21); with ``mesh`` the face mesh rendered, the views showing a face and their frames with a mesh."""
+    """(scenario, keypoint frames, true end rotations, frames scored) of each view of the ``files`` (the hands as
+    ``hand_points`` 3 or 21); with ``mesh`` the face mesh rendered, the views showing a face and their frames with a
+    mesh."""
     out = []
-    for truth, ends in ends_truths(gate_clip_files(Path("data/gate/cmu_bvh")), MAX_FRAMES, ENDS_YAWS_DEG, config.fps):
+    for truth, ends in ends_truths(files, MAX_FRAMES, ENDS_YAWS_DEG, config.fps):
         for body in GATE_BODIES:
             lengths = body.lengths_m()
             posed, stature = reshape_body(truth.source_joints(), lengths), float(stature_m(lengths))
@@ -68,12 +128,11 @@ def views(every_yaw: int, config: EvalConfig, mesh: bool, hand_points: int
     return out
 
 
-def score(db, engine, rendered, rows: tuple[int, ...]) -> dict[str, tuple[float, float, float]]:
-    """Per scenario: the end joints' (``rows`` of END_JOINTS) median error on the scored frames, their mean step
-    change and the truth's."""
+def score(estimates: list[np.ndarray], rendered, rows: tuple[int, ...]) -> dict[str, tuple[float, float, float]]:
+    """Per scenario: the end joints' (``rows`` of END_JOINTS) median error on the scored frames of the ``estimates``
+    (end globals ``[F, 5, 3, 3]`` of each rendered view), their mean step change and the truth's."""
     errors: dict[str, list[list[np.ndarray]]] = {}
-    for name, frames, true_view, seen in rendered:
-        estimate = stream_ends(db, engine, frames).ends[0]
+    for estimate, (name, _, true_view, seen) in zip(estimates, rendered):
         scored = errors.setdefault(name, [[], [], []])
         for row in rows:
             end = estimate[:, row]
@@ -88,20 +147,11 @@ def score(db, engine, rendered, rows: tuple[int, ...]) -> dict[str, tuple[float,
 
 def use_filter(end: str, hand_points: int, params: OneEuroParams) -> None:
     """The stream's filter of ``end`` becomes ``params``: the head's on mesh frames, the hands' where the hand
-    model saw them (``hand_points`` 21), else the directions'."""
+    model saw them (``hand_points`` 21); the feet's and the hands' 3-point directions' are set by :func:`replayed`."""
     if end == "head":
         online_ends.MESH_HEAD_FILTER = params
-        return
-    if end == "hands" and hand_points == 21:
+    elif end == "hands" and hand_points == 21:
         online_ends.HAND_MODEL_FILTER = params
-        return
-    init = ONLINE_ENDS_INIT
-
-    def with_directions(self: online_ends.OnlineEnds, *args, **kwargs) -> None:
-        init(self, *args, **kwargs)
-        self.direction_filter = OneEuroFilter(params)
-
-    online_ends.OnlineEnds.__init__ = with_directions   # type: ignore[method-assign]
 
 
 def main() -> None:
@@ -109,6 +159,7 @@ def main() -> None:
     parser.add_argument("--db", type=Path, default=Path("demo/sample.db"))
     parser.add_argument("--end", choices=list(ROWS), default="head")
     parser.add_argument("--every-yaw", type=int, default=2)
+    parser.add_argument("--bvh", type=Path, nargs="+", default=gate_clip_files(Path("data/gate/cmu_bvh")))
     parser.add_argument("--hand-points", type=int, choices=(3, 21), default=3,
                         help="the hands as BlazePose's 3 points or with the hand model's 21 (detect --hands)")
     parser.add_argument("--settings", nargs="+", default=["none", "0.5,0.3", "1,0.5", "1.5,1", "2,2", "3,3"],
@@ -116,14 +167,16 @@ def main() -> None:
     args = parser.parse_args()
     config = EvalConfig()
     db, engine = load_database(args.db), gate_engine_config(config)
-    rendered = views(args.every_yaw, config, args.end == "head", args.hand_points)
+    rendered = views(args.bvh, args.every_yaw, config, args.end == "head", args.hand_points)
+    tracks = [recorded_stream(db, engine, frames) for _, frames, _, _ in rendered]
     print(f"{len(rendered)} views{' with a face mesh' if args.end == 'head' else ''}\n")
     print(f"| cut-off Hz / beta | input | {args.end} error | acceleration deg/frame² | truth's |")
     print("|---|---|---|---|---|")
     for setting in args.settings:
         params = UNFILTERED if setting == "none" else OneEuroParams(*map(float, setting.split(",")))
-        use_filter(args.end, args.hand_points, params)
-        for name, (error, accel, truth) in score(db, engine, rendered, ROWS[args.end]).items():
+        estimates = [replayed(t, len(frames), args.end, args.hand_points, params)
+                     for t, (_, frames, _, _) in zip(tracks, rendered)]
+        for name, (error, accel, truth) in score(estimates, rendered, ROWS[args.end]).items():
             print(f"| {setting} | {name} | {error:.2f}° | {accel:.2f} | {truth:.2f} |", flush=True)
 
 
