@@ -15,6 +15,7 @@ import numpy as np
 from numba import njit
 
 from mocapdb.core.geometry import matrix_to_quat, quat_to_matrix
+from mocapdb.core.hand_rig import KNUCKLE_ACROSS_M
 from mocapdb.core.kernels import quat_mul_into
 from mocapdb.core.skeleton import (
     HAND_LENGTH_M,
@@ -40,6 +41,15 @@ END_LENGTHS_M = np.array([HEEL_TO_TOE_M, HEEL_TO_TOE_M, HAND_LENGTH_M, HAND_LENG
 # A foot's lateral axis is laid level in full where its heel → toe is this far from the vertical (the sine of
 # that angle, 30 deg) or further, in proportion nearer it (along the vertical every roll is level: none)
 LEVEL_FULL_SIN = 0.5
+KNUCKLES_APART_M = KNUCKLE_ACROSS_M[1] - KNUCKLE_ACROSS_M[4]   # index to little finger knuckle of a 1.75 m body
+# a palm whose knuckles lie closer in the image than this share of their width is seen from its edge: its thumb
+# side is not measured (the line's direction in the image is then mostly the points' scatter)
+MIN_ACROSS_SHARE = 0.4
+# the index knuckle lies this much further along the hand than the little finger's, per unit across (the rig's hand)
+KNUCKLE_SLANT = 0.34
+# choosing between a knuckle line's two thumb sides: the knuckles' depth's error (log: the body's depth and the
+# hand's length), and the twist's from the shortest turn (the forearm's pronation and supination, ±85°)
+KNUCKLE_DEPTH_LOG_SD, KNUCKLE_TWIST_SD_DEG = 0.1, 45.0
 
 
 def lift_candidates(start_px: np.ndarray, end_px: np.ndarray, depth_m: np.ndarray, length_m: np.ndarray,
@@ -92,6 +102,71 @@ def measured_candidates(quats: np.ndarray, root_m: np.ndarray, scale: float, off
     ends = np.concatenate([xy[:, TOES], 0.5 * (xy[:, INDEX_KNUCKLES] + xy[:, PINKY_KNUCKLES])], axis=1)
     depth = -joints[:, list(ANKLES) + list(WRISTS), 2]
     return lift_candidates(starts, ends, depth, END_LENGTHS_M * scale, camera_px)
+
+
+def knuckle_thumb_sides(hand_directions: np.ndarray, extremities: np.ndarray, camera_px: tuple[float, float, float],
+                        wrists_depth_m: np.ndarray, scale: float, untwisted: np.ndarray) -> np.ndarray:
+    """``[F, 2, 3]`` each hand's thumb side (view frame, unit: square to the hand, towards the index) from the
+    pose's knuckle points ``extremities [F, E, 3]`` (x px, y px, confidence) and the hands' directions
+    ``hand_directions [F, 2, 3]`` (wrist → mid-knuckles). The knuckles' line (:data:`KNUCKLE_SLANT` along the
+    hand per unit across it, :data:`KNUCKLES_APART_M` × ``scale`` across) lies in the plane of their two rays
+    through the camera ``camera_px`` (focal, cx, cy): of the two thumb sides that put it there, the one whose
+    line puts the knuckles in front of the camera, the index the one seen as such, at the depth the hand gives
+    them (the wrist's, ``wrists_depth_m [F, 2]``, plus the hand's length along its direction; error
+    :data:`KNUCKLE_DEPTH_LOG_SD`), the less twisted from the thumb side of the hand's shortest turn ``untwisted
+    [F, 2, 3]`` (:data:`KNUCKLE_TWIST_SD_DEG`; the two can lie at one depth, the palm turned to the camera or
+    away): exact in perspective. NaN where a point is unseen or the knuckles lie closer in the image than
+    :data:`MIN_ACROSS_SHARE` of the palm's width at the wrist's depth: a palm seen from its edge, whose line the
+    image cannot turn."""
+    index_px, pinky_px = extremities[:, INDEX_KNUCKLES, :2], extremities[:, PINKY_KNUCKLES, :2]
+    rays = np.stack([_ray(index_px, camera_px), _ray(pinky_px, camera_px)], axis=-1)      # [F, 2, 3, 2]
+    sides = _slanted_thumb_sides(hand_directions, _unit(np.cross(rays[..., 0], rays[..., 1])))   # [F, 2, 2, 3]
+    lines = KNUCKLES_APART_M * scale * (KNUCKLE_SLANT * hand_directions[..., None, :] + sides)
+    depths = _ray_depths(rays, lines)                             # [F, 2, 2 (candidates), 2 (index, pinky)]
+    expected = wrists_depth_m - HAND_LENGTH_M * scale * hand_directions[..., 2]            # the mid-knuckles'
+    misfit = np.abs(np.log(np.maximum(depths.mean(axis=-1), 1e-9) / np.maximum(expected, 1e-9)[..., None]))
+    turned = np.arccos(np.clip(np.sum(sides * untwisted[..., None, :], axis=-1), -1.0, 1.0))
+    misfit = misfit / KNUCKLE_DEPTH_LOG_SD + turned / np.radians(KNUCKLE_TWIST_SD_DEG)
+    misfit = np.where((depths > 0).all(axis=-1), misfit, np.inf)
+    across = np.take_along_axis(sides, misfit.argmin(axis=-1)[..., None, None], axis=-2)[..., 0, :]
+    apart_px = np.linalg.norm(index_px - pinky_px, axis=-1)
+    full_px = KNUCKLES_APART_M * scale * camera_px[0] / np.maximum(wrists_depth_m, 1e-6)
+    usable = ((extremities[:, INDEX_KNUCKLES, 2] > 0) & (extremities[:, PINKY_KNUCKLES, 2] > 0)
+              & (apart_px >= MIN_ACROSS_SHARE * full_px) & np.isfinite(hand_directions).all(axis=-1)
+              & np.isfinite(misfit).any(axis=-1))
+    return np.where(usable[..., None], across, np.nan)
+
+
+def _slanted_thumb_sides(directions: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """``[..., 2, 3]`` the two unit thumb sides ``t`` square to ``directions [..., 3]`` whose knuckle line
+    (:data:`KNUCKLE_SLANT` × direction + ``t``) lies in the plane of unit normal ``normals [..., 3]``
+    (one, twice, where the plane is square to the direction beyond the slant's reach)."""
+    towards = np.sum(normals * directions, axis=-1)
+    square = normals - towards[..., None] * directions            # the normal's part square to the hand
+    reach = np.maximum(np.sum(square ** 2, axis=-1), 1e-12)
+    share = -KNUCKLE_SLANT * towards / reach                         # t · normal = −slant × direction · normal
+    beside = np.sqrt(np.maximum(1.0 - share ** 2 * reach, 0.0) / reach)
+    about = np.cross(directions, square)
+    ends = share[..., None, None] * square[..., None, :] + np.array([1.0, -1.0])[:, None] * (
+        beside[..., None, None] * about[..., None, :])
+    return _unit(ends)
+
+
+def _ray_depths(rays: np.ndarray, lines: np.ndarray) -> np.ndarray:
+    """``[..., 2]`` the depths (metres along each ray's z = −1 step) of the two points, one on each of ``rays
+    [..., 3, 2]`` (index, pinky), whose difference (index − pinky) is nearest each of ``lines [..., 3]`` (least
+    squares; the rays shared along the lines' axis before the last)."""
+    first, second = rays[..., None, :, 0], rays[..., None, :, 1]
+    ff, ss, fs = (np.sum(u * v, axis=-1) for u, v in ((first, first), (second, second), (first, second)))
+    fl, sl = np.sum(first * lines, axis=-1), np.sum(second * lines, axis=-1)
+    gram = np.maximum(ff * ss - fs ** 2, 1e-18)
+    return np.stack([ss * fl - fs * sl, -(ff * sl - fs * fl)], axis=-1) / gram[..., None]
+
+
+def wrist_depths_m(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None) -> np.ndarray:
+    """``[F, 2]`` the wrists' depths (metres in front of the camera) of a motion (``quats [F, R, 4]``, ``root_m
+    [F, 3]`` view frame, body ``scale`` and ``offsets_m``)."""
+    return -pose_from_rotations(quats, root_m, scale, offsets_m)[:, list(WRISTS), 2]
 
 
 def sign_references(quats: np.ndarray) -> np.ndarray:

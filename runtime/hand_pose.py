@@ -34,6 +34,8 @@ HAND_BASES = np.stack([hand_basis(side) for side in SIDE_NAMES])      # [2 (righ
 HANDEDNESS = np.linalg.det(HAND_BASES)                               # [2] −1 (right: left-handed basis), +1
 SPREAD_FADE_DEG = 60.0    # a first joint bent beyond this loses its spread linearly, none at 90°
 BEND_PLANE_MIN_DEG = 20.0  # a finger bent less than about this: its bend plane (and the twist to it) fades out
+STEADY_TWIST_DEG, UNSTEADY_TWIST_DEG = 8.0, 16.0   # the knuckles' twist scattering this much a frame: kept, not
+MIN_SCATTER_FRAMES = 8   # a hand's twist measured on fewer frames: its scatter is not known, nor the twist used
 TWIST_LIMIT_DEG = 90.0    # the palm's twist about the hand, from the shortest turn: the forearm's
                           # pronation and supination, 80–85° each way (AAOS), with some margin
 EASE_S = 0.3              # an absent hand eases to rest (and back) over this (smoothstep); a gap up to
@@ -128,15 +130,21 @@ def finger_quaternions(angles_deg: np.ndarray) -> np.ndarray:
     return np.concatenate([first[..., None, :], flexes], axis=-2).reshape(len(angles_deg), 30, 4)
 
 
-def hand_twist_deg(parents: np.ndarray, swings: np.ndarray, palms: np.ndarray) -> np.ndarray:
+def shortest_turn_axes(parents: np.ndarray, swings: np.ndarray) -> np.ndarray:
+    """``[F, 2, 3, 2]`` each hand's direction and thumb side (columns ``u``, ``t``; view frame) when its forearm
+    (``parents [F, 2, 3, 3]``, global) turns it by its shortest turn ``swings [F, 2, 4]`` (local) alone."""
+    return (parents @ quat_to_matrix(swings) @ HAND_BASES)[..., :2]
+
+
+def hand_twist_deg(parents: np.ndarray, swings: np.ndarray, thumb_sides: np.ndarray) -> np.ndarray:
     """``[F, 2]`` the palm's twist about the hand (degrees): the turn about the hand's direction from where its
-    shortest turn puts the thumb's side to where the palm's ``t`` points; NaN beyond :data:`TWIST_LIMIT_DEG`
+    shortest turn puts the thumb's side to where the measured one points; NaN beyond :data:`TWIST_LIMIT_DEG`
     (a palm the forearm cannot turn to: misread, the model's or the pose's hand flipped), as where the
     hand is unseen. ``parents [F, 2, 3, 3]`` the forearms' global rotations, ``swings [F, 2, 4]`` the hands'
-    local shortest turns (view frame), ``palms [F, 2, 3, 3]`` (:func:`palm_frames`; NaN: unseen)."""
-    hand = parents @ quat_to_matrix(swings) @ HAND_BASES                          # columns: the turned u, t
-    along, thumb_side = hand[..., 0], hand[..., 1]
-    measured = palms[..., 1, :] - np.sum(palms[..., 1, :] * along, axis=-1, keepdims=True) * along
+    local shortest turns (view frame), ``thumb_sides [F, 2, 3]`` (a palm's ``t``, :func:`palm_frames`, or the
+    pose's knuckles', :func:`~mocapdb.runtime.end_joints.knuckle_thumb_sides`; NaN: unseen)."""
+    along, thumb_side = np.moveaxis(shortest_turn_axes(parents, swings), -1, 0)
+    measured = thumb_sides - np.sum(thumb_sides * along, axis=-1, keepdims=True) * along
     twist = np.arctan2(np.sum(np.cross(thumb_side, measured) * along, axis=-1),
                        np.sum(thumb_side * measured, axis=-1))
     twist_deg = np.degrees(twist)
@@ -186,6 +194,22 @@ def eased_smoothed(values: np.ndarray, seen: np.ndarray, rest: np.ndarray | floa
     (:func:`~mocapdb.runtime.hand_pose.eased_to_rest`), then de-popped and smoothed as the rotations."""
     eased = np.stack([eased_to_rest(values[:, h], seen[:, h], rest, fps) for h in range(2)], axis=1)
     return depopped_and_smoothed(eased, fps, params)
+
+
+def steadiness(twists_deg: np.ndarray) -> float:
+    """How much of a hand's twist measured from the pose's knuckles to keep, from its values ``twists_deg [N]``
+    over the frames it was measured on, in order (NaN left out): all of a steady one (a frame-to-frame scatter
+    of :data:`STEADY_TWIST_DEG` or less: the median absolute second difference over √6, as a hand's turn is
+    smooth at video rates and a measurement's noise is not), none of one scattered :data:`UNSTEADY_TWIST_DEG` or
+    more (its error no longer averages out: on synthetic takes, knuckles 2 px off scatter the twist 12–32° a
+    frame and leave it no nearer the truth than the forearm's), linearly between; none on fewer than
+    :data:`MIN_SCATTER_FRAMES` values (across a gap the hand's own turn adds to the scatter)."""
+    measured = twists_deg[np.isfinite(twists_deg)]
+    if len(measured) < MIN_SCATTER_FRAMES:
+        return 0.0
+    second = np.diff(measured, n=2)
+    scatter_deg = 1.4826 * np.median(np.abs(second - np.median(second))) / np.sqrt(6.0)
+    return float(np.clip((UNSTEADY_TWIST_DEG - scatter_deg) / (UNSTEADY_TWIST_DEG - STEADY_TWIST_DEG), 0.0, 1.0))
 
 
 def track_hand_points(rec: TrackRecording) -> np.ndarray | None:

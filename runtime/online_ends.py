@@ -37,6 +37,9 @@ Cost: one face fit and a few forward kinematics of one frame per person and fram
 """
 from __future__ import annotations
 
+from collections import deque
+from typing import NamedTuple
+
 import numpy as np
 
 from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
@@ -47,13 +50,24 @@ from mocapdb.runtime.end_branches import BranchPath
 from mocapdb.runtime.end_joints import (
     end_frames,
     end_locals,
+    knuckle_thumb_sides,
     levelled_feet,
     measured_candidates,
     sign_references,
     standing_directions,
+    wrist_depths_m,
 )
 from mocapdb.runtime.filters import OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
-from mocapdb.runtime.hand_pose import HAND_BASES, hand_points_view, hand_twist_deg, palm_frames, smoothstep, twisted
+from mocapdb.runtime.hand_pose import (
+    HAND_BASES,
+    hand_points_view,
+    hand_twist_deg,
+    palm_frames,
+    shortest_turn_axes,
+    smoothstep,
+    steadiness,
+    twisted,
+)
 from mocapdb.runtime.head_pose import chest_relative_head, face_points, head_local
 from mocapdb.runtime.mesh_head import EASE_S as MESH_EASE_S
 from mocapdb.runtime.mesh_head import HOLD_S as MESH_HOLD_S
@@ -61,6 +75,7 @@ from mocapdb.runtime.mesh_head import MeshModel, mesh_observations
 
 HOLD_S = 0.5   # an end joint unseen this long keeps its last value (the whole take interpolates such gaps)
 EASE_S = 0.3   # then it turns to rest over this long; seen (again), it turns from there to its measure as long
+STEADY_WINDOW_S = 1.0   # a hand's twist from the knuckles is kept by its scatter over its last measures this long
 # The fastest each end joint's local rotation may turn (degrees per second; END_JOINTS order), as the rig
 # joint it hangs from (online_take.JOINT_SPEED_DEG_S): feet the knees', hands the elbows', the head the neck's
 END_SPEED_DEG_S = np.array([2000.0, 2000.0, 2300.0, 2300.0, 900.0])
@@ -90,19 +105,33 @@ _SPINE, _NECK = RIG_JOINTS.index("spine"), RIG_JOINTS.index("neck")
 Measure = tuple[np.ndarray, np.ndarray]
 
 
+class Sources(NamedTuple):
+    """What gave a frame's measure besides the pose: whether the face mesh fixed the head, which hands' thumb
+    sides the hand model gave ``[2]``, and the twist ``[2]`` (degrees) of those the pose's knuckles gave (NaN:
+    none), whose scatter says how much of it to keep (:func:`~mocapdb.runtime.hand_pose.steadiness`)."""
+
+    from_mesh: bool
+    by_hand_model: np.ndarray
+    knuckle_twist_deg: np.ndarray
+
+
+NO_SOURCES = Sources(False, np.zeros(2, bool), np.full(2, np.nan))
+
+
 def measure(pose: PersonPose, camera_px: tuple[float, float, float], branches: BranchPath, time_s: float,
-            face: MeshModel) -> tuple[Measure, bool]:
+            face: MeshModel) -> tuple[Measure, Sources]:
     """The feet's and hands' directions and the palms' thumb sides ``[6, 3]`` (view frame, unit; each foot's and
     hand's depth the end of the track's cheapest path so far, ``branches``, to which this frame at ``time_s`` is
-    added; a hand's the palm's where the hand model saw it) and the head's global rotation ``[4]`` (view frame:
+    added; a hand's the palm's where the hand model saw it, else its thumb side the pose's knuckles':
+    :func:`~mocapdb.runtime.end_joints.knuckle_thumb_sides`) and the head's global rotation ``[4]`` (view frame:
     the per-frame chest's times the head's relative to it, so a mesh's head carries none of the chest's noise)
     of one per-frame ``pose``, seen by the pinhole ``camera_px`` (focal, cx, cy: pixels); NaN where its
-    keypoints do not give them; and whether the face mesh fixed the head (the person's ``face``, to which the
-    frame's mesh is added)."""
+    keypoints do not give them; and their :class:`Sources` (the person's ``face``, to which the frame's mesh is
+    added)."""
     unseen = np.full((6, 3), np.nan), np.full(4, np.nan)
     keypoints, extremities = pose.keypoints_px, pose.extremities_px
     if keypoints is None or extremities is None or len(extremities) < len(EXTREMITIES):
-        return unseen, False
+        return unseen, NO_SOURCES
     scale = pose.height_m / UNIVERSAL_HEIGHT_M
     offsets = None if pose.bones_m is None else body_offsets_m(pose.bones_m / scale)
     quats, root = pose.quaternions[None], (pose.root_m * CAMERA_FROM_VIEW)[None]
@@ -110,8 +139,11 @@ def measure(pose: PersonPose, camera_px: tuple[float, float, float], branches: B
     directions = branches.step(time_s, candidates[0], sign_references(quats)[0])[0]
     palms = np.full((2, 3, 3), np.nan) if pose.hands_px is None else palm_frames(hand_points_view(
         np.asarray(pose.hands_px, dtype=np.float64)))
+    by_hand_model = np.isfinite(palms[:, 1]).all(axis=-1)
     directions[2:] = np.where(np.isfinite(palms[:, 0]), palms[:, 0], directions[2:])
-    directions = np.vstack([directions, palms[:, 1]])
+    thumb_sides, knuckle_twist = _knuckles(quats, root, scale, offsets, directions[2:], extremities, camera_px)
+    thumb_sides = np.where(by_hand_model[:, None], palms[:, 1], thumb_sides)
+    directions = np.vstack([directions, thumb_sides])
     face_world_m = None if pose.face_world_m is None else pose.face_world_m[None]
     if pose.mesh_px is not None:
         face.add(pose.mesh_px)
@@ -119,7 +151,24 @@ def measure(pose: PersonPose, camera_px: tuple[float, float, float], branches: B
     mesh = None if model is None or pose.mesh_px is None else (mesh_observations(pose.mesh_px[None]), model)
     head, from_mesh = chest_relative_head(quats, root, scale, offsets, face_points(keypoints[None], extremities[None]),
                                           camera_px, face_world_m, mesh)
-    return (directions, quat_mul(matrix_to_quat(global_rotations(quats)[0, _SPINE]), head[0])), bool(from_mesh[0])
+    return ((directions, quat_mul(matrix_to_quat(global_rotations(quats)[0, _SPINE]), head[0])),
+            Sources(bool(from_mesh[0]), by_hand_model, np.where(by_hand_model, np.nan, knuckle_twist)))
+
+
+def _knuckles(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
+              hand_directions: np.ndarray, extremities: np.ndarray, camera_px: tuple[float, float, float]
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The hands' thumb sides ``[2, 3]`` the pose's knuckles give (:func:`~mocapdb.runtime.end_joints.
+    knuckle_thumb_sides`) on one frame's pose (``quats [1, R, 4]``, ``root_m [1, 3]``, body ``scale`` and
+    ``offsets_m``) with its hands' ``hand_directions [2, 3]``, and the twist ``[2]`` (degrees) each gives the
+    hand about its shortest turn; NaN where not measured or beyond the forearm's reach."""
+    parents, reference = end_frames(quats)
+    swings = end_locals(parents[:, 2:], reference[:, 2:], hand_directions[None])
+    sides = knuckle_thumb_sides(hand_directions[None], extremities[None], camera_px,
+                                wrist_depths_m(quats, root_m, scale, offsets_m), scale,
+                                shortest_turn_axes(parents[:, 2:], swings)[..., 1])
+    twist = hand_twist_deg(parents[:, 2:], swings, sides)[0]
+    return np.where(np.isfinite(twist)[:, None], sides[0], np.nan), twist
 
 
 class EaseToRest:
@@ -150,7 +199,8 @@ class OnlineEnds:
                  camera_px: tuple[float, float, float]) -> None:
         self.fps, self.lag, self.sigma_frames, self.camera_px = fps, lag_frames, sigma_frames, camera_px
         self.measured: dict[int, Measure] = {}
-        self.from_mesh: dict[int, bool] = {}      # whether the face mesh fixed each measured frame's head
+        self.sources: dict[int, Sources] = {}     # what gave each measured frame's head and thumb sides
+        self.knuckle_twists: list[deque[float]] = [deque(maxlen=max(round(STEADY_WINDOW_S * fps), 1)) for _ in range(2)]
         self.face = MeshModel()                   # the person's face from the first meshes (mesh_head)
         self.mesh_ease = EaseToRest(1, fps, MESH_HOLD_S, MESH_EASE_S)   # the mesh's share of the head
         self.direction_filter = OneEuroFilter(causal)
@@ -168,10 +218,13 @@ class OnlineEnds:
 
     def add(self, index: int, pose: PersonPose) -> None:
         """One frame's per-frame pose of the track: measured, kept while the window needs it."""
-        self.measured[index], self.from_mesh[index] = measure(pose, self.camera_px, self.branches,
-                                                              index / self.fps, self.face)
+        self.measured[index], self.sources[index] = measure(pose, self.camera_px, self.branches,
+                                                            index / self.fps, self.face)
+        for hand, twist in enumerate(self.sources[index].knuckle_twist_deg):
+            if np.isfinite(twist):
+                self.knuckle_twists[hand].append(twist)
         for old in [i for i in self.measured if i < index - 2 * self.lag - 1]:
-            del self.measured[old], self.from_mesh[old]
+            del self.measured[old], self.sources[old]
 
     def output(self, index: int, quats: np.ndarray, plant_weights: np.ndarray, up: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -187,10 +240,11 @@ class OnlineEnds:
         directions[:2] = (1.0 - flat) * directions[:2] + flat * self._planted(standing_directions(directions[:2], up),
                                                                               plant_weights)
         locals_ = levelled_feet(parents, end_locals(parents, reference, directions[None, :4]), up)[0]
-        palms = np.stack([directions[2:4], directions[4:]], axis=1)[None]               # [1, 2, 2 (u, t), 3]
-        twist = np.nan_to_num(hand_twist_deg(parents[:, 2:], locals_[None, 2:], palms)[0])
-        locals_[2:] = twisted(locals_[None, 2:], twist[None] * self.palm_ease.weight(palm_seen)[None])[0]
-        mesh_seen = np.array([self.from_mesh.get(index, False)])
+        twist = np.nan_to_num(hand_twist_deg(parents[:, 2:], locals_[None, 2:], directions[None, 4:])[0])
+        sources = self.sources.get(index, NO_SOURCES)
+        kept = np.where(sources.by_hand_model, 1.0, self._knuckles_kept())
+        locals_[2:] = twisted(locals_[None, 2:], twist[None] * (self.palm_ease.weight(palm_seen) * kept)[None])[0]
+        mesh_seen = np.array([sources.from_mesh])
         if self.previous is None:                 # a track's first frame: nothing shown before, no easing
             self.mesh_ease.progress[:] = mesh_seen
         mesh_weight = self.mesh_ease.weight(mesh_seen)
@@ -204,6 +258,11 @@ class OnlineEnds:
             ends = quat_turned_towards(self.previous[1], ends, limit)
         self.previous = (index, ends)
         return ends, seen
+
+    def _knuckles_kept(self) -> np.ndarray:
+        """``[2]`` how much of each hand's twist from the pose's knuckles to keep: its
+        :func:`~mocapdb.runtime.hand_pose.steadiness` over its last :data:`STEADY_WINDOW_S` of measures."""
+        return np.array([steadiness(np.array(twists, dtype=np.float64)) for twists in self.knuckle_twists])
 
     def _planted(self, standing: np.ndarray, plant_weights: np.ndarray) -> np.ndarray:
         """``[2, 3]`` the feet's directions: ``standing [2, 3]``, but for a foot planted (``plant_weights [2]``
@@ -231,10 +290,12 @@ class OnlineEnds:
         held = rest if self.held is None else self.held
         if self.lag == 0:
             given = np.where(rows_seen[:, None], directions, held[0])
-            by_model = np.concatenate([[False, False], rows_seen[4:], rows_seen[4:]])   # the palms' rows
+            sources = self.sources.get(index, NO_SOURCES)
+            quick = sources.by_hand_model | (rows_seen[4:] & (self._knuckles_kept() >= 0.5))
+            by_model = np.concatenate([[False, False], quick, quick])
             directions = np.where(by_model[:, None], self.hand_model_filter(given, index / self.fps),
                                   self.direction_filter(given, index / self.fps))
-            self.head_filter.params = MESH_HEAD_FILTER if self.from_mesh.get(index, False) else self.causal
+            self.head_filter.params = MESH_HEAD_FILTER if sources.from_mesh else self.causal
             head = self.head_filter(np.where(seen[4], head, held[1])[None], index / self.fps)[0]
         else:
             directions, head = self._window_mean(index, held)

@@ -82,10 +82,12 @@ from mocapdb.runtime.end_branches import continuous_directions
 from mocapdb.runtime.end_joints import (
     end_frames,
     end_locals,
+    knuckle_thumb_sides,
     levelled_feet,
     measured_candidates,
     sign_references,
     standing_directions,
+    wrist_depths_m,
 )
 from mocapdb.runtime.foot_contacts import (
     ANKLES,
@@ -101,6 +103,8 @@ from mocapdb.runtime.hand_pose import (
     hand_twist_deg,
     hands_seen,
     palm_frames,
+    shortest_turn_axes,
+    steadiness,
     track_hand_points,
     twisted,
 )
@@ -249,9 +253,15 @@ def end_rotations(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m
     direction = zero_phase_smoothed(direction, fps, params.smoothing_hz)
     local = end_locals(parents, reference, direction)
     local = np.where(seen.any(axis=0)[None, :, None], levelled_feet(parents, local, up), local)
+    knuckles = hand_twist_deg(parents[:, 2:], local[:, 2:], knuckle_thumb_sides(
+        direction[:, 2:], extremities, camera_px, wrist_depths_m(quats, root_m, scale, offsets_m), scale,
+        shortest_turn_axes(parents[:, 2:], local[:, 2:])[..., 1]))
+    weights = np.array([steadiness(knuckles[:, hand]) for hand in range(2)])
+    twist = np.where(weights > 0, weights * knuckles, np.nan)
     if palms is not None:
-        twist = hand_twist_deg(parents[:, 2:], local[:, 2:], palms)
-        local[:, 2:] = twisted(local[:, 2:], eased_smoothed(twist, np.isfinite(twist), 0.0, fps, params))
+        twist = np.where(np.isfinite(palms[..., 1, 0]), hand_twist_deg(parents[:, 2:], local[:, 2:], palms[..., 1, :]),
+                         twist)
+    local[:, 2:] = twisted(local[:, 2:], eased_smoothed(twist, np.isfinite(twist), 0.0, fps, params))
     return local
 
 
