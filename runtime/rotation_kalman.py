@@ -120,12 +120,14 @@ class _Entry:
 
 class RotationKalman:
     """A track's rotations: :meth:`add` each frame's fit (frame indices increasing), :meth:`estimate`
-    any of the last ``lag_frames + 1`` frames given every frame added so far (module docstring)."""
+    any of the last ``lag_frames + 1`` frames given every frame added so far (module docstring);
+    ``spectral [R]``: the joints' spectral density (rad²/s³) where not the rig's (:func:`spectral_density`)."""
 
-    def __init__(self, fps: float, lag_frames: int, noise: RotationNoise = RotationNoise()):
+    def __init__(self, fps: float, lag_frames: int, noise: RotationNoise = RotationNoise(),
+                 spectral: np.ndarray | None = None):
         self.dt = 1.0 / fps
         self.noise = noise
-        self.spectral = spectral_density(noise)
+        self.spectral = spectral_density(noise) if spectral is None else np.asarray(spectral, dtype=np.float64)
         self.history: deque[_Entry] = deque(maxlen=lag_frames + 1)
 
     def add(self, index: int, quats: np.ndarray, confidence: np.ndarray) -> None:
