@@ -30,7 +30,10 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
    and its ankle's speed is held to ``carrying_box_per_s`` instead (``release_factor`` times that to
    stay planted): a foot under the body's weight drifts in the image more than an idle one; and its
    flat-foot rule: a foot whose heel and toe are still while the other's are not carries the body,
-   and is planted (and kept) whatever the fit's heights.
+   and is planted (and kept) whatever the fit's heights. A speed needs 3 frames: a track's first frame
+   seen in the image presumes the person standing on the lower foot (and any within
+   ``planted_height_m``), planted at once at full weight (no output before it to blend from), kept
+   until the speeds can be measured and then as a new contact would be.
 3. **The root carried by the planted foot.** When a foot is planted its ankle's place becomes its
    anchor; while a foot is planted the root is where its anchor puts it (both planted: the mean),
    blended in and out with the feet's IK weights (rising and falling over ``blend_s``, eased by a
@@ -187,6 +190,7 @@ class _Feet:
     weight: np.ndarray = field(default_factory=lambda: np.zeros(2))    # IK weight: the progress eased (smoothstep)
     anchor: np.ndarray = field(default_factory=lambda: np.full((2, 3), np.nan))  # view frame, metres
     placed: deque = field(default_factory=lambda: deque(maxlen=FLOOR_SAMPLES))  # the last anchors [3] (view frame)
+    presumed: bool = False   # planted as the track began, before its feet's speeds could be measured
 
 
 class OnlineTrack:
@@ -290,31 +294,32 @@ class OnlineTrack:
         return self.root(index, mean)
 
     def _contacts(self, index: int, ankle_heights_m: np.ndarray, scale: float) -> None:
-        """Step 2: each foot planted or not at frame ``index`` (hysteresis; module docstring)."""
-        p, feet = self.params, self.feet
-        ankle, heel, toe = self._foot_speeds(index)
-        ends = np.isfinite(heel) & np.isfinite(toe)
-        speed = np.where(ends, np.maximum(heel, toe), ankle)     # flat: heel and toe both still
-        swinging = ends & (np.minimum(heel, toe) >= p.planted_box_per_s)   # heel and toe both moving
-        carrying = ends & swinging[::-1] & (ankle <= ankle[::-1])   # the slower foot while the other swings
-        supported = ends & ends[::-1] & (speed[::-1] >= p.planted_box_per_s)   # the other foot seen, not flat
+        """Step 2: each foot planted or not at frame ``index`` (hysteresis; module docstring). A track's
+        first frame seen in the image presumes it standing on its lower foot (and any within
+        ``planted_height_m``), kept until its feet's speeds can be measured and then as a new contact."""
+        feet, height_m = self.feet, self.params.planted_height_m * scale
         above = ankle_heights_m - ankle_heights_m.min()
-        f = p.release_factor
-        low, still = above <= p.planted_height_m * scale, speed <= f * p.planted_box_per_s
-        risen = (above > f * p.planted_height_m * scale) & (speed >= p.planted_box_per_s)   # its image moving
-        kept = (still | (carrying & (ankle <= f * p.carrying_box_per_s))) & (~risen | (supported & still))
-        new = ((speed < p.planted_box_per_s) & (low | supported)) | (low & carrying & (ankle < p.carrying_box_per_s))
-        feet.planted = np.where(feet.planted, kept, new)
+        if self.previous is None:
+            feet.planted = (above <= height_m) & (self.recent[index].keypoints_px is not None)
+            feet.presumed = True
+            return
+        speeds = self._foot_speeds(index)
+        if speeds is None:                       # too few frames to measure: only a presumed contact stays
+            feet.planted &= feet.presumed
+            return
+        kept, new = _contact_tests(speeds, above, height_m, self.params)
+        feet.planted = np.where(feet.planted & ~feet.presumed, kept, new)   # a presumed contact: tested afresh
+        feet.presumed = False
 
-    def _foot_speeds(self, index: int) -> np.ndarray:
+    def _foot_speeds(self, index: int) -> np.ndarray | None:
         """Each foot's ankle, heel and big toe image speeds ``[3, 2]`` (rows; right, left; box heights per
         second, inf where not seen) at frame ``index``: the Theil–Sen slopes over the contact window
-        (:func:`_robust_speeds`)."""
+        (:func:`_robust_speeds`); None with fewer than 3 frames in it."""
         h = self.half_window
         near = [i for i in range(index - h, index + min(h, self.params.lag_frames) + 1)
                 if i in self.recent and self.recent[i].keypoints_px is not None]
         if len(near) < 3:
-            return np.full((3, 2), np.inf)
+            return None
         points = np.array([_foot_points(self.recent[i]) for i in near])     # [n, 6, 3]: ankles, heels, toes
         speeds = _robust_speeds(np.array(near, dtype=np.float64), points)
         return (speeds * self.fps / max(np.median(self.boxes), 1.0)).reshape(3, 2)
@@ -329,6 +334,8 @@ class OnlineTrack:
                 feet.anchor[k] = free + ankles[k]
                 feet.placed.append(feet.anchor[k].copy())
         feet.progress = np.clip(feet.progress + np.where(feet.planted, dt, -dt) / p.blend_s, 0.0, 1.0)
+        if self.previous is None:     # a track's first frame: no output before it to blend from
+            feet.progress = feet.planted.astype(np.float64)
         feet.weight = feet.progress ** 2 * (3.0 - 2.0 * feet.progress)
         carrying = feet.weight > 0
         if not carrying.any():
@@ -385,6 +392,26 @@ class OnlineTrack:
             quats = quat_turned_towards(prev_q, quats, self.max_turn * frames)
             root = prev_root + _clamped(root - prev_root, self.params.root_speed_mps * frames / self.fps)
         return quats, root
+
+
+def _contact_tests(speeds: np.ndarray, above_m: np.ndarray, height_m: float, p: OnlineParams
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Step 2's tests per foot ``[2]`` (right, left): a planted foot kept, a foot newly planted; from
+    the feet's ankle, heel and big toe image speeds ``speeds [3, 2]`` (box heights per second, inf where
+    not seen), their heights above the lower ankle ``above_m [2]`` and the planted height ``height_m``
+    (metres, at the body's size)."""
+    ankle, heel, toe = speeds
+    ends = np.isfinite(heel) & np.isfinite(toe)
+    speed = np.where(ends, np.maximum(heel, toe), ankle)     # flat: heel and toe both still
+    swinging = ends & (np.minimum(heel, toe) >= p.planted_box_per_s)   # heel and toe both moving
+    carrying = ends & swinging[::-1] & (ankle <= ankle[::-1])   # the slower foot while the other swings
+    supported = ends & ends[::-1] & (speed[::-1] >= p.planted_box_per_s)   # the other foot seen, not flat
+    f, low = p.release_factor, above_m <= height_m
+    still = speed <= f * p.planted_box_per_s
+    risen = (above_m > f * height_m) & (speed >= p.planted_box_per_s)   # its image moving
+    kept = (still | (carrying & (ankle <= f * p.carrying_box_per_s))) & (~risen | (supported & still))
+    new = ((speed < p.planted_box_per_s) & (low | supported)) | (low & carrying & (ankle < p.carrying_box_per_s))
+    return kept, new
 
 
 def _clamped(v: np.ndarray, limit: float) -> np.ndarray:
