@@ -106,7 +106,8 @@ def test_the_truths_hand_frame_is_the_engines_palm_frame():
 def test_the_palm_turns_the_hand_in_the_whole_take_and_the_stream():
     """A held-out clip seen from 63 deg, exact: with the 21 points the hands' global rotations come out within
     10 deg (whole take) and 25 deg (the stream at lag 0, its causal filter's lag) median, and nearer than with
-    the 3 BlazePose points (the twist); the truth's open hand read open (bends within 5 deg)."""
+    the 3 BlazePose points, whose knuckles twist the whole take's hands to within 15 deg; the truth's open
+    hand read open (bends within 5 deg)."""
     clip = Path("data/gate/cmu_bvh/007_01.bvh")
     if not clip.exists():
         pytest.skip("no gate clips")
@@ -122,7 +123,7 @@ def test_the_palm_turns_the_hand_in_the_whole_take_and_the_stream():
                for points in (3, 21)}
     hands = {points: errors.medians() for points, errors in medians.items()}
     assert hands[21]["whole take"]["hands"] < 10.0 and hands[21]["stream lag 0"]["hands"] < 25.0
-    assert hands[21]["whole take"]["hands"] < hands[3]["whole take"]["hands"] - 5.0
+    assert hands[21]["whole take"]["hands"] < hands[3]["whole take"]["hands"] < 15.0
     assert hands[21]["stream lag 0"]["hands"] < hands[3]["stream lag 0"]["hands"]
     assert not medians[3].fingers
     assert max(finger_medians(medians[21].fingers["whole take"]).values()) < 5.0
