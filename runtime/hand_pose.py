@@ -196,20 +196,24 @@ def eased_smoothed(values: np.ndarray, seen: np.ndarray, rest: np.ndarray | floa
     return depopped_and_smoothed(eased, fps, params)
 
 
-def steadiness(twists_deg: np.ndarray) -> float:
-    """How much of a hand's twist measured from the pose's knuckles to keep, from its values ``twists_deg [N]``
-    over the frames it was measured on, in order (NaN left out): all of a steady one (a frame-to-frame scatter
-    of :data:`STEADY_TWIST_DEG` or less: the median absolute second difference over √6, as a hand's turn is
-    smooth at video rates and a measurement's noise is not), none of one scattered :data:`UNSTEADY_TWIST_DEG` or
-    more (its error no longer averages out: on synthetic takes, knuckles 2 px off scatter the twist 12–32° a
-    frame and leave it no nearer the truth than the forearm's), linearly between; none on fewer than
-    :data:`MIN_SCATTER_FRAMES` values (across a gap the hand's own turn adds to the scatter)."""
-    measured = twists_deg[np.isfinite(twists_deg)]
+def steadiness(values_deg: np.ndarray, steady_deg: float = STEADY_TWIST_DEG,
+               unsteady_deg: float = UNSTEADY_TWIST_DEG) -> float:
+    """How much of a measure to keep, from its values ``values_deg [N]`` or ``[N, D]`` (degrees; a hand's twist
+    measured from the pose's knuckles by default) over the frames it was measured on, in order (rows with a NaN
+    left out): all of a steady one (a frame-to-frame scatter of ``steady_deg`` or less: per component the median
+    absolute second difference over √6, as a hand's turn is smooth at video rates and a measurement's noise is
+    not, root-sum-squared over the ``D`` components), none of one scattered ``unsteady_deg`` or more (for the
+    twist :data:`UNSTEADY_TWIST_DEG`: its error no longer averages out: on synthetic takes, knuckles 2 px off
+    scatter the twist 12–32° a frame and leave it no nearer the truth than the forearm's), linearly between;
+    none on fewer than :data:`MIN_SCATTER_FRAMES` values (across a gap the hand's own turn adds to the scatter)."""
+    values = values_deg[:, None] if values_deg.ndim == 1 else values_deg
+    measured = values[np.isfinite(values).all(axis=1)]
     if len(measured) < MIN_SCATTER_FRAMES:
         return 0.0
-    second = np.diff(measured, n=2)
-    scatter_deg = 1.4826 * np.median(np.abs(second - np.median(second))) / np.sqrt(6.0)
-    return float(np.clip((UNSTEADY_TWIST_DEG - scatter_deg) / (UNSTEADY_TWIST_DEG - STEADY_TWIST_DEG), 0.0, 1.0))
+    second = np.diff(measured, n=2, axis=0)
+    spread_deg = 1.4826 * np.median(np.abs(second - np.median(second, axis=0)), axis=0) / np.sqrt(6.0)
+    scatter_deg = np.sqrt(np.sum(spread_deg ** 2))
+    return float(np.clip((unsteady_deg - scatter_deg) / (unsteady_deg - steady_deg), 0.0, 1.0))
 
 
 def track_hand_points(rec: TrackRecording) -> np.ndarray | None:

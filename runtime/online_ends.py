@@ -20,7 +20,9 @@ Per track (:class:`OnlineEnds`), per frame:
 2. **Smoothed**: lag 0, a causal 1€ filter (the online take's ``causal_rotations``, the head on frames the mesh
    fixed :data:`MESH_HEAD_FILTER`, a hand the hand model saw :data:`HAND_MODEL_FILTER`; the directions as
    vectors, the head as a quaternion; the rig's own rotations have a Kalman filter instead,
-   :mod:`mocapdb.runtime.rotation_kalman`); lag ``L``, the Gaussian mean of the frames ``t − L … t + L``
+   :mod:`mocapdb.runtime.rotation_kalman`), a foot not planted whose measured direction is steady the
+   constant-angular-velocity Kalman filter (:class:`DirectionKalman`: it predicts instead of delaying), blended
+   in by the foot's steadiness (:class:`SteadyFeet`); lag ``L``, the Gaussian mean of the frames ``t − L … t + L``
    measured. A planted foot is laid flat on the floor, blended in
    with its IK weight, and once it has stood :data:`PLANTED_SETTLE_S` keeps its heading (the mean since,
    followed at most :data:`PLANTED_FOLLOW_DEG_S`): its ankle is held in place, so is the ball of the foot.
@@ -43,9 +45,16 @@ from typing import NamedTuple
 import numpy as np
 
 from mocapdb.core.formats.keypoint_layouts import EXTREMITIES
-from mocapdb.core.geometry import matrix_to_quat, quat_conj, quat_mul, quat_turned_towards, slerp
+from mocapdb.core.geometry import matrix_to_quat, quat_conj, quat_mul, quat_to_matrix, quat_turned_towards, slerp
 from mocapdb.core.outputs import CAMERA_FROM_VIEW, PersonPose
-from mocapdb.core.skeleton import END_JOINTS, RIG_JOINTS, UNIVERSAL_HEIGHT_M, body_offsets_m, global_rotations
+from mocapdb.core.skeleton import (
+    END_JOINTS,
+    RIG_JOINTS,
+    UNIVERSAL_HEIGHT_M,
+    body_offsets_m,
+    global_rotations,
+    swing_matrices,
+)
 from mocapdb.runtime.end_branches import BranchPath
 from mocapdb.runtime.end_joints import (
     end_frames,
@@ -58,6 +67,7 @@ from mocapdb.runtime.end_joints import (
     wrist_depths_m,
 )
 from mocapdb.runtime.filters import OneEuroFilter, OneEuroParams, QuaternionOneEuroFilter
+from mocapdb.runtime.foot_contacts import HEELS, TOES
 from mocapdb.runtime.hand_pose import (
     HAND_BASES,
     hand_points_view,
@@ -72,10 +82,12 @@ from mocapdb.runtime.head_pose import chest_relative_head, face_points, head_loc
 from mocapdb.runtime.mesh_head import EASE_S as MESH_EASE_S
 from mocapdb.runtime.mesh_head import HOLD_S as MESH_HOLD_S
 from mocapdb.runtime.mesh_head import MeshModel, mesh_observations
+from mocapdb.runtime.rotation_kalman import ACCEL_FRAME_S, MIN_CONFIDENCE, RotationKalman, RotationNoise
 
 HOLD_S = 0.5   # an end joint unseen this long keeps its last value (the whole take interpolates such gaps)
 EASE_S = 0.3   # then it turns to rest over this long; seen (again), it turns from there to its measure as long
-STEADY_WINDOW_S = 1.0   # a hand's twist from the knuckles is kept by its scatter over its last measures this long
+STEADY_WINDOW_S = 1.0   # a hand's twist from the knuckles, a foot's filter, chosen by its scatter over its last
+                        # measures this long (hand_pose.steadiness)
 # The fastest each end joint's local rotation may turn (degrees per second; END_JOINTS order), as the rig
 # joint it hangs from (online_take.JOINT_SPEED_DEG_S): feet the knees', hands the elbows', the head the neck's
 END_SPEED_DEG_S = np.array([2000.0, 2000.0, 2300.0, 2300.0, 900.0])
@@ -98,6 +110,21 @@ MESH_HEAD_FILTER = OneEuroParams(min_cutoff_hz=2.0, beta=2.0)
 # → 1.5 / 1.0 took the stream's hands from 13.1° to 7.0° (exact) and 15.1° to 10.8° (noisy), their
 # acceleration from 2.9 to 3.3 and 9.6 to 16.7 deg/frame² (the truth's 3.3; unfiltered 3.8° and 12.1°)
 HAND_MODEL_FILTER = OneEuroParams(min_cutoff_hz=1.5, beta=1.0)
+# A foot's direction (heel → big toe) at lag 0 where it is steady and the foot not planted: the
+# constant-angular-velocity Kalman filter (DirectionKalman), its white angular acceleration the feet's RMS per
+# tangent axis in real motion (rad/s²: their global rotations in the 61 CMU clips of ../shared/data/cmu_bvh at
+# 24 fps, left and right pooled), the measure's SD at confidence 1 FOOT_FIT_SD_DEG (degrees) ...
+FOOT_ACCEL_RAD_S2 = 48.2
+FOOT_FIT_SD_DEG = 5.0
+# ... all of it where the direction scatters this much a frame or less (degrees; hand_pose.steadiness of the
+# unit direction's components in degrees), the 1€ filter's from UNSTEADY_FOOT_DEG, linearly between; the share
+# moves at most 1 per EASE_S. Chosen on the database's own clips (002_02, 002_07, 006_10; replayed streams as
+# tools/eval_end_filter.py --end feet, 3 yaws; exact / noisy 2D, median geodesic): the 1€ alone 9.87° / 12.02°,
+# the Kalman alone 8.53° / 14.44°; thresholds 2/4 … 8/16° all 8.52–8.55° / 12.01–12.05° (12/20: 12.24° noisy);
+# the fit's SD 2.5 / 5 / 10 / 20° 8.04 / 8.17 / 8.53 / 9.14° exact. A planted foot keeps the 1€'s (it held
+# the Kalman's landing turn: the real take's planted balls slid 6.8 → 10.4 cm/s at lag 0; 6.7 so, the database
+# clips' exact 8.17 → 8.78°)
+STEADY_FOOT_DEG, UNSTEADY_FOOT_DEG = 4.0, 8.0
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 _N_ENDS = len(END_JOINTS)
 _SPINE, _NECK = RIG_JOINTS.index("spine"), RIG_JOINTS.index("neck")
@@ -107,15 +134,17 @@ Measure = tuple[np.ndarray, np.ndarray]
 
 class Sources(NamedTuple):
     """What gave a frame's measure besides the pose: whether the face mesh fixed the head, which hands' thumb
-    sides the hand model gave ``[2]``, and the twist ``[2]`` (degrees) of those the pose's knuckles gave (NaN:
-    none), whose scatter says how much of it to keep (:func:`~mocapdb.runtime.hand_pose.steadiness`)."""
+    sides the hand model gave ``[2]``, the twist ``[2]`` (degrees) of those the pose's knuckles gave (NaN:
+    none), whose scatter says how much of it to keep (:func:`~mocapdb.runtime.hand_pose.steadiness`), and the
+    feet's confidence ``[2]`` (:func:`foot_confidence`)."""
 
     from_mesh: bool
     by_hand_model: np.ndarray
     knuckle_twist_deg: np.ndarray
+    feet_confidence: np.ndarray
 
 
-NO_SOURCES = Sources(False, np.zeros(2, bool), np.full(2, np.nan))
+NO_SOURCES = Sources(False, np.zeros(2, bool), np.full(2, np.nan), np.ones(2))
 
 
 def measure(pose: PersonPose, camera_px: tuple[float, float, float], branches: BranchPath, time_s: float,
@@ -152,7 +181,15 @@ def measure(pose: PersonPose, camera_px: tuple[float, float, float], branches: B
     head, from_mesh = chest_relative_head(quats, root, scale, offsets, face_points(keypoints[None], extremities[None]),
                                           camera_px, face_world_m, mesh)
     return ((directions, quat_mul(matrix_to_quat(global_rotations(quats)[0, _SPINE]), head[0])),
-            Sources(bool(from_mesh[0]), by_hand_model, np.where(by_hand_model, np.nan, knuckle_twist)))
+            Sources(bool(from_mesh[0]), by_hand_model, np.where(by_hand_model, np.nan, knuckle_twist),
+                    foot_confidence(extremities)))
+
+
+def foot_confidence(extremities_px: np.ndarray) -> np.ndarray:
+    """``[2]`` each foot's confidence in a frame's ``extremities_px [E, 3]`` (x, y px, confidence): its heel's
+    and big toe's mean, at least :data:`~mocapdb.runtime.rotation_kalman.MIN_CONFIDENCE`."""
+    conf = np.nan_to_num(np.asarray(extremities_px, dtype=np.float64)[:, 2], nan=0.0)
+    return np.clip(0.5 * (conf[list(HEELS)] + conf[list(TOES)]), MIN_CONFIDENCE, 1.0)
 
 
 def _knuckles(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None,
@@ -190,6 +227,61 @@ class EaseToRest:
         return smoothstep(self.progress)
 
 
+class DirectionKalman:
+    """Directions (unit, view frame) at lag 0 through :class:`~mocapdb.runtime.rotation_kalman.RotationKalman`'s
+    constant-angular-velocity model, so prediction replaces the delay of a low-pass: each direction is the
+    rotation carrying z onto it, measured as the last estimate turned onto the frame's direction by the
+    shortest turn (the twist about it is never measured and never seen), its noise SD ``fit_sd_rad`` over the
+    frame's confidence, its white angular acceleration ``accel_rad_s2`` (RMS per tangent axis, rad/s²). Each
+    direction is its own filter, updated on the frames it is seen (a gap of ``RESTART_GAP_S`` starts it anew)."""
+
+    def __init__(self, count: int, fps: float, accel_rad_s2: float, fit_sd_rad: float) -> None:
+        spectral = np.array([accel_rad_s2 ** 2 * ACCEL_FRAME_S])
+        self.filters = [RotationKalman(fps, 0, RotationNoise(fit_sd_rad=fit_sd_rad), spectral) for _ in range(count)]
+        self.rotations = np.tile(_IDENTITY, (count, 1))   # each direction's last estimate, as a rotation
+
+    def __call__(self, index: int, directions: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+        """``[count, 3]`` the estimates at frame ``index`` given its measured ``directions [count, 3]`` (unit;
+        NaN: unseen, that one's estimate kept; z before any is seen) of ``confidence [count]`` (0 … 1)."""
+        seen = np.isfinite(directions).all(axis=-1)
+        current = quat_to_matrix(self.rotations)[:, :, 2]
+        turns = matrix_to_quat(swing_matrices(current, np.where(seen[:, None], directions, current)))
+        measured = quat_mul(turns, self.rotations)
+        for row in np.flatnonzero(seen):
+            self.filters[row].add(index, measured[row:row + 1], confidence[row:row + 1])
+            self.rotations[row] = self.filters[row].estimate(index)[0]
+        return quat_to_matrix(self.rotations)[:, :, 2]
+
+
+class SteadyFeet:
+    """The feet's directions at lag 0 (frames at ``fps``): each foot's 1€ filter's blended with its
+    :class:`DirectionKalman`'s by the foot's steadiness over its last :data:`STEADY_WINDOW_S` of measures
+    (:func:`~mocapdb.runtime.hand_pose.steadiness` of the unit direction in degrees: all the Kalman's at a
+    frame-to-frame scatter of :data:`STEADY_FOOT_DEG` or less, none from :data:`UNSTEADY_FOOT_DEG`; none while
+    the foot is planted), its share moving at most 1 per :data:`EASE_S`: both filters run on every frame, so a
+    change of share makes no step."""
+
+    def __init__(self, fps: float) -> None:
+        self.fps = fps
+        self.kalman = DirectionKalman(2, fps, FOOT_ACCEL_RAD_S2, np.radians(FOOT_FIT_SD_DEG))
+        self.measures: list[deque[np.ndarray]] = [deque(maxlen=max(round(STEADY_WINDOW_S * fps), 1)) for _ in range(2)]
+        self.share = np.zeros(2)   # each foot's share of the Kalman's direction (0 … 1)
+
+    def __call__(self, index: int, measured: np.ndarray, smoothed: np.ndarray, confidence: np.ndarray,
+                 planted: np.ndarray) -> np.ndarray:
+        """``[2, 3]`` the feet's directions at frame ``index`` (not yet normalised) given their ``measured [2, 3]``
+        (unit; NaN: unseen) of ``confidence [2]`` (0 … 1), the 1€ filter's ``smoothed [2, 3]`` and which feet
+        are ``planted [2]``."""
+        for foot in np.flatnonzero(np.isfinite(measured).all(axis=-1)):
+            self.measures[foot].append(measured[foot])
+        quick = self.kalman(index, measured, confidence)
+        steady = np.array([steadiness(np.degrees(np.array(measures)).reshape(-1, 3), STEADY_FOOT_DEG,
+                                      UNSTEADY_FOOT_DEG) for measures in self.measures])
+        step = 1.0 / (EASE_S * self.fps)
+        self.share += np.clip(np.where(planted, 0.0, steady) - self.share, -step, step)
+        return (1.0 - self.share[:, None]) * smoothed + self.share[:, None] * quick
+
+
 class OnlineEnds:
     """One track's end joints in the online take (module docstring). ``fps``: frames per second;
     ``lag_frames``, ``sigma_frames``: the online take's lag and Gaussian (frames); ``causal``: its 1€
@@ -201,6 +293,7 @@ class OnlineEnds:
         self.measured: dict[int, Measure] = {}
         self.sources: dict[int, Sources] = {}     # what gave each measured frame's head and thumb sides
         self.knuckle_twists: list[deque[float]] = [deque(maxlen=max(round(STEADY_WINDOW_S * fps), 1)) for _ in range(2)]
+        self.feet_filter = SteadyFeet(fps)        # the feet's Kalman filter where steady (lag 0)
         self.face = MeshModel()                   # the person's face from the first meshes (mesh_head)
         self.mesh_ease = EaseToRest(1, fps, MESH_HOLD_S, MESH_EASE_S)   # the mesh's share of the head
         self.direction_filter = OneEuroFilter(causal)
@@ -235,7 +328,7 @@ class OnlineEnds:
         thumb_sides = np.einsum("hij,hj->hi", parents[0, 2:], HAND_BASES[:, :, 1])     # the palms' at rest
         chest, neck = matrix_to_quat(global_rotations(quats[None])[0, [_SPINE, _NECK]])
         rest = (np.vstack([reference[0], thumb_sides]), neck)   # the head at rest on the neck: the neck's rotation
-        directions, head, seen, palm_seen = self._smoothed(index, rest)
+        directions, head, seen, palm_seen = self._smoothed(index, rest, plant_weights)
         flat = plant_weights[:, None]
         directions[:2] = (1.0 - flat) * directions[:2] + flat * self._planted(standing_directions(directions[:2], up),
                                                                               plant_weights)
@@ -281,7 +374,8 @@ class OnlineEnds:
         self.planted = np.where(planted, followed, np.nan)
         return np.where(planted, followed, standing)
 
-    def _smoothed(self, index: int, rest: Measure) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _smoothed(self, index: int, rest: Measure, plant_weights: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Step 2 at frame ``index``: the directions and thumb sides ``[6, 3]``, the head ``[4]``, which ends were
         seen ``[5]`` and which palms ``[2]``; one not seen keeps its held value (``rest`` before it was ever seen)."""
         directions, head = self.measured.get(index, (np.full((6, 3), np.nan), np.full(4, np.nan)))
@@ -293,8 +387,11 @@ class OnlineEnds:
             sources = self.sources.get(index, NO_SOURCES)
             quick = sources.by_hand_model | (rows_seen[4:] & (self._knuckles_kept() >= 0.5))
             by_model = np.concatenate([[False, False], quick, quick])
+            measured = directions[:2]
             directions = np.where(by_model[:, None], self.hand_model_filter(given, index / self.fps),
                                   self.direction_filter(given, index / self.fps))
+            directions[:2] = self.feet_filter(index, measured, directions[:2], sources.feet_confidence,
+                                              plant_weights > 0)
             self.head_filter.params = MESH_HEAD_FILTER if sources.from_mesh else self.causal
             head = self.head_filter(np.where(seen[4], head, held[1])[None], index / self.fps)[0]
         else:
