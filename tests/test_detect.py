@@ -380,8 +380,42 @@ def test_the_landmark_models_run_on_a_frame_while_the_pose_model_takes_the_next(
         got.append(item.frame)
     live.close()
     assert [frame.index for frame in got] == list(range(VIDEO_FRAMES))
-    assert landmarks.overlapped == [True] * (VIDEO_FRAMES - 1) and landmarks.threads == {"mocapdb-video-landmarks"}
+    assert landmarks.overlapped == [True] * (VIDEO_FRAMES - 1) and landmarks.threads == {"mocapdb-video-detect"}
     assert [frame.people[0].hands[0, 0, 0] for frame in got] == list(range(1, VIDEO_FRAMES + 1))
+
+
+def test_a_paced_video_runs_the_pose_and_landmark_models_in_one_thread(video):
+    """At a camera's pace (live --realtime, a camera) a frame's landmark models run right after its pose, in the
+    detection thread, not beside the next frame's pose: the latency of each frame, not the throughput, counts."""
+    from mocapdb.detect.hands import Hands
+    from mocapdb.detect.model import Detections
+    from mocapdb.detect.with_landmarks import WithLandmarks
+
+    threads: dict[str, set[str]] = {"pose": set(), "hands": set()}
+
+    class Pose:
+        keypoint_layout, path, seconds, frames = "mediapipe33", Path("pose.onnx"), 0.0, 0
+
+        def __call__(self, image):
+            threads["pose"].add(threading.current_thread().name)
+            return Detections(np.zeros((1, 4)), np.ones(1), np.full((1, 33, 3), 100.0))
+
+        def describe(self):
+            return "pose"
+
+    class Landmarks:
+        def __call__(self, image, keypoints):
+            threads["hands"].add(threading.current_thread().name)
+            return Hands.empty(len(keypoints))
+
+        def describe(self):
+            return "hands"
+
+    live = VideoDetections(str(video), WithLandmarks(Pose(), hands=Landmarks()), capacity=VIDEO_FRAMES, paced=True)
+    got = [item for item in iter(lambda: live.get(timeout=5.0), None)]
+    live.close()
+    assert live.poses is None and len(got) >= 1
+    assert threads["pose"] == threads["hands"] == {"mocapdb-video-detect"}
 
 
 def test_a_video_file_measures_its_camera_path_unless_filmed_still(video, yolo_model):

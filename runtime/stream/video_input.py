@@ -3,13 +3,13 @@ feeding the live loop.
 
 :class:`VideoDetections` decodes a video file or a camera (:class:`DecodedFrames`, one thread) and runs a
 detector (:func:`~mocapdb.detect.detectors.open_detector`: BlazePose, or a YOLO-pose/RTMO export) on each
-frame in another (:class:`PoseFrames`), and the landmark models (hands, face) and the camera's path in a
-third, so the decoding of the next frame, the pose of this one, the landmarks of the one before and the
-engine's step overlap (OpenCV's decoder and onnxruntime release the GIL). Frames (universal 14
-keypoints) wait in a small buffer; when the consumer falls behind a camera or a paced file, the oldest is dropped
-and counted (``StreamStats.dropped_stale``), as :class:`~mocapdb.runtime.stream.buffering.LiveInput` does for
-messages; a file read as fast as it goes waits for the consumer instead (lossless: nothing is gained by
-dropping where no clock runs).
+frame in another, and, for a file read as fast as it goes, the landmark models (hands, face) and the camera's
+path in a third behind the pose's (:class:`PoseFrames`), so the decoding of the next frame, the detection of
+this one and the engine's step on the one before overlap (OpenCV's decoder and onnxruntime release the GIL).
+Frames (universal 14 keypoints) wait in a small buffer; when the consumer falls behind a camera or a paced file,
+the oldest is dropped and counted (``StreamStats.dropped_stale``), as
+:class:`~mocapdb.runtime.stream.buffering.LiveInput` does for messages; a file read as fast as it goes waits
+for the consumer instead (lossless: nothing is gained by dropping where no clock runs).
 Every frame carries the moment it was decoded (a camera: grabbed), so the session's latency is end to
 end: capture → the sink's send. A file is read as fast as detection goes (not paced to its frame rate:
 its decoder waits for the detector, no frame dropped there), unless ``paced``: then each frame is
@@ -140,9 +140,14 @@ class VideoDetections(BufferedThread[CapturedFrame]):
     """Frames of ``source`` (a video file path, or a camera index) with the people ``model`` finds
     (BlazePose or a :class:`~mocapdb.detect.tracked.TrackedDetector`: both follow them across frames).
 
-    Three threads: decoding (:class:`DecodedFrames`), the people (:class:`PoseFrames`), then their hands and
-    faces (the landmark models of ``--hands``, ``--face``) and the camera's path (``motion``) in this one's, so
-    the landmark models of a frame run while the pose model takes the next.
+    A file read as fast as it goes: three threads, decoding (:class:`DecodedFrames`), the people
+    (:class:`PoseFrames`), then their hands and faces (the landmark models of ``--hands``, ``--face``) and the
+    camera's path (``motion``) in this one's, so the landmark models of a frame run while the pose model takes
+    the next (throughput: with hands 0.63 → 0.75 × the frames/s without them). A camera or a paced file: the
+    people and their landmarks in this one thread after decoding (latency: a frame's landmark models do not
+    share the cores with the next frame's pose; with the three threads the p99 latency at 60 fps was 1.96
+    frame times without hands, 5.7 with, against 0.90 and 1.88: docs/benchmarks.md, "Hands' cost: the
+    landmark models in a thread of their own").
     ``every``: detect every N-th frame only; ``capacity``: frames buffered before the oldest is
     dropped (a camera, a paced file) or the detector waits (a file not paced; see
     :class:`~mocapdb.runtime.stream.buffering.BufferedThread`), after detection (after decoding and after
@@ -155,20 +160,28 @@ class VideoDetections(BufferedThread[CapturedFrame]):
         if every < 1 or capacity < 1:
             raise DetectError("every and capacity must be at least 1")
         reader = VideoReader(source)
-        super().__init__(capacity, stats if stats is not None else StreamStats(), "mocapdb-video-landmarks",
+        super().__init__(capacity, stats if stats is not None else StreamStats(), "mocapdb-video-detect",
                          lossless=not (reader.is_camera or paced))
         self.model, self.every, self.motion = model, every, motion
         self.reader = reader
         self.frames_detected = 0
         self._stop = threading.Event()
-        detect, self._landmarks = detection_stages(model)
+        self._pose, self._landmarks = detection_stages(model)
         self.decoded = DecodedFrames(self.reader, every, self.stats, paced)
-        self.poses = PoseFrames(self.decoded, detect, self.stats)
+        self.poses = PoseFrames(self.decoded, self._pose, self.stats) if self.lossless else None
         self.clock = self.decoded.clock
         self._start()
 
+    def _found(self) -> Iterator[tuple[VideoFrame, int, Detections]]:
+        """Each decoded frame, its number and the people in it: from :attr:`poses` when the pose model has a
+        thread of its own, else found here."""
+        if self.poses is not None:
+            return _taken(self.poses, self._stop)
+        return ((video_frame, number, self._pose(video_frame.image))
+                for video_frame, number in _taken(self.decoded, self._stop))
+
     def _items(self) -> Iterator[CapturedFrame]:
-        for video_frame, number, found in _taken(self.poses, self._stop):
+        for video_frame, number, found in self._found():
             captured = CapturedFrame(self._detect(video_frame, found, number), video_frame.capture_s)
             self.frames_detected += 1
             self.stats.add(messages_in=1)
@@ -205,7 +218,8 @@ class VideoDetections(BufferedThread[CapturedFrame]):
         """Stops the threads (after the frames in hand), waits for them and releases the video; idempotent."""
         self._stop.set()
         self.decoded.close()
-        self.poses.close()
+        if self.poses is not None:
+            self.poses.close()
         self._thread.join()
         self.reader.close()
 
