@@ -2,7 +2,8 @@
 per 1-euro setting, the stream's error (median geodesic, degrees) and acceleration (mean frame-to-frame change of
 the angular step, deg/frame^2) beside the truth's, exact and noisy. ``--end head``: the head on frames the face
 mesh fixed (runtime/online_ends.MESH_HEAD_FILTER; the mesh rendered, its frames only); ``feet`` or ``hands``: the
-feet's and hands' directions (OnlineEnds.direction_filter, the online take's ``causal_rotations``), every frame;
+feet's and hands' directions (OnlineEnds.direction_filter, the online take's ``causal_rotations``), every frame
+(a steady foot's share goes to its Kalman filter, online_ends.SteadyFeet, whatever the setting);
 ``hands`` with ``--hand-points 21``: where the hand model saw the hand (online_ends.HAND_MODEL_FILTER). The engine
 runs once per view; each setting replays the online take's calls into its end joints (OnlineEnds) on that run
 (the same outputs as a run of its own: the stream's end joints depend on nothing else).
