@@ -240,11 +240,12 @@ def compare(figures: Mapping[str, float | None], thresholds: Mapping[str, Mappin
 
 def thresholds_from(figures: Mapping[str, float], relative: float, absolute: float) -> dict[str, dict[str, float]]:
     """Thresholds for the gated ``figures`` (not :data:`CONTEXT_METRICS`): ``{"measured": value, "max":
-    value × (1 + relative) + absolute}``, rounded to 0.01; ValueError on a non-finite figure."""
+    value × (1 + relative) + absolute}``, the value rounded to 0.01 first (so the file's own ``measured`` gives
+    its ``max`` again), the threshold to 0.01; ValueError on a non-finite figure."""
     bad = [name for name, value in figures.items() if not math.isfinite(value)]
     if bad:
         raise ValueError(f"cannot set thresholds from non-finite figures: {', '.join(bad)}")
-    return {name: {"measured": round(value, 2), "max": round(value * (1.0 + relative) + absolute, 2)}
+    return {name: {"measured": round(value, 2), "max": round(round(value, 2) * (1.0 + relative) + absolute, 2)}
             for name, value in figures.items() if gated(name)}
 
 
