@@ -94,13 +94,13 @@ def segment_track(result: Path, frames: range) -> int | None:
     return seen.most_common(1)[0][0] if seen else None
 
 
-def scored(bvh_dir: Path, result: Path, frames: range, sides: set[str], gesture: str) -> float:
+def scored(out: Path, frames: range, sides: set[str], gesture: str) -> float:
     """The share of ``frames`` (after the ease) in which a hand of ``sides`` shows ``gesture`` in the segment's
-    track file (0 when no track or hand)."""
-    track = segment_track(result, frames)
+    track file (0 when no track or hand); ``out``: the run's folder (``result.jsonl`` and the track files)."""
+    track = segment_track(out, frames)
     if track is None or not sides:
         return 0.0
-    gestures = bvh_gestures(bvh_dir / f"track_{track}.bvh")
+    gestures = bvh_gestures(out / f"track_{track}.bvh")
     kept = frames[round(EASE_S * FPS):]
     return float(np.mean([any(gestures[side][k] == gesture for side in sides if k < len(gestures[side]))
                           for k in kept]))
@@ -113,23 +113,21 @@ def run(args: list[str]) -> None:
 
 def evaluate(db: Path, work: Path, seconds: float) -> list[tuple[str, str, str, float, float]]:
     """Per photo: name, gesture, the sides showing it, the share in the track files and in live's BVH."""
-    chosen = [(path, gesture) for path in photos([]) for gesture in [expected_gesture(path)]
-              if gesture and still_sides(path, gesture)]
+    named = [(path, gesture) for path in photos([]) for gesture in [expected_gesture(path)] if gesture]
+    chosen = [(path, gesture, sides) for path, gesture in named for sides in [still_sides(path, gesture)] if sides]
     frames_each = round(seconds * FPS)
     video = work / "gestures.mp4"
-    gesture_video([path for path, _ in chosen], video, frames_each)
+    gesture_video([path for path, _, _ in chosen], video, frames_each)
     run(["detect", str(video), "--hands", "--out", str(work / "keypoints"), "-q"])
     run(["reconstruct", str(work / "keypoints"), "--db", str(db), "--out", str(work / "files"), "--view-frame", "-q"])
     (work / "live").mkdir(exist_ok=True)
     run(["live", "--source", str(video), "--hands", "--db", str(db), "--bvh-dir", str(work / "live"),
          "--view-frame", "--sink", str(work / "live" / "result.jsonl"), "-q"])
     rows = []
-    for i, (path, gesture) in enumerate(chosen):
+    for i, (path, gesture, sides) in enumerate(chosen):
         frames = range(i * frames_each, (i + 1) * frames_each)
-        sides = still_sides(path, gesture)
         rows.append((path.name, gesture, "+".join(sorted(sides)),
-                     scored(work / "files", work / "files", frames, sides, gesture),
-                     scored(work / "live", work / "live", frames, sides, gesture)))
+                     scored(work / "files", frames, sides, gesture), scored(work / "live", frames, sides, gesture)))
     return rows
 
 
