@@ -118,49 +118,61 @@ def knuckle_thumb_sides(hand_directions: np.ndarray, extremities: np.ndarray, ca
     away): exact in perspective. NaN where a point is unseen or the knuckles lie closer in the image than
     :data:`MIN_ACROSS_SHARE` of the palm's width at the wrist's depth: a palm seen from its edge, whose line the
     image cannot turn."""
-    index_px, pinky_px = extremities[:, INDEX_KNUCKLES, :2], extremities[:, PINKY_KNUCKLES, :2]
-    rays = np.stack([_ray(index_px, camera_px), _ray(pinky_px, camera_px)], axis=-1)      # [F, 2, 3, 2]
-    sides = _slanted_thumb_sides(hand_directions, _unit(np.cross(rays[..., 0], rays[..., 1])))   # [F, 2, 2, 3]
-    lines = KNUCKLES_APART_M * scale * (KNUCKLE_SLANT * hand_directions[..., None, :] + sides)
-    depths = _ray_depths(rays, lines)                             # [F, 2, 2 (candidates), 2 (index, pinky)]
-    expected = wrists_depth_m - HAND_LENGTH_M * scale * hand_directions[..., 2]            # the mid-knuckles'
-    misfit = np.abs(np.log(np.maximum(depths.mean(axis=-1), 1e-9) / np.maximum(expected, 1e-9)[..., None]))
-    turned = np.arccos(np.clip(np.sum(sides * untwisted[..., None, :], axis=-1), -1.0, 1.0))
-    misfit = misfit / KNUCKLE_DEPTH_LOG_SD + turned / np.radians(KNUCKLE_TWIST_SD_DEG)
-    misfit = np.where((depths > 0).all(axis=-1), misfit, np.inf)
-    across = np.take_along_axis(sides, misfit.argmin(axis=-1)[..., None, None], axis=-2)[..., 0, :]
-    apart_px = np.linalg.norm(index_px - pinky_px, axis=-1)
-    full_px = KNUCKLES_APART_M * scale * camera_px[0] / np.maximum(wrists_depth_m, 1e-6)
-    usable = ((extremities[:, INDEX_KNUCKLES, 2] > 0) & (extremities[:, PINKY_KNUCKLES, 2] > 0)
-              & (apart_px >= MIN_ACROSS_SHARE * full_px) & np.isfinite(hand_directions).all(axis=-1)
-              & np.isfinite(misfit).any(axis=-1))
-    return np.where(usable[..., None], across, np.nan)
+    index, pinky = extremities[:, INDEX_KNUCKLES], extremities[:, PINKY_KNUCKLES]
+    seen = (index[..., 2] > 0) & (pinky[..., 2] > 0)
+    return _knuckle_sides(np.ascontiguousarray(hand_directions, dtype=np.float64).reshape(-1, 3),
+                          np.ascontiguousarray(index[..., :2], dtype=np.float64).reshape(-1, 2),
+                          np.ascontiguousarray(pinky[..., :2], dtype=np.float64).reshape(-1, 2), seen.reshape(-1),
+                          np.ascontiguousarray(wrists_depth_m, dtype=np.float64).reshape(-1),
+                          np.ascontiguousarray(untwisted, dtype=np.float64).reshape(-1, 3),
+                          np.asarray(camera_px, dtype=np.float64), float(scale)).reshape(hand_directions.shape)
 
 
-def _slanted_thumb_sides(directions: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """``[..., 2, 3]`` the two unit thumb sides ``t`` square to ``directions [..., 3]`` whose knuckle line
-    (:data:`KNUCKLE_SLANT` × direction + ``t``) lies in the plane of unit normal ``normals [..., 3]``
-    (one, twice, where the plane is square to the direction beyond the slant's reach)."""
-    towards = np.sum(normals * directions, axis=-1)
-    square = normals - towards[..., None] * directions            # the normal's part square to the hand
-    reach = np.maximum(np.sum(square ** 2, axis=-1), 1e-12)
-    share = -KNUCKLE_SLANT * towards / reach                         # t · normal = −slant × direction · normal
-    beside = np.sqrt(np.maximum(1.0 - share ** 2 * reach, 0.0) / reach)
-    about = np.cross(directions, square)
-    ends = share[..., None, None] * square[..., None, :] + np.array([1.0, -1.0])[:, None] * (
-        beside[..., None, None] * about[..., None, :])
-    return _unit(ends)
-
-
-def _ray_depths(rays: np.ndarray, lines: np.ndarray) -> np.ndarray:
-    """``[..., 2]`` the depths (metres along each ray's z = −1 step) of the two points, one on each of ``rays
-    [..., 3, 2]`` (index, pinky), whose difference (index − pinky) is nearest each of ``lines [..., 3]`` (least
-    squares; the rays shared along the lines' axis before the last)."""
-    first, second = rays[..., None, :, 0], rays[..., None, :, 1]
-    ff, ss, fs = (np.sum(u * v, axis=-1) for u, v in ((first, first), (second, second), (first, second)))
-    fl, sl = np.sum(first * lines, axis=-1), np.sum(second * lines, axis=-1)
-    gram = np.maximum(ff * ss - fs ** 2, 1e-18)
-    return np.stack([ss * fl - fs * sl, -(ff * sl - fs * fl)], axis=-1) / gram[..., None]
+@njit(cache=True)
+def _knuckle_sides(directions: np.ndarray, index_px: np.ndarray, pinky_px: np.ndarray, seen: np.ndarray,
+                   wrists_depth_m: np.ndarray, untwisted: np.ndarray, camera_px: np.ndarray, scale: float
+                   ) -> np.ndarray:
+    """:func:`knuckle_thumb_sides` of ``N`` hands (rows): ``[N, 3]``."""
+    focal, cx, cy = camera_px[0], camera_px[1], camera_px[2]
+    apart_m = KNUCKLES_APART_M * scale
+    out = np.full((len(directions), 3), np.nan)
+    index_ray, pinky_ray, about = np.empty(3), np.empty(3), np.empty(3)
+    for h in range(len(directions)):
+        d = directions[h]
+        if not seen[h] or not np.isfinite(d).all():
+            continue
+        full_px = apart_m * focal / max(wrists_depth_m[h], 1e-6)
+        if np.hypot(index_px[h, 0] - pinky_px[h, 0], index_px[h, 1] - pinky_px[h, 1]) < MIN_ACROSS_SHARE * full_px:
+            continue   # a palm seen from its edge
+        for ray, px in ((index_ray, index_px[h]), (pinky_ray, pinky_px[h])):
+            ray[0], ray[1], ray[2] = (px[0] - cx) / focal, (cy - px[1]) / focal, -1.0
+        normal = np.cross(index_ray, pinky_ray)
+        normal /= max(float(np.linalg.norm(normal)), 1e-12)
+        towards = normal @ d
+        square = normal - towards * d                                  # the normal's part square to the hand
+        reach = max(square @ square, 1e-12)
+        share = -KNUCKLE_SLANT * towards / reach                         # t · normal = −slant × direction · normal
+        beside = np.sqrt(max(1.0 - share ** 2 * reach, 0.0) / reach)
+        about[:] = np.cross(d, square)
+        expected = wrists_depth_m[h] - HAND_LENGTH_M * scale * d[2]      # the mid-knuckles' depth
+        ff, ss, fs = index_ray @ index_ray, pinky_ray @ pinky_ray, index_ray @ pinky_ray
+        gram = max(ff * ss - fs ** 2, 1e-18)
+        best = np.inf
+        for sign in (1.0, -1.0):
+            side = share * square + sign * beside * about
+            side /= max(float(np.linalg.norm(side)), 1e-12)
+            line = apart_m * (KNUCKLE_SLANT * d + side)
+            fl, sl = index_ray @ line, pinky_ray @ line
+            depth_index, depth_pinky = (ss * fl - fs * sl) / gram, -(ff * sl - fs * fl) / gram
+            if depth_index <= 0.0 or depth_pinky <= 0.0:
+                continue   # a knuckle behind the camera, or the index seen as the pinky
+            mean = max(0.5 * (depth_index + depth_pinky), 1e-9)
+            turned = np.arccos(min(max(side @ untwisted[h], -1.0), 1.0))
+            misfit = (abs(np.log(mean / max(expected, 1e-9))) / KNUCKLE_DEPTH_LOG_SD
+                      + turned / np.radians(KNUCKLE_TWIST_SD_DEG))
+            if misfit < best:
+                best, out[h] = misfit, side
+    return out
 
 
 def wrist_depths_m(quats: np.ndarray, root_m: np.ndarray, scale: float, offsets_m: np.ndarray | None) -> np.ndarray:
