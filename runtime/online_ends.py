@@ -293,6 +293,8 @@ class OnlineEnds:
         self.measured: dict[int, Measure] = {}
         self.sources: dict[int, Sources] = {}     # what gave each measured frame's head and thumb sides
         self.knuckle_twists: list[deque[float]] = [deque(maxlen=max(round(STEADY_WINDOW_S * fps), 1)) for _ in range(2)]
+        # how much of each hand's twist from the pose's knuckles to keep: its steadiness over those (hand_pose)
+        self.knuckles_kept = np.zeros(2)
         self.feet_filter = SteadyFeet(fps)        # the feet's Kalman filter where steady (lag 0)
         self.face = MeshModel()                   # the person's face from the first meshes (mesh_head)
         self.mesh_ease = EaseToRest(1, fps, MESH_HOLD_S, MESH_EASE_S)   # the mesh's share of the head
@@ -316,6 +318,8 @@ class OnlineEnds:
         for hand, twist in enumerate(self.sources[index].knuckle_twist_deg):
             if np.isfinite(twist):
                 self.knuckle_twists[hand].append(twist)
+        self.knuckles_kept = np.array([steadiness(np.array(twists, dtype=np.float64))
+                                       for twists in self.knuckle_twists])
         for old in [i for i in self.measured if i < index - 2 * self.lag - 1]:
             del self.measured[old], self.sources[old]
 
@@ -335,7 +339,7 @@ class OnlineEnds:
         locals_ = levelled_feet(parents, end_locals(parents, reference, directions[None, :4]), up)[0]
         twist = np.nan_to_num(hand_twist_deg(parents[:, 2:], locals_[None, 2:], directions[None, 4:])[0])
         sources = self.sources.get(index, NO_SOURCES)
-        kept = np.where(sources.by_hand_model, 1.0, self._knuckles_kept())
+        kept = np.where(sources.by_hand_model, 1.0, self.knuckles_kept)
         locals_[2:] = twisted(locals_[None, 2:], twist[None] * (self.palm_ease.weight(palm_seen) * kept)[None])[0]
         mesh_seen = np.array([sources.from_mesh])
         if self.previous is None:                 # a track's first frame: nothing shown before, no easing
@@ -351,11 +355,6 @@ class OnlineEnds:
             ends = quat_turned_towards(self.previous[1], ends, limit)
         self.previous = (index, ends)
         return ends, seen
-
-    def _knuckles_kept(self) -> np.ndarray:
-        """``[2]`` how much of each hand's twist from the pose's knuckles to keep: its
-        :func:`~mocapdb.runtime.hand_pose.steadiness` over its last :data:`STEADY_WINDOW_S` of measures."""
-        return np.array([steadiness(np.array(twists, dtype=np.float64)) for twists in self.knuckle_twists])
 
     def _planted(self, standing: np.ndarray, plant_weights: np.ndarray) -> np.ndarray:
         """``[2, 3]`` the feet's directions: ``standing [2, 3]``, but for a foot planted (``plant_weights [2]``
@@ -385,7 +384,7 @@ class OnlineEnds:
         if self.lag == 0:
             given = np.where(rows_seen[:, None], directions, held[0])
             sources = self.sources.get(index, NO_SOURCES)
-            quick = sources.by_hand_model | (rows_seen[4:] & (self._knuckles_kept() >= 0.5))
+            quick = sources.by_hand_model | (rows_seen[4:] & (self.knuckles_kept >= 0.5))
             by_model = np.concatenate([[False, False], quick, quick])
             measured = directions[:2]
             directions = np.where(by_model[:, None], self.hand_model_filter(given, index / self.fps),
