@@ -110,3 +110,53 @@ def test_the_camera_in_ordinary_terms(small_db_path, tmp_path, capsys):
     assert main(["reconstruct", *common, "--out", str(tmp_path / "x"), "--fov", "0"]) == 2
     assert "argument --fov: '0': must be" in capsys.readouterr().err
     assert main(["reconstruct", *common, "--out", str(tmp_path / "y"), "--fov", "60", "--focal", "1000"]) == 2
+
+
+def _photo_folder(folder, frames: list[int]):
+    """A keypoint folder of the bundled BlazePose take's ``frames`` (its take.json beside them)."""
+    import shutil
+
+    from .conftest import ROOT
+
+    source = ROOT / "data" / "sample_keypoints" / "blazepose_cam01"
+    folder.mkdir()
+    shutil.copy(source / "take.json", folder)
+    for n, frame in enumerate(frames):
+        shutil.copy(source / f"cam01_{frame:012d}_keypoints.json", folder / f"cam01_{n:012d}_keypoints.json")
+    return folder
+
+
+def test_a_photo_gets_its_people_from_its_one_frame(small_db_path, tmp_path, capsys):
+    """One frame (a photo): each person detected is a track with a one-frame BVH, whose pose re-projects
+    onto its keypoints (the pinhole by hand); two frames still confirm a track only on its second sighting."""
+    import json
+
+    import numpy as np
+
+    from mocapdb.cli.main import main
+    from mocapdb.core.formats.bvh import read_bvh
+
+    photo = _photo_folder(tmp_path / "photo", [60])
+    assert main(["reconstruct", str(photo), "--db", str(small_db_path), "--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr()
+    assert "one frame (a photo)" in out.err and "tracks 2, track files 2 (2 BVH)" in out.out
+    assert [read_bvh(tmp_path / "o" / f"track_{t}.bvh").motion.shape[0] for t in (0, 1)] == [1, 1]
+    header, frame = (json.loads(line) for line in (tmp_path / "o" / "result.jsonl").read_text().splitlines())
+    (width, height), focal = header["image_size"], header["focal_px"]
+    seen = [np.array(p["pose_keypoints_2d"]).reshape(-1, 3)
+            for p in json.loads((photo / "cam01_000000000000_keypoints.json").read_text())["people"]]
+    limbs = {"r_shoulder": 12, "l_shoulder": 11, "r_elbow": 14, "l_elbow": 13, "r_wrist": 16, "l_wrist": 15,
+             "r_knee": 26, "l_knee": 25, "r_ankle": 28, "l_ankle": 27}   # BlazePose's indices
+    rows = [header["joints"].index(name) for name in limbs]
+    for person in frame["people"]:
+        x, y, z = np.array(person["joints"])[rows].T
+        image = np.stack([width / 2 + focal * x / z, height / 2 - focal * y / z], axis=1)
+        errors = [np.median(np.linalg.norm(image - kp[list(limbs.values()), :2], axis=1)) / np.ptp(kp[:, 1])
+                  for kp in seen]
+        assert min(errors) < 0.03, errors     # within 3 % of the person's height, on the one it is
+    assert main(["reconstruct", str(_photo_folder(tmp_path / "two", [60, 61])), "--db", str(small_db_path),
+                 "--out", str(tmp_path / "o2")]) == 0
+    out = capsys.readouterr()
+    # seen on the first frame, each is confirmed on the second (the stream shows it from there), and
+    # 0.08 s is under --min-track-s
+    assert "one frame" not in out.err and "frames 2, people 2 person-frames, tracks 2, track files 0" in out.out

@@ -218,6 +218,8 @@ def subject_heights(args: argparse.Namespace) -> dict[int | None, float]:
 
 
 def _engine(args: argparse.Namespace):
+    from dataclasses import replace
+
     from mocapdb.core.errors import UsageError
     from mocapdb.core.formats.database_reader import load_database
     from mocapdb.core.formats.take import DEFAULTS, default_focal_px
@@ -245,6 +247,8 @@ def _engine(args: argparse.Namespace):
                               rotation_filter=rotation_filter, keep_take=not args.per_frame)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    if getattr(args, "still_image", False):   # one sighting is all a photo has (data_specs/stream_output.md)
+        config.tracker = replace(config.tracker, min_hits=1)
     return Engine(load_database(args.db, verify_checksums=not args.no_verify, projections=False), config)
 
 
@@ -268,9 +272,11 @@ def _session(args: argparse.Namespace, sink_spec: str, strict: bool, bvh_dir=Non
         limits = TrackLimits(args.max_tracks, args.max_new_tracks_per_min)
         export = TrackExport(tuple(f.strip().lower() for f in args.format.split(",") if f.strip()), args.bvh_unit,
                              args.rig, not args.view_frame, pad_to_input=args.bvh_start == "input")
-        options = SessionOptions(strict=strict, fps_given=args.fps is not None, keep_static=args.keep_static,
+        still = getattr(args, "still_image", False)   # a photo is still and lasts no time: neither check applies
+        options = SessionOptions(strict=strict, fps_given=args.fps is not None,
+                                 keep_static=args.keep_static or still,
                                  bvh_dir=bvh_dir, export=export, max_bvh_files=args.max_bvh_files,
-                                 min_track_s=args.min_track_s, bvh_part_min=args.bvh_part_min,
+                                 min_track_s=0.0 if still else args.min_track_s, bvh_part_min=args.bvh_part_min,
                                  rate_by_arrival=not strict, write_in_background=not strict,
                                  take=None if args.per_frame else TakeParams(smoothing_hz=args.smoothing_hz),
                                  shared_floor=strict, camera_height_m=args.camera_height,
@@ -348,32 +354,49 @@ def _preview(args: argparse.Namespace, out_dir) -> None:
 
 
 def _input_size(path: str) -> int | None:
-    """Frames in a keypoint folder (its .json files) or lines in a keypoint file, for the progress bar."""
+    """Frames in a keypoint folder (its frame files, not the take's side files) or lines in a keypoint
+    file (a last line without its newline counted), for the progress bar and the one-frame rule."""
     from pathlib import Path
+
+    from mocapdb.core.formats.openpose import is_frame_file
 
     source = Path(path)
     if source.is_dir():
-        return sum(1 for f in source.iterdir() if f.suffix.lower() == ".json")
+        return sum(1 for f in source.iterdir() if is_frame_file(f.name))
     if source.is_file():
+        lines, last = 0, b"\n"
         with open(source, "rb") as f:
-            return sum(chunk.count(b"\n") for chunk in iter(lambda: f.read(1 << 20), b""))
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                lines, last = lines + chunk.count(b"\n"), chunk[-1:]
+        return lines + (last != b"\n")
     return None
 
 
 def _reconstruct_into(args: argparse.Namespace, out_dir, frames):
-    """Run the session into ``out_dir``; returns it (finished) and whether Ctrl-C stopped it early."""
+    """Run the session into ``out_dir``; returns it (finished) and whether Ctrl-C stopped it early. One
+    frame (a photo) is tracked from its one sighting (``args.still_image``, :func:`_engine`, :func:`_session`)."""
+    from itertools import chain, islice
+
     from mocapdb.core.errors import UsageError
     from mocapdb.core.progress import progress
     from mocapdb.runtime.stream.session import run_arrays, run_offline
     from mocapdb.runtime.stream.transport import open_source
 
+    if frames is not None:
+        first = list(islice(frames, 2))
+        total, frames = (len(first) if len(first) < 2 else None), chain(first, frames)
+    else:
+        total = _input_size(args.input)
+    args.still_image = total == 1
+    if args.still_image:
+        print("mocapdb reconstruct: one frame (a photo): each person is a track from that one sighting and gets "
+              "its files although still", file=sys.stderr)
     session = _session(args, str(out_dir / "result.jsonl"), strict=True, bvh_dir=out_dir)
     interrupted = False
     try:
         if frames is not None:
             run_arrays(session, progress(frames, desc="reconstruct", unit="frame"))
         else:
-            total = _input_size(args.input)
             run_offline(session, open_source(args.input, stats=session.summary.stream),
                         lambda messages: progress(messages, total=total, desc="reconstruct", unit="frame"))
     except KeyboardInterrupt:
