@@ -126,6 +126,17 @@ def test_tracks_without_contacts_take_the_priors_size():
     assert 1.65 <= world.people[7].stature_m <= 1.80
 
 
+def test_a_world_without_a_floor_still_says_its_tilt_and_whence():
+    """The summary line of a take with no planted foot (a photo) gives the people's tilt, flagged unchecked."""
+    from mocapdb.runtime.world.summary import world_line
+
+    rolled = np.array([-np.sin(np.radians(12.0)), np.cos(np.radians(12.0)), 0.0])   # up leaning to the left
+    world = estimate_world([TrackEvidence(7, UNIVERSAL_HEIGHT_M, np.zeros((0, 3)), rolled, 3.0)])
+    assert world_line(world) == ("world: no floor found (no planted foot, no --camera-height): each track's size is "
+                                 "the prior's; camera pitched 0.0 deg down, roll 12.0 deg, from the people alone: "
+                                 "no floor checks it")
+
+
 def test_a_person_cut_by_the_image_edge_does_not_drag_the_others():
     """A partial body misjudges its own depth (its nominal contacts 35 % too near): it comes out
     unreliable or sized apart, and the two whole people keep the sizes they have without it."""

@@ -88,8 +88,8 @@ def world_line(world: World) -> str:
     tilt = (f"pitched {pitch}{_sd_text(world.pitch_sd_deg)}, roll {world.roll_deg:.1f} deg"
             f"{_sd_text(world.roll_sd_deg)}{TILT_FROM_TEXT[world.tilt_from]}")
     if not world.floor_known:
-        return ("world: no floor found (no planted foot, no --camera-height): each track's size is the prior's"
-                + (f"; camera {tilt}" if world.tilt_from == "scene" else ""))
+        return ("world: no floor found (no planted foot, no --camera-height): each track's size is the prior's; "
+                f"camera {tilt}{'' if world.tilt_from == 'scene' else ', from the people alone: no floor checks it'}")
     error = 100 * (np.exp(world.camera_height_log_sd) - 1)
     height = "given" if world.camera_height_given else (
         f"±{error:.0f} %, from the people's sizes" if error <= UNFIXED_HEIGHT_PCT
