@@ -36,3 +36,20 @@ def test_a_codec_padded_size_is_the_same_image(caplog):
         "(16 px): the same image, padded or cropped by the video codec; using 1088x1920"]
     with pytest.raises(UsageError, match="contradicts"):
         resolve_camera(TAKE, "take.json", image_size=(1096, 1920))
+
+
+def test_the_frames_of_a_keypoint_input_are_its_frame_files_or_its_lines(tmp_path):
+    """A folder counts its frame files, not take.json, scene.json or camera_path.json; a JSON-lines file
+    its lines, a last one without its newline included; anything else is None."""
+    from mocapdb.core.formats.folder_size import frames_in_input
+
+    folder = tmp_path / "kp"
+    folder.mkdir()
+    for name in ("a_000000000000_keypoints.json", "take.json", "scene.json", "camera_path.json", "notes.txt"):
+        (folder / name).write_text("{}")
+    assert frames_in_input(folder) == 1
+    (tmp_path / "a.jsonl").write_text('{"people": []}\n{"people": []}')
+    (tmp_path / "b.jsonl").write_text('{"people": []}\n')
+    (tmp_path / "c.jsonl").write_text("")
+    assert [frames_in_input(tmp_path / f"{n}.jsonl") for n in "abc"] == [2, 1, 0]
+    assert frames_in_input(tmp_path / "absent") is None

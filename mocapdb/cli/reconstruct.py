@@ -353,31 +353,12 @@ def _preview(args: argparse.Namespace, out_dir) -> None:
                   note=lambda text: print(f"mocapdb reconstruct: preview: {text}", file=sys.stderr))
 
 
-def _input_size(path: str) -> int | None:
-    """Frames in a keypoint folder (its frame files, not the take's side files) or lines in a keypoint
-    file (a last line without its newline counted), for the progress bar and the one-frame rule."""
-    from pathlib import Path
-
-    from mocapdb.core.formats.openpose import is_frame_file
-
-    source = Path(path)
-    if source.is_dir():
-        return sum(1 for f in source.iterdir() if is_frame_file(f.name))
-    if source.is_file():
-        lines, last = 0, b"\n"
-        with open(source, "rb") as f:
-            for chunk in iter(lambda: f.read(1 << 20), b""):
-                lines, last = lines + chunk.count(b"\n"), chunk[-1:]
-        return lines + (last != b"\n")
-    return None
-
-
 def _reconstruct_into(args: argparse.Namespace, out_dir, frames):
-    """Run the session into ``out_dir``; returns it (finished) and whether Ctrl-C stopped it early. One
-    frame (a photo) is tracked from its one sighting (``args.still_image``, :func:`_engine`, :func:`_session`)."""
+    """Run the session into ``out_dir``; returns it (finished) and whether Ctrl-C stopped it early."""
     from itertools import chain, islice
 
     from mocapdb.core.errors import UsageError
+    from mocapdb.core.formats.folder_size import frames_in_input
     from mocapdb.core.progress import progress
     from mocapdb.runtime.stream.session import run_arrays, run_offline
     from mocapdb.runtime.stream.transport import open_source
@@ -386,8 +367,8 @@ def _reconstruct_into(args: argparse.Namespace, out_dir, frames):
         first = list(islice(frames, 2))
         total, frames = (len(first) if len(first) < 2 else None), chain(first, frames)
     else:
-        total = _input_size(args.input)
-    args.still_image = total == 1
+        total = frames_in_input(args.input)
+    args.still_image = total == 1   # a photo: tracked from its one sighting (_engine, _session)
     if args.still_image:
         print("mocapdb reconstruct: one frame (a photo): each person is a track from that one sighting and gets "
               "its files although still", file=sys.stderr)

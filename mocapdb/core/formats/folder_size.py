@@ -1,5 +1,6 @@
-"""The image size of a keypoint folder that nothing describes (no ``--image-size``, no ``take.json``):
-the smallest standard video size that holds its first frames' keypoints (``data_specs/take_description.md``)."""
+"""The sizes of a keypoint input: the image size of a keypoint folder that nothing describes (no
+``--image-size``, no ``take.json``), the smallest standard video size that holds its first frames'
+keypoints (``data_specs/take_description.md``); the frames of a folder or a JSON-lines file."""
 from __future__ import annotations
 
 import itertools
@@ -9,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapdb.core.formats.keypoints import CONFIDENCE_THRESHOLD, KeypointError
-from mocapdb.core.formats.openpose import read_openpose_folder
+from mocapdb.core.formats.openpose import is_frame_file, read_openpose_folder
 from mocapdb.core.formats.take import standard_size_holding
 
 SIZE_FRAMES = 300  # the first frames whose keypoints give the size
@@ -43,3 +44,18 @@ def size_of_keypoint_folder(folder: str | Path) -> tuple[int, int] | None:
                     "--image-size WIDTHxHEIGHT if the video is larger", folder, *size, len(frames),
                     *points.max(axis=0))
     return size
+
+
+def frames_in_input(path: str | Path) -> int | None:
+    """Frames in a keypoint folder (its frame files, not the take's side files) or lines in a keypoint
+    file (a last line without its newline counted); None for neither."""
+    source = Path(path)
+    if source.is_dir():
+        return sum(1 for f in source.iterdir() if is_frame_file(f.name))
+    if not source.is_file():
+        return None
+    lines, last = 0, b"\n"
+    with open(source, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            lines, last = lines + chunk.count(b"\n"), chunk[-1:]
+    return lines + (last != b"\n")
