@@ -1,4 +1,4 @@
-"""Fingers: the hand landmark model converted against its TFLite original, the hand crop from the pose,
+"""Fingers: the hand landmark models (full, lite) converted against their TFLite originals, the hand crop from the pose,
 finger flexion against hand-built hands, the absent hands' flags, the hands in keypoint JSON and back,
 and the four gestures recognised on MediaPipe's own real photos (data/sample_hands).
 
@@ -19,7 +19,7 @@ from mocapdb.core.formats.keypoint_layouts import LAYOUTS
 from mocapdb.core.formats.openpose import parse_openpose_json
 from mocapdb.detect.errors import DetectError
 from mocapdb.detect.hands import HAND_SCALE, MIN_HAND_PX, HandLandmarker, Hands, hand_region, region_from_hand
-from mocapdb.detect.model_store import HAND_LANDMARKS, blazepose_paths, hand_landmark_path, tflite_path
+from mocapdb.detect.model_store import HAND_VARIANTS, blazepose_paths, hand_landmark_path, tflite_path
 from mocapdb.detect.openpose_out import openpose_json
 from mocapdb.evaluation.gestures import classify
 
@@ -29,9 +29,9 @@ SAMPLE_HANDS = ROOT / "data" / "sample_hands"
 REL_TOLERANCE = 1e-3   # converted outputs within 1e-3 of the TFLite reference's range (as the pose models)
 
 
-def _hand_model() -> Path:
+def _hand_model(variant: str = "full") -> Path:
     try:
-        return hand_landmark_path()
+        return hand_landmark_path(variant)
     except DetectError as exc:
         skip_missing(str(exc))
 
@@ -45,12 +45,56 @@ def _pose_models() -> tuple[Path, Path]:
 
 # --- the converter ----------------------------------------------------------------------------------
 
-def test_hand_model_converted_matches_the_tflite_original_on_real_photos():
-    """MEAN and FULLY_CONNECTED (new for this model) and the rest, on real hand photos and a blank input."""
+@pytest.mark.parametrize("variant", sorted(HAND_VARIANTS))
+def test_hand_model_converted_matches_the_tflite_original_on_real_photos(variant):
+    """MEAN and FULLY_CONNECTED (new for these models) and the rest, on real hand photos and a blank input."""
     images = [cv2.imread(str(SAMPLE_HANDS / name)) for name in ("thumb_up_1.jpg", "thumb_up_2.jpg", "pointing_1.jpg")]
     blobs = [(cv2.resize(image, (224, 224))[None, ..., ::-1] / 255.0).astype(np.float32)
              for image in images + [np.zeros((224, 224, 3), np.uint8)]]
-    assert_matches_tflite(_hand_model(), tflite_path(HAND_LANDMARKS), blobs, REL_TOLERANCE)
+    assert_matches_tflite(_hand_model(variant), tflite_path(HAND_VARIANTS[variant]), blobs, REL_TOLERANCE)
+
+
+def test_models_fetch_hands_prepares_both_hand_models(tmp_path, monkeypatch):
+    """`models fetch hands` wants the lite model too: with only the full one prepared it downloads (here refused),
+    with both it downloads nothing and names both."""
+    from mocapdb.detect import model_store
+
+    def offline(package, into):
+        raise DetectError(f"offline: {package.name} asked for")
+
+    prepared = _hand_model("full").parent
+    folder = tmp_path / "models"
+    folder.mkdir()
+    wanted = (model_store.DETECTOR, model_store.LANDMARKS["full"], HAND_VARIANTS["full"])
+    for model in wanted + (HAND_VARIANTS["lite"],):
+        for name in (f"{model.stem}.onnx", f"{model.stem}.json", Path(model.member).name):
+            if model is not HAND_VARIANTS["lite"] or not name.endswith(".onnx"):
+                (folder / name).symlink_to(prepared / name)
+    monkeypatch.setitem(model_store._DOWNLOADERS, "pypi", offline)
+    with pytest.raises(DetectError, match="offline: mediapipe"):
+        model_store.fetch_models(("full",), folder, say=lambda _: None, extras=("hands",))
+    (folder / "hand_landmark_lite.onnx").symlink_to(_hand_model("lite"))
+    paths = model_store.fetch_models(("full",), folder, say=lambda _: None, extras=("hands",))
+    assert paths[-2:] == [folder / "hand_landmark_full.onnx", folder / "hand_landmark_lite.onnx"]
+    assert hand_landmark_path("lite", folder) == folder / "hand_landmark_lite.onnx"
+    with pytest.raises(DetectError, match="unknown hand landmark model 'heavy': one of full, lite"):
+        hand_landmark_path("heavy", folder)
+
+
+def test_hand_model_option_reaches_detect_and_live(tmp_path):
+    """`--hand-model lite` on `detect` and `live` runs the lite model; without it, full."""
+    from mocapdb.cli.main import parser
+    from mocapdb.detect.detectors import open_detector
+
+    _hand_model("lite")
+    video, db = str(SAMPLE_HANDS / "open_palm_1.jpg"), str(ROOT / "demo" / "sample.db")   # files the parser finds
+    detect = parser().parse_args(["detect", video, "--hands", "--out", str(tmp_path / "kp")])
+    live = parser().parse_args(["live", "--source", video, "--db", db, "--hands", "--hand-model", "lite"])
+    assert (detect.hand_model, live.hand_model) == ("full", "lite")
+    for args in (detect, live):
+        detector = open_detector(None, "full", conf=0.5, iou=0.5, max_people=1, input_size=256, fast=None,
+                                 hands=True, hand_model=args.hand_model)
+        assert detector.landmarkers["hands"].path == _hand_model(args.hand_model)
 
 
 # --- geometry and angles, by hand -------------------------------------------------------------------

@@ -1,7 +1,8 @@
 """Benchmark video → 3D: what each step costs, end to end, for each detector and detector path.
 
     python tools/bench_video.py VIDEO [--blazepose lite full heavy] [--model POSE.onnx] [--db demo/sample.db]
-                                [--frames 400] [--hands] [--hands-every N ...] [--face] [--face-every N ...]
+                                [--frames 400] [--hands] [--hands-every N ...] [--hand-model full lite]
+                                [--face] [--face-every N ...]
                                 [--max-people N] [--repeats R]
                                 [--realtime] [--mediapipe PYTHON]
 
@@ -29,7 +30,9 @@ latency a camera gives; late frames dropped). Other processes on the machine slo
 alike: compare the ratios within one run (the load average is printed). ``--repeats R``: every run R
 times, interleaved (stages pooled, frames/s the median). ``--max-people N``: each BlazePose variant (and with
 ``--hands`` its hands variant) also with ``--max-people N``. ``--hands-every N ...``: the hands variants
-run with `live --hands-every N` for each N given (default: live's default; in one thread too).
+run with `live --hands-every N` for each N given (default: live's default; in one thread too); ``--hand-model
+full lite``: each of them with each hand landmark model given (`live --hand-model`; default full; named ``+ hands
+lite/N`` for lite).
 ``--face``, ``--face-every N ...``: each BlazePose variant also with `live --face --face-every N`, alike.
 ``--mediapipe PYTHON``: MediaPipe Pose (complexity 1) on the same frames in that Python
 (tools/bench_mediapipe.py; a venv with mediapipe 0.10.21), in the same sitting: its frames/s on frames
@@ -58,7 +61,7 @@ from mocapdb.detect.camera_motion import LIVE_EVERY, BackgroundMotion  # noqa: E
 from mocapdb.detect.detectors import PIPELINE_MODEL_THREADS, open_detector  # noqa: E402
 from mocapdb.detect.landmark_schedule import LIVE_FACE_EVERY, LIVE_HANDS_EVERY  # noqa: E402
 from mocapdb.detect.model import Detections, box_iou  # noqa: E402
-from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_INPUT_SIZE, DEFAULT_IOU  # noqa: E402
+from mocapdb.detect.options import DEFAULT_CONF, DEFAULT_HAND_MODEL, DEFAULT_INPUT_SIZE, DEFAULT_IOU, HAND_MODELS  # noqa: E402
 from mocapdb.detect.tracked import FULL_FRAME, FastPath  # noqa: E402
 from mocapdb.detect.video import VideoReader  # noqa: E402
 from mocapdb.runtime.stream.video_input import keypoint_frame  # noqa: E402
@@ -73,14 +76,17 @@ STAGES = ("decode", "detect BlazePose", "detect full", "detect crop", "detect cr
 
 
 def configurations(crop_px: int, variants: list[str], model: str | None, hands_every: list[int] | None = None,
-                   max_people: int | None = None, face_every: list[int] | None = None
-                   ) -> dict[str, tuple[FastPath, list[str]]]:
+                   max_people: int | None = None, face_every: list[int] | None = None,
+                   hand_models: tuple[str, ...] = (DEFAULT_HAND_MODEL,)) -> dict[str, tuple[FastPath, list[str]]]:
     """Name → (the detector's paths, the same as `live` options); ``hands_every``: each BlazePose variant
     also with ``--hands --hands-every N`` for each N (``+ hands/N``), ``face_every`` with ``--face
-    --face-every N`` (``+ face/N``); ``max_people``: also with ``--max-people`` (and with both)."""
+    --face-every N`` (``+ face/N``); ``max_people``: also with ``--max-people`` (and with both); ``hand_models``:
+    the hands variants with each ``--hand-model`` (``+ hands lite/N`` for one not the default)."""
     size = ["--crop-size", str(crop_px)]
     people = [("", [])] + ([(f" max {max_people}", ["--max-people", str(max_people)])] if max_people else [])
-    hand_variants = [(f" + hands/{n}", ["--hands", "--hands-every", str(n)]) for n in hands_every or []]
+    hand_variants = [(f" + hands{'' if m == DEFAULT_HAND_MODEL else ' ' + m}/{n}",
+                      ["--hands", "--hands-every", str(n), "--hand-model", m])
+                     for m in hand_models for n in hands_every or []]
     hand_variants += [(f" + face/{n}", ["--face", "--face-every", str(n)]) for n in face_every or []]
     extra = [(limit + hand, [*limit_flags, *hand_flags]) for limit, limit_flags in people
              for hand, hand_flags in [("", []), *hand_variants]]
@@ -109,8 +115,8 @@ def one_thread(args: argparse.Namespace, fast: FastPath, frames: int) -> tuple[d
     over the timed frames."""
     detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
                              max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE, fast=fast, hands=args.hands,
-                             hands_every=args.hands_every, faces=args.face, face_every=args.face_every,
-                             model_threads=PIPELINE_MODEL_THREADS)
+                             hands_every=args.hands_every, hand_model=args.hand_model, faces=args.face,
+                             face_every=args.face_every, model_threads=PIPELINE_MODEL_THREADS)
     session = _session(args, args.sink, strict=False)
     engine_ms: list[float] = []
     step = session.engine.step
@@ -241,6 +247,9 @@ def main() -> int:
                                                          "with hands over without)")
     ap.add_argument("--hands-every", type=int, nargs="+", metavar="N",
                     help=f"with --hands: the hands variants with `live --hands-every N` (default {LIVE_HANDS_EVERY})")
+    ap.add_argument("--hand-model", nargs="+", choices=HAND_MODELS, default=[DEFAULT_HAND_MODEL], metavar="MODEL",
+                    help=f"with --hands: the hands variants with each `live --hand-model` given (default "
+                         f"{DEFAULT_HAND_MODEL})")
     ap.add_argument("--face", action="store_true", help="each BlazePose variant also with --face")
     ap.add_argument("--face-every", type=int, nargs="+", metavar="N",
                     help=f"with --face: the face variants with `live --face-every N` (default {LIVE_FACE_EVERY})")
@@ -253,7 +262,8 @@ def main() -> int:
     print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())}; {os.cpu_count()} cores")
     hands_every = (args.hands_every or [LIVE_HANDS_EVERY]) if args.hands else None
     face_every = (args.face_every or [LIVE_FACE_EVERY]) if args.face else None
-    configs = configurations(args.crop_size, args.blazepose, args.model, hands_every, args.max_people, face_every)
+    configs = configurations(args.crop_size, args.blazepose, args.model, hands_every, args.max_people, face_every,
+                             tuple(args.hand_model))
     realtime = ["--realtime"] if args.realtime else []
     runs: dict[str, list] = defaultdict(list)
     lives: dict[str, list] = defaultdict(list)
@@ -288,8 +298,8 @@ def main() -> int:
         print(f"{name:24}{row['fps']:10.1f}{row['p50']:10.1f}{row['p99']:10.1f}{row['p99'] / frame_ms:11.2f}"
               f"{row['lag']:5g}{row['read']:8d}{row['dropped']:9d}{row['detect_fps']:10.1f}")
     print(f"(p99 frames: the p99 latency in frame times of the video, {frame_ms:.1f} ms at {video_fps:g} fps)")
-    for name in (n for n in live if " + hands/" in n):
-        without = live[name.split(" + hands/")[0]]["fps"]
+    for name in (n for n in live if " + hands" in n):
+        without = live[name.split(" + hands")[0]]["fps"]
         print(f"{name}: {live[name]['fps'] / without:.2f} x the frames/s without hands")
     if mediapipe is not None:
         print(f"\nMediaPipe Pose (complexity 1): {mediapipe[0]:.1f} frames/s on decoded frames, {mediapipe[1]:.1f} "

@@ -1,6 +1,6 @@
 """Finger angles and gestures on real hand photos: the hand landmark model through mocapdb's pipeline.
 
-    python tools/eval_fingers.py [PHOTO_OR_FOLDER ...]     (default: data/sample_hands)
+    python tools/eval_fingers.py [PHOTO_OR_FOLDER ...] [--hand-model full|lite]     (default: data/sample_hands, full)
 
 Per photo and hand found: the curl of each finger and the thumb's three flexions (degrees), the
 gesture they give (:mod:`mocapdb.evaluation.gestures`) and, where the photo's name starts with a
@@ -18,6 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from mocapdb.core.fingers import curl_deg, flexion_deg  # noqa: E402
 from mocapdb.detect.model_store import blazepose_paths, hand_landmark_path  # noqa: E402
+from mocapdb.detect.options import DEFAULT_HAND_MODEL, HAND_MODELS  # noqa: E402
 from mocapdb.evaluation.gestures import GESTURES, classify, photo_hands  # noqa: E402
 
 SAMPLE = Path(__file__).resolve().parents[1] / "data" / "sample_hands"
@@ -27,6 +28,12 @@ PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png")
 def expected_gesture(path: Path) -> str | None:
     """The gesture a photo's name starts with (``thumb_up_1.jpg`` → ``thumb_up``), else None."""
     return next((g for g in sorted(GESTURES, key=len, reverse=True) if path.stem.startswith(g)), None)
+
+
+def add_hand_model_option(parser: argparse.ArgumentParser) -> None:
+    """``--hand-model full|lite``: the hand landmark model the tool runs (``detect``/``live --hand-model``)."""
+    parser.add_argument("--hand-model", choices=HAND_MODELS, default=DEFAULT_HAND_MODEL,
+                        help="hand landmark model (default %(default)s)")
 
 
 def photos(paths: list[str]) -> list[Path]:
@@ -39,8 +46,9 @@ def photos(paths: list[str]) -> list[Path]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("photos", nargs="*", help="photos or folders of photos (default data/sample_hands)")
+    add_hand_model_option(parser)
     args = parser.parse_args()
-    pose, hand = blazepose_paths("full"), hand_landmark_path()
+    pose, hand = blazepose_paths("full"), hand_landmark_path(args.hand_model)
     right = total = 0
     print("photo | hand | presence | curl thumb, index, middle, ring, pinky | thumb CMC, MCP, IP | gesture")
     for path in photos(args.photos):

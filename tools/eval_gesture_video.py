@@ -7,7 +7,10 @@ photo: the share of its frames, after its first :data:`EASE_S` (a hand found eas
 the humanoid BVH (forward kinematics: :func:`bvh_gestures`) shows the photo's gesture
 (:func:`mocapdb.evaluation.gestures.classify`), for the hand that shows it in the still photo.
 
-    .venv/bin/python tools/eval_gesture_video.py [--seconds 1.5] [--work DIR]
+    .venv/bin/python tools/eval_gesture_video.py [--seconds 1.5] [--work DIR] [--hand-model full|lite]
+
+``--hand-model``: the hand landmark model `detect` and `live` run (the hands showing each gesture in the
+still photos are always the full model's, so both models are scored on the same hands).
 
 Prints a Markdown table (docs/benchmarks.md, "Gestures on a video"). Needs ``mocapdb models fetch hands``.
 """
@@ -26,7 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from eval_fingers import expected_gesture, photos  # noqa: E402
+from eval_fingers import add_hand_model_option, expected_gesture, photos  # noqa: E402
 
 from mocapdb.cli.main import main as mocapdb  # noqa: E402
 from mocapdb.core.formats.bvh import forward_kinematics, read_bvh  # noqa: E402
@@ -65,7 +68,7 @@ def gesture_video(paths: list[Path], video: Path, frames_each: int) -> None:
 
 def still_sides(path: Path, gesture: str) -> set[str]:
     """The sides ("Right", "Left") whose hand shows ``gesture`` in the still photo (the pose's hand crops)."""
-    found = photo_hands(letterboxed(cv2.imread(str(path))), blazepose_paths("full"), hand_landmark_path())
+    found = photo_hands(letterboxed(cv2.imread(str(path))), blazepose_paths("full"), hand_landmark_path("full"))
     return {{"right": "Right", "left": "Left"}[label.rsplit("_", 1)[-1]]
             for label, points, _ in found if label.startswith("person") and classify(points) == gesture}
 
@@ -111,17 +114,19 @@ def run(args: list[str]) -> None:
         raise SystemExit(f"mocapdb {args[0]} failed")
 
 
-def evaluate(db: Path, work: Path, seconds: float) -> list[tuple[str, str, str, float, float]]:
-    """Per photo: name, gesture, the sides showing it, the share in the track files and in live's BVH."""
+def evaluate(db: Path, work: Path, seconds: float, hand_model: str) -> list[tuple[str, str, str, float, float]]:
+    """Per photo: name, gesture, the sides showing it, the share in the track files and in live's BVH (the
+    ``hand_model`` landmark model in both)."""
     named = [(path, gesture) for path in photos([]) for gesture in [expected_gesture(path)] if gesture]
     chosen = [(path, gesture, sides) for path, gesture in named for sides in [still_sides(path, gesture)] if sides]
     frames_each = round(seconds * FPS)
     video = work / "gestures.mp4"
     gesture_video([path for path, _, _ in chosen], video, frames_each)
-    run(["detect", str(video), "--hands", "--out", str(work / "keypoints"), "-q"])
+    model = ["--hands", "--hand-model", hand_model]
+    run(["detect", str(video), *model, "--out", str(work / "keypoints"), "-q"])
     run(["reconstruct", str(work / "keypoints"), "--db", str(db), "--out", str(work / "files"), "--view-frame", "-q"])
     (work / "live").mkdir(exist_ok=True)
-    run(["live", "--source", str(video), "--hands", "--db", str(db), "--bvh-dir", str(work / "live"),
+    run(["live", "--source", str(video), *model, "--db", str(db), "--bvh-dir", str(work / "live"),
          "--view-frame", "--sink", str(work / "live" / "result.jsonl"), "-q"])
     rows = []
     for i, (path, gesture, sides) in enumerate(chosen):
@@ -136,11 +141,12 @@ def main() -> None:
     parser.add_argument("--db", type=Path, default=Path("demo/sample.db"))
     parser.add_argument("--seconds", type=float, default=1.5, help="each photo's time in the video")
     parser.add_argument("--work", type=Path, default=None, help="keep the video and results here")
+    add_hand_model_option(parser)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
-        rows = evaluate(args.db, work, args.seconds)
+        rows = evaluate(args.db, work, args.seconds, args.hand_model)
     print("| photo | gesture | hand | frames showing it: track file | `live` BVH |\n|---|---|---|---|---|")
     for name, gesture, sides, files, live in rows:
         print(f"| {name} | {gesture} | {sides} | {files:.0%} | {live:.0%} |")

@@ -1,6 +1,6 @@
 """Finger bend angles from the humanoid BVH against the hand points they were measured from.
 
-    python tools/eval_hand_bvh.py [PHOTO_OR_FOLDER ...]     (default: data/sample_hands)
+    python tools/eval_hand_bvh.py [PHOTO_OR_FOLDER ...] [--hand-model full|lite]     (default: data/sample_hands, full)
     python tools/eval_hand_bvh.py --bvh TRACK.bvh             (a humanoid track file's hands over time)
 
 Per hand (each hand found in the photos, and MediaPipe's own landmarks of its four test photos): the
@@ -13,6 +13,7 @@ next (largest, 99th percentile, median; degrees) and from rest (median).
 """
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -23,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from eval_fingers import SAMPLE, photos  # noqa: E402
+from eval_fingers import SAMPLE, add_hand_model_option, photos  # noqa: E402
 
 from mocapdb.core.fingers import FINGERS, flexion_deg  # noqa: E402
 from mocapdb.core.formats.bvh import local_transforms, read_bvh  # noqa: E402
@@ -34,9 +35,10 @@ from mocapdb.evaluation.gestures import classify, photo_hands  # noqa: E402
 from mocapdb.evaluation.hand_bvh import bvh_hand_points, side_of  # noqa: E402
 
 
-def hands(paths: list[str]) -> list[tuple[str, str, np.ndarray]]:
-    """(name, side, points [21, 3]) of every hand found in the photos and of MediaPipe's landmarks."""
-    pose, hand = blazepose_paths("full"), hand_landmark_path()
+def hands(paths: list[str], hand_model: str) -> list[tuple[str, str, np.ndarray]]:
+    """(name, side, points [21, 3]) of every hand the ``hand_model`` landmark model finds in the photos, and of
+    MediaPipe's landmarks."""
+    pose, hand = blazepose_paths("full"), hand_landmark_path(hand_model)
     found = []
     for path in photos(paths):
         for label, points, _ in photo_hands(cv2.imread(str(path)), pose, hand):
@@ -67,11 +69,16 @@ def track_turns(path: str) -> None:
 
 
 def main() -> int:
-    if sys.argv[1:2] == ["--bvh"]:
-        track_turns(sys.argv[2])
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("photos", nargs="*", help="photos or folders of photos (default data/sample_hands)")
+    parser.add_argument("--bvh", metavar="TRACK.bvh", help="a humanoid track file's hands over time instead")
+    add_hand_model_option(parser)
+    args = parser.parse_args()
+    if args.bvh:
+        track_turns(args.bvh)
         return 0
     differences = []
-    for name, side, points in hands(sys.argv[1:]):
+    for name, side, points in hands(args.photos, args.hand_model):
         rebuilt = bvh_hand_points(side, points)
         measured, from_bvh = flexion_deg(points), flexion_deg(rebuilt)
         differences.append(from_bvh - measured)

@@ -1,11 +1,13 @@
 """Hands or faces at a lower rate (`live --hands-every N`, `--face-every N`) against every one on every frame.
 
     python tools/eval_landmark_schedule.py VIDEO [VIDEO ...] [--every 2 3] [--max-people 1] [--frames 300]
+                                           [--hand-model full|lite]
     python tools/eval_landmark_schedule.py --face PHOTO_OR_VIDEO [...] [--every 2 3]
 
 Per video, BlazePose full (``--max-people``) then the hand landmark model (``--face``: the face landmark
-model) with every one on every frame (the reference: what `detect --hands` / `--face` writes) and with
-each ``--every N`` (:mod:`mocapdb.detect.landmark_schedule`), on the same decoded frames. A photo (.jpg,
+model) with every one on every frame (the reference: what `detect --hands` / `--face` writes; the full hand
+model) and with each ``--every N`` (:mod:`mocapdb.detect.landmark_schedule`; ``--hand-model lite``: the lite
+hand model in these runs, ``--every 1`` for it on every frame), on the same decoded frames. A photo (.jpg,
 .png) is made into a video of ``--frames`` frames by known similarities (:func:`photo_frames`: a turn of
 ±10° and a scale of ±8 % over 2 s, a shift of ±40 px over 1.5 s, at 30 fps). Prints BlazePose's CPU time
 per frame and per N the landmark model's (the process's, all threads), crops run and carried, and on the
@@ -26,12 +28,16 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from eval_fingers import add_hand_model_option  # noqa: E402
 
 from mocapdb.core.fingers import curl_deg, flexion_deg  # noqa: E402
 from mocapdb.detect.blazepose import BlazePose  # noqa: E402
 from mocapdb.detect.face import FaceLandmarker  # noqa: E402
 from mocapdb.detect.hands import HandLandmarker  # noqa: E402
 from mocapdb.detect.model_store import blazepose_paths, extra_model_path, hand_landmark_path  # noqa: E402
+from mocapdb.detect.options import DEFAULT_HAND_MODEL  # noqa: E402
 from mocapdb.detect.video import VideoReader  # noqa: E402
 
 PHOTO_FPS = 30.0   # a photo's video: frames per second
@@ -68,11 +74,12 @@ def truth_error(reference: list, got: list, matrices: np.ndarray) -> np.ndarray:
     return (np.linalg.norm(mesh - truth, axis=-1).mean(axis=1) / eyes * 100.0)[seen]
 
 
-def run_model(images: list[np.ndarray], poses: list[np.ndarray], every: int, face: bool
-              ) -> tuple[list, float, int, int]:
-    """The hands (``face``: faces) of every frame with the model run every ``every`` frames: results, CPU
-    ms per frame, crops run, carried."""
-    model = FaceLandmarker(extra_model_path("face"), every) if face else HandLandmarker(hand_landmark_path(), every)
+def run_model(images: list[np.ndarray], poses: list[np.ndarray], every: int, face: bool,
+              hand_model: str = DEFAULT_HAND_MODEL) -> tuple[list, float, int, int]:
+    """The hands (the ``hand_model`` landmark model; ``face``: faces) of every frame with the model run every
+    ``every`` frames: results, CPU ms per frame, crops run, carried."""
+    model = (FaceLandmarker(extra_model_path("face"), every) if face
+             else HandLandmarker(hand_landmark_path(hand_model), every))
     started = time.process_time()
     found = [model(image, pose) for image, pose in zip(images, poses)]
     return found, (time.process_time() - started) * 1000.0 / len(images), model.runs, model.schedule.carries
@@ -124,6 +131,7 @@ def main() -> int:
     ap.add_argument("--every", type=int, nargs="+", default=[2, 3], help="the rates compared (default 2 3)")
     ap.add_argument("--max-people", type=int, default=1, help="people BlazePose follows (default 1)")
     ap.add_argument("--frames", type=int, default=300, help="frames per video at most (default 300)")
+    add_hand_model_option(ap)
     args = ap.parse_args()
     what = "face" if args.face else "hand"
     print(f"{'video':16}{'every':>6}{what + ' CPU ms':>14}{'run':>6}{'carried':>8}{'compared':>9}"
@@ -135,12 +143,12 @@ def main() -> int:
         poses = [pose(image).keypoints for image in images]
         print(f"{Path(video).stem:16}  BlazePose full: {(time.process_time() - started) * 1000.0 / len(images):.2f} "
               "CPU ms a frame")
-        reference, ref_ms, ref_runs, _ = run_model(images, poses, 1, args.face)
+        reference, ref_ms, ref_runs, _ = run_model(images, poses, 1, args.face, "full")
         truth = matrices is not None and args.face
         print(f"{Path(video).stem:16}{1:6d}{ref_ms:14.2f}{ref_runs:6d}{0:8d}{'':62}"
               + (_spread(truth_error(reference, reference, matrices)) if truth else ""))
         for every in args.every:
-            got, ms, runs, carried = run_model(images, poses, every, args.face)
+            got, ms, runs, carried = run_model(images, poses, every, args.face, args.hand_model)
             points, curls, only_ref, only_got = differences(reference, got, args.face)
             print(f"{Path(video).stem:16}{every:6d}{ms:14.2f}{runs:6d}{carried:8d}{len(points):9d}"
                   f"{_spread(points)} {_spread(curls)}{only_ref:9d}{only_got:7d}"

@@ -15,11 +15,13 @@ from mocapdb.detect.options import (
     DEFAULT_CONF,
     DEFAULT_CROP_PX,
     DEFAULT_FULL_EVERY,
+    DEFAULT_HAND_MODEL,
     DEFAULT_INPUT_SIZE,
     DEFAULT_IOU,
     DETECTORS,
     FACE,
     FETCH_COMMAND,
+    HAND_MODELS,
     HANDS,
 )
 
@@ -31,7 +33,7 @@ LOG = logging.getLogger(__name__)
 
 def add_model_options(p: argparse.ArgumentParser) -> None:
     """``--blazepose VARIANT`` (the default detector), ``--model POSE.onnx`` (an export instead), ``--hands``,
-    ``--face`` and ``--max-people N``."""
+    ``--hand-model full|lite``, ``--face`` and ``--max-people N``."""
     p.add_argument("--blazepose", choices=BLAZEPOSE_VARIANTS, default=DEFAULT_BLAZEPOSE,
                    help="BlazePose landmark model, the detector used without --model (prepared by "
                         f"`{FETCH_COMMAND} [VARIANT]`; default %(default)s)")
@@ -41,6 +43,12 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
                    help="BlazePose only: also 21 points per hand from MediaPipe's hand landmark model on crops the "
                         f"pose's hand points give (prepared by `{FETCH_COMMAND} {HANDS}`; data_specs/pose_models.md, "
                         "\"Hands\")")
+    p.add_argument("--hand-model", choices=HAND_MODELS, default=DEFAULT_HAND_MODEL,
+                   help="with --hands: MediaPipe's hand landmark model, full or lite. lite takes about half the CPU "
+                        "time a hand (2.2 against 4.3 ms here) but finds fewer small hands (73 %% of those full finds "
+                        "on a 1080 x 1920 take), its finger curls differ from full's by 13-18 degrees on average and "
+                        "it misreads some thumbs (gestures on MediaPipe's photos: 11 of 12, full 12); both prepared by "
+                        f"`{FETCH_COMMAND} {HANDS}`; data_specs/pose_models.md, \"Hands\" (default %(default)s)")
     p.add_argument("--face", action="store_true",
                    help="BlazePose only: also the face mesh (468 points) from MediaPipe's face landmark model on crops "
                         f"the pose's face points give (prepared by `{FETCH_COMMAND} {FACE}`): the head turns, nods and "
@@ -128,7 +136,7 @@ def run_detect(args: argparse.Namespace) -> int:
     check_output_folder(args.out, DETECT_FILES)  # before any work; emptied once the model and the video open
     model = open_detector(args.model, args.blazepose, conf=args.conf, iou=args.iou, max_people=args.max_people,
                           input_size=args.input_size, fast=fast_path(args), hands=args.hands,
-                          faces=args.face)
+                          hand_model=args.hand_model, faces=args.face)
     reader = VideoReader(args.camera if args.camera is not None else args.video)
     stop = threading.Event()
     try:
@@ -158,8 +166,9 @@ def add_models_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("variants", nargs="*", choices=(*BLAZEPOSE_VARIANTS, HANDS, FACE), default=DEFAULT_BLAZEPOSE,
                    metavar="VARIANT", help=f"landmark models to prepare: {', '.join(BLAZEPOSE_VARIANTS)} (default "
                                            f"{DEFAULT_BLAZEPOSE}; the person detector always), and {HANDS}: the hand "
-                                           f"landmark model of detect/live --hands, {FACE}: the face landmark model "
-                                           f"of detect --face (with {DEFAULT_BLAZEPOSE} when no variant is named)")
+                                           f"landmark models ({', '.join(HAND_MODELS)}) of detect/live --hands, "
+                                           f"{FACE}: the face landmark model of detect --face (with "
+                                           f"{DEFAULT_BLAZEPOSE} when no variant is named)")
     p.set_defaults(run=run_models)
     return p
 
@@ -167,7 +176,14 @@ def add_models_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParse
 def run_models(args: argparse.Namespace) -> int:
     """``mocapdb models fetch|list``: 0 when every model asked for is ready; DetectError otherwise."""
     from mocapdb.detect.errors import DetectError
-    from mocapdb.detect.model_store import EXTRA_MODELS, blazepose_paths, extra_model_path, fetch_models, models_dir
+    from mocapdb.detect.model_store import (
+        EXTRA_MODELS,
+        blazepose_paths,
+        extra_model_path,
+        fetch_models,
+        hand_landmark_path,
+        models_dir,
+    )
 
     named = (args.variants,) if isinstance(args.variants, str) else tuple(args.variants)
     variants = tuple(v for v in named if v in BLAZEPOSE_VARIANTS) or (DEFAULT_BLAZEPOSE,)
@@ -177,16 +193,15 @@ def run_models(args: argparse.Namespace) -> int:
         extra = "".join(f" and the {e} landmarks" for e in extras)
         print(f"BlazePose {', '.join(variants)}{extra} ready in {models_dir()} ({len(paths)} models)")
         return 0
+    # (what, where it is, the `models fetch` name that prepares it)
+    models = [(v, lambda v=v: blazepose_paths(v)[1], v) for v in BLAZEPOSE_VARIANTS]
+    models += [(f"{HANDS} {v}", lambda v=v: hand_landmark_path(v), HANDS) for v in HAND_MODELS]
+    models += [(name, lambda name=name: extra_model_path(name), name) for name in EXTRA_MODELS if name != HANDS]
     ready = []
-    for variant in BLAZEPOSE_VARIANTS:
+    for what, path_of, fetch_name in models:
         try:
-            ready.append(f"{variant}: {blazepose_paths(variant)[1]}")
+            ready.append(f"{what}: {path_of()}")
         except DetectError:
-            ready.append(f"{variant}: not prepared (`{FETCH_COMMAND} {variant}`)")
-    for name in EXTRA_MODELS:
-        try:
-            ready.append(f"{name}: {extra_model_path(name)}")
-        except DetectError:
-            ready.append(f"{name}: not prepared (`{FETCH_COMMAND} {name}`)")
+            ready.append(f"{what}: not prepared (`{FETCH_COMMAND} {fetch_name}`)")
     print("\n".join([f"models in {models_dir()}"] + ready))
     return 0

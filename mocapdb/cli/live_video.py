@@ -40,7 +40,7 @@ def open_live_video(args: argparse.Namespace, stats: StreamStats) -> VideoDetect
 
     detector = open_detector(args.model, args.blazepose, conf=DEFAULT_CONF, iou=DEFAULT_IOU,
                              max_people=args.max_people, input_size=DEFAULT_INPUT_SIZE, fast=fast_path(args),
-                             hands=args.hands, hands_every=args.hands_every, faces=args.face,
-                             face_every=args.face_every, model_threads=PIPELINE_MODEL_THREADS)
+                             hands=args.hands, hands_every=args.hands_every, hand_model=args.hand_model,
+                             faces=args.face, face_every=args.face_every, model_threads=PIPELINE_MODEL_THREADS)
     return open_video_source(args.source, detector, capacity=args.buffer, stats=stats, paced=args.realtime,
                              turning=not args.still_camera)

@@ -14,6 +14,7 @@ from typing import Protocol
 import numpy as np
 
 from mocapdb.detect.model import Detections
+from mocapdb.detect.options import DEFAULT_HAND_MODEL
 
 # intra-op threads of each model in `live`'s pipeline, whose decoder, pose, landmark and engine threads share the cores:
 # there a second intra-op thread cost CPU and gained no speed (docs/benchmarks.md, "Live latency and speed: one
@@ -39,9 +40,11 @@ class FrameDetector(Protocol):
 
 def open_detector(model: str | Path | None, variant: str, *, conf: float, iou: float, max_people: int | None,
                   input_size: int, fast, hands: bool = False, faces: bool = False,
-                  hands_every: int = 1, face_every: int = 1, model_threads: int | None = None) -> FrameDetector:
+                  hands_every: int = 1, face_every: int = 1, model_threads: int | None = None,
+                  hand_model: str = DEFAULT_HAND_MODEL) -> FrameDetector:
     """BlazePose ``variant`` (lite, full, heavy) when ``model`` is None, with ``hands`` also each person's
-    hands (run every ``hands_every`` frames, carried between: :mod:`~mocapdb.detect.landmark_schedule`) and
+    hands (the ``hand_model`` landmark model, full or lite, run every ``hands_every`` frames, carried between:
+    :mod:`~mocapdb.detect.landmark_schedule`) and
     with ``faces`` their face mesh (every ``face_every`` frames alike;
     :class:`~mocapdb.detect.with_landmarks.WithLandmarks`), else the ONNX
     export ``model`` with the paths ``fast`` allows (:class:`~mocapdb.detect.tracked.FastPath`);
@@ -50,7 +53,8 @@ def open_detector(model: str | Path | None, variant: str, *, conf: float, iou: f
     when the model cannot be used, when hands or faces are asked of an export, or when BlazePose (or the
     hand or face model) is not prepared on this machine."""
     if model is None:
-        return _blazepose(variant, max_people, hands_every if hands else 0, face_every if faces else 0, model_threads)
+        return _blazepose(variant, max_people, hands_every if hands else 0, face_every if faces else 0, model_threads,
+                          hand_model)
     if hands or faces:
         from mocapdb.detect.errors import DetectError
 
@@ -63,18 +67,18 @@ def open_detector(model: str | Path | None, variant: str, *, conf: float, iou: f
 
 
 def _blazepose(variant: str, max_people: int | None, hands_every: int, face_every: int,
-               threads: int | None) -> FrameDetector:
-    """BlazePose ``variant``, with the hand (``hands_every`` > 0) and face (``face_every`` > 0) landmark models
-    asked for, each model with ``threads`` intra-op threads (:func:`open_detector`)."""
+               threads: int | None, hand_model: str = DEFAULT_HAND_MODEL) -> FrameDetector:
+    """BlazePose ``variant``, with the hand (``hand_model``, when ``hands_every`` > 0) and face (``face_every``
+    > 0) landmark models asked for, each model with ``threads`` intra-op threads (:func:`open_detector`)."""
     from mocapdb.detect.blazepose import BlazePose
-    from mocapdb.detect.model_store import blazepose_paths, extra_model_path
+    from mocapdb.detect.model_store import blazepose_paths, extra_model_path, hand_landmark_path
     from mocapdb.detect.with_landmarks import Landmarker, WithLandmarks
 
     detector_path, landmark_path = blazepose_paths(variant)
     landmarkers: dict[str, Landmarker] = {}
     if hands_every:
         from mocapdb.detect.hands import HandLandmarker
-        landmarkers["hands"] = HandLandmarker(extra_model_path("hands"), hands_every, threads)
+        landmarkers["hands"] = HandLandmarker(hand_landmark_path(hand_model), hands_every, threads)
     if face_every:
         from mocapdb.detect.face import FaceLandmarker
         landmarkers["faces"] = FaceLandmarker(extra_model_path("face"), face_every, threads)

@@ -24,7 +24,15 @@ from pathlib import Path
 
 from mocapdb.core.files import write_atomic
 from mocapdb.detect.errors import DetectError
-from mocapdb.detect.options import BLAZEPOSE_VARIANTS, DEFAULT_BLAZEPOSE, FACE, FETCH_COMMAND, HANDS
+from mocapdb.detect.options import (
+    BLAZEPOSE_VARIANTS,
+    DEFAULT_BLAZEPOSE,
+    DEFAULT_HAND_MODEL,
+    FACE,
+    FETCH_COMMAND,
+    HAND_MODELS,
+    HANDS,
+)
 
 
 @dataclass(frozen=True)
@@ -70,15 +78,20 @@ LANDMARKS = {
     "heavy": ModelFile(MEDIAPIPE_NPM, "package/pose_landmark_heavy.tflite",
                        "59e42d71bcd44cbdbabc419f0ff76686595fd265419566bd4009ef703ea8e1fe"),
 }
-# MediaPipe Hands' landmark model (224 x 224; 21 points, hand flag, handedness), prepared by `models fetch hands`
+# MediaPipe Hands' landmark models (224 x 224; 21 points, hand flag, handedness), both prepared by `models fetch hands`
 HAND_LANDMARKS = ModelFile(MEDIAPIPE_WHEEL, "mediapipe/modules/hand_landmark/hand_landmark_full.tflite",
                            "11c272b891e1a99ab034208e23937a8008388cf11ed2a9d776ed3d01d0ba00e3")
+HAND_LANDMARKS_LITE = ModelFile(MEDIAPIPE_WHEEL, "mediapipe/modules/hand_landmark/hand_landmark_lite.tflite",
+                                "048edd3645c9bf7397d19a9f6e3a42957d6e414c9bea6598030a2e9b624156e6")
+HAND_VARIANTS = dict(zip(HAND_MODELS, (HAND_LANDMARKS, HAND_LANDMARKS_LITE)))   # `--hand-model` name → file
 # MediaPipe Face Mesh's landmark model (192 x 192; 468 points, face flag), prepared by `models fetch face`
 FACE_LANDMARKS = ModelFile(MEDIAPIPE_WHEEL, "mediapipe/modules/face_landmark/face_landmark.tflite",
                            "1055cb9d4a9ca8b8c688902a3a5194311138ba256bcc94e336d8373a5f30c814")
-EXTRA_MODELS = {HANDS: HAND_LANDMARKS, FACE: FACE_LANDMARKS}   # `models fetch` names beyond the BlazePose variants
+# `models fetch` names beyond the BlazePose variants → the files each prepares
+EXTRA_MODELS = {HANDS: tuple(HAND_VARIANTS.values()), FACE: (FACE_LANDMARKS,)}
 BLAZEPOSE_AUTHORS = "Google LLC (MediaPipe BlazePose: Bazarevsky et al., 2020, arXiv:2006.10204)"
-_AUTHORS = {HAND_LANDMARKS.stem: "Google LLC (MediaPipe Hands: Zhang et al., 2020, arXiv:2006.10214)",
+_HANDS_AUTHORS = "Google LLC (MediaPipe Hands: Zhang et al., 2020, arXiv:2006.10214)"
+_AUTHORS = {**{model.stem: _HANDS_AUTHORS for model in HAND_VARIANTS.values()},
             FACE_LANDMARKS.stem: "Google LLC (MediaPipe Face Mesh: Kartynnik et al., 2019, arXiv:1907.06724)"}
 
 
@@ -116,15 +129,24 @@ def blazepose_paths(variant: str = DEFAULT_BLAZEPOSE, folder: Path | None = None
     return paths
 
 
-def hand_landmark_path(folder: Path | None = None) -> Path:
-    """The converted hand landmark model; DetectError naming the command that prepares it when missing."""
-    return extra_model_path(HANDS, folder)
+def hand_landmark_path(variant: str = DEFAULT_HAND_MODEL, folder: Path | None = None) -> Path:
+    """The converted hand landmark model ``variant`` (:data:`HAND_VARIANTS`: full, lite); DetectError naming
+    the command that prepares it when missing."""
+    if variant not in HAND_VARIANTS:
+        raise DetectError(f"unknown hand landmark model {variant!r}: one of {', '.join(HAND_MODELS)}")
+    return _prepared(HANDS, HAND_VARIANTS[variant], folder)
 
 
 def extra_model_path(name: str, folder: Path | None = None) -> Path:
-    """The converted model ``name`` of :data:`EXTRA_MODELS` (hands, face); DetectError naming the command
-    that prepares it when missing."""
-    path = onnx_path(EXTRA_MODELS[name], folder)
+    """The converted model ``name`` of :data:`EXTRA_MODELS` (hands: the default hand model, face); DetectError
+    naming the command that prepares it when missing."""
+    return hand_landmark_path(folder=folder) if name == HANDS else _prepared(name, EXTRA_MODELS[name][0], folder)
+
+
+def _prepared(name: str, model: ModelFile, folder: Path | None) -> Path:
+    """``model``'s converted file, which ``models fetch name`` prepares; DetectError naming that command when
+    missing."""
+    path = onnx_path(model, folder)
     if not path.is_file():
         raise DetectError(f"the {name} landmark model is not prepared on this machine ({path} missing): run "
                           f"`{FETCH_COMMAND} {name}` once, with access to the package index (it downloads the "
@@ -209,7 +231,7 @@ def fetch_models(variants: tuple[str, ...] = (DEFAULT_BLAZEPOSE,), folder: Path 
 
     folder = folder or models_dir()
     folder.mkdir(parents=True, exist_ok=True)
-    wanted = [DETECTOR] + [LANDMARKS[v] for v in variants] + [EXTRA_MODELS[e] for e in extras]
+    wanted = [DETECTOR] + [LANDMARKS[v] for v in variants] + [m for e in extras for m in EXTRA_MODELS[e]]
     todo = [m for m in wanted if not _card_matches(m, folder)]
     with tempfile.TemporaryDirectory(prefix="mocapdb-models-") as scratch:
         archives: dict[Package, Path] = {}
