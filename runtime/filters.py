@@ -190,10 +190,13 @@ class KeypointFilterParams:
     beta: float = 4.0
     d_cutoff_hz: float = 1.0
     undo_swaps: bool = True
+    max_swap_s: float = 0.25   # a group undone this long in a row is the detector's own labelling: kept from then
 
     def __post_init__(self) -> None:
         if not 0 < self.min_cutoff_hz <= self.max_cutoff_hz or self.noise_ref <= 0 or self.beta < 0:
             raise ValueError(f"keypoint filter needs 0 < min_cutoff <= max_cutoff, noise_ref > 0, beta >= 0: {self}")
+        if not self.max_swap_s >= 0:
+            raise ValueError(f"keypoint filter needs max_swap_s >= 0: {self}")
 
 
 class KeypointFilter:
@@ -202,7 +205,10 @@ class KeypointFilter:
     A detector that swaps a person's left and right arms (or legs) for a frame makes every joint
     of that limb pair wrong at once, more than a robust loss can ignore. Each group (arms, legs)
     whose keypoints lie closer to the track's current estimate with right and left exchanged
-    (by :data:`SWAP_MARGIN`) is exchanged back. Then each keypoint is 1€-filtered in pixels, with
+    (by :data:`SWAP_MARGIN`) is exchanged back, for at most ``max_swap_s`` in a row: a longer run
+    means the estimate holds the wrong labelling (a swap of part of a group, a turn), and the detector's
+    is taken from then on (otherwise every later, right, frame would be exchanged). Then each
+    keypoint is 1€-filtered in pixels, with
     speeds measured in the person's box heights per second so the tuning does not depend on the
     image size or distance: detector jitter is removed before the fit turns it into depth errors
     (a 5 px error along a limb reads as a tilt of the limb out of the image plane). Unseen
@@ -220,6 +226,7 @@ class KeypointFilter:
         self.raw = np.zeros((2, n_keypoints, 2))      # the last two frames' input, newest first
         self.raw_seen = np.zeros((2, n_keypoints), dtype=np.bool_)
         self.noise = np.array([params.noise_ref])    # running jitter σ (box heights)
+        self.swap_run_s = np.full(len(_SWAP_GROUPS), np.nan)  # per group: when its run of undone swaps began
         self.swaps = 0
 
     def __call__(self, points_px: np.ndarray, confidence: np.ndarray, t_s: float) -> np.ndarray:
@@ -228,7 +235,7 @@ class KeypointFilter:
         points, seen = np.asarray(points_px, dtype=np.float64), confidence > 0
         self.swaps += _keypoint_step(self.value, self.speed, self.seen_s, self.last_s, self.out, points, seen, t_s,
                                      self.reset_s, self._cutoff(points, seen), p.beta, p.d_cutoff_hz, p.undo_swaps,
-                                     _SWAP_GROUPS)
+                                     _SWAP_GROUPS, self.swap_run_s, p.max_swap_s)
         return self.out.copy()
 
     def _cutoff(self, points: np.ndarray, seen: np.ndarray) -> float:
@@ -271,7 +278,7 @@ def _update_jitter(raw, raw_seen, points, seen, noise) -> None:
 
 @njit(cache=True)
 def _keypoint_step(value, speed, seen_s, last_s, out, points, seen, t_s, reset_s, min_cutoff, beta, d_cutoff,
-                   undo_swaps, groups) -> int:
+                   undo_swaps, groups, swap_run_s, max_swap_s) -> int:
     """One :class:`KeypointFilter` update (state in place, result in ``out``); returns swaps undone."""
     out[:] = points
     if np.isfinite(last_s[0]) and t_s <= last_s[0]:  # not after the last frame: no update
@@ -285,7 +292,7 @@ def _keypoint_step(value, speed, seen_s, last_s, out, points, seen, t_s, reset_s
         fresh[k] = seen[k] and (first or t_s - seen_s[k] > reset_s)
     swaps = 0
     if undo_swaps and not first:
-        swaps = _undo_swaps(out, value, seen, fresh, groups)
+        swaps = _undo_swaps(out, value, seen, fresh, groups, t_s, swap_run_s, max_swap_s)
     if not first:
         lo, hi, n = np.inf, -np.inf, 0
         for k in range(seen.shape[0]):
@@ -311,8 +318,11 @@ def _keypoint_step(value, speed, seen_s, last_s, out, points, seen, t_s, reset_s
 
 
 @njit(cache=True)
-def _undo_swaps(points, value, seen, fresh, groups) -> int:
-    """Exchange right and left in each group of pairs that fits the estimate that way (in place)."""
+def _undo_swaps(points, value, seen, fresh, groups, t_s, run_s, max_run_s) -> int:
+    """Exchange right and left in each group of pairs that fits the estimate that way (in place), unless
+    the group's run of exchanges (begun at ``run_s[g]``, NaN: none; updated) has lasted over ``max_run_s``:
+    the estimate, not the detector, then holds the wrong labelling; its points start afresh from the
+    detector's."""
     swaps = 0
     for g in range(groups.shape[0]):
         keep, swap = 0.0, 0.0
@@ -321,13 +331,22 @@ def _undo_swaps(points, value, seen, fresh, groups) -> int:
             if seen[right] and seen[left] and not fresh[right] and not fresh[left]:
                 keep += _dist(points[right], value[right]) + _dist(points[left], value[left])
                 swap += _dist(points[right], value[left]) + _dist(points[left], value[right])
-        if swap < SWAP_MARGIN * keep:
-            swaps += 1
+        if not swap < SWAP_MARGIN * keep:
+            run_s[g] = np.nan
+            continue
+        if np.isnan(run_s[g]):
+            run_s[g] = t_s
+        if t_s - run_s[g] > max_run_s:
             for i in range(groups.shape[1]):
-                right, left = groups[g, i, 0], groups[g, i, 1]
-                if seen[right] and seen[left]:
-                    for c in range(2):
-                        points[right, c], points[left, c] = points[left, c], points[right, c]
+                fresh[groups[g, i, 0]] = seen[groups[g, i, 0]]
+                fresh[groups[g, i, 1]] = seen[groups[g, i, 1]]
+            continue
+        swaps += 1
+        for i in range(groups.shape[1]):
+            right, left = groups[g, i, 0], groups[g, i, 1]
+            if seen[right] and seen[left]:
+                for c in range(2):
+                    points[right, c], points[left, c] = points[left, c], points[right, c]
     return swaps
 
 

@@ -177,6 +177,45 @@ def test_keypoint_filter_undoes_a_left_right_swap_of_the_arms():
     np.testing.assert_allclose(off(swapped, conf, 5 / 30.0), swapped, atol=0.01)
 
 
+def _arms_swapped(px):
+    from mocapdb.runtime.filters import ARM_PAIRS
+    swapped = px.copy()
+    for right, left in ARM_PAIRS:
+        swapped[[right, left]] = px[[left, right]]
+    return swapped
+
+
+def test_keypoint_filter_undoes_a_run_of_swaps_but_not_a_wrong_labelling_for_ever():
+    """By hand, without smoothing (value = output): frame 5 is a detector mid-flip (shoulders exchanged,
+    elbows and wrists on the body's mid-line): keep 420 px against swap 260 px, not undone (260 > 0.5 x
+    420); frame 6 has the arms fully exchanged: against frame 5, keep 260 against swap 420, not undone:
+    the estimate now holds the exchanged labelling, and every later (right) frame fits it exchanged
+    (keep 680, swap 0). Without a bound every later frame is exchanged; with max_swap_s = 0.25 s (30 fps)
+    frames 7-14 are (t - 7/30 <= 0.25 s), from frame 15 on the detector's labelling is taken."""
+    from mocapdb.core.skeleton import KP
+    from mocapdb.runtime.filters import KeypointFilter, KeypointFilterParams
+    px, conf, fps = _standing_keypoints(), np.ones(14), 30.0
+    swapped = _arms_swapped(px)
+    mid_flip = swapped.copy()
+    for part, y in (("elbow", 240.0), ("wrist", 310.0)):
+        mid_flip[KP[f"r_{part}"]] = mid_flip[KP[f"l_{part}"]] = (500.0, y)
+    frames = [px] * 5 + [mid_flip, swapped] + [px] * 23
+    unsmoothed = dict(min_cutoff_hz=1e6, max_cutoff_hz=1e6)
+    unbounded = KeypointFilter(KeypointFilterParams(max_swap_s=np.inf, **unsmoothed), 14)
+    bounded = KeypointFilter(KeypointFilterParams(**unsmoothed), 14)
+    for i, points in enumerate(frames):
+        locked, freed = unbounded(points, conf, i / fps), bounded(points, conf, i / fps)
+        if i >= 7:
+            np.testing.assert_allclose(locked, swapped, atol=0.01)
+            np.testing.assert_allclose(freed, swapped if i <= 14 else px, atol=0.01)
+    assert unbounded.swaps == 23 and bounded.swaps == 8
+    # a run of swaps shorter than the bound is undone throughout
+    short = KeypointFilter(KeypointFilterParams(**unsmoothed), 14)
+    for i, points in enumerate([px] * 5 + [swapped] * 3 + [px] * 5):
+        np.testing.assert_allclose(short(points, conf, i / fps), px, atol=0.01)
+    assert short.swaps == 3
+
+
 def test_keypoint_filter_smooths_jitter_and_follows_motion():
     from mocapdb.runtime.filters import KeypointFilter, KeypointFilterParams
     rng = np.random.default_rng(0)
