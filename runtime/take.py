@@ -4,7 +4,8 @@ The per-frame engine is causal: each frame is fitted from the past alone, so det
 as jitter, a wrong retrieval as a pop, and the depth (read from the body's image size) wanders,
 which makes planted feet slide. With the whole track at hand (`mocapdb reconstruct`, and the BVH
 `mocapdb live` writes when a track ends), :func:`fit_take` works on the unfiltered per-frame fits
-(``EngineConfig.keep_take``):
+(``EngineConfig.keep_take``), the detector's left/right labels first made consistent over the take
+(:mod:`mocapdb.runtime.side_labels`):
 
 1. **Rotations**: made sign-continuous, single-frame pops removed by a running median over
    :attr:`TakeParams.pop_frames` frames, then smoothed without lag by a zero-phase Gaussian whose
@@ -111,6 +112,7 @@ from mocapdb.runtime.hand_pose import (
 from mocapdb.runtime.head_pose import chest_relative_head, face_points, head_local
 from mocapdb.runtime.mesh_head import eased_presence, mesh_model, mesh_observations
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
+from mocapdb.runtime.side_labels import BODY_PAIRS, EXTREMITY_PAIRS, consistent_sides
 from mocapdb.runtime.take_params import TakeParams
 from mocapdb.runtime.take_smoothing import smooth_rotations, smoothed_keypoints, zero_phase_smoothed
 from mocapdb.runtime.world.contact_floor import above_floor, floor_plane
@@ -148,7 +150,7 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     scale = float(scales[-1])
     quats = smooth_rotations(rec.column("fit_quaternions"), fps, params)
     root = rec.column("fit_root_view_m") * (scale / scales)[:, None]
-    keypoints = rec.column("keypoints")
+    keypoints = consistent_sides(rec.column("keypoints"), BODY_PAIRS, fps)[0]
     offsets = None if rec.proportions_m is None else body_offsets_m(rec.proportions_m)
     if params.refit_prior > 0 and rec.camera_px is not None:
         quats = refit_to_image(quats, root, smoothed_keypoints(keypoints, fps, params), scale, offsets,
@@ -157,6 +159,8 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
     up, up_sd_deg = track_up(rec)
     relative = pose_from_rotations(quats, np.zeros_like(root), scale, offsets)[:, ANKLES]  # ankles − root
     extremities = rec.column("extremities")
+    if len(extremities):
+        extremities = consistent_sides(extremities, EXTREMITY_PAIRS, fps)[0]
     ends = bool(len(extremities)) and bool((extremities[:, :N_FEET_HANDS, 2] > 0).any()) and rec.camera_px is not None
     phases = foot_phases(extremities, box_height_px(keypoints), fps, params) if ends else None
     planted = planted_ankles(keypoints, root[:, None] + relative, up, fps, params, phases)

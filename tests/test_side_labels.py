@@ -1,0 +1,66 @@
+"""The whole take's side labels (runtime/side_labels.py) on a hand-made walk whose sides a detector exchanged:
+the exchanged frames and pairs found exactly, a genuine crossing and a long run left as they are."""
+import numpy as np
+
+from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D
+from mocapdb.runtime.side_labels import BODY_PAIRS, consistent_sides
+
+FPS = 60.0
+
+
+def _walk(frames: int = 120) -> np.ndarray:
+    """``[F, 14, 3]``: a person 400 px tall walking right at 2 px a frame, each right point 40-80 px to the
+    image's right of its left one, the limbs swinging; every point seen."""
+    t = np.arange(frames)[:, None]
+    points = np.zeros((frames, N_KEYPOINTS_2D, 3))
+    heights = {"head": 100, "neck": 150, "shoulder": 160, "elbow": 240, "wrist": 310, "hip": 330, "knee": 420,
+               "ankle": 500}
+    for name, y in heights.items():
+        half = 0.0 if name in ("head", "neck") else (40.0 if name in ("shoulder", "hip") else 30.0)
+        swing = 15.0 * np.sin(2 * np.pi * t / 60.0) if name in ("elbow", "wrist", "knee", "ankle") else 0.0
+        for side, sign in (("r_", 1.0), ("l_", -1.0)):
+            key = name if name in ("head", "neck") else side + name
+            points[:, KP[key], 0] = (200.0 + 2.0 * t + sign * half + sign * swing)[:, 0]
+            points[:, KP[key], 1] = y
+            points[:, KP[key], 2] = 0.9
+    return points
+
+
+def _exchange(points: np.ndarray, frames, parts) -> None:
+    for part in parts:
+        right, left = KP[f"r_{part}"], KP[f"l_{part}"]
+        points[frames, right], points[frames, left] = points[frames, left], points[frames, right].copy()
+
+
+def test_exchanged_runs_single_frames_and_partial_flips_are_found_exactly():
+    clean = _walk()
+    seen = clean.copy()
+    _exchange(seen, slice(40, 46), ("shoulder", "elbow", "wrist"))   # 6 frames, the arms (a BlazePose flip)
+    _exchange(seen, [20, 70], ("knee", "ankle"))                      # single frames, the legs
+    _exchange(seen, [55], ("wrist",))                                 # a partial flip: one pair
+    seen[30, KP["l_elbow"], 2] = 0.0                                  # unseen: its pair is left alone
+    _exchange(seen, [30], ("elbow",))
+    out, exchanged = consistent_sides(seen, BODY_PAIRS, FPS)
+    expected = np.zeros_like(exchanged)
+    for frames, parts in ((range(40, 46), ("shoulder", "elbow", "wrist")), ([20, 70], ("knee", "ankle")),
+                          ([55], ("wrist",))):
+        for part in parts:
+            expected[list(frames), list(BODY_PAIRS[:, 0]).index(KP[f"r_{part}"])] = True
+    assert np.array_equal(exchanged, expected)
+    restored = np.delete(np.arange(len(clean)), 30)
+    assert np.array_equal(out[restored], clean[restored])
+    assert np.array_equal(out[30], seen[30])
+
+
+def test_a_genuine_crossing_and_a_long_run_keep_their_labels():
+    """Wrists that cross the body's mid-line (the arms folded) move smoothly through it: no frame is nearer
+    exchanged. A run longer than half the window (0.2 s) is the take's own labelling."""
+    crossing = _walk()
+    right, left = KP["r_wrist"], KP["l_wrist"]
+    centre = 0.5 * (crossing[:, right, 0] + crossing[:, left, 0])
+    offset = np.linspace(30.0, -30.0, len(crossing))   # the right wrist from the right of the mid-line to its left
+    crossing[:, right, 0], crossing[:, left, 0] = centre + offset, centre - offset
+    assert not consistent_sides(crossing, BODY_PAIRS, FPS)[1].any()
+    long_run = _walk()
+    _exchange(long_run, slice(40, 70), ("shoulder", "elbow", "wrist"))   # 0.5 s
+    assert not consistent_sides(long_run, BODY_PAIRS, FPS)[1].any()
