@@ -6,7 +6,9 @@ When frame ``t`` arrives, frame ``t − L`` is written, each person in it throug
 
 1. **Rotations and root, filtered.** The engine's own 1€ filters are off (the per-frame fits come
    in). The rotations: per joint a Kalman filter at constant angular velocity in the tangent space
-   about its prediction, each frame's fit weighed by its keypoints' confidence, and with ``L > 0`` a
+   about its prediction, each frame's fit weighed by its keypoints' confidence (a frame whose side labels
+   lie exchanged against the recent frames', :func:`~mocapdb.runtime.side_labels.exchanged_now`, as
+   unseen: a detector's flip), and with ``L > 0`` a
    fixed-lag Rauch–Tung–Striebel smoother back from frame ``t``
    (:class:`~mocapdb.runtime.rotation_kalman.RotationKalman`; ``rotation_noise``): it predicts
    instead of delaying, so at ``L = 0`` a turning joint is not dragged behind what the keypoints show,
@@ -91,7 +93,8 @@ from mocapdb.runtime.foot_contacts import ANKLES, CONTACT_WINDOW_S, HEELS, TOES
 from mocapdb.runtime.online_ends import OnlineEnds
 from mocapdb.runtime.online_fingers import OnlineFingers
 from mocapdb.runtime.root_filter import RESTART_GAP_S, RootFilter
-from mocapdb.runtime.rotation_kalman import RotationKalman, RotationNoise, joint_confidence
+from mocapdb.runtime.rotation_kalman import MIN_CONFIDENCE, RotationKalman, RotationNoise, joint_confidence
+from mocapdb.runtime.side_labels import BODY_PAIRS, LABEL_WINDOW_S, exchanged_now
 from mocapdb.runtime.take import plant_feet
 from mocapdb.runtime.take_params import TakeParams
 
@@ -215,13 +218,15 @@ class OnlineTrack:
         self.carried = RootFilter(fps, TakeParams(root_across_m=params.carried_root_sd_m,
                                                   root_depth_m=params.carried_root_depth_m))
         self.rotations = RotationKalman(fps, params.lag_frames, params.rotation_noise)
+        self.label_frames = max(round(LABEL_WINDOW_S * fps), 3)
+        self.labelled: deque[np.ndarray] = deque(maxlen=self.label_frames)   # the recent frames' keypoints
         self.max_turn = np.radians([JOINT_SPEED_DEG_S[j] for j in RIG_JOINTS]) / fps  # radians per frame
 
     def add(self, index: int, pose: PersonPose) -> None:
         """One frame's per-frame pose of the track."""
         self.recent[index] = pose
         self.last_index = index
-        self.rotations.add(index, pose.quaternions, joint_confidence(pose.keypoints_px))
+        self.rotations.add(index, pose.quaternions, self._confidence(pose.keypoints_px))
         if self.ends is not None:
             self.ends.add(index, pose)
         if pose.hands_px is not None and (self.fingers is not None or np.isfinite(pose.hands_px).any()):
@@ -236,6 +241,19 @@ class OnlineTrack:
         oldest = index - 2 * max(self.params.lag_frames, self.half_window) - 1
         for old in [i for i in self.recent if i < oldest]:
             del self.recent[old]
+
+    def _confidence(self, keypoints_px: np.ndarray | None) -> np.ndarray:
+        """``[R]`` the rig joints' confidence in this frame's fit (:func:`joint_confidence`); a frame whose
+        side labels lie exchanged against the recent frames' (:func:`~mocapdb.runtime.side_labels.exchanged_now`,
+        once half its window is seen) was fitted to a detector's flip: each joint counts as unseen."""
+        confidence = joint_confidence(keypoints_px)
+        if keypoints_px is None:
+            return confidence
+        if 2 * len(self.labelled) >= self.label_frames and \
+                exchanged_now(np.array(self.labelled), keypoints_px, BODY_PAIRS).any():
+            confidence = np.minimum(confidence, MIN_CONFIDENCE)
+        self.labelled.append(keypoints_px)
+        return confidence
 
     def output(self, index: int, pose: PersonPose) -> PersonPose:
         """The pose of frame ``index`` (whose per-frame pose is ``pose``) through the steps."""

@@ -1,5 +1,7 @@
 """The whole take's side labels (runtime/side_labels.py) on a hand-made walk whose sides a detector exchanged:
 the exchanged frames and pairs found exactly, a genuine crossing and a long run left as they are."""
+import warnings
+
 import numpy as np
 
 from mocapdb.core.skeleton import KP, N_KEYPOINTS_2D
@@ -64,3 +66,44 @@ def test_a_genuine_crossing_and_a_long_run_keep_their_labels():
     long_run = _walk()
     _exchange(long_run, slice(40, 70), ("shoulder", "elbow", "wrist"))   # 0.5 s
     assert not consistent_sides(long_run, BODY_PAIRS, FPS)[1].any()
+
+
+def test_the_streams_causal_check_marks_a_flip_against_the_frames_before_and_counts_it_unseen():
+    """exchanged_now judges a frame against the recent frames' median alone; the online take then counts every
+    joint of a flipped frame's fit as unseen (MIN_CONFIDENCE), and a frame as labelled as the others as seen."""
+    from mocapdb.runtime.online_take import OnlineParams, OnlineTrack
+    from mocapdb.runtime.rotation_kalman import MIN_CONFIDENCE, joint_confidence
+    from mocapdb.runtime.side_labels import exchanged_now
+
+    walk = _walk()
+    flipped = walk[30].copy()
+    _exchange(flipped[None], [0], ("knee", "ankle"))
+    assert list(exchanged_now(walk[6:30], flipped, BODY_PAIRS)) == [False] * 4 + [True] * 2
+    assert not exchanged_now(walk[6:30], walk[30], BODY_PAIRS).any()
+    track = OnlineTrack(FPS, OnlineParams())
+    for frame in walk[:30]:
+        assert np.array_equal(track._confidence(frame), joint_confidence(frame))
+    assert np.all(track._confidence(flipped) == MIN_CONFIDENCE)
+    assert np.array_equal(track._confidence(walk[31]), joint_confidence(walk[31]))
+
+
+def test_the_causal_kernel_matches_a_nan_median_reference():
+    """exchanged_now's numba kernel against NumPy's NaN median written out, on random frames with unseen points."""
+    from mocapdb.runtime.side_labels import LABEL_MARGIN, exchanged_now
+
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        recent = np.concatenate([rng.normal(300, 40, (24, N_KEYPOINTS_2D, 2)),
+                                 (rng.random((24, N_KEYPOINTS_2D, 1)) > 0.2) * 0.9], axis=2)
+        points = np.concatenate([rng.normal(300, 40, (N_KEYPOINTS_2D, 2)),
+                                 (rng.random((N_KEYPOINTS_2D, 1)) > 0.1) * 0.9], axis=1)
+        xy = np.where((recent[..., 2] > 0)[..., None], recent[..., :2], np.nan)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)   # an all-NaN point: its median NaN
+            median = np.nanmedian(xy, axis=0)
+        expected = []
+        for right, left in BODY_PAIRS:
+            labelled = np.hypot(*(points[right, :2] - median[right])) + np.hypot(*(points[left, :2] - median[left]))
+            crossed = np.hypot(*(points[right, :2] - median[left])) + np.hypot(*(points[left, :2] - median[right]))
+            expected.append(bool(points[right, 2] > 0 and points[left, 2] > 0 and crossed < LABEL_MARGIN * labelled))
+        assert list(exchanged_now(recent, points, BODY_PAIRS)) == expected
