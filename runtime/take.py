@@ -5,7 +5,8 @@ as jitter, a wrong retrieval as a pop, and the depth (read from the body's image
 which makes planted feet slide. With the whole track at hand (`mocapdb reconstruct`, and the BVH
 `mocapdb live` writes when a track ends), :func:`fit_take` works on the unfiltered per-frame fits
 (``EngineConfig.keep_take``), the detector's left/right labels first made consistent over the take
-(:mod:`mocapdb.runtime.side_labels`):
+(:mod:`mocapdb.runtime.side_labels`) and the fits of the frames whose labels were exchanged bridged over
+(:func:`~mocapdb.runtime.take_smoothing.bridged_frames`: a fit to a detector's flip counts as none):
 
 1. **Rotations**: made sign-continuous, single-frame pops removed by a running median over
    :attr:`TakeParams.pop_frames` frames, then smoothed without lag by a zero-phase Gaussian whose
@@ -114,7 +115,7 @@ from mocapdb.runtime.mesh_head import eased_presence, mesh_model, mesh_observati
 from mocapdb.runtime.refine import JointLimits, RefineParams, Refiner
 from mocapdb.runtime.side_labels import BODY_PAIRS, EXTREMITY_PAIRS, consistent_sides
 from mocapdb.runtime.take_params import TakeParams
-from mocapdb.runtime.take_smoothing import smooth_rotations, smoothed_keypoints, zero_phase_smoothed
+from mocapdb.runtime.take_smoothing import bridged_frames, smooth_rotations, smoothed_keypoints, zero_phase_smoothed
 from mocapdb.runtime.world.contact_floor import above_floor, floor_plane
 from mocapdb.runtime.world.detector_prior import track_up
 from mocapdb.runtime.world.image_vertical import vertical_planes
@@ -148,9 +149,10 @@ def fit_take(rec: TrackRecording, fps: float, params: TakeParams = TakeParams())
         raise ValueError(f"track {rec.track}: no per-frame fits kept (EngineConfig.keep_take)")
     scales = rec.scales
     scale = float(scales[-1])
-    quats = smooth_rotations(rec.column("fit_quaternions"), fps, params)
+    keypoints, exchanged = consistent_sides(rec.column("keypoints"), BODY_PAIRS, fps)
     root = rec.column("fit_root_view_m") * (scale / scales)[:, None]
-    keypoints = consistent_sides(rec.column("keypoints"), BODY_PAIRS, fps)[0]
+    fits, root = bridged_frames(rec.column("fit_quaternions"), root, np.any(exchanged, axis=1))   # fits to a flip: none
+    quats = smooth_rotations(fits, fps, params)
     offsets = None if rec.proportions_m is None else body_offsets_m(rec.proportions_m)
     if params.refit_prior > 0 and rec.camera_px is not None:
         quats = refit_to_image(quats, root, smoothed_keypoints(keypoints, fps, params), scale, offsets,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, median_filter
 
+from mocapdb.core.geometry import slerp
 from mocapdb.runtime.take_params import TakeParams
 
 MIN_SIGMA_FRAMES = 0.05   # narrower Gaussians (cut-offs above ~3 × the frame rate) leave the rotations as they are
@@ -35,6 +36,23 @@ def zero_phase_smoothed(values: np.ndarray, fps: float, cutoff_hz: float) -> np.
     if sigma_frames < MIN_SIGMA_FRAMES:
         return values
     return gaussian_filter1d(values, sigma_frames, axis=0, mode="nearest")
+
+
+def bridged_frames(quats: np.ndarray, root_m: np.ndarray, skip: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``quats [F, R, 4]`` and ``root_m [F, 3]`` with the ``skip [F]`` frames' values interpolated between the
+    nearest frames not skipped (quaternions by slerp, signs aligned; held beyond the first and last); as given
+    where no frame or every frame is skipped."""
+    keep, frames = np.flatnonzero(~skip), np.flatnonzero(skip)
+    if not len(frames) or not len(keep):
+        return quats, root_m
+    after = np.searchsorted(keep, frames)
+    a, b = keep[np.maximum(after - 1, 0)], keep[np.minimum(after, len(keep) - 1)]
+    share = np.where(b > a, (frames - a) / np.maximum(b - a, 1), 0.0)
+    towards = quats[b] * np.where(np.sum(quats[a] * quats[b], axis=-1, keepdims=True) < 0, -1.0, 1.0)
+    out_quats, out_root = quats.copy(), root_m.copy()
+    out_quats[frames] = slerp(quats[a], towards, np.repeat(share[:, None], quats.shape[1], axis=1))
+    out_root[frames] = root_m[a] + share[:, None] * (root_m[b] - root_m[a])
+    return out_quats, out_root
 
 
 def smoothed_keypoints(keypoints: np.ndarray, fps: float, params: TakeParams) -> np.ndarray:

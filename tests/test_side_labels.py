@@ -107,3 +107,23 @@ def test_the_causal_kernel_matches_a_nan_median_reference():
             crossed = np.hypot(*(points[right, :2] - median[left])) + np.hypot(*(points[left, :2] - median[right]))
             expected.append(bool(points[right, 2] > 0 and points[left, 2] > 0 and crossed < LABEL_MARGIN * labelled))
         assert list(exchanged_now(recent, points, BODY_PAIRS)) == expected
+
+
+def test_the_fits_of_flipped_frames_are_bridged_by_their_neighbours():
+    """bridged_frames: skipped frames interpolated by hand-computable turns about one axis (slerp is then exact),
+    a neighbour's opposite sign aligned, the root linear, the ends held."""
+    from mocapdb.runtime.take_smoothing import bridged_frames
+
+    def about_z(deg):
+        half = np.radians(deg) / 2
+        return np.array([np.cos(half), 0.0, 0.0, np.sin(half)])
+    quats = np.stack([about_z(d) for d in (0, 10, 99, 99, 40, 50, 99)])[:, None]   # 99: a flipped frame's fit
+    quats[4] *= -1.0                                                               # the same turn, other sign
+    root = np.array([[0.0, 0.0, -3.0]] * 7)
+    root[:, 0] = [0.0, 0.1, 9.0, 9.0, 0.4, 0.5, 9.0]
+    skip = np.array([False, False, True, True, False, False, True])
+    out_quats, out_root = bridged_frames(quats, root, skip)
+    for frame, deg in ((2, 20.0), (3, 30.0), (6, 50.0)):
+        assert abs(abs(out_quats[frame, 0] @ about_z(deg)) - 1.0) < 1e-12
+    assert np.allclose(out_root[[2, 3, 6], 0], [0.2, 0.3, 0.5]) and np.array_equal(out_quats[~skip], quats[~skip])
+    assert bridged_frames(quats, root, np.ones(7, dtype=bool))[0] is quats
