@@ -61,13 +61,13 @@ def smoothed_keypoints(keypoints: np.ndarray, fps: float, params: TakeParams) ->
     cut-off ``smoothing_hz``), each keypoint's unseen frames bridged by its seen neighbours first; an
     unseen keypoint stays unseen, and one seen fewer than twice stays as it is."""
     out = keypoints.copy()
-    xy = depopped_and_smoothed(_bridged(keypoints[..., :2], keypoints[..., 2] > 0), fps, params)
+    xy = depopped_and_smoothed(gaps_bridged(keypoints[..., :2], keypoints[..., 2] > 0), fps, params)
     seen = (keypoints[..., 2] > 0) & np.isfinite(xy).all(axis=-1)
     out[..., :2] = np.where(seen[..., None], xy, keypoints[..., :2])
     return out
 
 
-def _bridged(xy: np.ndarray, seen: np.ndarray) -> np.ndarray:
+def gaps_bridged(xy: np.ndarray, seen: np.ndarray) -> np.ndarray:
     """``xy [F, K, 2]`` with each keypoint's unseen frames linearly interpolated between its seen ones
     (held at the ends); NaN for a keypoint seen fewer than twice."""
     out = np.full_like(xy, np.nan, dtype=np.float64)
